@@ -1,0 +1,33 @@
+"""The paper's sensor and scene numbers, in one place.
+
+Source: Tomita, Skinner & Ho, "Bayesian Deep Learning for Segmentation for Autonomous Safe
+Planetary Landing" (``shared/seed/bayesian-segnet-hazard-detection.tex``), section
+"Dataset Preparation" and Table "Sensor parameters".
+"""
+
+from __future__ import annotations
+
+# Table "Sensor parameters": detector size 128x128.
+DETECTOR_ROWS: int = 128
+DETECTOR_COLS: int = 128
+# Table "Sensor parameters": horizontal and vertical field of view, 12 degrees each.
+FOV_DEG: float = 12.0
+# Table "Sensor parameters": focal length 25 cm (informational: only the FOV shapes the rays).
+FOCAL_LENGTH_M: float = 0.25
+# "the sensor is moved across the terrain at a fixed altitude of 500 m".
+ALTITUDE_M: float = 500.0
+# Noise levels, 1-sigma along each ray: S-167 (5 cm / 3), S-300 and S-700.
+SIGMA_S167_M: float = 0.05 / 3.0
+SIGMA_S300_M: float = 0.03
+SIGMA_S700_M: float = 0.07
+PAPER_SIGMAS_M: tuple[float, float, float] = (SIGMA_S167_M, SIGMA_S300_M, SIGMA_S700_M)
+# The CLI default for --sigma (metres): S-167 rounded to 0.1 mm as written in the CLI contract.
+DEFAULT_SIGMA_M: float = 0.0167
+# "We generated simulated datasets of 1000 DEMs" (800 train / 100 val / 100 test).
+N_SCANS: int = 1000
+SPLIT_FRACTIONS: tuple[float, float, float] = (0.8, 0.1, 0.1)
+# "Due to memory limitations, we load the DTM at 25% of the full resolution"; hd reads
+# windows instead, so its default is full resolution (1.0). The paper's value is kept for recipes.
+PAPER_DTM_SCALE: float = 0.25
+# HiRISE DTM NULL value (PDS3 label MISSING_CONSTANT); mask with <=, never ==.
+HIRISE_NULL: float = -3.4028227e38
