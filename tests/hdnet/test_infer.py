@@ -1,0 +1,109 @@
+"""MC-dropout inference: BN untouched, shared prefix == naive passes under the same masks, entropy."""
+
+import math
+
+import pytest
+import torch
+
+from hdnet.errors import HdNetError
+from hdnet.infer import mc_dropout_mode, mc_dropout_predict, mc_dropout_predict_naive, predictive_entropy
+from hdnet.model import BayesianSegNet
+
+
+def _model() -> BayesianSegNet:
+    torch.manual_seed(0)
+    model = BayesianSegNet(width=1 / 16)
+    model.train()
+    with torch.no_grad():  # non-trivial running statistics
+        for _ in range(3):
+            model(torch.randn(4, 1, 32, 32))
+    return model
+
+
+class MaskInjector:
+    """Forward hooks replacing each dropout's output by input * fixed mask / (1 - p).
+
+    Masks are drawn once per module for M samples, shape (M, N, C, h, w). A call with batch k*N uses
+    the next k samples' masks, sample-major: k = 1 on the naive path, k = M (or a chunk) when batched.
+    """
+
+    def __init__(self, model: BayesianSegNet, n: int, m: int, seed: int) -> None:
+        self.n, self.m, self.gen = n, m, torch.Generator().manual_seed(seed)
+        self.masks: dict[int, torch.Tensor] = {}
+        self.calls: dict[int, int] = {}
+        self.handles = [d.register_forward_hook(self.hook) for d in model.dropout_modules()]
+
+    def hook(self, module, inputs, output):
+        x = inputs[0]
+        key = id(module)
+        if key not in self.masks:
+            shape = (self.m, self.n, *x.shape[1:])
+            self.masks[key] = (torch.rand(shape, generator=self.gen) >= module.p).float()
+        k = x.shape[0] // self.n
+        start = self.calls.get(key, 0)
+        self.calls[key] = start + k
+        mask = self.masks[key][start : start + k].reshape(-1, *x.shape[1:])
+        return x * mask / (1 - module.p)
+
+    def remove(self) -> None:
+        for h in self.handles:
+            h.remove()
+
+
+def test_sampling_leaves_batchnorm_statistics_and_modes_untouched() -> None:
+    model = _model()
+    model.train()
+    before = {k: v.clone() for k, v in model.state_dict().items()}
+    mc_dropout_predict(model, torch.randn(2, 1, 32, 32), n_samples=4)
+    mc_dropout_predict_naive(model, torch.randn(2, 1, 32, 32), n_samples=2)
+    after = model.state_dict()
+    for key, value in before.items():
+        assert torch.equal(value, after[key]), key
+    assert all(m.training for m in model.modules())  # modes restored
+
+
+def test_mode_inside_context_is_eval_except_dropout() -> None:
+    model = _model().eval()
+    with mc_dropout_mode(model) as net:
+        for m in net.modules():
+            assert m.training == (m in net.dropout_modules())
+    assert not any(m.training for m in model.modules())
+
+
+@pytest.mark.parametrize("chunk", [None, 3, 1])
+def test_shared_prefix_equals_naive_under_same_masks(chunk) -> None:
+    model = _model()
+    x = torch.randn(2, 1, 40, 36)
+    m = 5
+    inj = MaskInjector(model, n=2, m=m, seed=1)
+    naive = mc_dropout_predict_naive(model, x, n_samples=m)
+    inj.calls.clear()
+    shared = mc_dropout_predict(model, x, n_samples=m, samples_per_pass=chunk)
+    assert all(c == m for c in inj.calls.values()) and len(inj.calls) == 6
+    inj.remove()
+    torch.testing.assert_close(shared.mean_probs, naive.mean_probs)
+    assert torch.equal(shared.prediction, naive.prediction)
+    torch.testing.assert_close(shared.entropy_nats, naive.entropy_nats)
+    # The masks matter: without them the samples differ from this result.
+    assert not torch.allclose(mc_dropout_predict(model, x, n_samples=m).mean_probs, naive.mean_probs)
+
+
+def test_output_shapes_and_probabilities() -> None:
+    out = mc_dropout_predict(_model(), torch.randn(3, 1, 32, 32), n_samples=4)
+    assert out.mean_probs.shape == (3, 2, 32, 32) and out.prediction.shape == (3, 32, 32)
+    torch.testing.assert_close(out.mean_probs.sum(1), torch.ones(3, 32, 32))
+    assert (out.entropy_nats >= 0).all() and (out.entropy_nats <= math.log(2) + 1e-6).all()
+
+
+def test_entropy_of_uniform_two_class_mean_is_ln2_and_certain_is_zero() -> None:
+    p = torch.tensor([[0.5, 1.0], [0.5, 0.0]]).view(1, 2, 1, 2)
+    h = predictive_entropy(p)
+    torch.testing.assert_close(h, torch.tensor([[[math.log(2), 0.0]]]))
+    q = torch.tensor([0.2, 0.8]).view(1, 2, 1, 1)
+    expected = -(0.2 * math.log(0.2) + 0.8 * math.log(0.8))
+    assert predictive_entropy(q).item() == pytest.approx(expected)
+
+
+def test_bad_sample_count_raises() -> None:
+    with pytest.raises(HdNetError):
+        mc_dropout_predict(_model(), torch.randn(1, 1, 32, 32), n_samples=0)
