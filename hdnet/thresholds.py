@@ -1,0 +1,185 @@
+"""Uncertainty thresholds H_t from validation entropies: mean (paper), quantile, conformal risk control.
+
+A pixel is *uncertain* (invalid) when its predictive entropy H >= H_t (paper, "Uncertainty-aware
+Safety Map Generation"); all entropies are in nats.
+
+Specs (``parse_threshold_spec``):
+
+* ``mean``: mean entropy over the valid validation pixels (paper default, after Mukhoti & Gal 2018);
+* ``quantile:Q``: the Q-quantile (Q in [0, 1]) of those entropies (paper, "Effect of Varying the
+  Uncertainty Threshold");
+* ``risk:ALPHA``: conformal risk control (Angelopoulos et al. 2022, "Conformal Risk Control"), beyond
+  the paper. Per image i the loss at threshold t is the **false-safe rate**
+
+      L_i(t) = #{valid pixels: truly unsafe, predicted safe, H < t} / #{valid pixels of image i},
+
+  i.e. certain false-safe pixels over valid pixels. It is bounded by B = 1 and non-decreasing in t,
+  which is what CRC needs for its guarantee. (The other candidate, the fraction of *certain
+  predicted-safe* pixels that are truly unsafe, is not monotone in t, so CRC would not apply to it.)
+  With n validation images and Rhat(t) = mean_i L_i(t), we return the largest t with
+
+      n/(n+1) * Rhat(t) + B/(n+1) <= alpha,
+
+  which guarantees E[L_{n+1}(t)] <= alpha for a new image exchangeable with the validation images.
+  If even t = 0 (every pixel uncertain, loss 0) fails, i.e. alpha < 1/(n+1), t = 0 is returned (the
+  only choice that keeps the guarantee). If no false-safe pixel ever limits it, t = +inf
+  (every pixel certain).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+import torch
+
+from hdnet import defaults
+from hdnet.errors import HdNetError
+
+LOSS_BOUND = 1.0  # B: the false-safe rate is a fraction of pixels
+
+
+@dataclass(frozen=True)
+class ThresholdSpec:
+    """How to pick H_t: ``kind`` "mean", "quantile" (value = Q) or "risk" (value = alpha)."""
+
+    kind: Literal["mean", "quantile", "risk"]
+    value: float | None = None
+
+    def __str__(self) -> str:
+        return self.kind if self.value is None else f"{self.kind}:{self.value:g}"
+
+
+_SPEC = re.compile(r"^(mean|quantile|risk)(?::(.+))?$")
+
+
+def parse_threshold_spec(spec: str) -> ThresholdSpec:
+    """Parse ``mean``, ``quantile:Q`` (Q in [0, 1]) or ``risk:ALPHA`` (alpha in (0, 1))."""
+    match = _SPEC.match(spec.strip().lower()) if isinstance(spec, str) else None
+    if match is None:
+        raise HdNetError(f"threshold spec {spec!r} is not one of 'mean', 'quantile:Q', 'risk:ALPHA'.")
+    kind, arg = match.group(1), match.group(2)
+    if kind == "mean":
+        if arg is not None:
+            raise HdNetError(f"threshold spec {spec!r}: 'mean' takes no value.")
+        return ThresholdSpec("mean")
+    if arg is None:
+        raise HdNetError(f"threshold spec {spec!r}: '{kind}' needs a value, e.g. '{kind}:0.1'.")
+    try:
+        value = float(arg)
+    except ValueError:
+        raise HdNetError(f"threshold spec {spec!r}: {arg!r} is not a number.") from None
+    if kind == "quantile" and not 0.0 <= value <= 1.0:
+        raise HdNetError(f"threshold spec {spec!r}: the quantile Q must be in [0, 1].")
+    if kind == "risk" and not 0.0 < value < 1.0:
+        raise HdNetError(f"threshold spec {spec!r}: the risk level alpha must be in (0, 1).")
+    return ThresholdSpec(kind, value)  # type: ignore[arg-type]
+
+
+class EntropyCalibration:
+    """Per-pixel entropies of a split (usually validation), added one batch of images at a time.
+
+    Keeps the valid entropies (float32, for mean/quantile) and, per false-safe pixel, its entropy and
+    weight 1 / (valid pixels of its image) (for the false-safe-rate risk). Memory: 4 bytes per valid
+    pixel (100 images of 512x512: about 100 MB).
+    """
+
+    def __init__(self, ignore_index: int = defaults.IGNORE_INDEX) -> None:
+        self.ignore_index = ignore_index
+        self._entropies: list[np.ndarray] = []
+        self._fs_entropies: list[np.ndarray] = []
+        self._fs_weights: list[np.ndarray] = []
+        self.n_images = 0
+
+    def update(
+        self,
+        entropy_nats: torch.Tensor,
+        prediction: torch.Tensor,
+        truth: torch.Tensor,
+        ignore: torch.Tensor | None = None,
+    ) -> None:
+        """Add a batch: all tensors (N, H, W); ``truth`` 0/1/ignore_index, ``prediction`` 0/1, ``ignore`` bool."""
+        if entropy_nats.dim() != 3 or entropy_nats.shape != prediction.shape or entropy_nats.shape != truth.shape:
+            raise HdNetError(
+                f"entropy, prediction and truth must share one (N, H, W) shape, got {tuple(entropy_nats.shape)}, "
+                f"{tuple(prediction.shape)}, {tuple(truth.shape)}."
+            )
+        h = entropy_nats.detach().cpu().float()
+        t = truth.detach().cpu().long()
+        p = prediction.detach().cpu().long()
+        valid = t != self.ignore_index
+        if ignore is not None:
+            valid &= ~ignore.detach().cpu().bool()
+        for i in range(h.shape[0]):
+            v = valid[i]
+            n_valid = int(v.sum())
+            self.n_images += 1
+            if n_valid == 0:
+                continue  # loss 0 for every t; the image still counts in n
+            self._entropies.append(h[i][v].numpy())
+            fs = v & (t[i] == defaults.CLASS_UNSAFE) & (p[i] == defaults.CLASS_SAFE)
+            e = h[i][fs].numpy()
+            self._fs_entropies.append(e)
+            self._fs_weights.append(np.full(e.shape, 1.0 / n_valid))
+
+    def _all(self) -> np.ndarray:
+        if not self._entropies:
+            raise HdNetError("no valid pixel was added to the entropy calibration set.")
+        return np.concatenate(self._entropies)
+
+    def mean(self) -> float:
+        """Mean entropy over all valid pixels (nats)."""
+        return float(np.mean(self._all(), dtype=np.float64))
+
+    def quantile(self, q: float) -> float:
+        """The q-quantile of the valid-pixel entropies (nats; linear interpolation)."""
+        return float(np.quantile(self._all(), q))
+
+    def _false_safe(self) -> tuple[np.ndarray, np.ndarray]:
+        if self.n_images == 0:
+            raise HdNetError("no image was added to the entropy calibration set.")
+        e = np.concatenate(self._fs_entropies) if self._fs_entropies else np.zeros(0, np.float32)
+        w = np.concatenate(self._fs_weights) if self._fs_weights else np.zeros(0)
+        return e, w
+
+    def risk(self, threshold_nats: float) -> float:
+        """Mean over images of the false-safe rate at H_t (certain = H < H_t)."""
+        e, w = self._false_safe()
+        return float(w[e < threshold_nats].sum() / self.n_images)
+
+    def risk_control_threshold(self, alpha: float) -> float:
+        """Largest H_t with n/(n+1) Rhat(H_t) + B/(n+1) <= alpha (see the module docstring)."""
+        if not 0.0 < alpha < 1.0:
+            raise HdNetError(f"the risk level alpha must be in (0, 1), got {alpha}.")
+        e, w = self._false_safe()
+        n = self.n_images
+        order = np.argsort(e, kind="stable")
+        e, w = e[order], w[order]
+        # cum[k] = Rhat just above the k-th smallest false-safe entropy (k+1 pixels certain).
+        cum = np.cumsum(w) / n
+        ok0 = LOSS_BOUND / (n + 1) <= alpha
+        if not ok0:
+            return 0.0
+        feasible = n / (n + 1) * cum + LOSS_BOUND / (n + 1) <= alpha
+        # Number of leading false-safe pixels that can be certain: first infeasible index.
+        k = int(np.argmin(feasible)) if not feasible.all() else len(e)
+        return math.inf if k == len(e) else float(e[k])
+
+
+def select_threshold(spec: ThresholdSpec | str, calibration: EntropyCalibration) -> float:
+    """H_t (nats) for ``spec`` from a calibration (validation) set."""
+    if isinstance(spec, str):
+        spec = parse_threshold_spec(spec)
+    if spec.kind == "mean":
+        return calibration.mean()
+    if spec.kind == "quantile":
+        return calibration.quantile(float(spec.value))  # type: ignore[arg-type]
+    return calibration.risk_control_threshold(float(spec.value))  # type: ignore[arg-type]
+
+
+def uncertain_mask(entropy_nats: torch.Tensor, threshold_nats: float) -> torch.Tensor:
+    """Boolean mask of uncertain (invalid) pixels: H >= H_t (paper, "Uncertainty-aware Safety Map")."""
+    return entropy_nats >= threshold_nats

@@ -1,0 +1,96 @@
+"""Thresholds: spec parsing, mean/quantile, the conformal risk-control rule by hand and its guarantee."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from hdnet.errors import HdNetError
+from hdnet.thresholds import EntropyCalibration, ThresholdSpec, parse_threshold_spec, select_threshold, uncertain_mask
+
+
+@pytest.mark.parametrize(
+    "text,expected",
+    [("mean", ThresholdSpec("mean")), ("quantile:0.4", ThresholdSpec("quantile", 0.4)),
+     ("risk:0.05", ThresholdSpec("risk", 0.05)), (" Quantile:1 ", ThresholdSpec("quantile", 1.0))],
+)
+def test_parse_good_specs(text: str, expected: ThresholdSpec) -> None:
+    assert parse_threshold_spec(text) == expected
+
+
+@pytest.mark.parametrize("text", ["", "median", "mean:1", "quantile", "quantile:1.5", "quantile:-0.1",
+                                  "risk:0", "risk:1", "risk:abc", "risk:"])
+def test_parse_bad_specs_raise(text: str) -> None:
+    with pytest.raises(HdNetError):
+        parse_threshold_spec(text)
+
+
+def _calibration() -> EntropyCalibration:
+    # Image 0: 4 valid pixels (one ignored); image 1: 2 valid pixels.
+    h = torch.tensor([[[0.1, 0.2, 0.3, 0.4, 0.6]], [[0.05, 0.5, 0.0, 0.0, 0.0]]])
+    truth = torch.tensor([[[0, 0, 1, 0, 255]], [[0, 1, 255, 255, 255]]])
+    pred = torch.tensor([[[1, 0, 1, 1, 1]], [[1, 1, 0, 0, 0]]])
+    cal = EntropyCalibration()
+    cal.update(h, pred, truth)
+    return cal
+
+
+def test_mean_quantile_and_risk_by_hand() -> None:
+    cal = _calibration()
+    valid = [0.1, 0.2, 0.3, 0.4, 0.05, 0.5]
+    assert cal.mean() == pytest.approx(np.mean(valid))
+    assert cal.quantile(0.5) == pytest.approx(np.quantile(valid, 0.5))
+    assert select_threshold("quantile:0", cal) == pytest.approx(0.05)
+    # False-safe pixels: image 0 at H = 0.1 and 0.4 (weight 1/4 each), image 1 at H = 0.05 (weight 1/2).
+    assert cal.risk(0.05) == 0.0
+    assert cal.risk(0.06) == pytest.approx(0.5 / 2)
+    assert cal.risk(0.2) == pytest.approx((0.5 + 0.25) / 2)
+    assert cal.risk(math.inf) == pytest.approx((0.5 + 0.5) / 2)
+
+
+def test_risk_control_rule_by_hand() -> None:
+    cal = _calibration()  # n = 2: n/(n+1) Rhat + 1/3 <= alpha
+    # alpha 0.5: Rhat <= 0.25 -> the pixel at 0.05 may be certain, the one at 0.1 not -> t = 0.1.
+    assert select_threshold("risk:0.5", cal) == pytest.approx(0.1)
+    # alpha 0.4: Rhat <= 0.1 -> not even the first false-safe pixel -> t = 0.05.
+    assert select_threshold("risk:0.4", cal) == pytest.approx(0.05)
+    # alpha 0.99: Rhat <= 0.985 always -> every pixel certain.
+    assert select_threshold("risk:0.99", cal) == math.inf
+    # alpha < 1/(n+1): only t = 0 (everything uncertain) keeps the guarantee.
+    assert select_threshold("risk:0.3", cal) == 0.0
+    assert not uncertain_mask(torch.tensor([0.3]), math.inf).any() and uncertain_mask(torch.tensor([0.0]), 0.0).all()
+
+
+def _synthetic_images(gen: torch.Generator, n: int, pixels: int = 256) -> tuple[torch.Tensor, ...]:
+    """Exchangeable images: uncertain pixels are more often wrong; per-image difficulty varies."""
+    difficulty = torch.rand(n, 1, 1, generator=gen)
+    h = torch.rand(n, 1, pixels, generator=gen) * math.log(2)
+    truth = (torch.rand(n, 1, pixels, generator=gen) < 0.5).long()
+    wrong = torch.rand(n, 1, pixels, generator=gen) < difficulty * h / math.log(2)
+    pred = torch.where(wrong, 1 - truth, truth)
+    truth[:, :, :16] = 255  # a border of ignored pixels
+    return h, pred, truth
+
+
+def test_risk_control_meets_alpha_on_exchangeable_data() -> None:
+    alpha, n_cal, n_test, reps = 0.05, 100, 40, 100
+    gen = torch.Generator().manual_seed(7)
+    achieved = []
+    for _ in range(reps):
+        cal, test = EntropyCalibration(), EntropyCalibration()
+        cal.update(*_synthetic_images(gen, n_cal))
+        test.update(*_synthetic_images(gen, n_test))
+        achieved.append(test.risk(select_threshold(f"risk:{alpha}", cal)))
+    mean, se = float(np.mean(achieved)), float(np.std(achieved) / math.sqrt(reps))
+    assert mean <= alpha + 3 * se
+    # Not vacuous: CRC is tight to within B/(n+1), and the data's risk without thresholding exceeds alpha.
+    assert mean >= alpha - 2 / (n_cal + 1)
+    assert test.risk(math.inf) > 2 * alpha
+
+
+def test_empty_calibration_raises() -> None:
+    with pytest.raises(HdNetError):
+        EntropyCalibration().mean()
+    with pytest.raises(HdNetError):
+        EntropyCalibration().update(torch.zeros(2, 3), torch.zeros(2, 3), torch.zeros(2, 3))
