@@ -1,0 +1,189 @@
+"""The ``hd`` command: wires lidarsim, hdlabels and hdnet together; holds no logic of its own.
+
+Every command turns bad input into a one-line error and a non-zero exit status.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable
+from functools import wraps
+from pathlib import Path
+from typing import Any
+
+import click
+
+from lidarsim import defaults as lidar_defaults
+from lidarsim._version import __version__
+from lidarsim.errors import LidarsimError
+
+
+def _known_errors() -> tuple[type[BaseException], ...]:
+    errors: list[type[BaseException]] = [LidarsimError]
+    for module, name in (("hdlabels.errors", "HdLabelsError"), ("hdnet.errors", "HdNetError")):
+        try:
+            mod = __import__(module, fromlist=[name])
+            errors.append(getattr(mod, name))
+        except (ImportError, AttributeError):
+            pass
+    return tuple(errors)
+
+
+def friendly_errors(func: Callable[..., Any]) -> Callable[..., Any]:
+    """Turn the packages' input errors into click errors: one line, exit status 1, no traceback."""
+
+    @wraps(func)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return func(*args, **kwargs)
+        except _known_errors() as exc:
+            raise click.ClickException(str(exc)) from None
+        except KeyboardInterrupt:
+            click.echo("\ninterrupted; re-run the same command to resume", err=True)
+            sys.exit(130)
+
+    return wrapper
+
+
+class _ScanProgress:
+    """tqdm progress bar fed with (done, total) scan counts."""
+
+    def __init__(self, desc: str) -> None:
+        self.desc = desc
+        self.bar: Any = None
+
+    def __call__(self, done: int, total: int) -> None:
+        from tqdm import tqdm
+
+        if self.bar is None:
+            self.bar = tqdm(total=total, initial=done, desc=self.desc, unit="scan", dynamic_ncols=True)
+        else:
+            self.bar.update(done - self.bar.n)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="hd")
+def main() -> None:
+    """hd — hazard-detection datasets, ALHAT labels and uncertainty-aware networks for planetary landing."""
+
+
+@main.command("build-dataset")
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path), help="Dataset directory to create.")
+@click.option("--dtm", "dtm_path", type=click.Path(path_type=Path), default=None, help="DTM (GeoTIFF, HiRISE PDS3 .IMG, any GDAL raster in metres). Default: the procedural Mars terrain.")
+@click.option("--sigma", "sigmas", type=float, multiple=True, help=f"Range noise 1-sigma in metres; repeat for several levels (default {lidar_defaults.DEFAULT_SIGMA_M}).")
+@click.option("--scans", type=int, default=lidar_defaults.N_SCANS, show_default=True, help="Number of scans.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Master seed of every random stream.")
+@click.option("--workers", type=int, default=None, help="Local worker processes (default: all cores).")
+@click.option("--altitude", type=float, default=lidar_defaults.ALTITUDE_M, show_default=True, help="Sensor altitude above the terrain, metres.")
+@click.option("--dtm-scale", type=float, default=1.0, show_default=True, help="Resample the DTM by this factor (the paper used 0.25).")
+@click.option("--scheduler", default=None, help="Dask scheduler address (tcp://host:8786) to run shard tasks on a cluster.")
+@click.option("--overwrite", is_flag=True, help="Replace an existing dataset in --out.")
+@click.option("--shard-size", type=int, default=50, show_default=True, help="Scans per shard file.")
+@click.option("--tilt", type=float, default=0.0, show_default=True, help="Off-nadir tilt of the boresight, degrees.")
+@click.option("--jitter", type=float, default=0.0, show_default=True, help="1-sigma attitude jitter per axis, degrees.")
+@click.option("--resolution", type=int, default=lidar_defaults.DETECTOR_ROWS, show_default=True, help="Detector pixels per side.")
+@click.option("--fov", type=float, default=lidar_defaults.FOV_DEG, show_default=True, help="Field of view per side, degrees.")
+@click.option("--dead-elements", type=int, default=0, show_default=True, help="Dead detector elements (no return).")
+@click.option("--damaged-elements", type=int, default=0, show_default=True, help="Damaged detector elements (large range error).")
+@click.option("--compression", type=click.Choice(["gzip", "lzf", "none"]), default="gzip", show_default=True, help="HDF5 compression of the point arrays.")
+@friendly_errors
+def build_dataset_cmd(out_dir: Path, dtm_path: Path | None, sigmas: tuple[float, ...], scans: int, seed: int,
+                      workers: int | None, altitude: float, dtm_scale: float, scheduler: str | None, overwrite: bool,
+                      shard_size: int, tilt: float, jitter: float, resolution: int, fov: float, dead_elements: int,
+                      damaged_elements: int, compression: str) -> None:
+    """Simulate flash-LiDAR scans over a terrain and write clean and noisy point clouds as HDF5 shards."""
+    from lidarsim.build import BuildConfig, build_dataset
+    from lidarsim.sensor import SensorConfig
+    from lidarsim.trajectory import TrajectoryConfig
+
+    if workers is not None and workers <= 0:
+        raise LidarsimError(f"--workers must be > 0, got {workers}")
+    config = BuildConfig(
+        sigmas_m=tuple(sigmas) if sigmas else (lidar_defaults.DEFAULT_SIGMA_M,),
+        seed=seed,
+        sensor=SensorConfig(rows=resolution, cols=resolution, fov_x_deg=fov, fov_y_deg=fov,
+                            dead_elements=dead_elements, damaged_elements=damaged_elements),
+        trajectory=TrajectoryConfig(n_scans=scans, altitude_m=altitude, tilt_deg=tilt, jitter_deg=jitter),
+        dtm_path=str(dtm_path) if dtm_path is not None else None,
+        dtm_scale=dtm_scale,
+        shard_size=shard_size,
+        compression=compression,
+    )
+    progress = _ScanProgress("scans")
+    try:
+        summary = build_dataset(out_dir, config, workers=workers, scheduler=scheduler, overwrite=overwrite, progress=progress)
+    finally:
+        progress.close()
+    click.echo(summary.paragraph())
+
+
+@main.command("make-dtm")
+@click.argument("out_path", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the procedural terrain.")
+@click.option("--size", "size_m", type=float, default=None, help="Side of the square terrain, metres (default: the built-in size).")
+@click.option("--spacing", "spacing_m", type=float, default=None, help="Grid spacing, metres/pixel (<= 0.5).")
+@click.option("--rock-k", type=float, default=None, help="Golombek-Rapp rock abundance k (0.05 .. 0.4).")
+@click.option("--overwrite", is_flag=True, help="Replace an existing file.")
+@friendly_errors
+def make_dtm_cmd(out_path: Path, seed: int, size_m: float | None, spacing_m: float | None, rock_k: float | None, overwrite: bool) -> None:
+    """Write the procedural Mars terrain as a GeoTIFF (the default terrain of build-dataset)."""
+    import dataclasses
+    import json
+
+    from lidarsim.procedural import MarsTerrainParams, generate_mars_terrain, write_geotiff
+
+    if out_path.exists() and not overwrite:
+        raise LidarsimError(f"{out_path} exists; pass --overwrite to replace it")
+    changes = {k: v for k, v in (("size_m", size_m), ("spacing_m", spacing_m), ("rock_k", rock_k)) if v is not None}
+    params = dataclasses.replace(MarsTerrainParams(), **changes)
+    heights = generate_mars_terrain(params, seed=seed)
+    tags = {"generator": "lidarsim.procedural", "seed": str(seed), "params": json.dumps(dataclasses.asdict(params))}
+    write_geotiff(out_path, heights, params.spacing_m, origin_xy=(0.0, 0.0), crs_wkt="", tags=tags)
+    click.echo(f"wrote {out_path}: {heights.shape[0]} x {heights.shape[1]} cells at {params.spacing_m:g} m/px, "
+               f"heights {float(heights.min()):.1f} .. {float(heights.max()):.1f} m")
+
+
+@main.command("inspect")
+@click.argument("directory", type=click.Path(file_okay=False, path_type=Path))
+@friendly_errors
+def inspect_cmd(directory: Path) -> None:
+    """Summarise a dataset: scans, splits, noise levels, sensor, terrain, labels."""
+    from lidarsim.inspect import describe_dataset
+
+    click.echo(describe_dataset(directory))
+
+
+def _known_schemas() -> dict[str, str]:
+    schemas: dict[str, str] = {}
+    try:
+        from hdlabels.store import LABEL_SCHEMA, LABEL_SCHEMA_VERSION
+
+        schemas[LABEL_SCHEMA] = LABEL_SCHEMA_VERSION
+    except ImportError:
+        pass
+    return schemas
+
+
+@main.command("verify")
+@click.argument("directory", type=click.Path(file_okay=False, path_type=Path))
+@friendly_errors
+def verify_cmd(directory: Path) -> None:
+    """Check every file of a dataset against the manifest's checksums and the schema versions."""
+    from lidarsim.shards import read_manifest, verify_dataset
+
+    problems = verify_dataset(directory, known_schemas=_known_schemas())
+    if problems:
+        for p in problems:
+            click.echo(p, err=True)
+        raise click.ClickException(f"{directory}: {len(problems)} problem(s) found")
+    manifest = read_manifest(directory)
+    n_files = len(manifest["shards"]) + sum(len(lab.get("shards", [])) for lab in manifest.get("labelings", []))
+    click.echo(f"{directory}: OK, {n_files} files match the manifest's checksums and schema versions")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,565 @@
+"""Dataset factory: plan the scans, run shard tasks (process pool or Dask), write the manifest.
+
+A build directory holds ``manifest.json`` (only once the build is complete), ``shards/`` and,
+for the procedural terrain, ``terrain/``. While a build runs, ``.hd-build.json`` records its
+settings; re-running the same command after an interruption finishes only the missing shards
+and ends with the same files as an uninterrupted run.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import shutil
+import tempfile
+import time
+from collections.abc import Callable, Iterable
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass, field
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lidarsim import defaults
+from lidarsim._version import __version__
+from lidarsim.errors import LidarsimError
+from lidarsim.procedural import MarsTerrainParams, generate_mars_terrain, write_geotiff
+from lidarsim.scan import STATUS_DAMAGED, STATUS_RETURN, TileScene, scan_geometry, simulate_scans
+from lidarsim.sensor import SensorConfig
+from lidarsim.shards import (
+    MANIFEST_NAME,
+    MANIFEST_SCHEMA,
+    MANIFEST_SCHEMA_VERSION,
+    SCAN_SCHEMA,
+    SCAN_SCHEMA_VERSION,
+    SPLIT_NAMES,
+    ScanShardReader,
+    ScanShardWriter,
+    ShardFormatError,
+    remove_partials,
+    sha256_file,
+    write_json_atomic,
+)
+from lidarsim.streams import Purpose, stream
+from lidarsim.terrain import DTM
+from lidarsim.trajectory import ScanPlan, TrajectoryConfig, plan_scans
+
+BUILD_STATE_NAME = ".hd-build.json"
+SHARD_DIR = "shards"
+TERRAIN_DIR = "terrain"
+# Scans grouped into one ray-casting call (16 x 128 x 128 rays).
+CAST_BATCH_SCANS = 16
+# Cell of the coarse validity grid used for trajectory planning, metres (at least one DTM cell).
+OVERVIEW_CELL_M = 2.0
+
+
+class OutputExistsError(LidarsimError):
+    """The output directory already holds something the build must not overwrite."""
+
+
+@dataclass(frozen=True)
+class BuildConfig:
+    """Everything that determines the content of a dataset (workers and scheduler do not).
+
+    Attributes:
+        sigmas_m: noise levels (1-sigma along each ray), metres.
+        seed: master seed of every random stream.
+        sensor: the detector.
+        trajectory: scan count, altitude, tilt, jitter.
+        dtm_path: DTM file; None builds on the procedural Mars terrain.
+        dtm_scale: resampling factor of the DTM (1 = full resolution).
+        terrain: parameters of the procedural terrain (used when ``dtm_path`` is None).
+        shard_size: scans per shard file.
+        compression: HDF5 compression of the point arrays: gzip, lzf or none.
+    """
+
+    sigmas_m: tuple[float, ...] = (defaults.DEFAULT_SIGMA_M,)
+    seed: int = 0
+    sensor: SensorConfig = field(default_factory=SensorConfig)
+    trajectory: TrajectoryConfig = field(default_factory=TrajectoryConfig)
+    dtm_path: str | None = None
+    dtm_scale: float = 1.0
+    terrain: MarsTerrainParams = field(default_factory=MarsTerrainParams)
+    shard_size: int = 50
+    compression: str = "gzip"
+
+    def __post_init__(self) -> None:
+        if not self.sigmas_m:
+            raise LidarsimError("at least one --sigma is needed")
+        for s in self.sigmas_m:
+            if not (isinstance(s, (int, float)) and math.isfinite(s) and s > 0.0):
+                raise LidarsimError(f"--sigma must be a positive number of metres, got {s}")
+        if len(set(self.sigmas_m)) != len(self.sigmas_m):
+            raise LidarsimError(f"--sigma values must be distinct, got {list(self.sigmas_m)}")
+        if self.seed < 0:
+            raise LidarsimError(f"--seed must be >= 0, got {self.seed}")
+        if self.shard_size <= 0:
+            raise LidarsimError(f"shard size must be > 0, got {self.shard_size}")
+        if not (math.isfinite(self.dtm_scale) and 0.0 < self.dtm_scale <= 1.0):
+            raise LidarsimError(f"--dtm-scale must be in (0, 1], got {self.dtm_scale}")
+        if self.compression not in ("gzip", "lzf", "none"):
+            raise LidarsimError(f"unknown compression {self.compression!r}; use gzip, lzf or none")
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-friendly dictionary of the whole configuration."""
+        d = asdict(self)
+        d["sigmas_m"] = list(self.sigmas_m)
+        if self.dtm_path is not None:
+            d["terrain"] = None
+        return d
+
+    def fingerprint(self) -> str:
+        """SHA-256 of the canonical JSON of the configuration (the DTM by its path and content)."""
+        return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()
+
+
+@dataclass(frozen=True)
+class ShardTask:
+    """One shard's work: scans ``first_scan .. first_scan + n - 1`` of the plan."""
+
+    out_dir: str
+    shard_index: int
+    first_scan: int
+    nadir_xy: np.ndarray
+    tile_ij: np.ndarray
+    splits: np.ndarray
+    dtm_path: str
+    config: BuildConfig
+    plan_half_width_m: float
+    tile_anchor_xy: tuple[float, float]
+    tile_m: float
+    file_attrs: dict[str, Any]
+    n_threads: int = 0
+
+    @property
+    def path(self) -> Path:
+        return Path(self.out_dir) / SHARD_DIR / shard_name(self.shard_index)
+
+
+@dataclass(frozen=True)
+class ShardRecord:
+    """What the manifest says of a finished shard."""
+
+    path: str
+    sha256: str
+    n_scans: int
+    first_scan: int
+    split: str
+    split_counts: dict[str, int]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {**asdict(self), "schema": SCAN_SCHEMA, "schema_version": SCAN_SCHEMA_VERSION}
+
+
+@dataclass(frozen=True)
+class BuildSummary:
+    """Result of a build."""
+
+    out_dir: Path
+    n_scans: int
+    n_shards: int
+    sigmas_m: tuple[float, ...]
+    split_counts: dict[str, int]
+    seconds: float
+    resumed_shards: int
+    bytes_written: int
+    rays_per_second: float
+
+    def paragraph(self) -> str:
+        """A one-paragraph human summary."""
+        sig = ", ".join(f"{s * 100:.2f} cm" for s in self.sigmas_m)
+        splits = ", ".join(f"{self.split_counts.get(k, 0)} {k}" for k in SPLIT_NAMES)
+        resumed = f" ({self.resumed_shards} shards were already complete and kept)" if self.resumed_shards else ""
+        return (
+            f"Built {self.n_scans} scans in {self.n_shards} shards at {self.out_dir} in {self.seconds:.1f} s"
+            f"{resumed}: clean points plus noisy points at sigma = {sig}; splits {splits}; "
+            f"{self.bytes_written / 1e6:.0f} MB on disk; {self.rays_per_second / 1e6:.2f} M rays/s end to end. "
+            f"Inspect it with `hd inspect {self.out_dir}`, check it with `hd verify {self.out_dir}`."
+        )
+
+
+def shard_name(index: int) -> str:
+    """File name of scan shard ``index``."""
+    return f"scans-{index:05d}.h5"
+
+
+def split_block_size(n_scans: int) -> int:
+    """Scans per split block: consecutive scans share a split (at most 50, about 20 blocks)."""
+    return max(1, min(50, n_scans // 20))
+
+
+def assign_splits(n_scans: int, seed: int, fractions: tuple[float, float, float] = defaults.SPLIT_FRACTIONS) -> np.ndarray:
+    """Split of every scan: 0 train, 1 val, 2 test.
+
+    Consecutive scans along the trajectory form blocks (``split_block_size``); blocks, not scans,
+    are shuffled into the splits with the given fractions (the paper's 800/100/100 for 1000
+    scans). Neighbouring scans overlap on the ground, so block splits keep test terrain apart
+    from training terrain better than a per-scan shuffle. Independent of shard size and workers.
+    """
+    block = split_block_size(n_scans)
+    n_blocks = math.ceil(n_scans / block)
+    n_val = int(round(fractions[1] * n_blocks))
+    n_test = int(round(fractions[2] * n_blocks))
+    if n_blocks >= 3:
+        n_val, n_test = max(1, n_val), max(1, n_test)
+    labels = np.zeros(n_blocks, dtype=np.uint8)
+    labels[n_blocks - n_val - n_test : n_blocks - n_test] = 1
+    labels[n_blocks - n_test :] = 2
+    labels = labels[stream(seed, Purpose.SPLIT).permutation(n_blocks)]
+    return np.repeat(labels, block)[:n_scans]
+
+
+def run_shard(task: ShardTask) -> ShardRecord:
+    """Simulate and write one shard (runs in a worker process or on a Dask worker)."""
+    cfg = task.config
+    n = task.nadir_xy.shape[0]
+    footprint_hw = task.plan_half_width_m - cfg.trajectory.margin_m
+    half_extent = task.tile_m / 2.0 + task.plan_half_width_m
+    task.path.parent.mkdir(parents=True, exist_ok=True)
+    writer = ScanShardWriter(
+        path=task.path,
+        n_scans=n,
+        rows=cfg.sensor.rows,
+        cols=cfg.sensor.cols,
+        sigmas_m=cfg.sigmas_m,
+        attrs={**task.file_attrs, "shard_index": task.shard_index, "first_scan": task.first_scan},
+        compression=cfg.compression,
+    )
+    with DTM.open(task.dtm_path, scale=cfg.dtm_scale) as dtm, writer:
+        k = 0
+        for tile, members in _group_by_tile(task.tile_ij):
+            scene = _scene_for(dtm, task, tile, half_extent)
+            for batch in _batches(members, CAST_BATCH_SCANS):
+                indices = [task.first_scan + m for m in batch]
+                geoms = [
+                    scan_geometry(scene, task.nadir_xy[m], task.first_scan + m, cfg.trajectory, footprint_hw, cfg.seed)
+                    for m in batch
+                ]
+                for m, scan_index, result in zip(batch, indices, simulate_scans(
+                    scene, geoms, indices, cfg.sensor, cfg.sigmas_m, cfg.seed, n_threads=task.n_threads
+                ), strict=True):
+                    g = result.geometry
+                    writer.write_scan(
+                        m,
+                        scan_index=scan_index,
+                        split=int(task.splits[m]),
+                        origin_map=g.origin_map,
+                        sensor_position=g.sensor_position,
+                        sensor_attitude=g.attitude,
+                        points_clean=result.points_clean,
+                        points_noisy=result.points_noisy,
+                        status=result.status,
+                        valid=((result.status == STATUS_RETURN) | (result.status == STATUS_DAMAGED)).astype(np.uint8),
+                    )
+                    k += 1
+        assert k == n
+        digest = writer.commit()
+    return _record(task, digest)
+
+
+def _record(task: ShardTask, digest: str) -> ShardRecord:
+    counts = {name: int((task.splits == i).sum()) for i, name in enumerate(SPLIT_NAMES)}
+    present = [name for name, c in counts.items() if c]
+    return ShardRecord(
+        path=f"{SHARD_DIR}/{shard_name(task.shard_index)}",
+        sha256=digest,
+        n_scans=int(task.nadir_xy.shape[0]),
+        first_scan=task.first_scan,
+        split=present[0] if len(present) == 1 else "mixed",
+        split_counts=counts,
+    )
+
+
+_SCENE_CACHE: dict[tuple[str, float, int, int, float], TileScene] = {}
+
+
+def _scene_for(dtm: DTM, task: ShardTask, tile: tuple[int, int], half_extent: float) -> TileScene:
+    """The tile's scene, reused by consecutive shards in the same worker process (one kept)."""
+    key = (task.dtm_path, task.config.dtm_scale, tile[0], tile[1], half_extent)
+    scene = _SCENE_CACHE.get(key)
+    if scene is None:
+        _SCENE_CACHE.clear()
+        x0, y0 = task.tile_anchor_xy
+        centre = (x0 + (tile[1] + 0.5) * task.tile_m, y0 - (tile[0] + 0.5) * task.tile_m)
+        scene = TileScene(dtm, centre, half_extent)
+        _SCENE_CACHE[key] = scene
+    return scene
+
+
+def _group_by_tile(tile_ij: np.ndarray) -> list[tuple[tuple[int, int], list[int]]]:
+    groups: dict[tuple[int, int], list[int]] = {}
+    for m, (i, j) in enumerate(tile_ij.tolist()):
+        groups.setdefault((i, j), []).append(m)
+    return list(groups.items())
+
+
+def _batches(items: list[int], size: int) -> Iterable[list[int]]:
+    for start in range(0, len(items), size):
+        yield items[start : start + size]
+
+
+def _check_existing_shard(task: ShardTask, fingerprint: str) -> ShardRecord | None:
+    """A complete shard from an earlier run of the same build, or None if it must be (re)made."""
+    if not task.path.is_file():
+        return None
+    try:
+        with ScanShardReader(task.path) as reader:
+            ok = (
+                reader.attrs.get("config_sha256") == fingerprint
+                and len(reader) == task.nadir_xy.shape[0]
+                and int(reader.attrs.get("first_scan", -1)) == task.first_scan
+            )
+    except (ShardFormatError, OSError, KeyError):
+        ok = False
+    if not ok:
+        return None
+    return _record(task, sha256_file(task.path))
+
+
+def prepare_output(out_dir: Path, config: BuildConfig, overwrite: bool) -> bool:
+    """Check the output directory; returns True when an unfinished identical build is resumed.
+
+    Raises:
+        OutputExistsError: a complete dataset without ``overwrite``, an unfinished build with other
+            settings, or a non-empty directory that is not an hd build.
+    """
+    if not out_dir.exists():
+        return False
+    if not out_dir.is_dir():
+        raise OutputExistsError(f"{out_dir} exists and is not a directory")
+    manifest = out_dir / MANIFEST_NAME
+    state = out_dir / BUILD_STATE_NAME
+    if manifest.exists() or state.exists():
+        if overwrite:
+            return False
+        if manifest.exists():
+            raise OutputExistsError(
+                f"{out_dir} already holds a dataset ({MANIFEST_NAME}); pass --overwrite to replace it"
+            )
+        try:
+            previous = json.loads(state.read_text()).get("config_sha256")
+        except (OSError, json.JSONDecodeError):
+            previous = None
+        if previous != config.fingerprint():
+            raise OutputExistsError(
+                f"{out_dir} holds an unfinished build with other settings; rerun that build's command to "
+                "resume it, or pass --overwrite to start again"
+            )
+        return True
+    if any(out_dir.iterdir()):
+        raise OutputExistsError(f"{out_dir} exists, is not empty and is not an hd dataset; choose another --out")
+    return False
+
+
+def clear_output(out_dir: Path) -> None:
+    """Remove a previous hd build from ``out_dir`` (manifest first, so it is never seen half-removed)."""
+    (out_dir / MANIFEST_NAME).unlink(missing_ok=True)
+    for name in (SHARD_DIR, TERRAIN_DIR, "labels"):
+        shutil.rmtree(out_dir / name, ignore_errors=True)
+    (out_dir / BUILD_STATE_NAME).unlink(missing_ok=True)
+
+
+def _materialise_terrain(config: BuildConfig, staging: Path) -> Path:
+    """Write the procedural terrain as a GeoTIFF into ``staging``; returns its path."""
+    params = config.terrain
+    heights = generate_mars_terrain(params, seed=config.seed)
+    path = staging / f"mars-procedural-seed{config.seed}.tif"
+    tags = {"generator": "lidarsim.procedural", "seed": str(config.seed), "params": json.dumps(asdict(params))}
+    write_geotiff(path, heights, params.spacing_m, origin_xy=(0.0, 0.0), crs_wkt="", tags=tags)
+    return path
+
+
+def build_dataset(
+    out_dir: str | os.PathLike,
+    config: BuildConfig,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    overwrite: bool = False,
+    progress: Callable[[int, int], None] | None = None,
+) -> BuildSummary:
+    """Build (or finish building) a dataset of clean and noisy scans.
+
+    Args:
+        out_dir: the dataset directory.
+        config: what to build.
+        workers: local worker processes (default: all cores); ignored with ``scheduler``.
+        scheduler: address of a Dask scheduler (``tcp://host:8786``), or None for a process pool.
+        overwrite: replace an existing dataset at ``out_dir``.
+        progress: called with (scans done, scans total) as shards finish.
+
+    Raises:
+        LidarsimError: bad input (DTM, sizes, existing output); nothing is written or overwritten then.
+    """
+    t_start = time.perf_counter()
+    out_dir = Path(out_dir).resolve()
+    resume = prepare_output(out_dir, config, overwrite)
+    staging: Path | None = None
+    try:
+        if config.dtm_path is None:
+            existing = out_dir / TERRAIN_DIR / f"mars-procedural-seed{config.seed}.tif"
+            if resume and existing.is_file():
+                dtm_path = existing
+            else:
+                out_dir.parent.mkdir(parents=True, exist_ok=True)
+                staging = Path(tempfile.mkdtemp(prefix=".hd-terrain-", dir=out_dir.parent))
+                dtm_path = _materialise_terrain(config, staging)
+        else:
+            dtm_path = Path(config.dtm_path).resolve()
+        with DTM.open(dtm_path, scale=config.dtm_scale) as dtm:
+            cell = max(OVERVIEW_CELL_M, *dtm.info.spacing_m)
+            valid, overview_transform = dtm.validity_overview(cell)
+            plan = plan_scans(valid, overview_transform, config.sensor, config.trajectory, dtm.info.name)
+            dtm_attrs = {f"dtm_{k}": v for k, v in dtm.info.to_attrs().items()}
+            dtm_attrs["dtm_sha256"] = dtm.sha256()
+            dtm_provenance = {**dtm.info.to_attrs(), "sha256": dtm_attrs["dtm_sha256"]}
+        # Input is valid: from here on the output directory is written.
+        if overwrite:
+            clear_output(out_dir)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        if staging is not None:
+            (out_dir / TERRAIN_DIR).mkdir(exist_ok=True)
+            final = out_dir / TERRAIN_DIR / dtm_path.name
+            os.replace(dtm_path, final)
+            dtm_path = final
+            dtm_provenance["path"] = str(final)
+    finally:
+        if staging is not None:
+            shutil.rmtree(staging, ignore_errors=True)
+    fingerprint = config.fingerprint()
+    write_json_atomic(out_dir / BUILD_STATE_NAME, {"config_sha256": fingerprint, "config": config.to_dict()})
+    remove_partials(out_dir / SHARD_DIR)
+    splits = assign_splits(config.trajectory.n_scans, config.seed)
+    file_attrs = {
+        "seed": config.seed,
+        "config_json": json.dumps(config.to_dict(), sort_keys=True),
+        "config_sha256": fingerprint,
+        "frame": "scan frame: origin at the nadir point on the reference height (origin_map); x east, y north, z up; metres",
+        **config.sensor.to_attrs(),
+        **config.trajectory.to_attrs(),
+        **dtm_attrs,
+        "dtm_path": dtm_path.name,
+    }
+    n_workers = max(1, workers if workers is not None else (os.cpu_count() or 1))
+    tasks = _make_tasks(out_dir, plan, splits, str(dtm_path), config, file_attrs, n_workers)
+    records: dict[int, ShardRecord] = {}
+    pending: list[ShardTask] = []
+    for task in tasks:
+        existing_record = _check_existing_shard(task, fingerprint) if resume else None
+        if existing_record is not None:
+            records[task.shard_index] = existing_record
+        else:
+            pending.append(task)
+    total = config.trajectory.n_scans
+    done = sum(r.n_scans for r in records.values())
+    if progress:
+        progress(done, total)
+    t_work = time.perf_counter()
+    for record_index, record in _run_tasks(pending, n_workers, scheduler):
+        records[record_index] = record
+        done += record.n_scans
+        if progress:
+            progress(done, total)
+    t_end = time.perf_counter()
+    manifest = {
+        "schema": MANIFEST_SCHEMA,
+        "schema_version": MANIFEST_SCHEMA_VERSION,
+        "kind": "lidar-scans",
+        "software": "hd",
+        "software_version": __version__,
+        "n_scans": total,
+        "sigmas_m": list(config.sigmas_m),
+        "seed": config.seed,
+        "config_sha256": fingerprint,
+        "config": config.to_dict(),
+        "dtm": dtm_provenance | {"path": os.path.relpath(dtm_path, out_dir) if dtm_path.is_relative_to(out_dir) else str(dtm_path)},
+        "trajectory": {"step_m": plan.step_m, "footprint_half_width_m": plan.half_width_m},
+        "splits": {name: int((splits == i).sum()) for i, name in enumerate(SPLIT_NAMES)},
+        "shards": [records[i].to_dict() for i in sorted(records)],
+        "labelings": [],
+    }
+    write_json_atomic(out_dir / MANIFEST_NAME, manifest)
+    (out_dir / BUILD_STATE_NAME).unlink(missing_ok=True)
+    new_scans = sum(t.nadir_xy.shape[0] for t in pending)
+    rays = new_scans * config.sensor.rows * config.sensor.cols
+    size = sum((out_dir / r.path).stat().st_size for r in records.values())
+    return BuildSummary(
+        out_dir=out_dir,
+        n_scans=total,
+        n_shards=len(records),
+        sigmas_m=config.sigmas_m,
+        split_counts=manifest["splits"],
+        seconds=t_end - t_start,
+        resumed_shards=len(tasks) - len(pending),
+        bytes_written=size,
+        rays_per_second=rays / max(t_end - t_work, 1e-9),
+    )
+
+
+def _make_tasks(
+    out_dir: Path,
+    plan: ScanPlan,
+    splits: np.ndarray,
+    dtm_path: str,
+    config: BuildConfig,
+    file_attrs: dict[str, Any],
+    n_workers: int,
+) -> list[ShardTask]:
+    n = plan.nadir_xy.shape[0]
+    threads = max(1, (os.cpu_count() or 1) // n_workers)
+    tasks = []
+    for shard_index, first in enumerate(range(0, n, config.shard_size)):
+        last = min(n, first + config.shard_size)
+        tasks.append(ShardTask(
+            out_dir=str(out_dir),
+            shard_index=shard_index,
+            first_scan=first,
+            nadir_xy=plan.nadir_xy[first:last],
+            tile_ij=plan.tile_ij[first:last],
+            splits=splits[first:last],
+            dtm_path=dtm_path,
+            config=config,
+            plan_half_width_m=plan.half_width_m,
+            tile_anchor_xy=plan.tile_anchor_xy,
+            tile_m=plan.tile_m,
+            file_attrs=file_attrs,
+            n_threads=threads,
+        ))
+    return tasks
+
+
+def _run_tasks(tasks: list[ShardTask], n_workers: int, scheduler: str | None) -> Iterable[tuple[int, ShardRecord]]:
+    """Run shard tasks; yields (shard index, record) as they finish."""
+    if not tasks:
+        return
+    if scheduler is not None:
+        yield from _run_dask(tasks, scheduler)
+        return
+    if n_workers == 1:
+        for task in tasks:
+            yield task.shard_index, run_shard(task)
+        return
+    with ProcessPoolExecutor(max_workers=n_workers, mp_context=get_context("spawn")) as pool:
+        futures = {pool.submit(run_shard, task): task.shard_index for task in tasks}
+        for future in as_completed(futures):
+            yield futures[future], future.result()
+
+
+def _run_dask(tasks: list[ShardTask], scheduler: str) -> Iterable[tuple[int, ShardRecord]]:
+    """Run shard tasks on a Dask cluster (``dask.distributed``)."""
+    from distributed import Client, as_completed as dask_completed
+
+    try:
+        client = Client(scheduler, timeout="20s")
+    except (OSError, TimeoutError) as exc:
+        raise LidarsimError(f"cannot reach the Dask scheduler at {scheduler} ({exc.__class__.__name__})") from None
+    try:
+        futures = client.map(run_shard, tasks, pure=False)
+        index = {f.key: t.shard_index for f, t in zip(futures, tasks, strict=True)}
+        for future in dask_completed(futures):
+            yield index[future.key], future.result()
+    finally:
+        client.close()

@@ -1,0 +1,75 @@
+"""Human summaries of a dataset directory (``hd inspect``)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from lidarsim.shards import SPLIT_NAMES, ScanShardReader, read_manifest
+
+
+def describe_dataset(directory: str | os.PathLike) -> str:
+    """A multi-line summary of a dataset: size, splits, noise levels, sensor, DTM, labelings.
+
+    Reads the manifest and the attributes of the first shard (and its first scan) only.
+
+    Raises:
+        ShardFormatError: not an hd dataset, or a schema version this hd does not read.
+    """
+    directory = Path(directory)
+    manifest = read_manifest(directory)
+    shards = manifest["shards"]
+    size = sum((directory / s["path"]).stat().st_size for s in shards if (directory / s["path"]).is_file())
+    lines = [
+        f"dataset   {directory}",
+        f"schema    {manifest['schema']} {manifest['schema_version']} (software {manifest.get('software_version', '?')})",
+        f"scans     {manifest['n_scans']} in {len(shards)} shards, {size / 1e6:.1f} MB",
+        "splits    " + ", ".join(f"{manifest['splits'].get(k, 0)} {k}" for k in SPLIT_NAMES),
+        "sigma     " + ", ".join(f"{s:g} m" for s in manifest["sigmas_m"]),
+        f"seed      {manifest['seed']}",
+    ]
+    dtm = manifest.get("dtm", {})
+    lines.append(
+        f"terrain   {dtm.get('name', '?')} ({dtm.get('rows', '?')} x {dtm.get('cols', '?')} cells, "
+        f"{_fmt_spacing(dtm.get('spacing_m'))} m/px, scale {dtm.get('scale', '?')}, "
+        f"CRS {'none (local metres)' if not dtm.get('crs_wkt') else _short_crs(dtm['crs_wkt'])}, "
+        f"sha256 {str(dtm.get('sha256', ''))[:12]}...)"
+    )
+    if shards:
+        with ScanShardReader(directory / shards[0]["path"]) as reader:
+            a = reader.attrs
+            lines.append(
+                f"sensor    {a.get('sensor_rows')} x {a.get('sensor_cols')} px, FOV {a.get('sensor_fov_x_deg')} x "
+                f"{a.get('sensor_fov_y_deg')} deg, altitude {a.get('trajectory_altitude_m')} m, tilt "
+                f"{a.get('trajectory_tilt_deg')} deg, jitter {a.get('trajectory_jitter_deg')} deg"
+            )
+            if len(reader):
+                scan = reader[0]
+                valid = float(np.mean(scan.valid))
+                z = scan.points_clean[..., 2]
+                lines.append(
+                    f"scan 0    {valid * 100:.1f}% returns, height range {np.nanmin(z):.2f} .. {np.nanmax(z):.2f} m "
+                    f"(scan frame), origin E {scan.origin_map[0]:.1f} N {scan.origin_map[1]:.1f} m"
+                )
+    labelings = manifest.get("labelings", [])
+    for lab in labelings:
+        frac = lab.get("safe_fraction")
+        frac_txt = f", {frac * 100:.1f}% of labelled pixels safe" if frac is not None else ""
+        lines.append(f"labels    {lab.get('name')}: {len(lab.get('shards', []))} label shards{frac_txt}")
+    if not labelings:
+        lines.append("labels    none (run `hd label`)")
+    return "\n".join(lines)
+
+
+def _fmt_spacing(spacing: object) -> str:
+    if isinstance(spacing, (list, tuple)) and len(spacing) == 2:
+        return f"{spacing[0]:g} x {spacing[1]:g}"
+    return str(spacing)
+
+
+def _short_crs(wkt: str) -> str:
+    start = wkt.find('"')
+    end = wkt.find('"', start + 1)
+    return wkt[start + 1 : end] if start >= 0 and end > start else wkt[:40]

@@ -1,0 +1,219 @@
+"""Ray casting: terrain mesh, Open3D scene and the clean and noisy points of each scan.
+
+The terrain under a tile of scans is read as a window of the DTM, turned into a triangle mesh
+whose vertices are the DTM cell centres (two triangles per 2x2 block of valid cells; a triangle
+touching a nodata cell is left out, so rays through holes miss), recentred at the tile centre
+(Open3D works in float32) and handed to Open3D's ``RaycastingScene`` (Embree).
+
+Each ray has a unit direction, so the ray parameter returned by Open3D is the true range ``r``.
+A noisy range is ``r + N(0, sigma^2)``, drawn from the stream ``(seed, RANGE_NOISE, scan,
+sigma)``; the noisy point is ``o + r_noisy * d``. Points are returned in the scan frame (origin
+at the nadir point on the reference height, x east, y north, z up), computed in float64 and
+stored as float32.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import open3d as o3d
+
+from lidarsim.sensor import SensorConfig, ray_directions, sensor_attitude
+from lidarsim.streams import Purpose, sigma_key, stream
+from lidarsim.terrain import DTM
+from lidarsim.trajectory import TrajectoryConfig
+
+# Element status codes stored per detector element (public: documented in docs/shard-format.md).
+STATUS_RETURN = 0  # a return from the terrain
+STATUS_MISS = 1  # the ray hit no terrain (nodata hole or beyond the DTM)
+STATUS_DEAD = 2  # a dead detector element: never returns
+STATUS_DAMAGED = 3  # a damaged element: returns, with a large extra range error in the noisy ranges
+
+
+def terrain_mesh(
+    heights: np.ndarray, x_centres: np.ndarray, y_centres: np.ndarray, origin: tuple[float, float, float]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Triangle mesh of a gridded height window, recentred at ``origin``.
+
+    Args:
+        heights: float64 (rows, cols) heights, metres, NaN where nodata.
+        x_centres: (cols,) map x of the cell centres, metres.
+        y_centres: (rows,) map y of the cell centres, metres.
+        origin: map coordinates (x, y, z) subtracted from every vertex, metres.
+
+    Returns:
+        ``(vertices, triangles)``: float32 (rows*cols, 3) and uint32 (M, 3). Only triangles whose
+        three vertices are valid are kept.
+    """
+    rows, cols = heights.shape
+    valid = np.isfinite(heights)
+    xx = np.broadcast_to(x_centres[None, :] - origin[0], (rows, cols))
+    yy = np.broadcast_to(y_centres[:, None] - origin[1], (rows, cols))
+    zz = np.where(valid, heights - origin[2], 0.0)
+    vertices = np.stack([xx, yy, zz], axis=-1).reshape(-1, 3).astype(np.float32)
+    idx = np.arange(rows * cols, dtype=np.uint32).reshape(rows, cols)
+    a, b = idx[:-1, :-1], idx[:-1, 1:]
+    c, d = idx[1:, :-1], idx[1:, 1:]
+    va, vb, vc, vd = valid[:-1, :-1], valid[:-1, 1:], valid[1:, :-1], valid[1:, 1:]
+    tri1 = np.stack([a, c, b], axis=-1)[va & vc & vb]
+    tri2 = np.stack([b, c, d], axis=-1)[vb & vc & vd]
+    return vertices, np.concatenate([tri1, tri2]).astype(np.uint32)
+
+
+@dataclass(frozen=True)
+class ScanGeometry:
+    """Pose of one scan.
+
+    Attributes:
+        origin_map: (3,) map coordinates of the scan-frame origin (nadir x, y; reference height), metres.
+        sensor_position: (3,) sensor position in the scan frame, metres.
+        attitude: (3, 3) rotation from the sensor frame to the scan frame.
+    """
+
+    origin_map: np.ndarray
+    sensor_position: np.ndarray
+    attitude: np.ndarray
+
+
+@dataclass(frozen=True)
+class ScanResult:
+    """Clean and noisy points of one scan (scan frame, metres)."""
+
+    geometry: ScanGeometry
+    points_clean: np.ndarray  # float32 (rows, cols, 3), NaN where no return
+    points_noisy: np.ndarray  # float32 (n_sigma, rows, cols, 3)
+    status: np.ndarray  # uint8 (rows, cols), STATUS_* codes
+
+
+def element_defects(sensor: SensorConfig, seed: int) -> np.ndarray:
+    """Status map of the detector's permanent defects (dead and damaged elements), uint8 (rows, cols)."""
+    status = np.zeros((sensor.rows, sensor.cols), dtype=np.uint8)
+    n = sensor.rows * sensor.cols
+    if sensor.dead_elements:
+        dead = stream(seed, Purpose.DEAD_ELEMENTS).choice(n, sensor.dead_elements, replace=False)
+        status.flat[dead] = STATUS_DEAD
+    if sensor.damaged_elements:
+        free = np.flatnonzero(status.ravel() == STATUS_RETURN)
+        damaged = stream(seed, Purpose.DAMAGED_ELEMENTS).choice(free, sensor.damaged_elements, replace=False)
+        status.flat[damaged] = STATUS_DAMAGED
+    return status
+
+
+class TileScene:
+    """The Open3D scene of the terrain around one tile of scans.
+
+    Args:
+        dtm: an open DTM.
+        centre_xy: map coordinates of the tile centre, metres (the float32 frame's origin).
+        half_extent_m: half side of the square terrain window loaded around the centre, metres.
+    """
+
+    def __init__(self, dtm: DTM, centre_xy: tuple[float, float], half_extent_m: float) -> None:
+        cx, cy = centre_xy
+        r_a, c_a = dtm.rowcol_of_xy(np.array([cx - half_extent_m, cx + half_extent_m]),
+                                    np.array([cy + half_extent_m, cy - half_extent_m]))
+        row0 = int(np.floor(min(r_a))) - 1
+        col0 = int(np.floor(min(c_a))) - 1
+        nrows = int(np.ceil(max(r_a))) + 2 - row0
+        ncols = int(np.ceil(max(c_a))) + 2 - col0
+        heights = dtm.read(row0, col0, nrows, ncols)
+        xs, _ = dtm.cell_center_xy(np.full(ncols, row0, dtype=np.float64), np.arange(col0, col0 + ncols, dtype=np.float64))
+        _, ys = dtm.cell_center_xy(np.arange(row0, row0 + nrows, dtype=np.float64), np.full(nrows, col0, dtype=np.float64))
+        finite = heights[np.isfinite(heights)]
+        z_ref = float(np.round(finite.mean())) if finite.size else 0.0
+        self.origin = np.array([cx, cy, z_ref], dtype=np.float64)
+        self.heights = heights
+        self.x_centres = np.asarray(xs, dtype=np.float64)
+        self.y_centres = np.asarray(ys, dtype=np.float64)
+        vertices, triangles = terrain_mesh(heights, self.x_centres, self.y_centres, tuple(self.origin))
+        self.n_triangles = int(triangles.shape[0])
+        self.scene = o3d.t.geometry.RaycastingScene()
+        if self.n_triangles:
+            self.scene.add_triangles(o3d.core.Tensor(vertices), o3d.core.Tensor(triangles))
+
+    def mean_height(self, x: float, y: float, half_width_m: float) -> float:
+        """Mean valid terrain height in the square of half-width ``half_width_m`` around (x, y), metres."""
+        cols = np.abs(self.x_centres - x) <= half_width_m
+        rows = np.abs(self.y_centres - y) <= half_width_m
+        window = self.heights[np.ix_(rows, cols)]
+        return float(np.nanmean(window))
+
+    def cast(self, origins_map: np.ndarray, directions: np.ndarray, n_threads: int = 0) -> np.ndarray:
+        """Ranges of rays, metres.
+
+        Args:
+            origins_map: float64 (S, 3) ray origins (map coordinates), one per scan.
+            directions: float64 (S, rows, cols, 3) unit directions.
+            n_threads: Embree threads (0 = all cores).
+
+        Returns:
+            float32 (S, rows, cols) ranges, NaN where the ray hits no terrain.
+        """
+        s, rows, cols, _ = directions.shape
+        rays = np.empty((s, rows, cols, 6), dtype=np.float32)
+        rays[..., :3] = (origins_map - self.origin)[:, None, None, :]
+        rays[..., 3:] = directions
+        if self.n_triangles == 0:
+            return np.full((s, rows, cols), np.nan, dtype=np.float32)
+        hit = self.scene.cast_rays(o3d.core.Tensor(rays.reshape(-1, 6)), nthreads=n_threads)
+        t = hit["t_hit"].numpy().reshape(s, rows, cols)
+        return np.where(np.isfinite(t), t, np.float32(np.nan)).astype(np.float32, copy=False)
+
+
+def scan_geometry(
+    scene: TileScene,
+    nadir_xy: np.ndarray,
+    scan_index: int,
+    trajectory: TrajectoryConfig,
+    footprint_half_width_m: float,
+    seed: int,
+) -> ScanGeometry:
+    """Pose of scan ``scan_index``: sensor ``altitude_m`` above the mean terrain under its footprint."""
+    x, y = float(nadir_xy[0]), float(nadir_xy[1])
+    z_ref = scene.mean_height(x, y, footprint_half_width_m)
+    jitter = (0.0, 0.0, 0.0)
+    if trajectory.jitter_deg > 0.0:
+        jitter = tuple(np.radians(trajectory.jitter_deg) * stream(seed, Purpose.ATTITUDE_JITTER, scan_index).standard_normal(3))
+    return ScanGeometry(
+        origin_map=np.array([x, y, z_ref]),
+        sensor_position=np.array([0.0, 0.0, trajectory.altitude_m]),
+        attitude=sensor_attitude(trajectory.tilt_deg, jitter),
+    )
+
+
+def simulate_scans(
+    scene: TileScene,
+    geometries: list[ScanGeometry],
+    scan_indices: list[int],
+    sensor: SensorConfig,
+    sigmas_m: tuple[float, ...],
+    seed: int,
+    n_threads: int = 0,
+) -> list[ScanResult]:
+    """Cast the rays of several scans in one call and derive clean and noisy points."""
+    d_sensor = ray_directions(sensor)
+    directions = np.stack([d_sensor @ g.attitude.T for g in geometries])
+    origins = np.stack([g.origin_map + g.sensor_position for g in geometries])
+    ranges = scene.cast(origins, directions, n_threads=n_threads)
+    defects = element_defects(sensor, seed)
+    dead = defects == STATUS_DEAD
+    damaged = defects == STATUS_DAMAGED
+    results = []
+    for k, (g, scan) in enumerate(zip(geometries, scan_indices, strict=True)):
+        r = ranges[k].astype(np.float64)
+        r[dead] = np.nan
+        status = np.where(np.isnan(ranges[k]), STATUS_MISS, defects).astype(np.uint8)
+        status[dead] = STATUS_DEAD
+        d = directions[k]
+        clean = (g.sensor_position + r[..., None] * d).astype(np.float32)
+        noisy = np.empty((len(sigmas_m),) + clean.shape, dtype=np.float32)
+        for s_i, sigma in enumerate(sigmas_m):
+            key = sigma_key(sigma)
+            r_noisy = r + sigma * stream(seed, Purpose.RANGE_NOISE, scan, key).standard_normal(r.shape)
+            if damaged.any():
+                extra = stream(seed, Purpose.DAMAGED_ERROR, scan, key).standard_normal(int(damaged.sum()))
+                r_noisy[damaged] += sensor.damaged_error_m * extra
+            noisy[s_i] = g.sensor_position + r_noisy[..., None] * d
+        results.append(ScanResult(geometry=g, points_clean=clean, points_noisy=noisy, status=status))
+    return results

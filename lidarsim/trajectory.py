@@ -1,0 +1,179 @@
+"""Scan positions: where the sensor is when it takes each scan.
+
+The sensor flies at a fixed altitude over the terrain. Scan positions are chosen on a regular
+lattice of nadir points restricted to *admissible* places, those whose whole footprint (plus a
+margin) lies on valid terrain:
+
+1. the DTM's validity is summarised on a coarse grid (a coarse cell is valid only when every DTM
+   cell inside it is valid);
+2. the valid mask is eroded by a square of the footprint half-width (the footprint of the widest,
+   corner ray, tilt and 3-sigma attitude jitter included, plus ``margin_m``);
+3. the lattice step is the largest multiple of the coarse cell that still gives at least the
+   requested number of admissible positions;
+4. positions are ordered tile by tile (square tiles of ``tile_m``, row-major), boustrophedon
+   inside a tile, and thinned evenly to the requested count. Consecutive scans are therefore
+   neighbours on the ground, as along a survey track, and a shard covers a compact area.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from lidarsim import defaults
+from lidarsim.errors import LidarsimError
+from lidarsim.sensor import SensorConfig, footprint_half_width_m
+
+
+@dataclass(frozen=True)
+class TrajectoryConfig:
+    """How the sensor moves over the terrain.
+
+    Attributes:
+        n_scans: number of scans.
+        altitude_m: height of the sensor above the mean terrain height under its footprint, metres.
+        tilt_deg: off-nadir tilt of the boresight, degrees.
+        jitter_deg: 1-sigma attitude jitter per axis, degrees (0 = perfect pointing).
+        margin_m: extra valid terrain required around the footprint, metres.
+        tile_m: side of the square tiles that group scans for ray casting, metres.
+    """
+
+    n_scans: int = defaults.N_SCANS
+    altitude_m: float = defaults.ALTITUDE_M
+    tilt_deg: float = 0.0
+    jitter_deg: float = 0.0
+    margin_m: float = 5.0
+    tile_m: float = 256.0
+
+    def __post_init__(self) -> None:
+        if self.n_scans <= 0:
+            raise LidarsimError(f"the number of scans must be > 0, got {self.n_scans}")
+        if not (self.altitude_m > 0.0 and math.isfinite(self.altitude_m)):
+            raise LidarsimError(f"altitude must be > 0 metres, got {self.altitude_m}")
+        if not (0.0 <= abs(self.tilt_deg) < 60.0):
+            raise LidarsimError(f"tilt must be within (-60, 60) degrees, got {self.tilt_deg}")
+        if not (0.0 <= self.jitter_deg < 5.0):
+            raise LidarsimError(f"attitude jitter must be in [0, 5) degrees, got {self.jitter_deg}")
+        if self.margin_m < 0.0 or self.tile_m <= 0.0:
+            raise LidarsimError("margin_m must be >= 0 and tile_m > 0 metres")
+
+    def to_attrs(self) -> dict[str, int | float]:
+        """Flat attribute dictionary (HDF5/JSON friendly)."""
+        return {f"trajectory_{k}": v for k, v in asdict(self).items()}
+
+
+@dataclass(frozen=True)
+class ScanPlan:
+    """Planned scans.
+
+    Attributes:
+        nadir_xy: float64 (N, 2) map coordinates of the nadir points, metres.
+        tile_ij: int64 (N, 2) index of the ray-casting tile of each scan.
+        half_width_m: footprint half-width (with margin) the plan guarantees valid, metres.
+        step_m: lattice step between neighbouring admissible positions, metres.
+        tile_anchor_xy: map coordinates of the north-west corner of tile (0, 0), metres.
+        tile_m: side of a tile, metres.
+    """
+
+    nadir_xy: np.ndarray
+    tile_ij: np.ndarray
+    half_width_m: float
+    step_m: float
+    tile_anchor_xy: tuple[float, float]
+    tile_m: float
+
+    def tile_centre_xy(self, tile_i: int, tile_j: int) -> tuple[float, float]:
+        """Map coordinates of the centre of tile ``(tile_i, tile_j)``, metres."""
+        x0, y0 = self.tile_anchor_xy
+        return (x0 + (tile_j + 0.5) * self.tile_m, y0 - (tile_i + 0.5) * self.tile_m)
+
+
+def plan_scans(
+    valid: np.ndarray,
+    transform: tuple[float, ...],
+    sensor: SensorConfig,
+    trajectory: TrajectoryConfig,
+    dtm_name: str = "the DTM",
+) -> ScanPlan:
+    """Choose ``trajectory.n_scans`` nadir points whose footprints lie on valid terrain.
+
+    Args:
+        valid: coarse validity grid (True where every DTM cell of the coarse cell is valid).
+        transform: GDAL-order affine of ``valid`` (north-up, square cells assumed).
+        sensor: the detector (its FOV sets the footprint).
+        trajectory: altitude, tilt, jitter, margin and count.
+        dtm_name: name used in error messages.
+
+    Raises:
+        LidarsimError: when no footprint fits, or fewer positions than requested fit.
+    """
+    a, _, c, _, e, f = transform[:6]
+    cell = abs(a)
+    half_width = (
+        footprint_half_width_m(sensor, trajectory.altitude_m, trajectory.tilt_deg, trajectory.jitter_deg)
+        + trajectory.margin_m
+    )
+    reach = int(math.ceil(half_width / cell + 0.5))
+    admissible = ndimage.minimum_filter(
+        valid.astype(np.uint8), size=2 * reach + 1, mode="constant", cval=0
+    ).astype(bool)
+    if not admissible.any():
+        need = 2.0 * half_width
+        extent_x = valid.shape[1] * cell
+        extent_y = valid.shape[0] * cell
+        raise LidarsimError(
+            f"{dtm_name} is too small for the sensor footprint: a scan from {trajectory.altitude_m:g} m "
+            f"needs {need:.0f} m x {need:.0f} m of valid terrain, the DTM covers {extent_x:.0f} m x "
+            f"{extent_y:.0f} m with no such valid square; lower --altitude or use a larger DTM"
+        )
+    rows, cols = np.nonzero(admissible)
+    r0, c0 = rows.min(), cols.min()
+    step = _largest_step(admissible[r0:, c0:], trajectory.n_scans)
+    if step == 0:
+        raise LidarsimError(
+            f"only {int(admissible.sum())} scan positions fit on {dtm_name} at {trajectory.altitude_m:g} m; "
+            f"ask for fewer --scans (got {trajectory.n_scans})"
+        )
+    sub = admissible[r0::step, c0::step]
+    lattice_r, lattice_c = np.nonzero(sub)
+    rr = r0 + lattice_r * step
+    cc = c0 + lattice_c * step
+    x = c + (cc + 0.5) * a
+    y = f + (rr + 0.5) * e
+    tile_i = np.floor((y.max() - y) / trajectory.tile_m).astype(np.int64)
+    tile_j = np.floor((x - x.min()) / trajectory.tile_m).astype(np.int64)
+    order = _tile_boustrophedon_order(tile_i, tile_j, lattice_r, lattice_c)
+    keep = order[np.round(np.linspace(0, order.size - 1, trajectory.n_scans)).astype(np.int64)]
+    return ScanPlan(
+        nadir_xy=np.stack([x[keep], y[keep]], axis=1).astype(np.float64),
+        tile_ij=np.stack([tile_i[keep], tile_j[keep]], axis=1),
+        half_width_m=half_width,
+        step_m=step * cell,
+        tile_anchor_xy=(float(x.min()), float(y.max())),
+        tile_m=trajectory.tile_m,
+    )
+
+
+def _largest_step(admissible: np.ndarray, n: int) -> int:
+    """Largest lattice step (in cells) that keeps at least ``n`` admissible positions; 0 if none."""
+    lo, hi = 1, max(admissible.shape)
+    if int(admissible.sum()) < n:
+        return 0
+    while lo < hi:  # invariant: step lo works
+        mid = (lo + hi + 1) // 2
+        if int(admissible[::mid, ::mid].sum()) >= n:
+            lo = mid
+        else:
+            hi = mid - 1
+    return lo
+
+
+def _tile_boustrophedon_order(
+    tile_i: np.ndarray, tile_j: np.ndarray, rows: np.ndarray, cols: np.ndarray
+) -> np.ndarray:
+    """Order positions tile by tile (row-major), boustrophedon (serpentine) inside each tile."""
+    serpentine_col = np.where(rows % 2 == 0, cols, -cols)
+    return np.lexsort((serpentine_col, rows, tile_j, tile_i))
