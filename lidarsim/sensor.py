@@ -136,7 +136,7 @@ def sensor_attitude(
     jx, jy, jz = jitter_rad
     return (
         NADIR_ATTITUDE
-        @ rotation_x(-math.radians(tilt_deg))
+        @ rotation_x(math.radians(tilt_deg))
         @ rotation_x(jx)
         @ rotation_y(jy)
         @ rotation_z(jz)

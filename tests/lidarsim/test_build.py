@@ -1,0 +1,261 @@
+"""The dataset factory end to end: determinism, resume after a kill, Dask, bad input, real terrain."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+import rasterio
+from click.testing import CliRunner
+from rasterio.transform import from_origin
+
+from cli import main
+from lidarsim.build import BuildConfig, assign_splits, build_dataset
+from lidarsim.sensor import SensorConfig
+from lidarsim.shards import ScanShardReader, iter_scans, read_manifest, verify_dataset
+from lidarsim.trajectory import TrajectoryConfig
+
+REPO = Path(__file__).resolve().parents[2]
+REAL = REPO.parent / "shared" / "data" / "real-terrain"
+SMALL_SENSOR = SensorConfig(rows=32, cols=32)
+
+
+def rough_dtm(path: Path, n: int = 320, spacing: float = 0.5, origin=(1000.0, 2000.0), crs: str | None = None,
+              seed: int = 3) -> Path:
+    """A small rough terrain GeoTIFF (seeded)."""
+    rng = np.random.default_rng(seed)
+    z = np.cumsum(np.cumsum(rng.normal(0, 0.02, (n, n)), axis=0), axis=1)
+    z += rng.normal(0, 0.05, (n, n))
+    with rasterio.open(path, "w", driver="GTiff", width=n, height=n, count=1, dtype="float32", crs=crs,
+                       transform=from_origin(origin[0], origin[1], spacing, spacing)) as dst:
+        dst.write(z.astype(np.float32), 1)
+    return path
+
+
+def small_config(dtm: Path, **kw) -> BuildConfig:
+    traj = kw.pop("trajectory", TrajectoryConfig(n_scans=12, altitude_m=500.0))
+    return BuildConfig(sigmas_m=kw.pop("sigmas_m", (0.0167, 0.07)), seed=kw.pop("seed", 5), sensor=SMALL_SENSOR,
+                       trajectory=traj, dtm_path=str(dtm), shard_size=kw.pop("shard_size", 4), **kw)
+
+
+def load_arrays(directory: Path) -> dict[str, np.ndarray]:
+    out: dict[str, list[np.ndarray]] = {}
+    for entry in read_manifest(directory)["shards"]:
+        with h5py.File(directory / entry["path"]) as f:
+            for key in ("scan_index", "split", "origin_map", "sensor_attitude", "points_clean", "points_noisy", "status"):
+                out.setdefault(key, []).append(f[key][:])
+    return {k: np.concatenate(v) for k, v in out.items()}
+
+
+@pytest.fixture(scope="module")
+def dtm(tmp_path_factory) -> Path:
+    return rough_dtm(tmp_path_factory.mktemp("dtm") / "rough.tif")
+
+
+def test_workers_and_shard_size_do_not_change_the_data(tmp_path, dtm):
+    a = build_dataset(tmp_path / "a", small_config(dtm), workers=1)
+    b = build_dataset(tmp_path / "b", small_config(dtm), workers=2)
+    c = build_dataset(tmp_path / "c", small_config(dtm, shard_size=5), workers=2)
+    assert a.n_scans == b.n_scans == c.n_scans == 12
+    arrays_a, arrays_b, arrays_c = (load_arrays(tmp_path / n) for n in "abc")
+    for key in arrays_a:
+        np.testing.assert_array_equal(arrays_a[key], arrays_b[key], err_msg=key)
+        np.testing.assert_array_equal(arrays_a[key], arrays_c[key], err_msg=key)
+    # same shard size: byte-identical files
+    ma, mb = read_manifest(tmp_path / "a"), read_manifest(tmp_path / "b")
+    assert [s["sha256"] for s in ma["shards"]] == [s["sha256"] for s in mb["shards"]]
+    assert verify_dataset(tmp_path / "a") == []
+
+
+def test_shard_round_trip_and_lazy_reader(tmp_path, dtm):
+    out = tmp_path / "d"
+    build_dataset(out, small_config(dtm), workers=1)
+    manifest = read_manifest(out)
+    assert manifest["n_scans"] == 12 and len(manifest["shards"]) == 3
+    assert sum(s["n_scans"] for s in manifest["shards"]) == 12
+    scans = list(iter_scans(out))
+    assert [s.scan_index for s in scans] == list(range(12))
+    with ScanShardReader(out / manifest["shards"][1]["path"]) as reader:
+        assert len(reader) == 4 and reader.sigmas_m == (0.0167, 0.07)
+        scan = reader[2]
+        assert scan.scan_index == 6
+        assert scan.points_clean.shape == (32, 32, 3) and scan.points_clean.dtype == np.float32
+        assert scan.points_noisy.shape == (2, 32, 32, 3)
+        np.testing.assert_allclose(scan.sensor_position, [0, 0, 500.0])
+        # plain h5py sees the same numbers, chunked per scan and compressed
+        f = reader.h5
+        assert f["points_clean"].chunks == (1, 32, 32, 3) and f["points_clean"].compression == "gzip"
+        assert f.attrs["schema"] == "hd.lidar-scans" and f.attrs["schema_version"] == "1.0"
+        np.testing.assert_array_equal(f["points_noisy"][2, 1], scan.points_noisy[1])
+        assert f.attrs["dtm_sha256"] == manifest["dtm"]["sha256"]
+    # points are near the terrain: about 500 m below the sensor
+    z = scans[0].points_clean[..., 2]
+    assert np.nanmax(np.abs(z)) < 20
+
+
+def test_resume_after_kill_gives_the_uninterrupted_dataset(tmp_path, dtm):
+    reference = tmp_path / "ref"
+    argv = ["build-dataset", "--dtm", str(dtm), "--scans", "16", "--shard-size", "2", "--sigma", "0.03",
+            "--seed", "9", "--workers", "1", "--resolution", "48"]
+    assert CliRunner().invoke(main, argv + ["--out", str(reference)]).exit_code == 0
+    out = tmp_path / "killed"
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    proc = subprocess.Popen([sys.executable, str(REPO / "cli.py"), *argv, "--out", str(out)], env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 60
+    while time.time() < deadline and len(list((out / "shards").glob("scans-*.h5"))) < 2:
+        time.sleep(0.005)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert not (out / "manifest.json").exists(), "the build finished before it could be killed"
+    result = CliRunner().invoke(main, argv + ["--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "already complete" in result.output
+    ref_m, out_m = read_manifest(reference), read_manifest(out)
+    assert [s["sha256"] for s in ref_m["shards"]] == [s["sha256"] for s in out_m["shards"]]
+    assert not list((out / "shards").glob(".*partial*"))
+    assert not (out / ".hd-build.json").exists()
+
+
+def test_existing_output_is_never_overwritten_without_the_flag(tmp_path, dtm):
+    out = tmp_path / "d"
+    build_dataset(out, small_config(dtm), workers=1)
+    before = (out / "manifest.json").read_text()
+    argv = ["build-dataset", "--out", str(out), "--dtm", str(dtm), "--scans", "12", "--resolution", "32"]
+    result = CliRunner().invoke(main, argv)
+    assert result.exit_code != 0 and "--overwrite" in result.output
+    assert (out / "manifest.json").read_text() == before
+    result = CliRunner().invoke(main, argv + ["--overwrite", "--sigma", "0.05"])
+    assert result.exit_code == 0, result.output
+    assert read_manifest(out)["sigmas_m"] == [0.05]
+
+
+def test_foreign_directory_is_refused(tmp_path, dtm):
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "thesis.txt").write_text("precious")
+    result = CliRunner().invoke(main, ["build-dataset", "--out", str(out), "--dtm", str(dtm), "--overwrite"])
+    assert result.exit_code != 0 and "not an hd dataset" in result.output
+    assert (out / "thesis.txt").read_text() == "precious"
+
+
+def test_dask_local_cluster_gives_the_same_data(tmp_path, dtm):
+    distributed = pytest.importorskip("distributed")
+    build_dataset(tmp_path / "pool", small_config(dtm), workers=1)
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        build_dataset(tmp_path / "dask", small_config(dtm), scheduler=cluster.scheduler_address)
+    a, b = load_arrays(tmp_path / "pool"), load_arrays(tmp_path / "dask")
+    for key in a:
+        np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+
+
+def test_splits_are_block_shuffled_and_independent_of_shards():
+    s = assign_splits(1000, seed=0)
+    assert np.bincount(s).tolist() == [800, 100, 100]
+    blocks = s.reshape(20, 50)
+    assert (blocks == blocks[:, :1]).all()  # blocks of 50 consecutive scans share a split
+    assert not np.array_equal(s, assign_splits(1000, seed=1))
+
+
+# ---------------------------------------------------------------- bad input: one line, exit != 0, nothing written
+
+
+def _run_bad(tmp_path: Path, *args: str) -> str:
+    out = tmp_path / "never"
+    result = CliRunner().invoke(main, ["build-dataset", "--out", str(out), *args])
+    assert result.exit_code != 0
+    assert not out.exists(), "bad input must not create the output"
+    assert "Traceback" not in result.output
+    message = result.output.strip().splitlines()[-1]
+    assert message.startswith("Error: ")
+    return message
+
+
+def test_bad_inputs_are_refused_with_one_line(tmp_path, dtm):
+    msg = _run_bad(tmp_path, "--dtm", str(tmp_path / "missing.tif"))
+    assert "missing.tif" in msg
+    junk = tmp_path / "junk.tif"
+    junk.write_text("this is not a raster")
+    assert "junk.tif" in _run_bad(tmp_path, "--dtm", str(junk))
+    assert "sigma" in _run_bad(tmp_path, "--dtm", str(dtm), "--sigma", "0").lower()
+    assert "sigma" in _run_bad(tmp_path, "--dtm", str(dtm), "--sigma", "-0.01").lower()
+    assert "sigma" in _run_bad(tmp_path, "--dtm", str(dtm), "--sigma", "nan").lower()
+    assert "scans" in _run_bad(tmp_path, "--dtm", str(dtm), "--scans", "0").lower()
+    assert "dtm-scale" in _run_bad(tmp_path, "--dtm", str(dtm), "--dtm-scale", "0")
+    msg = _run_bad(tmp_path, "--dtm", str(dtm), "--altitude", "2000")
+    assert "too small" in msg and "--altitude" in msg
+    assert "workers" in _run_bad(tmp_path, "--dtm", str(dtm), "--workers", "0")
+
+
+def test_all_nodata_and_geographic_dtms_are_refused(tmp_path):
+    nodata = tmp_path / "empty.tif"
+    with rasterio.open(nodata, "w", driver="GTiff", width=50, height=50, count=1, dtype="float32", nodata=-9999,
+                       transform=from_origin(0, 50, 1, 1)) as dst:
+        dst.write(np.full((50, 50), -9999, np.float32), 1)
+    assert "nodata" in _run_bad(tmp_path, "--dtm", str(nodata))
+    geo = rough_dtm(tmp_path / "geo.tif", n=50, spacing=0.001, origin=(10.0, 45.0), crs="EPSG:4326")
+    assert "geographic" in _run_bad(tmp_path, "--dtm", str(geo))
+
+
+def test_verify_and_inspect_catch_damage_and_unknown_versions(tmp_path, dtm):
+    out = tmp_path / "d"
+    build_dataset(out, small_config(dtm), workers=1)
+    runner = CliRunner()
+    ok = runner.invoke(main, ["verify", str(out)])
+    assert ok.exit_code == 0 and "OK" in ok.output
+    assert "12 in 3 shards" in runner.invoke(main, ["inspect", str(out)]).output
+    shard = out / read_manifest(out)["shards"][0]["path"]
+    with h5py.File(shard, "r+") as f:
+        f.attrs["schema_version"] = "2.0"
+    bad = runner.invoke(main, ["verify", str(out)])
+    assert bad.exit_code != 0 and "checksum mismatch" in bad.output
+    # fix the checksum in the manifest: now the schema version is what is wrong
+    manifest = json.loads((out / "manifest.json").read_text())
+    from lidarsim.shards import sha256_file
+
+    manifest["shards"][0]["sha256"] = sha256_file(shard)
+    (out / "manifest.json").write_text(json.dumps(manifest))
+    bad = runner.invoke(main, ["verify", str(out)])
+    assert bad.exit_code != 0 and "version 2.0 is not supported" in bad.output
+    bad = runner.invoke(main, ["inspect", str(out)])
+    assert bad.exit_code != 0 and "version 2.0 is not supported" in bad.output
+    manifest["schema_version"] = "7.1"
+    (out / "manifest.json").write_text(json.dumps(manifest))
+    bad = runner.invoke(main, ["inspect", str(out)])
+    assert bad.exit_code != 0 and "version 7.1" in bad.output
+    assert runner.invoke(main, ["verify", str(tmp_path)]).exit_code != 0  # not a dataset
+
+
+# ---------------------------------------------------------------- real terrain
+
+
+@pytest.mark.skipif(not REAL.is_dir(), reason="shared real-terrain data not present")
+def test_real_terrain_autzen_builds_and_ames_needs_a_lower_altitude(tmp_path):
+    out = tmp_path / "autzen"
+    config = BuildConfig(sigmas_m=(0.03,), sensor=SMALL_SENSOR, trajectory=TrajectoryConfig(n_scans=6),
+                         dtm_path=str(REAL / "autzen-ground-1m.tif"), shard_size=3)
+    build_dataset(out, config, workers=1)
+    for scan in iter_scans(out):
+        assert scan.valid.all()  # footprints were placed on valid terrain only
+        z_map = scan.points_clean[..., 2] + scan.origin_map[2]
+        assert 123.0 < np.nanmin(z_map) and np.nanmax(z_map) < 133.0
+    msg = _run_bad(tmp_path, "--dtm", str(REAL / "ames-0.5m.tif"), "--scans", "5")
+    assert "too small" in msg and "ames-0.5m.tif" in msg
+    out = tmp_path / "ames"
+    config = BuildConfig(sigmas_m=(0.03,), sensor=SMALL_SENSOR,
+                         trajectory=TrajectoryConfig(n_scans=4, altitude_m=150.0),
+                         dtm_path=str(REAL / "ames-0.5m.tif"), shard_size=4)
+    build_dataset(out, config, workers=1)
+    for scan in iter_scans(out):
+        assert scan.valid.all()
+        assert scan.origin_map[1] > 4.1e6  # UTM northing kept in float64
+        z_map = scan.points_clean[..., 2] + scan.origin_map[2]
+        assert 2.7 < np.nanmin(z_map) and np.nanmax(z_map) < 5.5
