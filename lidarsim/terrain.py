@@ -43,6 +43,9 @@ _ROTATION_TOLERANCE = 1e-9
 _HASH_CHUNK_BYTES = 1 << 20
 # Upper bound on source cells read per block by validity_overview (~4 M cells, ~50 MiB of working memory).
 _OVERVIEW_BLOCK_CELLS = 1 << 22
+# HiRISE NULL as stored in a float32 file (16#FF7FFFFB# = -3.4028226550889045e38): the float64
+# literal -3.4028227e38 is *below* its float32 rounding, so the threshold is taken in float32.
+_NULL_THRESHOLD = float(np.float32(HIRISE_NULL))
 # Slack when converting fractional cell boundaries to integer indices (cells).
 _EDGE_EPS = 1e-9
 
@@ -56,7 +59,7 @@ def invalid_mask(values: np.ndarray, nodata: float | None) -> np.ndarray:
     bad = np.zeros(values.shape, dtype=bool)
     if np.issubdtype(values.dtype, np.floating):
         bad |= np.isnan(values)
-        bad |= values <= np.asarray(HIRISE_NULL, dtype=np.float64)
+        bad |= values <= _NULL_THRESHOLD
     if nodata is not None and not math.isnan(nodata):
         bad |= values == np.asarray(nodata).astype(values.dtype)
     return bad
@@ -311,10 +314,18 @@ class DTM:
         sr0, sr1 = int(r_first[0]), int(r_last[-1])
         sc0, sc1 = int(c_first[0]), int(c_last[-1])
         src_raw = self._read_source(Window(sc0, sr0, sc1 - sc0, sr1 - sr0))
-        bad_count = _box_counts(
-            invalid_mask(src_raw, self.info.nodata), r_first - sr0, r_last - sr0, c_first - sc0, c_last - sc0
-        )
-        return values, (bad_count > 0) | bad_resampled
+        src_bad = invalid_mask(src_raw, self.info.nodata)
+        boxes = (r_first - sr0, r_last - sr0, c_first - sc0, c_last - sc0)
+        bad = _box_counts(src_bad, *boxes) > 0
+        # GDAL's bilinear kernel reaches past a coarse cell, so a NaN next to a valid coarse cell can
+        # spoil it; such cells (all their own source cells valid) get the mean of those source cells.
+        spoiled = bad_resampled & ~bad
+        if spoiled.any():
+            filled = np.where(src_bad, 0.0, src_raw.astype(np.float64))
+            sums = _box_sums(filled, *boxes)
+            counts = (boxes[1] - boxes[0])[:, None] * (boxes[3] - boxes[2])[None, :]
+            values[spoiled] = sums[spoiled] / counts[spoiled]
+        return values, bad
 
     # ------------------------------------------------------------------ coordinates
     def cell_center_xy(self, row: np.ndarray | float, col: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
@@ -391,8 +402,19 @@ def _box_counts(
     c_last: np.ndarray,
 ) -> np.ndarray:
     """Number of True cells of ``mask`` in each box [r_first[i], r_last[i]) x [c_first[j], c_last[j])."""
-    sat = np.zeros((mask.shape[0] + 1, mask.shape[1] + 1), dtype=np.int64)
-    np.cumsum(np.cumsum(mask, axis=0, dtype=np.int64), axis=1, out=sat[1:, 1:])
+    return _box_sums(mask.astype(np.int64), r_first, r_last, c_first, c_last)
+
+
+def _box_sums(
+    values: np.ndarray,
+    r_first: np.ndarray,
+    r_last: np.ndarray,
+    c_first: np.ndarray,
+    c_last: np.ndarray,
+) -> np.ndarray:
+    """Sum of ``values`` over each box [r_first[i], r_last[i]) x [c_first[j], c_last[j]) (summed-area table)."""
+    sat = np.zeros((values.shape[0] + 1, values.shape[1] + 1), dtype=values.dtype)
+    np.cumsum(np.cumsum(values, axis=0), axis=1, out=sat[1:, 1:])
     r0, r1 = r_first[:, None], r_last[:, None]
     c0, c1 = c_first[None, :], c_last[None, :]
     return sat[r1, c1] - sat[r0, c1] - sat[r1, c0] + sat[r0, c0]
