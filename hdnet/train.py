@@ -1,0 +1,327 @@
+"""Training loop for Bayesian SegNet: checkpoints every epoch, exact resume, metrics.csv, DDP.
+
+Run directory layout (all written by rank 0, each file atomically: temporary name, then rename):
+
+* ``config.json``: profile, model config, seed, epochs, world size, versions, ``extra_config``
+  (e.g. the training split's normalisation min/max);
+* ``last.pt``: checkpoint after the latest epoch; ``best.pt``: the epoch with the lowest validation loss;
+* ``metrics.csv``: ``epoch, train_loss, val_loss, val_pixel_accuracy`` (rewritten from the checkpoint's
+  history each epoch, so it never holds an epoch the checkpoint does not).
+
+Checkpoints hold only tensors and plain Python types (schema ``hdnet.checkpoint`` version 1) and
+are read with ``torch.load(weights_only=True)``: no code is ever unpickled.
+
+Exact resume: shuffling is a pure function of (seed, epoch) (``DistributedSampler.set_epoch``, also
+for one process), and the RNG states of torch (CPU and CUDA), NumPy and Python of every rank are
+saved after each epoch and restored on resume; a run killed after epoch k and resumed ends with the
+same weights as an uninterrupted one.
+
+Distributed: under ``torchrun`` (``WORLD_SIZE`` > 1) the process group is initialised here (NCCL on
+GPUs, gloo on CPU) unless it already is; each rank trains on its ``DistributedSampler`` shard with
+``batch_size // world_size`` samples, so the global batch is the profile's. Losses are summed over
+valid pixels across ranks. Validation runs with dropout off (deterministic network).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import os
+import random
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import torch.distributed as dist
+import torch.nn.functional as F
+from torch import nn
+from torch.utils.data import DataLoader, Dataset, DistributedSampler
+
+from hdnet import defaults
+from hdnet._version import __version__
+from hdnet.errors import HdNetError
+from hdnet.model import MODEL_NAME, BayesianSegNet, ModelConfig
+from hdnet.profiles import TrainingProfile, profile_from_dict
+
+CHECKPOINT_SCHEMA = "hdnet.checkpoint"
+CHECKPOINT_VERSION = 1
+LAST, BEST, CONFIG, METRICS = "last.pt", "best.pt", "config.json", "metrics.csv"
+
+
+# --- process group ------------------------------------------------------------------------------
+def _init_distributed() -> tuple[int, int, torch.device]:
+    """(rank, world size, device); initialises the process group under torchrun when needed."""
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    if world > 1 and not dist.is_initialized():
+        dist.init_process_group(backend="nccl" if torch.cuda.is_available() else "gloo")
+    if dist.is_initialized():
+        rank, world = dist.get_rank(), dist.get_world_size()
+    else:
+        rank, world = 0, 1
+    if torch.cuda.is_available():
+        local = int(os.environ.get("LOCAL_RANK", rank % max(1, torch.cuda.device_count())))
+        torch.cuda.set_device(local)
+        device = torch.device("cuda", local)
+    else:
+        device = torch.device("cpu")
+    return rank, world, device
+
+
+# --- RNG state as plain types ------------------------------------------------------------------
+def _rng_state() -> dict[str, Any]:
+    np_state = np.random.get_state()
+    py_version, py_state, py_gauss = random.getstate()
+    return {
+        "torch": torch.get_rng_state(),
+        "cuda": torch.cuda.get_rng_state() if torch.cuda.is_available() else None,
+        "numpy": {"name": np_state[0], "key": torch.from_numpy(np_state[1].astype(np.int64)),
+                  "pos": int(np_state[2]), "has_gauss": int(np_state[3]), "cached_gaussian": float(np_state[4])},
+        "python": {"version": py_version, "state": torch.tensor(py_state, dtype=torch.int64), "gauss_next": py_gauss},
+    }
+
+
+def _set_rng_state(state: dict[str, Any]) -> None:
+    torch.set_rng_state(state["torch"])
+    if state.get("cuda") is not None and torch.cuda.is_available():
+        torch.cuda.set_rng_state(state["cuda"])
+    n = state["numpy"]
+    np.random.set_state((n["name"], n["key"].numpy().astype(np.uint32), n["pos"], n["has_gauss"], n["cached_gaussian"]))
+    p = state["python"]
+    random.setstate((p["version"], tuple(int(v) for v in p["state"].tolist()), p["gauss_next"]))
+
+
+def _seed_everything(seed: int) -> None:
+    torch.manual_seed(seed)
+    np.random.seed(seed % 2**32)
+    random.seed(seed)
+
+
+# --- checkpoint I/O ----------------------------------------------------------------------------
+def _atomic_write_bytes(path: Path, data: bytes) -> None:
+    tmp = path.with_name(path.name + ".partial")
+    with open(tmp, "wb") as fh:
+        fh.write(data)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
+def save_checkpoint(path: Path, checkpoint: dict[str, Any]) -> None:
+    """Write a checkpoint atomically (temporary file, fsync, rename)."""
+    buf = io.BytesIO()
+    torch.save(checkpoint, buf)
+    _atomic_write_bytes(Path(path), buf.getvalue())
+
+
+def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
+    """Read and validate a checkpoint (weights only); refuses other schemas, versions and models."""
+    path = Path(path)
+    if not path.is_file():
+        raise HdNetError(f"checkpoint {path} does not exist.")
+    try:
+        ckpt = torch.load(path, map_location=map_location, weights_only=True)
+    except Exception as exc:  # unpickling errors of every kind: the file is not ours
+        raise HdNetError(f"{path} is not a readable hdnet checkpoint ({type(exc).__name__}).") from None
+    if not isinstance(ckpt, dict) or ckpt.get("schema") != CHECKPOINT_SCHEMA:
+        raise HdNetError(f"{path} is not an hdnet checkpoint (schema {CHECKPOINT_SCHEMA!r} missing).")
+    if ckpt.get("schema_version") != CHECKPOINT_VERSION:
+        raise HdNetError(f"{path} has checkpoint schema version {ckpt.get('schema_version')}, this hdnet reads {CHECKPOINT_VERSION}.")
+    if ckpt.get("model_name") != MODEL_NAME:
+        raise HdNetError(f"{path} holds a {ckpt.get('model_name')!r} model, not {MODEL_NAME!r}.")
+    return ckpt
+
+
+def load_trained_model(path: str | Path, map_location: str | torch.device = "cpu") -> tuple[BayesianSegNet, dict[str, Any]]:
+    """The model of a checkpoint (in eval mode) and the checkpoint dictionary (``extra_config`` etc.)."""
+    ckpt = load_checkpoint(path, map_location)
+    model = BayesianSegNet(ModelConfig(**ckpt["model_config"]))
+    model.load_state_dict(ckpt["model"])
+    return model.to(map_location).eval(), ckpt
+
+
+# --- helpers ----------------------------------------------------------------------------------
+def _write_metrics_csv(path: Path, history: list[dict[str, float]]) -> None:
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=["epoch", "train_loss", "val_loss", "val_pixel_accuracy"], lineterminator="\n")
+    writer.writeheader()
+    for row in history:
+        writer.writerow({k: (int(v) if k == "epoch" else f"{v:.6g}") for k, v in row.items()})
+    _atomic_write_bytes(path, buf.getvalue().encode())
+
+
+def _make_optimizer(model: nn.Module, profile: TrainingProfile) -> torch.optim.Optimizer:
+    if profile.optimizer == "sgd":
+        return torch.optim.SGD(model.parameters(), lr=profile.lr, momentum=profile.momentum)
+    if profile.optimizer == "adam":
+        return torch.optim.Adam(model.parameters(), lr=profile.lr)
+    raise HdNetError(f"unknown optimizer {profile.optimizer!r} in profile {profile.name!r}; use 'sgd' or 'adam'.")
+
+
+def _sum_loss(logits: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(summed cross-entropy over valid pixels, correct valid pixels, valid pixels)."""
+    loss = F.cross_entropy(logits, mask, ignore_index=defaults.IGNORE_INDEX, reduction="sum")
+    valid = mask != defaults.IGNORE_INDEX
+    correct = ((logits.argmax(1) == mask) & valid).sum()
+    return loss, correct, valid.sum()
+
+
+def _all_reduce(values: torch.Tensor) -> torch.Tensor:
+    if dist.is_initialized():
+        dist.all_reduce(values)
+    return values
+
+
+def _check_sample(ds: Dataset, name: str) -> int:
+    try:
+        sample = ds[0]
+    except Exception as exc:
+        raise HdNetError(f"the {name} dataset cannot give its first sample ({exc}).") from None
+    if not isinstance(sample, dict) or "image" not in sample or "mask" not in sample:
+        raise HdNetError(f"the {name} dataset must yield dicts with 'image' and 'mask'.")
+    image, mask = sample["image"], sample["mask"]
+    if image.dim() != 3 or mask.dim() != 2 or image.shape[-2:] != mask.shape:
+        raise HdNetError(f"the {name} dataset must yield image (C, H, W) and mask (H, W), got {tuple(image.shape)} and {tuple(mask.shape)}.")
+    return int(image.shape[0])
+
+
+def _json_plain(obj: dict[str, Any], what: str) -> dict[str, Any]:
+    try:
+        return json.loads(json.dumps(obj))
+    except (TypeError, ValueError):
+        raise HdNetError(f"{what} must hold only JSON types (numbers, strings, lists, dicts).") from None
+
+
+# --- the loop ---------------------------------------------------------------------------------
+def train(
+    run_dir: str | Path,
+    train_ds: Dataset,
+    val_ds: Dataset,
+    profile: TrainingProfile,
+    epochs: int | None = None,
+    seed: int = 0,
+    resume: bool = False,
+    progress: bool = True,
+    extra_config: dict[str, Any] | None = None,
+    num_workers: int = 0,
+) -> Path:
+    """Train to ``epochs`` (default: the profile's) epochs in total; returns the path of ``last.pt``.
+
+    ``train_ds``/``val_ds`` yield ``{"image": float32 (C, H, W), "mask": int64 (H, W)}`` (0 unsafe, 1 safe,
+    255 ignored). ``resume=True`` continues from ``run_dir/last.pt`` (from scratch if there is none);
+    without it an existing checkpoint in ``run_dir`` is an error. ``extra_config`` (JSON types) is
+    stored in config.json and in every checkpoint.
+    """
+    total_epochs = profile.epochs if epochs is None else int(epochs)
+    if total_epochs < 1:
+        raise HdNetError(f"epochs must be >= 1, got {total_epochs}.")
+    if len(train_ds) == 0 or len(val_ds) == 0:  # type: ignore[arg-type]
+        raise HdNetError("the training and validation datasets must not be empty.")
+    extra = _json_plain(dict(extra_config or {}), "extra_config")
+    in_channels = _check_sample(train_ds, "training")
+    _check_sample(val_ds, "validation")
+    run_dir = Path(run_dir)
+    rank, world, device = _init_distributed()
+    model_config = ModelConfig(in_channels=in_channels, width=profile.width)
+
+    last = run_dir / LAST
+    ckpt = None
+    if last.exists():
+        if not resume:
+            raise HdNetError(f"{run_dir} already holds a checkpoint; resume it or choose another run directory.")
+        ckpt = load_checkpoint(last)
+        if ckpt["model_config"] != model_config.to_dict() or profile_from_dict(ckpt["profile"]) != profile:
+            raise HdNetError(f"checkpoint {last} was trained with another model or profile ({ckpt['profile']['name']!r}).")
+
+    _seed_everything(seed + rank)
+    model = BayesianSegNet(model_config).to(device)
+    optimizer = _make_optimizer(model, profile)
+    start_epoch, history, best_loss = 0, [], math.inf
+    if ckpt is not None:
+        model.load_state_dict(ckpt["model"])
+        optimizer.load_state_dict(ckpt["optimizer"])
+        start_epoch, history = int(ckpt["epoch"]), list(ckpt["history"])
+        best_loss = min((h["val_loss"] for h in history), default=math.inf)
+        states = ckpt["rng"]
+        _set_rng_state(states[rank] if rank < len(states) else states[0])
+    net: nn.Module = model
+    if world > 1:
+        net = nn.parallel.DistributedDataParallel(model, device_ids=[device.index] if device.type == "cuda" else None)
+
+    per_rank_batch = max(1, profile.batch_size // world)
+    train_sampler = DistributedSampler(train_ds, num_replicas=world, rank=rank, shuffle=True, seed=seed)
+    val_sampler = DistributedSampler(val_ds, num_replicas=world, rank=rank, shuffle=False)
+    pin = device.type == "cuda"
+    train_loader = DataLoader(train_ds, batch_size=per_rank_batch, sampler=train_sampler, num_workers=num_workers, pin_memory=pin)
+    val_loader = DataLoader(val_ds, batch_size=per_rank_batch, sampler=val_sampler, num_workers=num_workers, pin_memory=pin)
+
+    config = {
+        "schema": "hdnet.run", "schema_version": 1, "model_name": MODEL_NAME, "model_config": model_config.to_dict(),
+        "profile": profile.to_dict(), "epochs": total_epochs, "seed": seed, "world_size": world,
+        "hd_version": __version__, "torch_version": torch.__version__, "extra_config": extra,
+    }
+    if rank == 0:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        _atomic_write_bytes(run_dir / CONFIG, (json.dumps(config, indent=2) + "\n").encode())
+
+    bar = None
+    if progress and rank == 0:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=total_epochs, initial=start_epoch, desc=f"train {profile.name}", unit="epoch")
+    for epoch in range(start_epoch, total_epochs):
+        train_sampler.set_epoch(epoch)
+        net.train()
+        sums = torch.zeros(3, dtype=torch.float64, device=device)  # loss sum, (unused), valid pixels
+        for batch in train_loader:
+            x = batch["image"].to(device, non_blocking=True)
+            y = batch["mask"].to(device, non_blocking=True)
+            loss_sum, _, n_valid = _sum_loss(net(x), y)
+            optimizer.zero_grad(set_to_none=True)
+            (loss_sum / n_valid.clamp(min=1)).backward()
+            optimizer.step()
+            sums[0] += loss_sum.detach().double()
+            sums[2] += n_valid.double()
+        train_sums = _all_reduce(sums)
+        net.eval()
+        vsums = torch.zeros(3, dtype=torch.float64, device=device)
+        with torch.no_grad():
+            for batch in val_loader:
+                x, y = batch["image"].to(device), batch["mask"].to(device)
+                vsums += torch.stack([v.double() for v in _sum_loss(net(x), y)])
+        vsums = _all_reduce(vsums)
+        row = {
+            "epoch": epoch + 1,
+            "train_loss": float(train_sums[0] / train_sums[2].clamp(min=1)),
+            "val_loss": float(vsums[0] / vsums[2].clamp(min=1)),
+            "val_pixel_accuracy": float(vsums[1] / vsums[2].clamp(min=1)),
+        }
+        history.append(row)
+        states = [_rng_state()]
+        if world > 1:
+            gathered: list[Any] = [None] * world
+            dist.all_gather_object(gathered, states[0])
+            states = gathered
+        if rank == 0:
+            ckpt_out = {
+                "schema": CHECKPOINT_SCHEMA, "schema_version": CHECKPOINT_VERSION, "model_name": MODEL_NAME,
+                "model_config": model_config.to_dict(), "profile": profile.to_dict(), "epoch": epoch + 1,
+                "seed": seed, "model": {k: v.detach().cpu() for k, v in model.state_dict().items()},
+                "optimizer": optimizer.state_dict(), "rng": states, "history": history, "extra_config": extra,
+                "hd_version": __version__,
+            }
+            save_checkpoint(last, ckpt_out)
+            if row["val_loss"] < best_loss:
+                best_loss = row["val_loss"]
+                save_checkpoint(run_dir / BEST, ckpt_out)
+            _write_metrics_csv(run_dir / METRICS, history)
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix(train_loss=f"{row['train_loss']:.4f}", val_loss=f"{row['val_loss']:.4f}", val_acc=f"{row['val_pixel_accuracy']:.3f}")
+        if world > 1:
+            dist.barrier()
+    if bar is not None:
+        bar.close()
+    return last

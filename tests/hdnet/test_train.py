@@ -1,0 +1,136 @@
+"""Training: files written, exact resume after a kill, refusal of foreign checkpoints, DDP on gloo."""
+
+import csv
+import json
+import os
+import random
+import socket
+import subprocess
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from hdnet.errors import HdNetError
+from hdnet.model import BayesianSegNet
+from hdnet.profiles import TINY
+from hdnet.train import load_checkpoint, load_trained_model, save_checkpoint, train
+from hdnet_fakes import FakeHazardDataset
+
+PROFILE = replace(TINY, batch_size=4)
+
+
+def _datasets():
+    return FakeHazardDataset(n=8, size=32, seed=0), FakeHazardDataset(n=4, size=32, seed=1)
+
+
+def _weights(path: Path) -> dict[str, torch.Tensor]:
+    return load_checkpoint(path)["model"]
+
+
+def test_train_writes_checkpoint_config_and_metrics(tmp_path: Path) -> None:
+    tr, va = _datasets()
+    last = train(tmp_path / "run", tr, va, PROFILE, epochs=2, progress=False, extra_config={"norm_min_m": -1.5, "norm_max_m": 2.0})
+    run = tmp_path / "run"
+    assert last == run / "last.pt" and (run / "best.pt").exists()
+    config = json.loads((run / "config.json").read_text())
+    assert config["extra_config"] == {"norm_min_m": -1.5, "norm_max_m": 2.0} and config["profile"]["name"] == "tiny"
+    rows = list(csv.DictReader((run / "metrics.csv").open()))
+    assert [int(r["epoch"]) for r in rows] == [1, 2]
+    assert set(rows[0]) == {"epoch", "train_loss", "val_loss", "val_pixel_accuracy"}
+    assert all(0.0 <= float(r["val_pixel_accuracy"]) <= 1.0 and float(r["train_loss"]) > 0 for r in rows)
+    model, ckpt = load_trained_model(last)
+    assert isinstance(model, BayesianSegNet) and not model.training and ckpt["epoch"] == 2
+    assert ckpt["extra_config"]["norm_max_m"] == 2.0
+    assert not list(run.glob("*.partial"))
+
+
+def test_resume_after_kill_reproduces_uninterrupted_run(tmp_path: Path) -> None:
+    tr, va = _datasets()
+    straight = train(tmp_path / "a", tr, va, PROFILE, epochs=2, seed=3, progress=False)
+    train(tmp_path / "b", tr, va, PROFILE, epochs=1, seed=3, progress=False)
+    # A new process would start from other RNG states: scramble them before resuming.
+    torch.manual_seed(12345), np.random.seed(12345), random.seed(12345)
+    resumed = train(tmp_path / "b", tr, va, PROFILE, epochs=2, seed=3, resume=True, progress=False)
+    a, b = _weights(straight), _weights(resumed)
+    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+    assert load_checkpoint(straight)["history"] == load_checkpoint(resumed)["history"]
+    # ... and the weights did move during the second epoch.
+    one = train(tmp_path / "c", tr, va, PROFILE, epochs=1, seed=3, progress=False)
+    assert not all(torch.equal(a[k], _weights(one)[k]) for k in a)
+
+
+def test_existing_run_without_resume_and_mismatched_profile_are_refused(tmp_path: Path) -> None:
+    tr, va = _datasets()
+    train(tmp_path / "r", tr, va, PROFILE, epochs=1, progress=False)
+    with pytest.raises(HdNetError, match="already holds a checkpoint"):
+        train(tmp_path / "r", tr, va, PROFILE, epochs=2, progress=False)
+    with pytest.raises(HdNetError, match="another model or profile"):
+        train(tmp_path / "r", tr, va, replace(PROFILE, width=1 / 8), epochs=2, resume=True, progress=False)
+
+
+def test_foreign_checkpoints_are_refused(tmp_path: Path) -> None:
+    plain = tmp_path / "plain.pt"
+    torch.save(BayesianSegNet(width=1 / 16).state_dict(), plain)
+    with pytest.raises(HdNetError, match="not an hdnet checkpoint"):
+        load_checkpoint(plain)
+    pickled = tmp_path / "pickled.pt"
+    torch.save({"schema": "hdnet.checkpoint", "obj": FakeHazardDataset(n=1)}, pickled)
+    with pytest.raises(HdNetError, match="not a readable"):
+        load_checkpoint(pickled)
+    newer = tmp_path / "newer.pt"
+    save_checkpoint(newer, {"schema": "hdnet.checkpoint", "schema_version": 99, "model_name": "bayesian_segnet"})
+    with pytest.raises(HdNetError, match="version 99"):
+        load_checkpoint(newer)
+    other = tmp_path / "other.pt"
+    save_checkpoint(other, {"schema": "hdnet.checkpoint", "schema_version": 1, "model_name": "unet"})
+    with pytest.raises(HdNetError, match="unet"):
+        load_checkpoint(other)
+    garbage = tmp_path / "garbage.pt"
+    garbage.write_bytes(b"not a checkpoint")
+    with pytest.raises(HdNetError):
+        load_checkpoint(garbage)
+
+
+def test_bad_arguments_raise(tmp_path: Path) -> None:
+    tr, va = _datasets()
+    with pytest.raises(HdNetError):
+        train(tmp_path / "x", tr, va, PROFILE, epochs=0, progress=False)
+    with pytest.raises(HdNetError):
+        train(tmp_path / "x", tr, va, PROFILE, epochs=1, progress=False, extra_config={"bad": object()})
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.mark.slow
+def test_torchrun_two_gloo_processes(tmp_path: Path) -> None:
+    script = tmp_path / "ddp_job.py"
+    script.write_text(
+        "import sys\n"
+        f"sys.path[:0] = [{str(Path(__file__).parent)!r}, {os.getcwd()!r}]\n"
+        "from dataclasses import replace\n"
+        "from hdnet.profiles import TINY\n"
+        "from hdnet.train import train\n"
+        "from hdnet_fakes import FakeHazardDataset\n"
+        f"train({str(tmp_path / 'run')!r}, FakeHazardDataset(8, 32, 0), FakeHazardDataset(4, 32, 1),\n"
+        "      replace(TINY, batch_size=4), epochs=2, progress=False)\n"
+    )
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc-per-node=2", "--master-port", str(_free_port()), str(script)]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env={**os.environ, "OMP_NUM_THREADS": "1"})
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    ckpt = load_checkpoint(tmp_path / "run" / "last.pt")
+    assert ckpt["epoch"] == 2 and len(ckpt["history"]) == 2
+    assert all(np.isfinite(h["train_loss"]) and np.isfinite(h["val_loss"]) for h in ckpt["history"])
+    # Both ranks' RNG states are saved, and they differ (each rank is seeded with seed + rank).
+    assert len(ckpt["rng"]) == 2 and not torch.equal(ckpt["rng"][0]["torch"], ckpt["rng"][1]["torch"])
+    assert json.loads((tmp_path / "run" / "config.json").read_text())["world_size"] == 2
+    # Rank 0 alone wrote: no leftovers, one metrics row per epoch.
+    assert not list((tmp_path / "run").glob("*.partial"))
+    assert len(list(csv.DictReader((tmp_path / "run" / "metrics.csv").open()))) == 2
