@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import (
+from terrain_files import (
     HIRISE_NULL,
     TILT_GX,
     TILT_GY,
