@@ -185,5 +185,29 @@ def verify_cmd(directory: Path) -> None:
     click.echo(f"{directory}: OK, {n_files} files match the manifest's checksums and schema versions")
 
 
+@main.command("demo")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("demo-out"), show_default=True, help="Directory of the demo run.")
+@click.option("--scans", type=int, default=200, show_default=True, help="Scans in the demo dataset.")
+@click.option("--workers", type=int, default=None, help="Local worker processes (default: all cores).")
+@click.pass_context
+@friendly_errors
+def demo_cmd(ctx: click.Context, out_dir: Path, scans: int, workers: int | None) -> None:
+    """The main job at demo scale on the built-in procedural Mars terrain (re-running resumes)."""
+    from lidarsim.defaults import PAPER_SIGMAS_M
+    from lidarsim.shards import MANIFEST_NAME
+
+    data = out_dir / "dataset"
+    if not (data / MANIFEST_NAME).exists():
+        click.echo(f"[1/2] building {scans} scans x {len(PAPER_SIGMAS_M)} noise levels on the procedural Mars terrain")
+        ctx.invoke(build_dataset_cmd, out_dir=data, dtm_path=None, sigmas=PAPER_SIGMAS_M, scans=scans, seed=0,
+                   workers=workers, altitude=lidar_defaults.ALTITUDE_M, dtm_scale=1.0, scheduler=None,
+                   overwrite=False, shard_size=50, tilt=0.0, jitter=0.0, resolution=lidar_defaults.DETECTOR_ROWS,
+                   fov=lidar_defaults.FOV_DEG, dead_elements=0, damaged_elements=0, compression="gzip")
+    else:
+        click.echo(f"[1/2] dataset {data} already built")
+    click.echo("[2/2] what is in it:")
+    ctx.invoke(inspect_cmd, directory=data)
+
+
 if __name__ == "__main__":
     main()

@@ -261,6 +261,11 @@ def run_shard(task: ShardTask) -> ShardRecord:
     return _record(task, digest)
 
 
+def run_shards(tasks: list[ShardTask]) -> list[tuple[int, ShardRecord]]:
+    """Run consecutive shard tasks in one worker (they share cached tile scenes)."""
+    return [(task.shard_index, run_shard(task)) for task in tasks]
+
+
 def _record(task: ShardTask, digest: str) -> ShardRecord:
     counts = {name: int((task.splits == i).sum()) for i, name in enumerate(SPLIT_NAMES)}
     present = [name for name, c in counts.items() if c]
@@ -542,10 +547,14 @@ def _run_tasks(tasks: list[ShardTask], n_workers: int, scheduler: str | None) ->
         for task in tasks:
             yield task.shard_index, run_shard(task)
         return
+    # Consecutive shards go to the same worker in chunks, so that a worker reuses the tile
+    # scene (BVH) it built for the previous shard.
+    chunk = max(1, math.ceil(len(tasks) / (3 * n_workers)))
+    chunks = [tasks[i : i + chunk] for i in range(0, len(tasks), chunk)]
     with ProcessPoolExecutor(max_workers=n_workers, mp_context=get_context("spawn")) as pool:
-        futures = {pool.submit(run_shard, task): task.shard_index for task in tasks}
+        futures = [pool.submit(run_shards, c) for c in chunks]
         for future in as_completed(futures):
-            yield futures[future], future.result()
+            yield from future.result()
 
 
 def _run_dask(tasks: list[ShardTask], scheduler: str) -> Iterable[tuple[int, ShardRecord]]:
