@@ -19,7 +19,8 @@ same weights as an uninterrupted one.
 Distributed: under ``torchrun`` (``WORLD_SIZE`` > 1) the process group is initialised here (NCCL on
 GPUs, gloo on CPU) unless it already is; each rank trains on its ``DistributedSampler`` shard with
 ``batch_size // world_size`` samples, so the global batch is the profile's. Losses are summed over
-valid pixels across ranks. Validation runs with dropout off (deterministic network).
+valid pixels across ranks. Validation runs with dropout off (deterministic network); with several
+ranks ``DistributedSampler`` repeats up to world_size - 1 validation samples to even the shards.
 """
 
 from __future__ import annotations
@@ -277,7 +278,7 @@ def train(
         sums = torch.zeros(3, dtype=torch.float64, device=device)  # loss sum, (unused), valid pixels
         for batch in train_loader:
             x = batch["image"].to(device, non_blocking=True)
-            y = batch["mask"].to(device, non_blocking=True)
+            y = batch["mask"].to(device, non_blocking=True).long()
             loss_sum, _, n_valid = _sum_loss(net(x), y)
             optimizer.zero_grad(set_to_none=True)
             (loss_sum / n_valid.clamp(min=1)).backward()
@@ -289,7 +290,7 @@ def train(
         vsums = torch.zeros(3, dtype=torch.float64, device=device)
         with torch.no_grad():
             for batch in val_loader:
-                x, y = batch["image"].to(device), batch["mask"].to(device)
+                x, y = batch["image"].to(device), batch["mask"].to(device).long()
                 vsums += torch.stack([v.double() for v in _sum_loss(net(x), y)])
         vsums = _all_reduce(vsums)
         row = {
