@@ -1,0 +1,224 @@
+"""Organised flash-LiDAR points to a north-up DEM by linear interpolation over the detector's grid.
+
+The detector's own grid is a triangulation of its returns: each 2x2 block of neighbouring
+returns is a quad, split into two triangles along the diagonal that the Delaunay (empty
+circumcircle) test prefers, so on a regular, convex scan the result equals the Delaunay
+triangulation that ``scipy.interpolate.LinearNDInterpolator`` builds. A DEM cell takes the value of
+the plane through the triangle that contains its centre. Cells inside no triangle (outside the
+scan, or under a missing return) stay NaN: nothing is extrapolated.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from hdlabels import defaults
+from hdlabels.errors import HdLabelsError
+
+try:  # numba is optional: the numpy path computes the same DEM, slower.
+    import numba
+except ImportError:  # pragma: no cover
+    numba = None
+
+# A cell centre counts as inside a triangle if its barycentric coordinates are >= -_BARY_EPS.
+_BARY_EPS = 1e-9
+
+
+def cell_centres(shape: tuple[int, int], spacing_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Map coordinates (x east, y north), metres, of the DEM cell centres: 1-D ``x`` per column, ``y`` per row.
+
+    Cell ``(i, j)`` is centred at ``x = (j - (W - 1) / 2) * spacing``, ``y = ((H - 1) / 2 - i) * spacing``.
+    """
+    rows, cols = shape
+    x = (np.arange(cols) - (cols - 1) / 2.0) * spacing_m
+    y = ((rows - 1) / 2.0 - np.arange(rows)) * spacing_m
+    return x, y
+
+
+def grid_points(
+    points: np.ndarray,
+    shape: tuple[int, int] = (defaults.DEM_ROWS, defaults.DEM_COLS),
+    spacing_m: float = defaults.DEM_SPACING_M,
+    *,
+    backend: str = "auto",
+) -> np.ndarray:
+    """Grid organised LiDAR returns into a DEM (float32, metres, NaN where unsupported).
+
+    Args:
+        points: (H, W, 3) returns in the scan frame (origin at the sensor nadir point, x east,
+            y north, z up, metres), in detector order; NaN where there is no return.
+        shape: (rows, cols) of the DEM.
+        spacing_m: DEM spacing, metres per pixel; the DEM is north-up and centred at (0, 0).
+        backend: ``"numba"``, ``"numpy"`` or ``"auto"`` (numba when installed).
+
+    Returns:
+        (rows, cols) float32 heights: linear interpolation of the triangle containing each cell centre.
+    """
+    pts = np.asarray(points)
+    if pts.ndim != 3 or pts.shape[2] != 3 or pts.shape[0] < 2 or pts.shape[1] < 2:
+        raise HdLabelsError(f"Points must be an organised (H, W, 3) array with H, W >= 2, got shape {pts.shape}.")
+    if len(shape) != 2 or min(shape) < 1:
+        raise HdLabelsError(f"DEM shape must be two positive integers, got {shape!r}.")
+    if not (math.isfinite(spacing_m) and spacing_m > 0):
+        raise HdLabelsError(f"DEM spacing must be a finite positive number of metres per pixel, got {spacing_m!r}.")
+    pts = np.ascontiguousarray(pts, dtype=np.float64)
+    rows, cols = int(shape[0]), int(shape[1])
+    dem = np.full((rows, cols), np.nan)
+    if backend == "auto":
+        backend = "numba" if numba is not None else "numpy"
+    if backend == "numba":
+        if numba is None:
+            raise HdLabelsError("The numba back end was requested but numba is not installed.")
+        _grid_jit(pts, float(spacing_m), dem)
+    elif backend == "numpy":
+        _rasterise_numpy(_triangles(pts), float(spacing_m), dem)
+    else:
+        raise HdLabelsError(f"Unknown back end {backend!r}: use 'auto', 'numba' or 'numpy'.")
+    return dem.astype(np.float32)
+
+
+def _triangles(pts: np.ndarray) -> np.ndarray:
+    """(T, 3, 3) triangles (vertex, xyz) of the detector-grid triangulation, valid vertices only."""
+    p00, p01 = pts[:-1, :-1].reshape(-1, 3), pts[:-1, 1:].reshape(-1, 3)
+    p10, p11 = pts[1:, :-1].reshape(-1, 3), pts[1:, 1:].reshape(-1, 3)
+    ok = [np.isfinite(p).all(axis=1) for p in (p00, p01, p10, p11)]
+    # Delaunay choice for complete quads: split along p00-p11 unless p10 lies inside the
+    # circumcircle of (p00, p01, p11) (then the other diagonal is the Delaunay one).
+    split_main = ~(_in_circumcircle(p00, p01, p11, p10) > 0)
+    full = ok[0] & ok[1] & ok[2] & ok[3]
+    candidates = [
+        (p00, p01, p11, full & split_main),
+        (p00, p11, p10, full & split_main),
+        (p00, p01, p10, (full & ~split_main) | (~ok[3] & ok[0] & ok[1] & ok[2])),
+        (p01, p11, p10, (full & ~split_main) | (~ok[0] & ok[1] & ok[2] & ok[3])),
+        # three-corner quads missing p01 or p10 keep their one complete triangle
+        (p00, p11, p10, ~ok[1] & ok[0] & ok[2] & ok[3]),
+        (p00, p01, p11, ~ok[2] & ok[0] & ok[1] & ok[3]),
+    ]
+    tris = [np.stack([a[m], b[m], c[m]], axis=1) for a, b, c, m in candidates]
+    return np.concatenate(tris, axis=0) if tris else np.empty((0, 3, 3))
+
+
+def _in_circumcircle(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Sign of the in-circle determinant (xy): > 0 if d is inside the circle through a, b, c (any orientation)."""
+    ax, ay = a[:, 0] - d[:, 0], a[:, 1] - d[:, 1]
+    bx, by = b[:, 0] - d[:, 0], b[:, 1] - d[:, 1]
+    cx, cy = c[:, 0] - d[:, 0], c[:, 1] - d[:, 1]
+    det = ((ax * ax + ay * ay) * (bx * cy - cx * by) - (bx * bx + by * by) * (ax * cy - cx * ay)
+           + (cx * cx + cy * cy) * (ax * by - bx * ay))
+    orient = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+    return det * np.sign(orient)
+
+
+def _rasterise_numpy(tri: np.ndarray, spacing: float, dem: np.ndarray) -> None:
+    """Fill ``dem`` with the triangle planes at the cell centres they contain (vectorised over triangles)."""
+    rows, cols = dem.shape
+    x, y = tri[:, :, 0], tri[:, :, 1]
+    # Cell index ranges covered by each triangle's bounding box (fractional index of x, y).
+    j_lo = np.ceil(x.min(axis=1) / spacing + (cols - 1) / 2.0 - 1e-9).astype(np.int64)
+    j_hi = np.floor(x.max(axis=1) / spacing + (cols - 1) / 2.0 + 1e-9).astype(np.int64)
+    i_lo = np.ceil((rows - 1) / 2.0 - y.max(axis=1) / spacing - 1e-9).astype(np.int64)
+    i_hi = np.floor((rows - 1) / 2.0 - y.min(axis=1) / spacing + 1e-9).astype(np.int64)
+    j_lo, i_lo = np.maximum(j_lo, 0), np.maximum(i_lo, 0)
+    j_hi, i_hi = np.minimum(j_hi, cols - 1), np.minimum(i_hi, rows - 1)
+    keep = (j_hi >= j_lo) & (i_hi >= i_lo)
+    ni, nj = (i_hi - i_lo + 1)[keep], (j_hi - j_lo + 1)[keep]
+    tri, i_lo, j_lo = tri[keep], i_lo[keep], j_lo[keep]
+    # Triangles grouped by bounding-box size, each group one array operation.
+    for size_i, size_j in set(zip(ni.tolist(), nj.tolist())):
+        g = (ni == size_i) & (nj == size_j)
+        ii = i_lo[g][:, None, None] + np.arange(size_i)[None, :, None]
+        jj = j_lo[g][:, None, None] + np.arange(size_j)[None, None, :]
+        px = (jj - (cols - 1) / 2.0) * spacing
+        py = ((rows - 1) / 2.0 - ii) * spacing
+        t = tri[g][:, None, None]
+        l1, l2, inside = _barycentric(t, px, py)
+        z = t[..., 0, 2] + l1 * (t[..., 1, 2] - t[..., 0, 2]) + l2 * (t[..., 2, 2] - t[..., 0, 2])
+        ii_b, jj_b = np.broadcast_arrays(ii, jj)
+        dem[ii_b[inside], jj_b[inside]] = z[inside]
+
+
+def _barycentric(t: np.ndarray, px: np.ndarray, py: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Barycentric coordinates (l1, l2) of (px, py) in triangles ``t`` (..., 3, 3) and an inside mask."""
+    x0, y0 = t[..., 0, 0], t[..., 0, 1]
+    e1x, e1y = t[..., 1, 0] - x0, t[..., 1, 1] - y0
+    e2x, e2y = t[..., 2, 0] - x0, t[..., 2, 1] - y0
+    det = e1x * e2y - e2x * e1y
+    with np.errstate(divide="ignore", invalid="ignore"):
+        l1 = ((px - x0) * e2y - e2x * (py - y0)) / det
+        l2 = (e1x * (py - y0) - (px - x0) * e1y) / det
+    inside = (det != 0) & (l1 >= -_BARY_EPS) & (l2 >= -_BARY_EPS) & (l1 + l2 <= 1 + _BARY_EPS)
+    return l1, l2, inside
+
+
+def _fill_triangle(a, b, c, spacing, dem):  # pragma: no cover - compiled by numba
+    """Write the plane of triangle (a, b, c) (xyz, metres) into the cell centres it contains."""
+    rows, cols = dem.shape
+    ci, cj = (rows - 1) / 2.0, (cols - 1) / 2.0
+    x0, y0, z0 = a[0], a[1], a[2]
+    e1x, e1y, e1z = b[0] - x0, b[1] - y0, b[2] - z0
+    e2x, e2y, e2z = c[0] - x0, c[1] - y0, c[2] - z0
+    det = e1x * e2y - e2x * e1y
+    if det == 0.0:
+        return
+    xmin, xmax = min(x0, x0 + e1x, x0 + e2x), max(x0, x0 + e1x, x0 + e2x)
+    ymin, ymax = min(y0, y0 + e1y, y0 + e2y), max(y0, y0 + e1y, y0 + e2y)
+    j_lo = max(int(math.ceil(xmin / spacing + cj - 1e-9)), 0)
+    j_hi = min(int(math.floor(xmax / spacing + cj + 1e-9)), cols - 1)
+    i_lo = max(int(math.ceil(ci - ymax / spacing - 1e-9)), 0)
+    i_hi = min(int(math.floor(ci - ymin / spacing + 1e-9)), rows - 1)
+    for i in range(i_lo, i_hi + 1):
+        py = (ci - i) * spacing - y0
+        for j in range(j_lo, j_hi + 1):
+            px = (j - cj) * spacing - x0
+            l1 = (px * e2y - e2x * py) / det
+            l2 = (e1x * py - px * e1y) / det
+            if l1 >= -_BARY_EPS and l2 >= -_BARY_EPS and l1 + l2 <= 1 + _BARY_EPS:
+                dem[i, j] = z0 + l1 * e1z + l2 * e2z
+
+
+def _in_circle_one(a, b, c, d):  # pragma: no cover - compiled by numba
+    """Scalar version of ``_in_circumcircle``: > 0 if d is inside the circle through a, b, c."""
+    ax, ay = a[0] - d[0], a[1] - d[1]
+    bx, by = b[0] - d[0], b[1] - d[1]
+    cx, cy = c[0] - d[0], c[1] - d[1]
+    det = ((ax * ax + ay * ay) * (bx * cy - cx * by) - (bx * bx + by * by) * (ax * cy - cx * ay)
+           + (cx * cx + cy * cy) * (ax * by - bx * ay))
+    orient = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
+    return det * np.sign(orient)
+
+
+def _grid_loops(pts, spacing, dem):  # pragma: no cover - compiled by numba
+    """Same triangulation and interpolation as ``_triangles`` + ``_rasterise_numpy``, quad by quad."""
+    h, w = pts.shape[0], pts.shape[1]
+    ok = np.empty((h, w), dtype=np.bool_)
+    for i in range(h):
+        for j in range(w):
+            ok[i, j] = np.isfinite(pts[i, j, 0]) and np.isfinite(pts[i, j, 1]) and np.isfinite(pts[i, j, 2])
+    for i in range(h - 1):
+        for j in range(w - 1):
+            p00, p01, p10, p11 = pts[i, j], pts[i, j + 1], pts[i + 1, j], pts[i + 1, j + 1]
+            k00, k01, k10, k11 = ok[i, j], ok[i, j + 1], ok[i + 1, j], ok[i + 1, j + 1]
+            if k00 and k01 and k10 and k11:
+                if not (_in_circle_one(p00, p01, p11, p10) > 0):
+                    _fill_triangle(p00, p01, p11, spacing, dem)
+                    _fill_triangle(p00, p11, p10, spacing, dem)
+                else:
+                    _fill_triangle(p00, p01, p10, spacing, dem)
+                    _fill_triangle(p01, p11, p10, spacing, dem)
+            elif k00 and k01 and k10:
+                _fill_triangle(p00, p01, p10, spacing, dem)
+            elif k01 and k11 and k10:
+                _fill_triangle(p01, p11, p10, spacing, dem)
+            elif k00 and k11 and k10:
+                _fill_triangle(p00, p11, p10, spacing, dem)
+            elif k00 and k01 and k11:
+                _fill_triangle(p00, p01, p11, spacing, dem)
+
+
+if numba is not None:
+    _fill_triangle = numba.njit(cache=True)(_fill_triangle)
+    _in_circle_one = numba.njit(cache=True)(_in_circle_one)
+    _grid_jit = numba.njit(cache=True)(_grid_loops)
