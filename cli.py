@@ -185,6 +185,46 @@ def verify_cmd(directory: Path) -> None:
     click.echo(f"{directory}: OK, {n_files} files match the manifest's checksums and schema versions")
 
 
+@main.command("label")
+@click.argument("directory", type=click.Path(file_okay=False, path_type=Path))
+@click.option("--lander-diameter", type=float, default=10.0, show_default=True, help="Lander diameter, metres.")
+@click.option("--pad-diameter", type=float, default=1.0, show_default=True, help="Footpad diameter, metres.")
+@click.option("--max-slope-deg", type=float, default=10.0, show_default=True, help="Critical slope, degrees.")
+@click.option("--max-roughness", type=float, default=0.20, show_default=True, help="Critical roughness, metres.")
+@click.option("--lander", "layout", type=click.Choice(["square", "triangle"]), default="square", show_default=True, help="Pad layout: 4 pads in a square or 3 in a triangle.")
+@click.option("--yaws", type=int, default=None, help="Yaws per symmetry period of the pad layout (default 8).")
+@click.option("--count-holes", is_flag=True, help="Count terrain below the lander plane as roughness too.")
+@click.option("--dem-size", type=int, default=100, show_default=True, help="DEM side, pixels.")
+@click.option("--dem-spacing", type=float, default=1.0, show_default=True, help="DEM spacing, metres/pixel.")
+@click.option("--workers", type=int, default=None, help="Local worker processes (default: all cores).")
+@click.option("--scheduler", default=None, help="Dask scheduler address to run the label tasks on a cluster.")
+@friendly_errors
+def label_cmd(directory: Path, lander_diameter: float, pad_diameter: float, max_slope_deg: float, max_roughness: float,
+              layout: str, yaws: int | None, count_holes: bool, dem_size: int, dem_spacing: float, workers: int | None,
+              scheduler: str | None) -> None:
+    """Grid every scan into DEMs and add ALHAT labels and the baseline P(safe) to the dataset."""
+    from hdlabels import defaults as label_defaults
+    from hdlabels.errors import HdLabelsError
+    from hdlabels.labeling import label_dataset
+    from hdlabels.lander import Lander
+    from hdlabels.store import DemSpec
+
+    if workers is not None and workers <= 0:
+        raise HdLabelsError(f"--workers must be > 0, got {workers}")
+    if dem_size < 2 or not (dem_spacing > 0):
+        raise HdLabelsError(f"the DEM must be at least 2 pixels of positive spacing, got {dem_size} x {dem_spacing}")
+    lander = Lander(diameter_m=lander_diameter, pad_diameter_m=pad_diameter, max_slope_deg=max_slope_deg,
+                    max_roughness_m=max_roughness, layout=layout,  # type: ignore[arg-type]
+                    n_yaws=yaws if yaws is not None else label_defaults.N_YAWS, count_holes=count_holes)
+    progress = _ScanProgress("labels")
+    try:
+        summary = label_dataset(directory, lander, DemSpec(dem_size, dem_size, dem_spacing), workers=workers,
+                                scheduler=scheduler, progress=progress)
+    finally:
+        progress.close()
+    click.echo(summary.paragraph())
+
+
 @main.command("demo")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("demo-out"), show_default=True, help="Directory of the demo run.")
 @click.option("--scans", type=int, default=200, show_default=True, help="Scans in the demo dataset.")
@@ -198,14 +238,18 @@ def demo_cmd(ctx: click.Context, out_dir: Path, scans: int, workers: int | None)
 
     data = out_dir / "dataset"
     if not (data / MANIFEST_NAME).exists():
-        click.echo(f"[1/2] building {scans} scans x {len(PAPER_SIGMAS_M)} noise levels on the procedural Mars terrain")
+        click.echo(f"[1/3] building {scans} scans x {len(PAPER_SIGMAS_M)} noise levels on the procedural Mars terrain")
         ctx.invoke(build_dataset_cmd, out_dir=data, dtm_path=None, sigmas=PAPER_SIGMAS_M, scans=scans, seed=0,
                    workers=workers, altitude=lidar_defaults.ALTITUDE_M, dtm_scale=1.0, scheduler=None,
                    overwrite=False, shard_size=50, tilt=0.0, jitter=0.0, resolution=lidar_defaults.DETECTOR_ROWS,
                    fov=lidar_defaults.FOV_DEG, dead_elements=0, damaged_elements=0, compression="gzip")
     else:
-        click.echo(f"[1/2] dataset {data} already built")
-    click.echo("[2/2] what is in it:")
+        click.echo(f"[1/3] dataset {data} already built")
+    click.echo("[2/3] labelling with the ALHAT replica (default lander)")
+    ctx.invoke(label_cmd, directory=data, lander_diameter=10.0, pad_diameter=1.0, max_slope_deg=10.0,
+               max_roughness=0.20, layout="square", yaws=None, count_holes=False, dem_size=100, dem_spacing=1.0,
+               workers=workers, scheduler=None)
+    click.echo("[3/3] what is in it:")
     ctx.invoke(inspect_cmd, directory=data)
 
 

@@ -1,0 +1,305 @@
+"""Label a whole dataset: DEMs, ALHAT labels and the baseline P(safe) for every scan (``hd label``).
+
+One task per scan shard (process pool or Dask, like the factory). For each scan:
+
+* the clean points are gridded into the clean DEM, the noisy points of every sigma into noisy DEMs
+  (``hdlabels.grid.grid_points``);
+* the clean DEM gives slope, roughness and the label (``hdlabels.alhat.hazard_maps``);
+* every noisy DEM gives the baseline P(safe) with that sigma (``hdlabels.alhat.safety_probability``).
+
+Label shards are written atomically beside the scan shards; the manifest gets the labelling entry
+only when every shard is complete. An interrupted run resumes; an existing labelling with the
+same settings is kept.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import shutil
+import time
+from collections.abc import Callable, Iterable
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hdlabels import defaults
+from hdlabels.alhat import hazard_maps, safety_probability
+from hdlabels.grid import grid_points
+from hdlabels.lander import Lander
+from hdlabels.store import (
+    LABEL_SCHEMA,
+    LABEL_SCHEMA_VERSION,
+    LABELS_DIR,
+    DemSpec,
+    LabelShardReader,
+    LabelShardWriter,
+    LabelStoreError,
+    add_labeling_to_manifest,
+    label_shard_name,
+    labeling_name,
+)
+from lidarsim.shards import ScanShardReader, ShardFormatError, read_manifest, remove_partials, sha256_file
+
+
+@dataclass(frozen=True)
+class LabelTask:
+    """Label one scan shard."""
+
+    dataset: str
+    source_path: str  # relative to the dataset
+    source_sha256: str
+    out_path: str  # relative to the dataset
+    lander: Lander
+    dem: DemSpec
+    labeling: str
+
+
+@dataclass(frozen=True)
+class LabelRecord:
+    """Manifest entry of one label shard, plus its label counts."""
+
+    entry: dict[str, Any]
+    counts: tuple[int, int, int]  # unsafe, safe, invalid pixels
+
+
+@dataclass(frozen=True)
+class LabelSummary:
+    """What ``label_dataset`` did."""
+
+    name: str
+    n_scans: int
+    n_shards: int
+    safe_fraction: float
+    baseline_safe_fraction: dict[str, float]
+    seconds: float
+    reused: bool
+
+    def paragraph(self) -> str:
+        base = ", ".join(f"{k}: {v * 100:.1f}%" for k, v in self.baseline_safe_fraction.items())
+        verb = "already labelled" if self.reused else f"labelled in {self.seconds:.1f} s"
+        return (
+            f"Labelling {self.name}: {self.n_scans} scans in {self.n_shards} label shards, {verb}. "
+            f"{self.safe_fraction * 100:.1f}% of labelled pixels are safe (clean DEMs); the ALHAT baseline "
+            f"(P(safe) >= 0.5) calls safe {base} of them per noise level."
+        )
+
+
+def check_lander_fits(lander: Lander, dem: DemSpec) -> None:
+    """Refuse a lander whose border band leaves no pixel of the DEM to label."""
+    side_m = min(dem.rows, dem.cols) * dem.spacing_m
+    if lander.diameter_m >= side_m:
+        raise LabelStoreError(
+            f"the lander ({lander.diameter_m:g} m) is larger than the DEM ({dem.rows} x {dem.cols} cells of "
+            f"{dem.spacing_m:g} m): no pixel could be labelled"
+        )
+
+
+def label_scan(points_clean: np.ndarray, points_noisy: np.ndarray, sigmas_m: tuple[float, ...], lander: Lander,
+               dem: DemSpec) -> dict[str, np.ndarray]:
+    """DEMs, hazard maps and P(safe) of one scan (arrays as stored in a label shard)."""
+    shape = (dem.rows, dem.cols)
+    dem_clean = grid_points(points_clean, shape, dem.spacing_m)
+    if not np.isfinite(dem_clean).any():
+        raise LabelStoreError("a clean DEM is all NaN: the scan has no returns under the DEM grid")
+    maps = hazard_maps(dem_clean, dem.spacing_m, lander)
+    dem_noisy = np.stack([grid_points(points_noisy[s], shape, dem.spacing_m) for s in range(len(sigmas_m))])
+    p_safe = np.stack([safety_probability(dem_noisy[s], dem.spacing_m, sigma, lander)
+                       for s, sigma in enumerate(sigmas_m)])
+    return {"dem_clean": dem_clean, "dem_noisy": dem_noisy, "label": maps.label, "slope_rad": maps.slope_rad,
+            "roughness_m": maps.roughness_m, "p_safe": p_safe}
+
+
+def run_label_task(task: LabelTask) -> LabelRecord:
+    """Label one scan shard and write its label shard (worker side)."""
+    root = Path(task.dataset)
+    out = root / task.out_path
+    counts = np.zeros(3, dtype=np.int64)
+    with ScanShardReader(root / task.source_path) as reader:
+        sigmas = reader.sigmas_m
+        n_scans = len(reader)
+        attrs = {
+            "labeling": task.labeling,
+            "source_shard": task.source_path,
+            "source_sha256": task.source_sha256,
+            "sigmas_m": np.asarray(sigmas, dtype=np.float64),
+            **{f"lander_{k}": v for k, v in task.lander.to_attrs().items()},
+        }
+        writer = LabelShardWriter(out, len(reader), len(sigmas), task.dem, attrs)
+        try:
+            for k in range(len(reader)):
+                f = reader.h5
+                try:
+                    arrays = label_scan(f["points_clean"][k], f["points_noisy"][k], sigmas, task.lander, task.dem)
+                except LabelStoreError as exc:
+                    raise LabelStoreError(f"{task.source_path} scan {int(f['scan_index'][k])}: {exc}") from None
+                writer.write(k, int(f["scan_index"][k]), int(f["split"][k]), **arrays)
+                lab = arrays["label"]
+                counts += [(lab == defaults.LABEL_UNSAFE).sum(), (lab == defaults.LABEL_SAFE).sum(),
+                           (lab == defaults.LABEL_INVALID).sum()]
+            writer.commit()
+        except BaseException:
+            writer.abort()
+            raise
+    return _record(task, out, n_scans, counts)
+
+
+def _record(task: LabelTask, out: Path, n_scans: int, counts: np.ndarray) -> LabelRecord:
+    entry = {"path": task.out_path, "sha256": sha256_file(out), "n_scans": n_scans, "source_path": task.source_path,
+             "source_sha256": task.source_sha256, "schema": LABEL_SCHEMA, "schema_version": LABEL_SCHEMA_VERSION}
+    return LabelRecord(entry=entry, counts=(int(counts[0]), int(counts[1]), int(counts[2])))
+
+
+def _existing(task: LabelTask) -> LabelRecord | None:
+    """A complete label shard of an earlier, interrupted run of the same labelling."""
+    out = Path(task.dataset) / task.out_path
+    if not out.is_file():
+        return None
+    try:
+        with LabelShardReader(out) as reader:
+            a = reader.h5.attrs
+            if a.get("source_sha256") != task.source_sha256 or a.get("labeling") != task.labeling:
+                return None
+            lab = reader.h5["label"][:]
+            n = len(reader)
+    except (LabelStoreError, OSError, KeyError):
+        return None
+    counts = np.array([(lab == defaults.LABEL_UNSAFE).sum(), (lab == defaults.LABEL_SAFE).sum(),
+                       (lab == defaults.LABEL_INVALID).sum()])
+    return _record(task, out, n, counts)
+
+
+def label_dataset(
+    directory: str | os.PathLike,
+    lander: Lander = Lander(),
+    dem: DemSpec = DemSpec(),
+    workers: int | None = None,
+    scheduler: str | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> LabelSummary:
+    """Label every scan of the dataset at ``directory`` with ``lander`` on ``dem`` grids.
+
+    Raises:
+        LabelStoreError: not an hd dataset, a lander too large for the DEM, an all-NaN DEM.
+    """
+    t0 = time.perf_counter()
+    root = Path(directory).resolve()
+    try:
+        manifest = read_manifest(root)
+    except ShardFormatError as exc:
+        raise LabelStoreError(str(exc)) from None
+    check_lander_fits(lander, dem)
+    name = labeling_name(lander, dem)
+    for lab in manifest.get("labelings", []):
+        if lab["name"] == name:
+            return _summary_from_entry(lab, manifest, time.perf_counter() - t0, reused=True)
+    out_dir = root / LABELS_DIR / name
+    created = not out_dir.exists()
+    out_dir.mkdir(parents=True, exist_ok=True)
+    remove_partials(out_dir)
+    tasks = [
+        LabelTask(dataset=str(root), source_path=s["path"], source_sha256=s["sha256"],
+                  out_path=f"{LABELS_DIR}/{name}/{label_shard_name(i)}", lander=lander, dem=dem, labeling=name)
+        for i, s in enumerate(manifest["shards"])
+    ]
+    records: dict[int, LabelRecord] = {}
+    pending = []
+    for i, task in enumerate(tasks):
+        rec = _existing(task)
+        if rec is None:
+            pending.append((i, task))
+        else:
+            records[i] = rec
+    total = int(manifest["n_scans"])
+    done = sum(r.entry["n_scans"] for r in records.values())
+    if progress:
+        progress(done, total)
+    n_workers = max(1, workers if workers is not None else (os.cpu_count() or 1))
+    try:
+        for i, rec in _run(pending, n_workers, scheduler):
+            records[i] = rec
+            done += rec.entry["n_scans"]
+            if progress:
+                progress(done, total)
+    except LabelStoreError:
+        if created:
+            shutil.rmtree(out_dir, ignore_errors=True)
+        raise
+    counts = np.sum([r.counts for r in records.values()], axis=0)
+    safe_fraction = float(counts[1] / max(1, counts[0] + counts[1]))
+    entry = {
+        "name": name,
+        "schema": LABEL_SCHEMA,
+        "schema_version": LABEL_SCHEMA_VERSION,
+        "lander": lander.to_attrs(),
+        "dem": {"rows": dem.rows, "cols": dem.cols, "spacing_m": dem.spacing_m},
+        "label_codes": {"unsafe": defaults.LABEL_UNSAFE, "safe": defaults.LABEL_SAFE, "invalid": defaults.LABEL_INVALID},
+        "label_counts": {"unsafe": int(counts[0]), "safe": int(counts[1]), "invalid": int(counts[2])},
+        "safe_fraction": safe_fraction,
+        "baseline_safe_fraction": _baseline_fractions(root, [records[i].entry for i in sorted(records)], manifest),
+        "shards": [records[i].entry for i in sorted(records)],
+    }
+    add_labeling_to_manifest(root, entry)
+    return _summary_from_entry(entry, manifest, time.perf_counter() - t0, reused=False)
+
+
+def _baseline_fractions(root: Path, entries: list[dict[str, Any]], manifest: dict[str, Any]) -> dict[str, float]:
+    """Fraction of labelled pixels the baseline (P >= 0.5) calls safe, per sigma."""
+    sigmas = manifest["sigmas_m"]
+    safe = np.zeros(len(sigmas))
+    valid = 0
+    for e in entries:
+        with LabelShardReader(root / e["path"]) as reader:
+            lab = reader.h5["label"][:]
+            p = reader.h5["p_safe"][:]
+        mask = lab != defaults.LABEL_INVALID
+        valid += int(mask.sum())
+        for s in range(len(sigmas)):
+            safe[s] += int(((p[:, s] >= defaults.SAFE_PROBABILITY_THRESHOLD) & mask).sum())
+    return {f"{sig:g}": float(safe[s] / max(1, valid)) for s, sig in enumerate(sigmas)}
+
+
+def _summary_from_entry(entry: dict[str, Any], manifest: dict[str, Any], seconds: float, reused: bool) -> LabelSummary:
+    return LabelSummary(name=entry["name"], n_scans=int(manifest["n_scans"]), n_shards=len(entry["shards"]),
+                        safe_fraction=float(entry["safe_fraction"]),
+                        baseline_safe_fraction=entry.get("baseline_safe_fraction", {}), seconds=seconds, reused=reused)
+
+
+def run_label_tasks(tasks: list[tuple[int, LabelTask]]) -> list[tuple[int, LabelRecord]]:
+    """Run several label tasks in one worker process."""
+    return [(i, run_label_task(t)) for i, t in tasks]
+
+
+def _run(pending: list[tuple[int, LabelTask]], n_workers: int, scheduler: str | None
+         ) -> Iterable[tuple[int, LabelRecord]]:
+    if not pending:
+        return
+    if scheduler is not None:
+        from distributed import Client, as_completed as dask_completed
+
+        try:
+            client = Client(scheduler, timeout="20s")
+        except (OSError, TimeoutError) as exc:
+            raise LabelStoreError(f"cannot reach the Dask scheduler at {scheduler} ({exc.__class__.__name__})") from None
+        try:
+            futures = client.map(run_label_task, [t for _, t in pending], pure=False)
+            index = {f.key: i for f, (i, _) in zip(futures, pending, strict=True)}
+            for fut in dask_completed(futures):
+                yield index[fut.key], fut.result()
+        finally:
+            client.close()
+        return
+    if n_workers == 1 or len(pending) == 1:
+        for i, task in pending:
+            yield i, run_label_task(task)
+        return
+    chunk = max(1, math.ceil(len(pending) / (3 * n_workers)))
+    chunks = [pending[k : k + chunk] for k in range(0, len(pending), chunk)]
+    with ProcessPoolExecutor(max_workers=n_workers, mp_context=get_context("spawn")) as pool:
+        futures = [pool.submit(run_label_tasks, c) for c in chunks]
+        for fut in as_completed(futures):
+            yield from fut.result()

@@ -1,0 +1,219 @@
+"""Label shards (schema ``hd.labels``): writer, lazy reader and the labelling entry of the manifest.
+
+A *labelling* is the result of one set of lander parameters and DEM settings applied to every
+scan of a dataset. It lives in ``DATASET/labels/<name>/`` with one label shard per scan shard
+(``labels-NNNNN.h5``, linked to its source shard by path and sha256) and is listed in the
+manifest's ``labelings``. Scan shards are never modified. Field-by-field documentation:
+``docs/labels-format.md``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+
+from hdlabels._version import __version__
+from hdlabels.errors import HdLabelsError
+from hdlabels.lander import Lander
+from lidarsim.shards import (
+    MANIFEST_NAME,
+    ShardFormatError,
+    check_schema,
+    commit_file,
+    read_manifest,
+    write_attrs,
+    write_json_atomic,
+)
+
+LABEL_SCHEMA = "hd.labels"
+LABEL_SCHEMA_VERSION = "1.0"
+LABELS_DIR = "labels"
+
+
+class LabelStoreError(HdLabelsError):
+    """A dataset without the requested labels, or a label shard of an unknown format."""
+
+
+@dataclass(frozen=True)
+class DemSpec:
+    """DEM grid: ``rows x cols`` cells of ``spacing_m`` metres, north-up, centred at the nadir point."""
+
+    rows: int = 100
+    cols: int = 100
+    spacing_m: float = 1.0
+
+    def to_attrs(self) -> dict[str, float | int]:
+        return {"dem_rows": self.rows, "dem_cols": self.cols, "dem_spacing_m": self.spacing_m}
+
+
+def labeling_name(lander: Lander, dem: DemSpec) -> str:
+    """Directory name of a labelling, readable and unique per lander and DEM settings."""
+    holes = "-holes" if lander.count_holes else ""
+    return (
+        f"{lander.layout}-d{lander.diameter_m:g}m-pad{lander.pad_diameter_m:g}m-slope{lander.max_slope_deg:g}deg"
+        f"-rough{lander.max_roughness_m:g}m-yaws{lander.n_yaws}{holes}-dem{dem.rows}x{dem.cols}at{dem.spacing_m:g}m"
+    )
+
+
+def label_shard_name(index: int) -> str:
+    """File name of label shard ``index`` (same index as its scan shard)."""
+    return f"labels-{index:05d}.h5"
+
+
+@dataclass(frozen=True)
+class LabeledScan:
+    """The labels of one scan (DEM arrays are north-up, metres; P(safe) in [0, 1])."""
+
+    scan_index: int
+    split: str
+    dem_clean: np.ndarray  # float32 (H, W), NaN where no support
+    dem_noisy: np.ndarray  # float32 (S, H, W)
+    label: np.ndarray  # uint8 (H, W): 0 unsafe, 1 safe, 255 invalid
+    slope_rad: np.ndarray  # float32 (H, W)
+    roughness_m: np.ndarray  # float32 (H, W)
+    p_safe: np.ndarray  # float32 (S, H, W)
+
+
+class LabelShardWriter:
+    """Writes one label shard atomically (temporary name, then rename)."""
+
+    def __init__(self, path: Path, n_scans: int, n_sigmas: int, dem: DemSpec, attrs: dict[str, Any]) -> None:
+        self.path = path
+        self._tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
+        self._f = h5py.File(self._tmp, "w")
+        write_attrs(self._f, {"schema": LABEL_SCHEMA, "schema_version": LABEL_SCHEMA_VERSION, "software": "hd",
+                              "software_version": __version__, "n_scans": n_scans, **dem.to_attrs(), **attrs})
+        h, w, n, s = dem.rows, dem.cols, n_scans, n_sigmas
+        gz = dict(compression="gzip", compression_opts=1, shuffle=True, track_times=False)
+        f = self._f
+        self._d = {
+            "scan_index": f.create_dataset("scan_index", (n,), np.int64, track_times=False),
+            "split": f.create_dataset("split", (n,), np.uint8, track_times=False),
+            "dem_clean": f.create_dataset("dem_clean", (n, h, w), np.float32, chunks=(1, h, w), **gz),
+            "dem_noisy": f.create_dataset("dem_noisy", (n, s, h, w), np.float32, chunks=(1, 1, h, w), **gz),
+            "label": f.create_dataset("label", (n, h, w), np.uint8, chunks=(1, h, w), **gz),
+            "slope_rad": f.create_dataset("slope_rad", (n, h, w), np.float32, chunks=(1, h, w), **gz),
+            "roughness_m": f.create_dataset("roughness_m", (n, h, w), np.float32, chunks=(1, h, w), **gz),
+            "p_safe": f.create_dataset("p_safe", (n, s, h, w), np.float32, chunks=(1, 1, h, w), **gz),
+        }
+        self._d["label"].attrs["codes"] = "0 unsafe, 1 safe, 255 invalid"
+
+    def write(self, k: int, scan_index: int, split: int, dem_clean: np.ndarray, dem_noisy: np.ndarray,
+              label: np.ndarray, slope_rad: np.ndarray, roughness_m: np.ndarray, p_safe: np.ndarray) -> None:
+        """Write the labels of scan ``k`` of the shard."""
+        d = self._d
+        d["scan_index"][k] = scan_index
+        d["split"][k] = split
+        d["dem_clean"][k] = dem_clean
+        d["dem_noisy"][k] = dem_noisy
+        d["label"][k] = label
+        d["slope_rad"][k] = slope_rad
+        d["roughness_m"][k] = roughness_m
+        d["p_safe"][k] = p_safe
+
+    def commit(self) -> None:
+        self._f.close()
+        commit_file(self._tmp, self.path)
+
+    def abort(self) -> None:
+        try:
+            self._f.close()
+        finally:
+            self._tmp.unlink(missing_ok=True)
+
+
+class LabelShardReader:
+    """Lazy reader of one label shard (one scan at a time; ``h5`` gives plain h5py access)."""
+
+    def __init__(self, path: str | os.PathLike) -> None:
+        self.path = Path(path)
+        try:
+            self.h5 = h5py.File(self.path, "r")
+        except OSError:
+            raise LabelStoreError(f"{self.path}: cannot open as HDF5") from None
+        attrs = self.h5.attrs
+        try:
+            check_schema(str(attrs.get("schema", "")), str(attrs.get("schema_version", "")),
+                         LABEL_SCHEMA, LABEL_SCHEMA_VERSION, str(self.path))
+        except ShardFormatError as exc:
+            self.h5.close()
+            raise LabelStoreError(str(exc)) from None
+        self.sigmas_m: tuple[float, ...] = tuple(float(s) for s in attrs["sigmas_m"])
+
+    def __len__(self) -> int:
+        return int(self.h5["scan_index"].shape[0])
+
+    def __getitem__(self, k: int) -> LabeledScan:
+        f = self.h5
+        return LabeledScan(
+            scan_index=int(f["scan_index"][k]),
+            split=("train", "val", "test")[int(f["split"][k])],
+            dem_clean=f["dem_clean"][k],
+            dem_noisy=f["dem_noisy"][k],
+            label=f["label"][k],
+            slope_rad=f["slope_rad"][k],
+            roughness_m=f["roughness_m"][k],
+            p_safe=f["p_safe"][k],
+        )
+
+    def __iter__(self) -> Iterator[LabeledScan]:
+        for k in range(len(self)):
+            yield self[k]
+
+    def close(self) -> None:
+        self.h5.close()
+
+    def __enter__(self) -> LabelShardReader:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def find_labeling(directory: str | os.PathLike, name: str | None = None) -> dict[str, Any]:
+    """The manifest entry of a labelling of the dataset (the only one, or the one called ``name``).
+
+    Raises:
+        LabelStoreError: not a dataset, no labelling, several and no ``name``, or unknown ``name``.
+    """
+    try:
+        manifest = read_manifest(directory)
+    except ShardFormatError as exc:
+        raise LabelStoreError(str(exc)) from None
+    labelings = manifest.get("labelings", [])
+    if not labelings:
+        raise LabelStoreError(f"{directory}: the dataset has no labels; run `hd label {directory}` first")
+    for lab in labelings:
+        check = lab.get("schema", ""), lab.get("schema_version", "")
+        try:
+            check_schema(check[0], check[1], LABEL_SCHEMA, LABEL_SCHEMA_VERSION, f"{directory} labelling {lab.get('name')}")
+        except ShardFormatError as exc:
+            raise LabelStoreError(str(exc)) from None
+    if name is None:
+        if len(labelings) > 1:
+            names = ", ".join(lab["name"] for lab in labelings)
+            raise LabelStoreError(f"{directory} has several labellings ({names}); choose one with --labels")
+        return labelings[0]
+    for lab in labelings:
+        if lab["name"] == name:
+            return lab
+    raise LabelStoreError(f"{directory} has no labelling named {name!r}")
+
+
+def label_shard_paths(directory: str | os.PathLike, labeling: dict[str, Any]) -> list[Path]:
+    """Absolute paths of a labelling's shards, in scan order."""
+    return [Path(directory) / entry["path"] for entry in labeling["shards"]]
+
+
+def add_labeling_to_manifest(directory: Path, entry: dict[str, Any]) -> None:
+    """Add (or replace, same name) a labelling entry in the manifest, atomically."""
+    manifest = json.loads((directory / MANIFEST_NAME).read_text())
+    manifest["labelings"] = [lab for lab in manifest.get("labelings", []) if lab["name"] != entry["name"]] + [entry]
+    write_json_atomic(directory / MANIFEST_NAME, manifest)
