@@ -1,0 +1,138 @@
+"""Labelling a dataset: label shards beside scan shards, manifest entries, CLI errors."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+import rasterio
+from click.testing import CliRunner
+from rasterio.transform import from_origin
+
+from cli import main
+from hdlabels.alhat import hazard_maps, safety_probability
+from hdlabels.grid import grid_points
+from hdlabels.labeling import label_dataset
+from hdlabels.lander import Lander
+from hdlabels.store import LabelShardReader, LabelStoreError, find_labeling, label_shard_paths
+from lidarsim.build import BuildConfig, build_dataset
+from lidarsim.sensor import SensorConfig
+from lidarsim.shards import ScanShardReader, read_manifest, sha256_file, verify_dataset
+from lidarsim.trajectory import TrajectoryConfig
+
+
+def write_terrain(path: Path, n: int = 320, spacing: float = 0.5) -> Path:
+    """A plane with a few 0.6 m boulders (seeded), 160 m square."""
+    rng = np.random.default_rng(11)
+    x = (np.arange(n) + 0.5) * spacing
+    z = 0.02 * x[None, :] + np.zeros((n, 1))
+    yy, xx = np.mgrid[0:n, 0:n] * spacing
+    for cx, cy in rng.uniform(20, 140, size=(40, 2)):
+        r2 = (xx - cx) ** 2 + (yy - cy) ** 2
+        z = np.maximum(z, np.where(r2 < 1.0, 0.02 * xx + 0.6 * np.sqrt(np.clip(1 - r2, 0, 1)), -np.inf))
+    with rasterio.open(path, "w", driver="GTiff", width=n, height=n, count=1, dtype="float32",
+                       transform=from_origin(0, n * spacing, spacing, spacing)) as dst:
+        dst.write(z.astype(np.float32), 1)
+    return path
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("labels")
+    dtm = write_terrain(root / "t.tif")
+    out = root / "data"
+    build_dataset(out, BuildConfig(sigmas_m=(0.01, 0.07), seed=1, sensor=SensorConfig(rows=64, cols=64),
+                                   trajectory=TrajectoryConfig(n_scans=6), dtm_path=str(dtm), shard_size=3),
+                  workers=1)
+    return out
+
+
+def test_label_shards_hold_the_maps_of_the_gridded_scans(dataset):
+    summary = label_dataset(dataset, workers=1)
+    assert 0.0 < summary.safe_fraction < 1.0
+    entry = find_labeling(dataset)
+    assert entry["name"] == summary.name and len(entry["shards"]) == 2
+    manifest = read_manifest(dataset)
+    for label_entry, scan_entry in zip(entry["shards"], manifest["shards"], strict=True):
+        assert label_entry["source_path"] == scan_entry["path"]
+        assert label_entry["source_sha256"] == scan_entry["sha256"]
+    paths = label_shard_paths(dataset, entry)
+    with LabelShardReader(paths[1]) as labels, ScanShardReader(dataset / manifest["shards"][1]["path"]) as scans:
+        assert labels.sigmas_m == (0.01, 0.07)
+        scan, lab = scans[2], labels[2]
+        assert lab.scan_index == scan.scan_index == 5
+        dem = grid_points(scan.points_clean)
+        np.testing.assert_array_equal(lab.dem_clean, dem)
+        maps = hazard_maps(dem, 1.0, Lander())
+        np.testing.assert_array_equal(lab.label, maps.label)
+        np.testing.assert_array_equal(lab.slope_rad, maps.slope_rad)
+        noisy = grid_points(scan.points_noisy[1])
+        np.testing.assert_array_equal(lab.dem_noisy[1], noisy)
+        np.testing.assert_array_equal(lab.p_safe[1], safety_probability(noisy, 1.0, 0.07, Lander()))
+        assert lab.label.dtype == np.uint8 and set(np.unique(lab.label)) <= {0, 1, 255}
+        assert (lab.label[:5] == 255).all() and (lab.label[:, -5:] == 255).all()  # border band of 5 m
+        assert lab.split == scan.split
+    assert verify_dataset(dataset, {"hd.labels": "1.0"}) == []
+    # the same settings again: nothing recomputed, nothing duplicated
+    again = label_dataset(dataset, workers=1)
+    assert again.reused and len(read_manifest(dataset)["labelings"]) == 1
+
+
+def test_other_lander_makes_a_second_labelling(dataset):
+    label_dataset(dataset, workers=1)
+    before = {p: sha256_file(p) for p in (dataset / "shards").glob("*.h5")}
+    result = CliRunner().invoke(main, ["label", str(dataset), "--lander", "triangle", "--max-roughness", "0.3",
+                                       "--workers", "1"])
+    assert result.exit_code == 0, result.output
+    labelings = read_manifest(dataset)["labelings"]
+    assert len(labelings) == 2 and labelings[0]["name"] != labelings[1]["name"]
+    assert {p: sha256_file(p) for p in before} == before  # scan shards untouched
+    with pytest.raises(LabelStoreError, match="several labellings"):
+        find_labeling(dataset)
+    tri = find_labeling(dataset, labelings[1]["name"])
+    assert tri["lander"]["layout"] == "triangle" and tri["lander"]["max_roughness_m"] == 0.3
+    ok = CliRunner().invoke(main, ["verify", str(dataset)])
+    assert ok.exit_code == 0 and "OK" in ok.output
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["--lander-diameter", "150"], "larger than the DEM"),
+    (["--pad-diameter", "12"], "pad diameter"),
+    (["--max-slope-deg", "0"], "max_slope_deg"),
+    (["--max-roughness", "-0.1"], "max_roughness_m"),
+])
+def test_bad_lander_is_refused_and_nothing_is_written(dataset, args, needle):
+    before = (dataset / "manifest.json").read_text()
+    result = CliRunner().invoke(main, ["label", str(dataset), "--workers", "1", *args])
+    assert result.exit_code != 0 and needle in result.output and "Traceback" not in result.output
+    assert (dataset / "manifest.json").read_text() == before
+
+
+def test_not_a_dataset_and_all_nan_dems_are_refused(tmp_path):
+    result = CliRunner().invoke(main, ["label", str(tmp_path)])
+    assert result.exit_code != 0 and "not an hd dataset" in result.output
+    dtm = write_terrain(tmp_path / "t.tif")
+    out = tmp_path / "blind"
+    sensor = SensorConfig(rows=8, cols=8, dead_elements=64)  # every element dead: no return at all
+    build_dataset(out, BuildConfig(sigmas_m=(0.01,), sensor=sensor, trajectory=TrajectoryConfig(n_scans=2),
+                                   dtm_path=str(dtm), shard_size=2), workers=1)
+    result = CliRunner().invoke(main, ["label", str(out), "--workers", "1"])
+    assert result.exit_code != 0 and "all NaN" in result.output
+    assert read_manifest(out)["labelings"] == []
+    assert not (out / "labels").exists() or not any((out / "labels").rglob("*.h5"))
+
+
+def test_unknown_label_schema_version_is_refused(dataset, tmp_path):
+    label_dataset(dataset, workers=1)
+    entry = find_labeling(dataset, read_manifest(dataset)["labelings"][0]["name"])
+    copy = tmp_path / "copy.h5"
+    copy.write_bytes(label_shard_paths(dataset, entry)[0].read_bytes())
+    with h5py.File(copy, "r+") as f:
+        f.attrs["schema_version"] = "3.0"
+    with pytest.raises(LabelStoreError, match="version 3.0"):
+        LabelShardReader(copy)
+    manifest = json.loads((dataset / "manifest.json").read_text())
+    assert all(lab["schema_version"] == "1.0" for lab in manifest["labelings"])
