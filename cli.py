@@ -225,6 +225,49 @@ def label_cmd(directory: Path, lander_diameter: float, pad_diameter: float, max_
     click.echo(summary.paragraph())
 
 
+@main.command("train")
+@click.argument("dataset", type=click.Path(file_okay=False, path_type=Path))
+@click.option("--out", "run_dir", required=True, type=click.Path(file_okay=False, path_type=Path), help="Run directory (checkpoints, metrics.csv, config.json).")
+@click.option("--profile", type=click.Choice(["paper", "cpu", "tiny"]), default="cpu", show_default=True, help="Training profile: paper (GPU, 512x512, full width), cpu (2-core machine), tiny (tests, demos).")
+@click.option("--epochs", type=int, default=None, help="Epochs (default: the profile's).")
+@click.option("--train-sigma", type=float, default=lidar_defaults.DEFAULT_SIGMA_M, show_default=True, help="Noise level of the training inputs, metres.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of initialisation and shuffling.")
+@click.option("--resume", is_flag=True, help="Continue an interrupted run from its last checkpoint.")
+@click.option("--labels", "labeling", default=None, help="Labelling to train on (when the dataset has several).")
+@friendly_errors
+def train_cmd(dataset: Path, run_dir: Path, profile: str, epochs: int | None, train_sigma: float, seed: int,
+              resume: bool, labeling: str | None) -> None:
+    """Train the Bayesian SegNet on the noisy DEMs of a labelled dataset."""
+    from hdnet.errors import HdNetError
+    from hdnet.fit import fit
+
+    if epochs is not None and epochs <= 0:
+        raise HdNetError(f"--epochs must be > 0, got {epochs}")
+    checkpoint = fit(dataset, run_dir, profile_name=profile, epochs=epochs, train_sigma_m=train_sigma, seed=seed,
+                     resume=resume, labels=labeling, progress=True)
+    click.echo(f"training done: {checkpoint} (metrics in {run_dir / 'metrics.csv'})")
+
+
+@main.command("eval")
+@click.argument("run_dir", type=click.Path(file_okay=False, path_type=Path))
+@click.option("--data", "dataset", required=True, type=click.Path(file_okay=False, path_type=Path), help="Labelled dataset to evaluate on (its test split).")
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path), help="Report directory (report.md, report.json, figures).")
+@click.option("--mc-samples", type=int, default=8, show_default=True, help="MC-dropout samples M.")
+@click.option("--drop-pixels", type=int, default=0, show_default=True, help="Dead-pixel test: pixels dropped from each DEM and refilled (paper: 10).")
+@click.option("--threshold", default="mean", show_default=True, help="Uncertainty threshold: mean, quantile:Q or risk:ALPHA.")
+@click.option("--labels", "labeling", default=None, help="Labelling to evaluate against (when the dataset has several).")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of MC dropout and dropped pixels.")
+@friendly_errors
+def eval_cmd(run_dir: Path, dataset: Path, out_dir: Path, mc_samples: int, drop_pixels: int, threshold: str,
+             labeling: str | None, seed: int) -> None:
+    """Evaluate a trained run: the paper's tables, threshold sweep, calibration and figures."""
+    from hdnet.evaluate import evaluate
+
+    result = evaluate(run_dir, dataset, out_dir, mc_samples=mc_samples, drop_pixels=drop_pixels,
+                      threshold=threshold, labels=labeling, seed=seed)
+    click.echo(getattr(result, "summary", lambda: f"report written to {out_dir}")())
+
+
 @main.command("demo")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("demo-out"), show_default=True, help="Directory of the demo run.")
 @click.option("--scans", type=int, default=200, show_default=True, help="Scans in the demo dataset.")
