@@ -39,8 +39,9 @@ def drop_and_repair(
     Refill: each dropped pixel takes the mean of the linear interpolations along its row and along
     its column between the nearest valid (not dropped, finite) pixels on either side; for an
     isolated pixel that is the mean of its four neighbours, the bilinear kernel of dead-pixel
-    correction. Exact on planes. An axis without a valid pixel on both sides is not used; a pixel
-    with neither axis usable takes the nearest valid pixel along its row or column.
+    correction. Exact on planes. Where no axis has valid pixels on both sides (a DEM edge or
+    corner), the line through the two nearest valid pixels on one side is extended instead; a
+    pixel with no two valid pixels on any axis stays NaN.
 
     Args:
         dem: (H, W) heights, metres.
@@ -78,21 +79,22 @@ def drop_and_repair(
 
 
 def _refill(z: np.ndarray, good: np.ndarray, i: int, j: int) -> float:
-    """Bilinear refill of pixel (i, j) from the nearest good pixels along its row and column."""
-    estimates = []
-    nearest: list[tuple[int, float]] = []
+    """Refill pixel (i, j) from the nearest good pixels along its row and its column (see drop_and_repair)."""
+    between, beyond = [], []
     for line, good_line, pos in ((z[i, :], good[i, :], j), (z[:, j], good[:, j], i)):
         before = np.flatnonzero(good_line[:pos])
         after = np.flatnonzero(good_line[pos + 1 :]) + pos + 1
         if before.size and after.size:
             a, b = before[-1], after[0]
-            t = (pos - a) / (b - a)
-            estimates.append((1.0 - t) * line[a] + t * line[b])
-        for idx in (before[-1:], after[:1]):
-            if idx.size:
-                nearest.append((abs(int(idx[0]) - pos), float(line[idx[0]])))
-    if estimates:
-        return float(np.mean(estimates))
-    if nearest:
-        return min(nearest)[1]
+        elif before.size >= 2:
+            a, b = before[-2], before[-1]
+        elif after.size >= 2:
+            a, b = after[0], after[1]
+        else:
+            continue
+        t = (pos - a) / (b - a)
+        value = (1.0 - t) * line[a] + t * line[b]
+        (between if a < pos < b else beyond).append(value)
+    if between or beyond:
+        return float(np.mean(between or beyond))
     return float("nan")
