@@ -1,0 +1,357 @@
+"""Torch dataset over the label shards of one split: noisy DEM in, ALHAT label out (docs/evaluation.md).
+
+One sample is one scan: the noisy DEM at one noise level ``sigma_m`` (metres), prepared for the
+network, and its label (0 unsafe, 1 safe, 255 ignored), as a dict
+``{"image": (1, H, W) float32, "mask": (H, W) int64, "index": int}`` (plus ``"ignore"``, bool (H, W),
+with dead pixels). Preparation, in order:
+
+1. dead pixels (``dead_pixels=K`` only): K pixels of the noisy DEM, drawn per scan index with
+   ``hdlabels.deadpixels.random_dead_pixels`` (the same pixels for every noise level, seeded by
+   ``(seed, scan index)``), dropped and refilled by ``hdlabels.deadpixels.drop_and_repair``; its
+   lander-size neighbourhood mask becomes ``"ignore"``;
+2. holes: NaN cells of the noisy DEM (no lidar return) take the value of the nearest finite cell
+   (Euclidean distance, ``scipy.ndimage.distance_transform_edt``) and their label is set to 255;
+3. min-max normalisation with the *training* split's min and max at the same noise level
+   (``compute_normalisation``), so 0 and 1 are the training extremes;
+4. grid: with ``input_size`` (the ``paper`` profile: 512) the image is resized bilinearly
+   (``align_corners=False``) to ``input_size x input_size`` and the label and ignore mask by
+   nearest neighbour (``nearest-exact``); without it the image is padded on the bottom and right to
+   the next multiple of 32 by edge replication and the label with 255 (never trained on).
+
+``to_dem_grid`` undoes step 4 for network outputs: crop for padding, area averaging of the
+probabilities over each DEM cell for resizing, so metrics are always computed on the DEM grid.
+
+The h5py handles are opened lazily in the process that reads (re-opened after a fork), never
+pickled: the dataset works with ``DataLoader(num_workers > 0)``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+import torch
+import torch.nn.functional as F
+from scipy import ndimage
+from torch.utils.data import Dataset
+
+from hdlabels.deadpixels import drop_and_repair, random_dead_pixels
+from hdlabels.lander import Lander
+from hdlabels.store import LabelShardReader, LabelStoreError, find_labeling, label_shard_paths
+from hdnet import defaults
+from hdnet.errors import HdNetError
+
+SPLITS: tuple[str, str, str] = ("train", "val", "test")  # split codes 0, 1, 2 of the label shards
+SIGMA_EXACT_TOLERANCE_M = 1e-9  # hd choice: two noise levels closer than this are the same level
+# hd choice: a requested sigma also matches a dataset sigma that rounds to it at 0.1 mm (e.g. 0.0167
+# for S-167 = 0.05/3 m, as written on the command line), when exactly one dataset sigma does.
+SIGMA_PRINTED_TOLERANCE_M = 0.5e-4
+DEAD_PIXEL_STREAM = 0xDEAD  # hd choice: stream key of the dead-pixel draws, (seed, scan index, this)
+
+
+@dataclass(frozen=True)
+class Normalisation:
+    """Min-max normalisation of heights: ``(z - min_m) / (max_m - min_m)`` (metres in, unitless out)."""
+
+    min_m: float
+    max_m: float
+
+    def apply(self, dem_m: np.ndarray) -> np.ndarray:
+        """Normalised heights (float32); a flat training set (max == min) only subtracts the min."""
+        span = self.max_m - self.min_m
+        return ((np.asarray(dem_m, np.float64) - self.min_m) / (span if span > 0 else 1.0)).astype(np.float32)
+
+    def to_dict(self) -> dict[str, float]:
+        return {"min_m": float(self.min_m), "max_m": float(self.max_m)}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Normalisation:
+        try:
+            return cls(float(data["min_m"]), float(data["max_m"]))
+        except (KeyError, TypeError, ValueError):
+            raise HdNetError(f"a normalisation needs numeric 'min_m' and 'max_m', got {data!r}.") from None
+
+
+@dataclass(frozen=True)
+class DemSample:
+    """One scan on the DEM grid after dead-pixel repair, before normalisation (metres, north-up).
+
+    ``dem_noisy_m``: the (repaired) noisy DEM with NaN holes; ``dem_filled_m``: the same with holes
+    filled; ``label``: int64 with 255 on invalid cells and holes; ``ignore``: dead-pixel
+    neighbourhoods (all False without dead pixels); ``dead_pixels``: (K, 2) (row, col).
+    """
+
+    scan_index: int
+    dem_clean_m: np.ndarray
+    dem_noisy_m: np.ndarray
+    dem_filled_m: np.ndarray
+    label: np.ndarray
+    p_safe: np.ndarray
+    ignore: np.ndarray
+    dead_pixels: np.ndarray
+
+
+# --- labelling and noise levels ----------------------------------------------------------------
+def open_labeling(dataset_dir: str | os.PathLike, labels: str | None = None) -> tuple[dict[str, Any], list[Path]]:
+    """The labelling entry of a dataset and its label shard paths (HdNetError when there are no labels)."""
+    try:
+        entry = find_labeling(dataset_dir, labels)
+    except LabelStoreError as exc:
+        raise HdNetError(str(exc).rstrip(".") + ".") from None
+    return entry, label_shard_paths(dataset_dir, entry)
+
+
+def dataset_sigmas(paths: list[Path]) -> tuple[float, ...]:
+    """Noise levels (metres) of a labelling, read from its first label shard."""
+    if not paths:
+        raise HdNetError("the labelling lists no label shards.")
+    try:
+        with LabelShardReader(paths[0]) as reader:
+            return reader.sigmas_m
+    except LabelStoreError as exc:
+        raise HdNetError(str(exc).rstrip(".") + ".") from None
+
+
+def format_sigmas(sigmas_m: tuple[float, ...]) -> str:
+    return ", ".join(f"{s:.6g}" for s in sigmas_m)
+
+
+def sigma_index(sigmas_m: tuple[float, ...], sigma_m: float) -> int:
+    """Index of ``sigma_m`` (metres) among a dataset's noise levels.
+
+    Exact within 1e-9 m; else the one dataset sigma within 0.05 mm (what 0.1 mm rounding allows,
+    e.g. 0.0167 for 0.05/3). Raises HdNetError naming the available levels otherwise.
+    """
+    if not isinstance(sigma_m, (int, float)) or not math.isfinite(sigma_m):
+        raise HdNetError(f"sigma must be a finite number of metres, got {sigma_m!r}.")
+    for tol in (SIGMA_EXACT_TOLERANCE_M, SIGMA_PRINTED_TOLERANCE_M):
+        hits = [k for k, s in enumerate(sigmas_m) if abs(s - sigma_m) <= tol]
+        if len(hits) == 1:
+            return hits[0]
+    raise HdNetError(f"sigma {sigma_m:g} m is not in the dataset; it has {format_sigmas(sigmas_m)} m.")
+
+
+def lander_of(entry: dict[str, Any]) -> Lander:
+    """The lander a labelling was made with (from its manifest entry)."""
+    lander = entry.get("lander", {})
+    keys = ("diameter_m", "pad_diameter_m", "max_slope_deg", "max_roughness_m", "layout", "n_yaws", "count_holes")
+    return Lander(**{k: lander[k] for k in keys if k in lander})
+
+
+def dem_spacing_m(entry: dict[str, Any]) -> float:
+    """DEM spacing of a labelling, metres per pixel."""
+    return float(entry.get("dem", {}).get("spacing_m", 1.0))
+
+
+# --- normalisation -----------------------------------------------------------------------------
+def compute_normalisation(dataset_dir: str | os.PathLike, sigma_m: float, labels: str | None = None) -> Normalisation:
+    """Min and max (metres) of the finite noisy-DEM heights at ``sigma_m`` over the training split only."""
+    entry, paths = open_labeling(dataset_dir, labels)
+    s = sigma_index(dataset_sigmas(paths), sigma_m)
+    lo, hi = math.inf, -math.inf
+    for path in paths:
+        with h5py.File(path, "r") as f:
+            rows = np.flatnonzero(f["split"][:] == 0)
+            if rows.size == 0:
+                continue
+            dem = f["dem_noisy"][rows[0] : rows[-1] + 1, s][rows - rows[0]]
+            finite = dem[np.isfinite(dem)]
+            if finite.size:
+                lo, hi = min(lo, float(finite.min())), max(hi, float(finite.max()))
+    if not math.isfinite(lo):
+        raise HdNetError(f"{dataset_dir}: the training split has no scan with a finite height at sigma {sigma_m:g} m.")
+    return Normalisation(lo, hi)
+
+
+# --- grids -------------------------------------------------------------------------------------
+def network_shape(dem_shape: tuple[int, int], input_size: int | None) -> tuple[int, int]:
+    """(H, W) the network sees: ``input_size`` squared, or the DEM padded to a multiple of 32."""
+    if input_size is not None:
+        return int(input_size), int(input_size)
+    m = defaults.SIZE_MULTIPLE_PX
+    return tuple(int(math.ceil(n / m) * m) for n in dem_shape)  # type: ignore[return-value]
+
+
+def to_network_grid(
+    image: torch.Tensor, masks: list[torch.Tensor], input_size: int | None, pad_values: list[int]
+) -> tuple[torch.Tensor, list[torch.Tensor]]:
+    """Image (C, h, w) float and masks (h, w) to the network grid (see the module docstring, step 4)."""
+    h, w = image.shape[-2:]
+    H, W = network_shape((h, w), input_size)
+    if input_size is not None:
+        img = F.interpolate(image[None], size=(H, W), mode="bilinear", align_corners=False)[0]
+        out = [F.interpolate(m[None, None].float(), size=(H, W), mode="nearest-exact")[0, 0].to(m.dtype) for m in masks]
+        return img, out
+    pad = (0, W - w, 0, H - h)
+    img = F.pad(image[None], pad, mode="replicate")[0] if (H, W) != (h, w) else image
+    out = [F.pad(m, pad, value=v) for m, v in zip(masks, pad_values)]
+    return img, out
+
+
+def to_dem_grid(probs: torch.Tensor, dem_shape: tuple[int, int], input_size: int | None) -> torch.Tensor:
+    """Network-grid probabilities (N, C, H, W) back to the DEM grid (N, C, h, w).
+
+    Padding: crop the top-left ``dem_shape``. Resizing: the mean over the network pixels covering
+    each DEM cell (``area`` interpolation = adaptive average pooling), which keeps probabilities summing to 1.
+    """
+    h, w = dem_shape
+    if input_size is None:
+        return probs[..., :h, :w]
+    return F.interpolate(probs, size=(h, w), mode="area")
+
+
+def fill_holes(dem_m: np.ndarray) -> np.ndarray:
+    """NaN cells take the value of the nearest finite cell (Euclidean); an all-NaN DEM becomes zeros."""
+    bad = ~np.isfinite(dem_m)
+    if not bad.any():
+        return dem_m
+    if bad.all():
+        return np.zeros_like(dem_m)
+    idx = ndimage.distance_transform_edt(bad, return_distances=False, return_indices=True)
+    return dem_m[tuple(idx)]
+
+
+# --- the dataset -------------------------------------------------------------------------------
+class HazardDataset(Dataset):
+    """Samples of one split of a labelled dataset at one noise level (see the module docstring).
+
+    Args:
+        dataset_dir: the dataset directory (``manifest.json`` with a labelling).
+        split: ``train``, ``val`` or ``test``.
+        sigma_m: noise level of the input DEM, metres.
+        input_size: network input size in pixels (square, bilinear), or None to pad to a multiple of 32.
+        labels: the labelling's name (needed only when the dataset has several).
+        normalisation: min/max heights; default: ``compute_normalisation`` on the training split.
+        dead_pixels: K pixels dropped and repaired per noisy DEM (0: none).
+        seed: seed of the dead-pixel draws.
+    """
+
+    def __init__(
+        self,
+        dataset_dir: str | os.PathLike,
+        split: str,
+        sigma_m: float,
+        input_size: int | None = None,
+        labels: str | None = None,
+        normalisation: Normalisation | None = None,
+        dead_pixels: int = 0,
+        seed: int = 0,
+    ) -> None:
+        if split not in SPLITS:
+            raise HdNetError(f"split must be one of {', '.join(SPLITS)}, got {split!r}.")
+        if input_size is not None and (not isinstance(input_size, int) or input_size < 1):
+            raise HdNetError(f"input_size must be a positive integer number of pixels or None, got {input_size!r}.")
+        self.dataset_dir = Path(dataset_dir)
+        self.split = split
+        self.entry, self.paths = open_labeling(dataset_dir, labels)
+        self.labels = str(self.entry["name"])
+        self.sigmas_m = dataset_sigmas(self.paths)
+        self.sigma_index = sigma_index(self.sigmas_m, sigma_m)
+        self.sigma_m = self.sigmas_m[self.sigma_index]
+        self.input_size = input_size
+        self.lander = lander_of(self.entry)
+        self.spacing_m = dem_spacing_m(self.entry)
+        dem = self.entry.get("dem", {})
+        self.dem_shape = (int(dem.get("rows", defaults.DEM_SIZE_PX)), int(dem.get("cols", defaults.DEM_SIZE_PX)))
+        n_pixels = self.dem_shape[0] * self.dem_shape[1]
+        if isinstance(dead_pixels, bool) or not isinstance(dead_pixels, (int, np.integer)) or not 0 <= dead_pixels < n_pixels:
+            raise HdNetError(f"the number of dead pixels must be an integer in [0, {n_pixels - 1}], got {dead_pixels!r}.")
+        self.dead_pixels = int(dead_pixels)
+        self.seed = int(seed)
+        code = SPLITS.index(split)
+        items: list[tuple[int, int, int]] = []  # (shard number, row in shard, scan index)
+        for k, path in enumerate(self.paths):
+            try:
+                with h5py.File(path, "r") as f:
+                    splits, scans = f["split"][:], f["scan_index"][:]
+                    shard_sigmas = tuple(float(s) for s in f.attrs["sigmas_m"])
+            except (OSError, KeyError):
+                raise HdNetError(f"{path}: not a readable label shard.") from None
+            if len(shard_sigmas) != len(self.sigmas_m) or any(abs(a - b) > SIGMA_EXACT_TOLERANCE_M for a, b in zip(shard_sigmas, self.sigmas_m)):
+                raise HdNetError(f"{path}: its noise levels differ from the other label shards.")
+            items += [(k, int(r), int(scans[r])) for r in np.flatnonzero(splits == code)]
+        self.items = items
+        self.normalisation = normalisation if normalisation is not None else compute_normalisation(dataset_dir, self.sigma_m, labels)
+        self._files: dict[int, h5py.File] = {}
+        self._pid = -1
+
+    # Pickling: never the open files.
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        state["_files"], state["_pid"] = {}, -1
+        return state
+
+    def _file(self, k: int) -> h5py.File:
+        if self._pid != os.getpid():  # first use in this process (e.g. a DataLoader worker after fork)
+            self._files, self._pid = {}, os.getpid()
+        f = self._files.get(k)
+        if f is None:
+            f = self._files[k] = h5py.File(self.paths[k], "r")
+        return f
+
+    def close(self) -> None:
+        """Close the open label shards of this process."""
+        if self._pid == os.getpid():
+            for f in self._files.values():
+                f.close()
+        self._files = {}
+
+    def __len__(self) -> int:
+        return len(self.items)
+
+    @property
+    def scan_indices(self) -> list[int]:
+        """Global scan index of every sample, in order."""
+        return [scan for _, _, scan in self.items]
+
+    def dem_sample(self, i: int) -> DemSample:
+        """Sample ``i`` on the DEM grid, metres (steps 1-2 of the module docstring)."""
+        if not 0 <= i < len(self.items):
+            raise IndexError(f"sample {i} out of range for {len(self.items)} samples")
+        k, row, scan = self.items[i]
+        f = self._file(k)
+        s = self.sigma_index
+        noisy = f["dem_noisy"][row, s].astype(np.float32)
+        label = f["label"][row].astype(np.int64)
+        ignore = np.zeros(noisy.shape, dtype=bool)
+        dead = np.zeros((0, 2), dtype=np.int64)
+        if self.dead_pixels:
+            rng = np.random.default_rng(np.random.SeedSequence([self.seed, scan, DEAD_PIXEL_STREAM]))
+            dead = random_dead_pixels(noisy.shape, self.dead_pixels, rng)
+            noisy, ignore = drop_and_repair(noisy, dead, self.lander, self.spacing_m)
+        holes = ~np.isfinite(noisy)
+        label[holes] = defaults.IGNORE_INDEX
+        return DemSample(
+            scan_index=scan,
+            dem_clean_m=f["dem_clean"][row],
+            dem_noisy_m=noisy,
+            dem_filled_m=fill_holes(noisy),
+            label=label,
+            p_safe=f["p_safe"][row, s],
+            ignore=ignore,
+            dead_pixels=dead,
+        )
+
+    def prepare(self, sample: DemSample) -> dict[str, Any]:
+        """Steps 3-4: the network-ready dict of a DEM-grid sample."""
+        image = torch.from_numpy(self.normalisation.apply(sample.dem_filled_m))[None]
+        masks = [torch.from_numpy(sample.label)]
+        if self.dead_pixels:
+            masks.append(torch.from_numpy(sample.ignore))
+        image, masks = to_network_grid(image, masks, self.input_size, [defaults.IGNORE_INDEX, True])
+        out: dict[str, Any] = {"image": image.contiguous(), "mask": masks[0].contiguous(), "index": sample.scan_index}
+        if self.dead_pixels:
+            out["ignore"] = masks[1].contiguous()
+        return out
+
+    def __getitem__(self, i: int) -> dict[str, Any]:
+        return self.prepare(self.dem_sample(i))
+
+    def to_dem_grid(self, probs: torch.Tensor) -> torch.Tensor:
+        """Network-grid probabilities (N, C, H, W) of this dataset's samples back to the DEM grid."""
+        return to_dem_grid(probs, self.dem_shape, self.input_size)
