@@ -1,0 +1,360 @@
+"""Evaluation of a trained run (``hd eval``): thresholds, three methods per noise level, sweep, calibration.
+
+Protocol (docs/evaluation.md; paper, "Results & Discussion"):
+
+1. the entropy threshold H_t is calibrated on the validation split at the training noise level
+   (``mean``, ``quantile:Q`` or ``risk:ALPHA``, ``hdnet.thresholds``);
+2. for every noise level of the dataset, the test split is run once through MC dropout; the mean
+   softmax is brought back to the DEM grid (``HazardDataset.to_dem_grid``) and every method is
+   scored from one confusion matrix over the whole split (``hdnet.metrics``):
+   ``alhat_baseline`` (P(safe) >= 0.5 of the label shard), ``base_net`` (argmax of the mean
+   softmax) and ``uncertainty_aware`` (base net without the pixels with H >= H_t);
+3. the same inference serves the precision/sensitivity sweep over threshold quantiles, the expected
+   calibration error of the safe probability and, for ``risk:ALPHA``, the false-safe rate achieved;
+4. ``drop_pixels=K`` repeats step 2 with K dead pixels per test DEM, repaired bilinearly, the
+   baseline recomputed on the repaired DEM and the lander-size neighbourhoods ignored for every
+   method (table ``dead_pixels``, the paper's Table 2).
+
+Inputs are prepared exactly as in training (normalisation and grid from the checkpoint).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from hdlabels.alhat import safety_probability
+from hdnet import defaults
+from hdnet.data import (
+    HazardDataset,
+    Normalisation,
+    dataset_sigmas,
+    open_labeling,
+    sigma_index,
+)
+from hdnet.errors import HdNetError
+from hdnet.infer import mc_dropout_predict, predictive_entropy
+from hdnet.metrics import ConfusionAccumulator, SegmentationMetrics
+from hdnet.model import BayesianSegNet
+from hdnet.thresholds import EntropyCalibration, ThresholdSpec, parse_threshold_spec, select_threshold
+from hdnet.train import LAST, load_trained_model
+from lidarsim.shards import MANIFEST_NAME, read_manifest, sha256_file
+
+METHODS: tuple[str, str, str] = ("alhat_baseline", "base_net", "uncertainty_aware")
+ECE_BINS = 15  # hd choice: bins of the reliability diagram (the common choice since Guo et al. 2017)
+BASELINE_THRESHOLD = 0.5  # paper, "Label generation": the baseline is safe where P(safe) >= 50 %
+
+
+@dataclass(frozen=True)
+class SplitInference:
+    """MC-dropout output and ground truth of one split at one noise level, on the DEM grid.
+
+    Arrays are (N, H, W): ``label`` int64 (0 unsafe, 1 safe, 255 ignored: invalid cells and DEM
+    holes); ``ignore`` bool (dead-pixel neighbourhoods); ``prob_safe`` float32 mean softmax of
+    "safe"; ``prediction`` int64 (argmax); ``entropy_nats`` float32; ``baseline_safe`` bool
+    (P(safe) >= 0.5); ``dem_clean_m`` / ``dem_noisy_m`` float32 heights (metres) for figures.
+    """
+
+    sigma_m: float
+    scan_index: np.ndarray
+    label: np.ndarray
+    ignore: np.ndarray
+    prob_safe: np.ndarray
+    prediction: np.ndarray
+    entropy_nats: np.ndarray
+    baseline_safe: np.ndarray
+    dem_clean_m: np.ndarray
+    dem_noisy_m: np.ndarray
+
+    @property
+    def valid(self) -> np.ndarray:
+        """Pixels that count in metrics: labelled and not ignored."""
+        return (self.label != defaults.IGNORE_INDEX) & ~self.ignore
+
+
+@dataclass(frozen=True)
+class ReportRow:
+    """One row of Table 1 / Table 2; fractions in [0, 1] (NaN when undefined); sigmas in metres."""
+
+    table: str  # "noise" or "dead_pixels"
+    method: str
+    train_sigma_m: float | None  # None for the baseline (not trained)
+    test_sigma_m: float
+    vc_fraction: float | None  # None for methods without thresholding
+    pixel_accuracy: float
+    miou: float
+    precision: float
+    sensitivity: float
+
+
+@dataclass(frozen=True)
+class ReliabilityBins:
+    """Reliability of the safe probability in equal-width bins of [0, 1]."""
+
+    edges: np.ndarray  # (B + 1,)
+    count: np.ndarray  # (B,) pixels per bin
+    mean_prob: np.ndarray  # (B,) mean predicted P(safe) (NaN for an empty bin)
+    safe_fraction: np.ndarray  # (B,) observed fraction of truly safe pixels (NaN for an empty bin)
+    ece: float  # sum_b n_b / N * |safe_fraction_b - mean_prob_b|
+
+
+@dataclass
+class EvaluationResult:
+    """Everything ``evaluate`` measured; ``report.json`` is ``to_json()``."""
+
+    rows: list[ReportRow]
+    threshold: dict[str, Any]
+    sweep: list[dict[str, Any]]
+    calibration: dict[str, Any]
+    run: dict[str, Any] = field(default_factory=dict)
+    test: dict[float, SplitInference] = field(default_factory=dict, repr=False)
+    validation_entropy_nats: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32), repr=False)
+
+
+# --- pure scoring --------------------------------------------------------------------------------
+def score(
+    truth: np.ndarray, prediction: np.ndarray, ignore: np.ndarray | None = None, uncertain: np.ndarray | None = None
+) -> SegmentationMetrics:
+    """Dataset-level metrics from one confusion matrix (``hdnet.metrics``) over arrays of any shape."""
+    acc = ConfusionAccumulator(uncertainty_aware=uncertain is not None)
+    t = torch.from_numpy(np.ascontiguousarray(truth)).long()
+    acc.update(
+        t,
+        torch.from_numpy(np.ascontiguousarray(prediction)).long(),
+        ignore=None if ignore is None else torch.from_numpy(np.ascontiguousarray(ignore)),
+        uncertain=None if uncertain is None else torch.from_numpy(np.ascontiguousarray(uncertain)),
+    )
+    return acc.compute()
+
+
+def reliability(prob_safe: np.ndarray, truth_safe: np.ndarray, n_bins: int = ECE_BINS) -> ReliabilityBins:
+    """Reliability bins and expected calibration error of P(safe) against the truth (1-D arrays).
+
+    Bin b holds probabilities in [b/B, (b+1)/B) (the last bin includes 1).
+    """
+    p = np.asarray(prob_safe, np.float64).ravel()
+    y = np.asarray(truth_safe, bool).ravel()
+    edges = np.linspace(0.0, 1.0, n_bins + 1)
+    b = np.clip((p * n_bins).astype(np.int64), 0, n_bins - 1)
+    count = np.bincount(b, minlength=n_bins)
+    sum_p = np.bincount(b, weights=p, minlength=n_bins)
+    sum_y = np.bincount(b, weights=y.astype(np.float64), minlength=n_bins)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean_p = np.where(count > 0, sum_p / count, np.nan)
+        frac = np.where(count > 0, sum_y / count, np.nan)
+    n = int(count.sum())
+    ece = float(np.abs(sum_y - sum_p).sum() / n) if n else float("nan")
+    return ReliabilityBins(edges, count, mean_p, frac, ece)
+
+
+def method_rows(inf: SplitInference, table: str, train_sigma_m: float, threshold_nats: float) -> list[ReportRow]:
+    """The three methods' rows for one split inference."""
+    out = []
+    uncertain = inf.entropy_nats >= threshold_nats
+    for method in METHODS:
+        if method == "alhat_baseline":
+            m = score(inf.label, inf.baseline_safe.astype(np.int64), inf.ignore)
+        elif method == "base_net":
+            m = score(inf.label, inf.prediction, inf.ignore)
+        else:
+            m = score(inf.label, inf.prediction, inf.ignore, uncertain)
+        out.append(ReportRow(table, method, None if method == "alhat_baseline" else train_sigma_m, inf.sigma_m,
+                             m.vc_fraction, m.pixel_accuracy, m.miou, m.precision_safe, m.sensitivity_safe))
+    return out
+
+
+def false_safe_rate(inf: SplitInference, threshold_nats: float) -> float:
+    """Mean over images of (certain false-safe pixels / valid pixels): the loss risk control bounds."""
+    cal = EntropyCalibration()
+    cal.update(torch.from_numpy(inf.entropy_nats), torch.from_numpy(inf.prediction), torch.from_numpy(inf.label),
+               torch.from_numpy(inf.ignore))
+    return cal.risk(threshold_nats)
+
+
+# --- inference -----------------------------------------------------------------------------------
+def infer_split(
+    model: BayesianSegNet, ds: HazardDataset, mc_samples: int, batch_size: int, seed: int,
+    device: torch.device, recompute_baseline: bool = False,
+) -> SplitInference:
+    """MC dropout over a whole split, brought back to the DEM grid; dropout masks seeded by ``seed``.
+
+    ``recompute_baseline``: the ALHAT P(safe) is recomputed on the (repaired) noisy DEM instead of
+    read from the label shard (needed with dead pixels).
+    """
+    torch.manual_seed(seed)
+    n = len(ds)
+    h, w = ds.dem_shape
+    arrays = {k: np.zeros((n, h, w), np.float32) for k in ("prob", "entropy", "clean", "noisy")}
+    label = np.zeros((n, h, w), np.int64)
+    pred = np.zeros((n, h, w), np.int64)
+    ignore = np.zeros((n, h, w), bool)
+    base = np.zeros((n, h, w), bool)
+    scans = np.zeros(n, np.int64)
+    for start in range(0, n, batch_size):
+        idx = range(start, min(n, start + batch_size))
+        samples = [ds.dem_sample(i) for i in idx]
+        x = torch.stack([ds.prepare(s)["image"] for s in samples]).to(device)
+        out = mc_dropout_predict(model, x, n_samples=mc_samples)
+        probs = ds.to_dem_grid(out.mean_probs.float()).cpu()
+        sl = slice(idx.start, idx.stop)
+        arrays["prob"][sl] = probs[:, defaults.CLASS_SAFE].numpy()
+        arrays["entropy"][sl] = predictive_entropy(probs).numpy()
+        pred[sl] = probs.argmax(dim=1).numpy()
+        for j, s in zip(idx, samples):
+            scans[j], label[j], ignore[j] = s.scan_index, s.label, s.ignore
+            arrays["clean"][j], arrays["noisy"][j] = s.dem_clean_m, s.dem_noisy_m
+            p_safe = safety_probability(s.dem_noisy_m, ds.spacing_m, ds.sigma_m, ds.lander) if recompute_baseline else s.p_safe
+            base[j] = np.nan_to_num(p_safe, nan=0.0) >= BASELINE_THRESHOLD
+    return SplitInference(ds.sigma_m, scans, label, ignore, arrays["prob"], pred, arrays["entropy"], base,
+                          arrays["clean"], arrays["noisy"])
+
+
+# --- the evaluation --------------------------------------------------------------------------------
+def _checkpoint_path(run_dir: str | os.PathLike) -> Path:
+    path = Path(run_dir)
+    return path / LAST if path.is_dir() else path
+
+
+def _run_data(ckpt: dict[str, Any], path: Path) -> tuple[float, Normalisation, int | None, str | None]:
+    extra = ckpt.get("extra_config") or {}
+    if "train_sigma_m" not in extra or "normalisation" not in extra:
+        raise HdNetError(f"{path} was not trained by hdnet.fit: its run config lacks the training sigma and normalisation.")
+    size = extra.get("input_size")
+    return float(extra["train_sigma_m"]), Normalisation.from_dict(extra["normalisation"]), (None if size is None else int(size)), extra.get("labels")
+
+
+def _check_counts(mc_samples: int, drop_pixels: int, n_pixels: int, batch_size: int) -> None:
+    if isinstance(mc_samples, bool) or not isinstance(mc_samples, int) or mc_samples < 1:
+        raise HdNetError(f"the number of MC samples must be an integer >= 1, got {mc_samples!r}.")
+    if isinstance(drop_pixels, bool) or not isinstance(drop_pixels, int) or not 0 <= drop_pixels < n_pixels:
+        raise HdNetError(f"--drop-pixels must be an integer in [0, {n_pixels - 1}] for {n_pixels}-pixel DEMs, got {drop_pixels!r}.")
+    if isinstance(batch_size, bool) or not isinstance(batch_size, int) or batch_size < 1:
+        raise HdNetError(f"the batch size must be an integer >= 1, got {batch_size!r}.")
+
+
+def _finite_or_none(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+def evaluate(
+    run_dir: str | os.PathLike,
+    dataset_dir: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    mc_samples: int = defaults.MC_SAMPLES,
+    drop_pixels: int = 0,
+    threshold: str = defaults.THRESHOLD_SPEC,
+    labels: str | None = None,
+    seed: int = 0,
+    batch_size: int = 8,
+    device: str | None = None,
+    figures: bool = True,
+) -> EvaluationResult:
+    """Evaluate the run at ``run_dir`` (its ``last.pt``, or a checkpoint file) on ``dataset_dir``.
+
+    Writes ``report.json``, ``report.md`` and PNG figures into ``out_dir`` and returns the result.
+
+    Raises:
+        HdNetError: a dataset without labels, a training sigma not in the dataset, a checkpoint of
+            another model or schema, ``drop_pixels`` outside [0, DEM pixels), ``mc_samples`` < 1,
+            a bad threshold spec (e.g. alpha outside (0, 1)), an empty validation or test split.
+    """
+    spec: ThresholdSpec = parse_threshold_spec(threshold)
+    open_labeling(dataset_dir, labels)  # the clear "no labels" error before anything else
+    _check_counts(mc_samples, 0, 1, batch_size)
+    ckpt_path = _checkpoint_path(run_dir)
+    dev = torch.device(device) if device else torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    model, ckpt = load_trained_model(ckpt_path, map_location=dev)
+    train_sigma, norm, input_size, run_labels = _run_data(ckpt, ckpt_path)
+    entry, paths = open_labeling(dataset_dir, labels if labels is not None else _prefer(dataset_dir, run_labels))
+    dem = entry.get("dem", {})
+    n_pixels = int(dem.get("rows", defaults.DEM_SIZE_PX)) * int(dem.get("cols", defaults.DEM_SIZE_PX))
+    _check_counts(mc_samples, drop_pixels, n_pixels, batch_size)
+    sigmas = dataset_sigmas(paths)
+    sigma_index(sigmas, train_sigma)  # the training sigma must be in the dataset
+    lab = str(entry["name"])
+
+    def dataset(split: str, sigma: float, dead: int = 0) -> HazardDataset:
+        ds = HazardDataset(dataset_dir, split, sigma, input_size=input_size, labels=lab, normalisation=norm,
+                           dead_pixels=dead, seed=seed)
+        if len(ds) == 0:
+            raise HdNetError(f"{dataset_dir}: the {split} split is empty.")
+        return ds
+
+    # 1. threshold from the validation split at the training sigma
+    val = infer_split(model, dataset("val", train_sigma), mc_samples, batch_size, seed, dev)
+    cal = EntropyCalibration()
+    cal.update(torch.from_numpy(val.entropy_nats), torch.from_numpy(val.prediction), torch.from_numpy(val.label))
+    h_t = select_threshold(spec, cal)
+    h_mean = cal.mean()
+    val_entropy = val.entropy_nats[val.valid]
+    threshold_info: dict[str, Any] = {
+        "spec": str(spec), "kind": spec.kind, "parameter": spec.value, "value_nats": _finite_or_none(h_t),
+        "mean_nats": h_mean, "mean_quantile": float(np.mean(val_entropy < h_mean)),
+        "calibration_split": "val", "calibration_sigma_m": val.sigma_m, "calibration_images": cal.n_images,
+        "calibration_pixels": int(val_entropy.size),
+    }
+
+    # 2-3. every sigma: the three methods, the sweep, calibration
+    rows: list[ReportRow] = []
+    sweep: list[dict[str, Any]] = []
+    cal_rows: list[dict[str, Any]] = []
+    tests: dict[float, SplitInference] = {}
+    achieved: list[dict[str, Any]] = []
+    quantile_thresholds = [(q, cal.quantile(q)) for q in defaults.QUANTILE_SWEEP]
+    for sigma in sigmas:
+        inf = infer_split(model, dataset("test", sigma), mc_samples, batch_size, seed, dev)
+        tests[sigma] = inf
+        rows += method_rows(inf, "noise", val.sigma_m, h_t)
+        for q, t in quantile_thresholds:
+            m = score(inf.label, inf.prediction, inf.ignore, inf.entropy_nats >= t)
+            sweep.append({"test_sigma_m": sigma, "quantile": q, "threshold_nats": t, "vc_fraction": m.vc_fraction,
+                          "pixel_accuracy": m.pixel_accuracy, "miou": m.miou, "precision": m.precision_safe,
+                          "sensitivity": m.sensitivity_safe})
+        v = inf.valid
+        rel = reliability(inf.prob_safe[v], inf.label[v] == defaults.CLASS_SAFE)
+        cal_rows.append({"test_sigma_m": sigma, "ece": rel.ece, "bin_edges": rel.edges.tolist(),
+                         "bin_count": rel.count.tolist(), "bin_mean_prob": rel.mean_prob.tolist(),
+                         "bin_safe_fraction": rel.safe_fraction.tolist()})
+        if spec.kind == "risk":
+            achieved.append({"test_sigma_m": sigma, "table": "noise", "false_safe_rate": false_safe_rate(inf, h_t)})
+
+    # 4. dead pixels
+    if drop_pixels:
+        for sigma in sigmas:
+            inf = infer_split(model, dataset("test", sigma, drop_pixels), mc_samples, batch_size, seed, dev,
+                              recompute_baseline=True)
+            rows += method_rows(inf, "dead_pixels", val.sigma_m, h_t)
+            if spec.kind == "risk":
+                achieved.append({"test_sigma_m": sigma, "table": "dead_pixels", "false_safe_rate": false_safe_rate(inf, h_t)})
+    if spec.kind == "risk":
+        threshold_info["alpha"] = spec.value
+        threshold_info["achieved_risk"] = achieved
+
+    root = Path(dataset_dir).resolve()
+    extra = ckpt.get("extra_config") or {}
+    run_info = {
+        "checkpoint": str(ckpt_path.resolve()), "epoch": int(ckpt.get("epoch", 0)), "profile": ckpt.get("profile", {}).get("name"),
+        "model_config": ckpt.get("model_config"), "train_sigma_m": train_sigma, "input_size": input_size,
+        "dataset": str(root), "manifest_sha256": sha256_file(root / MANIFEST_NAME), "labels": lab,
+        "same_dataset_as_training": extra.get("manifest_sha256") == sha256_file(root / MANIFEST_NAME),
+        "sigmas_m": list(sigmas), "mc_samples": mc_samples, "drop_pixels": drop_pixels, "seed": seed,
+        "test_scans": int(len(next(iter(tests.values())).scan_index)), "val_scans": int(len(val.scan_index)),
+    }
+    result = EvaluationResult(rows, threshold_info, sweep, {"bins": ECE_BINS, "per_sigma": cal_rows}, run_info,
+                              tests, val_entropy)
+    from hdnet.report import write_report
+
+    write_report(result, Path(out_dir), figures=figures)
+    return result
+
+
+def _prefer(dataset_dir: str | os.PathLike, run_labels: str | None) -> str | None:
+    """The run's labelling when the dataset has one of that name, else None (the dataset's only one)."""
+    names = [lab.get("name") for lab in read_manifest(dataset_dir).get("labelings", [])]
+    return run_labels if run_labels in names else None

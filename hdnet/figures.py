@@ -1,0 +1,141 @@
+"""PNG figures of an evaluation (matplotlib, Agg): reliability, threshold sweep, qualitative panels.
+
+Every function takes an ``EvaluationResult`` (``hdnet.evaluate``) and a file path, draws one figure
+and closes it. Colours of safety maps: unsafe red, safe green, uncertain grey, invalid white.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from matplotlib.colors import ListedColormap  # noqa: E402
+
+from hdnet import defaults  # noqa: E402
+
+if TYPE_CHECKING:
+    from hdnet.evaluate import EvaluationResult, SplitInference
+
+SAFETY_COLOURS = ListedColormap(["#c0392b", "#27ae60", "#9e9e9e", "#ffffff"])  # unsafe, safe, uncertain, invalid
+UNCERTAIN_CODE, INVALID_CODE = 2, 3
+DPI = 110
+
+
+def sigma_label(sigma_m: float) -> str:
+    """A noise level for titles and file names, in centimetres (0.0167 -> '1.67cm')."""
+    return f"{sigma_m * 100:.2f}cm"
+
+
+def reliability_diagram(result: EvaluationResult, path: Path) -> None:
+    """Observed safe fraction vs mean predicted P(safe) per bin, one line per test sigma, with ECE."""
+    fig, ax = plt.subplots(figsize=(5, 5))
+    ax.plot([0, 1], [0, 1], "k--", lw=1, label="perfect calibration")
+    for row in result.calibration["per_sigma"]:
+        p = np.asarray(row["bin_mean_prob"], float)
+        y = np.asarray(row["bin_safe_fraction"], float)
+        ok = np.isfinite(p) & np.isfinite(y)
+        ax.plot(p[ok], y[ok], "o-", ms=4, label=f"test {sigma_label(row['test_sigma_m'])} (ECE {row['ece']:.3f})")
+    ax.set(xlim=(0, 1), ylim=(0, 1), xlabel="mean predicted P(safe)", ylabel="observed safe fraction",
+           title=f"Reliability ({result.calibration['bins']} bins)")
+    ax.legend(fontsize=8, loc="upper left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=DPI)
+    plt.close(fig)
+
+
+def threshold_sweep(result: EvaluationResult, path: Path) -> None:
+    """Precision and sensitivity of the uncertainty-aware map vs the threshold's validation quantile.
+
+    One panel per test sigma; dashed line: the mean-entropy threshold (as a validation quantile);
+    dotted lines: the ALHAT baseline's precision and sensitivity at that sigma.
+    """
+    sigmas = sorted({row["test_sigma_m"] for row in result.sweep})
+    fig, axes = plt.subplots(1, len(sigmas), figsize=(4.2 * len(sigmas), 3.8), squeeze=False)
+    for ax, sigma in zip(axes[0], sigmas):
+        pts = [r for r in result.sweep if r["test_sigma_m"] == sigma]
+        q = [r["quantile"] for r in pts]
+        ax.plot(q, [r["precision"] for r in pts], "o-", color="tab:blue", label="precision")
+        ax.plot(q, [r["sensitivity"] for r in pts], "s-", color="tab:orange", label="sensitivity")
+        ax.axvline(result.threshold["mean_quantile"], color="k", ls="--", lw=1, label="mean-entropy threshold")
+        base = [r for r in result.rows if r.table == "noise" and r.method == "alhat_baseline" and r.test_sigma_m == sigma]
+        if base:
+            b = base[0]
+            ax.axhline(b.precision, color="tab:blue", ls=":", lw=1, label="baseline precision")
+            ax.axhline(b.sensitivity, color="tab:orange", ls=":", lw=1, label="baseline sensitivity")
+            ax.plot([1.0], [b.precision], "D", color="tab:blue", ms=5)
+            ax.plot([1.0], [b.sensitivity], "D", color="tab:orange", ms=5)
+        ax.set(xlim=(0, 1.05), ylim=(0, 1.02), xlabel="threshold quantile (validation entropy)",
+               title=f"test sigma {sigma_label(sigma)}")
+    axes[0][0].set_ylabel("fraction")
+    axes[0][-1].legend(fontsize=7, loc="lower right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=DPI)
+    plt.close(fig)
+
+
+def _safety_codes(safe: np.ndarray, label: np.ndarray, uncertain: np.ndarray | None = None) -> np.ndarray:
+    codes = safe.astype(np.int64)
+    if uncertain is not None:
+        codes[uncertain] = UNCERTAIN_CODE
+    codes[label == defaults.IGNORE_INDEX] = INVALID_CODE
+    return codes
+
+
+def representative_scan(inf: SplitInference) -> int:
+    """Row of the test scan whose valid pixels are closest to half safe (ties: the first)."""
+    valid = inf.label != defaults.IGNORE_INDEX
+    n_valid = valid.sum(axis=(1, 2))
+    safe = ((inf.label == defaults.CLASS_SAFE) & valid).sum(axis=(1, 2))
+    frac = np.where(n_valid > 0, safe / np.maximum(n_valid, 1), -1.0)
+    return int(np.argmin(np.abs(frac - 0.5)))
+
+
+def qualitative_panel(inf: SplitInference, row: int, threshold_nats: float | None, path: Path) -> None:
+    """True DEM, label, noisy DEM, uncertainty, uncertainty-aware prediction, baseline for one scan."""
+    label = inf.label[row]
+    t = math.inf if threshold_nats is None else threshold_nats
+    uncertain = inf.entropy_nats[row] >= t
+    panels = [
+        ("true DEM (m)", inf.dem_clean_m[row], dict(cmap="terrain")),
+        ("label", _safety_codes(label == defaults.CLASS_SAFE, label), dict(cmap=SAFETY_COLOURS, vmin=0, vmax=3)),
+        ("noisy DEM (m)", inf.dem_noisy_m[row], dict(cmap="terrain")),
+        ("uncertainty (nats)", inf.entropy_nats[row], dict(cmap="viridis", vmin=0.0, vmax=math.log(2))),
+        ("uncertainty-aware", _safety_codes(inf.prediction[row] == defaults.CLASS_SAFE, label, uncertain),
+         dict(cmap=SAFETY_COLOURS, vmin=0, vmax=3)),
+        ("ALHAT baseline", _safety_codes(inf.baseline_safe[row], label), dict(cmap=SAFETY_COLOURS, vmin=0, vmax=3)),
+    ]
+    fig, axes = plt.subplots(1, len(panels), figsize=(3.0 * len(panels), 3.3))
+    for ax, (title, img, kw) in zip(axes, panels):
+        im = ax.imshow(img, interpolation="nearest", **kw)
+        ax.set_title(title, fontsize=9)
+        ax.set_xticks([])
+        ax.set_yticks([])
+        if title.endswith(")"):
+            fig.colorbar(im, ax=ax, fraction=0.046, pad=0.02)
+    fig.suptitle(f"scan {int(inf.scan_index[row])}, test sigma {sigma_label(inf.sigma_m)} "
+                 "(red unsafe, green safe, grey uncertain, white invalid)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=DPI)
+    plt.close(fig)
+
+
+def write_figures(result: EvaluationResult, out_dir: Path) -> list[Path]:
+    """All figures of a result into ``out_dir``; returns their paths."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = [out_dir / "reliability.png", out_dir / "threshold_sweep.png"]
+    reliability_diagram(result, paths[0])
+    threshold_sweep(result, paths[1])
+    if result.test:
+        first = next(iter(result.test.values()))
+        row = representative_scan(first)
+        for sigma, inf in result.test.items():
+            p = out_dir / f"qualitative_{sigma_label(sigma)}.png"
+            qualitative_panel(inf, row, result.threshold["value_nats"], p)
+            paths.append(p)
+    return paths

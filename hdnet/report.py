@@ -1,0 +1,148 @@
+"""Report files of an evaluation: ``report.json`` (machine-readable) and ``report.md`` (the paper's layout).
+
+``report.json`` = ``{"rows": [...], "threshold": {...}, "sweep": [...], "calibration": {...},
+"run": {...}}``; every row has exactly the keys of ``ROW_KEYS``. Non-finite numbers (an undefined
+ratio, an unbounded threshold) are written as ``null``. ``report.md`` prints Table 1 (noise levels)
+and Table 2 (dead pixels) in the paper's column order, each followed by the paper's values for the
+same rows (``hdnet.paper_results``), then the threshold, the sweep and the calibration errors.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import asdict
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from hdnet.paper_results import paper_row
+
+if TYPE_CHECKING:
+    from hdnet.evaluate import EvaluationResult, ReportRow
+
+ROW_KEYS = ("table", "method", "train_sigma_m", "test_sigma_m", "vc_fraction", "pixel_accuracy", "miou",
+            "precision", "sensitivity")
+METHOD_NAMES = {"alhat_baseline": "Baseline (replicated ALHAT)", "base_net": "Base Net.",
+                "uncertainty_aware": "Uncertainty-Aware"}
+TABLE_TITLES = {"noise": "Table 1: noise levels", "dead_pixels": "Table 2: dead pixels"}
+
+
+def _plain(obj: Any) -> Any:
+    """JSON-safe copy: NaN/inf -> None, tuples -> lists, numpy scalars -> Python numbers."""
+    if isinstance(obj, dict):
+        return {str(k): _plain(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_plain(v) for v in obj]
+    if hasattr(obj, "item") and not isinstance(obj, (str, bytes)):
+        obj = obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def report_dict(result: EvaluationResult) -> dict[str, Any]:
+    """The content of ``report.json``."""
+    rows = [{k: asdict(r)[k] for k in ROW_KEYS} for r in result.rows]
+    return _plain({"rows": rows, "threshold": result.threshold, "sweep": result.sweep,
+                   "calibration": result.calibration, "run": result.run})
+
+
+def _cm(sigma_m: float | None) -> str:
+    return "--" if sigma_m is None else f"{sigma_m * 100:.2f} cm"
+
+
+def _num(x: float | None, digits: int = 4) -> str:
+    return "--" if x is None or not math.isfinite(x) else f"{x:.{digits}f}"
+
+
+def _pct(x: float | None) -> str:
+    return "--" if x is None or not math.isfinite(x) else f"{100 * x:.0f} %"
+
+
+HEADER = ("| Method | Train noise 1σ | Test noise 1σ | V/C Pix. % | Pix. Acc. | mIoU | Precision | Sensitivity |\n"
+          "|---|---|---|---|---|---|---|---|")
+
+
+def _table(rows: list[ReportRow]) -> list[str]:
+    lines = [HEADER]
+    for r in rows:
+        lines.append(f"| {METHOD_NAMES.get(r.method, r.method)} | {_cm(r.train_sigma_m)} | {_cm(r.test_sigma_m)} | "
+                     f"{_pct(r.vc_fraction)} | {_num(r.pixel_accuracy)} | {_num(r.miou)} | {_num(r.precision)} | "
+                     f"{_num(r.sensitivity)} |")
+    return lines
+
+
+def _paper_table(rows: list[ReportRow]) -> list[str]:
+    lines = []
+    for r in rows:
+        p = paper_row(r.table, r.method, r.test_sigma_m)
+        if p is not None:
+            train = "--" if r.method == "alhat_baseline" else "1.67 cm"
+            lines.append(f"| {METHOD_NAMES.get(p.method, p.method)} | {train} | {_cm(p.test_sigma_m)} | "
+                         f"{_pct(p.vc_fraction)} | {_num(p.pixel_accuracy)} | {_num(p.miou)} | {_num(p.precision)} | "
+                         f"{_num(p.sensitivity)} |")
+    return [HEADER, *lines] if lines else []
+
+
+def report_markdown(result: EvaluationResult, figures: list[str] | None = None) -> str:
+    """The content of ``report.md``."""
+    run, th = result.run, result.threshold
+    out = ["# hd evaluation report", ""]
+    out += [f"- checkpoint: `{run.get('checkpoint')}` (epoch {run.get('epoch')}, profile `{run.get('profile')}`)",
+            f"- dataset: `{run.get('dataset')}`, labelling `{run.get('labels')}`, "
+            f"{run.get('test_scans')} test / {run.get('val_scans')} validation scans",
+            f"- trained at {_cm(run.get('train_sigma_m'))}; MC samples M = {run.get('mc_samples')}; seed {run.get('seed')}",
+            f"- threshold `{th['spec']}`: H_t = {_num(th['value_nats'])} nats "
+            f"(unbounded: every pixel certain)" if th["value_nats"] is None else
+            f"- threshold `{th['spec']}`: H_t = {_num(th['value_nats'])} nats, calibrated on the {th['calibration_split']} "
+            f"split at {_cm(th['calibration_sigma_m'])} (mean entropy {_num(th['mean_nats'])} nats = validation "
+            f"quantile {_num(th['mean_quantile'], 3)})", ""]
+    for table in ("noise", "dead_pixels"):
+        rows = [r for r in result.rows if r.table == table]
+        if not rows:
+            continue
+        out += [f"## {TABLE_TITLES[table]}", ""]
+        if table == "dead_pixels":
+            out += [f"{run.get('drop_pixels')} random pixels of every test DEM dropped and refilled bilinearly; every "
+                    "pixel whose lander footprint contains a dropped pixel is ignored for all methods.", ""]
+        out += _table(rows) + [""]
+        paper = _paper_table(rows)
+        if paper:
+            out += ["The paper's values for the same rows (Tomita et al., "
+                    f"{'Table 1' if table == 'noise' else 'Table 2'}):", ""] + paper + [""]
+    if th.get("achieved_risk"):
+        out += ["## Risk control", "", f"Target: expected false-safe rate <= {th['alpha']} per image "
+                "(certain truly-unsafe pixels predicted safe / valid pixels).", "",
+                "| Table | Test noise 1σ | Achieved false-safe rate |", "|---|---|---|"]
+        out += [f"| {a['table']} | {_cm(a['test_sigma_m'])} | {_num(a['false_safe_rate'])} |" for a in th["achieved_risk"]]
+        out.append("")
+    out += ["## Threshold sweep (uncertainty-aware)", "",
+            "| Test noise 1σ | Quantile | H_t (nats) | V/C Pix. % | Precision | Sensitivity |", "|---|---|---|---|---|---|"]
+    out += [f"| {_cm(s['test_sigma_m'])} | {s['quantile']:.1f} | {_num(s['threshold_nats'])} | {_pct(s['vc_fraction'])} | "
+            f"{_num(s['precision'])} | {_num(s['sensitivity'])} |" for s in result.sweep]
+    out += ["", f"## Calibration of P(safe) ({result.calibration['bins']} bins)", "", "| Test noise 1σ | ECE |", "|---|---|"]
+    out += [f"| {_cm(c['test_sigma_m'])} | {_num(c['ece'])} |" for c in result.calibration["per_sigma"]]
+    if figures:
+        out += ["", "## Figures", ""] + [f"![{Path(f).stem}]({Path(f).name})" for f in figures]
+    return "\n".join(out) + "\n"
+
+
+def _write_text(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def write_report(result: EvaluationResult, out_dir: Path, figures: bool = True) -> list[Path]:
+    """Write ``report.json``, ``report.md`` and (``figures=True``) the PNGs; returns the paths written."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    pngs: list[Path] = []
+    if figures:
+        from hdnet.figures import write_figures
+
+        pngs = write_figures(result, out_dir)
+    _write_text(out_dir / "report.json", json.dumps(report_dict(result), indent=2) + "\n")
+    _write_text(out_dir / "report.md", report_markdown(result, [str(p) for p in pngs]))
+    return [out_dir / "report.json", out_dir / "report.md", *pngs]
