@@ -1,0 +1,159 @@
+"""hdnet.evaluate end to end on a tiny run: report files, hand-checked baseline, dead pixels, risk, errors."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+import torch
+
+from hdlabels.store import find_labeling, label_shard_paths
+from hdnet.data import HazardDataset
+from hdnet.errors import HdNetError
+from hdnet.evaluate import METHODS, evaluate, reliability
+from hdnet.fit import fit
+from hdnet.report import ROW_KEYS
+from hdnet_datasets import SIGMAS_M, build_labelled
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    root = tmp_path_factory.mktemp("hdnet-eval")
+    dataset = build_labelled(root / "data")
+    run = root / "run"
+    fit(dataset, run, profile_name="tiny", epochs=1, progress=False)
+    out = root / "report"
+    result = evaluate(run, dataset, out, mc_samples=4, drop_pixels=10, seed=0)
+    return dataset, run, out, result
+
+
+def hand_metrics(truth: np.ndarray, safe_pred: np.ndarray, valid: np.ndarray) -> tuple[float, float, float, float]:
+    """PA, mIoU, precision and sensitivity of "safe", counted by hand over valid pixels."""
+    t, p = truth[valid] == 1, safe_pred[valid]
+    ts, fs, fu, tu = (t & p).sum(), (~t & p).sum(), (t & ~p).sum(), (~t & ~p).sum()
+    iou_safe, iou_unsafe = ts / (ts + fs + fu), tu / (tu + fu + fs)
+    return (ts + tu) / t.size, (iou_safe + iou_unsafe) / 2, ts / (ts + fs), ts / (ts + fu)
+
+
+def test_report_files_have_every_row_and_exact_keys(setup):
+    _, _, out, _ = setup
+    report = json.loads((out / "report.json").read_text())
+    assert {"rows", "threshold", "sweep", "calibration"} <= set(report)
+    rows = report["rows"]
+    assert all(list(r) == list(ROW_KEYS) for r in rows)
+    keys = {(r["table"], r["method"], r["test_sigma_m"]) for r in rows}
+    assert keys == {(t, m, s) for t in ("noise", "dead_pixels") for m in METHODS for s in SIGMAS_M}
+    assert len(rows) == 2 * 3 * len(SIGMAS_M)
+    for r in rows:
+        assert (r["vc_fraction"] is None) == (r["method"] != "uncertainty_aware")
+        assert r["train_sigma_m"] == (None if r["method"] == "alhat_baseline" else 0.0167)
+    th = report["threshold"]
+    assert th["spec"] == "mean" and th["calibration_split"] == "val" and th["calibration_sigma_m"] == 0.0167
+    assert 0 < th["value_nats"] <= math.log(2) and th["value_nats"] == th["mean_nats"]
+    assert len(report["sweep"]) == 9 * len(SIGMAS_M)
+    assert [c["test_sigma_m"] for c in report["calibration"]["per_sigma"]] == list(SIGMAS_M)
+    md = (out / "report.md").read_text()
+    assert "## Table 1: noise levels" in md and "## Table 2: dead pixels" in md and "0.9345" in md  # paper's value
+    for name in ("reliability.png", "threshold_sweep.png", "qualitative_1.67cm.png", "qualitative_7.00cm.png"):
+        assert (out / name).read_bytes()[:4] == b"\x89PNG", name
+
+
+def test_baseline_rows_equal_a_hand_count_from_the_label_shards(setup):
+    dataset, _, _, result = setup
+    for s, sigma in enumerate(SIGMAS_M):
+        truth, pred = [], []
+        for path in label_shard_paths(dataset, find_labeling(dataset)):
+            with h5py.File(path) as f:
+                rows = f["split"][:] == 2
+                truth.append(f["label"][:][rows])
+                pred.append(np.nan_to_num(f["p_safe"][:, s][rows]) >= 0.5)
+        t, p = np.concatenate(truth), np.concatenate(pred)
+        expected = hand_metrics(t, p, t != 255)
+        row = next(r for r in result.rows if r.table == "noise" and r.method == "alhat_baseline" and r.test_sigma_m == sigma)
+        np.testing.assert_allclose((row.pixel_accuracy, row.miou, row.precision, row.sensitivity), expected, rtol=1e-12)
+
+
+def test_network_rows_follow_from_the_stored_inference(setup):
+    _, _, _, result = setup
+    h_t = result.threshold["value_nats"]
+    for sigma, inf in result.test.items():
+        valid = inf.label != 255
+        base = next(r for r in result.rows if r.table == "noise" and r.method == "base_net" and r.test_sigma_m == sigma)
+        np.testing.assert_allclose((base.pixel_accuracy, base.miou, base.precision, base.sensitivity),
+                                   hand_metrics(inf.label, inf.prediction == 1, valid), rtol=1e-12)
+        ua = next(r for r in result.rows if r.table == "noise" and r.method == "uncertainty_aware" and r.test_sigma_m == sigma)
+        certain = inf.entropy_nats < h_t
+        assert ua.vc_fraction == pytest.approx((valid & certain).sum() / valid.sum())
+        # sensitivity: uncertain truly safe pixels count as false unsafe
+        t = inf.label == 1
+        ts = (valid & certain & t & (inf.prediction == 1)).sum()
+        assert ua.sensitivity == pytest.approx(ts / (valid & t).sum())
+        # the sweep keeps more pixels at higher quantiles
+        vc = [p["vc_fraction"] for p in result.sweep if p["test_sigma_m"] == sigma]
+        assert vc == sorted(vc) and len(vc) == 9
+
+
+def test_dead_pixel_rows_ignore_the_lander_neighbourhoods(setup):
+    dataset, _, _, result = setup
+    ds = HazardDataset(dataset, "test", 0.0167, dead_pixels=10, seed=0)
+    inf = result.test[0.0167]
+    ignore = np.stack([ds.dem_sample(i).ignore for i in range(len(ds))])
+    valid = inf.label != 255
+    assert (valid & ~ignore).sum() < valid.sum()
+    # Outside the ignored neighbourhoods the repaired DEM gives the same baseline as the shard's.
+    expected = hand_metrics(inf.label, inf.baseline_safe, valid & ~ignore)
+    row = next(r for r in result.rows if r.table == "dead_pixels" and r.method == "alhat_baseline" and r.test_sigma_m == 0.0167)
+    np.testing.assert_allclose((row.pixel_accuracy, row.miou, row.precision, row.sensitivity), expected, rtol=1e-12)
+
+
+def test_reliability_of_a_hand_case():
+    p = np.array([0.05, 0.05, 0.95, 0.95, 1.0])
+    y = np.array([False, True, True, True, True])
+    bins = reliability(p, y, n_bins=10)
+    assert bins.count.tolist() == [2, 0, 0, 0, 0, 0, 0, 0, 0, 3]
+    # bin 0: |0.5 - 0.05| * 2/5; bin 9: |1 - 0.9667| * 3/5
+    assert bins.ece == pytest.approx((0.45 * 2 + (1 - (0.95 + 0.95 + 1.0) / 3) * 3) / 5)
+
+
+def test_risk_threshold_reports_the_achieved_false_safe_rate(setup, tmp_path):
+    dataset, run, _, _ = setup
+    result = evaluate(run, dataset, tmp_path, mc_samples=2, threshold="risk:0.3", figures=False)
+    th = json.loads((tmp_path / "report.json").read_text())["threshold"]
+    assert th["kind"] == "risk" and th["alpha"] == 0.3
+    assert [a["test_sigma_m"] for a in th["achieved_risk"]] == list(SIGMAS_M)
+    for a in th["achieved_risk"]:
+        inf = result.test[a["test_sigma_m"]]
+        t = math.inf if th["value_nats"] is None else th["value_nats"]
+        valid = inf.label != 255
+        per_image = ((valid & (inf.label == 0) & (inf.prediction == 1) & (inf.entropy_nats < t)).sum((1, 2))
+                     / valid.sum((1, 2)))
+        assert a["false_safe_rate"] == pytest.approx(per_image.mean())
+    assert not list(tmp_path.glob("*.png"))
+
+
+def test_bad_input_fails_with_one_clear_sentence(setup, tmp_path):
+    dataset, run, _, _ = setup
+    cases = [
+        (dict(mc_samples=0), "MC samples"),
+        (dict(drop_pixels=-1), "drop-pixels"),
+        (dict(drop_pixels=10_000), "drop-pixels"),
+        (dict(threshold="risk:1.5"), "alpha must be in"),
+        (dict(threshold="median"), "threshold spec"),
+    ]
+    for kwargs, message in cases:
+        with pytest.raises(HdNetError, match=message):
+            evaluate(run, dataset, tmp_path / "x", **kwargs)
+    torch.save({"schema": "someone.else", "weights": torch.zeros(1)}, tmp_path / "other.pt")
+    with pytest.raises(HdNetError, match="not an hdnet checkpoint"):
+        evaluate(tmp_path / "other.pt", dataset, tmp_path / "x")
+    unlabelled = build_labelled(tmp_path / "u", n_scans=4, label=False)
+    with pytest.raises(HdNetError, match="no labels"):
+        evaluate(run, unlabelled, tmp_path / "x")
+    other_sigmas = build_labelled(tmp_path / "s", n_scans=4, sigmas_m=(0.03, 0.07))
+    with pytest.raises(HdNetError, match="sigma 0.0167 m is not in the dataset; it has 0.03, 0.07 m"):
+        evaluate(run, other_sigmas, tmp_path / "x")
+    assert not (tmp_path / "x").exists()

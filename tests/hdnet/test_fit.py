@@ -1,0 +1,49 @@
+"""hdnet.fit: a tiny training run on real label shards records its data; bad datasets fail clearly."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from hdnet.data import compute_normalisation
+from hdnet.errors import HdNetError
+from hdnet.fit import RUN_DATA_KEYS, fit
+from hdnet.train import load_checkpoint
+from hdnet_datasets import build_labelled
+from lidarsim.shards import sha256_file
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory) -> Path:
+    return build_labelled(tmp_path_factory.mktemp("hdnet-fit"))
+
+
+def test_tiny_fit_records_the_data_it_was_trained_on(dataset, tmp_path):
+    last = fit(dataset, tmp_path / "run", profile_name="tiny", epochs=1, progress=False)
+    assert last == tmp_path / "run" / "last.pt" and last.is_file()
+    extra = json.loads((tmp_path / "run" / "config.json").read_text())["extra_config"]
+    assert set(extra) == set(RUN_DATA_KEYS)
+    assert extra["dataset"] == str(dataset.resolve())
+    assert extra["manifest_sha256"] == sha256_file(dataset / "manifest.json")
+    assert extra["train_sigma_m"] == 0.0167
+    assert extra["normalisation"] == compute_normalisation(dataset, 0.0167).to_dict()
+    assert extra["input_size"] is None and extra["input_rule"] == "pad:32" and extra["dem_shape"] == [100, 100]
+    assert extra["labels"].startswith("square-d10m")
+    ckpt = load_checkpoint(last)
+    assert ckpt["extra_config"] == extra and ckpt["epoch"] == 1 and ckpt["profile"]["name"] == "tiny"
+
+
+def test_fit_refuses_bad_datasets(dataset, tmp_path):
+    with pytest.raises(HdNetError, match="sigma 0.03 m is not in the dataset"):
+        fit(dataset, tmp_path / "a", profile_name="tiny", epochs=1, train_sigma_m=0.03, progress=False)
+    with pytest.raises(HdNetError, match="unknown training profile"):
+        fit(dataset, tmp_path / "b", profile_name="huge", epochs=1, progress=False)
+    unlabelled = build_labelled(tmp_path / "u", n_scans=4, label=False)
+    with pytest.raises(HdNetError, match="no labels"):
+        fit(unlabelled, tmp_path / "c", profile_name="tiny", epochs=1, progress=False)
+    two_scans = build_labelled(tmp_path / "t", n_scans=2)  # too few split blocks: every scan is training
+    with pytest.raises(HdNetError, match="the val split is empty"):
+        fit(two_scans, tmp_path / "d", profile_name="tiny", epochs=1, progress=False)
+    assert not (tmp_path / "d" / "last.pt").exists()
