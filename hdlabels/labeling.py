@@ -14,14 +14,11 @@ same settings is kept.
 
 from __future__ import annotations
 
-import math
 import os
 import shutil
 import time
-from collections.abc import Callable, Iterable
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from collections.abc import Callable
 from dataclasses import dataclass
-from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
@@ -43,6 +40,7 @@ from hdlabels.store import (
     label_shard_name,
     labeling_name,
 )
+from lidarsim.parallel import run_tasks
 from lidarsim.shards import ScanShardReader, ShardFormatError, read_manifest, remove_partials, sha256_file
 
 
@@ -220,7 +218,8 @@ def label_dataset(
         progress(done, total)
     n_workers = max(1, workers if workers is not None else (os.cpu_count() or 1))
     try:
-        for i, rec in _run(pending, n_workers, scheduler):
+        for position, rec in run_tasks(run_label_task, [t for _, t in pending], n_workers, scheduler):
+            i = pending[position][0]
             records[i] = rec
             done += rec.entry["n_scans"]
             if progress:
@@ -267,39 +266,3 @@ def _summary_from_entry(entry: dict[str, Any], manifest: dict[str, Any], seconds
     return LabelSummary(name=entry["name"], n_scans=int(manifest["n_scans"]), n_shards=len(entry["shards"]),
                         safe_fraction=float(entry["safe_fraction"]),
                         baseline_safe_fraction=entry.get("baseline_safe_fraction", {}), seconds=seconds, reused=reused)
-
-
-def run_label_tasks(tasks: list[tuple[int, LabelTask]]) -> list[tuple[int, LabelRecord]]:
-    """Run several label tasks in one worker process."""
-    return [(i, run_label_task(t)) for i, t in tasks]
-
-
-def _run(pending: list[tuple[int, LabelTask]], n_workers: int, scheduler: str | None
-         ) -> Iterable[tuple[int, LabelRecord]]:
-    if not pending:
-        return
-    if scheduler is not None:
-        from distributed import Client, as_completed as dask_completed
-
-        try:
-            client = Client(scheduler, timeout="20s")
-        except (OSError, TimeoutError) as exc:
-            raise LabelStoreError(f"cannot reach the Dask scheduler at {scheduler} ({exc.__class__.__name__})") from None
-        try:
-            futures = client.map(run_label_task, [t for _, t in pending], pure=False)
-            index = {f.key: i for f, (i, _) in zip(futures, pending, strict=True)}
-            for fut in dask_completed(futures):
-                yield index[fut.key], fut.result()
-        finally:
-            client.close()
-        return
-    if n_workers == 1 or len(pending) == 1:
-        for i, task in pending:
-            yield i, run_label_task(task)
-        return
-    chunk = max(1, math.ceil(len(pending) / (3 * n_workers)))
-    chunks = [pending[k : k + chunk] for k in range(0, len(pending), chunk)]
-    with ProcessPoolExecutor(max_workers=n_workers, mp_context=get_context("spawn")) as pool:
-        futures = [pool.submit(run_label_tasks, c) for c in chunks]
-        for fut in as_completed(futures):
-            yield from fut.result()

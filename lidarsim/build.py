@@ -16,9 +16,7 @@ import shutil
 import tempfile
 import time
 from collections.abc import Callable, Iterable
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field
-from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +25,7 @@ import numpy as np
 from lidarsim import defaults
 from lidarsim._version import __version__
 from lidarsim.errors import LidarsimError
+from lidarsim.parallel import run_tasks
 from lidarsim.procedural import MarsTerrainParams, generate_mars_terrain, write_geotiff
 from lidarsim.scan import STATUS_DAMAGED, STATUS_RETURN, TileScene, scan_geometry, simulate_scans
 from lidarsim.sensor import SensorConfig
@@ -261,11 +260,6 @@ def run_shard(task: ShardTask) -> ShardRecord:
     return _record(task, digest)
 
 
-def run_shards(tasks: list[ShardTask]) -> list[tuple[int, ShardRecord]]:
-    """Run consecutive shard tasks in one worker (they share cached tile scenes)."""
-    return [(task.shard_index, run_shard(task)) for task in tasks]
-
-
 def _record(task: ShardTask, digest: str) -> ShardRecord:
     counts = {name: int((task.splits == i).sum()) for i, name in enumerate(SPLIT_NAMES)}
     present = [name for name, c in counts.items() if c]
@@ -463,8 +457,8 @@ def build_dataset(
     if progress:
         progress(done, total)
     t_work = time.perf_counter()
-    for record_index, record in _run_tasks(pending, n_workers, scheduler):
-        records[record_index] = record
+    for position, record in run_tasks(run_shard, pending, n_workers, scheduler):
+        records[pending[position].shard_index] = record
         done += record.n_scans
         if progress:
             progress(done, total)
@@ -534,41 +528,3 @@ def _make_tasks(
             n_threads=threads,
         ))
     return tasks
-
-
-def _run_tasks(tasks: list[ShardTask], n_workers: int, scheduler: str | None) -> Iterable[tuple[int, ShardRecord]]:
-    """Run shard tasks; yields (shard index, record) as they finish."""
-    if not tasks:
-        return
-    if scheduler is not None:
-        yield from _run_dask(tasks, scheduler)
-        return
-    if n_workers == 1:
-        for task in tasks:
-            yield task.shard_index, run_shard(task)
-        return
-    # Consecutive shards go to the same worker in chunks, so that a worker reuses the tile
-    # scene (BVH) it built for the previous shard.
-    chunk = max(1, math.ceil(len(tasks) / (3 * n_workers)))
-    chunks = [tasks[i : i + chunk] for i in range(0, len(tasks), chunk)]
-    with ProcessPoolExecutor(max_workers=n_workers, mp_context=get_context("spawn")) as pool:
-        futures = [pool.submit(run_shards, c) for c in chunks]
-        for future in as_completed(futures):
-            yield from future.result()
-
-
-def _run_dask(tasks: list[ShardTask], scheduler: str) -> Iterable[tuple[int, ShardRecord]]:
-    """Run shard tasks on a Dask cluster (``dask.distributed``)."""
-    from distributed import Client, as_completed as dask_completed
-
-    try:
-        client = Client(scheduler, timeout="20s")
-    except (OSError, TimeoutError) as exc:
-        raise LidarsimError(f"cannot reach the Dask scheduler at {scheduler} ({exc.__class__.__name__})") from None
-    try:
-        futures = client.map(run_shard, tasks, pure=False)
-        index = {f.key: t.shard_index for f, t in zip(futures, tasks, strict=True)}
-        for future in dask_completed(futures):
-            yield index[future.key], future.result()
-    finally:
-        client.close()
