@@ -42,7 +42,12 @@ from torch.utils.data import Dataset
 
 from hdlabels.deadpixels import drop_and_repair, random_dead_pixels
 from hdlabels.lander import Lander
-from hdlabels.store import LabelShardReader, LabelStoreError, find_labeling, label_shard_paths
+from hdlabels.store import (
+    LabelShardReader,
+    LabelStoreError,
+    find_labeling,
+    label_shard_paths,
+)
 from hdnet import defaults
 from hdnet.errors import HdNetError
 
@@ -151,7 +156,7 @@ def dem_spacing_m(entry: dict[str, Any]) -> float:
 # --- normalisation -----------------------------------------------------------------------------
 def compute_normalisation(dataset_dir: str | os.PathLike, sigma_m: float, labels: str | None = None) -> Normalisation:
     """Min and max (metres) of the finite noisy-DEM heights at ``sigma_m`` over the training split only."""
-    entry, paths = open_labeling(dataset_dir, labels)
+    _, paths = open_labeling(dataset_dir, labels)
     s = sigma_index(dataset_sigmas(paths), sigma_m)
     lo, hi = math.inf, -math.inf
     for path in paths:

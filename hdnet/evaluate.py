@@ -42,7 +42,12 @@ from hdnet.errors import HdNetError
 from hdnet.infer import mc_dropout_predict, predictive_entropy
 from hdnet.metrics import ConfusionAccumulator, SegmentationMetrics
 from hdnet.model import BayesianSegNet
-from hdnet.thresholds import EntropyCalibration, ThresholdSpec, parse_threshold_spec, select_threshold
+from hdnet.thresholds import (
+    EntropyCalibration,
+    ThresholdSpec,
+    parse_threshold_spec,
+    select_threshold,
+)
 from hdnet.train import LAST, load_trained_model
 from lidarsim.shards import MANIFEST_NAME, read_manifest, sha256_file
 
@@ -344,7 +349,7 @@ def evaluate(
         "dataset": str(root), "manifest_sha256": sha256_file(root / MANIFEST_NAME), "labels": lab,
         "same_dataset_as_training": extra.get("manifest_sha256") == sha256_file(root / MANIFEST_NAME),
         "sigmas_m": list(sigmas), "mc_samples": mc_samples, "drop_pixels": drop_pixels, "seed": seed,
-        "test_scans": int(len(next(iter(tests.values())).scan_index)), "val_scans": int(len(val.scan_index)),
+        "test_scans": len(next(iter(tests.values())).scan_index), "val_scans": len(val.scan_index),
     }
     result = EvaluationResult(rows, threshold_info, sweep, {"bins": ECE_BINS, "per_sigma": cal_rows}, run_info,
                               tests, val_entropy)

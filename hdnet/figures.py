@@ -13,11 +13,11 @@ from typing import TYPE_CHECKING
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.colors import ListedColormap  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.colors import ListedColormap
 
-from hdnet import defaults  # noqa: E402
+from hdnet import defaults
 
 if TYPE_CHECKING:
     from hdnet.evaluate import EvaluationResult, SplitInference
@@ -102,13 +102,13 @@ def qualitative_panel(inf: SplitInference, row: int, threshold_nats: float | Non
     t = math.inf if threshold_nats is None else threshold_nats
     uncertain = inf.entropy_nats[row] >= t
     panels = [
-        ("true DEM (m)", inf.dem_clean_m[row], dict(cmap="terrain")),
-        ("label", _safety_codes(label == defaults.CLASS_SAFE, label), dict(cmap=SAFETY_COLOURS, vmin=0, vmax=3)),
-        ("noisy DEM (m)", inf.dem_noisy_m[row], dict(cmap="terrain")),
-        ("uncertainty (nats)", inf.entropy_nats[row], dict(cmap="viridis", vmin=0.0, vmax=math.log(2))),
+        ("true DEM (m)", inf.dem_clean_m[row], {"cmap": "terrain"}),
+        ("label", _safety_codes(label == defaults.CLASS_SAFE, label), {"cmap": SAFETY_COLOURS, "vmin": 0, "vmax": 3}),
+        ("noisy DEM (m)", inf.dem_noisy_m[row], {"cmap": "terrain"}),
+        ("uncertainty (nats)", inf.entropy_nats[row], {"cmap": "viridis", "vmin": 0.0, "vmax": math.log(2)}),
         ("uncertainty-aware", _safety_codes(inf.prediction[row] == defaults.CLASS_SAFE, label, uncertain),
-         dict(cmap=SAFETY_COLOURS, vmin=0, vmax=3)),
-        ("ALHAT baseline", _safety_codes(inf.baseline_safe[row], label), dict(cmap=SAFETY_COLOURS, vmin=0, vmax=3)),
+         {"cmap": SAFETY_COLOURS, "vmin": 0, "vmax": 3}),
+        ("ALHAT baseline", _safety_codes(inf.baseline_safe[row], label), {"cmap": SAFETY_COLOURS, "vmin": 0, "vmax": 3}),
     ]
     fig, axes = plt.subplots(1, len(panels), figsize=(3.0 * len(panels), 3.3))
     for ax, (title, img, kw) in zip(axes, panels):

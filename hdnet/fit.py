@@ -13,7 +13,12 @@ from pathlib import Path
 from typing import Any
 
 from hdnet import defaults
-from hdnet.data import HazardDataset, Normalisation, compute_normalisation, open_labeling
+from hdnet.data import (
+    HazardDataset,
+    Normalisation,
+    compute_normalisation,
+    open_labeling,
+)
 from hdnet.errors import HdNetError
 from hdnet.profiles import TrainingProfile, get_profile
 from hdnet.train import train
@@ -66,7 +71,7 @@ def fit(
     profile = get_profile(profile_name)
     open_labeling(dataset_dir, labels)  # the clear "no labels" error first
     normalisation = compute_normalisation(dataset_dir, train_sigma_m, labels)
-    common = dict(sigma_m=train_sigma_m, input_size=profile.input_size, labels=labels, normalisation=normalisation)
+    common = {"sigma_m": train_sigma_m, "input_size": profile.input_size, "labels": labels, "normalisation": normalisation}
     train_ds = HazardDataset(dataset_dir, "train", **common)  # type: ignore[arg-type]
     val_ds = HazardDataset(dataset_dir, "val", **common)  # type: ignore[arg-type]
     for name, ds in (("train", train_ds), ("val", val_ds)):

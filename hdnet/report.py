@@ -89,31 +89,36 @@ def report_markdown(result: EvaluationResult, figures: list[str] | None = None) 
     """The content of ``report.md``."""
     run, th = result.run, result.threshold
     out = ["# hd evaluation report", ""]
-    out += [f"- checkpoint: `{run.get('checkpoint')}` (epoch {run.get('epoch')}, profile `{run.get('profile')}`)",
-            f"- dataset: `{run.get('dataset')}`, labelling `{run.get('labels')}`, "
-            f"{run.get('test_scans')} test / {run.get('val_scans')} validation scans",
-            f"- trained at {_cm(run.get('train_sigma_m'))}; MC samples M = {run.get('mc_samples')}; seed {run.get('seed')}",
-            f"- threshold `{th['spec']}`: H_t = {_num(th['value_nats'])} nats "
-            f"(unbounded: every pixel certain)" if th["value_nats"] is None else
-            f"- threshold `{th['spec']}`: H_t = {_num(th['value_nats'])} nats, calibrated on the {th['calibration_split']} "
-            f"split at {_cm(th['calibration_sigma_m'])} (mean entropy {_num(th['mean_nats'])} nats = validation "
-            f"quantile {_num(th['mean_quantile'], 3)})", ""]
+    if th["value_nats"] is None:
+        h_t = "unbounded (every pixel certain)"
+    else:
+        h_t = f"{_num(th['value_nats'])} nats"
+    out += [
+        f"- checkpoint: `{run.get('checkpoint')}` (epoch {run.get('epoch')}, profile `{run.get('profile')}`)",
+        (f"- dataset: `{run.get('dataset')}`, labelling `{run.get('labels')}`, "
+         f"{run.get('test_scans')} test / {run.get('val_scans')} validation scans"),
+        f"- trained at {_cm(run.get('train_sigma_m'))}; MC samples M = {run.get('mc_samples')}; seed {run.get('seed')}",
+        (f"- threshold `{th['spec']}`: H_t = {h_t}, calibrated on the {th['calibration_split']} split at "
+         f"{_cm(th['calibration_sigma_m'])} (mean entropy {_num(th['mean_nats'])} nats = validation quantile "
+         f"{_num(th['mean_quantile'], 3)})"),
+        "",
+    ]
     for table in ("noise", "dead_pixels"):
         rows = [r for r in result.rows if r.table == table]
         if not rows:
             continue
         out += [f"## {TABLE_TITLES[table]}", ""]
         if table == "dead_pixels":
-            out += [f"{run.get('drop_pixels')} random pixels of every test DEM dropped and refilled bilinearly; every "
-                    "pixel whose lander footprint contains a dropped pixel is ignored for all methods.", ""]
+            out += [(f"{run.get('drop_pixels')} random pixels of every test DEM dropped and refilled bilinearly; every "
+                     "pixel whose lander footprint contains a dropped pixel is ignored for all methods."), ""]
         out += _table(rows) + [""]
         paper = _paper_table(rows)
         if paper:
-            out += ["The paper's values for the same rows (Tomita et al., "
-                    f"{'Table 1' if table == 'noise' else 'Table 2'}):", ""] + paper + [""]
+            which = "Table 1" if table == "noise" else "Table 2"
+            out += [f"The paper's values for the same rows (Tomita et al., {which}):", "", *paper, ""]
     if th.get("achieved_risk"):
-        out += ["## Risk control", "", f"Target: expected false-safe rate <= {th['alpha']} per image "
-                "(certain truly-unsafe pixels predicted safe / valid pixels).", "",
+        out += ["## Risk control", "", (f"Target: expected false-safe rate <= {th['alpha']} per image "
+                                        "(certain truly-unsafe pixels predicted safe / valid pixels)."), "",
                 "| Table | Test noise 1σ | Achieved false-safe rate |", "|---|---|---|"]
         out += [f"| {a['table']} | {_cm(a['test_sigma_m'])} | {_num(a['false_safe_rate'])} |" for a in th["achieved_risk"]]
         out.append("")

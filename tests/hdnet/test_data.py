@@ -10,6 +10,7 @@ import h5py
 import numpy as np
 import pytest
 import torch
+from hdnet_datasets import build_labelled
 from torch.utils.data import DataLoader
 
 from hdlabels.store import find_labeling, label_shard_paths
@@ -23,7 +24,6 @@ from hdnet.data import (
     to_network_grid,
 )
 from hdnet.errors import HdNetError
-from hdnet_datasets import build_labelled
 
 
 @pytest.fixture(scope="module")

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import json
 import math
-from pathlib import Path
 
 import h5py
 import numpy as np
 import pytest
 import torch
+from hdnet_datasets import SIGMAS_M, build_labelled
 
 from hdlabels.store import find_labeling, label_shard_paths
 from hdnet.data import HazardDataset
@@ -17,7 +17,6 @@ from hdnet.errors import HdNetError
 from hdnet.evaluate import METHODS, evaluate, reliability
 from hdnet.fit import fit
 from hdnet.report import ROW_KEYS
-from hdnet_datasets import SIGMAS_M, build_labelled
 
 
 @pytest.fixture(scope="module")
@@ -138,11 +137,11 @@ def test_risk_threshold_reports_the_achieved_false_safe_rate(setup, tmp_path):
 def test_bad_input_fails_with_one_clear_sentence(setup, tmp_path):
     dataset, run, _, _ = setup
     cases = [
-        (dict(mc_samples=0), "MC samples"),
-        (dict(drop_pixels=-1), "drop-pixels"),
-        (dict(drop_pixels=10_000), "drop-pixels"),
-        (dict(threshold="risk:1.5"), "alpha must be in"),
-        (dict(threshold="median"), "threshold spec"),
+        ({"mc_samples": 0}, "MC samples"),
+        ({"drop_pixels": -1}, "drop-pixels"),
+        ({"drop_pixels": 10_000}, "drop-pixels"),
+        ({"threshold": "risk:1.5"}, "alpha must be in"),
+        ({"threshold": "median"}, "threshold spec"),
     ]
     for kwargs, message in cases:
         with pytest.raises(HdNetError, match=message):

@@ -6,12 +6,12 @@ import json
 from pathlib import Path
 
 import pytest
+from hdnet_datasets import build_labelled
 
 from hdnet.data import compute_normalisation
 from hdnet.errors import HdNetError
 from hdnet.fit import RUN_DATA_KEYS, fit
 from hdnet.train import load_checkpoint
-from hdnet_datasets import build_labelled
 from lidarsim.shards import sha256_file
 
 
