@@ -90,11 +90,12 @@ def main() -> None:
 @click.option("--dead-elements", type=int, default=0, show_default=True, help="Dead detector elements (no return).")
 @click.option("--damaged-elements", type=int, default=0, show_default=True, help="Damaged detector elements (large range error).")
 @click.option("--compression", type=click.Choice(["gzip", "lzf", "none"]), default="gzip", show_default=True, help="HDF5 compression of the point arrays.")
+@click.option("--recipe", type=click.Path(path_type=Path), default=None, help="Build exactly the dataset of a recipe (datasets/<name>); the recipe fixes every content setting.")
 @friendly_errors
 def build_dataset_cmd(out_dir: Path, dtm_path: Path | None, sigmas: tuple[float, ...], scans: int, seed: int,
                       workers: int | None, altitude: float, dtm_scale: float, scheduler: str | None, overwrite: bool,
                       shard_size: int, tilt: float, jitter: float, resolution: int, fov: float, dead_elements: int,
-                      damaged_elements: int, compression: str) -> None:
+                      damaged_elements: int, compression: str, recipe: Path | None = None) -> None:
     """Simulate flash-LiDAR scans over a terrain and write clean and noisy point clouds as HDF5 shards."""
     from lidarsim.build import BuildConfig, build_dataset
     from lidarsim.sensor import SensorConfig
@@ -102,17 +103,29 @@ def build_dataset_cmd(out_dir: Path, dtm_path: Path | None, sigmas: tuple[float,
 
     if workers is not None and workers <= 0:
         raise LidarsimError(f"--workers must be > 0, got {workers}")
-    config = BuildConfig(
-        sigmas_m=tuple(sigmas) if sigmas else (lidar_defaults.DEFAULT_SIGMA_M,),
-        seed=seed,
-        sensor=SensorConfig(rows=resolution, cols=resolution, fov_x_deg=fov, fov_y_deg=fov,
-                            dead_elements=dead_elements, damaged_elements=damaged_elements),
-        trajectory=TrajectoryConfig(n_scans=scans, altitude_m=altitude, tilt_deg=tilt, jitter_deg=jitter),
-        dtm_path=str(dtm_path) if dtm_path is not None else None,
-        dtm_scale=dtm_scale,
-        shard_size=shard_size,
-        compression=compression,
-    )
+    if recipe is not None:
+        from lidarsim.recipe import load_recipe
+
+        ctx = click.get_current_context()
+        content = ("dtm_path", "sigmas", "scans", "seed", "altitude", "dtm_scale", "shard_size", "tilt", "jitter",
+                   "resolution", "fov", "dead_elements", "damaged_elements", "compression")
+        given = [n for n in content if ctx.get_parameter_source(n) == click.core.ParameterSource.COMMANDLINE]
+        if given:
+            flags = ", ".join("--" + n.replace("_path", "").replace("_", "-") for n in given)
+            raise LidarsimError(f"--recipe fixes every content setting; edit the recipe instead of passing {flags}")
+        config = load_recipe(recipe).build
+    else:
+        config = BuildConfig(
+            sigmas_m=tuple(sigmas) if sigmas else (lidar_defaults.DEFAULT_SIGMA_M,),
+            seed=seed,
+            sensor=SensorConfig(rows=resolution, cols=resolution, fov_x_deg=fov, fov_y_deg=fov,
+                                dead_elements=dead_elements, damaged_elements=damaged_elements),
+            trajectory=TrajectoryConfig(n_scans=scans, altitude_m=altitude, tilt_deg=tilt, jitter_deg=jitter),
+            dtm_path=str(dtm_path) if dtm_path is not None else None,
+            dtm_scale=dtm_scale,
+            shard_size=shard_size,
+            compression=compression,
+        )
     progress = _ScanProgress("scans")
     try:
         summary = build_dataset(out_dir, config, workers=workers, scheduler=scheduler, overwrite=overwrite, progress=progress)
@@ -170,12 +183,21 @@ def _known_schemas() -> dict[str, str]:
 
 @main.command("verify")
 @click.argument("directory", type=click.Path(file_okay=False, path_type=Path))
+@click.option("--recipe", type=click.Path(path_type=Path), default=None, help="Also check the dataset against the checksums published with a recipe.")
 @friendly_errors
-def verify_cmd(directory: Path) -> None:
+def verify_cmd(directory: Path, recipe: Path | None) -> None:
     """Check every file of a dataset against the manifest's checksums and the schema versions."""
     from lidarsim.shards import read_manifest, verify_dataset
 
     problems = verify_dataset(directory, known_schemas=_known_schemas())
+    if recipe is not None:
+        from lidarsim.recipe import RecipeError, check_against_checksums, load_recipe
+
+        loaded = load_recipe(recipe)
+        recorded = loaded.checksums()
+        if recorded is None:
+            raise RecipeError(f"{loaded.path.parent}: the recipe has no published checksums.json")
+        problems += check_against_checksums(read_manifest(directory), recorded)
     if problems:
         for p in problems:
             click.echo(p, err=True)
@@ -234,9 +256,10 @@ def label_cmd(directory: Path, lander_diameter: float, pad_diameter: float, max_
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of initialisation and shuffling.")
 @click.option("--resume", is_flag=True, help="Continue an interrupted run from its last checkpoint.")
 @click.option("--labels", "labeling", default=None, help="Labelling to train on (when the dataset has several).")
+@click.option("--num-workers", type=int, default=0, show_default=True, help="DataLoader worker processes.")
 @friendly_errors
 def train_cmd(dataset: Path, run_dir: Path, profile: str, epochs: int | None, train_sigma: float, seed: int,
-              resume: bool, labeling: str | None) -> None:
+              resume: bool, labeling: str | None, num_workers: int = 0) -> None:
     """Train the Bayesian SegNet on the noisy DEMs of a labelled dataset."""
     from hdnet.errors import HdNetError
     from hdnet.fit import fit
@@ -244,7 +267,7 @@ def train_cmd(dataset: Path, run_dir: Path, profile: str, epochs: int | None, tr
     if epochs is not None and epochs <= 0:
         raise HdNetError(f"--epochs must be > 0, got {epochs}")
     checkpoint = fit(dataset, run_dir, profile_name=profile, epochs=epochs, train_sigma_m=train_sigma, seed=seed,
-                     resume=resume, labels=labeling, progress=True)
+                     resume=resume, labels=labeling, progress=True, num_workers=num_workers)
     click.echo(f"training done: {checkpoint} (metrics in {run_dir / 'metrics.csv'})")
 
 
@@ -257,43 +280,153 @@ def train_cmd(dataset: Path, run_dir: Path, profile: str, epochs: int | None, tr
 @click.option("--threshold", default="mean", show_default=True, help="Uncertainty threshold: mean, quantile:Q or risk:ALPHA.")
 @click.option("--labels", "labeling", default=None, help="Labelling to evaluate against (when the dataset has several).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of MC dropout and dropped pixels.")
+@click.option("--batch-size", type=int, default=8, show_default=True, help="DEMs per inference batch.")
 @friendly_errors
 def eval_cmd(run_dir: Path, dataset: Path, out_dir: Path, mc_samples: int, drop_pixels: int, threshold: str,
-             labeling: str | None, seed: int) -> None:
+             labeling: str | None, seed: int, batch_size: int = 8) -> None:
     """Evaluate a trained run: the paper's tables, threshold sweep, calibration and figures."""
     from hdnet.evaluate import evaluate
 
     result = evaluate(run_dir, dataset, out_dir, mc_samples=mc_samples, drop_pixels=drop_pixels,
-                      threshold=threshold, labels=labeling, seed=seed)
-    click.echo(getattr(result, "summary", lambda: f"report written to {out_dir}")())
+                      threshold=threshold, labels=labeling, seed=seed, batch_size=batch_size)
+    click.echo(result.summary())
+    click.echo(f"report: {out_dir / 'report.md'} (and report.json, figures)")
 
 
 @main.command("demo")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("demo-out"), show_default=True, help="Directory of the demo run.")
 @click.option("--scans", type=int, default=200, show_default=True, help="Scans in the demo dataset.")
+@click.option("--epochs", type=int, default=10, show_default=True, help="Training epochs (cpu profile).")
 @click.option("--workers", type=int, default=None, help="Local worker processes (default: all cores).")
 @click.pass_context
 @friendly_errors
-def demo_cmd(ctx: click.Context, out_dir: Path, scans: int, workers: int | None) -> None:
-    """The main job at demo scale on the built-in procedural Mars terrain (re-running resumes)."""
-    from lidarsim.defaults import PAPER_SIGMAS_M
+def demo_cmd(ctx: click.Context, out_dir: Path, scans: int, epochs: int, workers: int | None) -> None:
+    """The whole chain at demo scale on the built-in procedural Mars terrain (re-running resumes)."""
+    stages = _Stages(out_dir)
+    data, run, report = out_dir / "dataset", out_dir / "run", out_dir / "report"
+    with stages("build", f"{scans} scans x {len(lidar_defaults.PAPER_SIGMAS_M)} noise levels on the procedural Mars terrain"):
+        _build_unless_done(ctx, data, scans, None, workers)
+    with stages("label", "DEMs, ALHAT labels and the baseline"):
+        _label(ctx, data, workers)
+    ctx.invoke(inspect_cmd, directory=data)
+    with stages("train", f"Bayesian SegNet, cpu profile, {epochs} epochs at sigma = {lidar_defaults.DEFAULT_SIGMA_M} m"):
+        ctx.invoke(train_cmd, dataset=data, run_dir=run, profile="cpu", epochs=epochs,
+                   train_sigma=lidar_defaults.DEFAULT_SIGMA_M, seed=0, resume=True, labeling=None)
+    with stages("eval", "MC dropout (M=8), paper metrics, 10 dropped pixels"):
+        _eval_unless_done(ctx, run, data, report, "mean", 10)
+    stages.finish()
+
+
+@main.command("reproduce")
+@click.option("--profile", type=click.Choice(["cpu", "paper"]), default="cpu", show_default=True, help="Training profile: cpu (this machine, <= 1 h) or paper (GPU).")
+@click.option("--dtm", "dtm_path", type=click.Path(path_type=Path), default=None, help="Use this DTM instead of the procedural Mars terrain.")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("reproduction"), show_default=True, help="Directory of the reproduction.")
+@click.option("--epochs", type=int, default=None, help="Training epochs (default: the profile's).")
+@click.option("--workers", type=int, default=None, help="Local worker processes (default: all cores).")
+@click.pass_context
+@friendly_errors
+def reproduce_cmd(ctx: click.Context, profile: str, dtm_path: Path | None, out_dir: Path, epochs: int | None,
+                  workers: int | None) -> None:
+    """The paper end to end: S-167/S-300/S-700 on one terrain and trajectory (1000 scans, 800/100/100),
+    labels, training at 1.67 cm, Table 1, Table 2 (10 dropped pixels), threshold sweep and panels,
+    plus the risk-controlled threshold (alpha = 0.05). Each stage is resumable; finished stages are skipped."""
+    stages = _Stages(out_dir)
+    data, run = out_dir / "dataset", out_dir / "run"
+    with stages("build", "1000 scans x (1.67, 3, 7) cm on one terrain and trajectory"):
+        _build_unless_done(ctx, data, lidar_defaults.N_SCANS, dtm_path, workers)
+    with stages("label", "DEMs, ALHAT labels and the baseline"):
+        _label(ctx, data, workers)
+    with stages("train", f"Bayesian SegNet, {profile} profile, trained at sigma = {lidar_defaults.DEFAULT_SIGMA_M} m"):
+        ctx.invoke(train_cmd, dataset=data, run_dir=run, profile=profile, epochs=epochs,
+                   train_sigma=lidar_defaults.DEFAULT_SIGMA_M, seed=0, resume=True, labeling=None)
+    with stages("eval", "Table 1, Table 2 (10 dropped pixels), sweep, calibration, panels (mean-entropy threshold)"):
+        _eval_unless_done(ctx, run, data, out_dir / "report", "mean", 10)
+    with stages("eval-risk", "risk-controlled threshold, alpha = 0.05"):
+        _eval_unless_done(ctx, run, data, out_dir / "report-risk", "risk:0.05", 0)
+    stages.finish()
+
+
+@main.command("card")
+@click.argument("dataset", type=click.Path(file_okay=False, path_type=Path))
+@click.option("--recipe", required=True, type=click.Path(path_type=Path), help="Recipe directory the dataset was built from; card.md and checksums.json are written there.")
+@click.option("--machine", default="", help="Where the published build was made (recorded in the card).")
+@friendly_errors
+def card_cmd(dataset: Path, recipe: Path, machine: str) -> None:
+    """Write the dataset card (card.md) and the published checksums (checksums.json) of a recipe."""
+    import json
+
+    from hdlabels.card import checksums_of, render_card
+    from lidarsim.recipe import CHECKSUMS_FILE, check_against_checksums, load_recipe
+    from lidarsim.shards import read_manifest, write_json_atomic
+
+    loaded = load_recipe(recipe)
+    manifest = read_manifest(dataset)
+    if manifest["config_sha256"] != loaded.build.fingerprint():
+        raise LidarsimError(f"{dataset} was not built from {loaded.path} (settings differ); build it with --recipe")
+    directory = loaded.path.parent
+    sums = checksums_of(dataset)
+    assert not check_against_checksums(manifest, sums)
+    write_json_atomic(directory / CHECKSUMS_FILE, sums)
+    (directory / "card.md").write_text(render_card(dataset, loaded, machine))
+    click.echo(f"wrote {directory / 'card.md'} and {directory / CHECKSUMS_FILE} ({json.dumps(len(sums['shards']))} shards)")
+
+
+class _Stages:
+    """Prints, times and records (OUT/stages.json) the stages of a multi-stage command."""
+
+    def __init__(self, out_dir: Path) -> None:
+        self.out_dir = out_dir
+        self.times: dict[str, float] = {}
+
+    def __call__(self, name: str, what: str) -> Any:
+        import contextlib
+        import time
+
+        @contextlib.contextmanager
+        def stage() -> Any:
+            click.echo(f"== {name}: {what}")
+            t0 = time.perf_counter()
+            yield
+            self.times[name] = round(time.perf_counter() - t0, 1)
+            click.echo(f"== {name}: done in {self.times[name]:.1f} s")
+
+        return stage()
+
+    def finish(self) -> None:
+        import json
+
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        path = self.out_dir / "stages.json"
+        previous = json.loads(path.read_text()) if path.exists() else {}
+        previous.setdefault("runs", []).append(self.times)
+        path.write_text(json.dumps(previous, indent=2) + "\n")
+        click.echo("stage times (s): " + ", ".join(f"{k} {v:.1f}" for k, v in self.times.items()))
+
+
+def _build_unless_done(ctx: click.Context, data: Path, scans: int, dtm_path: Path | None, workers: int | None) -> None:
     from lidarsim.shards import MANIFEST_NAME
 
-    data = out_dir / "dataset"
-    if not (data / MANIFEST_NAME).exists():
-        click.echo(f"[1/3] building {scans} scans x {len(PAPER_SIGMAS_M)} noise levels on the procedural Mars terrain")
-        ctx.invoke(build_dataset_cmd, out_dir=data, dtm_path=None, sigmas=PAPER_SIGMAS_M, scans=scans, seed=0,
-                   workers=workers, altitude=lidar_defaults.ALTITUDE_M, dtm_scale=1.0, scheduler=None,
-                   overwrite=False, shard_size=50, tilt=0.0, jitter=0.0, resolution=lidar_defaults.DETECTOR_ROWS,
-                   fov=lidar_defaults.FOV_DEG, dead_elements=0, damaged_elements=0, compression="gzip")
-    else:
-        click.echo(f"[1/3] dataset {data} already built")
-    click.echo("[2/3] labelling with the ALHAT replica (default lander)")
+    if (data / MANIFEST_NAME).exists():
+        click.echo(f"dataset {data} already built")
+        return
+    ctx.invoke(build_dataset_cmd, out_dir=data, dtm_path=dtm_path, sigmas=lidar_defaults.PAPER_SIGMAS_M, scans=scans,
+               seed=0, workers=workers, altitude=lidar_defaults.ALTITUDE_M, dtm_scale=1.0, scheduler=None,
+               overwrite=False, shard_size=50, tilt=0.0, jitter=0.0, resolution=lidar_defaults.DETECTOR_ROWS,
+               fov=lidar_defaults.FOV_DEG, dead_elements=0, damaged_elements=0, compression="gzip")
+
+
+def _label(ctx: click.Context, data: Path, workers: int | None) -> None:
     ctx.invoke(label_cmd, directory=data, lander_diameter=10.0, pad_diameter=1.0, max_slope_deg=10.0,
                max_roughness=0.20, layout="square", yaws=None, count_holes=False, dem_size=100, dem_spacing=1.0,
                workers=workers, scheduler=None)
-    click.echo("[3/3] what is in it:")
-    ctx.invoke(inspect_cmd, directory=data)
+
+
+def _eval_unless_done(ctx: click.Context, run: Path, data: Path, report: Path, threshold: str, drop: int) -> None:
+    if (report / "report.json").exists():
+        click.echo(f"report {report} already written")
+        return
+    ctx.invoke(eval_cmd, run_dir=run, dataset=data, out_dir=report, mc_samples=8, drop_pixels=drop,
+               threshold=threshold, labeling=None, seed=0)
 
 
 if __name__ == "__main__":

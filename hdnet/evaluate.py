@@ -121,6 +121,19 @@ class EvaluationResult:
     test: dict[float, SplitInference] = field(default_factory=dict, repr=False)
     validation_entropy_nats: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32), repr=False)
 
+    def summary(self) -> str:
+        """A compact text table of the rows (for the terminal)."""
+        lines = [f"{'table':11s} {'method':18s} {'test sigma':>10s} {'V/C%':>5s} {'PA':>6s} {'mIoU':>6s} "
+                 f"{'prec.':>6s} {'sens.':>6s}"]
+        for r in self.rows:
+            vc = "-" if r.vc_fraction is None else f"{r.vc_fraction * 100:.0f}"
+            lines.append(f"{r.table:11s} {r.method:18s} {r.test_sigma_m * 100:8.2f}cm {vc:>5s} "
+                         f"{r.pixel_accuracy:6.4f} {r.miou:6.4f} {r.precision:6.4f} {r.sensitivity:6.4f}")
+        value = self.threshold.get("value_nats")
+        lines.append(f"threshold {self.threshold.get('spec', '')}: "
+                     f"{'unbounded' if value is None else f'{value:.4f} nats'}")
+        return "\n".join(lines)
+
 
 # --- pure scoring --------------------------------------------------------------------------------
 def score(

@@ -16,13 +16,15 @@ FOV_DEG: float = 12.0
 FOCAL_LENGTH_M: float = 0.25
 # "the sensor is moved across the terrain at a fixed altitude of 500 m".
 ALTITUDE_M: float = 500.0
-# Noise levels, 1-sigma along each ray: S-167 (5 cm / 3), S-300 and S-700.
-SIGMA_S167_M: float = 0.05 / 3.0
+# Noise levels, 1-sigma along each ray: S-167, S-300 and S-700 ("1-sigma noise level of 1.67 cm",
+# "3 cm", "7 cm"). 1.67 cm is the paper's rounding of 5 cm / 3; hd uses the paper's 0.0167 m
+# everywhere (datasets, --sigma and --train-sigma defaults) so that the levels match exactly.
+SIGMA_S167_M: float = 0.0167
 SIGMA_S300_M: float = 0.03
 SIGMA_S700_M: float = 0.07
 PAPER_SIGMAS_M: tuple[float, float, float] = (SIGMA_S167_M, SIGMA_S300_M, SIGMA_S700_M)
-# The CLI default for --sigma (metres): S-167 rounded to 0.1 mm as written in the CLI contract.
-DEFAULT_SIGMA_M: float = 0.0167
+# The CLI default for --sigma and --train-sigma (metres): S-167.
+DEFAULT_SIGMA_M: float = SIGMA_S167_M
 # "We generated simulated datasets of 1000 DEMs" (800 train / 100 val / 100 test).
 N_SCANS: int = 1000
 SPLIT_FRACTIONS: tuple[float, float, float] = (0.8, 0.1, 0.1)
