@@ -259,3 +259,46 @@ def test_real_terrain_autzen_builds_and_ames_needs_a_lower_altitude(tmp_path):
         assert scan.origin_map[1] > 4.1e6  # UTM northing kept in float64
         z_map = scan.points_clean[..., 2] + scan.origin_map[2]
         assert 2.7 < np.nanmin(z_map) and np.nanmax(z_map) < 5.5
+
+
+def test_recipes_parse_and_mars_paper_is_what_reproduce_builds():
+    from lidarsim import defaults
+    from lidarsim.recipe import load_recipe
+
+    paper = load_recipe(REPO / "datasets" / "mars-paper")
+    reproduce = BuildConfig(sigmas_m=defaults.PAPER_SIGMAS_M, seed=0,
+                            trajectory=TrajectoryConfig(n_scans=defaults.N_SCANS))
+    assert paper.build.fingerprint() == reproduce.fingerprint()
+    for name, sigma in (("mars-s167", 0.0167), ("mars-s300", 0.03), ("mars-s700", 0.07)):
+        r = load_recipe(REPO / "datasets" / name)
+        assert r.build.sigmas_m == (sigma,) and r.build.dtm_path is None and r.build.trajectory.n_scans == 1000
+    user = load_recipe(REPO / "datasets" / "user-dtm-paper")
+    assert user.build.dtm_path is not None and user.build.dtm_path.endswith("sabrina.tif")
+    assert user.build.sigmas_m == paper.build.sigmas_m
+
+
+def test_build_from_a_recipe_and_verify_against_its_checksums(tmp_path, dtm):
+    recipe = tmp_path / "r"
+    recipe.mkdir()
+    (recipe / "recipe.toml").write_text(
+        f'[dataset]\nname = "tiny"\n[build]\nscans = 6\nsigmas_m = [0.03]\nresolution = 32\nshard_size = 3\n'
+        f'dtm = "{dtm}"\n'
+    )
+    out = tmp_path / "d"
+    runner = CliRunner()
+    bad = runner.invoke(main, ["build-dataset", "--recipe", str(recipe), "--out", str(out), "--scans", "9"])
+    assert bad.exit_code != 0 and "--scans" in bad.output and not out.exists()
+    ok = runner.invoke(main, ["build-dataset", "--recipe", str(recipe), "--out", str(out), "--workers", "1"])
+    assert ok.exit_code == 0, ok.output
+    assert runner.invoke(main, ["label", str(out), "--workers", "1"]).exit_code == 0
+    card = runner.invoke(main, ["card", str(out), "--recipe", str(recipe)])
+    assert card.exit_code == 0, card.output
+    assert "safe" in (recipe / "card.md").read_text()
+    assert runner.invoke(main, ["verify", str(out), "--recipe", str(recipe)]).exit_code == 0
+    sums = json.loads((recipe / "checksums.json").read_text())
+    sums["shards"][1]["sha256"] = "0" * 64
+    (recipe / "checksums.json").write_text(json.dumps(sums))
+    bad = runner.invoke(main, ["verify", str(out), "--recipe", str(recipe)])
+    assert bad.exit_code != 0 and "differs from the recipe's published build" in bad.output
+    bad = runner.invoke(main, ["build-dataset", "--recipe", str(tmp_path / "nope"), "--out", str(tmp_path / "x")])
+    assert bad.exit_code != 0 and "no such recipe" in bad.output
