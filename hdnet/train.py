@@ -273,6 +273,8 @@ def train(
 
         bar = tqdm(total=total_epochs, initial=start_epoch, desc=f"train {profile.name}", unit="epoch")
     for epoch in range(start_epoch, total_epochs):
+        for group in optimizer.param_groups:
+            group["lr"] = profile.learning_rate(epoch, total_epochs)
         train_sampler.set_epoch(epoch)
         net.train()
         sums = torch.zeros(3, dtype=torch.float64, device=device)  # loss sum, (unused), valid pixels
