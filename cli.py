@@ -353,10 +353,8 @@ def reproduce_cmd(ctx: click.Context, profile: str, dtm_path: Path | None, out_d
 @friendly_errors
 def card_cmd(dataset: Path, recipe: Path, machine: str) -> None:
     """Write the dataset card (card.md) and the published checksums (checksums.json) of a recipe."""
-    import json
-
     from hdlabels.card import checksums_of, render_card
-    from lidarsim.recipe import CHECKSUMS_FILE, check_against_checksums, load_recipe
+    from lidarsim.recipe import CHECKSUMS_FILE, load_recipe
     from lidarsim.shards import read_manifest, write_json_atomic
 
     loaded = load_recipe(recipe)
@@ -365,10 +363,9 @@ def card_cmd(dataset: Path, recipe: Path, machine: str) -> None:
         raise LidarsimError(f"{dataset} was not built from {loaded.path} (settings differ); build it with --recipe")
     directory = loaded.path.parent
     sums = checksums_of(dataset)
-    assert not check_against_checksums(manifest, sums)
     write_json_atomic(directory / CHECKSUMS_FILE, sums)
     (directory / "card.md").write_text(render_card(dataset, loaded, machine))
-    click.echo(f"wrote {directory / 'card.md'} and {directory / CHECKSUMS_FILE} ({json.dumps(len(sums['shards']))} shards)")
+    click.echo(f"wrote {directory / 'card.md'} and {directory / CHECKSUMS_FILE} ({len(sums['shards'])} shards)")
 
 
 class _Stages:
