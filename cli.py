@@ -220,10 +220,11 @@ def verify_cmd(directory: Path, recipe: Path | None) -> None:
 @click.option("--dem-spacing", type=float, default=1.0, show_default=True, help="DEM spacing, metres/pixel.")
 @click.option("--workers", type=int, default=None, help="Local worker processes (default: all cores).")
 @click.option("--scheduler", default=None, help="Dask scheduler address to run the label tasks on a cluster.")
+@click.option("--recipe", type=click.Path(path_type=Path), default=None, help="Take the lander and DEM settings from a recipe's [label] section.")
 @friendly_errors
 def label_cmd(directory: Path, lander_diameter: float, pad_diameter: float, max_slope_deg: float, max_roughness: float,
               layout: str, yaws: int | None, count_holes: bool, dem_size: int, dem_spacing: float, workers: int | None,
-              scheduler: str | None) -> None:
+              scheduler: str | None, recipe: Path | None = None) -> None:
     """Grid every scan into DEMs and add ALHAT labels and the baseline P(safe) to the dataset."""
     from hdlabels import defaults as label_defaults
     from hdlabels.errors import HdLabelsError
@@ -231,6 +232,26 @@ def label_cmd(directory: Path, lander_diameter: float, pad_diameter: float, max_
     from hdlabels.lander import Lander
     from hdlabels.store import DemSpec
 
+    if recipe is not None:
+        from lidarsim.recipe import load_recipe
+
+        ctx = click.get_current_context()
+        content = ("lander_diameter", "pad_diameter", "max_slope_deg", "max_roughness", "layout", "yaws",
+                   "count_holes", "dem_size", "dem_spacing")
+        given = [n for n in content if ctx.get_parameter_source(n) == click.core.ParameterSource.COMMANDLINE]
+        if given:
+            flags = ", ".join("--" + ("lander" if n == "layout" else n.replace("_", "-")) for n in given)
+            raise HdLabelsError(f"--recipe fixes the lander and DEM settings; edit the recipe instead of passing {flags}")
+        settings = load_recipe(recipe).label
+        layout = str(settings.get("lander", layout))
+        lander_diameter = float(settings.get("lander_diameter_m", lander_diameter))
+        pad_diameter = float(settings.get("pad_diameter_m", pad_diameter))
+        max_slope_deg = float(settings.get("max_slope_deg", max_slope_deg))
+        max_roughness = float(settings.get("max_roughness_m", max_roughness))
+        yaws = int(settings["yaws"]) if "yaws" in settings else yaws
+        count_holes = bool(settings.get("count_holes", count_holes))
+        dem_size = int(settings.get("dem_size", dem_size))
+        dem_spacing = float(settings.get("dem_spacing_m", dem_spacing))
     if workers is not None and workers <= 0:
         raise HdLabelsError(f"--workers must be > 0, got {workers}")
     if dem_size < 2 or not (dem_spacing > 0):

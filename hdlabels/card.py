@@ -75,7 +75,7 @@ def render_card(directory: str | os.PathLike, recipe: Recipe, machine: str = "")
         "## How to rebuild and check it",
         "```bash",
         f"hd build-dataset --recipe datasets/{recipe.path.parent.name} --out {recipe.name}",
-        f"hd label {recipe.name}",
+        f"hd label {recipe.name} --recipe datasets/{recipe.path.parent.name}",
         f"hd verify {recipe.name} --recipe datasets/{recipe.path.parent.name}   # a received copy vs. these checksums",
         "```",
         f"`{CHECKSUMS_FILE}` beside this card holds the sha256 of every shard of the published build"

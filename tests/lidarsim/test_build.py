@@ -282,7 +282,7 @@ def test_build_from_a_recipe_and_verify_against_its_checksums(tmp_path, dtm):
     recipe.mkdir()
     (recipe / "recipe.toml").write_text(
         f'[dataset]\nname = "tiny"\n[build]\nscans = 6\nsigmas_m = [0.03]\nresolution = 32\nshard_size = 3\n'
-        f'dtm = "{dtm}"\n'
+        f'dtm = "{dtm}"\n[label]\nmax_roughness_m = 0.25\n'
     )
     out = tmp_path / "d"
     runner = CliRunner()
@@ -290,7 +290,11 @@ def test_build_from_a_recipe_and_verify_against_its_checksums(tmp_path, dtm):
     assert bad.exit_code != 0 and "--scans" in bad.output and not out.exists()
     ok = runner.invoke(main, ["build-dataset", "--recipe", str(recipe), "--out", str(out), "--workers", "1"])
     assert ok.exit_code == 0, ok.output
-    assert runner.invoke(main, ["label", str(out), "--workers", "1"]).exit_code == 0
+    bad = runner.invoke(main, ["label", str(out), "--recipe", str(recipe), "--max-slope-deg", "8"])
+    assert bad.exit_code != 0 and "--max-slope-deg" in bad.output
+    labelled = runner.invoke(main, ["label", str(out), "--workers", "1", "--recipe", str(recipe)])
+    assert labelled.exit_code == 0, labelled.output
+    assert read_manifest(out)["labelings"][0]["lander"]["max_roughness_m"] == 0.25
     card = runner.invoke(main, ["card", str(out), "--recipe", str(recipe)])
     assert card.exit_code == 0, card.output
     assert "safe" in (recipe / "card.md").read_text()
