@@ -112,6 +112,12 @@ def label_scan(points_clean: np.ndarray, points_noisy: np.ndarray, sigmas_m: tup
             "roughness_m": maps.roughness_m, "p_safe": p_safe}
 
 
+def label_counts(label: np.ndarray) -> np.ndarray:
+    """Pixel counts (unsafe, safe, invalid) of a label array, int64 (3,)."""
+    return np.array([(label == code).sum() for code in
+                     (defaults.LABEL_UNSAFE, defaults.LABEL_SAFE, defaults.LABEL_INVALID)], dtype=np.int64)
+
+
 def run_label_task(task: LabelTask) -> LabelRecord:
     """Label one scan shard and write its label shard (worker side)."""
     root = Path(task.dataset)
@@ -136,9 +142,7 @@ def run_label_task(task: LabelTask) -> LabelRecord:
                 except LabelStoreError as exc:
                     raise LabelStoreError(f"{task.source_path} scan {int(f['scan_index'][k])}: {exc}") from None
                 writer.write(k, int(f["scan_index"][k]), int(f["split"][k]), **arrays)
-                lab = arrays["label"]
-                counts += [(lab == defaults.LABEL_UNSAFE).sum(), (lab == defaults.LABEL_SAFE).sum(),
-                           (lab == defaults.LABEL_INVALID).sum()]
+                counts += label_counts(arrays["label"])
             writer.commit()
         except BaseException:
             writer.abort()
@@ -166,9 +170,7 @@ def _existing(task: LabelTask) -> LabelRecord | None:
             n = len(reader)
     except (LabelStoreError, OSError, KeyError):
         return None
-    counts = np.array([(lab == defaults.LABEL_UNSAFE).sum(), (lab == defaults.LABEL_SAFE).sum(),
-                       (lab == defaults.LABEL_INVALID).sum()])
-    return _record(task, out, n, counts)
+    return _record(task, out, n, label_counts(lab))
 
 
 def label_dataset(

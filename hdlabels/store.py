@@ -24,9 +24,12 @@ from hdlabels.errors import HdLabelsError
 from hdlabels.lander import Lander
 from lidarsim.shards import (
     MANIFEST_NAME,
+    SPLIT_NAMES,
     ShardFormatError,
     check_schema,
     commit_file,
+    compression_kwargs,
+    partial_path,
     read_manifest,
     write_attrs,
     write_json_atomic,
@@ -86,12 +89,12 @@ class LabelShardWriter:
 
     def __init__(self, path: Path, n_scans: int, n_sigmas: int, dem: DemSpec, attrs: dict[str, Any]) -> None:
         self.path = path
-        self._tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
+        self._tmp = partial_path(path)
         self._f = h5py.File(self._tmp, "w")
         write_attrs(self._f, {"schema": LABEL_SCHEMA, "schema_version": LABEL_SCHEMA_VERSION, "software": "hd",
                               "software_version": __version__, "n_scans": n_scans, **dem.to_attrs(), **attrs})
         h, w, n, s = dem.rows, dem.cols, n_scans, n_sigmas
-        gz = dict(compression="gzip", compression_opts=1, shuffle=True, track_times=False)
+        gz = compression_kwargs("gzip")
         f = self._f
         self._d = {
             "scan_index": f.create_dataset("scan_index", (n,), np.int64, track_times=False),
@@ -154,7 +157,7 @@ class LabelShardReader:
         f = self.h5
         return LabeledScan(
             scan_index=int(f["scan_index"][k]),
-            split=("train", "val", "test")[int(f["split"][k])],
+            split=SPLIT_NAMES[int(f["split"][k])],
             dem_clean=f["dem_clean"][k],
             dem_noisy=f["dem_noisy"][k],
             label=f["label"][k],

@@ -68,7 +68,7 @@ def write_attrs(obj: h5py.HLObject, attrs: dict[str, Any]) -> None:
         obj.attrs[key] = _attr_value(value)
 
 
-def atomic_h5_path(final: Path) -> Path:
+def partial_path(final: Path) -> Path:
     """Temporary name used while ``final`` is being written (hidden, unique to this process)."""
     return final.with_name(f".{final.name}.partial-{os.getpid()}")
 
@@ -115,7 +115,7 @@ class ScanShardWriter:
     compression: str = "gzip"
 
     def __enter__(self) -> ScanShardWriter:
-        self._tmp = atomic_h5_path(self.path)
+        self._tmp = partial_path(self.path)
         self._f = h5py.File(self._tmp, "w")
         f = self._f
         write_attrs(f, {
@@ -128,7 +128,7 @@ class ScanShardWriter:
             **self.attrs,
         })
         n, r, c, s = self.n_scans, self.rows, self.cols, len(self.sigmas_m)
-        kw = _compression_kwargs(self.compression)
+        kw = compression_kwargs(self.compression)
         small = dict(track_times=False)
         self._d = {
             "scan_index": f.create_dataset("scan_index", (n,), np.int64, **small),
@@ -185,7 +185,8 @@ class ScanShardWriter:
                 Path(self._tmp).unlink(missing_ok=True)
 
 
-def _compression_kwargs(name: str) -> dict[str, Any]:
+def compression_kwargs(name: str) -> dict[str, Any]:
+    """h5py dataset keywords of a compression setting: gzip (deflate 1 + shuffle), lzf or none."""
     base: dict[str, Any] = {"track_times": False}
     if name == "gzip":
         return {**base, "compression": "gzip", "compression_opts": 1, "shuffle": True}
@@ -278,7 +279,7 @@ def _py(value: Any) -> Any:
 
 def write_json_atomic(path: Path, data: dict[str, Any]) -> None:
     """Write JSON to a temporary name and rename it into place."""
-    tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
+    tmp = partial_path(path)
     tmp.write_text(json.dumps(data, indent=2, sort_keys=False) + "\n")
     commit_file(tmp, path)
 
