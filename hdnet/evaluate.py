@@ -233,13 +233,18 @@ def infer_split(
                           arrays["clean"], arrays["noisy"])
 
 
-# --- the evaluation --------------------------------------------------------------------------------
-def _checkpoint_path(run_dir: str | os.PathLike) -> Path:
+# --- the run and its threshold ---------------------------------------------------------------------
+def checkpoint_path(run_dir: str | os.PathLike) -> Path:
+    """The checkpoint of a run: ``RUN/last.pt`` for a run directory, else the path itself (a checkpoint file)."""
     path = Path(run_dir)
     return path / LAST if path.is_dir() else path
 
 
-def _run_data(ckpt: dict[str, Any], path: Path) -> tuple[float, Normalisation, int | None, str | None]:
+def run_data(ckpt: dict[str, Any], path: Path) -> tuple[float, Normalisation, int | None, str | None]:
+    """(training sigma in metres, normalisation, network input size or None, labelling name) of a checkpoint.
+
+    Raises HdNetError for a checkpoint not trained by ``hdnet.fit`` (no run data config).
+    """
     extra = ckpt.get("extra_config") or {}
     if "train_sigma_m" not in extra or "normalisation" not in extra:
         raise HdNetError(f"{path} was not trained by hdnet.fit: its run config lacks the training sigma and normalisation.")
@@ -247,6 +252,56 @@ def _run_data(ckpt: dict[str, Any], path: Path) -> tuple[float, Normalisation, i
     return float(extra["train_sigma_m"]), Normalisation.from_dict(extra["normalisation"]), (None if size is None else int(size)), extra.get("labels")
 
 
+def split_dataset(
+    dataset_dir: str | os.PathLike, split: str, sigma_m: float, *, input_size: int | None, labels: str,
+    normalisation: Normalisation, dead_pixels: int = 0, seed: int = 0,
+) -> HazardDataset:
+    """One split of a labelled dataset prepared as the run's training inputs were; HdNetError when empty."""
+    ds = HazardDataset(dataset_dir, split, sigma_m, input_size=input_size, labels=labels, normalisation=normalisation,
+                       dead_pixels=dead_pixels, seed=seed)
+    if len(ds) == 0:
+        raise HdNetError(f"{dataset_dir}: the {split} split is empty.")
+    return ds
+
+
+def _finite_or_none(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+@dataclass(frozen=True)
+class ValidationThreshold:
+    """H_t (nats; +inf = every pixel certain) calibrated on a validation split, and how it was obtained.
+
+    ``info`` is the ``threshold`` entry of ``report.json`` (spec, value, mean, calibration split and sizes).
+    """
+
+    value_nats: float
+    info: dict[str, Any]
+    calibration: EntropyCalibration
+    inference: SplitInference
+
+
+def validation_threshold(
+    model: BayesianSegNet, val_ds: HazardDataset, spec: ThresholdSpec, *, mc_samples: int, batch_size: int,
+    seed: int, device: torch.device,
+) -> ValidationThreshold:
+    """Step 1 of the protocol: MC dropout over the validation split, entropies collected, H_t selected."""
+    val = infer_split(model, val_ds, mc_samples, batch_size, seed, device)
+    cal = EntropyCalibration()
+    cal.update(torch.from_numpy(val.entropy_nats), torch.from_numpy(val.prediction), torch.from_numpy(val.label))
+    h_t = select_threshold(spec, cal)
+    h_mean = cal.mean()
+    val_entropy = val.entropy_nats[val.valid]
+    info: dict[str, Any] = {
+        "spec": str(spec), "kind": spec.kind, "parameter": spec.value, "value_nats": _finite_or_none(h_t),
+        "mean_nats": h_mean, "mean_quantile": float(np.mean(val_entropy < h_mean)),
+        "calibration_split": "val", "calibration_sigma_m": val.sigma_m, "calibration_images": cal.n_images,
+        "calibration_pixels": int(val_entropy.size),
+    }
+    return ValidationThreshold(h_t, info, cal, val)
+
+
+# --- the evaluation --------------------------------------------------------------------------------
 def _check_counts(mc_samples: int, drop_pixels: int, n_pixels: int, batch_size: int) -> None:
     if isinstance(mc_samples, bool) or not isinstance(mc_samples, int) or mc_samples < 1:
         raise HdNetError(f"the number of MC samples must be an integer >= 1, got {mc_samples!r}.")
@@ -254,10 +309,6 @@ def _check_counts(mc_samples: int, drop_pixels: int, n_pixels: int, batch_size: 
         raise HdNetError(f"--drop-pixels must be an integer in [0, {n_pixels - 1}] for {n_pixels}-pixel DEMs, got {drop_pixels!r}.")
     if isinstance(batch_size, bool) or not isinstance(batch_size, int) or batch_size < 1:
         raise HdNetError(f"the batch size must be an integer >= 1, got {batch_size!r}.")
-
-
-def _finite_or_none(x: float) -> float | None:
-    return float(x) if math.isfinite(x) else None
 
 
 def evaluate(
@@ -285,10 +336,10 @@ def evaluate(
     spec: ThresholdSpec = parse_threshold_spec(threshold)
     open_labeling(dataset_dir, labels)  # the clear "no labels" error before anything else
     _check_counts(mc_samples, 0, 1, batch_size)
-    ckpt_path = _checkpoint_path(run_dir)
+    ckpt_path = checkpoint_path(run_dir)
     dev = torch.device(device) if device else torch.device("cuda" if torch.cuda.is_available() else "cpu")
     model, ckpt = load_trained_model(ckpt_path, map_location=dev)
-    train_sigma, norm, input_size, run_labels = _run_data(ckpt, ckpt_path)
+    train_sigma, norm, input_size, run_labels = run_data(ckpt, ckpt_path)
     entry, paths = open_labeling(dataset_dir, labels if labels is not None else _prefer(dataset_dir, run_labels))
     dem = entry.get("dem", {})
     n_pixels = int(dem.get("rows", defaults.DEM_SIZE_PX)) * int(dem.get("cols", defaults.DEM_SIZE_PX))
@@ -298,25 +349,14 @@ def evaluate(
     lab = str(entry["name"])
 
     def dataset(split: str, sigma: float, dead: int = 0) -> HazardDataset:
-        ds = HazardDataset(dataset_dir, split, sigma, input_size=input_size, labels=lab, normalisation=norm,
-                           dead_pixels=dead, seed=seed)
-        if len(ds) == 0:
-            raise HdNetError(f"{dataset_dir}: the {split} split is empty.")
-        return ds
+        return split_dataset(dataset_dir, split, sigma, input_size=input_size, labels=lab, normalisation=norm,
+                             dead_pixels=dead, seed=seed)
 
     # 1. threshold from the validation split at the training sigma
-    val = infer_split(model, dataset("val", train_sigma), mc_samples, batch_size, seed, dev)
-    cal = EntropyCalibration()
-    cal.update(torch.from_numpy(val.entropy_nats), torch.from_numpy(val.prediction), torch.from_numpy(val.label))
-    h_t = select_threshold(spec, cal)
-    h_mean = cal.mean()
+    th = validation_threshold(model, dataset("val", train_sigma), spec, mc_samples=mc_samples, batch_size=batch_size,
+                              seed=seed, device=dev)
+    val, cal, h_t, threshold_info = th.inference, th.calibration, th.value_nats, th.info
     val_entropy = val.entropy_nats[val.valid]
-    threshold_info: dict[str, Any] = {
-        "spec": str(spec), "kind": spec.kind, "parameter": spec.value, "value_nats": _finite_or_none(h_t),
-        "mean_nats": h_mean, "mean_quantile": float(np.mean(val_entropy < h_mean)),
-        "calibration_split": "val", "calibration_sigma_m": val.sigma_m, "calibration_images": cal.n_images,
-        "calibration_pixels": int(val_entropy.size),
-    }
 
     # 2-3. every sigma: the three methods, the sweep, calibration
     rows: list[ReportRow] = []
