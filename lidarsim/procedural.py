@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 import rasterio
 from rasterio.crs import CRS
-from rasterio.transform import from_origin
+from rasterio.transform import Affine, from_origin
 
 from lidarsim import terrain_defaults as td
 from lidarsim.errors import TerrainError
@@ -39,6 +39,7 @@ __all__ = [
     "expected_rock_count",
     "fractal_relief",
     "generate_mars_terrain",
+    "geotiff_profile",
     "params_tags",
     "rock_q_per_m",
     "sample_craters",
@@ -353,6 +354,39 @@ def params_tags(params: MarsTerrainParams, seed: int) -> dict[str, str]:
     }
 
 
+def geotiff_profile(
+    shape: tuple[int, int],
+    transform: Affine,
+    crs_wkt: str = "",
+    dtype: str = "float32",
+    nodata: float = float("nan"),
+) -> dict[str, Any]:
+    """rasterio creation options of hd's single-band GeoTIFFs (``rasterio.open(path, "w", **profile)``).
+
+    ``shape`` is (rows, cols); ``transform`` the affine of the top-left corner (map metres);
+    ``crs_wkt`` "" writes no CRS (local metres). Deflate with the floating-point predictor for float
+    data and horizontal differencing for integers; 256 x 256 tiles when both sides reach 256 cells.
+    """
+    rows, cols = int(shape[0]), int(shape[1])
+    floating = np.issubdtype(np.dtype(dtype), np.floating)
+    profile: dict[str, Any] = {
+        "driver": "GTiff",
+        "height": rows,
+        "width": cols,
+        "count": 1,
+        "dtype": dtype,
+        "nodata": nodata,
+        "transform": transform,
+        "compress": "deflate",
+        "predictor": 3 if floating else 2,
+    }
+    if rows >= 256 and cols >= 256:
+        profile.update(tiled=True, blockxsize=256, blockysize=256)
+    if crs_wkt:
+        profile["crs"] = CRS.from_wkt(crs_wkt)
+    return profile
+
+
 def write_geotiff(
     path: str | os.PathLike[str],
     heights: np.ndarray,
@@ -376,21 +410,8 @@ def write_geotiff(
     directory = os.path.dirname(target)
     if not os.path.isdir(directory):
         raise TerrainError(f"{target}: directory {directory} does not exist")
-    profile: dict[str, Any] = {
-        "driver": "GTiff",
-        "height": arr.shape[0],
-        "width": arr.shape[1],
-        "count": 1,
-        "dtype": "float32",
-        "nodata": float("nan"),
-        "transform": from_origin(float(origin_xy[0]), float(origin_xy[1]), spacing_m, spacing_m),
-        "compress": "deflate",
-        "predictor": 3,
-    }
-    if arr.shape[0] >= 256 and arr.shape[1] >= 256:
-        profile.update(tiled=True, blockxsize=256, blockysize=256)
-    if crs_wkt:
-        profile["crs"] = CRS.from_wkt(crs_wkt)
+    transform = from_origin(float(origin_xy[0]), float(origin_xy[1]), spacing_m, spacing_m)
+    profile = geotiff_profile(arr.shape, transform, crs_wkt)
     tmp = os.path.join(directory, f".{os.path.basename(target)}.{uuid.uuid4().hex}.tmp")
     try:
         with rasterio.open(tmp, "w", **profile) as dst:
