@@ -24,7 +24,8 @@ from hdnet.profiles import TrainingProfile, get_profile
 from hdnet.train import train
 from lidarsim.shards import MANIFEST_NAME, sha256_file
 
-RUN_DATA_KEYS = ("dataset", "manifest_sha256", "labels", "train_sigma_m", "normalisation", "input_size", "input_rule", "dem_shape")
+RUN_DATA_KEYS = ("dataset", "manifest_sha256", "labels", "labeling", "train_sigma_m", "normalisation", "input_size",
+                 "input_rule", "dem_shape")
 
 
 def input_rule(input_size: int | None) -> str:
@@ -34,14 +35,19 @@ def input_rule(input_size: int | None) -> str:
 
 def run_data_config(
     dataset_dir: str | os.PathLike, labels: str, sigma_m: float, normalisation: Normalisation,
-    profile: TrainingProfile, dem_shape: tuple[int, int],
+    profile: TrainingProfile, dem_shape: tuple[int, int], labeling: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """The ``extra_config`` of a run: the data a model was trained on and how inputs were prepared."""
+    """The ``extra_config`` of a run: the data a model was trained on and how inputs were prepared.
+
+    ``labeling`` is the dataset manifest's entry of the labelling trained on (lander, DEM grid, label
+    convention); it is kept without its shard list, so a run can be used without its dataset.
+    """
     root = Path(dataset_dir).resolve()
     return {
         "dataset": str(root),
         "manifest_sha256": sha256_file(root / MANIFEST_NAME),
         "labels": labels,
+        "labeling": {k: v for k, v in (labeling or {}).items() if k != "shards"},
         "train_sigma_m": float(sigma_m),
         "normalisation": normalisation.to_dict(),
         "input_size": profile.input_size,
@@ -77,6 +83,7 @@ def fit(
     for name, ds in (("train", train_ds), ("val", val_ds)):
         if len(ds) == 0:
             raise HdNetError(f"{dataset_dir}: the {name} split is empty; build a dataset with more scans.")
-    extra = run_data_config(dataset_dir, train_ds.labels, train_ds.sigma_m, normalisation, profile, train_ds.dem_shape)
+    extra = run_data_config(dataset_dir, train_ds.labels, train_ds.sigma_m, normalisation, profile, train_ds.dem_shape,
+                            labeling=train_ds.entry)
     return train(run_dir, train_ds, val_ds, profile, epochs=epochs, seed=seed, resume=resume, progress=progress,
                  extra_config=extra, num_workers=num_workers)

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 from hdnet_datasets import build_labelled
 
-from hdnet.data import compute_normalisation
+from hdnet.data import compute_normalisation, lander_of
 from hdnet.errors import HdNetError
 from hdnet.fit import RUN_DATA_KEYS, fit
 from hdnet.train import load_checkpoint
@@ -31,6 +31,9 @@ def test_tiny_fit_records_the_data_it_was_trained_on(dataset, tmp_path):
     assert extra["normalisation"] == compute_normalisation(dataset, 0.0167).to_dict()
     assert extra["input_size"] is None and extra["input_rule"] == "pad:32" and extra["dem_shape"] == [100, 100]
     assert extra["labels"].startswith("square-d10m")
+    entry = json.loads((dataset / "manifest.json").read_text())["labelings"][0]
+    assert extra["labeling"] == {k: v for k, v in entry.items() if k != "shards"}  # lander and DEM grid, no shard list
+    assert lander_of(extra["labeling"]) == lander_of(entry)
     ckpt = load_checkpoint(last)
     assert ckpt["extra_config"] == extra and ckpt["epoch"] == 1 and ckpt["profile"]["name"] == "tiny"
 
