@@ -340,7 +340,7 @@ def evaluate(
     dev = torch.device(device) if device else torch.device("cuda" if torch.cuda.is_available() else "cpu")
     model, ckpt = load_trained_model(ckpt_path, map_location=dev)
     train_sigma, norm, input_size, run_labels = run_data(ckpt, ckpt_path)
-    entry, paths = open_labeling(dataset_dir, labels if labels is not None else _prefer(dataset_dir, run_labels))
+    entry, paths = open_labeling(dataset_dir, labels if labels is not None else preferred_labeling(dataset_dir, run_labels))
     dem = entry.get("dem", {})
     n_pixels = int(dem.get("rows", defaults.DEM_SIZE_PX)) * int(dem.get("cols", defaults.DEM_SIZE_PX))
     _check_counts(mc_samples, drop_pixels, n_pixels, batch_size)
@@ -412,7 +412,7 @@ def evaluate(
     return result
 
 
-def _prefer(dataset_dir: str | os.PathLike, run_labels: str | None) -> str | None:
-    """The run's labelling when the dataset has one of that name, else None (the dataset's only one)."""
+def preferred_labeling(dataset_dir: str | os.PathLike, run_labels: str | None) -> str | None:
+    """The run's labelling name when the dataset has a labelling of that name, else None (the dataset's only one)."""
     names = [lab.get("name") for lab in read_manifest(dataset_dir).get("labelings", [])]
     return run_labels if run_labels in names else None
