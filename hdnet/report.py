@@ -28,12 +28,12 @@ METHOD_NAMES = {"alhat_baseline": "Baseline (replicated ALHAT)", "base_net": "Ba
 TABLE_TITLES = {"noise": "Table 1: noise levels", "dead_pixels": "Table 2: dead pixels"}
 
 
-def _plain(obj: Any) -> Any:
+def json_plain(obj: Any) -> Any:
     """JSON-safe copy: NaN/inf -> None, tuples -> lists, numpy scalars -> Python numbers."""
     if isinstance(obj, dict):
-        return {str(k): _plain(v) for k, v in obj.items()}
+        return {str(k): json_plain(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [_plain(v) for v in obj]
+        return [json_plain(v) for v in obj]
     if hasattr(obj, "item") and not isinstance(obj, (str, bytes)):
         obj = obj.item()
     if isinstance(obj, float) and not math.isfinite(obj):
@@ -44,7 +44,7 @@ def _plain(obj: Any) -> Any:
 def report_dict(result: EvaluationResult) -> dict[str, Any]:
     """The content of ``report.json``."""
     rows = [{k: asdict(r)[k] for k in ROW_KEYS} for r in result.rows]
-    return _plain({"rows": rows, "threshold": result.threshold, "sweep": result.sweep,
+    return json_plain({"rows": rows, "threshold": result.threshold, "sweep": result.sweep,
                    "calibration": result.calibration, "run": result.run})
 
 
