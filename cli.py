@@ -46,17 +46,18 @@ def friendly_errors(func: Callable[..., Any]) -> Callable[..., Any]:
 
 
 class _ScanProgress:
-    """tqdm progress bar fed with (done, total) scan counts."""
+    """tqdm progress bar fed with (done, total) counts of scans (or of another ``unit``)."""
 
-    def __init__(self, desc: str) -> None:
+    def __init__(self, desc: str, unit: str = "scan") -> None:
         self.desc = desc
+        self.unit = unit
         self.bar: Any = None
 
     def __call__(self, done: int, total: int) -> None:
         from tqdm import tqdm
 
         if self.bar is None:
-            self.bar = tqdm(total=total, initial=done, desc=self.desc, unit="scan", dynamic_ncols=True)
+            self.bar = tqdm(total=total, initial=done, desc=self.desc, unit=self.unit, dynamic_ncols=True)
         else:
             self.bar.update(done - self.bar.n)
 
@@ -312,6 +313,38 @@ def eval_cmd(run_dir: Path, dataset: Path, out_dir: Path, mc_samples: int, drop_
                       threshold=threshold, labels=labeling, seed=seed, batch_size=batch_size)
     click.echo(result.summary())
     click.echo(f"report: {out_dir / 'report.md'} (and report.json, figures)")
+
+
+@main.command("detect")
+@click.argument("run_dir", type=click.Path(path_type=Path))
+@click.option("--dtm", "dtm_path", type=click.Path(path_type=Path), default=None, help="Terrain to map: any GDAL raster in metres (GeoTIFF, HiRISE PDS3 .IMG), any size.")
+@click.option("--data", "dataset", type=click.Path(file_okay=False, path_type=Path), default=None, help="Instead of --dtm: a labelled dataset, with --scan.")
+@click.option("--scan", type=int, default=None, help="With --data: the scan whose noisy DEM to map (scan frame).")
+@click.option("--out", "out_dir", required=True, type=click.Path(path_type=Path), help="Output directory (maps, sites, overview, detect.json).")
+@click.option("--mc-samples", type=int, default=8, show_default=True, help="MC-dropout samples M.")
+@click.option("--threshold", default="mean", show_default=True, help="Uncertainty threshold: mean, quantile:Q, risk:ALPHA (calibrated as hd eval does) or nats:H (fixed).")
+@click.option("--sigma", "sigma_m", type=float, default=None, help="DEM noise of the ALHAT baseline, metres (default: the run's training sigma); with --data also the noise level of the scan's DEM.")
+@click.option("--sites", "n_sites", type=int, default=10, show_default=True, help="Most landing sites to propose.")
+@click.option("--overwrite", is_flag=True, help="Replace a non-empty --out.")
+@click.option("--labels", "labeling", default=None, help="With --data: the labelling (when the dataset has several).")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of MC dropout.")
+@click.option("--batch-size", type=int, default=8, show_default=True, help="Tiles per inference batch.")
+@friendly_errors
+def detect_cmd(run_dir: Path, dtm_path: Path | None, dataset: Path | None, scan: int | None, out_dir: Path,
+               mc_samples: int, threshold: str, sigma_m: float | None, n_sites: int, overwrite: bool,
+               labeling: str | None, seed: int, batch_size: int) -> None:
+    """Hazard maps and ranked landing sites of a DTM (or of one scan) from a trained run."""
+    from hdnet.detect import detect
+
+    progress = _ScanProgress("tiles", unit="tile")
+    try:
+        result = detect(run_dir, out_dir, dtm=dtm_path, dataset=dataset, scan=scan, mc_samples=mc_samples,
+                        threshold=threshold, sigma_m=sigma_m, n_sites=n_sites, overwrite=overwrite, seed=seed,
+                        batch_size=batch_size, labels=labeling, progress=progress)
+    finally:
+        progress.close()
+    click.echo(result.summary())
+    click.echo(f"maps, sites.csv, sites.geojson, overview.png and detect.json in {out_dir}")
 
 
 @main.command("demo")

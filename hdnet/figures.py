@@ -1,7 +1,8 @@
-"""PNG figures of an evaluation (matplotlib, Agg): reliability, threshold sweep, qualitative panels.
+"""PNG figures (matplotlib, Agg): an evaluation's reliability, threshold sweep and qualitative panels,
+and a detection's overview.
 
-Every function takes an ``EvaluationResult`` (``hdnet.evaluate``) and a file path, draws one figure
-and closes it. Colours of safety maps: unsafe red, safe green, uncertain grey, invalid white.
+Every evaluation figure takes an ``EvaluationResult`` (``hdnet.evaluate``) and a file path, draws one
+figure and closes it. Colours of safety maps: unsafe red, safe green, uncertain grey, invalid white.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from matplotlib.colors import ListedColormap
 from hdnet import defaults
 
 if TYPE_CHECKING:
+    from hdnet.detect import Site
     from hdnet.evaluate import EvaluationResult, SplitInference
 
 SAFETY_COLOURS = ListedColormap(["#c0392b", "#27ae60", "#9e9e9e", "#ffffff"])  # unsafe, safe, uncertain, invalid
@@ -139,3 +141,50 @@ def write_figures(result: EvaluationResult, out_dir: Path) -> list[Path]:
             qualitative_panel(inf, row, result.threshold["value_nats"], p)
             paths.append(p)
     return paths
+
+
+def detect_overview(
+    heights_m: np.ndarray, cell_m: float, safety: np.ndarray, extent: tuple[float, float, float, float],
+    sites: list[Site], lander_radius_m: float, title: str, path: Path,
+) -> None:
+    """Hillshade of the terrain, the safety map over it and the numbered sites (circles of the lander's size).
+
+    ``heights_m`` (NaN invalid) and ``safety`` (codes 0 unsafe, 1 safe, 2 uncertain, 255 invalid) share
+    one grid of ``cell_m``-metre cells covering ``extent`` = (left, right, bottom, top), map metres.
+    """
+    from matplotlib.colors import LightSource
+    from matplotlib.patches import Circle, Patch
+
+    z = np.asarray(heights_m, np.float64)
+    finite = np.isfinite(z)
+    filled = np.where(finite, z, np.nanmean(z) if finite.any() else 0.0)
+    shade = LightSource(azdeg=315, altdeg=45).hillshade(filled, vert_exag=1.0, dx=cell_m, dy=cell_m)
+    shade = np.where(finite, shade, np.nan)
+    colours = SAFETY_COLOURS.colors
+    rgba = np.zeros((*safety.shape, 4))
+    for code, colour, alpha in ((0, colours[0], 0.45), (1, colours[1], 0.35), (2, colours[2], 0.6)):
+        rgba[safety == code] = (*matplotlib.colors.to_rgb(colour), alpha)
+    left, right, bottom, top = extent
+    aspect = (top - bottom) / max(right - left, 1e-9)
+    fig, ax = plt.subplots(figsize=(8.0, float(np.clip(8.0 * aspect, 3.0, 10.0)) + 0.6))
+    gray = plt.get_cmap("gray").with_extremes(bad="white")
+    ax.imshow(shade, cmap=gray, extent=extent, interpolation="nearest", vmin=0, vmax=1)
+    ax.imshow(rgba, extent=extent, interpolation="nearest")
+    for s in sites:
+        ax.add_patch(Circle((s.x, s.y), lander_radius_m, fill=False, ec="black", lw=1.6))
+        ax.add_patch(Circle((s.x, s.y), lander_radius_m, fill=False, ec="white", lw=0.7))
+        ax.annotate(str(s.rank), (s.x, s.y), xytext=(5, 5), textcoords="offset points",
+                    fontsize=8, fontweight="bold", color="black",
+                    bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.8})
+    ax.set_xlim(left, right)
+    ax.set_ylim(bottom, top)
+    ax.ticklabel_format(useOffset=False, style="plain")
+    ax.set(xlabel="x (m)", ylabel="y (m)", title=title)
+    ax.title.set_fontsize(9)
+    handles = [Patch(color=colours[0], alpha=0.6, label="unsafe"), Patch(color=colours[1], alpha=0.6, label="safe"),
+               Patch(color=colours[2], alpha=0.8, label="uncertain"),
+               Patch(fc="none", ec="black", label="landing site (lander size)")]
+    ax.legend(handles=handles, fontsize=7, loc="upper right", framealpha=0.85)
+    fig.tight_layout()
+    fig.savefig(path, dpi=DPI)
+    plt.close(fig)

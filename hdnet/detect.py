@@ -1,0 +1,772 @@
+"""Hazard maps and ranked landing sites for any terrain from a trained run (``hd detect``).
+
+Input: a DTM file (any size; read window by window through ``lidarsim.terrain.DTM``, resampled to
+the run's DEM spacing) or one scan's noisy DEM of a labelled dataset (scan frame). Output, into a
+directory that appears complete or not at all (written beside it under a temporary name, renamed
+at the end):
+
+* ``p_safe.tif`` (float32, MC-dropout mean P(safe)), ``entropy.tif`` (float32, predictive entropy,
+  nats), ``safety.tif`` (uint8: 0 unsafe, 1 safe, 2 uncertain = entropy >= H_t, 255 invalid) and
+  ``baseline_p_safe.tif`` (float32, the ALHAT P(safe) baseline), all on one grid: the input's extent
+  at the run's DEM spacing, with its CRS; NaN / 255 where invalid;
+* ``sites.csv`` and ``sites.geojson``: ranked landing sites (``SITE_COLUMNS``);
+* ``overview.png`` (hillshade, safety map, numbered sites) and ``detect.json`` (run, input sha256,
+  threshold, tiling, counts, timings).
+
+Pipeline (docs/user-guide.md, "Hazard maps and landing sites"):
+
+1. the run: model, input preparation (``run_data``), lander and label convention (the run's
+   labelling entry; older runs: their dataset's manifest), DEM size and spacing;
+2. H_t exactly as ``hd eval`` computes it (``validation_threshold`` on a validation split at the
+   training sigma), or a fixed ``nats:H``;
+3. tiles of the training DEM size overlapping by ``overlap_px`` (``hdnet.tiling``), one row of
+   tiles at a time: DTM window -> scan frame (heights minus the tile's mean height, as the
+   simulator's scan frame is referenced to the mean terrain height under the footprint) ->
+   ``network_input`` -> MC dropout with the shared prefix -> ``network_output``; the ALHAT baseline
+   on the same window (``baseline_p_safe``), whose invalid cells (border band, footprint touching
+   nodata) are the invalid cells of every map; owned centre crops written to the GeoTIFFs;
+4. sites (``select_sites``) from the finished maps.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import os
+import re
+import shutil
+import tempfile
+import time
+import uuid
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+import rasterio
+import torch
+from rasterio.transform import Affine
+from rasterio.windows import Window
+from scipy import ndimage
+
+from hdlabels.alhat import safety_probability
+from hdlabels.lander import Lander, geometry
+from hdlabels.store import find_labeling
+from hdnet import defaults
+from hdnet._version import __version__
+from hdnet.data import (
+    Normalisation,
+    dataset_sigmas,
+    dem_spacing_m,
+    fill_holes,
+    lander_of,
+    open_labeling,
+    sigma_index,
+    to_dem_grid,
+    to_network_grid,
+)
+from hdnet.errors import HdNetError
+from hdnet.evaluate import (
+    checkpoint_path,
+    preferred_labeling,
+    run_data,
+    split_dataset,
+    validation_threshold,
+)
+from hdnet.infer import mc_dropout_predict, predictive_entropy
+from hdnet.model import BayesianSegNet
+from hdnet.report import json_plain
+from hdnet.thresholds import parse_threshold_spec, uncertain_mask
+from hdnet.tiling import TilePlan
+from hdnet.train import load_trained_model
+from lidarsim.errors import TerrainError
+from lidarsim.procedural import geotiff_profile
+from lidarsim.shards import MANIFEST_NAME, read_manifest, sha256_file
+from lidarsim.terrain import DTM
+
+SAFETY_UNSAFE, SAFETY_SAFE, SAFETY_UNCERTAIN, SAFETY_INVALID = 0, 1, 2, 255
+MAP_FILES = ("p_safe.tif", "entropy.tif", "safety.tif", "baseline_p_safe.tif")
+OUTPUT_FILES = (*MAP_FILES, "sites.csv", "sites.geojson", "overview.png", "detect.json")
+SITE_COLUMNS = ("rank", "x", "y", "p_safe", "entropy_max", "clearance_m", "baseline_p_safe")
+BASELINE_THRESHOLD = 0.5  # paper, "Label generation": the baseline is safe where P(safe) >= 50 %
+# hd choice: a DTM may be up to 2 % coarser than the run's DEM spacing (HiRISE "1 m" products are
+# 1.01 m); it is then read at full resolution. Anything coarser would have to invent detail.
+SPACING_TOLERANCE = 0.02
+# hd choice: sites are ranked by their footprint-mean P(safe) rounded to 0.001, then by clearance.
+# Differences below 0.001 are far inside the MC estimate's spread (M = 8), so clearance decides.
+SITE_RANK_DECIMALS = 3
+OVERVIEW_MAX_PX = 1200  # hd choice: longest side of the overview's hillshade, pixels
+_FIXED = re.compile(r"^nats:(.+)$")
+
+
+# --- the run ---------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class DetectRun:
+    """What detection needs from a trained run.
+
+    ``labeling`` is the labelling entry the run was trained on (lander, DEM grid, label convention);
+    ``dem_shape`` (rows, cols) and ``spacing_m`` (metres/pixel) are its DEM grid; ``dataset`` the
+    training dataset (None when it is not present any more).
+    """
+
+    checkpoint: Path
+    model: BayesianSegNet
+    ckpt: dict[str, Any] = field(repr=False)
+    train_sigma_m: float
+    normalisation: Normalisation
+    input_size: int | None
+    labels: str
+    labeling: dict[str, Any]
+    lander: Lander
+    dem_shape: tuple[int, int]
+    spacing_m: float
+    dataset: Path | None
+
+
+def load_run(run_dir: str | os.PathLike, device: torch.device) -> DetectRun:
+    """The run at ``run_dir`` (a run directory or a checkpoint file), ready for detection.
+
+    The labelling entry comes from the run's config (runs trained since it is recorded) or, for
+    older runs, from the manifest of the dataset the run was trained on.
+    """
+    path = checkpoint_path(run_dir)
+    if not Path(run_dir).exists():
+        raise HdNetError(f"run {run_dir} does not exist.")
+    model, ckpt = load_trained_model(path, map_location=device)
+    train_sigma, norm, input_size, labels = run_data(ckpt, path)
+    extra = ckpt.get("extra_config") or {}
+    dataset = Path(extra["dataset"]) if extra.get("dataset") else None
+    if dataset is not None and not (dataset / MANIFEST_NAME).is_file():
+        dataset = None
+    labeling = extra.get("labeling") or None
+    if labeling is None:
+        if dataset is None:
+            raise HdNetError(f"{path} does not record its lander and its dataset {extra.get('dataset')} is not present; "
+                             "retrain it with this hd or restore the dataset.")
+        labeling = {k: v for k, v in find_labeling(dataset, labels).items() if k != "shards"}
+    dem = labeling.get("dem", {})
+    shape = extra.get("dem_shape") or [dem.get("rows", defaults.DEM_SIZE_PX), dem.get("cols", defaults.DEM_SIZE_PX)]
+    return DetectRun(path, model, ckpt, train_sigma, norm, input_size, str(labeling.get("name", labels)), labeling,
+                     lander_of(labeling), (int(shape[0]), int(shape[1])), dem_spacing_m(labeling), dataset)
+
+
+def network_input(dem_m: np.ndarray, run: DetectRun) -> torch.Tensor:
+    """(1, C, H, W) network input of one DEM (metres, scan frame, NaN holes), prepared exactly as in training.
+
+    The one place where detection prepares inputs: hole filling, the run's normalisation and grid
+    (``hdnet.data``), the same calls as ``HazardDataset.dem_sample`` and ``prepare``.
+    """
+    image = torch.from_numpy(run.normalisation.apply(fill_holes(np.asarray(dem_m, np.float32))))[None]
+    image, _ = to_network_grid(image, [], run.input_size, [])
+    return image[None].contiguous()
+
+
+def network_output(mean_probs: torch.Tensor, run: DetectRun) -> torch.Tensor:
+    """Network-grid mean softmax (N, C, H, W) back to the DEM grid (``hdnet.data.to_dem_grid``)."""
+    return to_dem_grid(mean_probs, run.dem_shape, run.input_size)
+
+
+def baseline_p_safe(dem_m: np.ndarray, spacing_m: float, sigma_m: float, labeling: dict[str, Any]) -> np.ndarray:
+    """The ALHAT P(safe) baseline of a DEM (float32, NaN where invalid) for a run's labelling entry.
+
+    The one place where detection calls the baseline: the labelling entry says which lander (and
+    label convention) the run was trained with.
+    """
+    return safety_probability(dem_m, spacing_m, sigma_m, lander_of(labeling))
+
+
+def overlap_px(lander: Lander, spacing_m: float) -> int:
+    """Minimum tile overlap (cells): the lander diameter plus the invalid border on both sides.
+
+    The cut between tiles is the middle of the overlap, so every kept cell is at least one lander
+    radius plus the border band (cells whose labels were invalid in training) from its tile's edge.
+    """
+    return int(math.ceil(lander.diameter_m / spacing_m - 1e-9)) + 2 * geometry(lander, spacing_m).band_px
+
+
+# --- inputs ----------------------------------------------------------------------------------------
+class _Terrain:
+    """The grid detection runs on: heights by window, georeferencing, provenance."""
+
+    shape: tuple[int, int]
+    transform: Affine
+    crs_wkt: str
+    spacing_xy_m: tuple[float, float]
+    scan_frame: bool  # heights are already in a scan frame (no re-referencing)
+    provenance: dict[str, Any]
+
+    def read(self, row0: int, col0: int, rows: int, cols: int) -> np.ndarray:
+        raise NotImplementedError
+
+    def hillshade_heights(self, max_px: int) -> tuple[np.ndarray, float]:
+        """Heights decimated to at most ``max_px`` per side (metres, NaN invalid) and their cell size (m)."""
+        raise NotImplementedError
+
+    def close(self) -> None:
+        pass
+
+
+class _DtmTerrain(_Terrain):
+    def __init__(self, path: Path, run: DetectRun) -> None:
+        with DTM.open(path) as probe:
+            info = probe.info
+        sx, sy = info.spacing_m
+        if abs(sx - sy) > SPACING_TOLERANCE * min(sx, sy):
+            raise TerrainError(f"{info.path}: has non-square cells ({sx:g} m x {sy:g} m); warp it to square cells "
+                               "first, e.g. with gdalwarp -tr")
+        coarse = max(sx, sy)
+        if coarse > run.spacing_m * (1.0 + SPACING_TOLERANCE):
+            raise TerrainError(f"{info.path}: its {coarse:g} m cells are coarser than the run's DEM spacing "
+                               f"({run.spacing_m:g} m/px); use a DTM of at most {run.spacing_m:g} m/px "
+                               "(hd detect resamples finer DTMs, it does not invent detail)")
+        self.scale = min(1.0, coarse / run.spacing_m)  # spacing / scale = the run's spacing
+        self.path = Path(info.path)
+        self.dtm = DTM.open(path, scale=self.scale)
+        try:
+            self._describe(info, run)
+        except BaseException:
+            self.dtm.close()
+            raise
+
+    def _describe(self, info: Any, run: DetectRun) -> None:
+        sx, sy = info.spacing_m
+        i = self.dtm.info
+        self.shape = (i.rows, i.cols)
+        self.transform = Affine(*i.transform)
+        self.crs_wkt = i.crs_wkt
+        self.spacing_xy_m = (float(i.spacing_m[0]), float(i.spacing_m[1]))
+        self.scan_frame = False
+        self.provenance = {"kind": "dtm", "path": str(self.path), "name": i.name, "sha256": self.dtm.sha256(),
+                           "driver": i.driver, "source_spacing_m": [sx, sy], "scale": self.scale,
+                           "source_transform": list(info.transform), "source_shape": [info.rows, info.cols]}
+        self._check_fits(run)
+
+    def _check_fits(self, run: DetectRun) -> None:
+        """Refuse a DTM with no lander-footprint-sized square of valid cells (as build-dataset does for scans)."""
+        b = geometry(run.lander, run.spacing_m).band_px
+        need = 2 * b + 1
+        rows, cols = self.shape
+        sx, sy = self.spacing_xy_m
+        name = self.dtm.info.name
+        if rows < need or cols < need:
+            raise TerrainError(
+                f"{name} is too small for the lander footprint: a {run.lander.diameter_m:g} m lander needs "
+                f"{need} x {need} cells of valid terrain at {run.spacing_m:g} m/px, the DTM covers "
+                f"{cols * sx:.0f} m x {rows * sy:.0f} m ({rows} x {cols} cells); use a larger DTM")
+        valid, _ = self.dtm.validity_overview(max(sx, sy))  # "every cell is nodata" from here
+        fits = ndimage.binary_erosion(valid, structure=np.ones((need, need), bool), border_value=0)
+        if not fits.any():
+            raise TerrainError(
+                f"{name} is too small for the lander footprint: a {run.lander.diameter_m:g} m lander needs "
+                f"{need} x {need} cells of valid terrain at {run.spacing_m:g} m/px and the DTM has no such "
+                "valid square; use a larger DTM")
+
+    def read(self, row0: int, col0: int, rows: int, cols: int) -> np.ndarray:
+        return self.dtm.read(row0, col0, rows, cols)
+
+    def hillshade_heights(self, max_px: int) -> tuple[np.ndarray, float]:
+        rows, cols = self.shape
+        factor = min(1.0, max_px / max(rows, cols))
+        if factor >= 1.0:
+            return self.dtm.read(0, 0, rows, cols), float(np.mean(self.spacing_xy_m))
+        with DTM.open(self.path, scale=self.scale * factor) as small:
+            return small.read(0, 0, small.info.rows, small.info.cols), float(np.mean(small.info.spacing_m))
+
+    def close(self) -> None:
+        self.dtm.close()
+
+
+class _ScanTerrain(_Terrain):
+    """One scan's noisy DEM at one noise level (scan frame: origin at nadir, x east, y north, metres)."""
+
+    def __init__(self, dataset: Path, scan: int, sigma_m: float, labels: str | None, run: DetectRun) -> None:
+        entry, paths = open_labeling(dataset, labels)
+        sigmas = dataset_sigmas(paths)
+        k = sigma_index(sigmas, sigma_m)
+        spacing = dem_spacing_m(entry)
+        if abs(spacing - run.spacing_m) > SPACING_TOLERANCE * run.spacing_m:
+            raise HdNetError(f"{dataset}: its DEMs are at {spacing:g} m/px, the run was trained at {run.spacing_m:g} m/px.")
+        if isinstance(scan, bool) or not isinstance(scan, int):
+            raise HdNetError(f"the scan index must be an integer, got {scan!r}.")
+        found = None
+        all_scans: list[int] = []
+        for path in paths:
+            with h5py.File(path, "r") as f:
+                scans = f["scan_index"][:]
+                all_scans += scans.tolist()
+                rows = np.flatnonzero(scans == scan)
+                if rows.size:
+                    r = int(rows[0])
+                    found = (path, f["dem_noisy"][r, k].astype(np.float32), int(f["split"][r]))
+        if found is None:
+            span = f"scans {min(all_scans)}..{max(all_scans)}" if all_scans else "no scans"
+            raise HdNetError(f"scan {scan} is not in {dataset} ({span}).")
+        self.dem = found[1]
+        h, w = self.dem.shape
+        self.shape = (h, w)
+        self.transform = Affine(spacing, 0.0, -w * spacing / 2.0, 0.0, -spacing, h * spacing / 2.0)
+        self.crs_wkt = ""
+        self.spacing_xy_m = (spacing, spacing)
+        self.scan_frame = True
+        manifest = read_manifest(dataset)
+        origin = _origin_map(dataset, manifest, scan)
+        self.provenance = {
+            "kind": "scan", "dataset": str(Path(dataset).resolve()), "manifest_sha256": sha256_file(Path(dataset) / MANIFEST_NAME),
+            "labels": str(entry["name"]), "scan_index": scan, "split": ("train", "val", "test")[found[2]],
+            "sigma_m": sigmas[k], "label_shard": Path(found[0]).name, "origin_map": origin,
+            "dtm_crs_wkt": manifest.get("dtm", {}).get("crs_wkt", ""),
+            "frame": "scan frame: origin at the nadir point on the reference height (origin_map); x east, y north; metres",
+        }
+        self.sigma_m = sigmas[k]
+        self.labels = str(entry["name"])
+
+    def read(self, row0: int, col0: int, rows: int, cols: int) -> np.ndarray:
+        out = np.full((rows, cols), np.nan, np.float64)
+        h, w = self.shape
+        r0, r1, c0, c1 = max(row0, 0), min(row0 + rows, h), max(col0, 0), min(col0 + cols, w)
+        if r0 < r1 and c0 < c1:
+            out[r0 - row0 : r1 - row0, c0 - col0 : c1 - col0] = self.dem[r0:r1, c0:c1]
+        return out
+
+    def hillshade_heights(self, max_px: int) -> tuple[np.ndarray, float]:
+        return self.dem.astype(np.float64), self.spacing_xy_m[0]
+
+
+def _origin_map(dataset: Path, manifest: dict[str, Any], scan: int) -> list[float] | None:
+    """Map coordinates (metres) of a scan's frame origin, from its scan shard (None if not found)."""
+    for shard in manifest.get("shards", []):
+        first, n = int(shard.get("first_scan", -1)), int(shard.get("n_scans", 0))
+        if first <= scan < first + n:
+            try:
+                with h5py.File(Path(dataset) / shard["path"], "r") as f:
+                    return [float(v) for v in f["origin_map"][scan - first]]
+            except (OSError, KeyError):
+                return None
+    return None
+
+
+# --- options -----------------------------------------------------------------------------------------
+def _check_int(name: str, value: Any, low: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < low:
+        raise HdNetError(f"{name} must be an integer >= {low}, got {value!r}.")
+    return value
+
+
+def _fixed_threshold(spec: str) -> float | None:
+    """H_t of a ``nats:H`` spec (H >= 0 nats, 'inf' allowed), or None for the calibrated specs."""
+    match = _FIXED.match(spec.strip().lower()) if isinstance(spec, str) else None
+    if match is None:
+        return None
+    try:
+        value = float(match.group(1))
+    except ValueError:
+        raise HdNetError(f"threshold spec {spec!r}: {match.group(1)!r} is not a number of nats.") from None
+    if not value >= 0.0:
+        raise HdNetError(f"threshold spec {spec!r}: the entropy threshold must be >= 0 nats.")
+    return value
+
+
+def _check_out_dir(out: Path, overwrite: bool) -> None:
+    if out.exists() and not out.is_dir():
+        raise HdNetError(f"{out} exists and is not a directory.")
+    if out.is_dir() and any(out.iterdir()) and not overwrite:
+        raise HdNetError(f"{out} is not empty; pass --overwrite to replace it.")
+
+
+@contextmanager
+def _staging(out: Path) -> Iterator[Path]:
+    """A temporary directory beside ``out``, renamed to ``out`` when the block succeeds, removed otherwise."""
+    created: list[Path] = []
+    parent = out.parent
+    while not parent.exists():
+        created.append(parent)
+        parent = parent.parent
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.detect-", dir=out.parent))
+    try:
+        yield tmp
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o777 & ~umask)
+        if out.exists():
+            old = out.parent / f".{out.name}.old-{uuid.uuid4().hex}"
+            os.replace(out, old)
+            os.replace(tmp, out)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        for d in created:  # innermost first; only directories this call made, and only if still empty
+            try:
+                d.rmdir()
+            except OSError:
+                break
+        raise
+
+
+# --- sites -----------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Site:
+    """A proposed landing site: rank (1 = best), map position of its cell centre (metres, input CRS),
+    footprint-mean P(safe), footprint-max entropy (nats), clearance (metres) and baseline P(safe)."""
+
+    rank: int
+    x: float
+    y: float
+    p_safe: float
+    entropy_max: float
+    clearance_m: float
+    baseline_p_safe: float
+    row: int
+    col: int
+
+    def columns(self) -> dict[str, float | int]:
+        return {k: getattr(self, k) for k in SITE_COLUMNS}
+
+
+def body_disk(lander: Lander, spacing_m: float) -> np.ndarray:
+    """(2r+1, 2r+1) bool: the cells under the lander body centred on the middle cell (``hdlabels`` geometry)."""
+    geo = geometry(lander, spacing_m)
+    r = int(max(np.abs(geo.body_di).max(), np.abs(geo.body_dj).max()))
+    disk = np.zeros((2 * r + 1, 2 * r + 1), bool)
+    disk[geo.body_di + r, geo.body_dj + r] = True
+    return disk
+
+
+def select_sites(
+    safety: np.ndarray, p_safe: np.ndarray, entropy: np.ndarray, baseline: np.ndarray, transform: Affine,
+    spacing_xy_m: tuple[float, float], lander: Lander, n_sites: int,
+) -> list[Site]:
+    """Ranked, non-overlapping landing sites of a safety map.
+
+    A site is a cell whose whole lander body disk is safe and certain (``safety == 1``); its
+    ``p_safe`` is the mean P(safe) over the disk, ``entropy_max`` the largest entropy there,
+    ``clearance_m`` the distance between cell centres to the nearest unsafe, uncertain or invalid
+    cell (cells outside the grid count as invalid), ``baseline_p_safe`` the baseline at the site.
+    Greedy: best first by (P(safe) rounded to ``SITE_RANK_DECIMALS``, clearance, north, west); each
+    site removes every candidate closer than one lander diameter; at most ``n_sites``.
+    """
+    sx, sy = spacing_xy_m
+    disk = body_disk(lander, float(np.sqrt(sx * sy)))
+    clear = safety == SAFETY_SAFE
+    candidate = ndimage.binary_erosion(clear, structure=disk, border_value=0)
+    if not candidate.any():
+        return []
+    weights = disk / disk.sum()
+    p_mean = ndimage.correlate(np.where(clear, p_safe, 0.0).astype(np.float64), weights, mode="constant", cval=0.0)
+    h_max = ndimage.maximum_filter(np.where(clear, entropy, np.inf).astype(np.float32), footprint=disk,
+                                   mode="constant", cval=np.inf)
+    padded = np.pad(clear, 1, constant_values=False)  # outside the grid counts as invalid
+    clearance = ndimage.distance_transform_edt(padded, sampling=(sy, sx))[1:-1, 1:-1]
+    rows, cols = np.nonzero(candidate)
+    p_c, c_c = p_mean[rows, cols], clearance[rows, cols]
+    order = np.lexsort((cols, rows, -c_c, -np.round(p_c, SITE_RANK_DECIMALS)))
+    d = lander.diameter_m
+    ri = int(math.ceil(d / sy))
+    rj = int(math.ceil(d / sx))
+    di, dj = np.mgrid[-ri : ri + 1, -rj : rj + 1]
+    too_close = (di * sy) ** 2 + (dj * sx) ** 2 < d * d * (1.0 - 1e-12)
+    free = candidate.copy()
+    h, w = free.shape
+    sites: list[Site] = []
+    for k in order:
+        r, c = int(rows[k]), int(cols[k])
+        if not free[r, c]:
+            continue
+        x, y = transform @ (c + 0.5, r + 0.5)
+        sites.append(Site(len(sites) + 1, float(x), float(y), float(p_c[k]), float(h_max[r, c]), float(c_c[k]),
+                          float(baseline[r, c]), r, c))
+        if len(sites) == n_sites:
+            break
+        r0, r1, c0, c1 = max(r - ri, 0), min(r + ri + 1, h), max(c - rj, 0), min(c + rj + 1, w)
+        free[r0:r1, c0:c1] &= ~too_close[r0 - r + ri : r1 - r + ri, c0 - c + rj : c1 - c + rj]
+    return sites
+
+
+def _sites_csv(sites: list[Site]) -> str:
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(SITE_COLUMNS)
+    for s in sites:
+        writer.writerow([s.rank, f"{s.x:.3f}", f"{s.y:.3f}", f"{s.p_safe:.6f}", f"{s.entropy_max:.6f}",
+                         f"{s.clearance_m:.3f}", "" if not math.isfinite(s.baseline_p_safe) else f"{s.baseline_p_safe:.6f}"])
+    return buf.getvalue()
+
+
+def _sites_geojson(sites: list[Site], crs_wkt: str) -> dict[str, Any]:
+    collection: dict[str, Any] = {"type": "FeatureCollection", "features": [
+        {"type": "Feature", "geometry": {"type": "Point", "coordinates": [round(s.x, 3), round(s.y, 3)]},
+         "properties": json_plain(s.columns())} for s in sites]}
+    if crs_wkt:
+        from rasterio.crs import CRS
+
+        epsg = CRS.from_wkt(crs_wkt).to_epsg()
+        if epsg:  # GeoJSON 2008 named CRS: the coordinates are in the DTM's CRS, not WGS 84
+            collection["crs"] = {"type": "name", "properties": {"name": f"urn:ogc:def:crs:EPSG::{epsg}"}}
+    return collection
+
+
+# --- the detection ---------------------------------------------------------------------------------
+@dataclass
+class DetectResult:
+    """What ``detect`` wrote and measured (``detect.json`` holds ``info``)."""
+
+    out_dir: Path
+    sites: list[Site]
+    threshold_nats: float
+    counts: dict[str, int]
+    timings_s: dict[str, float]
+    info: dict[str, Any] = field(repr=False)
+
+    def summary(self) -> str:
+        valid = sum(v for k, v in self.counts.items() if k != "invalid")
+        pct = {k: 100.0 * v / valid if valid else 0.0 for k, v in self.counts.items() if k != "invalid"}
+        t = "unbounded" if not math.isfinite(self.threshold_nats) else f"{self.threshold_nats:.4f} nats"
+        best = (f"; best site #1 at ({self.sites[0].x:.1f}, {self.sites[0].y:.1f}) P(safe) {self.sites[0].p_safe:.3f}, "
+                f"clearance {self.sites[0].clearance_m:.1f} m") if self.sites else "; no site: no lander footprint is wholly safe and certain"
+        return (f"{self.out_dir}: {pct['safe']:.1f}% safe, {pct['unsafe']:.1f}% unsafe, {pct['uncertain']:.1f}% uncertain "
+                f"of {valid} valid cells (H_t {t}); {len(self.sites)} site(s){best}; "
+                f"{self.timings_s['total']:.1f} s")
+
+
+def detect(
+    run_dir: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    *,
+    dtm: str | os.PathLike | None = None,
+    dataset: str | os.PathLike | None = None,
+    scan: int | None = None,
+    mc_samples: int = defaults.MC_SAMPLES,
+    threshold: str = defaults.THRESHOLD_SPEC,
+    sigma_m: float | None = None,
+    n_sites: int = 10,
+    overwrite: bool = False,
+    seed: int = 0,
+    batch_size: int = 8,
+    labels: str | None = None,
+    device: str | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> DetectResult:
+    """Hazard maps and ranked landing sites of a DTM (``dtm``) or of one scan (``dataset`` + ``scan``).
+
+    ``sigma_m`` (metres): the baseline's DEM noise (default: the run's training sigma); with a scan,
+    also the noise level of the DEM taken. ``threshold``: ``mean``, ``quantile:Q``, ``risk:ALPHA``
+    (calibrated on the validation split at the training sigma of the run's dataset, or of
+    ``dataset`` with a scan, as ``hd eval`` does) or ``nats:H`` (fixed). ``progress`` is called with
+    (tiles done, tiles total).
+
+    Raises:
+        HdNetError / TerrainError: bad options, a missing or foreign run, an unusable DTM (geographic
+        CRS, coarser than the run's spacing, smaller than one lander footprint, all nodata), a scan
+        not in the dataset, or a non-empty ``out_dir`` without ``overwrite``. Nothing is written then.
+    """
+    t_start = time.perf_counter()
+    out = Path(out_dir)
+    fixed = _fixed_threshold(threshold)
+    spec = parse_threshold_spec(threshold) if fixed is None else None
+    _check_int("the number of MC samples", mc_samples, 1)
+    _check_int("the number of sites", n_sites, 1)
+    _check_int("the batch size", batch_size, 1)
+    if sigma_m is not None and not (isinstance(sigma_m, (int, float)) and math.isfinite(sigma_m) and sigma_m >= 0):
+        raise HdNetError(f"sigma must be a finite number of metres >= 0, got {sigma_m!r}.")
+    if (dtm is None) == (dataset is None):
+        raise HdNetError("give either a DTM (--dtm) or a dataset and a scan (--data with --scan).")
+    if dataset is not None and scan is None:
+        raise HdNetError("--data needs --scan: the index of the scan whose noisy DEM to use.")
+    if dtm is not None and scan is not None:
+        raise HdNetError("--scan goes with --data, not with --dtm.")
+    _check_out_dir(out, overwrite)
+    dev = torch.device(device) if device else torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    run = load_run(run_dir, dev)
+    baseline_sigma = run.train_sigma_m if sigma_m is None else float(sigma_m)
+
+    terrain: _Terrain
+    if dtm is not None:
+        terrain = _DtmTerrain(Path(dtm), run)
+        calib_dir, calib_labels = run.dataset, run.labels
+    else:
+        lab = labels if labels is not None else preferred_labeling(dataset, run.labels)  # type: ignore[arg-type]
+        terrain = _ScanTerrain(Path(dataset), int(scan) if not isinstance(scan, bool) else scan, baseline_sigma,  # type: ignore[arg-type]
+                               lab, run)
+        baseline_sigma = terrain.sigma_m
+        calib_dir, calib_labels = Path(dataset), terrain.labels  # type: ignore[arg-type]
+    try:
+        if spec is not None and calib_dir is None:
+            raise HdNetError(f"the {spec} threshold is calibrated on the run's validation split, but its dataset "
+                             f"{run.ckpt.get('extra_config', {}).get('dataset')} is not present; restore it or give "
+                             "a fixed threshold, e.g. --threshold nats:0.3.")
+        plan = TilePlan.make(terrain.shape, run.dem_shape, overlap_px(run.lander, run.spacing_m))
+        with _staging(out) as tmp:
+            timings: dict[str, float] = {}
+            t0 = time.perf_counter()
+            if spec is not None:
+                val_ds = split_dataset(calib_dir, "val", run.train_sigma_m, input_size=run.input_size,  # type: ignore[arg-type]
+                                       labels=calib_labels, normalisation=run.normalisation, seed=seed)
+                th = validation_threshold(run.model, val_ds, spec, mc_samples=mc_samples, batch_size=batch_size,
+                                          seed=seed, device=dev)
+                h_t, threshold_info = th.value_nats, dict(th.info, calibration_dataset=str(Path(calib_dir).resolve()),  # type: ignore[arg-type]
+                                                          calibration_labels=calib_labels)
+            else:
+                h_t = float(fixed)  # type: ignore[arg-type]
+                threshold_info = {"spec": f"nats:{h_t:g}", "kind": "fixed", "parameter": h_t, "value_nats": h_t}
+            timings["calibration"] = time.perf_counter() - t0
+            counts, map_timings = _write_maps(tmp, terrain, run, plan, h_t, baseline_sigma, mc_samples, batch_size,
+                                              seed, dev, progress)
+            timings |= map_timings
+            t0 = time.perf_counter()
+            maps = {name: _read_map(tmp / name) for name in MAP_FILES}
+            sites = select_sites(maps["safety.tif"], maps["p_safe.tif"], maps["entropy.tif"], maps["baseline_p_safe.tif"],
+                                 terrain.transform, terrain.spacing_xy_m, run.lander, n_sites)
+            del maps
+            (tmp / "sites.csv").write_text(_sites_csv(sites))
+            (tmp / "sites.geojson").write_text(json.dumps(_sites_geojson(sites, terrain.crs_wkt), indent=1) + "\n")
+            timings["sites"] = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            _overview(tmp, terrain, sites, run, h_t)
+            timings["overview"] = time.perf_counter() - t0
+            timings["total"] = time.perf_counter() - t_start
+            info = _info(run, terrain, plan, threshold_info, baseline_sigma, mc_samples, seed, counts, sites, timings)
+            (tmp / "detect.json").write_text(json.dumps(json_plain(info), indent=2) + "\n")
+    finally:
+        terrain.close()
+    return DetectResult(out, sites, h_t, counts, {k: round(v, 3) for k, v in timings.items()}, info)
+
+
+def _read_map(path: Path) -> np.ndarray:
+    with rasterio.open(path) as src:
+        return src.read(1)
+
+
+def _write_maps(
+    tmp: Path, terrain: _Terrain, run: DetectRun, plan: TilePlan, h_t: float, sigma_m: float, mc_samples: int,
+    batch_size: int, seed: int, dev: torch.device, progress: Callable[[int, int], None] | None,
+) -> tuple[dict[str, int], dict[str, float]]:
+    """Step 3: every row of tiles through the network and the baseline, owned crops written to the four maps."""
+    spacing = float(np.sqrt(terrain.spacing_xy_m[0] * terrain.spacing_xy_m[1]))
+    counts = {"safe": 0, "unsafe": 0, "uncertain": 0, "invalid": 0}
+    t_read = t_net = t_base = t_write = 0.0
+    done = 0
+    torch.manual_seed(seed)
+    profiles = {
+        name: geotiff_profile(terrain.shape, terrain.transform, terrain.crs_wkt, dtype=("uint8" if name == "safety.tif" else "float32"),
+                              nodata=(SAFETY_INVALID if name == "safety.tif" else float("nan")))
+        for name in MAP_FILES
+    }
+    with _writers(tmp, profiles) as dst:
+        if progress:
+            progress(0, plan.n_tiles)
+        for (r_lo, r_hi), tiles in plan.strips():
+            n_rows, n_cols = r_hi - r_lo, terrain.shape[1]
+            strip = {"p": np.full((n_rows, n_cols), np.nan, np.float32), "h": np.full((n_rows, n_cols), np.nan, np.float32),
+                     "b": np.full((n_rows, n_cols), np.nan, np.float32), "s": np.full((n_rows, n_cols), SAFETY_INVALID, np.uint8)}
+            for start in range(0, len(tiles), batch_size):
+                batch = tiles[start : start + batch_size]
+                t0 = time.perf_counter()
+                dems = [terrain.read(t.row0, t.col0, t.rows, t.cols) for t in batch]
+                t_read += time.perf_counter() - t0
+                live = [k for k, d in enumerate(dems) if np.isfinite(d).any()]
+                if live:
+                    t0 = time.perf_counter()
+                    x = torch.cat([network_input(_scan_frame(dems[k], terrain), run) for k in live]).to(dev)
+                    probs = network_output(mc_dropout_predict(run.model, x, n_samples=mc_samples).mean_probs.float(), run).cpu()
+                    p_all = probs[:, defaults.CLASS_SAFE].numpy()
+                    h_all = predictive_entropy(probs).numpy()
+                    safe_all = (probs.argmax(dim=1) == defaults.CLASS_SAFE).numpy()
+                    t_net += time.perf_counter() - t0
+                for j, k in enumerate(live):
+                    tile = batch[k]
+                    t0 = time.perf_counter()
+                    base = baseline_p_safe(dems[k], spacing, sigma_m, run.labeling)
+                    t_base += time.perf_counter() - t0
+                    crop = tile.crop
+                    valid = np.isfinite(base[crop])
+                    safety = np.where(safe_all[j][crop], SAFETY_SAFE, SAFETY_UNSAFE).astype(np.uint8)
+                    safety[uncertain_mask(torch.from_numpy(h_all[j][crop]), h_t).numpy()] = SAFETY_UNCERTAIN
+                    safety[~valid] = SAFETY_INVALID
+                    out = (slice(None), slice(tile.own_cols[0], tile.own_cols[1]))
+                    strip["p"][out] = np.where(valid, p_all[j][crop], np.nan)
+                    strip["h"][out] = np.where(valid, h_all[j][crop], np.nan)
+                    strip["b"][out] = base[crop]
+                    strip["s"][out] = safety
+                done += len(batch)
+                if progress:
+                    progress(done, plan.n_tiles)
+            t0 = time.perf_counter()
+            window = Window(0, r_lo, n_cols, n_rows)
+            for name, key in zip(MAP_FILES, ("p", "h", "s", "b")):
+                dst[name].write(strip[key], 1, window=window)
+            t_write += time.perf_counter() - t0
+            for name, code in (("unsafe", SAFETY_UNSAFE), ("safe", SAFETY_SAFE), ("uncertain", SAFETY_UNCERTAIN),
+                               ("invalid", SAFETY_INVALID)):
+                counts[name] += int((strip["s"] == code).sum())
+    return counts, {"read": t_read, "network": t_net, "baseline": t_base, "write": t_write}
+
+
+def _scan_frame(dem_m: np.ndarray, terrain: _Terrain) -> np.ndarray:
+    """A DTM window in a scan frame: minus the mean of its valid heights (scan DEMs are already in one)."""
+    if terrain.scan_frame:
+        return dem_m
+    return dem_m - np.nanmean(dem_m)
+
+
+@contextmanager
+def _writers(tmp: Path, profiles: dict[str, dict[str, Any]]) -> Iterator[dict[str, Any]]:
+    opened: dict[str, Any] = {}
+    try:
+        for name, profile in profiles.items():
+            opened[name] = rasterio.open(tmp / name, "w", **profile)
+        yield opened
+    finally:
+        for d in opened.values():
+            d.close()
+
+
+def _overview(tmp: Path, terrain: _Terrain, sites: list[Site], run: DetectRun, h_t: float) -> None:
+    from hdnet.figures import detect_overview
+
+    heights, cell_m = terrain.hillshade_heights(OVERVIEW_MAX_PX)
+    with rasterio.open(tmp / "safety.tif") as src:
+        safety = src.read(1, out_shape=heights.shape, resampling=rasterio.enums.Resampling.nearest)
+    a, _, c, _, e, f = list(terrain.transform)[:6]
+    rows, cols = terrain.shape
+    left, right, top, bottom = c, c + a * cols, f, f + e * rows
+    name = terrain.provenance.get("name") or f"scan {terrain.provenance.get('scan_index')}"
+    t = "unbounded" if not math.isfinite(h_t) else f"{h_t:.3f} nats"
+    title = f"{name}: {len(sites)} site(s), lander {run.lander.diameter_m:g} m, H_t {t}"
+    detect_overview(heights, cell_m, safety, (left, right, bottom, top), sites, run.lander.radius_m, title,
+                    tmp / "overview.png")
+
+
+def _info(
+    run: DetectRun, terrain: _Terrain, plan: TilePlan, threshold_info: dict[str, Any], sigma_m: float,
+    mc_samples: int, seed: int, counts: dict[str, int], sites: list[Site], timings: dict[str, float],
+) -> dict[str, Any]:
+    extra = run.ckpt.get("extra_config") or {}
+    return {
+        "software": "hd", "software_version": __version__,
+        "run": {"checkpoint": str(run.checkpoint.resolve()), "epoch": int(run.ckpt.get("epoch", 0)),
+                "profile": run.ckpt.get("profile", {}).get("name"), "model_config": run.ckpt.get("model_config"),
+                "train_sigma_m": run.train_sigma_m, "input_size": run.input_size, "dataset": extra.get("dataset"),
+                "labels": run.labels, "dem_shape": list(run.dem_shape), "dem_spacing_m": run.spacing_m},
+        "input": terrain.provenance,
+        "grid": {"rows": terrain.shape[0], "cols": terrain.shape[1], "spacing_m": list(terrain.spacing_xy_m),
+                 "transform": list(terrain.transform)[:6], "crs_wkt": terrain.crs_wkt},
+        "lander": asdict(run.lander),
+        "threshold": threshold_info,
+        "baseline": {"sigma_m": sigma_m, "safe_if_p_safe_at_least": BASELINE_THRESHOLD},
+        "mc_samples": mc_samples, "seed": seed,
+        "tiling": plan.to_dict(),
+        "safety_codes": {"unsafe": SAFETY_UNSAFE, "safe": SAFETY_SAFE, "uncertain": SAFETY_UNCERTAIN, "invalid": SAFETY_INVALID},
+        "counts": counts,
+        "sites": [s.columns() for s in sites],
+        "site_rule": {"footprint": "lander body disk", "min_separation_m": run.lander.diameter_m,
+                      "rank_by": f"footprint-mean p_safe rounded to {SITE_RANK_DECIMALS} decimals, then clearance_m"},
+        "timings_s": {k: round(v, 3) for k, v in timings.items()},
+        "files": list(OUTPUT_FILES),
+    }

@@ -1,0 +1,484 @@
+"""hd detect: maps and sites for DTMs and scans, the contract with training and hd eval, bad input.
+
+Two runs: the tiny run trained for one epoch on the tiny dataset (``hdnet_datasets``), and a
+*constant* run made from it whose classifier ignores its input (zero weights, bias favouring
+"safe"), so that its safety map is "safe wherever valid" and sites depend only on the terrain's
+validity, which is hand-derivable.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rasterio
+import torch
+from click.testing import CliRunner
+from hdnet_datasets import build_labelled
+from rasterio.crs import CRS
+from rasterio.transform import from_origin
+
+from cli import main
+from hdlabels.grid import cell_centres
+from hdlabels.lander import Lander, geometry
+from hdlabels.store import find_labeling, label_shard_paths
+from hdnet import detect as detect_module
+from hdnet.data import HazardDataset, lander_of, to_dem_grid
+from hdnet.detect import (
+    MAP_FILES,
+    OUTPUT_FILES,
+    SAFETY_INVALID,
+    SAFETY_SAFE,
+    SAFETY_UNCERTAIN,
+    SAFETY_UNSAFE,
+    SITE_COLUMNS,
+    body_disk,
+    detect,
+    load_run,
+    network_input,
+    overlap_px,
+    select_sites,
+)
+from hdnet.errors import HdNetError
+from hdnet.evaluate import evaluate
+from hdnet.fit import fit
+from hdnet.infer import mc_dropout_predict
+from lidarsim.procedural import MarsTerrainParams, generate_mars_terrain, write_geotiff
+
+REAL = Path("/work/shared/data/real-terrain")
+needs_real = pytest.mark.skipif(not REAL.is_dir(), reason=f"{REAL} (the shared real terrains) is not present")
+CPU = torch.device("cpu")
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    root = tmp_path_factory.mktemp("detect")
+    dataset = build_labelled(root / "data")
+    run = root / "run"
+    fit(dataset, run, profile_name="tiny", epochs=1, progress=False)
+    ckpt = torch.load(run / "last.pt", weights_only=True)
+    ckpt["model"]["classifier.weight"].zero_()
+    ckpt["model"]["classifier.bias"] = torch.tensor([-3.0, 3.0])  # P(safe) = sigmoid(6) everywhere
+    constant = root / "constant.pt"
+    torch.save(ckpt, constant)
+    return dataset, run, constant
+
+
+def write_dtm(path: Path, z: np.ndarray, spacing: float, origin=(1000.0, 2000.0), crs=None, nodata=None) -> Path:
+    profile = {"driver": "GTiff", "width": z.shape[1], "height": z.shape[0], "count": 1, "dtype": "float32",
+               "transform": from_origin(origin[0], origin[1], spacing, spacing), "nodata": nodata}
+    if crs is not None:
+        profile["crs"] = crs
+    with rasterio.open(path, "w", **profile) as dst:
+        dst.write(z.astype(np.float32), 1)
+    return path
+
+
+def tilted_plane(n: int, spacing: float, slope_deg: float, azimuth_deg: float = 30.0) -> np.ndarray:
+    x, y = np.meshgrid(np.arange(n) * spacing, -np.arange(n) * spacing)
+    g = math.tan(math.radians(slope_deg))
+    a = math.radians(azimuth_deg)
+    return 50.0 + g * (math.cos(a) * x + math.sin(a) * y)
+
+
+def read(path: Path) -> tuple[np.ndarray, rasterio.DatasetReader]:
+    with rasterio.open(path) as src:
+        return src.read(1), src
+
+
+def profile_of(path: Path) -> dict:
+    with rasterio.open(path) as src:
+        t, (h, w) = src.transform, src.shape
+        return {"crs": src.crs, "transform": t, "shape": (h, w), "bounds": (t.c, t.f + t.e * h, t.c + t.a * w, t.f),
+                "dtype": src.dtypes[0], "nodata": src.nodata}
+
+
+def check_consistent_maps(out: Path, threshold_nats: float) -> dict[str, np.ndarray]:
+    """The four maps agree: one invalid set, codes from argmax and H >= H_t; returns them."""
+    maps = {name: read(out / name)[0] for name in MAP_FILES}
+    p, h, s, b = maps["p_safe.tif"], maps["entropy.tif"], maps["safety.tif"], maps["baseline_p_safe.tif"]
+    invalid = s == SAFETY_INVALID
+    assert set(np.unique(s)) <= {SAFETY_UNSAFE, SAFETY_SAFE, SAFETY_UNCERTAIN, SAFETY_INVALID}
+    for arr in (p, h, b):
+        np.testing.assert_array_equal(np.isnan(arr), invalid)
+    v = ~invalid
+    assert ((p[v] >= 0) & (p[v] <= 1)).all() and ((h[v] >= 0) & (h[v] <= math.log(2) + 1e-6)).all()
+    np.testing.assert_array_equal(s[v] == SAFETY_UNCERTAIN, h[v] >= threshold_nats)
+    certain = v & (s != SAFETY_UNCERTAIN)
+    np.testing.assert_array_equal(s[certain] == SAFETY_SAFE, p[certain] > 0.5)
+    return maps
+
+
+def check_sites(out: Path, lander: Lander) -> list[dict]:
+    """sites.csv == sites.geojson; every footprint safe and certain; one diameter apart; clearance by brute force."""
+    rows = list(csv.DictReader((out / "sites.csv").open()))
+    gj = json.loads((out / "sites.geojson").read_text())
+    assert gj["type"] == "FeatureCollection" and len(gj["features"]) == len(rows)
+    assert list(rows[0].keys()) == list(SITE_COLUMNS) if rows else (out / "sites.csv").read_text().strip() == ",".join(SITE_COLUMNS)
+    safety, src = read(out / "safety.tif")
+    transform = src.transform
+    dx, dy = transform.a, -transform.e
+    disk = body_disk(lander, 1.0)
+    r = disk.shape[0] // 2
+    bad_r, bad_c = np.nonzero(safety != SAFETY_SAFE)
+    pos = []
+    for k, (row, feat) in enumerate(zip(rows, gj["features"])):
+        assert int(row["rank"]) == k + 1 == feat["properties"]["rank"]
+        x, y = float(row["x"]), float(row["y"])
+        assert feat["geometry"] == {"type": "Point", "coordinates": [pytest.approx(x), pytest.approx(y)]}
+        for col in SITE_COLUMNS[3:]:
+            assert feat["properties"][col] == pytest.approx(float(row[col]), abs=1e-6)
+        c, rr = ~transform @ (x, y)
+        ci, ri = int(math.floor(c)), int(math.floor(rr))
+        assert abs(c - ci - 0.5) < 1e-6 and abs(rr - ri - 0.5) < 1e-6  # a cell centre
+        window = safety[ri - r : ri + r + 1, ci - r : ci + r + 1]
+        assert window.shape == disk.shape and (window[disk] == SAFETY_SAFE).all()  # never overlaps a bad cell
+        brute = np.sqrt(((bad_r - ri) * dy) ** 2 + ((bad_c - ci) * dx) ** 2).min()
+        assert float(row["clearance_m"]) == pytest.approx(brute, abs=1e-3)
+        pos.append((x, y))
+    for i in range(len(pos)):
+        for j in range(i):
+            assert math.dist(pos[i], pos[j]) >= lander.diameter_m - 1e-9
+    return rows
+
+
+# --- the contract with training and evaluation ------------------------------------------------------
+@pytest.mark.parametrize("input_size", [None, 64])
+def test_network_input_is_exactly_the_training_input(trained, input_size):
+    dataset, run_dir, _ = trained
+    run = dataclasses.replace(load_run(run_dir, CPU), input_size=input_size)
+    ds = HazardDataset(dataset, "val", 0.07, input_size=input_size, normalisation=run.normalisation)
+    for i in range(len(ds)):
+        sample = ds.dem_sample(i)
+        expected = ds.prepare(sample)["image"]
+        torch.testing.assert_close(network_input(sample.dem_noisy_m, run)[0], expected, rtol=0, atol=0)
+
+
+def test_run_records_its_lander_and_old_runs_fall_back_to_their_dataset(trained, tmp_path):
+    dataset, run_dir, _ = trained
+    run = load_run(run_dir, CPU)
+    entry = find_labeling(dataset)
+    assert run.lander == lander_of(entry) and run.spacing_m == 1.0 and run.dem_shape == (100, 100)
+    ckpt = torch.load(run_dir / "last.pt", weights_only=True)
+    del ckpt["extra_config"]["labeling"]  # a run trained before the labelling was recorded
+    torch.save(ckpt, tmp_path / "old.pt")
+    assert load_run(tmp_path / "old.pt", CPU).labeling["lander"] == entry["lander"]
+    ckpt["extra_config"]["dataset"] = str(tmp_path / "gone")
+    torch.save(ckpt, tmp_path / "old-gone.pt")
+    with pytest.raises(HdNetError, match="does not record its lander"):
+        load_run(tmp_path / "old-gone.pt", CPU)
+
+
+def test_scan_mode_is_the_evaluation_path(trained, tmp_path):
+    """One scan's maps equal MC dropout on HazardDataset's input; the baseline equals the label shard's."""
+    dataset, run_dir, _ = trained
+    entry = find_labeling(dataset)
+    path = label_shard_paths(dataset, entry)[0]
+    import h5py
+
+    with h5py.File(path) as f:
+        scan, k_sigma = int(f["scan_index"][3]), 1
+        stored_p = f["p_safe"][3, k_sigma]
+    out = tmp_path / "scan"
+    result = detect(run_dir, out, dataset=dataset, scan=scan, sigma_m=0.07, threshold="nats:0.5", mc_samples=4, seed=3)
+    assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUT_FILES)
+    run = load_run(run_dir, CPU)
+    ds = next(d for d in (HazardDataset(dataset, s, 0.07, normalisation=run.normalisation) for s in ("train", "val", "test"))
+              if scan in d.scan_indices)
+    sample = ds.dem_sample(ds.scan_indices.index(scan))
+    torch.manual_seed(3)
+    probs = to_dem_grid(mc_dropout_predict(run.model, ds.prepare(sample)["image"][None], n_samples=4).mean_probs, (100, 100), None)
+    maps = check_consistent_maps(out, 0.5)
+    valid = maps["safety.tif"] != SAFETY_INVALID
+    np.testing.assert_allclose(maps["p_safe.tif"][valid], probs[0, 1].numpy()[valid], rtol=0, atol=1e-6)
+    np.testing.assert_array_equal(maps["baseline_p_safe.tif"], stored_p)  # same DEM, sigma, lander: same numbers
+    prof = profile_of(out / "p_safe.tif")
+    x, y = cell_centres((100, 100), 1.0)  # the scan frame of the label shards
+    assert prof["crs"] is None and prof["transform"] @ (0.5, 0.5) == (x[0], y[0]) and prof["shape"] == (100, 100)
+    info = json.loads((out / "detect.json").read_text())
+    assert info["input"]["kind"] == "scan" and info["input"]["scan_index"] == scan and info["input"]["sigma_m"] == 0.07
+    assert len(info["input"]["origin_map"]) == 3 and info["threshold"]["value_nats"] == 0.5
+    assert result.threshold_nats == 0.5
+
+
+def test_threshold_is_calibrated_as_hd_eval_does(trained, tmp_path):
+    dataset, run_dir, _ = trained
+    report = evaluate(run_dir, dataset, tmp_path / "report", mc_samples=3, threshold="quantile:0.3", seed=5,
+                      batch_size=8, figures=False)
+    dtm = write_dtm(tmp_path / "hill.tif", tilted_plane(40, 1.0, 3.0), 1.0)
+    result = detect(run_dir, tmp_path / "out", dtm=dtm, mc_samples=3, threshold="quantile:0.3", seed=5)
+    info = json.loads((tmp_path / "out" / "detect.json").read_text())["threshold"]
+    assert result.threshold_nats == pytest.approx(report.threshold["value_nats"], rel=0, abs=0)
+    for key in ("spec", "mean_nats", "calibration_split", "calibration_sigma_m", "calibration_images", "calibration_pixels"):
+        assert info[key] == report.threshold[key]
+    check_consistent_maps(tmp_path / "out", result.threshold_nats)
+
+
+# --- DTMs ---------------------------------------------------------------------------------------------
+@needs_real
+@pytest.mark.parametrize("name,crs", [("autzen-ground-1m.tif", None), ("ames-0.5m.tif", CRS.from_epsg(32610))])
+def test_real_terrain_maps_cover_the_input_with_its_crs(trained, tmp_path, name, crs):
+    _, run_dir, _ = trained
+    out = tmp_path / "out"
+    calls = []
+    result = detect(run_dir, out, dtm=REAL / name, mc_samples=2, progress=lambda d, t: calls.append((d, t)))
+    assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUT_FILES)
+    src = profile_of(REAL / name)
+    with rasterio.open(REAL / name) as s:
+        z = s.read(1, masked=True)
+        nodata = np.ma.getmaskarray(z) | ~np.isfinite(z.filled(0))
+    for f in MAP_FILES:
+        prof = profile_of(out / f)
+        assert prof["crs"] == crs and prof["dtype"] == ("uint8" if f == "safety.tif" else "float32")
+        for a, b in zip(prof["bounds"], src["bounds"]):
+            assert a == pytest.approx(b, abs=1e-6)  # the input's extent, exactly
+        assert abs(prof["transform"].a - 1.0) <= 0.02 and abs(-prof["transform"].e - 1.0) <= 0.02  # run spacing
+    maps = check_consistent_maps(out, result.threshold_nats)
+    safety = maps["safety.tif"]
+    assert (safety != SAFETY_INVALID).sum() > 1000  # plenty of valid cells
+    if name.startswith("autzen"):  # same 1 m grid: every nodata cell is invalid, and its footprint too
+        assert (safety[nodata] == SAFETY_INVALID).all()
+        grown = np.zeros_like(nodata)
+        b = geometry(Lander(), 1.0).band_px
+        for r, c in zip(*np.nonzero(nodata)):
+            grown[max(r - b, 0) : r + b + 1, max(c - b, 0) : c + b + 1] = True
+        assert (safety[grown & ~nodata] != SAFETY_SAFE).sum() <= (safety[grown & ~nodata] == SAFETY_INVALID).sum() + (safety[grown] != SAFETY_INVALID).sum()
+    edge = geometry(Lander(), 1.0).band_px  # the border band is invalid
+    assert (safety[:edge] == SAFETY_INVALID).all() and (safety[:, -edge:] == SAFETY_INVALID).all()
+    assert calls[-1][0] == calls[-1][1] == json.loads((out / "detect.json").read_text())["tiling"]["n_tiles"]
+    info = json.loads((out / "detect.json").read_text())
+    with rasterio.open(REAL / name):
+        pass
+    assert info["input"]["sha256"] == __import__("lidarsim.shards", fromlist=["sha256_file"]).sha256_file(REAL / name)
+    assert info["input"]["scale"] == (1.0 if name.startswith("autzen") else 0.5)
+    assert set(info["timings_s"]) >= {"calibration", "network", "baseline", "sites", "total"}
+    check_sites(out, Lander())
+
+
+def test_procedural_terrain_constant_run_sites_by_hand(trained, tmp_path):
+    """Procedural Mars terrain (0.5 m, resampled to 1 m); with a run that says 'safe' everywhere, the
+    safety map is the validity map and sites are the valid cells farthest from anything invalid."""
+    _, _, constant = trained
+    params = MarsTerrainParams(size_m=160.0, crater_n_gt_10m_per_km2=0.0, rock_k=0.0)
+    heights = generate_mars_terrain(params, seed=4)
+    heights[150:170, 60:200] = np.nan  # a nodata band across the middle (0.5 m cells)
+    dtm = tmp_path / "mars.tif"
+    write_geotiff(dtm, heights, 0.5, origin_xy=(0.0, 160.0))
+    out = tmp_path / "out"
+    result = detect(constant, out, dtm=dtm, threshold="nats:0.5", mc_samples=2, n_sites=6)
+    maps = check_consistent_maps(out, 0.5)
+    safety = maps["safety.tif"]
+    assert set(np.unique(safety)) == {SAFETY_SAFE, SAFETY_INVALID} and safety.shape == (160, 160)
+    np.testing.assert_allclose(maps["p_safe.tif"][safety == SAFETY_SAFE], 1 / (1 + math.exp(-6)), rtol=1e-6)
+    rows = check_sites(out, Lander())
+    assert len(rows) == 6 == len(result.sites)
+    clearances = [float(r["clearance_m"]) for r in rows]
+    assert clearances == sorted(clearances, reverse=True)  # equal P(safe): ranked by clearance
+    from scipy import ndimage
+
+    edt = ndimage.distance_transform_edt(np.pad(safety == SAFETY_SAFE, 1))[1:-1, 1:-1]
+    assert clearances[0] == pytest.approx(edt.max())  # site 1 is the clearest cell
+    assert profile_of(out / "safety.tif")["crs"] is None
+
+
+@pytest.mark.parametrize("slope_deg,safe", [(0.0, True), (5.0, True), (9.0, True), (11.0, False), (15.0, False)])
+def test_tilted_plane_baseline_is_all_safe_below_10_degrees_and_all_unsafe_above(trained, tmp_path, slope_deg, safe):
+    _, _, constant = trained
+    n = 150  # two tiles per axis
+    dtm = write_dtm(tmp_path / "plane.tif", tilted_plane(n, 1.0, slope_deg), 1.0)
+    out = tmp_path / "out"
+    detect(constant, out, dtm=dtm, threshold="nats:0.5", mc_samples=1, sigma_m=0.03)
+    base = read(out / "baseline_p_safe.tif")[0]
+    b = geometry(Lander(), 1.0).band_px
+    inner = base[b : n - b, b : n - b]
+    assert np.isfinite(inner).all()  # valid away from the border band ...
+    assert np.isnan(base[:b]).all() and np.isnan(base[:, -b:]).all()  # ... and invalid inside it
+    if safe:
+        assert (inner >= 0.5).all() and inner.min() == pytest.approx(1.0, abs=1e-6)
+    else:
+        assert (inner < 0.5).all() and inner.max() == 0.0
+
+
+def test_windowed_reads_only(trained, tmp_path, monkeypatch):
+    _, _, constant = trained
+    dtm = write_dtm(tmp_path / "big.tif", tilted_plane(230, 1.0, 2.0), 1.0)
+    shapes = []
+    original = detect_module.DTM.read
+
+    def spy(self, row0, col0, rows, cols):
+        shapes.append((rows, cols))
+        return original(self, row0, col0, rows, cols)
+
+    monkeypatch.setattr(detect_module.DTM, "read", spy)
+    detect(constant, tmp_path / "out", dtm=dtm, threshold="nats:0.5", mc_samples=1, n_sites=3)
+    tiles = json.loads((tmp_path / "out" / "detect.json").read_text())["tiling"]
+    assert tiles["tiles"] == [3, 3] and tiles["min_overlap_px"] == overlap_px(Lander(), 1.0) == 20
+    assert shapes.count((100, 100)) == 9  # every network input is one window of the training size
+    assert all(s == (100, 100) for s in shapes[:9])
+
+
+# --- sites by hand -------------------------------------------------------------------------------------
+def test_select_sites_ranks_by_p_safe_then_clearance_and_keeps_a_diameter_apart():
+    lander = Lander()
+    safety = np.full((60, 120), SAFETY_INVALID, np.uint8)
+    safety[5:55, 5:55] = SAFETY_SAFE  # west block: 50 x 50 cells, P(safe) 0.8
+    safety[5:55, 65:115] = SAFETY_SAFE  # east block: same size, P(safe) 0.9
+    p = np.where(safety == SAFETY_SAFE, 0.8, np.nan).astype(np.float32)
+    p[:, 60:] = np.where(safety[:, 60:] == SAFETY_SAFE, 0.9, np.nan)
+    h = np.where(safety == SAFETY_SAFE, 0.1, np.nan).astype(np.float32)
+    base = np.full(safety.shape, 0.7, np.float32)
+    transform = from_origin(0.0, 60.0, 1.0, 1.0)
+    sites = select_sites(safety, p, h, base, transform, (1.0, 1.0), lander, 50)
+    # The east block ranks first: its centre cells (29/30, 89/90) are 25 m from the nearest invalid cell
+    # (row 4 or column 64); the north-west one wins the tie: cell (29, 89) at x 89.5, y 30.5.
+    first = sites[0]
+    assert (first.row, first.col, first.x, first.y) == (29, 89, 89.5, 30.5)
+    assert first.p_safe == pytest.approx(0.9) and first.clearance_m == 25.0 and first.entropy_max == pytest.approx(0.1)
+    assert first.baseline_p_safe == pytest.approx(0.7)
+    east = [s for s in sites if s.col >= 60]
+    assert sites[: len(east)] == east  # every east site before any west site
+    for s in sites:
+        assert (safety[s.row - 5 : s.row + 6, s.col - 5 : s.col + 6][body_disk(lander, 1.0)] == SAFETY_SAFE).all()
+    for i, a in enumerate(sites):
+        for b in sites[:i]:
+            assert math.dist((a.x, a.y), (b.x, b.y)) >= 10.0
+    # Candidates (whole body disk of radius 5 safe): rows 10..49 of both blocks. With room for 50 sites
+    # the greedy choice is maximal: every candidate is closer than one diameter to some site.
+    cand_r, cand_c = np.mgrid[10:50, 10:110]
+    cand = (cand_c < 50) | (cand_c >= 70)
+    chosen = np.array([(s.row, s.col) for s in sites])
+    d = np.hypot(cand_r[cand][:, None] - chosen[:, 0], cand_c[cand][:, None] - chosen[:, 1]).min(axis=1)
+    assert (d < 10.0).all() and len(sites) < 50
+    assert [s.rank for s in sites] == list(range(1, len(sites) + 1))
+    assert select_sites(safety, p, h, base, transform, (1.0, 1.0), lander, 3) == sites[:3]
+
+
+def test_no_site_when_no_footprint_is_wholly_safe():
+    lander = Lander()
+    safety = np.full((40, 40), SAFETY_SAFE, np.uint8)
+    safety[::8, :] = SAFETY_UNCERTAIN  # uncertain rows every 8 m: no 11-cell disk fits
+    z = np.zeros(safety.shape, np.float32)
+    assert select_sites(safety, z + 0.9, z, z, from_origin(0, 40, 1, 1), (1.0, 1.0), lander, 10) == []
+
+
+# --- bad input, atomic output ----------------------------------------------------------------------------
+@pytest.fixture
+def terrains(tmp_path):
+    d = tmp_path / "terrains"
+    d.mkdir()
+    stripes = tilted_plane(40, 1.0, 1.0)
+    stripes[::8] = np.nan
+    return {
+        "ok": write_dtm(d / "ok.tif", tilted_plane(40, 1.0, 2.0), 1.0),
+        "small": write_dtm(d / "small.tif", np.zeros((8, 30)), 1.0),
+        "striped": write_dtm(d / "striped.tif", stripes, 1.0),
+        "empty": write_dtm(d / "empty.tif", np.full((30, 30), np.nan), 1.0),
+        "geographic": write_dtm(d / "wgs84.tif", np.zeros((40, 40)), 0.001, (-122.0, 37.0), crs=CRS.from_epsg(4326)),
+        "coarse": write_dtm(d / "coarse.tif", np.zeros((40, 40)), 2.0),
+        "feet": write_dtm(d / "feet.tif", np.zeros((40, 40)), 1.0, crs=CRS.from_epsg(2227)),
+    }
+
+
+BAD = [
+    (["--dtm", "{missing}"], "no such file"),
+    (["--dtm", "{small}"], "too small for the lander footprint"),
+    (["--dtm", "{striped}"], "no such valid square"),
+    (["--dtm", "{empty}"], "every cell is nodata"),
+    (["--dtm", "{geographic}"], "geographic CRS"),
+    (["--dtm", "{coarse}"], "coarser than the run's DEM spacing"),
+    (["--dtm", "{feet}"], "not metres"),
+    (["--dtm", "{ok}", "--threshold", "median"], "threshold spec"),
+    (["--dtm", "{ok}", "--threshold", "risk:1.5"], "alpha"),
+    (["--dtm", "{ok}", "--threshold", "nats:-1"], ">= 0 nats"),
+    (["--dtm", "{ok}", "--mc-samples", "0"], "MC samples"),
+    (["--dtm", "{ok}", "--sites", "0"], "number of sites"),
+    (["--dtm", "{ok}", "--sigma", "-0.1"], "sigma"),
+    (["--dtm", "{ok}", "--scan", "1"], "--scan goes with --data"),
+    (["--dtm", "{ok}", "--data", "{dataset}", "--scan", "1"], "either"),
+    ([], "either"),
+    (["--data", "{dataset}"], "needs --scan"),
+    (["--data", "{dataset}", "--scan", "999"], "scan 999 is not in"),
+    (["--data", "{dataset}", "--scan", "0", "--sigma", "0.05"], "not in the dataset"),
+]
+
+
+@pytest.mark.parametrize("args,needle", BAD)
+def test_bad_input_is_one_line_and_writes_nothing(trained, terrains, tmp_path, args, needle):
+    dataset, run_dir, _ = trained
+    names = {**{k: str(v) for k, v in terrains.items()}, "dataset": str(dataset), "missing": str(tmp_path / "nope.tif")}
+    out = tmp_path / "new" / "out"
+    result = CliRunner().invoke(main, ["detect", str(run_dir), "--out", str(out), *[a.format(**names) for a in args]])
+    assert result.exit_code == 1 and "Traceback" not in result.output, result.output
+    lines = result.output.strip().splitlines()
+    assert lines[-1].startswith("Error: ") and needle.lower() in lines[-1].lower(), result.output
+    assert not (tmp_path / "new").exists()  # neither the output nor its parent was created
+
+
+def test_missing_run_and_occupied_out_are_refused(trained, terrains, tmp_path):
+    _, run_dir, _ = trained
+    runner = CliRunner()
+    result = runner.invoke(main, ["detect", str(tmp_path / "no-run"), "--dtm", str(terrains["ok"]), "--out", str(tmp_path / "o")])
+    assert result.exit_code == 1 and "does not exist" in result.output and not (tmp_path / "o").exists()
+    occupied = tmp_path / "occupied"
+    occupied.mkdir()
+    (occupied / "keep.txt").write_text("mine")
+    result = runner.invoke(main, ["detect", str(run_dir), "--dtm", str(terrains["ok"]), "--out", str(occupied)])
+    assert result.exit_code == 1 and "--overwrite" in result.output
+    assert [p.name for p in occupied.iterdir()] == ["keep.txt"]
+    a_file = tmp_path / "file"
+    a_file.write_text("x")
+    result = runner.invoke(main, ["detect", str(run_dir), "--dtm", str(terrains["ok"]), "--out", str(a_file)])
+    assert result.exit_code == 1 and "not a directory" in result.output and a_file.read_text() == "x"
+
+
+def test_overwrite_replaces_and_a_failure_leaves_the_old_output_whole(trained, terrains, tmp_path, monkeypatch):
+    _, _, constant = trained
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "old.txt").write_text("old")
+
+    def boom(*args, **kwargs):
+        raise RuntimeError("disk full")
+
+    monkeypatch.setattr(detect_module, "select_sites", boom)
+    with pytest.raises(RuntimeError, match="disk full"):
+        detect(constant, out, dtm=terrains["ok"], threshold="nats:0.5", mc_samples=1, overwrite=True)
+    assert [p.name for p in out.iterdir()] == ["old.txt"]  # untouched
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out", "terrains"]  # no temporary directory left
+    monkeypatch.undo()
+    empty = tmp_path / "empty"
+    empty.mkdir()  # an empty directory needs no --overwrite
+    detect(constant, empty, dtm=terrains["ok"], threshold="nats:0.5", mc_samples=1)
+    assert sorted(p.name for p in empty.iterdir()) == sorted(OUTPUT_FILES)
+    detect(constant, out, dtm=terrains["ok"], threshold="nats:0.5", mc_samples=1, overwrite=True)
+    assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUT_FILES)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["empty", "out", "terrains"]
+
+
+def test_a_run_without_its_dataset_needs_a_fixed_threshold(trained, terrains, tmp_path):
+    _, run_dir, _ = trained
+    ckpt = torch.load(run_dir / "last.pt", weights_only=True)
+    ckpt["extra_config"]["dataset"] = str(tmp_path / "moved-away")
+    torch.save(ckpt, tmp_path / "portable.pt")
+    with pytest.raises(HdNetError, match="nats:"):
+        detect(tmp_path / "portable.pt", tmp_path / "a", dtm=terrains["ok"])
+    assert not (tmp_path / "a").exists()
+    result = detect(tmp_path / "portable.pt", tmp_path / "b", dtm=terrains["ok"], threshold="nats:0.2", mc_samples=2)
+    assert result.threshold_nats == 0.2 and (tmp_path / "b" / "detect.json").is_file()
+
+
+def test_cli_detect_prints_a_summary(trained, terrains, tmp_path):
+    _, run_dir, _ = trained
+    out = tmp_path / "cli"
+    result = CliRunner().invoke(main, ["detect", str(run_dir), "--dtm", str(terrains["ok"]), "--out", str(out),
+                                       "--mc-samples", "2", "--sites", "3"])
+    assert result.exit_code == 0, result.output
+    assert "valid cells" in result.output and "detect.json" in result.output
+    info = json.loads((out / "detect.json").read_text())
+    assert info["threshold"]["spec"] == "mean" and info["mc_samples"] == 2 and len(info["sites"]) <= 3
+    assert info["baseline"]["sigma_m"] == 0.0167 and info["run"]["train_sigma_m"] == 0.0167
