@@ -440,7 +440,7 @@ def body_disk(lander: Lander, spacing_m: float) -> np.ndarray:
 
 
 def select_sites(
-    safety: np.ndarray, p_safe: np.ndarray, entropy: np.ndarray, baseline: np.ndarray, transform: Affine,
+    safety: np.ndarray, p_safe: np.ndarray, entropy: Any, baseline: Any, transform: Affine,
     spacing_xy_m: tuple[float, float], lander: Lander, n_sites: int,
 ) -> list[Site]:
     """Ranked, non-overlapping landing sites of a safety map.
@@ -451,42 +451,59 @@ def select_sites(
     cell (cells outside the grid count as invalid), ``baseline_p_safe`` the baseline at the site.
     Greedy: best first by (P(safe) rounded to ``SITE_RANK_DECIMALS``, clearance, north, west); each
     site removes every candidate closer than one lander diameter; at most ``n_sites``.
+
+    ``safety`` (uint8) and ``p_safe`` (float) are whole arrays; ``entropy`` and ``baseline`` are read
+    only around the chosen sites, through 2-D slicing (arrays, or windowed raster readers).
+    Memory: about 32 bytes per cell at the peak (the distance transform), besides the two inputs.
     """
     sx, sy = spacing_xy_m
     disk = body_disk(lander, float(np.sqrt(sx * sy)))
+    rd = disk.shape[0] // 2
     clear = safety == SAFETY_SAFE
     candidate = ndimage.binary_erosion(clear, structure=disk, border_value=0)
     if not candidate.any():
         return []
-    weights = disk / disk.sum()
-    p_mean = ndimage.correlate(np.where(clear, p_safe, 0.0).astype(np.float64), weights, mode="constant", cval=0.0)
-    h_max = ndimage.maximum_filter(np.where(clear, entropy, np.inf).astype(np.float32), footprint=disk,
-                                   mode="constant", cval=np.inf)
-    padded = np.pad(clear, 1, constant_values=False)  # outside the grid counts as invalid
-    clearance = ndimage.distance_transform_edt(padded, sampling=(sy, sx))[1:-1, 1:-1]
-    rows, cols = np.nonzero(candidate)
-    p_c, c_c = p_mean[rows, cols], clearance[rows, cols]
-    order = np.lexsort((cols, rows, -c_c, -np.round(p_c, SITE_RANK_DECIMALS)))
+    # One ranking key per cell: round(mean P(safe), 3) * scale + clearance, scale > any clearance.
+    key = ndimage.correlate(np.where(clear, p_safe, 0.0).astype(np.float64), disk / disk.sum(), mode="constant")
+    np.multiply(key, 10.0**SITE_RANK_DECIMALS, out=key)
+    np.rint(key, out=key)
+    h, w = clear.shape
+    key *= 2.0 ** math.ceil(math.log2(math.hypot(h * sy, w * sx) + 1.0))
+    edt = ndimage.distance_transform_edt(np.pad(clear, 1), sampling=(sy, sx))[1:-1, 1:-1]  # outside = invalid
+    key += edt
+    clearance = edt.astype(np.float32)
+    del edt
+    key[~candidate] = -np.inf
     d = lander.diameter_m
-    ri = int(math.ceil(d / sy))
-    rj = int(math.ceil(d / sx))
+    ri, rj = int(math.ceil(d / sy)), int(math.ceil(d / sx))
     di, dj = np.mgrid[-ri : ri + 1, -rj : rj + 1]
     too_close = (di * sy) ** 2 + (dj * sx) ** 2 < d * d * (1.0 - 1e-12)
-    free = candidate.copy()
-    h, w = free.shape
     sites: list[Site] = []
-    for k in order:
-        r, c = int(rows[k]), int(cols[k])
-        if not free[r, c]:
-            continue
-        x, y = transform @ (c + 0.5, r + 0.5)
-        sites.append(Site(len(sites) + 1, float(x), float(y), float(p_c[k]), float(h_max[r, c]), float(c_c[k]),
-                          float(baseline[r, c]), r, c))
-        if len(sites) == n_sites:
+    while len(sites) < n_sites:
+        k = int(np.argmax(key))  # the first maximum in row-major order: ties go north, then west
+        r, c = divmod(k, w)
+        if key[r, c] == -np.inf:
             break
+        window = (slice(r - rd, r + rd + 1), slice(c - rd, c + rd + 1))
+        x, y = transform @ (c + 0.5, r + 0.5)
+        sites.append(Site(len(sites) + 1, float(x), float(y),
+                          float(np.mean(np.asarray(p_safe[window], np.float64)[disk])),
+                          float(np.max(np.asarray(entropy[window])[disk])), float(clearance[r, c]),
+                          float(np.asarray(baseline[r : r + 1, c : c + 1])[0, 0]), r, c))
         r0, r1, c0, c1 = max(r - ri, 0), min(r + ri + 1, h), max(c - rj, 0), min(c + rj + 1, w)
-        free[r0:r1, c0:c1] &= ~too_close[r0 - r + ri : r1 - r + ri, c0 - c + rj : c1 - c + rj]
+        key[r0:r1, c0:c1][too_close[r0 - r + ri : r1 - r + ri, c0 - c + rj : c1 - c + rj]] = -np.inf
     return sites
+
+
+class _RasterWindows:
+    """Band 1 of an open raster, read by 2-D slicing (``reader[r0:r1, c0:c1]``), window by window."""
+
+    def __init__(self, src: Any) -> None:
+        self.src = src
+
+    def __getitem__(self, index: tuple[slice, slice]) -> np.ndarray:
+        rows, cols = index
+        return self.src.read(1, window=Window(cols.start, rows.start, cols.stop - cols.start, rows.stop - rows.start))
 
 
 def _sites_csv(sites: list[Site]) -> str:
@@ -620,10 +637,9 @@ def detect(
                                               seed, dev, progress)
             timings |= map_timings
             t0 = time.perf_counter()
-            maps = {name: _read_map(tmp / name) for name in MAP_FILES}
-            sites = select_sites(maps["safety.tif"], maps["p_safe.tif"], maps["entropy.tif"], maps["baseline_p_safe.tif"],
-                                 terrain.transform, terrain.spacing_xy_m, run.lander, n_sites)
-            del maps
+            with rasterio.open(tmp / "entropy.tif") as h_src, rasterio.open(tmp / "baseline_p_safe.tif") as b_src:
+                sites = select_sites(_read_map(tmp / "safety.tif"), _read_map(tmp / "p_safe.tif"), _RasterWindows(h_src),
+                                     _RasterWindows(b_src), terrain.transform, terrain.spacing_xy_m, run.lander, n_sites)
             (tmp / "sites.csv").write_text(_sites_csv(sites))
             (tmp / "sites.geojson").write_text(json.dumps(_sites_geojson(sites, terrain.crs_wkt), indent=1) + "\n")
             timings["sites"] = time.perf_counter() - t0

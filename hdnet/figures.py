@@ -183,6 +183,7 @@ def detect_overview(
     ax.title.set_fontsize(9)
     handles = [Patch(color=colours[0], alpha=0.6, label="unsafe"), Patch(color=colours[1], alpha=0.6, label="safe"),
                Patch(color=colours[2], alpha=0.8, label="uncertain"),
+               Patch(fc="white", ec="0.6", label="no colour: invalid (border, nodata)"),
                Patch(fc="none", ec="black", label="landing site (lander size)")]
     ax.legend(handles=handles, fontsize=7, loc="upper right", framealpha=0.85)
     fig.tight_layout()
