@@ -49,6 +49,7 @@ from hdnet.errors import HdNetError
 from hdnet.evaluate import evaluate
 from hdnet.fit import fit
 from hdnet.infer import mc_dropout_predict
+from lidarsim.errors import TerrainError
 from lidarsim.procedural import MarsTerrainParams, generate_mars_terrain, write_geotiff
 from lidarsim.shards import sha256_file
 
@@ -298,6 +299,25 @@ def test_tilted_plane_baseline_is_all_safe_below_10_degrees_and_all_unsafe_above
         assert (inner >= 0.5).all() and inner.min() == pytest.approx(1.0, abs=1e-6)
     else:
         assert (inner < 0.5).all() and inner.max() == 0.0
+
+
+def test_a_run_at_another_spacing_resamples_to_its_own_and_refuses_coarser_dtms(trained, tmp_path):
+    """A run trained on 0.5 m DEMs: a 0.25 m DTM is read at scale 0.5, a 1 m DTM is refused."""
+    _, _, constant = trained
+    ckpt = torch.load(constant, weights_only=True)
+    ckpt["extra_config"]["labeling"]["dem"]["spacing_m"] = 0.5
+    torch.save(ckpt, tmp_path / "half.pt")
+    fine = write_dtm(tmp_path / "fine.tif", tilted_plane(240, 0.25, 3.0), 0.25)
+    detect(tmp_path / "half.pt", tmp_path / "out", dtm=fine, threshold="nats:0.5", mc_samples=1)
+    prof = profile_of(tmp_path / "out" / "safety.tif")
+    assert prof["shape"] == (120, 120) and prof["transform"].a == 0.5
+    safety = read(tmp_path / "out" / "safety.tif")[0]
+    b = geometry(Lander(), 0.5).band_px  # the lander footprint in 0.5 m cells
+    assert b == 10 and (safety[:b] == SAFETY_INVALID).all() and (safety[b:-b, b:-b] == SAFETY_SAFE).all()
+    coarse = write_dtm(tmp_path / "coarse.tif", tilted_plane(60, 1.0, 3.0), 1.0)
+    with pytest.raises(TerrainError, match=r"coarser than the run's DEM spacing \(0.5 m/px\)"):
+        detect(tmp_path / "half.pt", tmp_path / "out2", dtm=coarse, threshold="nats:0.5")
+    assert not (tmp_path / "out2").exists()
 
 
 def test_windowed_reads_only(trained, tmp_path, monkeypatch):
