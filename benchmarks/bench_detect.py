@@ -1,0 +1,154 @@
+"""hd detect speed: seconds per 100x100 frame (M = 8) beside the ALHAT baseline, against a 10 s budget.
+
+Prints, measured side by side in one run on one 100x100 frame at 1 m of the procedural Mars terrain
+(randomly initialised weights: speed does not depend on training):
+
+* the network path of ``hd detect`` per frame (input preparation, MC dropout with the shared prefix,
+  back to the DEM grid, entropy), one frame at a time (latency, what a lander would do) and
+  batched 8 frames per call (throughput, what ``hd detect`` does over a DTM), for the ``cpu``
+  profile (width 1/4, 100 -> 128 padding), full width at the same grid, and the ``paper`` profile
+  (full width, 100 -> 512 bilinear);
+* the ALHAT P(safe) baseline on the same frame (numba) and the site selection;
+* each as a fraction of ALHAT's onboard budget of 10 s per frame (target: < 1 s per frame at the
+  cpu profile's width);
+* end to end: ``detect`` on a procedural DTM (default 512 m x 512 m at 0.5 m, resampled to 1 m),
+  with the cpu-profile network and a fixed threshold: seconds, tiles, seconds per tile and per km^2.
+
+Usage: python benchmarks/bench_detect.py [--samples 8] [--repeats 3] [--dtm-size 512] [--skip-paper]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from hdlabels.lander import Lander  # noqa: E402
+from hdnet.data import Normalisation  # noqa: E402
+from hdnet.detect import (  # noqa: E402
+    SAFETY_SAFE,
+    DetectRun,
+    baseline_p_safe,
+    detect,
+    network_input,
+    network_output,
+    select_sites,
+)
+from hdnet.infer import mc_dropout_predict, predictive_entropy  # noqa: E402
+from hdnet.model import BayesianSegNet, ModelConfig, count_parameters  # noqa: E402
+from hdnet.profiles import CPU, PAPER  # noqa: E402
+from hdnet.train import CHECKPOINT_SCHEMA, CHECKPOINT_VERSION, save_checkpoint  # noqa: E402
+from lidarsim.procedural import MarsTerrainParams, generate_mars_terrain, write_geotiff  # noqa: E402
+
+BUDGET_S = 10.0  # ALHAT's onboard budget per frame (issue "hd detect", after Johnson et al.)
+LABELING = {"name": "square-d10m-pad1m-slope10deg-rough0.2m-yaws8-dem100x100at1m", "lander": {},
+            "dem": {"rows": 100, "cols": 100, "spacing_m": 1.0}}
+
+
+def _median(fn, repeats: int) -> float:
+    fn()  # warm-up: numba compilation, oneDNN primitives, the allocator (two calls: the first
+    fn()  # one of a new model is several times slower than the steady state)
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def _run(width: float, input_size: int | None, dem: np.ndarray) -> DetectRun:
+    torch.manual_seed(0)
+    model = BayesianSegNet(ModelConfig(width=width)).eval()
+    norm = Normalisation(float(np.nanmin(dem)) - 5.0, float(np.nanmax(dem)) + 5.0)
+    return DetectRun(Path("-"), model, {}, 0.0167, norm, input_size, LABELING["name"], LABELING, Lander(),
+                     (100, 100), 1.0, None)
+
+
+def _frame_seconds(run: DetectRun, dem: np.ndarray, samples: int, batch: int, repeats: int) -> float:
+    def once() -> None:
+        x = torch.cat([network_input(dem, run) for _ in range(batch)])
+        probs = network_output(mc_dropout_predict(run.model, x, n_samples=samples).mean_probs, run)
+        predictive_entropy(probs)
+
+    return _median(once, repeats) / batch
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--samples", type=int, default=8)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--dtm-size", type=float, default=512.0, help="side of the end-to-end DTM, metres (0: skip)")
+    parser.add_argument("--skip-paper", action="store_true", help="skip the paper profile (full width at 512x512)")
+    parser.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's, one per core)")
+    args = parser.parse_args()
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, M = {args.samples}, budget {BUDGET_S:g} s/frame")
+
+    terrain = generate_mars_terrain(MarsTerrainParams(size_m=100.0), seed=1)  # 200 x 200 at 0.5 m
+    dem = terrain[::2, ::2].astype(np.float64)
+    dem = dem - dem.mean()  # scan frame
+    rows = []
+    configs = [("cpu profile", CPU.width, CPU.input_size), ("full width", 1.0, CPU.input_size)]
+    if not args.skip_paper:
+        configs.append(("paper profile", PAPER.width, PAPER.input_size))
+    for name, width, size in configs:
+        run = _run(width, size, dem)
+        grid = f"{size}x{size}" if size else "128x128 (padded)"
+        one = _frame_seconds(run, dem, args.samples, 1, args.repeats if size is None else 1)
+        eight = _frame_seconds(run, dem, args.samples, 8, args.repeats if size is None else 1)
+        rows.append((f"{name}: width {width:g}, {count_parameters(run.model):,} parameters, {grid}", one, eight))
+    base = _median(lambda: baseline_p_safe(dem, 1.0, 0.0167, LABELING), args.repeats * 3)
+    p = baseline_p_safe(dem, 1.0, 0.0167, LABELING)
+    from rasterio.transform import from_origin
+
+    safety = np.where(np.isfinite(p), SAFETY_SAFE, 255).astype(np.uint8)  # worst case: every valid cell safe
+    sites = _median(lambda: select_sites(safety, np.nan_to_num(p), np.zeros_like(p), p, from_origin(0, 100, 1, 1),
+                                         (1.0, 1.0), Lander(), 10), args.repeats * 3)
+    print(f"\n{'per 100x100 frame':68s} {'1 at a time':>12s} {'batch of 8':>11s} {'/ budget':>9s}")
+    for label, one, eight in rows:
+        print(f"  {label:66s} {one:10.3f} s {eight:9.3f} s {one / BUDGET_S:8.3f}")
+    print(f"  {'ALHAT baseline P(safe) (numba)':66s} {base:10.4f} s {'':>11s} {base / BUDGET_S:8.4f}")
+    print(f"  {'site selection (every valid cell safe: the most candidates)':66s} {sites:10.4f} s")
+    cpu_one = rows[0][1]
+    print(f"\ncpu profile, one frame at a time: network {cpu_one:.3f} s + baseline {base:.4f} s = "
+          f"{cpu_one + base:.3f} s per frame, {(cpu_one + base) / BUDGET_S:.3f} of the 10 s budget "
+          f"(target < 1 s: {'met' if cpu_one + base < 1.0 else 'NOT met'}); network / baseline = {cpu_one / base:.0f}x")
+
+    if args.dtm_size > 0:
+        with tempfile.TemporaryDirectory() as tmp:
+            big = generate_mars_terrain(MarsTerrainParams(size_m=args.dtm_size), seed=2)
+            dtm = Path(tmp) / "mars.tif"
+            write_geotiff(dtm, big, 0.5, origin_xy=(0.0, args.dtm_size))
+            run = _run(CPU.width, CPU.input_size, dem)
+            ckpt = Path(tmp) / "run.pt"
+            save_checkpoint(ckpt, {
+                "schema": CHECKPOINT_SCHEMA, "schema_version": CHECKPOINT_VERSION, "model_name": "bayesian_segnet",
+                "model_config": run.model.config.to_dict(), "profile": CPU.to_dict(), "epoch": 0,
+                "model": run.model.state_dict(),
+                "extra_config": {"train_sigma_m": 0.0167, "normalisation": run.normalisation.to_dict(),
+                                 "input_size": None, "labels": LABELING["name"], "dem_shape": [100, 100],
+                                 "labeling": {**LABELING, "lander": Lander().to_attrs()}},
+            })
+            t0 = time.perf_counter()
+            result = detect(ckpt, Path(tmp) / "out", dtm=dtm, threshold="nats:0.35", mc_samples=args.samples)
+            total = time.perf_counter() - t0
+            n = result.info["tiling"]["n_tiles"]
+            km2 = (args.dtm_size / 1000.0) ** 2
+            t = result.timings_s
+            print(f"\nend to end, {args.dtm_size:g} m x {args.dtm_size:g} m procedural DTM (0.5 m -> 1 m), cpu profile: "
+                  f"{total:.1f} s for {n} tiles = {total / n:.3f} s per tile, {total / km2:.0f} s per km^2 "
+                  f"(network {t['network']:.1f} s, baseline {t['baseline']:.1f} s, read {t['read']:.1f} s, "
+                  f"write {t['write']:.1f} s, sites {t['sites']:.1f} s, overview {t['overview']:.1f} s)")
+
+
+if __name__ == "__main__":
+    main()
