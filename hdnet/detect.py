@@ -542,14 +542,14 @@ class DetectResult:
     info: dict[str, Any] = field(repr=False)
 
     def summary(self) -> str:
-        valid = sum(v for k, v in self.counts.items() if k != "invalid")
-        pct = {k: 100.0 * v / valid if valid else 0.0 for k, v in self.counts.items() if k != "invalid"}
+        valid = sum(self.counts[k] for k in ("safe", "unsafe", "uncertain"))
+        pct = {k: 100.0 * self.counts[k] / valid if valid else 0.0 for k in ("safe", "unsafe", "uncertain", "baseline_safe")}
         t = "unbounded" if not math.isfinite(self.threshold_nats) else f"{self.threshold_nats:.4f} nats"
         best = (f"; best site #1 at ({self.sites[0].x:.1f}, {self.sites[0].y:.1f}) P(safe) {self.sites[0].p_safe:.3f}, "
                 f"clearance {self.sites[0].clearance_m:.1f} m") if self.sites else "; no site: no lander footprint is wholly safe and certain"
         return (f"{self.out_dir}: {pct['safe']:.1f}% safe, {pct['unsafe']:.1f}% unsafe, {pct['uncertain']:.1f}% uncertain "
-                f"of {valid} valid cells (H_t {t}); {len(self.sites)} site(s){best}; "
-                f"{self.timings_s['total']:.1f} s")
+                f"of {valid} valid cells (H_t {t}; the ALHAT baseline calls {pct['baseline_safe']:.1f}% safe); "
+                f"{len(self.sites)} site(s){best}; {self.timings_s['total']:.1f} s")
 
 
 def detect(
@@ -665,7 +665,7 @@ def _write_maps(
 ) -> tuple[dict[str, int], dict[str, float]]:
     """Step 3: every row of tiles through the network and the baseline, owned crops written to the four maps."""
     spacing = float(np.sqrt(terrain.spacing_xy_m[0] * terrain.spacing_xy_m[1]))
-    counts = {"safe": 0, "unsafe": 0, "uncertain": 0, "invalid": 0}
+    counts = {"safe": 0, "unsafe": 0, "uncertain": 0, "invalid": 0, "baseline_safe": 0}
     t_read = t_net = t_base = t_write = 0.0
     done = 0
     torch.manual_seed(seed)
@@ -721,6 +721,7 @@ def _write_maps(
             for name, code in (("unsafe", SAFETY_UNSAFE), ("safe", SAFETY_SAFE), ("uncertain", SAFETY_UNCERTAIN),
                                ("invalid", SAFETY_INVALID)):
                 counts[name] += int((strip["s"] == code).sum())
+            counts["baseline_safe"] += int((np.nan_to_num(strip["b"], nan=0.0) >= BASELINE_THRESHOLD).sum())
     return counts, {"read": t_read, "network": t_net, "baseline": t_base, "write": t_write}
 
 

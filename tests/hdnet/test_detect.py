@@ -253,6 +253,9 @@ def test_real_terrain_maps_cover_the_input_with_its_crs(trained, tmp_path, name,
         np.testing.assert_array_equal(safety == SAFETY_INVALID, expected)
     info = json.loads((out / "detect.json").read_text())
     assert calls[-1][0] == calls[-1][1] == info["tiling"]["n_tiles"]
+    assert info["counts"] == {"safe": int((safety == SAFETY_SAFE).sum()), "unsafe": int((safety == SAFETY_UNSAFE).sum()),
+                              "uncertain": int((safety == SAFETY_UNCERTAIN).sum()), "invalid": int((safety == SAFETY_INVALID).sum()),
+                              "baseline_safe": int((np.nan_to_num(maps["baseline_p_safe.tif"]) >= 0.5).sum())}
     assert info["input"]["sha256"] == sha256_file(REAL / name)
     assert info["input"]["scale"] == (1.0 if name.startswith("autzen") else 0.5)
     assert set(info["timings_s"]) >= {"calibration", "network", "baseline", "sites", "total"}
