@@ -166,7 +166,7 @@ def detect_overview(
         rgba[safety == code] = (*matplotlib.colors.to_rgb(colour), alpha)
     left, right, bottom, top = extent
     aspect = (top - bottom) / max(right - left, 1e-9)
-    fig, ax = plt.subplots(figsize=(8.0, float(np.clip(8.0 * aspect, 3.0, 10.0)) + 0.6))
+    fig, ax = plt.subplots(figsize=(8.0, float(np.clip(8.0 * aspect, 3.0, 10.0)) + 1.0))
     gray = plt.get_cmap("gray").with_extremes(bad="white")
     ax.imshow(shade, cmap=gray, extent=extent, interpolation="nearest", vmin=0, vmax=1)
     ax.imshow(rgba, extent=extent, interpolation="nearest")
@@ -185,7 +185,8 @@ def detect_overview(
                Patch(color=colours[2], alpha=0.8, label="uncertain"),
                Patch(fc="white", ec="0.6", label="no colour: invalid (border, nodata)"),
                Patch(fc="none", ec="black", label="landing site (lander size)")]
-    ax.legend(handles=handles, fontsize=7, loc="upper right", framealpha=0.85)
+    ax.legend(handles=handles, fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=len(handles),
+              frameon=False)
     fig.tight_layout()
     fig.savefig(path, dpi=DPI)
     plt.close(fig)
