@@ -431,12 +431,12 @@ class Site:
 
 
 def body_disk(lander: Lander, spacing_m: float) -> np.ndarray:
-    """(2r+1, 2r+1) bool: the cells under the lander body centred on the middle cell (``hdlabels`` geometry)."""
-    geo = geometry(lander, spacing_m)
-    r = int(max(np.abs(geo.body_di).max(), np.abs(geo.body_dj).max()))
-    disk = np.zeros((2 * r + 1, 2 * r + 1), bool)
-    disk[geo.body_di + r, geo.body_dj + r] = True
-    return disk
+    """(2k+1, 2k+1) bool: the cells whose centres lie under the lander body (a disk of the lander's
+    diameter) when it is centred on the middle cell; ``spacing_m`` in metres per cell."""
+    r = lander.radius_m / spacing_m
+    k = int(math.floor(r + 1e-9))
+    di, dj = np.mgrid[-k : k + 1, -k : k + 1]
+    return di * di + dj * dj <= r * r + 1e-9
 
 
 def select_sites(

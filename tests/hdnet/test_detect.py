@@ -443,6 +443,12 @@ def test_select_sites_equals_the_plain_reference_on_random_maps(seed):
         assert s.entropy_max == h[i - 5 : i + 6, j - 5 : j + 6][body_disk(Lander(), 1.0)].max()
 
 
+def test_body_disk_by_hand():
+    assert body_disk(Lander(), 1.0).shape == (11, 11) and body_disk(Lander(), 1.0).sum() == 81  # i^2 + j^2 <= 25
+    assert body_disk(Lander(), 0.5).sum() == 317  # Gauss circle count for radius 10 cells
+    assert body_disk(Lander(), 2.0).sum() == 21  # radius 2.5 cells
+
+
 def test_no_site_when_no_footprint_is_wholly_safe():
     lander = Lander()
     safety = np.full((40, 40), SAFETY_SAFE, np.uint8)
