@@ -29,6 +29,9 @@ Recipe layout (every key optional; defaults are the paper's)::
     pad_diameter_m = 1.0
     max_slope_deg = 10.0
     max_roughness_m = 0.20
+    convention = "paper"     # "paper" or "hd"; a recipe without it is the hd convention
+    baseline_combine = "product"   # optional; default: the convention's
+    gridding = "nearest"     # optional; default: the convention's
 """
 
 from __future__ import annotations
@@ -54,7 +57,7 @@ _BUILD_KEYS = {
     "resolution", "fov_deg", "dead_elements", "damaged_elements", "compression",
 }
 _LABEL_KEYS = {"lander", "lander_diameter_m", "pad_diameter_m", "max_slope_deg", "max_roughness_m", "yaws",
-               "count_holes", "dem_size", "dem_spacing_m"}
+               "count_holes", "dem_size", "dem_spacing_m", "convention", "baseline_combine", "gridding"}
 
 
 class RecipeError(LidarsimError):
