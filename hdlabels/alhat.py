@@ -14,9 +14,11 @@ placement of the pads around it:
    the roughness nodes (hd: the body disk; paper: the nodes strictly inside the pad polygon)
    above that plane;
 4. the baseline's probability that the configuration is safe combines the per-node probabilities
-   ``Phi((r_crit - r_n) / s)``, with ``r_n`` the node's signed perpendicular height and ``s`` the
-   noise scale (paper: ``c sigma``, ``c`` the z-component of the plane's unit normal; hd: ``sigma``),
-   by their product (Ivanov et al. 2013, Eq. 13) or by the worst node ("min").
+   ``Phi((r_crit - r_n) / s)``, with ``r_n`` the node's signed perpendicular height (terrain below
+   the plane raises the probability; ``count_holes`` concerns the labels only) and ``s`` the noise
+   scale (paper: ``c sigma``, ``c`` the z-component of the plane's unit normal; hd: ``sigma``), by
+   their product (Ivanov et al. 2013, Eq. 13) or by the worst node ("min"). The hd convention's
+   "min" baseline keeps its original form, ``Phi((r_crit - roughness) / sigma)`` from the maps.
 
 Site slope and roughness are the worst case over configurations; P(safe) is the deterministic
 slope test times the smallest configuration probability. ``docs/labels.md`` holds the equations,
@@ -309,8 +311,8 @@ def _worst_case(
         scale = sec[q] * inv_sigma if scale_by_c else inv_sigma
         if mode == _P_PRODUCT:
             q_score = log_ndtr((rc - dev / sec[q]) * scale).sum(axis=0)
-        else:
-            q_score = (rc - r_q) * scale
+        else:  # the worst node: the largest signed height above the plane
+            q_score = (rc - dev.max(axis=0) / sec[q]) * scale
         np.minimum(best, q_score, out=best)
     if mode != _P_NONE:
         score = best
@@ -381,7 +383,7 @@ def _worst_case_loops(z, b, heights, n_pads, plane_weights, triples, node_ptr, n
 
     Same numbers as ``_worst_case``'s numpy path; rows are processed one at a time so every
     working array stays in the L1 cache. ``score``: product mode, the smallest sum over a
-    configuration's nodes of log Phi(u); min mode, the smallest u of a configuration's roughness.
+    configuration's nodes of log Phi(u); min mode, the smallest u of any node.
     """
     n_yaws = plane_weights.shape[0]
     hv, wv = slope.shape
@@ -470,9 +472,10 @@ def _worst_case_loops(z, b, heights, n_pads, plane_weights, triples, node_ptr, n
                     rough[i, j] = max(rough[i, j], r)
                     if mode == 1:
                         score[i, j] = min(score[i, j], acc[j])
-                    elif mode == 2:
-                        scale = np.sqrt(1.0 + tan2) * inv_sigma if scale_by_c else inv_sigma
-                        score[i, j] = min(score[i, j], (rc - r) * scale)
+                    elif mode == 2:  # the worst node: the largest signed height above the plane
+                        sec = np.sqrt(1.0 + tan2)
+                        scale = sec * inv_sigma if scale_by_c else inv_sigma
+                        score[i, j] = min(score[i, j], (rc - dmax[j] / sec) * scale)
     for i in range(hv):
         for j in range(wv):
             slope[i, j] = np.arctan(np.sqrt(slope[i, j]))

@@ -147,3 +147,32 @@ def test_unknown_label_schema_version_is_refused(dataset, tmp_path):
         LabelShardReader(copy)
     manifest = json.loads((dataset / "manifest.json").read_text())
     assert all(lab["schema_version"] == LABEL_SCHEMA_VERSION for lab in manifest["labelings"])
+
+
+def test_convention_options_name_and_record_the_labelling(dataset):
+    runner = CliRunner()
+    hd = runner.invoke(main, ["label", str(dataset), "--convention", "hd", "--workers", "1"])
+    assert hd.exit_code == 0, hd.output
+    entry = find_labeling(dataset, "square-d10m-pad1m-slope10deg-rough0.2m-yaws8-dem100x100at1m")  # the pre-convention name
+    assert entry["convention"] == "hd" and entry["dem"]["gridding"] == "linear"
+    assert Lander.from_attrs(entry["lander"]) == Lander(convention="hd")
+    with LabelShardReader(label_shard_paths(dataset, entry)[0]) as reader:
+        assert reader.h5.attrs["lander_convention"] == "hd" and reader.h5.attrs["lander_baseline_combine"] == "min"
+    mixed = runner.invoke(main, ["label", str(dataset), "--convention", "paper", "--baseline-combine", "min",
+                                 "--gridding", "mean", "--workers", "1"])
+    assert mixed.exit_code == 0, mixed.output
+    entry = find_labeling(dataset, "paper-square-d10m-pad1m-slope10deg-rough0.2m-min-mean-dem100x100at1m")
+    assert entry["lander"]["baseline_combine"] == "min" and entry["dem"]["gridding"] == "mean"
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["--yaws", "4"], "--yaws applies to --convention hd only"),
+    (["--convention", "alhat"], "Invalid value for '--convention'"),
+    (["--gridding", "cubic"], "Invalid value for '--gridding'"),
+    (["--lander-diameter", "3", "--pad-diameter", "1", "--dem-spacing", "1"], "too few"),
+])
+def test_bad_convention_settings_are_refused_before_any_work(dataset, args, needle):
+    before = (dataset / "manifest.json").read_text()
+    result = CliRunner().invoke(main, ["label", str(dataset), "--workers", "1", *args])
+    assert result.exit_code != 0 and needle in result.output and "Traceback" not in result.output
+    assert (dataset / "manifest.json").read_text() == before
