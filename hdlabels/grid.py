@@ -127,10 +127,15 @@ def bin_points(points: np.ndarray, shape: tuple[int, int], spacing_m: float, sta
     else:  # nearest: the return closest (horizontally) to the cell centre
         fx = pts[inside, 0] / spacing_m + cols / 2.0 - (j[inside] + 0.5)
         fy = rows / 2.0 - pts[inside, 1] / spacing_m - (i[inside] + 0.5)
-        order = np.lexsort((fx * fx + fy * fy, cell))
-        first = order[np.r_[True, cell[order][1:] != cell[order][:-1]]] if order.size else order
+        dist = fx * fx + fy * fy
+        best = np.full(rows * cols, np.inf)
+        np.minimum.at(best, cell, dist)
+        first = np.full(rows * cols, cell.size)  # among equally central returns, the first in detector order
+        candidates = np.flatnonzero(dist == best[cell])
+        np.minimum.at(first, cell[candidates], candidates)
         dem = np.full(rows * cols, np.nan)
-        dem[cell[first]] = z[first]
+        has = first < cell.size
+        dem[has] = z[first[has]]
     dem[count == 0] = np.nan
     return dem.reshape(rows, cols).astype(np.float32)
 
