@@ -664,7 +664,10 @@ def _write_maps(
     batch_size: int, seed: int, dev: torch.device, progress: Callable[[int, int], None] | None,
 ) -> tuple[dict[str, int], dict[str, float]]:
     """Step 3: every row of tiles through the network and the baseline, owned crops written to the four maps."""
-    spacing = float(np.sqrt(terrain.spacing_xy_m[0] * terrain.spacing_xy_m[1]))
+    # The baseline, like the network, takes the cells as the run's: the grid is within 2 % of that
+    # spacing, and the lander's sampling (pads on grid nodes in the paper convention) is then exactly
+    # the one of the training labels.
+    spacing = run.spacing_m
     counts = {"safe": 0, "unsafe": 0, "uncertain": 0, "invalid": 0, "baseline_safe": 0}
     t_read = t_net = t_base = t_write = 0.0
     done = 0

@@ -282,7 +282,7 @@ def test_procedural_terrain_constant_run_sites_by_hand(trained, tmp_path):
     clearances = [float(r["clearance_m"]) for r in rows]
     assert clearances == sorted(clearances, reverse=True)  # equal P(safe): ranked by clearance
     edt = ndimage.distance_transform_edt(np.pad(safety == SAFETY_SAFE, 1))[1:-1, 1:-1]
-    assert clearances[0] == pytest.approx(edt.max())  # site 1 is the clearest cell
+    assert clearances[0] == pytest.approx(edt.max(), abs=5e-4)  # site 1 is the clearest cell (CSV: 1 mm)
     assert profile_of(out / "safety.tif")["crs"] is None
 
 
