@@ -54,7 +54,7 @@ from hdnet.train import CHECKPOINT_SCHEMA, CHECKPOINT_VERSION, save_checkpoint  
 from lidarsim.procedural import MarsTerrainParams, generate_mars_terrain, write_geotiff  # noqa: E402
 
 BUDGET_S = 10.0  # ALHAT's onboard budget per frame (issue "hd detect", after Johnson et al.)
-LABELING = {"name": "square-d10m-pad1m-slope10deg-rough0.2m-yaws8-dem100x100at1m", "lander": {},
+LABELING = {"name": "default-lander-dem100x100at1m", "lander": Lander().to_attrs(),  # the default label convention
             "dem": {"rows": 100, "cols": 100, "spacing_m": 1.0}}
 
 
@@ -135,7 +135,8 @@ def main() -> None:
     for label, one, eight in rows:
         batched = f"{eight:9.3f} s" if np.isfinite(eight) else f"{'-':>11s}"
         print(f"  {label:66s} {one:10.3f} s {batched} {one / BUDGET_S:8.3f}")
-    print(f"  {'ALHAT baseline P(safe) (numba)':66s} {base:10.4f} s {'':>11s} {base / BUDGET_S:8.4f}")
+    label = f"ALHAT baseline P(safe) (numba, {Lander().convention} convention)"
+    print(f"  {label:66s} {base:10.4f} s {'':>11s} {base / BUDGET_S:8.4f}")
     print(f"  {'site selection (every valid cell safe: the most candidates)':66s} {sites:10.4f} s")
     print()
     for label, one, _ in rows:
@@ -158,7 +159,7 @@ def main() -> None:
                 "model": run.model.state_dict(),
                 "extra_config": {"train_sigma_m": 0.0167, "normalisation": run.normalisation.to_dict(),
                                  "input_size": None, "labels": LABELING["name"], "dem_shape": [100, 100],
-                                 "labeling": {**LABELING, "lander": Lander().to_attrs()}},
+                                 "labeling": LABELING},
             })
             t0 = time.perf_counter()
             result = detect(ckpt, Path(tmp) / "out", dtm=dtm, threshold="nats:0.35", mc_samples=args.samples)
