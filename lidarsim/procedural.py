@@ -21,17 +21,16 @@ import dataclasses
 import json
 import math
 import os
-import uuid
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import rasterio
 from rasterio.crs import CRS
 from rasterio.transform import from_origin
 
 from lidarsim import terrain_defaults as td
 from lidarsim.errors import TerrainError
+from lidarsim.storage import write_bytes_atomic
 
 __all__ = [
     "MarsTerrainParams",
@@ -353,29 +352,26 @@ def params_tags(params: MarsTerrainParams, seed: int) -> dict[str, str]:
     }
 
 
-def write_geotiff(
-    path: str | os.PathLike[str],
+def geotiff_bytes(
     heights: np.ndarray,
     spacing_m: float,
     origin_xy: tuple[float, float] = (0.0, 0.0),
     crs_wkt: str = "",
     tags: dict[str, str] | None = None,
-) -> None:
-    """Write ``heights`` (metres) as a float32, north-up GeoTIFF with nodata NaN.
+    name: str = "terrain.tif",
+) -> bytes:
+    """``heights`` (metres) as the bytes of a float32, north-up, deflate-compressed GeoTIFF with nodata NaN.
 
-    ``origin_xy`` is the map position (metres) of the top-left corner; ``crs_wkt`` "" writes no
-    CRS (local metres). The file is written under a temporary name in the same directory and
-    renamed when complete, so a half-written file is never visible at ``path``.
+    Built in memory (GDAL's /vsimem); ``origin_xy`` is the map position (metres) of the top-left
+    corner; ``crs_wkt`` "" writes no CRS (local metres); ``name`` names the file in errors.
     """
-    target = os.path.abspath(os.fspath(path))
+    from rasterio.io import MemoryFile
+
     arr = np.asarray(heights)
     if arr.ndim != 2 or arr.shape[0] < 1 or arr.shape[1] < 1:
-        raise TerrainError(f"{target}: heights must be a non-empty 2-D array, got shape {arr.shape}")
+        raise TerrainError(f"{name}: heights must be a non-empty 2-D array, got shape {arr.shape}")
     if not (math.isfinite(spacing_m) and spacing_m > 0.0):
-        raise TerrainError(f"{target}: spacing_m={spacing_m} must be a positive number of metres")
-    directory = os.path.dirname(target)
-    if not os.path.isdir(directory):
-        raise TerrainError(f"{target}: directory {directory} does not exist")
+        raise TerrainError(f"{name}: spacing_m={spacing_m} must be a positive number of metres")
     profile: dict[str, Any] = {
         "driver": "GTiff",
         "height": arr.shape[0],
@@ -391,14 +387,31 @@ def write_geotiff(
         profile.update(tiled=True, blockxsize=256, blockysize=256)
     if crs_wkt:
         profile["crs"] = CRS.from_wkt(crs_wkt)
-    tmp = os.path.join(directory, f".{os.path.basename(target)}.{uuid.uuid4().hex}.tmp")
-    try:
-        with rasterio.open(tmp, "w", **profile) as dst:
+    with MemoryFile() as memfile:
+        with memfile.open(**profile) as dst:
             dst.write(arr.astype(np.float32, copy=False), 1)
             if tags:
                 dst.update_tags(**{str(k): str(v) for k, v in tags.items()})
-        os.replace(tmp, target)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        raise
+        return bytes(memfile.read())
+
+
+def write_geotiff(
+    path: str | os.PathLike[str],
+    heights: np.ndarray,
+    spacing_m: float,
+    origin_xy: tuple[float, float] = (0.0, 0.0),
+    crs_wkt: str = "",
+    tags: dict[str, str] | None = None,
+) -> None:
+    """Write ``heights`` (metres) as a float32, north-up GeoTIFF with nodata NaN (see ``geotiff_bytes``).
+
+    The file is built in memory and written through ``lidarsim.storage`` (temporary name, fsync,
+    rename), so a half-written file is never visible at ``path`` and a full disk gives one error
+    line naming it.
+    """
+    target = os.path.abspath(os.fspath(path))
+    directory = os.path.dirname(target)
+    if not os.path.isdir(directory):
+        raise TerrainError(f"{target}: directory {directory} does not exist")
+    data = geotiff_bytes(heights, spacing_m, origin_xy, crs_wkt, tags, name=target)
+    write_bytes_atomic(target, data)
