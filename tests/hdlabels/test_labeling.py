@@ -135,4 +135,4 @@ def test_unknown_label_schema_version_is_refused(dataset, tmp_path):
     with pytest.raises(LabelStoreError, match="version 3.0"):
         LabelShardReader(copy)
     manifest = json.loads((dataset / "manifest.json").read_text())
-    assert all(lab["schema_version"] == "1.0" for lab in manifest["labelings"])
+    assert all(lab["schema_version"] == "1.1" for lab in manifest["labelings"])
