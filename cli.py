@@ -1,10 +1,14 @@
 """The ``hd`` command: wires lidarsim, hdlabels and hdnet together; holds no logic of its own.
 
-Every command turns bad input into a one-line error and a non-zero exit status.
+Every command turns bad input into a one-line error and a non-zero exit status. Ctrl-C, SIGTERM
+and SIGHUP stop a command cleanly (partial files removed, resumable) with exit status 128 + the
+signal number: 130, 143, 129 (docs/reliability.md).
 """
 
 from __future__ import annotations
 
+import math
+import signal
 import sys
 from collections.abc import Callable
 from functools import wraps
@@ -16,6 +20,38 @@ import click
 from lidarsim import defaults as lidar_defaults
 from lidarsim._version import __version__
 from lidarsim.errors import LidarsimError
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM or SIGHUP, raised in the main thread so that it unwinds like Ctrl-C."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _raise_terminated(signum: int, frame: Any) -> None:
+    for sig in (signal.SIGTERM, signal.SIGHUP):  # a second signal must not interrupt the clean-up
+        signal.signal(sig, signal.SIG_IGN)
+    raise Terminated(signum)
+
+
+def _install_signal_handlers(ctx: click.Context) -> None:
+    """SIGTERM and SIGHUP unwind like Ctrl-C (restored when the command ends)."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return
+    previous = {sig: signal.signal(sig, _raise_terminated) for sig in (signal.SIGTERM, signal.SIGHUP)}
+    ctx.call_on_close(lambda: [signal.signal(sig, handler) for sig, handler in previous.items()])
+
+
+def _one_line(exc: BaseException) -> str:
+    """The message of an error as one line (a DataLoader worker's error carries its traceback)."""
+    text = str(exc).strip()
+    if "Original Traceback" in text:
+        text = text.splitlines()[-1].split(": ", 1)[-1]
+    return " ".join(text.split()) if "\n" in text else text
 
 
 def _known_errors() -> tuple[type[BaseException], ...]:
@@ -37,12 +73,37 @@ def friendly_errors(func: Callable[..., Any]) -> Callable[..., Any]:
         try:
             return func(*args, **kwargs)
         except _known_errors() as exc:
-            raise click.ClickException(str(exc)) from None
-        except KeyboardInterrupt:
-            click.echo("\ninterrupted; re-run the same command to resume", err=True)
-            sys.exit(130)
+            raise click.ClickException(_one_line(exc)) from None
+        except OSError as exc:
+            from lidarsim.storage import describe_os_error
+
+            raise click.ClickException(describe_os_error(exc)) from None
+        except MemoryError:
+            raise click.ClickException("out of memory; use smaller settings (fewer scans per shard, "
+                                       "a smaller batch or resolution)") from None
+        except KeyboardInterrupt as exc:
+            signum = getattr(exc, "signum", signal.SIGINT)
+            what = "interrupted" if signum == signal.SIGINT else f"stopped by {signal.Signals(signum).name}"
+            click.echo(f"\n{what}; re-run the same command to resume", err=True)
+            sys.exit(128 + int(signum))
 
     return wrapper
+
+
+def _check_finite(**values: float | None) -> None:
+    """Refuse NaN and infinite option values (``--altitude inf``) with the option's name."""
+    for name, value in values.items():
+        if value is not None and not math.isfinite(value):
+            raise LidarsimError(f"--{name.replace('_', '-')} must be a finite number, got {value}")
+
+
+def _check_range(name: str, value: int | None, low: int, high: int | None = None) -> None:
+    """Refuse an integer option outside [low, high]."""
+    if value is None:
+        return
+    if value < low or (high is not None and value > high):
+        span = f">= {low}" if high is None else f"in {low}..{high}"
+        raise LidarsimError(f"--{name} must be {span}, got {value}")
 
 
 class _ScanProgress:
@@ -67,8 +128,10 @@ class _ScanProgress:
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="hd")
-def main() -> None:
+@click.pass_context
+def main(ctx: click.Context) -> None:
     """hd — hazard-detection datasets, ALHAT labels and uncertainty-aware networks for planetary landing."""
+    _install_signal_handlers(ctx)
 
 
 @main.command("build-dataset")
@@ -101,8 +164,22 @@ def build_dataset_cmd(out_dir: Path, dtm_path: Path | None, sigmas: tuple[float,
     from lidarsim.sensor import SensorConfig
     from lidarsim.trajectory import TrajectoryConfig
 
-    if workers is not None and workers <= 0:
-        raise LidarsimError(f"--workers must be > 0, got {workers}")
+    from lidarsim import limits
+    from lidarsim.storage import check_output_dir
+
+    _check_range("workers", workers, 1, limits.MAX_WORKERS)
+    _check_range("seed", seed, 0)
+    _check_range("scans", scans, 1, limits.MAX_SCANS)
+    _check_range("resolution", resolution, 2, limits.MAX_DETECTOR_PX)
+    _check_range("shard-size", shard_size, 1)
+    _check_finite(altitude=altitude, dtm_scale=dtm_scale, tilt=tilt, jitter=jitter, fov=fov)
+    for sigma in sigmas:
+        _check_finite(sigma=sigma)
+    check_output_dir(out_dir, "--out")
+    if scheduler is not None:
+        from lidarsim.parallel import check_scheduler_address
+
+        check_scheduler_address(scheduler)
     if recipe is not None:
         from lidarsim.recipe import load_recipe
 
@@ -148,7 +225,11 @@ def make_dtm_cmd(out_path: Path, seed: int, size_m: float | None, spacing_m: flo
     import json
 
     from lidarsim.procedural import MarsTerrainParams, generate_mars_terrain, write_geotiff
+    from lidarsim.storage import check_output_file
 
+    _check_range("seed", seed, 0)
+    _check_finite(size=size_m, spacing=spacing_m, rock_k=rock_k)
+    check_output_file(out_path, "OUT_PATH")
     if out_path.exists() and not overwrite:
         raise LidarsimError(f"{out_path} exists; pass --overwrite to replace it")
     changes = {k: v for k, v in (("size_m", size_m), ("spacing_m", spacing_m), ("rock_k", rock_k)) if v is not None}
@@ -164,10 +245,20 @@ def make_dtm_cmd(out_path: Path, seed: int, size_m: float | None, spacing_m: flo
 @click.argument("directory", type=click.Path(file_okay=False, path_type=Path))
 @friendly_errors
 def inspect_cmd(directory: Path) -> None:
-    """Summarise a dataset: scans, splits, noise levels, sensor, terrain, labels."""
+    """Summarise a dataset: scans, splits, noise levels, sensor, terrain, labels; and check every file."""
     from lidarsim.inspect import describe_dataset
+    from lidarsim.shards import verify_dataset
 
-    click.echo(describe_dataset(directory))
+    summary = describe_dataset(directory)
+    problems = verify_dataset(directory, known_schemas=_known_schemas())
+    click.echo(summary)
+    if problems:
+        click.echo(f"status    DAMAGED: {len(problems)} problem(s)", err=True)
+        for p in problems:
+            click.echo(f"          {p}", err=True)
+        raise click.ClickException(f"{directory} is damaged ({len(problems)} problem(s)); `hd verify {directory}` "
+                                   "lists them; rebuild or restore the damaged files")
+    click.echo("status    intact: every file matches the manifest's sha256 and schema")
 
 
 def _known_schemas() -> dict[str, str]:
@@ -252,8 +343,15 @@ def label_cmd(directory: Path, lander_diameter: float, pad_diameter: float, max_
         count_holes = bool(settings.get("count_holes", count_holes))
         dem_size = int(settings.get("dem_size", dem_size))
         dem_spacing = float(settings.get("dem_spacing_m", dem_spacing))
-    if workers is not None and workers <= 0:
-        raise HdLabelsError(f"--workers must be > 0, got {workers}")
+    from lidarsim import limits
+
+    _check_range("workers", workers, 1, limits.MAX_WORKERS)
+    _check_finite(lander_diameter=lander_diameter, pad_diameter=pad_diameter, max_slope_deg=max_slope_deg,
+                  max_roughness=max_roughness, dem_spacing=dem_spacing)
+    if scheduler is not None:
+        from lidarsim.parallel import check_scheduler_address
+
+        check_scheduler_address(scheduler)
     if dem_size < 2 or not (dem_spacing > 0):
         raise HdLabelsError(f"the DEM must be at least 2 pixels of positive spacing, got {dem_size} x {dem_spacing}")
     lander = Lander(diameter_m=lander_diameter, pad_diameter_m=pad_diameter, max_slope_deg=max_slope_deg,
@@ -278,17 +376,23 @@ def label_cmd(directory: Path, lander_diameter: float, pad_diameter: float, max_
 @click.option("--resume", is_flag=True, help="Continue an interrupted run from its last checkpoint.")
 @click.option("--labels", "labeling", default=None, help="Labelling to train on (when the dataset has several).")
 @click.option("--num-workers", type=int, default=0, show_default=True, help="DataLoader worker processes.")
+@click.option("--overwrite", is_flag=True, help="Start an existing run again, or write into a non-empty directory that is not a run.")
 @friendly_errors
 def train_cmd(dataset: Path, run_dir: Path, profile: str, epochs: int | None, train_sigma: float, seed: int,
-              resume: bool, labeling: str | None, num_workers: int = 0) -> None:
+              resume: bool, labeling: str | None, num_workers: int = 0, overwrite: bool = False) -> None:
     """Train the Bayesian SegNet on the noisy DEMs of a labelled dataset."""
     from hdnet.errors import HdNetError
     from hdnet.fit import fit
 
     if epochs is not None and epochs <= 0:
         raise HdNetError(f"--epochs must be > 0, got {epochs}")
+    if resume and overwrite:
+        raise HdNetError("--resume and --overwrite exclude each other")
+    _check_range("seed", seed, 0)
+    _check_range("num-workers", num_workers, 0, 256)
+    _check_finite(train_sigma=train_sigma)
     checkpoint = fit(dataset, run_dir, profile_name=profile, epochs=epochs, train_sigma_m=train_sigma, seed=seed,
-                     resume=resume, labels=labeling, progress=True, num_workers=num_workers)
+                     resume=resume, labels=labeling, progress=True, num_workers=num_workers, overwrite=overwrite)
     click.echo(f"training done: {checkpoint} (metrics in {run_dir / 'metrics.csv'})")
 
 
@@ -302,14 +406,16 @@ def train_cmd(dataset: Path, run_dir: Path, profile: str, epochs: int | None, tr
 @click.option("--labels", "labeling", default=None, help="Labelling to evaluate against (when the dataset has several).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of MC dropout and dropped pixels.")
 @click.option("--batch-size", type=int, default=8, show_default=True, help="DEMs per inference batch.")
+@click.option("--overwrite", is_flag=True, help="Replace an existing report, or write into a non-empty directory that is not a report.")
 @friendly_errors
 def eval_cmd(run_dir: Path, dataset: Path, out_dir: Path, mc_samples: int, drop_pixels: int, threshold: str,
-             labeling: str | None, seed: int, batch_size: int = 8) -> None:
+             labeling: str | None, seed: int, batch_size: int = 8, overwrite: bool = False) -> None:
     """Evaluate a trained run: the paper's tables, threshold sweep, calibration and figures."""
     from hdnet.evaluate import evaluate
 
+    _check_range("seed", seed, 0)
     result = evaluate(run_dir, dataset, out_dir, mc_samples=mc_samples, drop_pixels=drop_pixels,
-                      threshold=threshold, labels=labeling, seed=seed, batch_size=batch_size)
+                      threshold=threshold, labels=labeling, seed=seed, batch_size=batch_size, overwrite=overwrite)
     click.echo(result.summary())
     click.echo(f"report: {out_dir / 'report.md'} (and report.json, figures)")
 
@@ -323,6 +429,7 @@ def eval_cmd(run_dir: Path, dataset: Path, out_dir: Path, mc_samples: int, drop_
 @friendly_errors
 def demo_cmd(ctx: click.Context, out_dir: Path, scans: int, epochs: int, workers: int | None) -> None:
     """The whole chain at demo scale on the built-in procedural Mars terrain (re-running resumes)."""
+    _check_chain(out_dir, scans, epochs, workers)
     stages = _Stages(out_dir)
     data, run, report = out_dir / "dataset", out_dir / "run", out_dir / "report"
     with stages("build", f"{scans} scans x {len(lidar_defaults.PAPER_SIGMAS_M)} noise levels on the procedural Mars terrain"):
@@ -351,6 +458,12 @@ def reproduce_cmd(ctx: click.Context, profile: str, dtm_path: Path | None, out_d
     """The paper end to end: S-167/S-300/S-700 on one terrain and trajectory (1000 scans, 800/100/100),
     labels, training at 1.67 cm, Table 1, Table 2 (10 dropped pixels), threshold sweep and panels,
     plus the risk-controlled threshold (alpha = 0.05). Each stage is resumable; finished stages are skipped."""
+    _check_chain(out_dir, lidar_defaults.N_SCANS, epochs, workers)
+    if dtm_path is not None:
+        from lidarsim.terrain import DTM
+
+        with DTM.open(dtm_path):
+            pass
     stages = _Stages(out_dir)
     data, run = out_dir / "dataset", out_dir / "run"
     with stages("build", "1000 scans x (1.67, 3, 7) cm on one terrain and trajectory"):
@@ -377,6 +490,7 @@ def card_cmd(dataset: Path, recipe: Path, machine: str) -> None:
     from hdlabels.card import checksums_of, render_card
     from lidarsim.recipe import CHECKSUMS_FILE, load_recipe
     from lidarsim.shards import read_manifest, write_json_atomic
+    from lidarsim.storage import write_text_atomic
 
     loaded = load_recipe(recipe)
     manifest = read_manifest(dataset)
@@ -385,8 +499,22 @@ def card_cmd(dataset: Path, recipe: Path, machine: str) -> None:
     directory = loaded.path.parent
     sums = checksums_of(dataset)
     write_json_atomic(directory / CHECKSUMS_FILE, sums)
-    (directory / "card.md").write_text(render_card(dataset, loaded, machine))
+    write_text_atomic(directory / "card.md", render_card(dataset, loaded, machine))
     click.echo(f"wrote {directory / 'card.md'} and {directory / CHECKSUMS_FILE} ({len(sums['shards'])} shards)")
+
+
+def _check_chain(out_dir: Path, scans: int, epochs: int | None, workers: int | None) -> None:
+    """Every option of a multi-stage command, checked before its first stage runs."""
+    from lidarsim import limits
+    from lidarsim.build import assign_splits
+    from lidarsim.storage import check_output_dir
+
+    _check_range("scans", scans, 3, limits.MAX_SCANS)
+    _check_range("epochs", epochs, 1)
+    _check_range("workers", workers, 1, limits.MAX_WORKERS)
+    if min(int((assign_splits(scans, seed=0) == code).sum()) for code in (0, 1, 2)) == 0:
+        raise LidarsimError(f"--scans {scans} leaves a split empty; use more scans")
+    check_output_dir(out_dir, "--out")
 
 
 class _Stages:
@@ -413,11 +541,18 @@ class _Stages:
     def finish(self) -> None:
         import json
 
-        self.out_dir.mkdir(parents=True, exist_ok=True)
+        from lidarsim.storage import make_dirs, write_json_atomic
+
+        make_dirs(self.out_dir)
         path = self.out_dir / "stages.json"
-        previous = json.loads(path.read_text()) if path.exists() else {}
+        try:
+            previous = json.loads(path.read_text()) if path.exists() else {}
+        except (OSError, ValueError):
+            previous = {}
+        if not isinstance(previous, dict) or not isinstance(previous.get("runs", []), list):
+            previous = {}
         previous.setdefault("runs", []).append(self.times)
-        path.write_text(json.dumps(previous, indent=2) + "\n")
+        write_json_atomic(path, previous)
         click.echo("stage times (s): " + ", ".join(f"{k} {v:.1f}" for k, v in self.times.items()))
 
 
