@@ -335,6 +335,18 @@ def validate_manifest(data: Any, where: str) -> dict[str, Any]:
     return data
 
 
+def _build_progress(directory: Path) -> str:
+    """`` (k of n shards complete)`` of an unfinished build, best effort."""
+    try:
+        config = read_json(directory / BUILD_STATE_NAME)["config"]
+        n_scans, size = int(config["trajectory"]["n_scans"]), int(config["shard_size"])
+        total = -(-n_scans // size)
+    except Exception:  # noqa: BLE001 - the state file is only informative here
+        return ""
+    done = sum(1 for p in (directory / "shards").glob("scans-*.h5")) if (directory / "shards").is_dir() else 0
+    return f" ({done} of {total} shards complete)"
+
+
 def read_manifest(directory: str | os.PathLike) -> dict[str, Any]:
     """Read and check ``manifest.json`` of a dataset directory.
 
@@ -350,7 +362,8 @@ def read_manifest(directory: str | os.PathLike) -> dict[str, Any]:
             holder = lock_holder(directory)
             if holder is not None:
                 raise FormatError(f"{directory}: a build is in progress (PID {holder}); wait for it to finish")
-            raise FormatError(f"{directory}: unfinished build - re-run the same `hd build-dataset` command to finish it")
+            raise FormatError(f"{directory}: unfinished build{_build_progress(directory)} - re-run the same "
+                              "`hd build-dataset` command to finish it")
         if not directory.exists():
             raise FormatError(f"{directory}: no such dataset directory")
         if not directory.is_dir():
