@@ -131,6 +131,15 @@ def _check_range(name: str, value: int | None, low: int, high: int | None = None
         raise LidarsimError(f"--{name} must be {span}, got {value}")
 
 
+class _Path(click.Path):
+    """click.Path that refuses an empty string (which click would turn into the current directory)."""
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        if isinstance(value, str) and not value.strip():
+            self.fail("must not be empty", param, ctx)
+        return super().convert(value, param, ctx)
+
+
 class _ScanProgress:
     """tqdm progress bar fed with (done, total) scan counts."""
 
@@ -160,8 +169,8 @@ def main(ctx: click.Context) -> None:
 
 
 @main.command("build-dataset")
-@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path), help="Dataset directory to create.")
-@click.option("--dtm", "dtm_path", type=click.Path(path_type=Path), default=None, help="DTM (GeoTIFF, HiRISE PDS3 .IMG, any GDAL raster in metres). Default: the procedural Mars terrain.")
+@click.option("--out", "out_dir", required=True, type=_Path(file_okay=False, path_type=Path), help="Dataset directory to create.")
+@click.option("--dtm", "dtm_path", type=_Path(path_type=Path), default=None, help="DTM (GeoTIFF, HiRISE PDS3 .IMG, any GDAL raster in metres). Default: the procedural Mars terrain.")
 @click.option("--sigma", "sigmas", type=float, multiple=True, help=f"Range noise 1-sigma in metres; repeat for several levels (default {lidar_defaults.DEFAULT_SIGMA_M}).")
 @click.option("--scans", type=int, default=lidar_defaults.N_SCANS, show_default=True, help="Number of scans.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Master seed of every random stream.")
@@ -178,7 +187,7 @@ def main(ctx: click.Context) -> None:
 @click.option("--dead-elements", type=int, default=0, show_default=True, help="Dead detector elements (no return).")
 @click.option("--damaged-elements", type=int, default=0, show_default=True, help="Damaged detector elements (large range error).")
 @click.option("--compression", type=click.Choice(["gzip", "lzf", "none"]), default="gzip", show_default=True, help="HDF5 compression of the point arrays.")
-@click.option("--recipe", type=click.Path(path_type=Path), default=None, help="Build exactly the dataset of a recipe (datasets/<name>); the recipe fixes every content setting.")
+@click.option("--recipe", type=_Path(path_type=Path), default=None, help="Build exactly the dataset of a recipe (datasets/<name>); the recipe fixes every content setting.")
 @friendly_errors
 def build_dataset_cmd(out_dir: Path, dtm_path: Path | None, sigmas: tuple[float, ...], scans: int, seed: int,
                       workers: int | None, altitude: float, dtm_scale: float, scheduler: str | None, overwrite: bool,
@@ -237,7 +246,7 @@ def build_dataset_cmd(out_dir: Path, dtm_path: Path | None, sigmas: tuple[float,
 
 
 @main.command("make-dtm")
-@click.argument("out_path", type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("out_path", type=_Path(dir_okay=False, path_type=Path))
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the procedural terrain.")
 @click.option("--size", "size_m", type=float, default=None, help="Side of the square terrain, metres (default: the built-in size).")
 @click.option("--spacing", "spacing_m", type=float, default=None, help="Grid spacing, metres/pixel (<= 0.5).")
@@ -267,7 +276,7 @@ def make_dtm_cmd(out_path: Path, seed: int, size_m: float | None, spacing_m: flo
 
 
 @main.command("inspect")
-@click.argument("directory", type=click.Path(file_okay=False, path_type=Path))
+@click.argument("directory", type=_Path(file_okay=False, path_type=Path))
 @friendly_errors
 def inspect_cmd(directory: Path) -> None:
     """Summarise a dataset: scans, splits, noise levels, sensor, terrain, labels; and check every file."""
@@ -298,8 +307,8 @@ def _known_schemas() -> dict[str, str]:
 
 
 @main.command("verify")
-@click.argument("directory", type=click.Path(file_okay=False, path_type=Path))
-@click.option("--recipe", type=click.Path(path_type=Path), default=None, help="Also check the dataset against the checksums published with a recipe.")
+@click.argument("directory", type=_Path(file_okay=False, path_type=Path))
+@click.option("--recipe", type=_Path(path_type=Path), default=None, help="Also check the dataset against the checksums published with a recipe.")
 @friendly_errors
 def verify_cmd(directory: Path, recipe: Path | None) -> None:
     """Check every file of a dataset against the manifest's checksums and the schema versions."""
@@ -324,7 +333,7 @@ def verify_cmd(directory: Path, recipe: Path | None) -> None:
 
 
 @main.command("label")
-@click.argument("directory", type=click.Path(file_okay=False, path_type=Path))
+@click.argument("directory", type=_Path(file_okay=False, path_type=Path))
 @click.option("--lander-diameter", type=float, default=10.0, show_default=True, help="Lander diameter, metres.")
 @click.option("--pad-diameter", type=float, default=1.0, show_default=True, help="Footpad diameter, metres.")
 @click.option("--max-slope-deg", type=float, default=10.0, show_default=True, help="Critical slope, degrees.")
@@ -336,7 +345,7 @@ def verify_cmd(directory: Path, recipe: Path | None) -> None:
 @click.option("--dem-spacing", type=float, default=1.0, show_default=True, help="DEM spacing, metres/pixel.")
 @click.option("--workers", type=int, default=None, help="Local worker processes (default: all cores).")
 @click.option("--scheduler", default=None, help="Dask scheduler address to run the label tasks on a cluster.")
-@click.option("--recipe", type=click.Path(path_type=Path), default=None, help="Take the lander and DEM settings from a recipe's [label] section.")
+@click.option("--recipe", type=_Path(path_type=Path), default=None, help="Take the lander and DEM settings from a recipe's [label] section.")
 @friendly_errors
 def label_cmd(directory: Path, lander_diameter: float, pad_diameter: float, max_slope_deg: float, max_roughness: float,
               layout: str, yaws: int | None, count_holes: bool, dem_size: int, dem_spacing: float, workers: int | None,
@@ -392,8 +401,8 @@ def label_cmd(directory: Path, lander_diameter: float, pad_diameter: float, max_
 
 
 @main.command("train")
-@click.argument("dataset", type=click.Path(file_okay=False, path_type=Path))
-@click.option("--out", "run_dir", required=True, type=click.Path(file_okay=False, path_type=Path), help="Run directory (checkpoints, metrics.csv, config.json).")
+@click.argument("dataset", type=_Path(file_okay=False, path_type=Path))
+@click.option("--out", "run_dir", required=True, type=_Path(file_okay=False, path_type=Path), help="Run directory (checkpoints, metrics.csv, config.json).")
 @click.option("--profile", type=click.Choice(["paper", "cpu", "tiny"]), default="cpu", show_default=True, help="Training profile: paper (GPU, 512x512, full width), cpu (2-core machine), tiny (tests, demos).")
 @click.option("--epochs", type=int, default=None, help="Epochs (default: the profile's).")
 @click.option("--train-sigma", type=float, default=lidar_defaults.DEFAULT_SIGMA_M, show_default=True, help="Noise level of the training inputs, metres.")
@@ -422,9 +431,9 @@ def train_cmd(dataset: Path, run_dir: Path, profile: str, epochs: int | None, tr
 
 
 @main.command("eval")
-@click.argument("run_dir", type=click.Path(file_okay=False, path_type=Path))
-@click.option("--data", "dataset", required=True, type=click.Path(file_okay=False, path_type=Path), help="Labelled dataset to evaluate on (its test split).")
-@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path), help="Report directory (report.md, report.json, figures).")
+@click.argument("run_dir", type=_Path(file_okay=False, path_type=Path))
+@click.option("--data", "dataset", required=True, type=_Path(file_okay=False, path_type=Path), help="Labelled dataset to evaluate on (its test split).")
+@click.option("--out", "out_dir", required=True, type=_Path(file_okay=False, path_type=Path), help="Report directory (report.md, report.json, figures).")
 @click.option("--mc-samples", type=int, default=8, show_default=True, help="MC-dropout samples M.")
 @click.option("--drop-pixels", type=int, default=0, show_default=True, help="Dead-pixel test: pixels dropped from each DEM and refilled (paper: 10).")
 @click.option("--threshold", default="mean", show_default=True, help="Uncertainty threshold: mean, quantile:Q or risk:ALPHA.")
@@ -446,7 +455,7 @@ def eval_cmd(run_dir: Path, dataset: Path, out_dir: Path, mc_samples: int, drop_
 
 
 @main.command("demo")
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("demo-out"), show_default=True, help="Directory of the demo run.")
+@click.option("--out", "out_dir", type=_Path(file_okay=False, path_type=Path), default=Path("demo-out"), show_default=True, help="Directory of the demo run.")
 @click.option("--scans", type=int, default=200, show_default=True, help="Scans in the demo dataset.")
 @click.option("--epochs", type=int, default=10, show_default=True, help="Training epochs (cpu profile).")
 @click.option("--workers", type=int, default=None, help="Local worker processes (default: all cores).")
@@ -472,8 +481,8 @@ def demo_cmd(ctx: click.Context, out_dir: Path, scans: int, epochs: int, workers
 
 @main.command("reproduce")
 @click.option("--profile", type=click.Choice(["cpu", "paper"]), default="cpu", show_default=True, help="Training profile: cpu (this machine, <= 1 h) or paper (GPU).")
-@click.option("--dtm", "dtm_path", type=click.Path(path_type=Path), default=None, help="Use this DTM instead of the procedural Mars terrain.")
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("reproduction"), show_default=True, help="Directory of the reproduction.")
+@click.option("--dtm", "dtm_path", type=_Path(path_type=Path), default=None, help="Use this DTM instead of the procedural Mars terrain.")
+@click.option("--out", "out_dir", type=_Path(file_okay=False, path_type=Path), default=Path("reproduction"), show_default=True, help="Directory of the reproduction.")
 @click.option("--epochs", type=int, default=None, help="Training epochs (default: the profile's).")
 @click.option("--workers", type=int, default=None, help="Local worker processes (default: all cores).")
 @click.pass_context
@@ -506,8 +515,8 @@ def reproduce_cmd(ctx: click.Context, profile: str, dtm_path: Path | None, out_d
 
 
 @main.command("card")
-@click.argument("dataset", type=click.Path(file_okay=False, path_type=Path))
-@click.option("--recipe", required=True, type=click.Path(path_type=Path), help="Recipe directory the dataset was built from; card.md and checksums.json are written there.")
+@click.argument("dataset", type=_Path(file_okay=False, path_type=Path))
+@click.option("--recipe", required=True, type=_Path(path_type=Path), help="Recipe directory the dataset was built from; card.md and checksums.json are written there.")
 @click.option("--machine", default="", help="Where the published build was made (recorded in the card).")
 @friendly_errors
 def card_cmd(dataset: Path, recipe: Path, machine: str) -> None:

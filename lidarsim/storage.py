@@ -557,7 +557,7 @@ def _probe_writable(directory: Path, flag: str, target: Path) -> None:
     try:
         fd, name = tempfile.mkstemp(prefix=".hd-probe-", dir=directory)
     except OSError as exc:
-        raise StorageError(f"{flag} {target}: cannot write in {directory} ({exc.strerror or exc})") from None
+        raise StorageError(f"{flag} {target}: cannot create files in {directory} ({exc.strerror or exc})") from None
     os.close(fd)
     with contextlib.suppress(OSError):
         os.unlink(name)
