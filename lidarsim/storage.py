@@ -356,10 +356,26 @@ class CheckedDataset:
             return self._ds[selection]
         except (OSError, RuntimeError, KeyError) as exc:
             row = _selection_row(selection)
+            if row is None:
+                row = self._first_bad_row(selection)
             raise DamagedFileError(
                 f"{self._owner.what}: cannot read {self._ds.name.lstrip('/')}{self._owner.scan_text(row)} "
                 f"({_short(exc)}); the file is damaged, run `hd verify`"
             ) from None
+
+    def _first_bad_row(self, selection: Any) -> int | None:
+        """After a failed read of a range of rows: the first row that cannot be read, if any."""
+        first, rest = (selection[0], selection[1:]) if isinstance(selection, tuple) and selection else (selection, ())
+        if not isinstance(first, slice) or not self._ds.shape:
+            return None
+        for row in range(*first.indices(self._ds.shape[0])):
+            try:
+                self._ds[(row, *rest)]
+            except (OSError, RuntimeError, KeyError):
+                return row
+            except Exception:  # noqa: BLE001 - a selection that does not take an integer row
+                return None
+        return None
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._ds, name)
