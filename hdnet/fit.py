@@ -30,7 +30,15 @@ from hdnet.errors import HdNetError
 from hdnet.profiles import TrainingProfile, get_profile
 from hdnet.train import BEST, CONFIG, LAST, METRICS, train
 from lidarsim.shards import MANIFEST_NAME, sha256_file
-from lidarsim.storage import LOCK_NAME, PARTIAL_MARK, StorageError, WriterLock, check_output_dir, make_dirs
+from lidarsim.storage import (
+    LOCK_NAME,
+    PARTIAL_MARK,
+    StorageError,
+    WriterLock,
+    check_output_dir,
+    make_dirs,
+    remove_partials,
+)
 
 RUN_FILES = (LAST, BEST, METRICS, CONFIG)
 
@@ -158,6 +166,7 @@ def fit(
     try:
         with run_dir_lock(run_path):
             _, replace = prepare_run_dir(run_path, resume, overwrite)  # again, under the lock
+            remove_partials(run_path)  # of a killed run
             if replace:
                 for name in RUN_FILES:
                     (run_path / name).unlink(missing_ok=True)

@@ -33,8 +33,9 @@ BUILD_ARGS = ["--scans", "8", "--shard-size", "2", "--resolution", "32", "--sigm
 LABEL_ARGS: list[str] = []
 
 
-def hills(path: Path, n: int = 300, seed: int = 3, fill: dict[tuple[slice, slice], float] | None = None) -> Path:
-    """Smooth seeded hills with a few rocks, 1 m/px, float32 GeoTIFF; ``fill`` overwrites regions."""
+def hills(path: Path, n: int = 300, seed: int = 3, fill_rows: int = 0, fill: float = 0.0) -> Path:
+    """Smooth seeded hills with a few rocks, 1 m/px, float32 GeoTIFF; the first ``fill_rows`` rows
+    (the north) are set to ``fill``."""
     rng = np.random.default_rng(seed)
     z = ndimage.gaussian_filter(rng.normal(0.0, 1.0, (n, n)), 12)
     z = z / z.std() * 2.0
@@ -43,8 +44,7 @@ def hills(path: Path, n: int = 300, seed: int = 3, fill: dict[tuple[slice, slice
     rocks[idx[:, 0], idx[:, 1]] = 1.0
     z += ndimage.gaussian_filter(rocks, 1.5) * 8.0
     z = z.astype(np.float32)
-    for region, value in (fill or {}).items():
-        z[region] = value
+    z[:fill_rows] = fill
     with rasterio.open(path, "w", driver="GTiff", width=n, height=n, count=1, dtype="float32",
                        transform=from_origin(1000.0, 2000.0, 1.0, 1.0)) as dst:
         dst.write(z, 1)
@@ -84,7 +84,8 @@ def partials(root: Path) -> list[Path]:
 # ---------------------------------------------------------------------------------------- processes
 def hd_process(args: list[str], env: dict[str, str] | None = None, cwd: Path | None = None) -> subprocess.Popen:
     """Start ``hd ARGS`` as a separate process (own session) with the fault injector loaded."""
-    full_env = {**os.environ, "PYTHONPATH": f"{FAULTS}{os.pathsep}{REPO}", "HD_TEST_FAULTS": "1", **(env or {})}
+    full_env = {**os.environ, "PYTHONPATH": f"{FAULTS}{os.pathsep}{REPO}", "HD_TEST_FAULTS": "1",
+                "OMP_NUM_THREADS": "1", **(env or {})}
     return subprocess.Popen([sys.executable, str(REPO / "cli.py"), *[str(a) for a in args]], env=full_env,
                             cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             start_new_session=True)
@@ -191,6 +192,17 @@ def remount(path: Path, size: str) -> None:
 
 
 # ---------------------------------------------------------------------------------------- references
+@pytest.fixture(scope="session", autouse=True)
+def one_torch_thread():
+    """Tiny trainings run faster on one thread than on two competing with other processes."""
+    import torch
+
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(previous)
+
+
 @pytest.fixture(scope="session")
 def dtm(tmp_path_factory) -> Path:
     return hills(tmp_path_factory.mktemp("terrain") / "hills.tif")
