@@ -165,7 +165,10 @@ class _ScanProgress:
 @click.pass_context
 def main(ctx: click.Context) -> None:
     """hd — hazard-detection datasets, ALHAT labels and uncertainty-aware networks for planetary landing."""
+    from lidarsim.parallel import forked_children_die_with_parent
+
     _install_signal_handlers(ctx)
+    forked_children_die_with_parent()
 
 
 @main.command("build-dataset")

@@ -190,6 +190,8 @@ def _single_writer(func: Callable[..., LabelSummary]) -> Callable[..., LabelSumm
         except ShardFormatError as exc:
             raise LabelStoreError(str(exc)) from None
         labels = root / LABELS_DIR
+        if labels.is_symlink():
+            raise LabelStoreError(f"{labels} is a symbolic link; hd writes label shards only inside the dataset")
         before = {p.name for p in labels.iterdir()} if labels.is_dir() else None
         with WriterLock(root, "dataset"):
             try:

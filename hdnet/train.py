@@ -159,6 +159,8 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
     and a content that does not match its ``content_sha256`` (a damaged file)."""
     path = Path(path)
     if not path.is_file():
+        if path.exists():
+            raise HdNetError(f"checkpoint {path} is not a regular file.")
         raise HdNetError(f"checkpoint {path} does not exist.")
     try:
         ckpt = torch.load(path, map_location=map_location, weights_only=True)

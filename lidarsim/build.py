@@ -57,6 +57,7 @@ from lidarsim.storage import (
     check_h5_data,
     check_output_dir,
     make_dirs,
+    make_subdir,
     write_bytes_atomic,
 )
 from lidarsim.streams import Purpose, stream
@@ -351,6 +352,7 @@ def _check_existing_shard(task: ShardTask, fingerprint: str) -> ShardRecord | No
         with ScanShardReader(task.path) as reader:
             ok = (
                 reader.attrs.get("config_sha256") == fingerprint
+                and reader.attrs.get("dtm_sha256") == task.file_attrs.get("dtm_sha256")
                 and len(reader) == task.nadir_xy.shape[0]
                 and int(reader.attrs.get("first_scan", -1)) == task.first_scan
             )
@@ -393,17 +395,26 @@ def prepare_output(out_dir: Path, config: BuildConfig, overwrite: bool) -> bool:
                 "resume it, or pass --overwrite to start again"
             )
         return True
-    if any(p.name != LOCK_NAME for p in out_dir.iterdir()):
+    if any(p.name != LOCK_NAME and PARTIAL_MARK not in p.name for p in out_dir.iterdir()):
         raise OutputExistsError(f"{out_dir} exists, is not empty and is not an hd dataset; choose another --out")
     return False
 
 
-def clear_output(out_dir: Path) -> None:
-    """Remove a previous hd build from ``out_dir`` (manifest first, so it is never seen half-removed)."""
+def clear_output(out_dir: Path, keep_state: bool = False) -> None:
+    """Remove a previous hd build from ``out_dir`` (manifest first, so it is never seen half-removed).
+
+    ``keep_state``: keep ``.hd-build.json`` (the new build's, written before, so that a kill while
+    clearing leaves a build that the same command resumes).
+    """
     (out_dir / MANIFEST_NAME).unlink(missing_ok=True)
     for name in (SHARD_DIR, TERRAIN_DIR, "labels"):
-        shutil.rmtree(out_dir / name, ignore_errors=True)
-    (out_dir / BUILD_STATE_NAME).unlink(missing_ok=True)
+        path = out_dir / name
+        if path.is_symlink() or path.is_file():
+            path.unlink()
+        else:
+            shutil.rmtree(path, ignore_errors=True)
+    if not keep_state:
+        (out_dir / BUILD_STATE_NAME).unlink(missing_ok=True)
 
 
 def procedural_terrain_name(seed: int) -> str:
@@ -468,12 +479,11 @@ def build_dataset(
     check_workers(workers)
     if scheduler is not None:
         probe_scheduler(scheduler)
-    resume = prepare_output(out_dir, config, overwrite)
+    prepare_output(out_dir, config, overwrite)
     terrain_bytes: bytes | None = None
-    if config.dtm_path is None:
+    if config.dtm_path is None:  # generated in memory, also on resume (a damaged terrain file is rewritten)
         dtm_path = out_dir / TERRAIN_DIR / procedural_terrain_name(config.seed)
-        if not (resume and dtm_path.is_file()):
-            terrain_bytes = _procedural_terrain_bytes(config, dtm_path)
+        terrain_bytes = _procedural_terrain_bytes(config, dtm_path)
     else:
         dtm_path = Path(config.dtm_path).resolve()
     opened = DTM.from_bytes(terrain_bytes, dtm_path, scale=config.dtm_scale) if terrain_bytes is not None \
@@ -498,14 +508,18 @@ def build_dataset(
     finished = False
     try:
         resume = prepare_output(out_dir, config, overwrite)  # again, now that no other writer can run
+        # The build's settings first: from here on, a kill leaves a build the same command resumes.
+        write_json_atomic(out_dir / BUILD_STATE_NAME, {"config_sha256": config.fingerprint(),
+                                                        "dtm_sha256": dtm_attrs["dtm_sha256"],
+                                                        "config": config.to_dict()})
         if overwrite:
-            clear_output(out_dir)
-        if config.dtm_path is None and terrain_bytes is None and not dtm_path.is_file():
-            terrain_bytes = _procedural_terrain_bytes(config, dtm_path)  # removed since the first look
+            clear_output(out_dir, keep_state=True)
         if terrain_bytes is not None:
-            make_dirs(out_dir / TERRAIN_DIR)
-            write_bytes_atomic(dtm_path, terrain_bytes)
+            make_subdir(out_dir, TERRAIN_DIR)
+            if not (dtm_path.is_file() and sha256_file(dtm_path) == dtm_attrs["dtm_sha256"]):
+                write_bytes_atomic(dtm_path, terrain_bytes)
             del terrain_bytes
+        make_subdir(out_dir, SHARD_DIR)
         summary = _build_locked(out_dir, config, resume, dtm_path, dtm_attrs, dtm_provenance, plan, workers,
                                 scheduler, progress, t_start)
         finished = True
@@ -534,7 +548,6 @@ def _build_locked(
 ) -> BuildSummary:
     """The part of ``build_dataset`` that writes (called with the writer lock held)."""
     fingerprint = config.fingerprint()
-    write_json_atomic(out_dir / BUILD_STATE_NAME, {"config_sha256": fingerprint, "config": config.to_dict()})
     remove_partials(out_dir / SHARD_DIR)
     splits = assign_splits(config.trajectory.n_scans, config.seed)
     file_attrs = {

@@ -86,6 +86,23 @@ def die_with_parent(parent_pid: int) -> None:
     threading.Thread(target=_watch_parent, args=(parent_pid,), name="hd-parent-watchdog", daemon=True).start()
 
 
+_FORK_HOOK_INSTALLED = False
+
+
+def _kill_me_with_parent() -> None:
+    with contextlib.suppress(Exception):
+        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+
+
+def forked_children_die_with_parent() -> None:
+    """From now on, every child this process forks (e.g. PyTorch DataLoader workers) is killed by
+    the kernel when its parent dies (Linux; elsewhere a no-op). Used by the ``hd`` command."""
+    global _FORK_HOOK_INSTALLED
+    if not _FORK_HOOK_INSTALLED and sys.platform.startswith("linux") and hasattr(os, "register_at_fork"):
+        os.register_at_fork(after_in_child=_kill_me_with_parent)
+        _FORK_HOOK_INSTALLED = True
+
+
 def _portable(exc: BaseException) -> BaseException:
     """``exc`` if it survives pickling, else a WorkerError with its text."""
     try:

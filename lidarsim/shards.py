@@ -357,6 +357,10 @@ def read_manifest(directory: str | os.PathLike) -> dict[str, Any]:
     """
     directory = Path(directory)
     path = directory / MANIFEST_NAME
+    if os.path.lexists(path):
+        confine(directory, MANIFEST_NAME, str(path))
+        if not path.is_file():
+            raise FormatError(f"{path}: unreadable manifest (not a regular file)")
     if not path.is_file():
         if (directory / BUILD_STATE_NAME).is_file():
             holder = lock_holder(directory)

@@ -41,6 +41,7 @@ import json
 import math
 import os
 import re
+import stat
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -141,6 +142,8 @@ def verify_sha256(path: str | os.PathLike, expected: str, what: str | None = Non
         raise DamagedFileError(f"{name}: missing (the manifest lists it); run `hd verify`") from None
     except OSError as exc:
         raise StorageError(describe_os_error(exc, p)) from None
+    if not stat.S_ISREG(st.st_mode):
+        raise FormatError(f"{name}: not a regular file")
     key = (str(p), st.st_size, st.st_mtime_ns, st.st_ino, expected)
     if _VERIFIED.get(key):
         return
@@ -223,16 +226,44 @@ def _write_all(fd: int, data: bytes | memoryview) -> None:
         view = view[n:]
 
 
+def remove_stale_partials(final: Path) -> None:
+    """Remove temporary files of ``final`` left by processes that no longer run (killed writers)."""
+    final = Path(final)
+    prefix = f".{final.name}{PARTIAL_MARK}"
+    with contextlib.suppress(OSError):
+        for p in final.parent.glob(f"{glob_escape(prefix)}*"):
+            pid = p.name[len(prefix):]
+            if pid.isdigit() and int(pid) != os.getpid() and not _pid_alive(int(pid)):
+                with contextlib.suppress(OSError):
+                    p.unlink()
+
+
+def glob_escape(text: str) -> str:
+    """``text`` with glob's special characters escaped."""
+    import glob
+
+    return glob.escape(text)
+
+
+def _open_new(tmp: Path) -> int:
+    """Create ``tmp`` exclusively, never through a symbolic link (a stale one is removed first)."""
+    tmp.unlink(missing_ok=True)
+    return os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o644)
+
+
 def write_bytes_atomic(path: str | os.PathLike, data: bytes | memoryview) -> None:
     """Write ``data`` to ``path`` atomically: temporary file, fsync, rename, directory fsync.
+
+    Temporary files of the same path left by killed processes are removed first.
 
     Raises:
         StorageError: any OS error (disk full, read-only, permission); no temporary file is left.
     """
     final = Path(path)
     tmp = partial_path(final)
+    remove_stale_partials(final)
     try:
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC, 0o644)
+        fd = _open_new(tmp)
         try:
             _write_all(fd, data)
             os.fsync(fd)
@@ -271,6 +302,8 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """
     final = Path(path)
     tmp = partial_path(final)
+    remove_stale_partials(final)
+    tmp.unlink(missing_ok=True)
     try:
         yield tmp
     except OSError as exc:
@@ -633,6 +666,17 @@ def check_output_file(path: str | os.PathLike, flag: str = "output") -> Path:
     return p
 
 
+def make_subdir(root: Path, name: str) -> Path:
+    """``root/name`` as a real directory inside ``root`` (created if missing; a symbolic link is refused)."""
+    path = Path(root) / name
+    if path.is_symlink():
+        raise StorageError(f"{path} is a symbolic link; hd writes only real directories inside its output")
+    if os.path.lexists(path) and not path.is_dir():
+        raise StorageError(f"{path} exists and is not a directory")
+    make_dirs(path)
+    return path
+
+
 def make_dirs(path: Path) -> None:
     """``mkdir -p`` whose OS errors become a StorageError naming the path."""
     try:
@@ -704,9 +748,13 @@ class WriterLock:
     def acquire(self) -> WriterLock:
         for _ in range(20):
             try:
-                fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+                fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o644)
             except OSError as exc:
                 raise StorageError(f"cannot lock {self.directory} for writing: {describe_os_error(exc, self.path)}") from None
+            st = os.fstat(fd)
+            if not stat.S_ISREG(st.st_mode) or st.st_nlink != 1:  # never truncate another file through a link
+                os.close(fd)
+                raise StorageError(f"cannot lock {self.directory} for writing: {self.path} is not a plain file; remove it")
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:

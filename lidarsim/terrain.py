@@ -165,6 +165,8 @@ class DTM:
             raise TerrainError(f"{apath}: no such file")
         if os.path.isdir(apath):
             raise TerrainError(f"{apath}: is a directory, not a raster file")
+        if not os.path.isfile(apath):
+            raise TerrainError(f"{apath}: is not a regular file (a device, a pipe...), not a raster file")
         if not os.access(apath, os.R_OK):
             raise TerrainError(f"{apath}: is not readable (permission denied)")
         value_scale = _check_scale(apath, scale)

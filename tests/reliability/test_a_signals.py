@@ -127,3 +127,72 @@ def test_a_worker_killed_by_the_system_fails_the_build_cleanly(tmp_path, dtm, re
     result = invoke(*build(out, dtm, 1))
     assert result.exit_code == 0, result.output
     assert shard_sums(out) == shard_sums(reference)
+
+
+def test_label_killed_while_adding_its_labelling_to_the_manifest(tmp_path, reference, labelled):
+    data = tmp_path / "data"
+    shutil.copytree(reference, data)
+    proc = hd_process(["label", data, "--workers", "2", *LABEL_ARGS], env={"HD_TEST_WRITE_PAUSE": "manifest.json:60"})
+    wait_for(_partials(data, ".manifest.json.partial-*"), what="the manifest being rewritten", proc=proc)
+    code, _ = kill_and_check_no_orphans(proc, signal.SIGKILL)
+    assert code == -signal.SIGKILL and read_labelings(data) == []
+    result = invoke("label", data, "--workers", "1", *LABEL_ARGS)
+    assert result.exit_code == 0, result.output
+    assert shard_sums(data) == shard_sums(labelled) and partials(data) == []
+
+
+def test_build_with_overwrite_killed_half_way_resumes_the_new_build(tmp_path, dtm, reference):
+    data = tmp_path / "data"
+    shutil.copytree(reference, data)
+    args = ["build-dataset", "--out", data, "--dtm", dtm, *BUILD_ARGS[:-2], "--seed", "4"]
+    proc = hd_process([*args, "--workers", "2", "--overwrite"], env={"HD_TEST_WRITE_PAUSE": "scans-00001.h5:60"})
+    wait_for(_partials(data / "shards", ".scans-00001.h5.partial-*"), what="a half-written shard", proc=proc)
+    code, _ = kill_and_check_no_orphans(proc, signal.SIGKILL)
+    assert code == -signal.SIGKILL and not (data / "manifest.json").exists()
+    result = invoke(*args, "--workers", "1")  # the same command without --overwrite resumes the new build
+    assert result.exit_code == 0, result.output
+    fresh = tmp_path / "fresh"
+    assert invoke("build-dataset", "--out", fresh, "--dtm", dtm, *BUILD_ARGS[:-2], "--seed", "4").exit_code == 0
+    assert shard_sums(data) == shard_sums(fresh) != shard_sums(reference)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM], ids=["KILL", "TERM"])
+def test_eval_stopped_while_writing_the_report(tmp_path, labelled, trained, sig):
+    report = tmp_path / "report"
+    args = ["eval", trained, "--data", labelled, "--out", report, "--mc-samples", "2"]
+    proc = hd_process(args, env={"HD_TEST_WRITE_PAUSE": "report.json:60"})
+    wait_for(lambda: list(report.glob(".report.partial-*/.report.json.partial-*")), what="report.json being written",
+             proc=proc)
+    code, err = kill_and_check_no_orphans(proc, sig)
+    assert code == EXIT[sig]
+    assert not (report / "report.json").exists() and not (report / "report.md").exists()
+    if sig != signal.SIGKILL:
+        assert not report.exists() and "Traceback" not in err  # staging and the directory it created removed
+    result = invoke(*args)
+    assert result.exit_code == 0, result.output
+    assert (report / "report.json").is_file() and partials(report) == [] and not (report / ".hd-lock").exists()
+
+
+def test_train_killed_while_dataloader_workers_read(tmp_path, labelled):
+    """Forked DataLoader workers die with the command too."""
+    marks = tmp_path / "marks"
+    marks.mkdir()
+    run = tmp_path / "run"
+    proc = hd_process(["train", labelled, "--out", run, "--profile", "tiny", "--epochs", "1", "--num-workers", "2"],
+                      env={"HD_TEST_SLEEP": "hdnet.data.HazardDataset.dem_sample:60", "HD_TEST_MARK_DIR": str(marks),
+                           "HD_TEST_SLEEP_FORKED_ONLY": "1"})
+    wait_for(lambda: (marks / "dem_sample").exists() and len(descendants(proc.pid)) >= 2,
+             what="DataLoader workers reading", proc=proc)
+    code, _ = kill_and_check_no_orphans(proc, signal.SIGKILL, workers=2)
+    assert code == -signal.SIGKILL
+
+
+def test_make_dtm_killed_while_writing_then_rerun(tmp_path):
+    target = tmp_path / "mars.tif"
+    proc = hd_process(["make-dtm", target, "--size", "64"], env={"HD_TEST_WRITE_PAUSE": "mars.tif:60"})
+    wait_for(_partials(tmp_path, ".mars.tif.partial-*"), what="mars.tif being written", proc=proc)
+    code, _ = kill_and_check_no_orphans(proc, signal.SIGKILL)
+    assert code == -signal.SIGKILL and not target.exists()
+    result = invoke("make-dtm", target, "--size", "64")
+    assert result.exit_code == 0, result.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mars.tif"]  # the killed write's leftover is gone

@@ -294,3 +294,69 @@ def test_shards_written_the_old_way_stay_readable(data_copy, tmp_path):
     assert result.exit_code == 0, result.output
     result = train(data_copy, tmp_path / "run", "--labels", read_manifest(data_copy)["labelings"][0]["name"])
     assert result.exit_code == 0, result.output
+
+
+# ------------------------------------------------------------------------------------- hostile file types
+@pytest.mark.parametrize("what", ["scan-shard", "label-shard", "manifest", "dtm"])
+def test_a_pipe_in_place_of_a_file_never_hangs(data_copy, tmp_path, what):
+    path = {"scan-shard": data_copy / "shards" / "scans-00001.h5", "label-shard": label_shard(data_copy),
+            "manifest": data_copy / "manifest.json", "dtm": tmp_path / "pipe.tif"}[what]
+    path.unlink(missing_ok=True)
+    os.mkfifo(path)
+    if what == "dtm":
+        result = invoke("build-dataset", "--out", tmp_path / "new", "--dtm", path)
+        assert_one_line_error(result, "not a regular file")
+        return
+    result = invoke("verify", data_copy)
+    assert result.exit_code == 1 and "not a regular file" in result.output
+    if what == "scan-shard":
+        assert_one_line_error(invoke("label", data_copy, "--max-slope-deg", "8", "--workers", "1"), "not a regular file")
+    if what == "label-shard":
+        assert_one_line_error(train(data_copy, tmp_path / "run"), "not a regular file")
+
+
+def test_a_lock_file_linked_to_another_file_is_never_written_through(data_copy, tmp_path):
+    victim = tmp_path / "victim.txt"
+    victim.write_text("precious")
+    (data_copy / ".hd-lock").symlink_to(victim)
+    assert_one_line_error(invoke("label", data_copy, "--max-slope-deg", "8", "--workers", "1"), "cannot lock")
+    (data_copy / ".hd-lock").unlink()
+    os.link(victim, data_copy / ".hd-lock")
+    assert_one_line_error(invoke("label", data_copy, "--max-slope-deg", "8", "--workers", "1"), "not a plain file")
+    assert victim.read_text() == "precious"
+
+
+def test_a_labels_directory_linked_outside_is_refused(data_copy, tmp_path):
+    outside = tmp_path / "elsewhere"
+    shutil.move(data_copy / "labels", outside)
+    (data_copy / "labels").symlink_to(outside)
+    assert_one_line_error(invoke("label", data_copy, "--max-slope-deg", "8", "--workers", "1"), "symbolic link")
+    assert sorted(p.name for p in outside.iterdir()) == ["square-d10m-pad1m-slope10deg-rough0.2m-yaws8-dem100x100at1m"]
+
+
+def test_a_dtm_changed_during_an_interrupted_build_is_not_mixed_in(tmp_path, monkeypatch):
+    from conftest import BUILD_ARGS, hills
+
+    import lidarsim.build as build
+
+    dtm = hills(tmp_path / "dtm.tif")
+    out = tmp_path / "data"
+    real, calls = build.run_shard, []
+
+    def stop_after_two(task):
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        calls.append(task)
+        return real(task)
+
+    monkeypatch.setattr(build, "run_shard", stop_after_two)
+    assert invoke("build-dataset", "--out", out, "--dtm", dtm, "--workers", "1", *BUILD_ARGS).exit_code == 130
+    monkeypatch.undo()
+    hills(dtm, seed=11)  # the user replaces the terrain file before resuming
+    result = invoke("build-dataset", "--out", out, "--dtm", dtm, "--workers", "1", *BUILD_ARGS)
+    assert result.exit_code == 0 and "already complete" not in result.output, result.output
+    fresh = tmp_path / "fresh"
+    assert invoke("build-dataset", "--out", fresh, "--dtm", dtm, "--workers", "1", *BUILD_ARGS).exit_code == 0
+    from conftest import shard_sums
+
+    assert shard_sums(out) == shard_sums(fresh)

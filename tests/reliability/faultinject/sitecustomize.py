@@ -10,9 +10,10 @@ Environment (all optional):
   write half of it, then pause (the moment a kill test waits for: a partial file on disk);
 * ``HD_TEST_ENOSPC=GLOB`` - writing a file whose final name matches GLOB fails with ENOSPC after
   half of it is written (a full disk);
-* ``HD_TEST_SLEEP=MODULE.FUNCTION:SECONDS`` - sleep before each call of that function (e.g. the
-  terrain generator, to kill a build while it runs); a marker file ``$HD_TEST_MARK_DIR/FUNCTION``
-  is created when the call starts.
+* ``HD_TEST_SLEEP=MODULE.[CLASS.]FUNCTION:SECONDS`` - sleep before each call of that function (e.g.
+  the terrain generator, to kill a build while it runs); a marker file ``$HD_TEST_MARK_DIR/FUNCTION``
+  is created when the call starts; with ``HD_TEST_SLEEP_FORKED_ONLY=1`` only in forked children
+  (DataLoader workers).
 """
 
 from __future__ import annotations
@@ -64,13 +65,25 @@ def _install() -> None:
     sleep = os.environ.get("HD_TEST_SLEEP", "")
     if sleep:
         target, seconds = sleep.rsplit(":", 1)
-        module_name, func_name = target.rsplit(".", 1)
-        module = importlib.import_module(module_name)
+        parts = target.split(".")
+        for cut in range(len(parts) - 1, 0, -1):  # the longest importable prefix, then attributes
+            try:
+                module = importlib.import_module(".".join(parts[:cut]))
+                break
+            except ImportError:
+                continue
+        for attr in parts[cut:-1]:
+            module = getattr(module, attr)
+        func_name = parts[-1]
         real = getattr(module, func_name)
         mark_dir = os.environ.get("HD_TEST_MARK_DIR", "")
+        forked_only = os.environ.get("HD_TEST_SLEEP_FORKED_ONLY") == "1"
+        installer = os.getpid()
 
         @functools.wraps(real)
         def slow(*args, **kwargs):
+            if forked_only and os.getpid() == installer:
+                return real(*args, **kwargs)
             if mark_dir:
                 open(os.path.join(mark_dir, func_name), "w").close()
             time.sleep(float(seconds))
