@@ -30,15 +30,17 @@ from lidarsim.storage import LOCK_NAME, WriterLock, lock_holder
 
 def test_two_builds_on_one_directory(tmp_path, dtm, reference):
     out = tmp_path / "data"
+    release = tmp_path / "release"
     first = hd_process(["build-dataset", "--out", out, "--dtm", dtm, "--workers", "2", *BUILD_ARGS],
-                       env={"HD_TEST_WRITE_PAUSE": "scans-00001.h5:2.5"})
+                       env={"HD_TEST_WRITE_PAUSE": "scans-00001.h5:60", "HD_TEST_RELEASE": str(release)})
     wait_for(lambda: list((out / "shards").glob(".scans-00001.h5.partial-*")), what="the first build's partial shard",
              proc=first)
-    held = sorted(p.name for p in (out / "shards").iterdir())
+    held = sorted(p.name for p in (out / "shards").iterdir() if p.name.startswith((".scans-00001", "scans-")))
     for extra in ([], ["--overwrite"]):
         second = invoke("build-dataset", "--out", out, "--dtm", dtm, "--workers", "1", *BUILD_ARGS, *extra)
         assert_one_line_error(second, "being written by another hd process", f"PID {first.pid}")
         assert set(held) <= {p.name for p in (out / "shards").iterdir()}  # nothing of the first build was removed
+    release.touch()
     _, err = first.communicate(timeout=120)
     assert first.returncode == 0, err
     assert shard_sums(out) == shard_sums(reference) and partials(out) == []

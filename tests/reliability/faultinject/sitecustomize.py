@@ -7,7 +7,8 @@ interpreters) install the same faults. Nothing here is part of hd.
 Environment (all optional):
 
 * ``HD_TEST_WRITE_PAUSE=GLOB:SECONDS`` - when hd writes a file whose final name matches GLOB,
-  write half of it, then pause (the moment a kill test waits for: a partial file on disk);
+  write half of it, then pause (the moment a kill test waits for: a partial file on disk) until
+  SECONDS have passed or the file ``$HD_TEST_RELEASE`` exists;
 * ``HD_TEST_ENOSPC=GLOB`` - writing a file whose final name matches GLOB fails with ENOSPC after
   half of it is written (a full disk);
 * ``HD_TEST_SLEEP=MODULE.[CLASS.]FUNCTION:SECONDS`` - sleep before each call of that function (e.g.
@@ -55,7 +56,10 @@ def _install() -> None:
             if fnmatch.fnmatch(name, pattern):
                 real_write(fd, view[: len(view) // 2])
                 os.fsync(fd)
-                time.sleep(float(seconds))
+                release = os.environ.get("HD_TEST_RELEASE", "")
+                deadline = time.monotonic() + float(seconds)
+                while time.monotonic() < deadline and not (release and os.path.exists(release)):
+                    time.sleep(0.01)
                 real_write(fd, view[len(view) // 2 :])
                 return
         real_write(fd, view)
