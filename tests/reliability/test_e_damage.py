@@ -81,24 +81,28 @@ def test_a_flipped_byte_is_caught_at_read_time_naming_file_and_scan(data_copy):
     assert "damaged" in line
 
 
-def _row_of_split(data: Path, code: int) -> tuple[Path, int, int]:
-    """(label shard, row, scan index) of the first scan of a split (0 train, 2 test)."""
+def _row_of_split(data: Path, code: int, nth: int = 0) -> tuple[Path, int, int]:
+    """(label shard, row, scan index) of the ``nth`` scan of a split (0 train, 2 test)."""
+    found = []
     for path in sorted(data.glob("labels/*/labels-*.h5")):
         with h5py.File(path, "r") as f:
-            rows = np.flatnonzero(f["split"][:] == code)
-            if rows.size:
-                return path, int(rows[0]), int(f["scan_index"][rows[0]])
-    raise AssertionError(f"no scan of split {code}")
+            found += [(path, int(r), int(f["scan_index"][r])) for r in np.flatnonzero(f["split"][:] == code)]
+    return found[nth]
 
 
-@pytest.mark.parametrize("command", ["train", "eval"])
+@pytest.mark.parametrize("command", ["train", "train-with-dataloader-workers", "eval"])
 def test_a_flipped_byte_in_a_label_shard_is_caught_by_train_and_eval(data_copy, trained, tmp_path, command):
-    path, row, scan = _row_of_split(data_copy, 0 if command == "train" else 2)  # a scan the command reads
-    flip_chunk_byte(path, "dem_noisy", row)
-    result = train(data_copy, tmp_path / "run") if command == "train" else evaluate(trained, data_copy, tmp_path / "r")
+    workers = command == "train-with-dataloader-workers"
+    # a scan the command reads; with workers the second training scan, which only a worker reads
+    path, row, scan = _row_of_split(data_copy, 2 if command == "eval" else 0, nth=1 if workers else 0)
+    dataset = "label" if workers else "dem_noisy"
+    flip_chunk_byte(path, dataset, row)
+    more = ["--num-workers", "2"] if workers else []
+    result = train(data_copy, tmp_path / "run", *more) if command != "eval" else evaluate(trained, data_copy, tmp_path / "r")
     assert_one_line_error(result, path.name, "checksum mismatch")
     reseal(data_copy)
-    result = train(data_copy, tmp_path / "run2") if command == "train" else evaluate(trained, data_copy, tmp_path / "r2")
+    result = (train(data_copy, tmp_path / "run2", *more) if command != "eval"
+              else evaluate(trained, data_copy, tmp_path / "r2"))
     assert_one_line_error(result, path.name, f"scan {scan} (row {row})", "damaged")
     assert not (tmp_path / "r").exists() and not (tmp_path / "r2").exists()
 
