@@ -181,3 +181,18 @@ def test_a_worker_dies_with_its_parent(tmp_path, prctl):
     for pid in left:
         os.kill(pid, signal.SIGKILL)
     assert not left
+
+
+def test_checksums_published_for_an_older_shard_schema_are_named_as_such(labelled):
+    """`hd verify --recipe` against checksums published before shard schema 1.1 says why they differ."""
+    import json
+
+    from lidarsim.recipe import check_against_checksums
+    from lidarsim.shards import read_manifest
+
+    published = json.loads((REPO / "datasets" / "mars-paper" / "checksums.json").read_text())
+    manifest = read_manifest(labelled)
+    problems = check_against_checksums({**manifest, "config_sha256": published["config_sha256"]}, published)
+    if published.get("shard_schema_version") == manifest["shards"][0]["schema_version"]:
+        pytest.skip("the published checksums are of the current shard schema")
+    assert len(problems) == 1 and "published for scan shards of schema version 1.0" in problems[0]
