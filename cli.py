@@ -1,8 +1,9 @@
 """The ``hd`` command: wires lidarsim, hdlabels and hdnet together; holds no logic of its own.
 
 Every command turns bad input into a one-line error and a non-zero exit status. Ctrl-C, SIGTERM
-and SIGHUP stop a command cleanly (partial files removed, resumable) with exit status 128 + the
-signal number: 130, 143, 129 (docs/reliability.md).
+and SIGHUP stop a command cleanly (partial files removed, resumable; a second signal does not
+interrupt the clean-up) with exit status 128 + the signal number: 130, 143, 129
+(docs/reliability.md).
 """
 
 from __future__ import annotations
@@ -30,19 +31,24 @@ class Terminated(KeyboardInterrupt):
         self.signum = signum
 
 
+_STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+
 def _raise_terminated(signum: int, frame: Any) -> None:
-    for sig in (signal.SIGTERM, signal.SIGHUP):  # a second signal must not interrupt the clean-up
+    for sig in _STOP_SIGNALS:  # a second signal (Ctrl-C pressed twice) must not interrupt the clean-up
         signal.signal(sig, signal.SIG_IGN)
+    if signum == signal.SIGINT:
+        raise KeyboardInterrupt
     raise Terminated(signum)
 
 
 def _install_signal_handlers(ctx: click.Context) -> None:
-    """SIGTERM and SIGHUP unwind like Ctrl-C (restored when the command ends)."""
+    """Ctrl-C, SIGTERM and SIGHUP unwind as KeyboardInterrupt, once (restored when the command ends)."""
     import threading
 
     if threading.current_thread() is not threading.main_thread():
         return
-    previous = {sig: signal.signal(sig, _raise_terminated) for sig in (signal.SIGTERM, signal.SIGHUP)}
+    previous = {sig: signal.signal(sig, _raise_terminated) for sig in _STOP_SIGNALS}
     ctx.call_on_close(lambda: [signal.signal(sig, handler) for sig, handler in previous.items()])
 
 

@@ -452,7 +452,29 @@ def verify_dataset(
             problems.append(str(exc))
         except (OSError, TypeError, ValueError):
             problems.append(f"{rel}: not a readable HDF5 file")
+    problems += _terrain_problems(directory, manifest)
     return problems
+
+
+def _terrain_problems(directory: Path, manifest: dict[str, Any]) -> list[str]:
+    """The terrain file kept inside the dataset (the procedural terrain) against its recorded sha256."""
+    dtm = manifest.get("dtm")
+    if not isinstance(dtm, dict) or not isinstance(dtm.get("path"), str) or os.path.isabs(dtm["path"]):
+        return []
+    rel, recorded = dtm["path"], dtm.get("sha256")
+    try:
+        path = confine(directory, rel)
+    except FormatError as exc:
+        return [str(exc)]
+    if not path.is_file():
+        return [f"{rel}: missing (the dataset's terrain)"]
+    try:
+        digest = sha256_file(path)
+    except StorageError as exc:
+        return [str(exc)]
+    if is_sha256(recorded) and digest != recorded:
+        return [f"{rel}: checksum mismatch (sha256 {digest[:12]}..., manifest says {recorded[:12]}...)"]
+    return []
 
 
 def check_dataset_files(directory: str | os.PathLike, manifest: dict[str, Any]) -> list[str]:

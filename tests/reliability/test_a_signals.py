@@ -14,7 +14,7 @@ import shutil
 import signal
 
 import pytest
-from conftest import (
+from reliability_kit import (
     BUILD_ARGS,
     LABEL_ARGS,
     alive,
@@ -196,3 +196,18 @@ def test_make_dtm_killed_while_writing_then_rerun(tmp_path):
     result = invoke("make-dtm", target, "--size", "64")
     assert result.exit_code == 0, result.output
     assert sorted(p.name for p in tmp_path.iterdir()) == ["mars.tif"]  # the killed write's leftover is gone
+
+
+def test_repeated_signals_do_not_interrupt_the_clean_up(tmp_path, dtm, reference):
+    """Ctrl-C pressed again and again while the command stops: still one clean stop."""
+    out = tmp_path / "data"
+    proc = hd_process(build(out, dtm, 2), env={"HD_TEST_WRITE_PAUSE": BOTH_SECOND_SHARDS})
+    wait_for(_partials(out / "shards", *SECOND_SHARDS), what="two half-written shards", proc=proc)
+    tracked = descendants(proc.pid)
+    for sig in (signal.SIGINT, signal.SIGINT, signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
+        os.kill(proc.pid, sig)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130 and "Traceback" not in err, err
+    wait_for(lambda: not alive(tracked), timeout=10, what="the workers to stop")
+    assert partials(out) == [] and not (out / ".hd-lock").exists()
+    assert invoke(*build(out, dtm, 1)).exit_code == 0 and shard_sums(out) == shard_sums(reference)

@@ -15,8 +15,9 @@ import sys
 import time
 
 import pytest
-from conftest import (
+from reliability_kit import (
     BUILD_ARGS,
+    REPO,
     assert_one_line_error,
     hd_process,
     invoke,
@@ -98,7 +99,7 @@ def test_the_lock_dies_with_its_holder(tmp_path):
     code = ("import sys, time; from lidarsim.storage import WriterLock; "
             f"WriterLock({str(d)!r}).acquire(); print('held', flush=True); time.sleep(60)")
     holder = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True,
-                              env={**os.environ, "PYTHONPATH": str(__import__("conftest").REPO)})
+                              env={**os.environ, "PYTHONPATH": str(REPO)})
     assert holder.stdout.readline().strip() == "held"
     with pytest.raises(Exception, match=f"PID {holder.pid}"):
         WriterLock(d).acquire()

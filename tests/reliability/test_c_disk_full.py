@@ -12,7 +12,7 @@ import json
 import shutil
 
 import pytest
-from conftest import (
+from reliability_kit import (
     BUILD_ARGS,
     assert_one_line_error,
     hd_process,

@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 
 import pytest
-from conftest import assert_one_line_error, invoke
+from reliability_kit import assert_one_line_error, invoke
 
 BIG = str(10**9)
 
@@ -243,7 +243,7 @@ def test_multi_stage_commands_check_every_stage_first(command, args, needle, pla
 
 
 def test_read_only_file_system_is_refused_before_work(tmp_path, dtm, monkeypatch):
-    from conftest import tmpfs
+    from reliability_kit import tmpfs
 
     _no_work(monkeypatch, ("lidarsim.build", "plan_scans"))
     with tmpfs(tmp_path / "ro", "1m", "ro") as ro:

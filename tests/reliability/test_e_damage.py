@@ -17,7 +17,7 @@ import h5py
 import numpy as np
 import pytest
 import torch
-from conftest import assert_one_line_error, invoke
+from reliability_kit import assert_one_line_error, invoke
 
 from lidarsim.shards import ScanShardReader, read_manifest, sha256_file
 from lidarsim.storage import DamagedFileError
@@ -339,7 +339,7 @@ def test_a_labels_directory_linked_outside_is_refused(data_copy, tmp_path):
 
 
 def test_a_dtm_changed_during_an_interrupted_build_is_not_mixed_in(tmp_path, monkeypatch):
-    from conftest import BUILD_ARGS, hills
+    from reliability_kit import BUILD_ARGS, hills
 
     import lidarsim.build as build
 
@@ -361,6 +361,6 @@ def test_a_dtm_changed_during_an_interrupted_build_is_not_mixed_in(tmp_path, mon
     assert result.exit_code == 0 and "already complete" not in result.output, result.output
     fresh = tmp_path / "fresh"
     assert invoke("build-dataset", "--out", fresh, "--dtm", dtm, "--workers", "1", *BUILD_ARGS).exit_code == 0
-    from conftest import shard_sums
+    from reliability_kit import shard_sums
 
     assert shard_sums(out) == shard_sums(fresh)

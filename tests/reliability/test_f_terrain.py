@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import rasterio
-from conftest import BUILD_ARGS, assert_one_line_error, hills, invoke
+from reliability_kit import BUILD_ARGS, assert_one_line_error, hills, invoke
 from rasterio.transform import from_origin
 
 from lidarsim import limits

@@ -8,7 +8,7 @@ import signal
 
 import pytest
 import torch
-from conftest import (
+from reliability_kit import (
     BUILD_ARGS,
     assert_one_line_error,
     hd_process,

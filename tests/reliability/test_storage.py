@@ -13,7 +13,7 @@ import time
 import h5py
 import numpy as np
 import pytest
-from conftest import REPO, alive, inject_enospc
+from reliability_kit import REPO, alive, inject_enospc
 
 from lidarsim import storage
 from lidarsim.errors import LidarsimError
