@@ -83,7 +83,7 @@ def hd_process(args: list[str], env: dict[str, str] | None = None, cwd: Path | N
     full_env = {**os.environ, "PYTHONPATH": f"{FAULTS}{os.pathsep}{REPO}", "HD_TEST_FAULTS": "1",
                 "OMP_NUM_THREADS": "1", **(env or {})}
     return subprocess.Popen([sys.executable, str(REPO / "cli.py"), *[str(a) for a in args]], env=full_env,
-                            cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            cwd=cwd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                             start_new_session=True)
 
 
