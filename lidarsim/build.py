@@ -14,7 +14,6 @@ created its directory and completed no shard removes the directory too (docs/rel
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import json
 import math
 import os
@@ -58,6 +57,7 @@ from lidarsim.storage import (
     check_output_dir,
     make_dirs,
     make_subdir,
+    sha256_bytes,
     write_bytes_atomic,
 )
 from lidarsim.streams import Purpose, stream
@@ -138,7 +138,7 @@ class BuildConfig:
 
     def fingerprint(self) -> str:
         """SHA-256 of the canonical JSON of the configuration (the DTM by its path and content)."""
-        return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()
+        return sha256_bytes(json.dumps(self.to_dict(), sort_keys=True).encode())
 
 
 @dataclass(frozen=True)
