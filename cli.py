@@ -392,9 +392,9 @@ def label_cmd(directory: Path, lander_diameter: float, pad_diameter: float, max_
     _check_finite(lander_diameter=lander_diameter, pad_diameter=pad_diameter, max_slope_deg=max_slope_deg,
                   max_roughness=max_roughness, dem_spacing=dem_spacing)
     if scheduler is not None:
-        from lidarsim.parallel import check_scheduler_address
+        from lidarsim.parallel import probe_scheduler
 
-        check_scheduler_address(scheduler)
+        probe_scheduler(scheduler)  # a malformed or unreachable address, before anything is written
     if dem_size < 2 or not (dem_spacing > 0):
         raise HdLabelsError(f"the DEM must be at least 2 pixels of positive spacing, got {dem_size} x {dem_spacing}")
     lander = Lander(diameter_m=lander_diameter, pad_diameter_m=pad_diameter, max_slope_deg=max_slope_deg,
