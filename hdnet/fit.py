@@ -15,7 +15,6 @@ from __future__ import annotations
 import contextlib
 import json
 import os
-import shutil
 from pathlib import Path
 from typing import Any
 
@@ -36,7 +35,9 @@ from lidarsim.storage import (
     StorageError,
     WriterLock,
     check_output_dir,
+    first_missing,
     make_dirs,
+    remove_empty_dirs,
     remove_partials,
 )
 
@@ -162,7 +163,7 @@ def fit(
         if len(ds) == 0:
             raise HdNetError(f"{dataset_dir}: the {name} split is empty; build a dataset with more scans.")
     extra = run_data_config(dataset_dir, train_ds.labels, train_ds.sigma_m, normalisation, profile, train_ds.dem_shape)
-    created = not run_path.exists()
+    top = first_missing(run_path)
     try:
         with run_dir_lock(run_path):
             _, replace = prepare_run_dir(run_path, resume, overwrite)  # again, under the lock
@@ -173,5 +174,4 @@ def fit(
             return train(run_path, train_ds, val_ds, profile, epochs=epochs, seed=seed, resume=resume and not replace,
                          progress=progress, extra_config=extra, num_workers=num_workers)
     finally:
-        if created and run_path.is_dir() and not any(run_path.iterdir()):
-            shutil.rmtree(run_path, ignore_errors=True)
+        remove_empty_dirs(run_path, top)

@@ -34,7 +34,9 @@ from lidarsim.storage import (
     check_output_dir,
     commit_file,
     describe_os_error,
+    first_missing,
     make_dirs,
+    remove_empty_dirs,
     remove_partials,
     write_text_atomic,
 )
@@ -192,7 +194,7 @@ def write_report(result: EvaluationResult, out_dir: Path, figures: bool = True, 
             half-written), or another evaluation writing the same directory.
     """
     out_dir = check_report_dir(out_dir, overwrite)
-    created = not out_dir.exists()
+    top = first_missing(out_dir)
     try:
         make_dirs(out_dir)
         lock = WriterLock(out_dir, "report").acquire()
@@ -219,8 +221,7 @@ def write_report(result: EvaluationResult, out_dir: Path, figures: bool = True, 
     finally:
         shutil.rmtree(staging, ignore_errors=True)
         lock.release()
-        if created and out_dir.is_dir() and not any(out_dir.iterdir()):
-            out_dir.rmdir()
+        remove_empty_dirs(out_dir, top)
 
 
 def _stage(result: EvaluationResult, staging: Path, figures: bool) -> list[Path]:

@@ -55,8 +55,10 @@ from lidarsim.storage import (
     WriterLock,
     check_h5_data,
     check_output_dir,
+    first_missing,
     make_dirs,
     make_subdir,
+    remove_empty_dirs,
     sha256_bytes,
     write_bytes_atomic,
 )
@@ -496,14 +498,13 @@ def build_dataset(
         dtm_attrs["dtm_sha256"] = dtm.sha256()
         dtm_provenance = {**dtm.info.to_attrs(), "sha256": dtm_attrs["dtm_sha256"]}
     # Input is valid: from here on the output directory is written, by this process alone.
-    created = not out_dir.exists()
+    top = first_missing(out_dir)
+    created = top is not None
     make_dirs(out_dir)
     try:
         lock = WriterLock(out_dir, "dataset").acquire()
     except BaseException:
-        if created:
-            with contextlib.suppress(OSError):
-                out_dir.rmdir()
+        remove_empty_dirs(out_dir, top)
         raise
     finished = False
     try:
@@ -528,9 +529,8 @@ def build_dataset(
         if not finished:
             _clean_after_failure(out_dir, created)
         lock.release()
-        if not finished and created:
-            with contextlib.suppress(OSError):
-                out_dir.rmdir()
+        if not finished:
+            remove_empty_dirs(out_dir, top)
 
 
 def _build_locked(

@@ -677,6 +677,32 @@ def make_subdir(root: Path, name: str) -> Path:
     return path
 
 
+def first_missing(path: Path) -> Path | None:
+    """The top-most directory that ``mkdir -p path`` would create (None when ``path`` exists)."""
+    path = Path(os.path.abspath(path))
+    if os.path.lexists(path):
+        return None
+    top = path
+    while not os.path.lexists(top.parent):
+        top = top.parent
+    return top
+
+
+def remove_empty_dirs(path: Path, top: Path | None) -> None:
+    """Remove ``path`` and its parents up to ``top`` while they are empty (undo a ``mkdir -p``)."""
+    if top is None:
+        return
+    path, top = Path(os.path.abspath(path)), Path(os.path.abspath(top))
+    while path.is_relative_to(top):
+        try:
+            path.rmdir()
+        except OSError:
+            return
+        if path == top:
+            return
+        path = path.parent
+
+
 def make_dirs(path: Path) -> None:
     """``mkdir -p`` whose OS errors become a StorageError naming the path."""
     try:

@@ -101,9 +101,20 @@ def test_a_build_failing_before_any_shard_removes_its_directory(tmp_path, dtm, m
         raise MemoryError
 
     monkeypatch.setattr("lidarsim.build.run_shard", fails)
-    out = tmp_path / "data"
+    out = tmp_path / "new" / "deep" / "data"  # three directories created, all removed again
     assert_one_line_error(invoke("build-dataset", "--out", out, "--dtm", dtm, "--workers", "1", *BUILD_ARGS),
                           "out of memory")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_failed_train_and_eval_remove_the_directories_they_created(tmp_path, labelled, trained, monkeypatch):
+    from reliability_kit import inject_enospc
+
+    inject_enospc(monkeypatch, "config.json")
+    assert_one_line_error(_train(labelled, tmp_path / "a" / "b" / "run"), "no space left")
+    inject_enospc(monkeypatch, "report.json")
+    assert_one_line_error(invoke("eval", trained, "--data", labelled, "--out", tmp_path / "c" / "report",
+                                 "--mc-samples", "2"), "no space left")
     assert list(tmp_path.iterdir()) == []
 
 
