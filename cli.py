@@ -34,9 +34,14 @@ class Terminated(KeyboardInterrupt):
 _STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 
+def _ignore(signum: int, frame: Any) -> None:
+    """A signal after the first: the clean-up goes on. (A Python no-op, not SIG_IGN: signals already
+    pending when the handler changes to SIG_IGN make CPython raise "ignored due to race condition".)"""
+
+
 def _raise_terminated(signum: int, frame: Any) -> None:
     for sig in _STOP_SIGNALS:  # a second signal (Ctrl-C pressed twice) must not interrupt the clean-up
-        signal.signal(sig, signal.SIG_IGN)
+        signal.signal(sig, _ignore)
     if signum == signal.SIGINT:
         raise KeyboardInterrupt
     raise Terminated(signum)
