@@ -25,7 +25,7 @@ import open3d as o3d
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from lidarsim.build import BuildConfig, _materialise_terrain, build_dataset  # noqa: E402
+from lidarsim.build import BuildConfig, _procedural_terrain_bytes, build_dataset, procedural_terrain_name  # noqa: E402
 from lidarsim.defaults import PAPER_SIGMAS_M  # noqa: E402
 from lidarsim.scan import TileScene  # noqa: E402
 from lidarsim.sensor import ray_directions, sensor_attitude  # noqa: E402
@@ -69,7 +69,8 @@ def main() -> None:
         tmp_path = Path(tmp)
         base = BuildConfig(sigmas_m=PAPER_SIGMAS_M, trajectory=TrajectoryConfig(n_scans=args.scans))
         t0 = time.perf_counter()
-        dtm_path = _materialise_terrain(base, tmp_path)
+        dtm_path = tmp_path / procedural_terrain_name(base.seed)
+        dtm_path.write_bytes(_procedural_terrain_bytes(base, dtm_path))
         print(f"procedural terrain generated in {time.perf_counter() - t0:.1f} s (not counted below)")
         config = BuildConfig(sigmas_m=PAPER_SIGMAS_M, trajectory=base.trajectory, dtm_path=str(dtm_path))
         raw, n_rays = raw_cast_rate(dtm_path, config)

@@ -31,6 +31,7 @@ def checksums_of(directory: str | os.PathLike) -> dict[str, Any]:
         "config_sha256": manifest["config_sha256"],
         "schema": manifest["schema"],
         "schema_version": manifest["schema_version"],
+        "shard_schema_version": manifest["shards"][0].get("schema_version") if manifest["shards"] else None,
         "shards": [{"path": s["path"], "sha256": s["sha256"], "n_scans": s["n_scans"]} for s in manifest["shards"]],
         "labelings": [{"name": lab["name"], "shards": [{"path": s["path"], "sha256": s["sha256"]} for s in lab["shards"]]}
                       for lab in manifest.get("labelings", [])],

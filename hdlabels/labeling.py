@@ -9,7 +9,9 @@ One task per scan shard (process pool or Dask, like the factory). For each scan:
 
 Label shards are written atomically beside the scan shards; the manifest gets the labelling entry
 only when every shard is complete. An interrupted run resumes; an existing labelling with the
-same settings is kept.
+same settings is kept. A run holds the dataset's writer lock (one writer per dataset), checks
+every scan shard against the manifest's sha256 before reading it, and removes its partial files
+(and a labelling directory it created and left empty) when it fails.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import shutil
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import wraps
 from pathlib import Path
 from typing import Any
 
@@ -41,7 +44,8 @@ from hdlabels.store import (
     labeling_name,
 )
 from lidarsim.parallel import run_tasks
-from lidarsim.shards import ScanShardReader, ShardFormatError, read_manifest, remove_partials, sha256_file
+from lidarsim.shards import ShardFormatError, open_scan_shard, read_manifest, remove_partials, sha256_file
+from lidarsim.storage import WriterLock, check_h5_data
 
 
 @dataclass(frozen=True)
@@ -124,7 +128,7 @@ def run_label_task(task: LabelTask) -> LabelRecord:
     root = Path(task.dataset)
     out = root / task.out_path
     counts = np.zeros(3, dtype=np.int64)
-    with ScanShardReader(root / task.source_path) as reader:
+    with open_scan_shard(root, {"path": task.source_path, "sha256": task.source_sha256}) as reader:
         sigmas = reader.sigmas_m
         n_scans = len(reader)
         attrs = {
@@ -169,11 +173,44 @@ def _existing(task: LabelTask) -> LabelRecord | None:
                 return None
             lab = reader.h5["label"][:]
             n = len(reader)
-    except (LabelStoreError, OSError, KeyError):
+        check_h5_data(out)  # every chunk's fletcher32 checksum
+    except (LabelStoreError, ShardFormatError, OSError, KeyError):
         return None
     return _record(task, out, n, label_counts(lab))
 
 
+def _single_writer(func: Callable[..., LabelSummary]) -> Callable[..., LabelSummary]:
+    """Run a labelling holding the dataset's writer lock; on failure remove its partial files and
+    the labelling directories it created and left empty."""
+
+    @wraps(func)
+    def wrapper(directory: str | os.PathLike, *args: Any, **kwargs: Any) -> LabelSummary:
+        root = Path(directory).resolve()
+        try:
+            read_manifest(root)
+        except ShardFormatError as exc:
+            raise LabelStoreError(str(exc)) from None
+        labels = root / LABELS_DIR
+        if labels.is_symlink():
+            raise LabelStoreError(f"{labels} is a symbolic link; hd writes label shards only inside the dataset")
+        before = {p.name for p in labels.iterdir()} if labels.is_dir() else None
+        with WriterLock(root, "dataset"):
+            try:
+                return func(root, *args, **kwargs)
+            except BaseException:
+                for d in (labels.iterdir() if labels.is_dir() else []):
+                    if d.is_dir() and not d.is_symlink():
+                        remove_partials(d)
+                        if (before is None or d.name not in before) and not any(d.iterdir()):
+                            d.rmdir()
+                if before is None and labels.is_dir() and not any(labels.iterdir()):
+                    labels.rmdir()
+                raise
+
+    return wrapper
+
+
+@_single_writer
 def label_dataset(
     directory: str | os.PathLike,
     lander: Lander = Lander(),

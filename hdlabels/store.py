@@ -4,19 +4,20 @@ A *labelling* is the result of one set of lander parameters and DEM settings app
 scan of a dataset. It lives in ``DATASET/labels/<name>/`` with one label shard per scan shard
 (``labels-NNNNN.h5``, linked to its source shard by path and sha256) and is listed in the
 manifest's ``labelings``. Scan shards are never modified. Field-by-field documentation:
-``docs/labels-format.md``.
+``docs/labels-format.md``. Files go through ``lidarsim.storage``: built in memory, written
+atomically, a fletcher32 checksum on every chunk (schema 1.1); readers check the manifest's
+sha256 and name the file and the scan in every error.
 """
 
 from __future__ import annotations
 
-import json
+import math
 import os
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import h5py
 import numpy as np
 
 from hdlabels import defaults
@@ -28,20 +29,22 @@ from lidarsim.shards import (
     SPLIT_NAMES,
     ShardFormatError,
     check_schema,
-    commit_file,
     compression_kwargs,
-    partial_path,
     read_manifest,
     write_attrs,
     write_json_atomic,
 )
+from lidarsim.storage import CheckedH5File, H5Image, confine, open_h5, verify_sha256
 
 LABEL_SCHEMA = "hd.labels"
 # 1.1: the label convention, the baseline's combination and the gridding are recorded (attributes
-# lander_convention, lander_baseline_combine, dem_gridding); 1.0 shards are the hd convention,
-# the "min" combination and linear gridding.
+# lander_convention, lander_baseline_combine, dem_gridding), and every dataset is chunked with a
+# fletcher32 checksum per chunk. 1.0 shards stay readable: the hd convention, the "min"
+# combination and linear gridding.
 LABEL_SCHEMA_VERSION = "1.1"
 LABELS_DIR = "labels"
+# hd choice: largest DEM side accepted (pixels), checked before anything is allocated; the paper's is 100.
+MAX_DEM_SIDE_PX = 2048
 
 
 class LabelStoreError(HdLabelsError):
@@ -51,7 +54,7 @@ class LabelStoreError(HdLabelsError):
 @dataclass(frozen=True)
 class DemSpec:
     """DEM grid: ``rows x cols`` cells of ``spacing_m`` metres, north-up, centred at the nadir point,
-    made from the points by ``gridding`` (``"linear"``, ``"mean"`` or ``"max"``, ``hdlabels.grid``)."""
+    made from the points by ``gridding`` (``"linear"``, ``"mean"``, ``"max"`` or ``"nearest"``, ``hdlabels.grid``)."""
 
     rows: int = defaults.DEM_ROWS
     cols: int = defaults.DEM_COLS
@@ -59,6 +62,13 @@ class DemSpec:
     gridding: str = "linear"
 
     def __post_init__(self) -> None:
+        for name in ("rows", "cols"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 2 <= value <= MAX_DEM_SIDE_PX:
+                raise LabelStoreError(f"the DEM side (--dem-size) must be an integer in 2..{MAX_DEM_SIDE_PX} pixels, got {value!r}")
+        s = self.spacing_m
+        if isinstance(s, bool) or not isinstance(s, (int, float)) or not math.isfinite(s) or s <= 0:
+            raise LabelStoreError(f"the DEM spacing (--dem-spacing) must be a positive finite number of metres, got {s!r}")
         if self.gridding not in defaults.GRIDDINGS:
             raise LabelStoreError(f"unknown gridding {self.gridding!r}; use one of {', '.join(defaults.GRIDDINGS)}")
 
@@ -120,20 +130,21 @@ class LabeledScan:
 
 
 class LabelShardWriter:
-    """Writes one label shard atomically (temporary name, then rename)."""
+    """Writes one label shard: built in memory, written atomically by ``commit`` (``abort`` drops it)."""
 
     def __init__(self, path: Path, n_scans: int, n_sigmas: int, dem: DemSpec, attrs: dict[str, Any]) -> None:
         self.path = path
-        self._tmp = partial_path(path)
-        self._f = h5py.File(self._tmp, "w")
+        self._image = H5Image(path)
+        self._f = self._image.file
         write_attrs(self._f, {"schema": LABEL_SCHEMA, "schema_version": LABEL_SCHEMA_VERSION, "software": "hd",
                               "software_version": __version__, "n_scans": n_scans, **dem.to_attrs(), **attrs})
         h, w, n, s = dem.rows, dem.cols, n_scans, n_sigmas
         gz = compression_kwargs("gzip")
+        small = compression_kwargs("none")
         f = self._f
         self._d = {
-            "scan_index": f.create_dataset("scan_index", (n,), np.int64, track_times=False),
-            "split": f.create_dataset("split", (n,), np.uint8, track_times=False),
+            "scan_index": f.create_dataset("scan_index", (n,), np.int64, chunks=(n,), **small),
+            "split": f.create_dataset("split", (n,), np.uint8, chunks=(n,), **small),
             "dem_clean": f.create_dataset("dem_clean", (n, h, w), np.float32, chunks=(1, h, w), **gz),
             "dem_noisy": f.create_dataset("dem_noisy", (n, s, h, w), np.float32, chunks=(1, 1, h, w), **gz),
             "label": f.create_dataset("label", (n, h, w), np.uint8, chunks=(1, h, w), **gz),
@@ -156,43 +167,69 @@ class LabelShardWriter:
         d["roughness_m"][k] = roughness_m
         d["p_safe"][k] = p_safe
 
-    def commit(self) -> None:
-        self._f.close()
-        commit_file(self._tmp, self.path)
+    def commit(self) -> str:
+        """Write the shard to its final path (temporary name, fsync, rename); returns its sha256."""
+        return self._image.commit()
 
     def abort(self) -> None:
-        try:
-            self._f.close()
-        finally:
-            self._tmp.unlink(missing_ok=True)
+        self._image.discard()
+
+
+def _text(value: Any) -> str:
+    if isinstance(value, bytes):
+        return value.decode(errors="replace")
+    if isinstance(value, np.ndarray):
+        return str(value.tolist())
+    return str(value)
 
 
 class LabelShardReader:
-    """Lazy reader of one label shard (one scan at a time; ``h5`` gives plain h5py access)."""
+    """Lazy reader of one label shard (one scan at a time; ``h5`` gives h5py access with checked reads).
 
-    def __init__(self, path: str | os.PathLike) -> None:
+    Args:
+        path: the label shard.
+        sha256: the checksum its manifest records; when given, checked before the file is opened.
+        what: how errors name the file (default: its path).
+
+    Raises:
+        LabelStoreError: not a label shard, an unknown major version, a checksum mismatch, damage.
+    """
+
+    def __init__(self, path: str | os.PathLike, sha256: str | None = None, what: str | None = None) -> None:
         self.path = Path(path)
+        self.what = what or str(self.path)
         try:
-            self.h5 = h5py.File(self.path, "r")
-        except OSError:
-            raise LabelStoreError(f"{self.path}: cannot open as HDF5") from None
+            if sha256 is not None:
+                verify_sha256(self.path, sha256, self.what)
+            self.h5: CheckedH5File = open_h5(self.path, self.what)
+        except ShardFormatError as exc:
+            raise LabelStoreError(str(exc)) from None
         attrs = self.h5.attrs
         try:
-            check_schema(str(attrs.get("schema", "")), str(attrs.get("schema_version", "")),
-                         LABEL_SCHEMA, LABEL_SCHEMA_VERSION, str(self.path))
-        except ShardFormatError as exc:
+            check_schema(_text(attrs.get("schema", "")), _text(attrs.get("schema_version", "")),
+                         LABEL_SCHEMA, LABEL_SCHEMA_VERSION, self.what)
+            self.sigmas_m: tuple[float, ...] = tuple(float(s) for s in np.atleast_1d(attrs["sigmas_m"]))
+            self._n = int(self.h5["scan_index"].shape[0])
+        except (ShardFormatError, KeyError, TypeError, ValueError, OSError) as exc:
             self.h5.close()
-            raise LabelStoreError(str(exc)) from None
-        self.sigmas_m: tuple[float, ...] = tuple(float(s) for s in attrs["sigmas_m"])
+            if isinstance(exc, ShardFormatError):
+                raise LabelStoreError(str(exc)) from None
+            raise LabelStoreError(f"{self.what}: not a readable label shard ({exc})") from None
 
     def __len__(self) -> int:
-        return int(self.h5["scan_index"].shape[0])
+        return self._n
 
     def __getitem__(self, k: int) -> LabeledScan:
+        if not -self._n <= k < self._n:
+            raise IndexError(f"scan {k} out of range for {self.what} ({self._n} scans)")
         f = self.h5
+        try:
+            split = SPLIT_NAMES[int(f["split"][k])]
+        except IndexError:
+            raise LabelStoreError(f"{self.what}: row {k} has an unknown split code") from None
         return LabeledScan(
             scan_index=int(f["scan_index"][k]),
-            split=SPLIT_NAMES[int(f["split"][k])],
+            split=split,
             dem_clean=f["dem_clean"][k],
             dem_noisy=f["dem_noisy"][k],
             label=f["label"][k],
@@ -229,9 +266,12 @@ def find_labeling(directory: str | os.PathLike, name: str | None = None) -> dict
     if not labelings:
         raise LabelStoreError(f"{directory}: the dataset has no labels; run `hd label {directory}` first")
     for lab in labelings:
-        check = lab.get("schema", ""), lab.get("schema_version", "")
+        check = str(lab.get("schema", "")), str(lab.get("schema_version", ""))
         try:
             check_schema(check[0], check[1], LABEL_SCHEMA, LABEL_SCHEMA_VERSION, f"{directory} labelling {lab.get('name')}")
+            for entry in lab["shards"]:
+                check_schema(str(entry.get("schema", LABEL_SCHEMA)), str(entry.get("schema_version", check[1])),
+                             LABEL_SCHEMA, LABEL_SCHEMA_VERSION, f"{directory}/{entry['path']}")
         except ShardFormatError as exc:
             raise LabelStoreError(str(exc)) from None
     if name is None:
@@ -246,12 +286,37 @@ def find_labeling(directory: str | os.PathLike, name: str | None = None) -> dict
 
 
 def label_shard_paths(directory: str | os.PathLike, labeling: dict[str, Any]) -> list[Path]:
-    """Absolute paths of a labelling's shards, in scan order."""
-    return [Path(directory) / entry["path"] for entry in labeling["shards"]]
+    """Paths of a labelling's shards, in scan order (each confined to the dataset).
+
+    Raises:
+        LabelStoreError: a path that leaves the dataset.
+    """
+    try:
+        return [confine(directory, entry["path"], f"{directory}/{entry['path']}") for entry in labeling["shards"]]
+    except ShardFormatError as exc:
+        raise LabelStoreError(str(exc)) from None
+
+
+def open_label_shard(directory: str | os.PathLike, entry: dict[str, Any]) -> LabelShardReader:
+    """Open the label shard of a manifest entry: confined to the dataset, its sha256 checked first.
+
+    Raises:
+        LabelStoreError: path outside the dataset, missing or damaged file, unknown schema.
+    """
+    what = f"{Path(directory) / entry['path']}"
+    try:
+        path = confine(directory, entry["path"], what)
+    except ShardFormatError as exc:
+        raise LabelStoreError(str(exc)) from None
+    return LabelShardReader(path, sha256=entry["sha256"], what=what)
 
 
 def add_labeling_to_manifest(directory: Path, entry: dict[str, Any]) -> None:
-    """Add (or replace, same name) a labelling entry in the manifest, atomically."""
-    manifest = json.loads((directory / MANIFEST_NAME).read_text())
+    """Add (or replace, same name) a labelling entry in the manifest, atomically (writer lock held)."""
+    try:
+        manifest = read_manifest(directory)
+    except ShardFormatError as exc:
+        raise LabelStoreError(str(exc)) from None
     manifest["labelings"] = [lab for lab in manifest.get("labelings", []) if lab["name"] != entry["name"]] + [entry]
     write_json_atomic(directory / MANIFEST_NAME, manifest)
+

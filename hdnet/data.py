@@ -22,7 +22,9 @@ with dead pixels). Preparation, in order:
 probabilities over each DEM cell for resizing, so metrics are always computed on the DEM grid.
 
 The h5py handles are opened lazily in the process that reads (re-opened after a fork), never
-pickled: the dataset works with ``DataLoader(num_workers > 0)``.
+pickled: the dataset works with ``DataLoader(num_workers > 0)``. Every label shard is checked
+against the manifest's sha256 and schema when the dataset is made, and every later read error
+(a chunk whose fletcher32 checksum fails) names the file and the scan (``lidarsim.storage``).
 """
 
 from __future__ import annotations
@@ -33,7 +35,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import h5py
 import numpy as np
 import torch
 import torch.nn.functional as F
@@ -47,9 +48,11 @@ from hdlabels.store import (
     LabelStoreError,
     find_labeling,
     label_shard_paths,
+    open_label_shard,
 )
 from hdnet import defaults
 from hdnet.errors import HdNetError
+from lidarsim.storage import CheckedH5File, FormatError, open_h5
 
 SPLITS: tuple[str, str, str] = ("train", "val", "test")  # split codes 0, 1, 2 of the label shards
 SIGMA_EXACT_TOLERANCE_M = 1e-9  # hd choice: two noise levels closer than this are the same level
@@ -151,14 +154,23 @@ def dem_spacing_m(entry: dict[str, Any]) -> float:
     return float(entry.get("dem", {}).get("spacing_m", 1.0))
 
 
+def _open_verified(dataset_dir: str | os.PathLike, shard: dict[str, Any]) -> LabelShardReader:
+    """A label shard of the manifest, checked (sha256, schema) before it is read; errors as HdNetError."""
+    try:
+        return open_label_shard(dataset_dir, shard)
+    except LabelStoreError as exc:
+        raise HdNetError(str(exc).rstrip(".") + ".") from None
+
+
 # --- normalisation -----------------------------------------------------------------------------
 def compute_normalisation(dataset_dir: str | os.PathLike, sigma_m: float, labels: str | None = None) -> Normalisation:
     """Min and max (metres) of the finite noisy-DEM heights at ``sigma_m`` over the training split only."""
-    _, paths = open_labeling(dataset_dir, labels)
+    entry, paths = open_labeling(dataset_dir, labels)
     s = sigma_index(dataset_sigmas(paths), sigma_m)
     lo, hi = math.inf, -math.inf
-    for path in paths:
-        with h5py.File(path, "r") as f:
+    for shard in entry["shards"]:
+        with _open_verified(dataset_dir, shard) as reader:
+            f = reader.h5
             rows = np.flatnonzero(f["split"][:] == 0)
             if rows.size == 0:
                 continue
@@ -268,19 +280,19 @@ class HazardDataset(Dataset):
         self.seed = int(seed)
         code = SPLITS.index(split)
         items: list[tuple[int, int, int]] = []  # (shard number, row in shard, scan index)
-        for k, path in enumerate(self.paths):
+        for k, (path, shard) in enumerate(zip(self.paths, self.entry["shards"], strict=True)):
             try:
-                with h5py.File(path, "r") as f:
-                    splits, scans = f["split"][:], f["scan_index"][:]
-                    shard_sigmas = tuple(float(s) for s in f.attrs["sigmas_m"])
-            except (OSError, KeyError):
-                raise HdNetError(f"{path}: not a readable label shard.") from None
+                with _open_verified(dataset_dir, shard) as reader:
+                    splits, scans = reader.h5["split"][:], reader.h5["scan_index"][:]
+                    shard_sigmas = reader.sigmas_m
+            except FormatError as exc:
+                raise HdNetError(str(exc).rstrip(".") + ".") from None
             if len(shard_sigmas) != len(self.sigmas_m) or any(abs(a - b) > SIGMA_EXACT_TOLERANCE_M for a, b in zip(shard_sigmas, self.sigmas_m)):
                 raise HdNetError(f"{path}: its noise levels differ from the other label shards.")
             items += [(k, int(r), int(scans[r])) for r in np.flatnonzero(splits == code)]
         self.items = items
         self.normalisation = normalisation if normalisation is not None else compute_normalisation(dataset_dir, self.sigma_m, labels)
-        self._files: dict[int, h5py.File] = {}
+        self._files: dict[int, CheckedH5File] = {}
         self._pid = -1
 
     # Pickling: never the open files.
@@ -289,12 +301,15 @@ class HazardDataset(Dataset):
         state["_files"], state["_pid"] = {}, -1
         return state
 
-    def _file(self, k: int) -> h5py.File:
+    def _file(self, k: int) -> CheckedH5File:
         if self._pid != os.getpid():  # first use in this process (e.g. a DataLoader worker after fork)
             self._files, self._pid = {}, os.getpid()
         f = self._files.get(k)
         if f is None:
-            f = self._files[k] = h5py.File(self.paths[k], "r")
+            try:
+                f = self._files[k] = open_h5(self.paths[k])
+            except FormatError as exc:
+                raise HdNetError(str(exc).rstrip(".") + ".") from None
         return f
 
     def close(self) -> None:

@@ -87,6 +87,7 @@ from hdnet.train import load_trained_model
 from lidarsim.errors import TerrainError
 from lidarsim.procedural import geotiff_profile
 from lidarsim.shards import MANIFEST_NAME, read_manifest, sha256_file
+from lidarsim.storage import check_output_dir
 from lidarsim.terrain import DTM
 
 SAFETY_UNSAFE, SAFETY_SAFE, SAFETY_UNCERTAIN, SAFETY_INVALID = 0, 1, 2, 255
@@ -372,6 +373,7 @@ def _fixed_threshold(spec: str) -> float | None:
 
 
 def _check_out_dir(out: Path, overwrite: bool) -> None:
+    check_output_dir(out, "--out")  # a usable path: not under /proc or a file, writable parent
     if out.exists() and not out.is_dir():
         raise HdNetError(f"{out} exists and is not a directory.")
     if out.is_dir() and any(out.iterdir()) and not overwrite:

@@ -52,6 +52,8 @@ from hdnet.train import LAST, load_trained_model
 from lidarsim.shards import MANIFEST_NAME, read_manifest, sha256_file
 
 METHODS: tuple[str, str, str] = ("alhat_baseline", "base_net", "uncertainty_aware")
+MAX_MC_SAMPLES = 1024  # hd choice: the tiled suffix of one batch holds M copies in memory (paper: M = 8)
+MAX_BATCH_SIZE = 1024  # hd choice: DEMs per inference batch
 ECE_BINS = 15  # hd choice: bins of the reliability diagram (the common choice since Guo et al. 2017)
 BASELINE_THRESHOLD = 0.5  # paper, "Label generation": the baseline is safe where P(safe) >= 50 %
 
@@ -303,12 +305,12 @@ def validation_threshold(
 
 # --- the evaluation --------------------------------------------------------------------------------
 def _check_counts(mc_samples: int, drop_pixels: int, n_pixels: int, batch_size: int) -> None:
-    if isinstance(mc_samples, bool) or not isinstance(mc_samples, int) or mc_samples < 1:
-        raise HdNetError(f"the number of MC samples must be an integer >= 1, got {mc_samples!r}.")
+    if isinstance(mc_samples, bool) or not isinstance(mc_samples, int) or not 1 <= mc_samples <= MAX_MC_SAMPLES:
+        raise HdNetError(f"the number of MC samples must be an integer in 1..{MAX_MC_SAMPLES}, got {mc_samples!r}.")
     if isinstance(drop_pixels, bool) or not isinstance(drop_pixels, int) or not 0 <= drop_pixels < n_pixels:
         raise HdNetError(f"--drop-pixels must be an integer in [0, {n_pixels - 1}] for {n_pixels}-pixel DEMs, got {drop_pixels!r}.")
-    if isinstance(batch_size, bool) or not isinstance(batch_size, int) or batch_size < 1:
-        raise HdNetError(f"the batch size must be an integer >= 1, got {batch_size!r}.")
+    if isinstance(batch_size, bool) or not isinstance(batch_size, int) or not 1 <= batch_size <= MAX_BATCH_SIZE:
+        raise HdNetError(f"the batch size must be an integer in 1..{MAX_BATCH_SIZE}, got {batch_size!r}.")
 
 
 def evaluate(
@@ -323,17 +325,25 @@ def evaluate(
     batch_size: int = 8,
     device: str | None = None,
     figures: bool = True,
+    overwrite: bool = False,
 ) -> EvaluationResult:
     """Evaluate the run at ``run_dir`` (its ``last.pt``, or a checkpoint file) on ``dataset_dir``.
 
     Writes ``report.json``, ``report.md`` and PNG figures into ``out_dir`` and returns the result.
+    ``out_dir`` is checked before the evaluation runs; an existing report (or a non-empty
+    directory that is not a report) is replaced only with ``overwrite``.
 
     Raises:
         HdNetError: a dataset without labels, a training sigma not in the dataset, a checkpoint of
             another model or schema, ``drop_pixels`` outside [0, DEM pixels), ``mc_samples`` < 1,
             a bad threshold spec (e.g. alpha outside (0, 1)), an empty validation or test split.
     """
+    from hdnet.report import check_report_dir, write_report
+
     spec: ThresholdSpec = parse_threshold_spec(threshold)
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise HdNetError(f"the seed must be an integer >= 0, got {seed!r}.")
+    check_report_dir(out_dir, overwrite)  # before the evaluation runs
     open_labeling(dataset_dir, labels)  # the clear "no labels" error before anything else
     _check_counts(mc_samples, 0, 1, batch_size)
     ckpt_path = checkpoint_path(run_dir)
@@ -406,9 +416,7 @@ def evaluate(
     }
     result = EvaluationResult(rows, threshold_info, sweep, {"bins": ECE_BINS, "per_sigma": cal_rows}, run_info,
                               tests, val_entropy)
-    from hdnet.report import write_report
-
-    write_report(result, Path(out_dir), figures=figures)
+    write_report(result, Path(out_dir), figures=figures, overwrite=overwrite)
     return result
 
 

@@ -4,10 +4,16 @@
 normalised with the training split's min and max, and hands them to ``hdnet.train.train``. What
 evaluation needs to prepare new inputs exactly like the training inputs is stored in the run's
 ``config.json`` and in every checkpoint under ``extra_config`` (see ``RUN_DATA_KEYS``).
+
+The run directory is checked before any work (``prepare_run_dir``: a writable place; a non-empty
+directory that is not an hd run is refused without ``overwrite``) and written under its writer
+lock, so two trainings never share a run directory.
 """
 
 from __future__ import annotations
 
+import contextlib
+import json
 import os
 from pathlib import Path
 from typing import Any
@@ -21,8 +27,21 @@ from hdnet.data import (
 )
 from hdnet.errors import HdNetError
 from hdnet.profiles import TrainingProfile, get_profile
-from hdnet.train import train
+from hdnet.train import BEST, CONFIG, LAST, METRICS, train
 from lidarsim.shards import MANIFEST_NAME, sha256_file
+from lidarsim.storage import (
+    LOCK_NAME,
+    PARTIAL_MARK,
+    StorageError,
+    WriterLock,
+    check_output_dir,
+    first_missing,
+    make_dirs,
+    remove_empty_dirs,
+    remove_partials,
+)
+
+RUN_FILES = (LAST, BEST, METRICS, CONFIG)
 
 RUN_DATA_KEYS = ("dataset", "manifest_sha256", "labels", "labeling", "train_sigma_m", "normalisation", "input_size",
                  "input_rule", "dem_shape")
@@ -56,6 +75,62 @@ def run_data_config(
     }
 
 
+def _is_run(run_dir: Path) -> bool:
+    """True when ``run_dir`` holds an hd run (a checkpoint, or the config.json ``train`` writes)."""
+    if (run_dir / LAST).is_file():
+        return True
+    try:
+        return json.loads((run_dir / CONFIG).read_text()).get("schema") == "hdnet.run"
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+def prepare_run_dir(run_dir: str | os.PathLike, resume: bool, overwrite: bool) -> tuple[Path, bool]:
+    """Check a run directory before any work; returns (absolute path, whether an old run is replaced).
+
+    Raises:
+        HdNetError: an unwritable place; a non-empty directory that is not an hd run (without
+            ``overwrite``); a run with a checkpoint and neither ``resume`` nor ``overwrite``.
+    """
+    try:
+        path = check_output_dir(run_dir, "--out")
+    except StorageError as exc:
+        raise HdNetError(str(exc).rstrip(".") + ".") from None
+    if not path.exists():
+        return path, False
+    content = [p for p in path.iterdir() if p.name != LOCK_NAME and PARTIAL_MARK not in p.name]
+    if not content:
+        return path, False
+    if not _is_run(path):
+        if overwrite:
+            return path, False
+        raise HdNetError(f"{path} is not empty and is not an hd run; choose another --out, or pass --overwrite to "
+                         "write the run there anyway (files of the same names are replaced).")
+    if overwrite:
+        return path, True
+    if (path / LAST).exists() and not resume:
+        raise HdNetError(f"{path} already holds a checkpoint; resume it (--resume), start again (--overwrite) "
+                         "or choose another run directory.")
+    return path, False
+
+
+@contextlib.contextmanager
+def run_dir_lock(run_dir: Path) -> Any:
+    """Hold the run directory's writer lock (rank 0 only under torchrun); errors as HdNetError."""
+    if int(os.environ.get("RANK", "0")) != 0:
+        yield
+        return
+    try:
+        make_dirs(run_dir)
+        lock = WriterLock(run_dir, "run").acquire()
+    except StorageError as exc:
+        raise HdNetError(str(exc).rstrip(".") + ".") from None
+    try:
+        yield
+    finally:
+        lock.release()
+
+
 def fit(
     dataset_dir: str | os.PathLike,
     run_dir: str | os.PathLike,
@@ -67,13 +142,23 @@ def fit(
     labels: str | None = None,
     progress: bool = True,
     num_workers: int = 0,
+    overwrite: bool = False,
 ) -> Path:
     """Train a model on ``dataset_dir`` at noise level ``train_sigma_m`` (metres); returns ``last.pt``.
 
+    ``overwrite``: write into a non-empty directory that is not an hd run, or start an existing run
+    again (its checkpoints, metrics.csv and config.json are replaced).
+
     Raises:
-        HdNetError: a dataset without labels, a sigma not in the dataset, an empty training or
-            validation split, an unknown profile, or anything ``hdnet.train.train`` refuses.
+        HdNetError: a bad run directory (see ``prepare_run_dir``), a dataset without labels, a sigma
+            not in the dataset, an empty training or validation split, an unknown profile, or
+            anything ``hdnet.train.train`` refuses.
     """
+    if isinstance(num_workers, bool) or not isinstance(num_workers, int) or num_workers < 0:
+        raise HdNetError(f"--num-workers must be an integer >= 0, got {num_workers!r}.")
+    if seed < 0:
+        raise HdNetError(f"--seed must be >= 0, got {seed}.")
+    run_path, _ = prepare_run_dir(run_dir, resume, overwrite)
     profile = get_profile(profile_name)
     open_labeling(dataset_dir, labels)  # the clear "no labels" error first
     normalisation = compute_normalisation(dataset_dir, train_sigma_m, labels)
@@ -85,5 +170,15 @@ def fit(
             raise HdNetError(f"{dataset_dir}: the {name} split is empty; build a dataset with more scans.")
     extra = run_data_config(dataset_dir, train_ds.labels, train_ds.sigma_m, normalisation, profile, train_ds.dem_shape,
                             labeling=train_ds.entry)
-    return train(run_dir, train_ds, val_ds, profile, epochs=epochs, seed=seed, resume=resume, progress=progress,
-                 extra_config=extra, num_workers=num_workers)
+    top = first_missing(run_path)
+    try:
+        with run_dir_lock(run_path):
+            _, replace = prepare_run_dir(run_path, resume, overwrite)  # again, under the lock
+            remove_partials(run_path)  # of a killed run
+            if replace:
+                for name in RUN_FILES:
+                    (run_path / name).unlink(missing_ok=True)
+            return train(run_path, train_ds, val_ds, profile, epochs=epochs, seed=seed, resume=resume and not replace,
+                         progress=progress, extra_config=extra, num_workers=num_workers)
+    finally:
+        remove_empty_dirs(run_path, top)

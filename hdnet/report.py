@@ -5,6 +5,13 @@
 ratio, an unbounded threshold) are written as ``null``. ``report.md`` prints Table 1 (noise levels)
 and Table 2 (dead pixels) in the paper's column order, each followed by the paper's values for the
 same rows (``hdnet.paper_results``), then the threshold, the sweep and the calibration errors.
+
+Writing (``write_report``): every file is first written into a hidden staging directory inside
+``out_dir`` and moved into place only when all are complete, ``report.json`` last; a failure (a
+full disk included) removes the staging directory, so a report directory never holds half a
+report. The directory's writer lock keeps two evaluations from writing the same report. An
+existing report, or a non-empty directory that is not a report, is replaced only with
+``overwrite`` (``check_report_dir``, also called before an evaluation starts).
 """
 
 from __future__ import annotations
@@ -12,11 +19,27 @@ from __future__ import annotations
 import json
 import math
 import os
+import shutil
 from dataclasses import asdict
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from hdnet.errors import HdNetError
 from hdnet.paper_results import paper_row
+from lidarsim.storage import (
+    LOCK_NAME,
+    PARTIAL_MARK,
+    StorageError,
+    WriterLock,
+    check_output_dir,
+    commit_file,
+    describe_os_error,
+    first_missing,
+    make_dirs,
+    remove_empty_dirs,
+    remove_partials,
+    write_text_atomic,
+)
 
 if TYPE_CHECKING:
     from hdnet.evaluate import EvaluationResult, ReportRow
@@ -133,21 +156,82 @@ def report_markdown(result: EvaluationResult, figures: list[str] | None = None) 
     return "\n".join(out) + "\n"
 
 
-def _write_text(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+REPORT_FILES = ("report.json", "report.md")
 
 
-def write_report(result: EvaluationResult, out_dir: Path, figures: bool = True) -> list[Path]:
-    """Write ``report.json``, ``report.md`` and (``figures=True``) the PNGs; returns the paths written."""
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+def _is_report_file(name: str) -> bool:
+    return name in REPORT_FILES or name in ("reliability.png", "threshold_sweep.png") or (
+        name.startswith("qualitative_") and name.endswith(".png"))
+
+
+def check_report_dir(out_dir: str | os.PathLike, overwrite: bool = False) -> Path:
+    """Check a report directory before an evaluation runs; returns its absolute path.
+
+    Raises:
+        HdNetError: an unwritable place (``/proc``, under a regular file, read-only...), an existing
+            report, or a non-empty directory that is not a report, without ``overwrite``.
+    """
+    try:
+        path = check_output_dir(out_dir, "--out")
+    except StorageError as exc:
+        raise HdNetError(str(exc).rstrip(".") + ".") from None
+    if not path.exists() or overwrite:
+        return path
+    content = [p.name for p in path.iterdir() if p.name != LOCK_NAME and PARTIAL_MARK not in p.name]
+    if any(name in REPORT_FILES for name in content):
+        raise HdNetError(f"{path} already holds a report; pass --overwrite to replace it, or choose another --out.")
+    if content:
+        raise HdNetError(f"{path} is not empty and is not an hd report; choose another --out, or pass --overwrite "
+                         "to write the report there (files of the same names are replaced).")
+    return path
+
+
+def write_report(result: EvaluationResult, out_dir: Path, figures: bool = True, overwrite: bool = False) -> list[Path]:
+    """Write ``report.json``, ``report.md`` and (``figures=True``) the PNGs; returns the paths written.
+
+    Raises:
+        HdNetError: see ``check_report_dir``; a full disk or another OS error (nothing is left
+            half-written), or another evaluation writing the same directory.
+    """
+    out_dir = check_report_dir(out_dir, overwrite)
+    top = first_missing(out_dir)
+    try:
+        make_dirs(out_dir)
+        lock = WriterLock(out_dir, "report").acquire()
+    except StorageError as exc:
+        raise HdNetError(str(exc).rstrip(".") + ".") from None
+    staging = out_dir / f".report{PARTIAL_MARK}{os.getpid()}"
+    try:
+        check_report_dir(out_dir, overwrite)  # again, under the lock
+        remove_partials(out_dir)
+        staged = _stage(result, staging, figures)
+        if overwrite:
+            for p in out_dir.iterdir():
+                if _is_report_file(p.name) and p.is_file():
+                    p.unlink()
+        final = []
+        for p in sorted(staged, key=lambda q: q.name == "report.json"):  # report.json last: the report is complete
+            commit_file(p, out_dir / p.name)
+            final.append(out_dir / p.name)
+        return [out_dir / "report.json", out_dir / "report.md", *[p for p in final if p.suffix == ".png"]]
+    except OSError as exc:
+        raise HdNetError(describe_os_error(exc, out_dir / Path(exc.filename).name if exc.filename else out_dir)) from None
+    except StorageError as exc:
+        raise HdNetError(str(exc)) from None
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+        lock.release()
+        remove_empty_dirs(out_dir, top)
+
+
+def _stage(result: EvaluationResult, staging: Path, figures: bool) -> list[Path]:
+    """Every report file, complete, in ``staging``; returns their paths."""
+    make_dirs(staging)
     pngs: list[Path] = []
     if figures:
         from hdnet.figures import write_figures
 
-        pngs = write_figures(result, out_dir)
-    _write_text(out_dir / "report.json", json.dumps(report_dict(result), indent=2) + "\n")
-    _write_text(out_dir / "report.md", report_markdown(result, [str(p) for p in pngs]))
-    return [out_dir / "report.json", out_dir / "report.md", *pngs]
+        pngs = write_figures(result, staging)
+    write_text_atomic(staging / "report.json", json.dumps(report_dict(result), indent=2) + "\n")
+    write_text_atomic(staging / "report.md", report_markdown(result, [str(p) for p in pngs]))
+    return [*pngs, staging / "report.md", staging / "report.json"]

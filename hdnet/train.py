@@ -8,8 +8,15 @@ Run directory layout (all written by rank 0, each file atomically: temporary nam
 * ``metrics.csv``: ``epoch, train_loss, val_loss, val_pixel_accuracy`` (rewritten from the checkpoint's
   history each epoch, so it never holds an epoch the checkpoint does not).
 
-Checkpoints hold only tensors and plain Python types (schema ``hdnet.checkpoint`` version 1) and
-are read with ``torch.load(weights_only=True)``: no code is ever unpickled.
+Checkpoints hold only tensors and plain Python types (schema ``hdnet.checkpoint`` version 2) and
+are read with ``torch.load(weights_only=True)``: no code is ever unpickled. Version 2 adds
+``content_sha256``, the SHA-256 of every tensor's bytes and every other value (``checkpoint_digest``),
+checked on load: a damaged checkpoint is refused instead of silently used. Version 1 checkpoints
+(no digest) are still read.
+
+Kills: ``last.pt`` is the commit point of an epoch (written before ``best.pt`` and ``metrics.csv``);
+resuming rewrites ``metrics.csv`` from the checkpoint's history and ``best.pt`` when the latest epoch
+is the best one, so the three agree after a kill at any moment (docs/reliability.md).
 
 Exact resume: shuffling is a pure function of (seed, epoch) (``DistributedSampler.set_epoch``, also
 for one process), and the RNG states of torch (CPU and CUDA), NumPy and Python of every rank are
@@ -26,6 +33,7 @@ ranks ``DistributedSampler`` repeats up to world_size - 1 validation samples to 
 from __future__ import annotations
 
 import csv
+import hashlib
 import io
 import json
 import math
@@ -46,9 +54,12 @@ from hdnet._version import __version__
 from hdnet.errors import HdNetError
 from hdnet.model import MODEL_NAME, BayesianSegNet, ModelConfig
 from hdnet.profiles import TrainingProfile, profile_from_dict
+from lidarsim.storage import StorageError, write_bytes_atomic
 
 CHECKPOINT_SCHEMA = "hdnet.checkpoint"
-CHECKPOINT_VERSION = 1
+CHECKPOINT_VERSION = 2
+READABLE_CHECKPOINT_VERSIONS = (1, 2)  # 1: without content_sha256
+DIGEST_KEY = "content_sha256"
 LAST, BEST, CONFIG, METRICS = "last.pt", "best.pt", "config.json", "metrics.csv"
 
 
@@ -102,25 +113,54 @@ def _seed_everything(seed: int) -> None:
 
 # --- checkpoint I/O ----------------------------------------------------------------------------
 def _atomic_write_bytes(path: Path, data: bytes) -> None:
-    tmp = path.with_name(path.name + ".partial")
-    with open(tmp, "wb") as fh:
-        fh.write(data)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    """Write a run file atomically through the storage layer (OS errors become one-line HdNetErrors)."""
+    try:
+        write_bytes_atomic(path, data)
+    except StorageError as exc:
+        raise HdNetError(str(exc)) from None
+
+
+def _hash_into(h: Any, obj: Any) -> None:
+    if isinstance(obj, torch.Tensor):
+        t = obj.detach().cpu().contiguous()
+        h.update(f"T{t.dtype}{tuple(t.shape)};".encode())
+        if t.numel():
+            h.update(t.reshape(-1).view(torch.uint8).numpy())
+    elif isinstance(obj, dict):
+        h.update(f"D{len(obj)};".encode())
+        for key in sorted(obj, key=repr):
+            h.update(f"{key!r}=".encode())
+            _hash_into(h, obj[key])
+    elif isinstance(obj, (list, tuple)):
+        h.update(f"L{len(obj)};".encode())
+        for value in obj:
+            _hash_into(h, value)
+    else:
+        h.update(f"S{obj!r};".encode())
+
+
+def checkpoint_digest(checkpoint: dict[str, Any]) -> str:
+    """SHA-256 of a checkpoint's content: every tensor's dtype, shape and bytes and every other
+    value, in a fixed order (``content_sha256`` itself left out)."""
+    h = hashlib.sha256()
+    _hash_into(h, {k: v for k, v in checkpoint.items() if k != DIGEST_KEY})
+    return h.hexdigest()
 
 
 def save_checkpoint(path: Path, checkpoint: dict[str, Any]) -> None:
-    """Write a checkpoint atomically (temporary file, fsync, rename)."""
+    """Write a checkpoint atomically (temporary file, fsync, rename) with its ``content_sha256``."""
     buf = io.BytesIO()
-    torch.save(checkpoint, buf)
+    torch.save({**checkpoint, DIGEST_KEY: checkpoint_digest(checkpoint)}, buf)
     _atomic_write_bytes(Path(path), buf.getvalue())
 
 
 def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
-    """Read and validate a checkpoint (weights only); refuses other schemas, versions and models."""
+    """Read and validate a checkpoint (weights only); refuses other schemas, versions and models,
+    and a content that does not match its ``content_sha256`` (a damaged file)."""
     path = Path(path)
     if not path.is_file():
+        if path.exists():
+            raise HdNetError(f"checkpoint {path} is not a regular file.")
         raise HdNetError(f"checkpoint {path} does not exist.")
     try:
         ckpt = torch.load(path, map_location=map_location, weights_only=True)
@@ -128,8 +168,20 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
         raise HdNetError(f"{path} is not a readable hdnet checkpoint ({type(exc).__name__}).") from None
     if not isinstance(ckpt, dict) or ckpt.get("schema") != CHECKPOINT_SCHEMA:
         raise HdNetError(f"{path} is not an hdnet checkpoint (schema {CHECKPOINT_SCHEMA!r} missing).")
-    if ckpt.get("schema_version") != CHECKPOINT_VERSION:
-        raise HdNetError(f"{path} has checkpoint schema version {ckpt.get('schema_version')}, this hdnet reads {CHECKPOINT_VERSION}.")
+    if ckpt.get("schema_version") not in READABLE_CHECKPOINT_VERSIONS:
+        raise HdNetError(f"{path} has checkpoint schema version {ckpt.get('schema_version')}, this hdnet reads "
+                         f"{', '.join(map(str, READABLE_CHECKPOINT_VERSIONS))}.")
+    if ckpt.get("schema_version") >= 2:
+        recorded = ckpt.get(DIGEST_KEY)
+        if not isinstance(recorded, str):
+            raise HdNetError(f"{path} lacks its {DIGEST_KEY}; the checkpoint is damaged.")
+        try:
+            actual = checkpoint_digest(ckpt)
+        except Exception:  # noqa: BLE001 - a structure the digest cannot walk is damage too
+            actual = ""
+        if actual != recorded:
+            raise HdNetError(f"{path}: checksum mismatch (content sha256 {actual[:12]}..., recorded "
+                             f"{recorded[:12]}...); the checkpoint is damaged.")
     if ckpt.get("model_name") != MODEL_NAME:
         raise HdNetError(f"{path} holds a {ckpt.get('model_name')!r} model, not {MODEL_NAME!r}.")
     return ckpt
@@ -151,6 +203,31 @@ def _write_metrics_csv(path: Path, history: list[dict[str, float]]) -> None:
     for row in history:
         writer.writerow({k: (int(v) if k == "epoch" else f"{v:.6g}") for k, v in row.items()})
     _atomic_write_bytes(path, buf.getvalue().encode())
+
+
+def _best_epoch(history: list[dict[str, float]]) -> int:
+    """Epoch (1-based) with the lowest validation loss, the first one on ties (as the loop keeps it); 0 if none."""
+    best, best_loss = 0, math.inf
+    for row in history:
+        if row["val_loss"] < best_loss:
+            best, best_loss = int(row["epoch"]), row["val_loss"]
+    return best
+
+
+def _reconcile_run(run_dir: Path, ckpt: dict[str, Any]) -> None:
+    """Make ``metrics.csv`` and ``best.pt`` agree with ``last.pt`` (after a kill between their writes)."""
+    history = list(ckpt["history"])
+    _write_metrics_csv(run_dir / METRICS, history)
+    best = _best_epoch(history)
+    if best and best == int(ckpt["epoch"]):
+        current = None
+        if (run_dir / BEST).is_file():
+            try:
+                current = int(load_checkpoint(run_dir / BEST)["epoch"])
+            except HdNetError:
+                current = None
+        if current != best:
+            save_checkpoint(run_dir / BEST, {k: v for k, v in ckpt.items() if k != DIGEST_KEY})
 
 
 def _make_optimizer(model: nn.Module, profile: TrainingProfile) -> torch.optim.Optimizer:
@@ -218,6 +295,8 @@ def train(
     total_epochs = profile.epochs if epochs is None else int(epochs)
     if total_epochs < 1:
         raise HdNetError(f"epochs must be >= 1, got {total_epochs}.")
+    if isinstance(num_workers, bool) or not isinstance(num_workers, int) or num_workers < 0:
+        raise HdNetError(f"the number of DataLoader workers must be an integer >= 0, got {num_workers!r}.")
     if len(train_ds) == 0 or len(val_ds) == 0:  # type: ignore[arg-type]
         raise HdNetError("the training and validation datasets must not be empty.")
     extra = _json_plain(dict(extra_config or {}), "extra_config")
@@ -235,6 +314,8 @@ def train(
         ckpt = load_checkpoint(last)
         if ckpt["model_config"] != model_config.to_dict() or profile_from_dict(ckpt["profile"]) != profile:
             raise HdNetError(f"checkpoint {last} was trained with another model or profile ({ckpt['profile']['name']!r}).")
+        if rank == 0:
+            _reconcile_run(run_dir, ckpt)
 
     _seed_everything(seed + rank)
     model = BayesianSegNet(model_config).to(device)

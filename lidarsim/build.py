@@ -2,18 +2,22 @@
 
 A build directory holds ``manifest.json`` (only once the build is complete), ``shards/`` and,
 for the procedural terrain, ``terrain/``. While a build runs, ``.hd-build.json`` records its
-settings; re-running the same command after an interruption finishes only the missing shards
-and ends with the same files as an uninterrupted run.
+settings and ``.hd-lock`` holds the writer lock (one build or labelling per directory at a time);
+re-running the same command after an interruption finishes only the missing shards and ends with
+the same files as an uninterrupted run.
+
+Every option and the output path are checked before anything is written (the procedural terrain
+is generated and planned in memory); a failed build removes its partial files, and a build that
+created its directory and completed no shard removes the directory too (docs/reliability.md).
 """
 
 from __future__ import annotations
 
-import hashlib
+import contextlib
 import json
 import math
 import os
 import shutil
-import tempfile
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field
@@ -22,14 +26,15 @@ from typing import Any
 
 import numpy as np
 
-from lidarsim import defaults
+from lidarsim import defaults, limits
 from lidarsim._version import __version__
 from lidarsim.errors import LidarsimError
-from lidarsim.parallel import run_tasks
-from lidarsim.procedural import MarsTerrainParams, generate_mars_terrain, write_geotiff
-from lidarsim.scan import STATUS_DAMAGED, STATUS_RETURN, TileScene, scan_geometry, simulate_scans
+from lidarsim.parallel import probe_scheduler, run_tasks
+from lidarsim.procedural import MarsTerrainParams, generate_mars_terrain, geotiff_bytes
+from lidarsim.scan import STATUS_DAMAGED, STATUS_DEAD, STATUS_RETURN, TileScene, scan_geometry, simulate_scans
 from lidarsim.sensor import SensorConfig
 from lidarsim.shards import (
+    BUILD_STATE_NAME,
     MANIFEST_NAME,
     MANIFEST_SCHEMA,
     MANIFEST_SCHEMA_VERSION,
@@ -43,11 +48,24 @@ from lidarsim.shards import (
     sha256_file,
     write_json_atomic,
 )
+from lidarsim.storage import (
+    LOCK_NAME,
+    PARTIAL_MARK,
+    StorageError,
+    WriterLock,
+    check_h5_data,
+    check_output_dir,
+    first_missing,
+    make_dirs,
+    make_subdir,
+    remove_empty_dirs,
+    sha256_bytes,
+    write_bytes_atomic,
+)
 from lidarsim.streams import Purpose, stream
 from lidarsim.terrain import DTM
 from lidarsim.trajectory import ScanPlan, TrajectoryConfig, plan_scans
 
-BUILD_STATE_NAME = ".hd-build.json"
 SHARD_DIR = "shards"
 TERRAIN_DIR = "terrain"
 # Scans grouped into one ray-casting call (16 x 128 x 128 rays).
@@ -102,6 +120,15 @@ class BuildConfig:
             raise LidarsimError(f"--dtm-scale must be in (0, 1], got {self.dtm_scale}")
         if self.compression not in ("gzip", "lzf", "none"):
             raise LidarsimError(f"unknown compression {self.compression!r}; use gzip, lzf or none")
+        per_scan = self.sensor.rows * self.sensor.cols * (4 * 3 * (1 + len(self.sigmas_m)) + 2)
+        scans = min(self.shard_size, self.trajectory.n_scans)
+        if scans * per_scan > limits.MAX_SHARD_BYTES:
+            raise LidarsimError(
+                f"a shard of {scans} scans of {self.sensor.rows}x{self.sensor.cols} px at {len(self.sigmas_m)} noise "
+                f"level(s) needs {scans * per_scan / 2**30:.1f} GiB in memory (hd's maximum is "
+                f"{limits.MAX_SHARD_BYTES / 2**30:.0f} GiB); lower --shard-size to at most "
+                f"{max(1, limits.MAX_SHARD_BYTES // per_scan)}"
+            )
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-friendly dictionary of the whole configuration."""
@@ -113,7 +140,7 @@ class BuildConfig:
 
     def fingerprint(self) -> str:
         """SHA-256 of the canonical JSON of the configuration (the DTM by its path and content)."""
-        return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()
+        return sha256_bytes(json.dumps(self.to_dict(), sort_keys=True).encode())
 
 
 @dataclass(frozen=True)
@@ -241,6 +268,7 @@ def run_shard(task: ShardTask) -> ShardRecord:
                 for m, scan_index, result in zip(batch, indices, simulate_scans(
                     scene, geoms, indices, cfg.sensor, cfg.sigmas_m, cfg.seed, n_threads=task.n_threads
                 ), strict=True):
+                    check_returns(result.status, scan_index, task.dtm_path)
                     g = result.geometry
                     writer.write_scan(
                         m,
@@ -258,6 +286,23 @@ def run_shard(task: ShardTask) -> ShardRecord:
         assert k == n
         digest = writer.commit()
     return _record(task, digest)
+
+
+def check_returns(status: np.ndarray, scan_index: int, dtm_name: str) -> None:
+    """Fail on a (nearly) empty scan: fewer than ``limits.MIN_RETURN_FRACTION`` of its working
+    elements hit the terrain, although the planner put its footprint on valid terrain.
+
+    Raises:
+        LidarsimError: naming the scan and the DTM.
+    """
+    working = int((status != STATUS_DEAD).sum())
+    hits = int(((status == STATUS_RETURN) | (status == STATUS_DAMAGED)).sum())
+    if working and hits < limits.MIN_RETURN_FRACTION * working:
+        raise LidarsimError(
+            f"scan {scan_index}: only {100.0 * hits / working:.1f}% of the rays hit the terrain of {Path(dtm_name).name} "
+            "although its footprint lies on valid cells; the DTM's heights look invalid (check its nodata value "
+            "and height range)"
+        )
 
 
 def _record(task: ShardTask, digest: str) -> ShardRecord:
@@ -309,10 +354,13 @@ def _check_existing_shard(task: ShardTask, fingerprint: str) -> ShardRecord | No
         with ScanShardReader(task.path) as reader:
             ok = (
                 reader.attrs.get("config_sha256") == fingerprint
+                and reader.attrs.get("dtm_sha256") == task.file_attrs.get("dtm_sha256")
                 and len(reader) == task.nadir_xy.shape[0]
                 and int(reader.attrs.get("first_scan", -1)) == task.first_scan
             )
-    except (ShardFormatError, OSError, KeyError):
+        if ok:
+            check_h5_data(task.path)  # every chunk's fletcher32 checksum
+    except (ShardFormatError, StorageError, OSError, KeyError, TypeError, ValueError):
         ok = False
     if not ok:
         return None
@@ -332,7 +380,7 @@ def prepare_output(out_dir: Path, config: BuildConfig, overwrite: bool) -> bool:
         raise OutputExistsError(f"{out_dir} exists and is not a directory")
     manifest = out_dir / MANIFEST_NAME
     state = out_dir / BUILD_STATE_NAME
-    if manifest.exists() or state.exists():
+    if os.path.lexists(manifest) or os.path.lexists(state):
         if overwrite:
             return False
         if manifest.exists():
@@ -349,27 +397,62 @@ def prepare_output(out_dir: Path, config: BuildConfig, overwrite: bool) -> bool:
                 "resume it, or pass --overwrite to start again"
             )
         return True
-    if any(out_dir.iterdir()):
+    if any(p.name != LOCK_NAME and PARTIAL_MARK not in p.name for p in out_dir.iterdir()):
         raise OutputExistsError(f"{out_dir} exists, is not empty and is not an hd dataset; choose another --out")
     return False
 
 
-def clear_output(out_dir: Path) -> None:
-    """Remove a previous hd build from ``out_dir`` (manifest first, so it is never seen half-removed)."""
+def clear_output(out_dir: Path, keep_state: bool = False) -> None:
+    """Remove a previous hd build from ``out_dir`` (manifest first, so it is never seen half-removed).
+
+    ``keep_state``: keep ``.hd-build.json`` (the new build's, written before, so that a kill while
+    clearing leaves a build that the same command resumes).
+    """
     (out_dir / MANIFEST_NAME).unlink(missing_ok=True)
     for name in (SHARD_DIR, TERRAIN_DIR, "labels"):
-        shutil.rmtree(out_dir / name, ignore_errors=True)
-    (out_dir / BUILD_STATE_NAME).unlink(missing_ok=True)
+        path = out_dir / name
+        if path.is_symlink() or path.is_file():
+            path.unlink()
+        else:
+            shutil.rmtree(path, ignore_errors=True)
+    if not keep_state:
+        (out_dir / BUILD_STATE_NAME).unlink(missing_ok=True)
 
 
-def _materialise_terrain(config: BuildConfig, staging: Path) -> Path:
-    """Write the procedural terrain as a GeoTIFF into ``staging``; returns its path."""
+def procedural_terrain_name(seed: int) -> str:
+    """File name of the procedural terrain of a build, in ``terrain/``."""
+    return f"mars-procedural-seed{seed}.tif"
+
+
+def _procedural_terrain_bytes(config: BuildConfig, path: Path) -> bytes:
+    """The procedural terrain of ``config`` as GeoTIFF bytes (built in memory; nothing is written)."""
     params = config.terrain
     heights = generate_mars_terrain(params, seed=config.seed)
-    path = staging / f"mars-procedural-seed{config.seed}.tif"
     tags = {"generator": "lidarsim.procedural", "seed": str(config.seed), "params": json.dumps(asdict(params))}
-    write_geotiff(path, heights, params.spacing_m, origin_xy=(0.0, 0.0), crs_wkt="", tags=tags)
-    return path
+    return geotiff_bytes(heights, params.spacing_m, origin_xy=(0.0, 0.0), crs_wkt="", tags=tags, name=str(path))
+
+
+def check_workers(workers: int | None, flag: str = "--workers") -> None:
+    """Refuse a worker count outside 1..limits.MAX_WORKERS (None = all cores)."""
+    if workers is not None and (isinstance(workers, bool) or not 1 <= int(workers) <= limits.MAX_WORKERS):
+        raise LidarsimError(f"{flag} must be in 1..{limits.MAX_WORKERS}, got {workers}")
+
+
+def _completed_shards(out_dir: Path) -> int:
+    shard_dir = out_dir / SHARD_DIR
+    if not shard_dir.is_dir():
+        return 0
+    return sum(1 for p in shard_dir.glob("scans-*.h5") if PARTIAL_MARK not in p.name)
+
+
+def _clean_after_failure(out_dir: Path, created: bool) -> None:
+    """Remove partial files; a build that created ``out_dir`` and completed no shard removes its files."""
+    for sub in (out_dir / SHARD_DIR, out_dir / TERRAIN_DIR, out_dir):
+        remove_partials(sub)
+    if created and not (out_dir / MANIFEST_NAME).exists() and _completed_shards(out_dir) == 0:
+        for name in (SHARD_DIR, TERRAIN_DIR):
+            shutil.rmtree(out_dir / name, ignore_errors=True)
+        (out_dir / BUILD_STATE_NAME).unlink(missing_ok=True)
 
 
 def build_dataset(
@@ -394,42 +477,77 @@ def build_dataset(
         LidarsimError: bad input (DTM, sizes, existing output); nothing is written or overwritten then.
     """
     t_start = time.perf_counter()
-    out_dir = Path(out_dir).resolve()
-    resume = prepare_output(out_dir, config, overwrite)
-    staging: Path | None = None
+    out_dir = check_output_dir(out_dir, "--out").resolve()
+    check_workers(workers)
+    if scheduler is not None:
+        probe_scheduler(scheduler)
+    prepare_output(out_dir, config, overwrite)
+    terrain_bytes: bytes | None = None
+    if config.dtm_path is None:  # generated in memory, also on resume (a damaged terrain file is rewritten)
+        dtm_path = out_dir / TERRAIN_DIR / procedural_terrain_name(config.seed)
+        terrain_bytes = _procedural_terrain_bytes(config, dtm_path)
+    else:
+        dtm_path = Path(config.dtm_path).resolve()
+    opened = DTM.from_bytes(terrain_bytes, dtm_path, scale=config.dtm_scale) if terrain_bytes is not None \
+        else DTM.open(dtm_path, scale=config.dtm_scale)
+    with opened as dtm:
+        cell = max(OVERVIEW_CELL_M, *dtm.info.spacing_m)
+        valid, overview_transform = dtm.validity_overview(cell)
+        plan = plan_scans(valid, overview_transform, config.sensor, config.trajectory, dtm.info.name)
+        dtm_attrs = {f"dtm_{k}": v for k, v in dtm.info.to_attrs().items()}
+        dtm_attrs["dtm_sha256"] = dtm.sha256()
+        dtm_provenance = {**dtm.info.to_attrs(), "sha256": dtm_attrs["dtm_sha256"]}
+    # Input is valid: from here on the output directory is written, by this process alone.
+    top = first_missing(out_dir)
+    created = top is not None
+    make_dirs(out_dir)
     try:
-        if config.dtm_path is None:
-            existing = out_dir / TERRAIN_DIR / f"mars-procedural-seed{config.seed}.tif"
-            if resume and existing.is_file():
-                dtm_path = existing
-            else:
-                out_dir.parent.mkdir(parents=True, exist_ok=True)
-                staging = Path(tempfile.mkdtemp(prefix=".hd-terrain-", dir=out_dir.parent))
-                dtm_path = _materialise_terrain(config, staging)
-        else:
-            dtm_path = Path(config.dtm_path).resolve()
-        with DTM.open(dtm_path, scale=config.dtm_scale) as dtm:
-            cell = max(OVERVIEW_CELL_M, *dtm.info.spacing_m)
-            valid, overview_transform = dtm.validity_overview(cell)
-            plan = plan_scans(valid, overview_transform, config.sensor, config.trajectory, dtm.info.name)
-            dtm_attrs = {f"dtm_{k}": v for k, v in dtm.info.to_attrs().items()}
-            dtm_attrs["dtm_sha256"] = dtm.sha256()
-            dtm_provenance = {**dtm.info.to_attrs(), "sha256": dtm_attrs["dtm_sha256"]}
-        # Input is valid: from here on the output directory is written.
+        lock = WriterLock(out_dir, "dataset").acquire()
+    except BaseException:
+        remove_empty_dirs(out_dir, top)
+        raise
+    finished = False
+    try:
+        resume = prepare_output(out_dir, config, overwrite)  # again, now that no other writer can run
+        # The build's settings first: from here on, a kill leaves a build the same command resumes.
+        write_json_atomic(out_dir / BUILD_STATE_NAME, {"config_sha256": config.fingerprint(),
+                                                        "dtm_sha256": dtm_attrs["dtm_sha256"],
+                                                        "config": config.to_dict()})
         if overwrite:
-            clear_output(out_dir)
-        out_dir.mkdir(parents=True, exist_ok=True)
-        if staging is not None:
-            (out_dir / TERRAIN_DIR).mkdir(exist_ok=True)
-            final = out_dir / TERRAIN_DIR / dtm_path.name
-            os.replace(dtm_path, final)
-            dtm_path = final
-            dtm_provenance["path"] = str(final)
+            clear_output(out_dir, keep_state=True)
+        if terrain_bytes is not None:
+            make_subdir(out_dir, TERRAIN_DIR)
+            if not (dtm_path.is_file() and sha256_file(dtm_path) == dtm_attrs["dtm_sha256"]):
+                write_bytes_atomic(dtm_path, terrain_bytes)
+            del terrain_bytes
+        make_subdir(out_dir, SHARD_DIR)
+        summary = _build_locked(out_dir, config, resume, dtm_path, dtm_attrs, dtm_provenance, plan, workers,
+                                scheduler, progress, t_start)
+        finished = True
+        return summary
     finally:
-        if staging is not None:
-            shutil.rmtree(staging, ignore_errors=True)
+        if not finished:
+            _clean_after_failure(out_dir, created)
+        lock.release()
+        if not finished:
+            remove_empty_dirs(out_dir, top)
+
+
+def _build_locked(
+    out_dir: Path,
+    config: BuildConfig,
+    resume: bool,
+    dtm_path: Path,
+    dtm_attrs: dict[str, Any],
+    dtm_provenance: dict[str, Any],
+    plan: ScanPlan,
+    workers: int | None,
+    scheduler: str | None,
+    progress: Callable[[int, int], None] | None,
+    t_start: float,
+) -> BuildSummary:
+    """The part of ``build_dataset`` that writes (called with the writer lock held)."""
     fingerprint = config.fingerprint()
-    write_json_atomic(out_dir / BUILD_STATE_NAME, {"config_sha256": fingerprint, "config": config.to_dict()})
     remove_partials(out_dir / SHARD_DIR)
     splits = assign_splits(config.trajectory.n_scans, config.seed)
     file_attrs = {
@@ -457,11 +575,12 @@ def build_dataset(
     if progress:
         progress(done, total)
     t_work = time.perf_counter()
-    for position, record in run_tasks(run_shard, pending, n_workers, scheduler):
-        records[pending[position].shard_index] = record
-        done += record.n_scans
-        if progress:
-            progress(done, total)
+    with contextlib.closing(run_tasks(run_shard, pending, n_workers, scheduler)) as results:
+        for position, record in results:
+            records[pending[position].shard_index] = record
+            done += record.n_scans
+            if progress:
+                progress(done, total)
     t_end = time.perf_counter()
     manifest = {
         "schema": MANIFEST_SCHEMA,

@@ -7,21 +7,35 @@ from pathlib import Path
 
 import numpy as np
 
-from lidarsim.shards import SPLIT_NAMES, ScanShardReader, read_manifest
+from lidarsim.shards import SPLIT_NAMES, open_scan_shard, read_manifest
+from lidarsim.storage import FormatError, StorageError, confine, lock_holder
+
+
+def _size(directory: Path, entries: list[dict]) -> int:
+    total = 0
+    for entry in entries:
+        try:
+            path = confine(directory, entry["path"])
+            total += path.stat().st_size if path.is_file() else 0
+        except (FormatError, OSError):
+            pass
+    return total
 
 
 def describe_dataset(directory: str | os.PathLike) -> str:
     """A multi-line summary of a dataset: size, splits, noise levels, sensor, DTM, labelings.
 
-    Reads the manifest and the attributes of the first shard (and its first scan) only.
+    Reads the manifest and the first scan of the first shard (checked against its sha256) only;
+    ``hd inspect`` adds the checks of every file (``verify_dataset``).
 
     Raises:
-        ShardFormatError: not an hd dataset, or a schema version this hd does not read.
+        ShardFormatError: not an hd dataset (an unfinished build is named as such), a malformed
+            manifest, or a schema version this hd does not read.
     """
     directory = Path(directory)
     manifest = read_manifest(directory)
     shards = manifest["shards"]
-    size = sum((directory / s["path"]).stat().st_size for s in shards if (directory / s["path"]).is_file())
+    size = _size(directory, shards)
     lines = [
         f"dataset   {directory}",
         f"schema    {manifest['schema']} {manifest['schema_version']} (software {manifest.get('software_version', '?')})",
@@ -38,28 +52,42 @@ def describe_dataset(directory: str | os.PathLike) -> str:
         f"sha256 {str(dtm.get('sha256', ''))[:12]}...)"
     )
     if shards:
-        with ScanShardReader(directory / shards[0]["path"]) as reader:
-            a = reader.attrs
-            lines.append(
-                f"sensor    {a.get('sensor_rows')} x {a.get('sensor_cols')} px, FOV {a.get('sensor_fov_x_deg')} x "
-                f"{a.get('sensor_fov_y_deg')} deg, altitude {a.get('trajectory_altitude_m')} m, tilt "
-                f"{a.get('trajectory_tilt_deg')} deg, jitter {a.get('trajectory_jitter_deg')} deg"
-            )
-            if len(reader):
-                scan = reader[0]
-                valid = float(np.mean(scan.valid))
-                z = scan.points_clean[..., 2]
+        try:
+            with open_scan_shard(directory, shards[0]) as reader:
+                a = reader.attrs
                 lines.append(
-                    f"scan 0    {valid * 100:.1f}% returns, height range {np.nanmin(z):.2f} .. {np.nanmax(z):.2f} m "
-                    f"(scan frame), origin E {scan.origin_map[0]:.1f} N {scan.origin_map[1]:.1f} m"
+                    f"sensor    {a.get('sensor_rows')} x {a.get('sensor_cols')} px, FOV {a.get('sensor_fov_x_deg')} x "
+                    f"{a.get('sensor_fov_y_deg')} deg, altitude {a.get('trajectory_altitude_m')} m, tilt "
+                    f"{a.get('trajectory_tilt_deg')} deg, jitter {a.get('trajectory_jitter_deg')} deg"
                 )
+                if len(reader):
+                    scan = reader[0]
+                    valid = float(np.mean(scan.valid))
+                    z = scan.points_clean[..., 2]
+                    lines.append(
+                        f"scan 0    {valid * 100:.1f}% returns, height range {np.nanmin(z):.2f} .. {np.nanmax(z):.2f} m "
+                        f"(scan frame), origin E {scan.origin_map[0]:.1f} N {scan.origin_map[1]:.1f} m"
+                    )
+        except (FormatError, StorageError) as exc:
+            lines.append(f"sensor    unknown: the first shard cannot be read ({exc})")
     labelings = manifest.get("labelings", [])
     for lab in labelings:
         frac = lab.get("safe_fraction")
-        frac_txt = f", {frac * 100:.1f}% of labelled pixels safe" if frac is not None else ""
+        frac_txt = f", {frac * 100:.1f}% of labelled pixels safe" if isinstance(frac, (int, float)) else ""
         lines.append(f"labels    {lab.get('name')}: {len(lab.get('shards', []))} label shards{frac_txt}")
     if not labelings:
         lines.append("labels    none (run `hd label`)")
+    listed = {lab.get("name") for lab in labelings}
+    labels_dir = directory / "labels"
+    if labels_dir.is_dir():
+        for d in sorted(labels_dir.iterdir()):
+            if d.is_dir() and d.name not in listed:
+                n = len(list(d.glob("labels-*.h5")))
+                lines.append(f"labels    {d.name}: unfinished ({n} label shards written); re-run the same `hd label` "
+                             "command to finish it")
+    holder = lock_holder(directory)
+    if holder is not None:
+        lines.append(f"writing   another hd process (PID {holder}) is writing this dataset now")
     return "\n".join(lines)
 
 

@@ -21,17 +21,16 @@ import dataclasses
 import json
 import math
 import os
-import uuid
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import rasterio
 from rasterio.crs import CRS
 from rasterio.transform import Affine, from_origin
 
 from lidarsim import terrain_defaults as td
 from lidarsim.errors import TerrainError
+from lidarsim.storage import write_bytes_atomic
 
 __all__ = [
     "MarsTerrainParams",
@@ -387,6 +386,36 @@ def geotiff_profile(
     return profile
 
 
+def geotiff_bytes(
+    heights: np.ndarray,
+    spacing_m: float,
+    origin_xy: tuple[float, float] = (0.0, 0.0),
+    crs_wkt: str = "",
+    tags: dict[str, str] | None = None,
+    name: str = "terrain.tif",
+) -> bytes:
+    """``heights`` (metres) as the bytes of a float32, north-up, deflate-compressed GeoTIFF with nodata NaN.
+
+    Built in memory (GDAL's /vsimem); ``origin_xy`` is the map position (metres) of the top-left
+    corner; ``crs_wkt`` "" writes no CRS (local metres); ``name`` names the file in errors.
+    """
+    from rasterio.io import MemoryFile
+
+    arr = np.asarray(heights)
+    if arr.ndim != 2 or arr.shape[0] < 1 or arr.shape[1] < 1:
+        raise TerrainError(f"{name}: heights must be a non-empty 2-D array, got shape {arr.shape}")
+    if not (math.isfinite(spacing_m) and spacing_m > 0.0):
+        raise TerrainError(f"{name}: spacing_m={spacing_m} must be a positive number of metres")
+    transform = from_origin(float(origin_xy[0]), float(origin_xy[1]), spacing_m, spacing_m)
+    profile = geotiff_profile(arr.shape, transform, crs_wkt)
+    with MemoryFile() as memfile:
+        with memfile.open(**profile) as dst:
+            dst.write(arr.astype(np.float32, copy=False), 1)
+            if tags:
+                dst.update_tags(**{str(k): str(v) for k, v in tags.items()})
+        return bytes(memfile.read())
+
+
 def write_geotiff(
     path: str | os.PathLike[str],
     heights: np.ndarray,
@@ -395,31 +424,15 @@ def write_geotiff(
     crs_wkt: str = "",
     tags: dict[str, str] | None = None,
 ) -> None:
-    """Write ``heights`` (metres) as a float32, north-up GeoTIFF with nodata NaN.
+    """Write ``heights`` (metres) as a float32, north-up GeoTIFF with nodata NaN (see ``geotiff_bytes``).
 
-    ``origin_xy`` is the map position (metres) of the top-left corner; ``crs_wkt`` "" writes no
-    CRS (local metres). The file is written under a temporary name in the same directory and
-    renamed when complete, so a half-written file is never visible at ``path``.
+    The file is built in memory and written through ``lidarsim.storage`` (temporary name, fsync,
+    rename), so a half-written file is never visible at ``path`` and a full disk gives one error
+    line naming it.
     """
     target = os.path.abspath(os.fspath(path))
-    arr = np.asarray(heights)
-    if arr.ndim != 2 or arr.shape[0] < 1 or arr.shape[1] < 1:
-        raise TerrainError(f"{target}: heights must be a non-empty 2-D array, got shape {arr.shape}")
-    if not (math.isfinite(spacing_m) and spacing_m > 0.0):
-        raise TerrainError(f"{target}: spacing_m={spacing_m} must be a positive number of metres")
     directory = os.path.dirname(target)
     if not os.path.isdir(directory):
         raise TerrainError(f"{target}: directory {directory} does not exist")
-    transform = from_origin(float(origin_xy[0]), float(origin_xy[1]), spacing_m, spacing_m)
-    profile = geotiff_profile(arr.shape, transform, crs_wkt)
-    tmp = os.path.join(directory, f".{os.path.basename(target)}.{uuid.uuid4().hex}.tmp")
-    try:
-        with rasterio.open(tmp, "w", **profile) as dst:
-            dst.write(arr.astype(np.float32, copy=False), 1)
-            if tags:
-                dst.update_tags(**{str(k): str(v) for k, v in tags.items()})
-        os.replace(tmp, target)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        raise
+    data = geotiff_bytes(heights, spacing_m, origin_xy, crs_wkt, tags, name=target)
+    write_bytes_atomic(target, data)

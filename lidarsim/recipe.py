@@ -154,6 +154,16 @@ def check_against_checksums(manifest: dict[str, Any], recorded: dict[str, Any]) 
     problems: list[str] = []
     if manifest.get("config_sha256") != recorded.get("config_sha256"):
         problems.append("the dataset was built with other settings than the recipe's published build")
+    # Checksums published before shard schema 1.1 do not record it: they are of 1.0 shards.
+    published = str(recorded.get("shard_schema_version", "1.0"))
+    built = {str(s.get("schema_version", "")) for s in manifest.get("shards", [])}
+    if built and built != {published}:
+        problems.append(
+            f"the recipe's checksums were published for scan shards of schema version {published}, this dataset's "
+            f"shards are version {', '.join(sorted(built))}: the same settings give other bytes; the recipe's "
+            "checksums must be published again with this hd (`hd card`)"
+        )
+        return problems
     want = {s["path"]: s["sha256"] for s in recorded.get("shards", [])}
     have = {s["path"]: s["sha256"] for s in manifest.get("shards", [])}
     for p in sorted(set(want) | set(have)):

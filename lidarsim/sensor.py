@@ -17,7 +17,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from lidarsim import defaults
+from lidarsim import defaults, limits
 from lidarsim.errors import LidarsimError
 
 # Rotation taking sensor-frame vectors to the scan frame at nadir attitude (columns are the
@@ -54,6 +54,11 @@ class SensorConfig:
     def __post_init__(self) -> None:
         if self.rows < 2 or self.cols < 2:
             raise LidarsimError(f"detector must be at least 2x2 pixels, got {self.rows}x{self.cols}")
+        if max(self.rows, self.cols) > limits.MAX_DETECTOR_PX:
+            raise LidarsimError(
+                f"detector of {self.rows}x{self.cols} pixels exceeds hd's maximum of {limits.MAX_DETECTOR_PX} "
+                "pixels per side (--resolution)"
+            )
         for name in ("fov_x_deg", "fov_y_deg"):
             value = getattr(self, name)
             if not (0.0 < value < 170.0):

@@ -2,13 +2,14 @@
 
 Every field is documented in ``docs/shard-format.md``; a team without hd reads shards with h5py
 alone. This module holds the writer, the lazy reader, the manifest and the checks of
-``hd verify``. Files are written under a temporary name and renamed when complete.
+``hd verify``. Files are written and read through ``lidarsim.storage``: built in memory, written
+under a temporary name and renamed when complete; every array chunk carries a fletcher32
+checksum (schema 1.1); readers check the manifest's sha256, confine manifest paths to the dataset
+and name the file and the scan in every error.
 """
 
 from __future__ import annotations
 
-import hashlib
-import json
 import os
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -20,39 +21,49 @@ import numpy as np
 
 from lidarsim._version import __version__
 from lidarsim.errors import LidarsimError
+from lidarsim.storage import (
+    CheckedH5File,
+    DamagedFileError,
+    FormatError,
+    H5Image,
+    StorageError,
+    check_relative,
+    check_schema,
+    commit_file,
+    confine,
+    h5_chunk_kwargs,
+    is_sha256,
+    lock_holder,
+    open_h5,
+    partial_path,
+    read_json,
+    remove_partials,
+    require,
+    sha256_file,
+    verify_sha256,
+    write_json_atomic,
+)
+
+__all__ = [
+    "SCAN_SCHEMA", "SCAN_SCHEMA_VERSION", "MANIFEST_SCHEMA", "MANIFEST_SCHEMA_VERSION", "MANIFEST_NAME",
+    "BUILD_STATE_NAME", "SPLIT_NAMES", "ShardFormatError", "ScanShardWriter", "ScanShardReader", "Scan",
+    "read_manifest", "iter_scans", "verify_dataset", "compression_kwargs", "write_attrs", "sha256_file",
+    "check_schema", "partial_path", "remove_partials", "commit_file", "write_json_atomic", "open_scan_shard",
+    "validate_manifest", "DamagedFileError", "StorageError",
+]
 
 SCAN_SCHEMA = "hd.lidar-scans"
-SCAN_SCHEMA_VERSION = "1.0"
+# 1.1: every dataset chunked with a fletcher32 checksum per chunk (1.0 files stay readable).
+SCAN_SCHEMA_VERSION = "1.1"
 MANIFEST_SCHEMA = "hd.dataset-manifest"
 MANIFEST_SCHEMA_VERSION = "1.0"
 MANIFEST_NAME = "manifest.json"
+# Settings of a build in progress; present only until its manifest is written.
+BUILD_STATE_NAME = ".hd-build.json"
 SPLIT_NAMES: tuple[str, str, str] = ("train", "val", "test")
 
-
-class ShardFormatError(LidarsimError):
-    """A shard or manifest that is not of a format this version reads."""
-
-
-def sha256_file(path: str | os.PathLike, chunk_bytes: int = 1 << 22) -> str:
-    """Hex SHA-256 of a file's bytes, streamed."""
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        while block := fh.read(chunk_bytes):
-            h.update(block)
-    return h.hexdigest()
-
-
-def check_schema(name: str, version: str, expected_name: str, expected_version: str, where: str) -> None:
-    """Refuse a schema of another name or of an unknown major version (minor versions are compatible)."""
-    if name != expected_name:
-        raise ShardFormatError(f"{where}: schema is {name!r}, expected {expected_name!r}")
-    major = str(version).split(".")[0]
-    if major != expected_version.split(".")[0]:
-        raise ShardFormatError(
-            f"{where}: schema {name} version {version} is not supported by this hd "
-            f"(reads major version {expected_version.split('.')[0]}); upgrade hd"
-        )
-
+# Not a format this version reads, or a damaged file (the storage layer's FormatError).
+ShardFormatError = FormatError
 
 def _attr_value(value: Any) -> Any:
     if value is None:
@@ -68,34 +79,13 @@ def write_attrs(obj: h5py.HLObject, attrs: dict[str, Any]) -> None:
         obj.attrs[key] = _attr_value(value)
 
 
-def partial_path(final: Path) -> Path:
-    """Temporary name used while ``final`` is being written (hidden, unique to this process)."""
-    return final.with_name(f".{final.name}.partial-{os.getpid()}")
-
-
-def remove_partials(directory: Path) -> int:
-    """Delete leftovers of interrupted writes (``.*.partial-*``) in ``directory``; returns the count."""
-    n = 0
-    if directory.is_dir():
-        for p in directory.glob(".*.partial-*"):
-            p.unlink(missing_ok=True)
-            n += 1
-    return n
-
-
-def commit_file(tmp: Path, final: Path) -> None:
-    """Flush ``tmp`` to disk and rename it to ``final`` (atomic on POSIX)."""
-    fd = os.open(tmp, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-    os.replace(tmp, final)
-
-
 @dataclass
 class ScanShardWriter:
     """Writes one shard of ``n_scans`` scans; use as a context manager, then ``commit()``.
+
+    The file is built in memory (``lidarsim.storage.H5Image``) and written to ``path`` atomically
+    by ``commit()``; leaving the block with an exception discards it. Every dataset is chunked with
+    a fletcher32 checksum per chunk.
 
     Args:
         path: final path of the shard.
@@ -115,9 +105,9 @@ class ScanShardWriter:
     compression: str = "gzip"
 
     def __enter__(self) -> ScanShardWriter:
-        self._tmp = partial_path(self.path)
-        self._f = h5py.File(self._tmp, "w")
-        f = self._f
+        kw = compression_kwargs(self.compression)
+        self._image = H5Image(self.path)
+        f = self._f = self._image.file
         write_attrs(f, {
             "schema": SCAN_SCHEMA,
             "schema_version": SCAN_SCHEMA_VERSION,
@@ -128,14 +118,17 @@ class ScanShardWriter:
             **self.attrs,
         })
         n, r, c, s = self.n_scans, self.rows, self.cols, len(self.sigmas_m)
-        kw = compression_kwargs(self.compression)
-        small = dict(track_times=False)
+        small = compression_kwargs("none")
+
+        def whole(*shape: int) -> dict[str, Any]:
+            return {**small, "chunks": shape}
+
         self._d = {
-            "scan_index": f.create_dataset("scan_index", (n,), np.int64, **small),
-            "split": f.create_dataset("split", (n,), np.uint8, **small),
-            "origin_map": f.create_dataset("origin_map", (n, 3), np.float64, **small),
-            "sensor_position": f.create_dataset("sensor_position", (n, 3), np.float64, **small),
-            "sensor_attitude": f.create_dataset("sensor_attitude", (n, 3, 3), np.float64, **small),
+            "scan_index": f.create_dataset("scan_index", (n,), np.int64, **whole(n)),
+            "split": f.create_dataset("split", (n,), np.uint8, **whole(n)),
+            "origin_map": f.create_dataset("origin_map", (n, 3), np.float64, **whole(n, 3)),
+            "sensor_position": f.create_dataset("sensor_position", (n, 3), np.float64, **whole(n, 3)),
+            "sensor_attitude": f.create_dataset("sensor_attitude", (n, 3, 3), np.float64, **whole(n, 3, 3)),
             "points_clean": f.create_dataset("points_clean", (n, r, c, 3), np.float32, chunks=(1, r, c, 3), **kw),
             "points_noisy": f.create_dataset("points_noisy", (n, s, r, c, 3), np.float32, chunks=(1, 1, r, c, 3), **kw),
             "status": f.create_dataset("status", (n, r, c), np.uint8, chunks=(1, r, c), **kw),
@@ -172,29 +165,22 @@ class ScanShardWriter:
         d["valid"][k] = valid
 
     def commit(self) -> str:
-        """Close, fsync and rename to the final path; returns the shard's sha256."""
-        self._f.close()
-        commit_file(self._tmp, self.path)
-        return sha256_file(self.path)
+        """Write the shard to its final path (temporary name, fsync, rename); returns its sha256.
+
+        Raises:
+            StorageError: the disk is full or not writable (nothing is left at the temporary name).
+        """
+        return self._image.commit()
 
     def __exit__(self, exc_type, exc, tb) -> None:
         if exc_type is not None:
-            try:
-                self._f.close()
-            finally:
-                Path(self._tmp).unlink(missing_ok=True)
+            self._image.discard()
 
 
 def compression_kwargs(name: str) -> dict[str, Any]:
-    """h5py dataset keywords of a compression setting: gzip (deflate 1 + shuffle), lzf or none."""
-    base: dict[str, Any] = {"track_times": False}
-    if name == "gzip":
-        return {**base, "compression": "gzip", "compression_opts": 1, "shuffle": True}
-    if name == "lzf":
-        return {**base, "compression": "lzf", "shuffle": True}
-    if name == "none":
-        return base
-    raise LidarsimError(f"unknown compression {name!r}; use gzip, lzf or none")
+    """h5py dataset keywords of a compression setting: gzip (deflate 1 + shuffle), lzf or none,
+    always with a fletcher32 checksum per chunk."""
+    return h5_chunk_kwargs(name)
 
 
 @dataclass(frozen=True)
@@ -215,30 +201,53 @@ class Scan:
 class ScanShardReader:
     """Lazy reader of one scan shard; scans are read one at a time.
 
+    Args:
+        path: the shard file.
+        sha256: the checksum its manifest records; when given, the file is checked against it
+            before it is opened.
+        what: how errors name the file (default: its path).
+
     Raises:
-        ShardFormatError: not an hd scan shard, or an unknown major schema version.
+        ShardFormatError: not an hd scan shard, an unknown major schema version, a checksum
+            mismatch or damaged data (``DamagedFileError``, naming the file and the scan).
     """
 
-    def __init__(self, path: str | os.PathLike) -> None:
+    def __init__(self, path: str | os.PathLike, sha256: str | None = None, what: str | None = None) -> None:
         self.path = Path(path)
+        self.what = what or str(self.path)
+        if sha256 is not None:
+            verify_sha256(self.path, sha256, self.what)
+        self._f: CheckedH5File = open_h5(self.path, self.what)
         try:
-            self._f = h5py.File(self.path, "r")
-        except (OSError, FileNotFoundError) as exc:
-            raise ShardFormatError(f"{self.path}: cannot open as HDF5 ({exc.__class__.__name__})") from None
-        attrs = self._f.attrs
-        check_schema(str(attrs.get("schema", "")), str(attrs.get("schema_version", "")),
-                     SCAN_SCHEMA, SCAN_SCHEMA_VERSION, str(self.path))
-        self.attrs: dict[str, Any] = {k: _py(v) for k, v in attrs.items()}
-        self.sigmas_m: tuple[float, ...] = tuple(float(s) for s in attrs["sigmas_m"])
+            attrs = self._f.attrs
+            check_schema(_py(attrs.get("schema", "")), _py(attrs.get("schema_version", "")),
+                         SCAN_SCHEMA, SCAN_SCHEMA_VERSION, self.what)
+            self.attrs: dict[str, Any] = {k: _py(v) for k, v in attrs.items()}
+            self.sigmas_m: tuple[float, ...] = tuple(float(s) for s in np.atleast_1d(attrs["sigmas_m"]))
+            self._n = int(self._f["scan_index"].shape[0])
+        except (KeyError, TypeError, ValueError, OSError) as exc:
+            self._f.close()
+            if isinstance(exc, LidarsimError):
+                raise
+            raise DamagedFileError(f"{self.what}: not a readable hd scan shard ({exc})") from None
+        except BaseException:
+            self._f.close()
+            raise
 
     def __len__(self) -> int:
-        return int(self._f["scan_index"].shape[0])
+        return self._n
 
     def __getitem__(self, k: int) -> Scan:
+        if not -self._n <= k < self._n:
+            raise IndexError(f"scan {k} out of range for {self.what} ({self._n} scans)")
         f = self._f
+        try:
+            split = SPLIT_NAMES[int(f["split"][k])]
+        except IndexError:
+            raise DamagedFileError(f"{self.what}: row {k} has an unknown split code") from None
         return Scan(
             scan_index=int(f["scan_index"][k]),
-            split=SPLIT_NAMES[int(f["split"][k])],
+            split=split,
             origin_map=f["origin_map"][k],
             sensor_position=f["sensor_position"][k],
             sensor_attitude=f["sensor_attitude"][k],
@@ -253,8 +262,8 @@ class ScanShardReader:
             yield self[k]
 
     @property
-    def h5(self) -> h5py.File:
-        """The underlying open h5py file (read-only)."""
+    def h5(self) -> CheckedH5File:
+        """The open file (read-only): h5py's interface, with reads that name the file and scan on error."""
         return self._f
 
     def close(self) -> None:
@@ -273,40 +282,114 @@ def _py(value: Any) -> Any:
     if isinstance(value, np.generic):
         return value.item()
     if isinstance(value, bytes):
-        return value.decode()
+        return value.decode(errors="replace")
     return value
 
 
-def write_json_atomic(path: Path, data: dict[str, Any]) -> None:
-    """Write JSON to a temporary name and rename it into place."""
-    tmp = partial_path(path)
-    tmp.write_text(json.dumps(data, indent=2, sort_keys=False) + "\n")
-    commit_file(tmp, path)
+# ------------------------------------------------------------------------------------------ manifest
+def _check_entries(entries: Any, where: str) -> None:
+    if not isinstance(entries, list):
+        raise FormatError(f"{where} must be a list, got {type(entries).__name__}")
+    seen: set[str] = set()
+    for i, entry in enumerate(entries):
+        at = f"{where}[{i}]"
+        path = check_relative(require(entry, "path", str, at), at)
+        if path in seen:
+            raise FormatError(f"{at}: {path!r} is listed twice")
+        seen.add(path)
+        if not is_sha256(require(entry, "sha256", str, at)):
+            raise FormatError(f"{at}: 'sha256' is not a 64-digit hex checksum")
+        if require(entry, "n_scans", int, at) < 0:
+            raise FormatError(f"{at}: 'n_scans' must be >= 0")
+
+
+def validate_manifest(data: Any, where: str) -> dict[str, Any]:
+    """Check the structure of a manifest (keys, types, relative paths, checksums, scan counts).
+
+    Raises:
+        ShardFormatError: naming ``where`` and the faulty key.
+    """
+    if not isinstance(data, dict):
+        raise FormatError(f"{where}: not a JSON object")
+    check_schema(str(data.get("schema", "")), str(data.get("schema_version", "")),
+                 MANIFEST_SCHEMA, MANIFEST_SCHEMA_VERSION, where)
+    n_scans = require(data, "n_scans", int, where)
+    shards = require(data, "shards", list, where)
+    _check_entries(shards, f"{where}: shards")
+    held = sum(int(e["n_scans"]) for e in shards)
+    if held != n_scans:
+        raise FormatError(f"{where}: lists {n_scans} scans but its shards hold {held}")
+    sigmas = require(data, "sigmas_m", list, where)
+    if not sigmas or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x) and x > 0
+                             for x in sigmas):
+        raise FormatError(f"{where}: 'sigmas_m' must be a non-empty list of positive numbers")
+    labelings = data.get("labelings", [])
+    if not isinstance(labelings, list):
+        raise FormatError(f"{where}: 'labelings' must be a list")
+    for i, lab in enumerate(labelings):
+        at = f"{where}: labelings[{i}]"
+        name = require(lab, "name", str, at)
+        if not name or "/" in name or name in (".", ".."):
+            raise FormatError(f"{at}: {name!r} is not a labelling name")
+        _check_entries(require(lab, "shards", list, at), f"{at}.shards")
+    return data
+
+
+def _build_progress(directory: Path) -> str:
+    """`` (k of n shards complete)`` of an unfinished build, best effort."""
+    try:
+        config = read_json(directory / BUILD_STATE_NAME)["config"]
+        n_scans, size = int(config["trajectory"]["n_scans"]), int(config["shard_size"])
+        total = -(-n_scans // size)
+    except Exception:  # noqa: BLE001 - the state file is only informative here
+        return ""
+    done = sum(1 for p in (directory / "shards").glob("scans-*.h5")) if (directory / "shards").is_dir() else 0
+    return f" ({done} of {total} shards complete)"
 
 
 def read_manifest(directory: str | os.PathLike) -> dict[str, Any]:
     """Read and check ``manifest.json`` of a dataset directory.
 
     Raises:
-        ShardFormatError: no manifest, unreadable JSON, or an unknown schema/major version.
+        ShardFormatError: no manifest (an unfinished build is named as such), unreadable JSON, an
+            unknown schema/major version, or a malformed manifest (missing keys, paths leaving
+            the dataset, bad checksums).
     """
-    path = Path(directory) / MANIFEST_NAME
+    directory = Path(directory)
+    path = directory / MANIFEST_NAME
+    if os.path.lexists(path):
+        confine(directory, MANIFEST_NAME, str(path))
+        if not path.is_file():
+            raise FormatError(f"{path}: unreadable manifest (not a regular file)")
     if not path.is_file():
-        raise ShardFormatError(f"{directory}: not an hd dataset (no {MANIFEST_NAME})")
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise ShardFormatError(f"{path}: unreadable manifest ({exc})") from None
-    check_schema(str(data.get("schema", "")), str(data.get("schema_version", "")),
-                 MANIFEST_SCHEMA, MANIFEST_SCHEMA_VERSION, str(path))
-    return data
+        if (directory / BUILD_STATE_NAME).is_file():
+            holder = lock_holder(directory)
+            if holder is not None:
+                raise FormatError(f"{directory}: a build is in progress (PID {holder}); wait for it to finish")
+            raise FormatError(f"{directory}: unfinished build{_build_progress(directory)} - re-run the same "
+                              "`hd build-dataset` command to finish it")
+        if not directory.exists():
+            raise FormatError(f"{directory}: no such dataset directory")
+        if not directory.is_dir():
+            raise FormatError(f"{directory}: not a directory")
+        raise FormatError(f"{directory}: not an hd dataset (no {MANIFEST_NAME})")
+    return validate_manifest(read_json(path, "manifest"), str(path))
+
+
+def open_scan_shard(directory: str | os.PathLike, entry: dict[str, Any]) -> ScanShardReader:
+    """Open the scan shard of a manifest entry: path confined to the dataset, sha256 checked first."""
+    path = confine(directory, entry["path"])
+    return ScanShardReader(path, sha256=entry["sha256"], what=f"{Path(directory) / entry['path']}")
 
 
 def iter_scans(directory: str | os.PathLike, split: str | None = None) -> Iterator[Scan]:
-    """Iterate lazily over every scan of a dataset (optionally one split), in scan order."""
+    """Iterate lazily over every scan of a dataset (optionally one split), in scan order.
+
+    Each shard is checked against the manifest's sha256 before it is read.
+    """
     manifest = read_manifest(directory)
     for entry in manifest["shards"]:
-        with ScanShardReader(Path(directory) / entry["path"]) as reader:
+        with open_scan_shard(directory, entry) as reader:
             for scan in reader:
                 if split is None or scan.split == split:
                     yield scan
@@ -315,7 +398,7 @@ def iter_scans(directory: str | os.PathLike, split: str | None = None) -> Iterat
 def verify_dataset(
     directory: str | os.PathLike, known_schemas: dict[str, str] | None = None
 ) -> list[str]:
-    """Check every file listed in the manifest: presence, sha256, schema and scan count.
+    """Check every file listed in the manifest: confinement, presence, sha256, schema and scan count.
 
     Args:
         directory: the dataset directory.
@@ -324,6 +407,9 @@ def verify_dataset(
 
     Returns:
         A list of one-line problems (empty when the dataset is intact).
+
+    Raises:
+        ShardFormatError: no readable, well-formed manifest.
     """
     known = {SCAN_SCHEMA: SCAN_SCHEMA_VERSION, **(known_schemas or {})}
     directory = Path(directory)
@@ -333,30 +419,77 @@ def verify_dataset(
     for labelling in manifest.get("labelings", []):
         entries.extend(labelling.get("shards", []))
     for entry in entries:
-        path = directory / entry["path"]
-        if not path.is_file():
-            problems.append(f"{entry['path']}: missing")
+        rel = entry["path"]
+        try:
+            path = confine(directory, rel)
+        except FormatError as exc:
+            problems.append(str(exc))
             continue
-        digest = sha256_file(path)
+        if not path.is_file():
+            problems.append(f"{rel}: missing" if not os.path.lexists(path) else f"{rel}: not a regular file")
+            continue
+        try:
+            digest = sha256_file(path)
+        except StorageError as exc:
+            problems.append(str(exc))
+            continue
         if digest != entry["sha256"]:
             problems.append(
-                f"{entry['path']}: checksum mismatch (sha256 {digest[:12]}..., manifest says {entry['sha256'][:12]}...)"
+                f"{rel}: checksum mismatch (sha256 {digest[:12]}..., manifest says {entry['sha256'][:12]}...)"
             )
             continue
         try:
-            with h5py.File(path, "r") as f:
-                name = str(f.attrs.get("schema", ""))
-                version = str(f.attrs.get("schema_version", ""))
+            with open_h5(path, rel) as f:
+                name = _py(f.attrs.get("schema", ""))
+                version = _py(f.attrs.get("schema_version", ""))
                 if name not in known:
-                    problems.append(f"{entry['path']}: unknown schema {name!r}")
+                    problems.append(f"{rel}: unknown schema {name!r}")
                     continue
-                check_schema(name, version, name, known[name], entry["path"])
-                if int(f.attrs.get("n_scans", -1)) != int(entry["n_scans"]):
-                    problems.append(
-                        f"{entry['path']}: holds {f.attrs.get('n_scans')} scans, manifest says {entry['n_scans']}"
-                    )
-        except ShardFormatError as exc:
+                check_schema(name, version, name, known[name], rel)
+                if int(_py(f.attrs.get("n_scans", -1))) != int(entry["n_scans"]):
+                    problems.append(f"{rel}: holds {_py(f.attrs.get('n_scans'))} scans, manifest says {entry['n_scans']}")
+        except (FormatError, StorageError) as exc:
             problems.append(str(exc))
-        except OSError:
-            problems.append(f"{entry['path']}: not a readable HDF5 file")
+        except (OSError, TypeError, ValueError):
+            problems.append(f"{rel}: not a readable HDF5 file")
+    problems += _terrain_problems(directory, manifest)
     return problems
+
+
+def _terrain_problems(directory: Path, manifest: dict[str, Any]) -> list[str]:
+    """The terrain file kept inside the dataset (the procedural terrain) against its recorded sha256."""
+    dtm = manifest.get("dtm")
+    if not isinstance(dtm, dict) or not isinstance(dtm.get("path"), str) or os.path.isabs(dtm["path"]):
+        return []
+    rel, recorded = dtm["path"], dtm.get("sha256")
+    try:
+        path = confine(directory, rel)
+    except FormatError as exc:
+        return [str(exc)]
+    if not path.is_file():
+        return [f"{rel}: missing (the dataset's terrain)"]
+    try:
+        digest = sha256_file(path)
+    except StorageError as exc:
+        return [str(exc)]
+    if is_sha256(recorded) and digest != recorded:
+        return [f"{rel}: checksum mismatch (sha256 {digest[:12]}..., manifest says {recorded[:12]}...)"]
+    return []
+
+
+def check_dataset_files(directory: str | os.PathLike, manifest: dict[str, Any]) -> list[str]:
+    """Cheap checks of the files a manifest lists (confinement, presence), without reading them."""
+    problems: list[str] = []
+    entries = list(manifest.get("shards", []))
+    for labelling in manifest.get("labelings", []):
+        entries.extend(labelling.get("shards", []))
+    for entry in entries:
+        try:
+            path = confine(directory, entry["path"])
+        except FormatError as exc:
+            problems.append(str(exc))
+            continue
+        if not path.is_file():
+            problems.append(f"{entry['path']}: missing")
+    return problems
+

@@ -6,8 +6,10 @@ Reads any raster GDAL can open — GeoTIFF, HiRISE PDS3 ``.IMG`` with an attache
 Conventions (see ``docs/terrain.md``):
 
 * Heights are returned as float64 metres; invalid cells are NaN. A cell is invalid where the file
-  holds NaN, the declared nodata value, or a HiRISE NULL (value <= -3.4028227e38, compared with
-  ``<=`` because HiRISE products carry several values near the float32 minimum).
+  holds NaN, +-inf, the declared nodata value, a HiRISE NULL (value <= -3.4028227e38, compared with
+  ``<=`` because HiRISE products carry several values near the float32 minimum), or a height
+  farther than ``MAX_ABS_HEIGHT_M`` from zero (no planetary terrain reaches it: such values are
+  undeclared fill values such as 1e30).
 * ``scale`` resamples the grid (bilinear, GDAL); a resampled cell is valid only if every
   full-resolution cell it overlaps is valid.
 * Map coordinates are in the raster's CRS (metres). A raster without CRS is treated as local
@@ -18,7 +20,6 @@ Conventions (see ``docs/terrain.md``):
 
 from __future__ import annotations
 
-import hashlib
 import math
 import os
 import warnings
@@ -34,13 +35,16 @@ from rasterio.windows import Window
 
 from lidarsim.defaults import HIRISE_NULL
 from lidarsim.errors import TerrainError
+from lidarsim.storage import StorageError, sha256_bytes, sha256_file
 
 __all__ = ["DTM", "DTMInfo", "TerrainError", "invalid_mask"]
 
 # Rotation/shear terms smaller than this fraction of the pixel size are treated as zero.
 _ROTATION_TOLERANCE = 1e-9
-# Bytes per chunk when hashing a file.
-_HASH_CHUNK_BYTES = 1 << 20
+# hd choice: heights farther than this from zero (metres) are nodata. The highest and lowest points
+# of Mars (Olympus Mons ~+22 km, Hellas ~-8 km) and of the Earth stay far inside it, while fill
+# values left undeclared by a producer (1e30, 3.4e38, inf) fall outside.
+MAX_ABS_HEIGHT_M = 1.0e5
 # Upper bound on source cells read per block by validity_overview (~4 M cells, ~50 MiB of working memory).
 _OVERVIEW_BLOCK_CELLS = 1 << 22
 # HiRISE NULL as stored in a float32 file (16#FF7FFFFB# = -3.4028226550889045e38): the float64
@@ -51,15 +55,20 @@ _EDGE_EPS = 1e-9
 
 
 def invalid_mask(values: np.ndarray, nodata: float | None) -> np.ndarray:
-    """Boolean mask of invalid cells: NaN, the declared ``nodata`` value, or HiRISE NULL (``<=``).
+    """Boolean mask of invalid cells: NaN, +-inf, the declared ``nodata`` value, HiRISE NULL (``<=``)
+    and heights beyond +-``MAX_ABS_HEIGHT_M`` metres.
 
     ``values`` are heights in any numeric dtype; ``nodata`` is compared in that dtype so that a
     float32 file's nodata matches exactly.
     """
     bad = np.zeros(values.shape, dtype=bool)
     if np.issubdtype(values.dtype, np.floating):
-        bad |= np.isnan(values)
+        bad |= ~np.isfinite(values)
         bad |= values <= _NULL_THRESHOLD
+        with np.errstate(invalid="ignore"):
+            bad |= np.abs(values) > MAX_ABS_HEIGHT_M
+    elif np.issubdtype(values.dtype, np.integer):
+        bad |= np.abs(values.astype(np.float64)) > MAX_ABS_HEIGHT_M
     if nodata is not None and not math.isnan(nodata):
         bad |= values == np.asarray(nodata).astype(values.dtype)
     return bad
@@ -137,6 +146,7 @@ class DTM:
         self.info = info
         self._src_transform = src_transform
         self._sha256: str | None = None
+        self._memfile: Any = None
         # Full-resolution source cells per scaled cell, along rows and columns.
         self._fy = src.height / info.rows
         self._fx = src.width / info.cols
@@ -155,6 +165,8 @@ class DTM:
             raise TerrainError(f"{apath}: no such file")
         if os.path.isdir(apath):
             raise TerrainError(f"{apath}: is a directory, not a raster file")
+        if not os.path.isfile(apath):
+            raise TerrainError(f"{apath}: is not a regular file (a device, a pipe...), not a raster file")
         if not os.access(apath, os.R_OK):
             raise TerrainError(f"{apath}: is not readable (permission denied)")
         value_scale = _check_scale(apath, scale)
@@ -170,6 +182,38 @@ class DTM:
             src.close()
             raise
         return cls(src, info, src_transform)
+
+    @classmethod
+    def from_bytes(cls, data: bytes, path: str | os.PathLike[str], scale: float = 1.0) -> DTM:
+        """A DTM over the bytes of a raster file held in memory.
+
+        ``path`` is where the file will be written: it names the DTM in messages and provenance.
+
+        Raises:
+            TerrainError: like :meth:`open`.
+        """
+        from rasterio.io import MemoryFile
+
+        apath = os.path.abspath(os.fspath(path))
+        value_scale = _check_scale(apath, scale)
+        memfile = MemoryFile(bytes(data))
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", NotGeoreferencedWarning)
+                src = memfile.open()
+        except (RasterioIOError, RasterioError):
+            memfile.close()
+            raise TerrainError(f"{apath}: is not a raster GDAL can read") from None
+        try:
+            info, src_transform = cls._describe(src, apath, value_scale)
+        except BaseException:
+            src.close()
+            memfile.close()
+            raise
+        dtm = cls(src, info, src_transform)
+        dtm._memfile = memfile
+        dtm._sha256 = sha256_bytes(data)
+        return dtm
 
     @staticmethod
     def _describe(src: Any, apath: str, scale: float) -> tuple[DTMInfo, tuple[float, ...]]:
@@ -239,6 +283,8 @@ class DTM:
     def close(self) -> None:
         """Close the underlying file (idempotent)."""
         self._src.close()
+        if self._memfile is not None:
+            self._memfile.close()
 
     def __repr__(self) -> str:
         i = self.info
@@ -246,16 +292,12 @@ class DTM:
 
     # ------------------------------------------------------------------ provenance
     def sha256(self) -> str:
-        """SHA-256 hex digest of the file bytes (streamed in 1 MiB chunks; cached)."""
+        """SHA-256 hex digest of the file bytes (streamed; cached)."""
         if self._sha256 is None:
-            digest = hashlib.sha256()
             try:
-                with open(self.info.path, "rb") as fh:
-                    for chunk in iter(lambda: fh.read(_HASH_CHUNK_BYTES), b""):
-                        digest.update(chunk)
-            except OSError as exc:
-                raise TerrainError(f"{self.info.path}: cannot be read for hashing ({exc.strerror})") from None
-            self._sha256 = digest.hexdigest()
+                self._sha256 = sha256_file(self.info.path)
+            except StorageError as exc:
+                raise TerrainError(f"{self.info.path}: cannot be read for hashing ({exc})") from None
         return self._sha256
 
     # ------------------------------------------------------------------ reading

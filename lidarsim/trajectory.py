@@ -23,7 +23,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy import ndimage
 
-from lidarsim import defaults
+from lidarsim import defaults, limits
 from lidarsim.errors import LidarsimError
 from lidarsim.sensor import SensorConfig, footprint_half_width_m
 
@@ -51,6 +51,8 @@ class TrajectoryConfig:
     def __post_init__(self) -> None:
         if self.n_scans <= 0:
             raise LidarsimError(f"the number of scans must be > 0, got {self.n_scans}")
+        if self.n_scans > limits.MAX_SCANS:
+            raise LidarsimError(f"the number of scans must be at most {limits.MAX_SCANS}, got {self.n_scans}")
         if not (self.altitude_m > 0.0 and math.isfinite(self.altitude_m)):
             raise LidarsimError(f"altitude must be > 0 metres, got {self.altitude_m}")
         if not (0.0 <= abs(self.tilt_deg) < 60.0):

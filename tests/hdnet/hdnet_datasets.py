@@ -15,6 +15,7 @@ from rasterio.transform import from_origin
 from scipy import ndimage
 
 from hdlabels.labeling import label_dataset
+from lidarsim.shards import read_manifest, sha256_file, write_json_atomic
 from lidarsim.build import BuildConfig, build_dataset
 from lidarsim.sensor import SensorConfig
 from lidarsim.trajectory import TrajectoryConfig
@@ -48,3 +49,11 @@ def build_labelled(root: Path, n_scans: int = 20, sigmas_m: tuple[float, ...] = 
     if label:
         label_dataset(out, workers=1)
     return out
+
+
+def reseal(dataset: Path) -> None:
+    """Record the current sha256 of every file in the manifest (after a test edited shards on purpose)."""
+    manifest = read_manifest(dataset)
+    for entry in manifest["shards"] + [e for lab in manifest["labelings"] for e in lab["shards"]]:
+        entry["sha256"] = sha256_file(dataset / entry["path"])
+    write_json_atomic(dataset / "manifest.json", manifest)

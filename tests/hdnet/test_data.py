@@ -10,7 +10,7 @@ import h5py
 import numpy as np
 import pytest
 import torch
-from hdnet_datasets import build_labelled
+from hdnet_datasets import build_labelled, reseal
 from torch.utils.data import DataLoader
 
 from hdlabels.store import find_labeling, label_shard_paths
@@ -58,6 +58,7 @@ def test_normalisation_is_min_max_of_the_training_split_only(dataset, tmp_path):
                 if rows.size:
                     f["dem_noisy"][rows[0], 1, 50, 50] = 1000.0
                     break
+        reseal(copy)
         changed = compute_normalisation(copy, 0.07)
         assert (changed.max_m == 1000.0) == expect_change
         assert changed.min_m == norm.min_m
@@ -113,6 +114,7 @@ def test_holes_become_ignored_pixels(dataset, tmp_path):
     path = label_shard_paths(copy, find_labeling(copy))[0]
     with h5py.File(path, "r+") as f:
         f["dem_noisy"][0, 0, 40:43, 60] = np.nan
+    reseal(copy)
     ds = HazardDataset(copy, "train", 0.0167)
     s = ds.dem_sample(0)
     assert (s.label[40:43, 60] == 255).all() and np.isfinite(s.dem_filled_m).all()

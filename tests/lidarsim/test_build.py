@@ -93,7 +93,8 @@ def test_shard_round_trip_and_lazy_reader(tmp_path, dtm):
         # plain h5py sees the same numbers, chunked per scan and compressed
         f = reader.h5
         assert f["points_clean"].chunks == (1, 32, 32, 3) and f["points_clean"].compression == "gzip"
-        assert f.attrs["schema"] == "hd.lidar-scans" and f.attrs["schema_version"] == "1.0"
+        assert all(f[name].fletcher32 for name in f.keys())  # every chunk checksummed (schema 1.1)
+        assert f.attrs["schema"] == "hd.lidar-scans" and f.attrs["schema_version"] == "1.1"
         np.testing.assert_array_equal(f["points_noisy"][2, 1], scan.points_noisy[1])
         assert f.attrs["dtm_sha256"] == manifest["dtm"]["sha256"]
     # points are near the terrain: about 500 m below the sensor

@@ -233,17 +233,20 @@ def test_write_geotiff_without_crs(tmp_path: Path) -> None:
 
 
 def test_write_geotiff_is_atomic(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import errno
+
+    from lidarsim import storage
+
     path = tmp_path / "keep.tif"
     path.write_bytes(b"previous content")
-    real_open = rasterio.open
+    real_write = storage._write_all
 
-    def failing_open(*args: object, **kwargs: object):  # writes part of the file, then fails
-        dst = real_open(*args, **kwargs)
-        dst.close()
-        raise OSError("disk full")
+    def disk_full(fd: int, data: bytes) -> None:  # writes part of the file, then the disk is full
+        real_write(fd, memoryview(data)[: len(data) // 2])
+        raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(procedural.rasterio, "open", failing_open)
-    with pytest.raises(OSError, match="disk full"):
+    monkeypatch.setattr(storage, "_write_all", disk_full)
+    with pytest.raises(storage.StorageError, match="keep.tif: no space left on device"):
         write_geotiff(path, np.zeros((8, 8), dtype=np.float32), 0.5)
     assert path.read_bytes() == b"previous content"
     assert [p.name for p in tmp_path.iterdir()] == ["keep.tif"]

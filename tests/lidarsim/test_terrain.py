@@ -110,8 +110,11 @@ def test_hirise_null_masked_with_less_equal(hirise_null_tif: Path) -> None:
 
 def test_invalid_mask_rules() -> None:
     values = np.array([1.0, np.nan, -9999.0, HIRISE_NULL, -3.5e38, -3.4e38], dtype=np.float64)
-    np.testing.assert_array_equal(invalid_mask(values, -9999.0), [False, True, True, True, True, False])
-    np.testing.assert_array_equal(invalid_mask(values, None), [False, True, False, True, True, False])
+    # -3.4e38 is above the HiRISE NULL threshold but, like any height beyond +-1e5 m, no terrain
+    np.testing.assert_array_equal(invalid_mask(values, -9999.0), [False, True, True, True, True, True])
+    np.testing.assert_array_equal(invalid_mask(values, None), [False, True, False, True, True, True])
+    extremes = np.array([np.inf, -np.inf, 1e30, 1.0e5, -1.0e5, 1.0001e5, 21229.0, -8200.0], dtype=np.float32)
+    np.testing.assert_array_equal(invalid_mask(extremes, None), [True, True, True, False, False, True, False, False])
     ints = np.array([0, -32768, 5], dtype=np.int16)
     np.testing.assert_array_equal(invalid_mask(ints, -32768), [False, True, False])
 

@@ -1,0 +1,833 @@
+"""One storage layer for every file hd writes or reads (shards, manifests, checkpoints, reports).
+
+Writing:
+
+* every file is built under a hidden temporary name beside its final name
+  (``.NAME.partial-PID``), flushed to disk (``fsync``), renamed into place and the directory
+  flushed; on any error (a full disk included) or interruption the temporary file is removed and
+  the error is one :class:`StorageError` line naming the path (``write_bytes_atomic``,
+  ``write_json_atomic``, ``atomic_path``);
+* HDF5 files are built in memory (h5py's ``core`` driver without backing store, :class:`H5Image`)
+  and written to disk with plain file I/O. The HDF5 library therefore never sees a failed write:
+  after one (``ENOSPC``) HDF5 2.0 crashes the process (segmentation fault) when the file is closed
+  or when the interpreter exits, whatever the caller does;
+* :func:`check_output_dir` / :func:`check_output_file` check an output path before any work starts
+  (not under a regular file, not empty, a writable file system: ``/proc`` and read-only mounts are
+  refused) without creating it.
+
+Reading:
+
+* :func:`confine` keeps every path read from a manifest inside its dataset (no absolute paths, no
+  ``..``, no symbolic link leading out);
+* :func:`verify_sha256` compares a file with the checksum its manifest records before it is
+  opened; :func:`open_h5` opens HDF5 files whose every later read error (a damaged chunk, whose
+  fletcher32 checksum fails) becomes one :class:`DamagedFileError` line naming the file, the
+  dataset and the scan;
+* :func:`check_schema` refuses another schema or an unknown major version.
+
+One writer per directory: :class:`WriterLock` holds an exclusive ``flock`` on ``DIR/.hd-lock``
+(the holder's PID written in it) for as long as a command writes there; the kernel releases it
+when the holder dies, even by SIGKILL. A second writer fails at once with the holder's PID;
+readers never take the lock (:func:`lock_holder` only reads the PID).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import fcntl
+import hashlib
+import json
+import math
+import os
+import re
+import stat
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+
+from lidarsim.errors import LidarsimError
+
+LOCK_NAME = ".hd-lock"
+PARTIAL_MARK = ".partial-"
+# Longest file-name component most file systems accept, bytes (NAME_MAX on Linux).
+NAME_MAX_BYTES = 255
+_HASH_CHUNK_BYTES = 1 << 22
+_SHA256_RE = re.compile(r"^[0-9a-f]{64}$")
+
+
+class StorageError(LidarsimError):
+    """A file or directory that cannot be written or read (the message names the path and the cause)."""
+
+
+class FormatError(StorageError):
+    """A file that is not of a format (or major version) this hd reads."""
+
+
+class DamagedFileError(FormatError):
+    """A file whose bytes are damaged: checksum mismatch, unreadable chunk, truncated."""
+
+
+class LockedError(StorageError):
+    """Another hd process is writing the directory."""
+
+
+# --------------------------------------------------------------------------------------- errors
+def describe_os_error(exc: OSError, path: str | os.PathLike | None = None) -> str:
+    """One line for an OS error: ``PATH: no space left on device...`` (``path``, else the one the error names)."""
+    where = path if path is not None else exc.filename
+    reason = exc.strerror or (errno.errorcode.get(exc.errno or 0, "") if exc.errno else "") or str(exc)
+    if exc.errno == errno.ENOSPC:
+        reason = "no space left on device; free some space and re-run the same command to resume"
+    elif exc.errno == errno.EDQUOT:
+        reason = "disk quota exceeded; free some space and re-run the same command to resume"
+    return f"{where}: {reason}" if where is not None else reason
+
+
+def _short(exc: BaseException) -> str:
+    """The first line of an exception's message, trimmed (h5py messages are long)."""
+    text = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+    return text if len(text) <= 160 else text[:157] + "..."
+
+
+# --------------------------------------------------------------------------------------- hashes
+def sha256_file(path: str | os.PathLike, chunk_bytes: int = _HASH_CHUNK_BYTES) -> str:
+    """Hex SHA-256 of a file's bytes, streamed.
+
+    Raises:
+        StorageError: the file cannot be read.
+    """
+    h = hashlib.sha256()
+    try:
+        with open(path, "rb") as fh:
+            while block := fh.read(chunk_bytes):
+                h.update(block)
+    except OSError as exc:
+        raise StorageError(describe_os_error(exc, path)) from None
+    return h.hexdigest()
+
+
+def sha256_bytes(data: bytes | memoryview) -> str:
+    """Hex SHA-256 of bytes in memory."""
+    return hashlib.sha256(data).hexdigest()
+
+
+def is_sha256(value: Any) -> bool:
+    """True for a lower-case 64-digit hex string."""
+    return isinstance(value, str) and bool(_SHA256_RE.match(value))
+
+
+_VERIFIED: dict[tuple[str, int, int, int, str], bool] = {}
+
+
+def verify_sha256(path: str | os.PathLike, expected: str, what: str | None = None) -> None:
+    """Refuse a file whose SHA-256 differs from ``expected`` (the manifest's).
+
+    A file verified once is not hashed again by the same process while its size, mtime and inode
+    stay the same.
+
+    Raises:
+        DamagedFileError: the checksum differs (the file was damaged or replaced).
+        StorageError: the file is missing or unreadable.
+    """
+    p = Path(path)
+    name = what or str(p)
+    try:
+        st = p.stat()
+    except FileNotFoundError:
+        raise DamagedFileError(f"{name}: missing (the manifest lists it); run `hd verify`") from None
+    except OSError as exc:
+        raise StorageError(describe_os_error(exc, p)) from None
+    if not stat.S_ISREG(st.st_mode):
+        raise FormatError(f"{name}: not a regular file")
+    key = (str(p), st.st_size, st.st_mtime_ns, st.st_ino, expected)
+    if _VERIFIED.get(key):
+        return
+    digest = sha256_file(p)
+    if digest != expected:
+        raise DamagedFileError(
+            f"{name}: checksum mismatch (sha256 {digest[:12]}..., the manifest says {str(expected)[:12]}...): "
+            "the file is damaged or was replaced; run `hd verify`"
+        )
+    _VERIFIED[key] = True
+
+
+# --------------------------------------------------------------------------------------- atomic writes
+def partial_path(final: Path) -> Path:
+    """Temporary name used while ``final`` is being written (hidden, unique to this process)."""
+    final = Path(final)
+    return final.with_name(f".{final.name}{PARTIAL_MARK}{os.getpid()}")
+
+
+def remove_partials(directory: Path) -> int:
+    """Delete leftovers of interrupted writes (``.*.partial-*``) in ``directory``; returns the count.
+
+    Call it only while holding the directory's :class:`WriterLock` (or from the single writer).
+    """
+    n = 0
+    directory = Path(directory)
+    if directory.is_dir():
+        for p in directory.glob(f".*{PARTIAL_MARK}*"):
+            try:
+                if p.is_dir() and not p.is_symlink():
+                    import shutil
+
+                    shutil.rmtree(p, ignore_errors=True)
+                else:
+                    p.unlink(missing_ok=True)
+                n += 1
+            except OSError:
+                pass
+    return n
+
+
+def fsync_dir(directory: Path) -> None:
+    """Flush a directory entry (a rename) to disk; a no-op where directories cannot be opened."""
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def commit_file(tmp: Path, final: Path) -> None:
+    """Flush ``tmp`` to disk and rename it to ``final`` (atomic on POSIX); ``tmp`` is removed on failure.
+
+    Raises:
+        StorageError: the flush or the rename failed.
+    """
+    try:
+        fd = os.open(tmp, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        os.replace(tmp, final)
+    except OSError as exc:
+        Path(tmp).unlink(missing_ok=True)
+        raise StorageError(describe_os_error(exc, final)) from None
+    fsync_dir(Path(final).parent)
+
+
+def _write_all(fd: int, data: bytes | memoryview) -> None:
+    """Write every byte of ``data`` to ``fd`` (the single place hd writes file contents)."""
+    view = memoryview(data).cast("B")
+    while view:
+        n = os.write(fd, view[: 1 << 24])
+        view = view[n:]
+
+
+def remove_stale_partials(final: Path) -> None:
+    """Remove temporary files of ``final`` left by processes that no longer run (killed writers)."""
+    final = Path(final)
+    prefix = f".{final.name}{PARTIAL_MARK}"
+    with contextlib.suppress(OSError):
+        for p in final.parent.glob(f"{glob_escape(prefix)}*"):
+            pid = p.name[len(prefix):]
+            if pid.isdigit() and int(pid) != os.getpid() and not _pid_alive(int(pid)):
+                with contextlib.suppress(OSError):
+                    p.unlink()
+
+
+def glob_escape(text: str) -> str:
+    """``text`` with glob's special characters escaped."""
+    import glob
+
+    return glob.escape(text)
+
+
+def _open_new(tmp: Path) -> int:
+    """Create ``tmp`` exclusively, never through a symbolic link (a stale one is removed first)."""
+    tmp.unlink(missing_ok=True)
+    return os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o644)
+
+
+def write_bytes_atomic(path: str | os.PathLike, data: bytes | memoryview) -> None:
+    """Write ``data`` to ``path`` atomically: temporary file, fsync, rename, directory fsync.
+
+    Temporary files of the same path left by killed processes are removed first.
+
+    Raises:
+        StorageError: any OS error (disk full, read-only, permission); no temporary file is left.
+    """
+    final = Path(path)
+    tmp = partial_path(final)
+    remove_stale_partials(final)
+    try:
+        fd = _open_new(tmp)
+        try:
+            _write_all(fd, data)
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        os.replace(tmp, final)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise StorageError(describe_os_error(exc, final)) from None
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    fsync_dir(final.parent)
+
+
+def write_text_atomic(path: str | os.PathLike, text: str) -> None:
+    """Write UTF-8 text atomically (see :func:`write_bytes_atomic`)."""
+    write_bytes_atomic(path, text.encode("utf-8"))
+
+
+def write_json_atomic(path: str | os.PathLike, data: Any) -> None:
+    """Write JSON (indent 2, trailing newline) atomically."""
+    try:
+        text = json.dumps(data, indent=2, sort_keys=False) + "\n"
+    except (TypeError, ValueError) as exc:
+        raise StorageError(f"{path}: cannot be written as JSON ({exc})") from None
+    write_text_atomic(path, text)
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
+    """Context manager for writers that need a file name (matplotlib, GDAL): yields the temporary path.
+
+    On a clean exit the temporary file is flushed and renamed to ``path``; on any exception it is
+    removed and an ``OSError`` becomes a :class:`StorageError` naming ``path``.
+    """
+    final = Path(path)
+    tmp = partial_path(final)
+    remove_stale_partials(final)
+    tmp.unlink(missing_ok=True)
+    try:
+        yield tmp
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise StorageError(describe_os_error(exc, final)) from None
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    commit_file(tmp, final)
+
+
+# --------------------------------------------------------------------------------------- HDF5 in memory
+class H5Image:
+    """An HDF5 file built in memory and written to ``path`` atomically by :meth:`commit`.
+
+    ``file`` is a writable ``h5py.File`` (``core`` driver, no backing store): nothing touches the
+    disk until :meth:`commit`, which writes the finished image with plain file I/O (see the module
+    docstring for why). Use as a context manager; leaving the block with an exception discards it.
+    Memory: the size of the (compressed) file.
+    """
+
+    def __init__(self, path: str | os.PathLike) -> None:
+        self.path = Path(path)
+        self.file = h5py.File(f"{self.path}.{os.getpid()}.{id(self)}.inmemory", "w", driver="core",
+                              backing_store=False)
+
+    def commit(self) -> str:
+        """Write the file to ``path`` (temporary name, fsync, rename); returns its sha256."""
+        self.file.flush()
+        image = self.file.id.get_file_image()
+        self.file.close()
+        write_bytes_atomic(self.path, image)
+        return sha256_bytes(image)
+
+    def discard(self) -> None:
+        """Drop the in-memory file (idempotent)."""
+        with contextlib.suppress(Exception):
+            if self.file.id.valid:
+                self.file.close()
+
+    def __enter__(self) -> H5Image:
+        return self
+
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
+        if exc_type is not None:
+            self.discard()
+
+
+def h5_chunk_kwargs(compression: str) -> dict[str, Any]:
+    """h5py keywords of a chunked, checksummed array: fletcher32 per chunk, plus gzip (deflate 1 +
+    shuffle), lzf or no compression.
+
+    Raises:
+        StorageError: an unknown compression name.
+    """
+    base: dict[str, Any] = {"track_times": False, "fletcher32": True}
+    if compression == "gzip":
+        return {**base, "compression": "gzip", "compression_opts": 1, "shuffle": True}
+    if compression == "lzf":
+        return {**base, "compression": "lzf", "shuffle": True}
+    if compression == "none":
+        return base
+    raise StorageError(f"unknown compression {compression!r}; use gzip, lzf or none")
+
+
+# --------------------------------------------------------------------------------------- checked HDF5 reads
+def _selection_row(selection: Any) -> int | None:
+    first = selection[0] if isinstance(selection, tuple) and selection else selection
+    if isinstance(first, (int, np.integer)):
+        return int(first)
+    return None
+
+
+class CheckedDataset:
+    """An h5py dataset whose reads raise :class:`DamagedFileError` naming file, dataset and scan."""
+
+    def __init__(self, dataset: h5py.Dataset, owner: CheckedH5File) -> None:
+        self._ds = dataset
+        self._owner = owner
+
+    def __getitem__(self, selection: Any) -> Any:
+        try:
+            return self._ds[selection]
+        except (OSError, RuntimeError, KeyError) as exc:
+            row = _selection_row(selection)
+            if row is None:
+                row = self._first_bad_row(selection)
+            raise DamagedFileError(
+                f"{self._owner.what}: cannot read {self._ds.name.lstrip('/')}{self._owner.scan_text(row)} "
+                f"({_short(exc)}); the file is damaged, run `hd verify`"
+            ) from None
+
+    def _first_bad_row(self, selection: Any) -> int | None:
+        """After a failed read of a range of rows: the first row that cannot be read, if any."""
+        first, rest = (selection[0], selection[1:]) if isinstance(selection, tuple) and selection else (selection, ())
+        if not isinstance(first, slice) or not self._ds.shape:
+            return None
+        for row in range(*first.indices(self._ds.shape[0])):
+            try:
+                self._ds[(row, *rest)]
+            except (OSError, RuntimeError, KeyError):
+                return row
+            except Exception:  # noqa: BLE001 - a selection that does not take an integer row
+                return None
+        return None
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._ds, name)
+
+    def __len__(self) -> int:
+        return len(self._ds)
+
+    def __array__(self, dtype: Any = None, copy: Any = None) -> np.ndarray:
+        arr = self[()]
+        return arr if dtype is None else arr.astype(dtype)
+
+
+class CheckedH5File:
+    """A read-only ``h5py.File`` whose dataset reads are checked (see :class:`CheckedDataset`).
+
+    Attribute access (``attrs``, ``filename``, ``close``...) goes to the h5py file.
+    """
+
+    def __init__(self, f: h5py.File, what: str) -> None:
+        self._f = f
+        self.what = what
+
+    def __getitem__(self, name: str) -> Any:
+        try:
+            obj = self._f[name]
+        except (KeyError, OSError, RuntimeError) as exc:
+            raise DamagedFileError(f"{self.what}: no readable dataset {name!r} ({_short(exc)})") from None
+        return CheckedDataset(obj, self) if isinstance(obj, h5py.Dataset) else obj
+
+    def __contains__(self, name: str) -> bool:
+        return name in self._f
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._f, name)
+
+    def scan_text(self, row: int | None) -> str:
+        """``of scan N (row k)`` for error messages, best effort."""
+        if row is None:
+            return ""
+        try:
+            return f" of scan {int(self._f['scan_index'][row])} (row {row})"
+        except Exception:  # noqa: BLE001 - the index itself may be what is damaged
+            return f" row {row}"
+
+    def __enter__(self) -> CheckedH5File:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._f.close()
+
+
+def open_h5(path: str | os.PathLike, what: str | None = None) -> CheckedH5File:
+    """Open an HDF5 file read-only with checked reads.
+
+    Raises:
+        StorageError: missing or unreadable file. DamagedFileError: not HDF5 or damaged metadata.
+    """
+    p = Path(path)
+    name = what or str(p)
+    if not p.is_file():
+        if not os.path.lexists(p):
+            raise DamagedFileError(f"{name}: missing; run `hd verify`")
+        raise FormatError(f"{name}: not a regular file")
+    try:
+        f = h5py.File(p, "r")
+    except OSError as exc:
+        if isinstance(exc, PermissionError):
+            raise StorageError(describe_os_error(exc, p)) from None
+        raise DamagedFileError(f"{name}: cannot open as HDF5 ({_short(exc)}); the file is damaged or not an hd file") from None
+    return CheckedH5File(f, name)
+
+
+def check_h5_data(path: str | os.PathLike, what: str | None = None) -> None:
+    """Read every chunk of every dataset (fletcher32 and decompression checks on all the data).
+
+    Raises:
+        DamagedFileError: a chunk cannot be read back.
+    """
+    with open_h5(path, what) as f:
+        names: list[str] = []
+        f._f.visit(lambda n: names.append(n) if isinstance(f._f[n], h5py.Dataset) else None)
+        for name in names:
+            ds = f[name]
+            if ds.shape and ds.chunks:
+                for k in range(0, ds.shape[0], ds.chunks[0]):
+                    ds[k : k + ds.chunks[0]]
+            else:
+                ds[()]
+
+
+# --------------------------------------------------------------------------------------- schemas, JSON
+def check_schema(name: str, version: str, expected_name: str, expected_version: str, where: str) -> None:
+    """Refuse a schema of another name or of an unknown major version (minor versions are compatible).
+
+    Raises:
+        FormatError: naming ``where``.
+    """
+    if name != expected_name:
+        raise FormatError(f"{where}: schema is {name!r}, expected {expected_name!r}")
+    major = str(version).split(".")[0]
+    if major != expected_version.split(".")[0]:
+        raise FormatError(
+            f"{where}: schema {name} version {version} is not supported by this hd "
+            f"(reads major version {expected_version.split('.')[0]}); upgrade hd"
+        )
+
+
+def read_json(path: str | os.PathLike, what: str = "file") -> Any:
+    """Parse a JSON file.
+
+    Raises:
+        StorageError: unreadable. DamagedFileError: not valid JSON.
+    """
+    p = Path(path)
+    try:
+        text = p.read_bytes().decode("utf-8")
+    except OSError as exc:
+        raise StorageError(describe_os_error(exc, p)) from None
+    except UnicodeDecodeError:
+        raise DamagedFileError(f"{p}: unreadable {what} (not UTF-8 text)") from None
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise DamagedFileError(f"{p}: unreadable {what} ({exc})") from None
+    except RecursionError:
+        raise DamagedFileError(f"{p}: unreadable {what} (nested too deeply)") from None
+
+
+def require(mapping: Any, key: str, kind: type | tuple[type, ...], where: str) -> Any:
+    """``mapping[key]`` if it is of type ``kind`` (bool is not an int), else a FormatError naming ``where``."""
+    if not isinstance(mapping, dict):
+        raise FormatError(f"{where}: expected a JSON object, got {type(mapping).__name__}")
+    if key not in mapping:
+        raise FormatError(f"{where}: the key {key!r} is missing")
+    value = mapping[key]
+    kinds = kind if isinstance(kind, tuple) else (kind,)
+    if isinstance(value, bool) and bool not in kinds:
+        raise FormatError(f"{where}: {key!r} must be {' or '.join(k.__name__ for k in kinds)}, got {value!r}")
+    if not isinstance(value, kinds):
+        raise FormatError(f"{where}: {key!r} must be {' or '.join(k.__name__ for k in kinds)}, got {type(value).__name__}")
+    if isinstance(value, float) and not math.isfinite(value):
+        raise FormatError(f"{where}: {key!r} must be finite, got {value!r}")
+    return value
+
+
+# --------------------------------------------------------------------------------------- paths
+def check_relative(relative: Any, where: str) -> str:
+    """A manifest path: a non-empty relative POSIX path without ``..``, ``.`` or empty parts.
+
+    Raises:
+        FormatError: anything else (absolute paths, ``../../etc/passwd``...).
+    """
+    if not isinstance(relative, str) or not relative or "\x00" in relative or "\\" in relative:
+        raise FormatError(f"{where}: {relative!r} is not a relative path inside the dataset")
+    parts = relative.split("/")
+    if relative.startswith("/") or any(p in ("", ".", "..") for p in parts):
+        raise FormatError(f"{where}: the path {relative!r} leaves the dataset; refused")
+    return relative
+
+
+def confine(root: str | os.PathLike, relative: Any, where: str | None = None) -> Path:
+    """``root / relative``, refused unless it stays inside ``root`` once symbolic links are resolved.
+
+    Raises:
+        FormatError: an absolute path, ``..``, or a link leading outside the dataset.
+    """
+    label = where or str(relative)
+    check_relative(relative, label)
+    base = Path(root).resolve()
+    full = base / relative
+    try:
+        resolved = full.resolve()
+    except (OSError, RuntimeError):
+        raise FormatError(f"{label}: the path {relative!r} cannot be resolved (a symbolic link loop?)") from None
+    if not resolved.is_relative_to(base):
+        raise FormatError(f"{label}: the path {relative!r} leads outside the dataset (to {resolved}); refused")
+    return full
+
+
+def _check_text_path(path: Any, flag: str) -> Path:
+    text = os.fspath(path)
+    if text.strip() == "":
+        raise StorageError(f"{flag} must not be empty")
+    if "\x00" in text:
+        raise StorageError(f"{flag} {text!r} contains a NUL character")
+    p = Path(os.path.abspath(text))
+    for part in p.parts:
+        if len(os.fsencode(part)) > NAME_MAX_BYTES:
+            raise StorageError(f"{flag} {text}: the name {part[:20]}... is longer than {NAME_MAX_BYTES} bytes")
+    return p
+
+
+def _probe_writable(directory: Path, flag: str, target: Path) -> None:
+    """Create and remove a probe file in ``directory``; refuses /proc, read-only file systems..."""
+    try:
+        fd, name = tempfile.mkstemp(prefix=".hd-probe-", dir=directory)
+    except OSError as exc:
+        raise StorageError(f"{flag} {target}: cannot create files in {directory} ({exc.strerror or exc})") from None
+    os.close(fd)
+    with contextlib.suppress(OSError):
+        os.unlink(name)
+
+
+def _nearest_existing(p: Path) -> Path:
+    anc = p.parent
+    while not os.path.lexists(anc):
+        anc = anc.parent
+    return anc
+
+
+def check_output_dir(path: str | os.PathLike, flag: str = "--out") -> Path:
+    """Check that ``path`` can become (or already is) a writable directory, without creating it.
+
+    Returns the absolute path.
+
+    Raises:
+        StorageError: empty, NUL, over-long name, an existing non-directory, a path under a regular
+            file, a broken symbolic link, or a location that cannot be written (``/proc``, a
+            read-only mount, no permission).
+    """
+    p = _check_text_path(path, flag)
+    if os.path.lexists(p) and not p.exists():
+        raise StorageError(f"{flag} {p} is a broken symbolic link")
+    if p.exists():
+        if not p.is_dir():
+            raise StorageError(f"{flag} {p} exists and is not a directory")
+        _probe_writable(p, flag, p)
+        return p
+    anc = _nearest_existing(p)
+    if not anc.is_dir():
+        raise StorageError(f"{flag} {p}: {anc} is not a directory")
+    _probe_writable(anc, flag, p)
+    return p
+
+
+def check_output_file(path: str | os.PathLike, flag: str = "output") -> Path:
+    """Check that a file can be written at ``path`` (its directory exists and is writable).
+
+    Raises:
+        StorageError: like :func:`check_output_dir`; also an existing directory at ``path`` or a
+            missing parent directory.
+    """
+    p = _check_text_path(path, flag)
+    if p.is_dir():
+        raise StorageError(f"{flag} {p} is a directory")
+    parent = p.parent
+    if not parent.exists():
+        anc = _nearest_existing(p)
+        if not anc.is_dir():
+            raise StorageError(f"{flag} {p}: {anc} is not a directory")
+        raise StorageError(f"{flag} {p}: the directory {parent} does not exist")
+    if not parent.is_dir():
+        raise StorageError(f"{flag} {p}: {parent} is not a directory")
+    _probe_writable(parent, flag, p)
+    return p
+
+
+def make_subdir(root: Path, name: str) -> Path:
+    """``root/name`` as a real directory inside ``root`` (created if missing; a symbolic link is refused)."""
+    path = Path(root) / name
+    if path.is_symlink():
+        raise StorageError(f"{path} is a symbolic link; hd writes only real directories inside its output")
+    if os.path.lexists(path) and not path.is_dir():
+        raise StorageError(f"{path} exists and is not a directory")
+    make_dirs(path)
+    return path
+
+
+def first_missing(path: Path) -> Path | None:
+    """The top-most directory that ``mkdir -p path`` would create (None when ``path`` exists)."""
+    path = Path(os.path.abspath(path))
+    if os.path.lexists(path):
+        return None
+    top = path
+    while not os.path.lexists(top.parent):
+        top = top.parent
+    return top
+
+
+def remove_empty_dirs(path: Path, top: Path | None) -> None:
+    """Remove ``path`` and its parents up to ``top`` while they are empty (undo a ``mkdir -p``)."""
+    if top is None:
+        return
+    path, top = Path(os.path.abspath(path)), Path(os.path.abspath(top))
+    while path.is_relative_to(top):
+        try:
+            path.rmdir()
+        except OSError:
+            return
+        if path == top:
+            return
+        path = path.parent
+
+
+def make_dirs(path: Path) -> None:
+    """``mkdir -p`` whose OS errors become a StorageError naming the path."""
+    try:
+        Path(path).mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise StorageError(describe_os_error(exc, path)) from None
+
+
+# --------------------------------------------------------------------------------------- writer lock
+_HELD_LOCK_FDS: set[int] = set()
+
+
+def _close_inherited_locks() -> None:
+    """In a forked child: close (never unlock) the lock descriptors, so the lock dies with its holder."""
+    for fd in list(_HELD_LOCK_FDS):
+        with contextlib.suppress(OSError):
+            os.close(fd)
+    _HELD_LOCK_FDS.clear()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_close_inherited_locks)
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    except OSError:
+        return False
+    try:  # a zombie (dead, not yet reaped) holds no lock
+        with open(f"/proc/{pid}/stat", "rb") as fh:
+            return fh.read().rsplit(b")", 1)[-1].split()[0] != b"Z"
+    except OSError:
+        return True
+
+
+def lock_holder(directory: str | os.PathLike) -> int | None:
+    """PID of the live process that holds ``directory``'s writer lock, or None (never takes the lock)."""
+    try:
+        text = (Path(directory) / LOCK_NAME).read_text().strip()
+        pid = int(text.split()[0])
+    except (OSError, ValueError, IndexError):
+        return None
+    return pid if pid > 0 and _pid_alive(pid) else None
+
+
+class WriterLock:
+    """Exclusive writer lock of a directory: ``flock`` on ``DIR/.hd-lock``, the holder's PID inside.
+
+    Use as a context manager around everything a command writes in ``directory`` (which must
+    exist). The lock file is removed on release; the kernel releases the lock when the holder
+    dies. Forked children close their copy of the descriptor (they never hold the lock).
+
+    Raises:
+        LockedError: another live process holds the lock (message names its PID).
+        StorageError: the lock file cannot be created (read-only, permission, disk full).
+    """
+
+    def __init__(self, directory: str | os.PathLike, what: str = "directory") -> None:
+        self.directory = Path(directory)
+        self.path = self.directory / LOCK_NAME
+        self.what = what
+        self._fd: int | None = None
+
+    def acquire(self) -> WriterLock:
+        for _ in range(20):
+            try:
+                fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o644)
+            except OSError as exc:
+                raise StorageError(f"cannot lock {self.directory} for writing: {describe_os_error(exc, self.path)}") from None
+            st = os.fstat(fd)
+            if not stat.S_ISREG(st.st_mode) or st.st_nlink != 1:  # never truncate another file through a link
+                os.close(fd)
+                raise StorageError(f"cannot lock {self.directory} for writing: {self.path} is not a plain file; remove it")
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                try:
+                    holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
+                finally:
+                    os.close(fd)
+                raise LockedError(
+                    f"{self.directory} is being written by another hd process (PID {holder}); "
+                    "wait for it to finish or stop it, then re-run"
+                ) from None
+            except OSError as exc:
+                os.close(fd)
+                raise StorageError(f"cannot lock {self.directory} for writing: {describe_os_error(exc, self.path)}") from None
+            try:  # the file may have been removed by the previous holder between open and flock
+                same = os.stat(self.path).st_ino == os.fstat(fd).st_ino
+            except FileNotFoundError:
+                same = False
+            if not same:
+                os.close(fd)
+                continue
+            with contextlib.suppress(OSError):  # the PID is informational; a full disk must not stop here
+                os.ftruncate(fd, 0)
+                os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+            self._fd = fd
+            _HELD_LOCK_FDS.add(fd)
+            return self
+        raise StorageError(f"cannot lock {self.directory} for writing: the lock file keeps changing")
+
+    def release(self) -> None:
+        fd, self._fd = self._fd, None
+        if fd is None:
+            return
+        try:
+            with contextlib.suppress(OSError):
+                if os.stat(self.path).st_ino == os.fstat(fd).st_ino:
+                    os.unlink(self.path)
+        finally:
+            _HELD_LOCK_FDS.discard(fd)
+            os.close(fd)
+
+    @property
+    def held(self) -> bool:
+        return self._fd is not None
+
+    def __enter__(self) -> WriterLock:
+        return self.acquire()
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()

@@ -1,0 +1,265 @@
+"""Class D: bad paths and values are refused with one ``Error:`` line before any work starts.
+
+Every case runs a command with one bad option and checks: exit status 1, no traceback, a last
+line ``Error: ...`` naming the problem, nothing created at the output path, and no work done
+(the first function of each command's real work is replaced by one that fails the test).
+"""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from reliability_kit import assert_one_line_error, invoke
+
+BIG = str(10**9)
+
+BUILD = [
+    ("out-under-proc", ["--out", "/proc/hd-test-x"], "/proc"),
+    ("out-proc-itself", ["--out", "/proc"], "cannot create files"),
+    ("out-under-sys", ["--out", "/sys/hd-test-x"], "/sys"),
+    ("out-under-a-file", ["--out", "{file}/sub"], "not a directory"),
+    ("out-is-a-file", ["--out", "{file}"], "not a directory|is a file"),
+    ("out-dev-null", ["--out", "/dev/null"], "not a directory"),
+    ("out-empty", ["--out", ""], "must not be empty"),
+    ("out-name-too-long", ["--out", "{tmp}/" + "x" * 300], "longer than 255"),
+    ("out-broken-link", ["--out", "{broken}"], "broken symbolic link"),
+    ("seed-negative", ["--seed", "-1"], "--seed"),
+    ("workers-zero", ["--workers", "0"], "--workers"),
+    ("workers-negative", ["--workers", "-1"], "--workers"),
+    ("workers-absurd", ["--workers", "100000"], "--workers"),
+    ("scans-zero", ["--scans", "0"], "--scans"),
+    ("scans-absurd", ["--scans", BIG], "--scans"),
+    ("resolution-one", ["--resolution", "1"], "--resolution"),
+    ("resolution-absurd", ["--resolution", "100000"], "--resolution"),
+    ("shard-memory-absurd", ["--resolution", "1024", "--shard-size", "5000", "--scans", "5000"], "--shard-size"),
+    ("shard-size-zero", ["--shard-size", "0"], "--shard-size"),
+    ("altitude-inf", ["--altitude", "inf"], "--altitude"),
+    ("altitude-nan", ["--altitude", "nan"], "--altitude"),
+    ("altitude-negative", ["--altitude", "-5"], "altitude"),
+    ("tilt-nan", ["--tilt", "nan"], "--tilt"),
+    ("jitter-inf", ["--jitter", "inf"], "--jitter"),
+    ("fov-nan", ["--fov", "nan"], "--fov"),
+    ("fov-zero", ["--fov", "0"], "fov"),
+    ("sigma-inf", ["--sigma", "inf"], "--sigma"),
+    ("sigma-nan", ["--sigma", "nan"], "--sigma"),
+    ("sigma-negative", ["--sigma", "-0.01"], "sigma"),
+    ("dtm-scale-nan", ["--dtm-scale", "nan"], "--dtm-scale"),
+    ("dtm-scale-two", ["--dtm-scale", "2"], "--dtm-scale"),
+    ("dead-elements-negative", ["--dead-elements", "-1"], "element"),
+    ("damaged-elements-absurd", ["--damaged-elements", BIG], "elements"),
+    ("scheduler-garbage", ["--scheduler", "garbage"], "scheduler"),
+    ("scheduler-no-port", ["--scheduler", "tcp://host"], "scheduler"),
+    ("scheduler-port-range", ["--scheduler", "tcp://host:99999"], "port"),
+    ("scheduler-protocol", ["--scheduler", "ftp://host:21"], "protocol"),
+    ("dtm-missing", ["--dtm", "{tmp}/missing.tif"], "missing.tif"),
+    ("dtm-directory", ["--dtm", "{tmp}"], "directory"),
+    ("dtm-not-a-raster", ["--dtm", "{file}"], "not a raster"),
+]
+
+
+@pytest.fixture
+def places(tmp_path):
+    file = tmp_path / "regular-file"
+    file.write_text("a user's file\n")
+    broken = tmp_path / "broken-link"
+    broken.symlink_to(tmp_path / "nowhere")
+    return {"tmp": str(tmp_path), "file": str(file), "broken": str(broken)}
+
+
+def _fill(args, places, **more):
+    return [a.format(**places, **more) for a in args]
+
+
+def _no_work(monkeypatch, *targets):
+    def refuse(*args, **kwargs):
+        raise AssertionError("work started before the options were checked")
+
+    for module, name in targets:
+        monkeypatch.setattr(f"{module}.{name}", refuse)
+
+
+def _snapshot(tmp):
+    from pathlib import Path
+
+    return sorted(str(p) for p in Path(tmp).rglob("*"))
+
+
+@pytest.mark.parametrize("case,args,needle", BUILD, ids=[c[0] for c in BUILD])
+def test_build_dataset_refuses(case, args, needle, places, dtm, monkeypatch):
+    _no_work(monkeypatch, ("lidarsim.build", "plan_scans"), ("lidarsim.build", "_procedural_terrain_bytes"))
+    argv = _fill(args, places)
+    if "--out" not in argv:
+        argv = ["--out", f"{places['tmp']}/never", *argv]
+    if "--dtm" not in argv:
+        argv += ["--dtm", str(dtm)]
+    if "--scans" not in argv:
+        argv += ["--scans", "8"]
+    before = _snapshot(places["tmp"])
+    assert_one_line_error(invoke("build-dataset", *argv), needle)
+    assert _snapshot(places["tmp"]) == before
+
+
+LABEL = [
+    ("dem-size-one", ["--dem-size", "1"], "dem"),
+    ("dem-size-absurd", ["--dem-size", "100000"], "dem"),
+    ("dem-spacing-inf", ["--dem-spacing", "inf"], "--dem-spacing"),
+    ("dem-spacing-nan", ["--dem-spacing", "nan"], "--dem-spacing"),
+    ("dem-spacing-zero", ["--dem-spacing", "0"], "dem"),
+    ("lander-nan", ["--lander-diameter", "nan"], "--lander-diameter"),
+    ("lander-inf", ["--lander-diameter", "inf"], "--lander-diameter"),
+    ("lander-negative", ["--lander-diameter", "-10"], "diameter"),
+    ("lander-larger-than-dem", ["--lander-diameter", "150"], "larger than the DEM"),
+    ("pad-nan", ["--pad-diameter", "nan"], "--pad-diameter"),
+    ("slope-nan", ["--max-slope-deg", "nan"], "--max-slope-deg"),
+    ("slope-ninety", ["--max-slope-deg", "90"], "slope"),
+    ("roughness-inf", ["--max-roughness", "inf"], "--max-roughness"),
+    ("yaws-zero", ["--yaws", "0"], "yaws"),
+    ("workers-negative", ["--workers", "-1"], "--workers"),
+    ("scheduler-garbage", ["--scheduler", "not a scheduler"], "scheduler"),
+]
+
+
+@pytest.mark.parametrize("case,args,needle", LABEL, ids=[c[0] for c in LABEL])
+def test_label_refuses(case, args, needle, data_copy, monkeypatch):
+    _no_work(monkeypatch, ("hdlabels.labeling", "run_label_task"))
+    before = _snapshot(data_copy)
+    assert_one_line_error(invoke("label", data_copy, *args), needle)
+    assert _snapshot(data_copy) == before
+
+
+@pytest.mark.parametrize("target,needle", [
+    ("/proc", "not an hd dataset"), ("{file}", "not a directory|is a file"), ("{tmp}/missing", "no such"),
+    ("{tmp}", "not an hd dataset"),
+], ids=["proc", "a-file", "missing", "empty-dir"])
+def test_label_refuses_what_is_not_a_dataset(target, needle, places):
+    before = _snapshot(places["tmp"])
+    assert_one_line_error(invoke("label", target.format(**places)), needle)
+    assert _snapshot(places["tmp"]) == before
+
+
+MAKE_DTM = [
+    ("under-proc", ["/proc/hd-test.tif"], "/proc"),
+    ("under-a-file", ["{file}/x.tif"], "not a directory"),
+    ("is-a-directory", ["{tmp}"], "is a directory"),
+    ("missing-parent", ["{tmp}/no/x.tif"], "does not exist"),
+    ("empty", [""], "must not be empty"),
+    ("seed-negative", ["{tmp}/x.tif", "--seed", "-1"], "--seed"),
+    ("size-inf", ["{tmp}/x.tif", "--size", "inf"], "--size"),
+    ("spacing-nan", ["{tmp}/x.tif", "--spacing", "nan"], "--spacing"),
+    ("spacing-too-coarse", ["{tmp}/x.tif", "--spacing", "5"], "spacing"),
+    ("size-absurd", ["{tmp}/x.tif", "--size", "1e9"], "cells per side"),
+    ("rock-k-out-of-range", ["{tmp}/x.tif", "--rock-k", "2"], "rock_k"),
+]
+
+
+@pytest.mark.parametrize("case,args,needle", MAKE_DTM, ids=[c[0] for c in MAKE_DTM])
+def test_make_dtm_refuses(case, args, needle, places, monkeypatch):
+    _no_work(monkeypatch, ("lidarsim.procedural", "generate_mars_terrain"))
+    before = _snapshot(places["tmp"])
+    assert_one_line_error(invoke("make-dtm", *_fill(args, places)), needle)
+    assert _snapshot(places["tmp"]) == before
+
+
+TRAIN = [
+    ("out-under-proc", ["--out", "/proc/hd-run"], "/proc"),
+    ("out-under-a-file", ["--out", "{file}/run"], "not a directory"),
+    ("out-is-a-file", ["--out", "{file}"], "not a directory|is a file"),
+    ("out-empty", ["--out", ""], "must not be empty"),
+    ("num-workers-negative", ["--num-workers", "-1"], "--num-workers"),
+    ("num-workers-absurd", ["--num-workers", "100000"], "--num-workers"),
+    ("seed-negative", ["--seed", "-1"], "--seed"),
+    ("sigma-nan", ["--train-sigma", "nan"], "--train-sigma"),
+    ("sigma-inf", ["--train-sigma", "inf"], "--train-sigma"),
+    ("epochs-zero", ["--epochs", "0"], "--epochs"),
+    ("epochs-negative", ["--epochs", "-3"], "--epochs"),
+    ("resume-and-overwrite", ["--resume", "--overwrite"], "exclude"),
+]
+
+
+@pytest.mark.parametrize("case,args,needle", TRAIN, ids=[c[0] for c in TRAIN])
+def test_train_refuses(case, args, needle, places, labelled, monkeypatch):
+    _no_work(monkeypatch, ("hdnet.fit", "compute_normalisation"))
+    argv = _fill(args, places)
+    if "--out" not in argv:
+        argv = ["--out", f"{places['tmp']}/run", *argv]
+    before = _snapshot(places["tmp"])
+    assert_one_line_error(invoke("train", labelled, *argv, "--profile", "tiny"), needle)
+    assert _snapshot(places["tmp"]) == before
+
+
+EVAL = [
+    ("out-under-proc", ["--out", "/proc/hd-report"], "/proc"),
+    ("out-under-a-file", ["--out", "{file}/report"], "not a directory"),
+    ("out-is-a-file", ["--out", "{file}"], "not a directory|is a file"),
+    ("mc-samples-zero", ["--mc-samples", "0"], "MC samples"),
+    ("mc-samples-absurd", ["--mc-samples", BIG], "MC samples"),
+    ("batch-size-zero", ["--batch-size", "0"], "batch size"),
+    ("batch-size-absurd", ["--batch-size", BIG], "batch size"),
+    ("drop-pixels-negative", ["--drop-pixels", "-1"], "drop-pixels"),
+    ("drop-pixels-absurd", ["--drop-pixels", BIG], "drop-pixels"),
+    ("seed-negative", ["--seed", "-1"], "--seed"),
+    ("threshold-garbage", ["--threshold", "garbage"], "threshold"),
+    ("threshold-quantile-nan", ["--threshold", "quantile:nan"], "quantile"),
+    ("threshold-quantile-two", ["--threshold", "quantile:2"], "quantile"),
+    ("threshold-risk-inf", ["--threshold", "risk:inf"], "alpha"),
+]
+
+
+@pytest.mark.parametrize("case,args,needle", EVAL, ids=[c[0] for c in EVAL])
+def test_eval_refuses(case, args, needle, places, labelled, trained, monkeypatch):
+    if case.startswith(("out-", "mc-", "batch-", "seed-", "threshold-")):
+        _no_work(monkeypatch, ("hdnet.evaluate", "load_trained_model"))  # checked before the model is loaded
+    else:
+        _no_work(monkeypatch, ("hdnet.evaluate", "infer_split"))  # needs the labelling's DEM size first
+    argv = _fill(args, places)
+    if "--out" not in argv:
+        argv = ["--out", f"{places['tmp']}/report", *argv]
+    before = _snapshot(places["tmp"])
+    assert_one_line_error(invoke("eval", trained, "--data", labelled, *argv), needle)
+    assert _snapshot(places["tmp"]) == before
+
+
+@pytest.mark.parametrize("command,args,needle", [
+    ("demo", ["--epochs", "0"], "--epochs"),
+    ("demo", ["--scans", "0"], "--scans"),
+    ("demo", ["--scans", "2"], "--scans"),
+    ("demo", ["--workers", "0"], "--workers"),
+    ("demo", ["--out", "/proc/hd-demo"], "/proc"),
+    ("demo", ["--out", "{file}/demo"], "not a directory"),
+    ("reproduce", ["--epochs", "0"], "--epochs"),
+    ("reproduce", ["--out", "/proc/hd-repro"], "/proc"),
+    ("reproduce", ["--dtm", "{tmp}/missing.tif"], "missing.tif"),
+], ids=["demo-epochs-0", "demo-scans-0", "demo-scans-2", "demo-workers-0", "demo-proc", "demo-under-file",
+        "reproduce-epochs-0", "reproduce-proc", "reproduce-dtm-missing"])
+def test_multi_stage_commands_check_every_stage_first(command, args, needle, places, monkeypatch):
+    _no_work(monkeypatch, ("cli", "_build_unless_done"))
+    argv = _fill(args, places)
+    if "--out" not in argv:
+        argv = ["--out", f"{places['tmp']}/chain", *argv]
+    before = _snapshot(places["tmp"])
+    assert_one_line_error(invoke(command, *argv), needle)
+    assert _snapshot(places["tmp"]) == before
+
+
+def test_read_only_file_system_is_refused_before_work(tmp_path, dtm, monkeypatch):
+    from reliability_kit import tmpfs
+
+    _no_work(monkeypatch, ("lidarsim.build", "plan_scans"))
+    with tmpfs(tmp_path / "ro", "1m", "ro") as ro:
+        assert_one_line_error(invoke("build-dataset", "--out", ro / "data", "--dtm", dtm), "read-only")
+        assert_one_line_error(invoke("make-dtm", ro / "x.tif"), "read-only")
+
+
+def test_every_float_option_rejects_nan_and_inf():
+    """Guard for new options: each float option of every command is covered by a case above."""
+    from click import FLOAT
+
+    from cli import main
+
+    covered = {a for rows in (BUILD, LABEL, MAKE_DTM, TRAIN) for _, args, _ in rows for a in args if a.startswith("--")}
+    floats = {f"{c}:{o}" for c, cmd in main.commands.items() for p in cmd.params
+              if p.type is FLOAT for o in p.opts}
+    missing = sorted(f for f in floats if f.split(":")[1] not in covered)
+    assert missing == [], f"float options without a non-finite case: {missing}"
+    assert math.isnan(float("nan"))

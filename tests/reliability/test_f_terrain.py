@@ -1,0 +1,81 @@
+"""Class F: non-finite and absurd heights are nodata; a build whose scans come back empty fails.
+
+A DTM whose top third holds a fill value the producer did not declare (+-inf, +-1e30, 3e38, NaN)
+must give the same kind of dataset as a clean one: scans placed on the valid part only, every ray
+returning, scan origins at finite heights.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import rasterio
+from reliability_kit import BUILD_ARGS, assert_one_line_error, hills, invoke
+from rasterio.transform import from_origin
+
+from lidarsim import limits
+from lidarsim.build import check_returns
+from lidarsim.errors import LidarsimError
+from lidarsim.scan import STATUS_DEAD, STATUS_MISS, STATUS_RETURN
+from lidarsim.shards import iter_scans
+
+
+@pytest.mark.parametrize("fill", [np.inf, -np.inf, 1e30, -1e30, 3e38, np.nan], ids=str)
+def test_undeclared_fill_values_are_nodata(tmp_path, fill):
+    dtm = hills(tmp_path / "filled.tif", fill_rows=100, fill=fill)
+    out = tmp_path / "data"
+    result = invoke("build-dataset", "--out", out, "--dtm", dtm, "--workers", "1", *BUILD_ARGS)
+    assert result.exit_code == 0, result.output
+    for scan in iter_scans(out):
+        assert scan.valid.all(), "every ray of a scan placed on valid terrain returns"
+        assert np.isfinite(scan.origin_map).all() and abs(scan.origin_map[2]) < 100
+        assert np.nanmax(np.abs(scan.points_clean[..., 2])) < 50
+        assert scan.origin_map[1] < 2000.0 - 100.0  # the scan lies south of the filled band
+
+
+@pytest.mark.parametrize("fill", [np.inf, 1e30, -3.0e38], ids=str)
+def test_a_dtm_of_fill_values_only_is_refused(tmp_path, fill):
+    dtm = hills(tmp_path / "all.tif", n=200, fill_rows=200, fill=fill)
+    out = tmp_path / "data"
+    assert_one_line_error(invoke("build-dataset", "--out", out, "--dtm", dtm, *BUILD_ARGS), "every cell is nodata")
+    assert not out.exists()
+
+
+def test_absurd_integer_heights_are_nodata(tmp_path):
+    z = np.full((300, 300), 100, dtype=np.int32)
+    z[:100] = 2_000_000_000
+    path = tmp_path / "int.tif"
+    with rasterio.open(path, "w", driver="GTiff", width=300, height=300, count=1, dtype="int32",
+                       transform=from_origin(0.0, 300.0, 1.0, 1.0)) as dst:
+        dst.write(z, 1)
+    out = tmp_path / "data"
+    result = invoke("build-dataset", "--out", out, "--dtm", path, "--workers", "1", *BUILD_ARGS)
+    assert result.exit_code == 0, result.output
+    assert all(scan.valid.all() and abs(scan.origin_map[2] - 100) < 1e-6 for scan in iter_scans(out))
+
+
+def test_a_build_whose_rays_miss_fails_and_leaves_nothing(tmp_path, dtm, monkeypatch):
+    from lidarsim.scan import TileScene
+
+    def no_returns(self, origins_map, directions, n_threads=0):
+        return np.full(directions.shape[:3], np.nan, dtype=np.float32)
+
+    monkeypatch.setattr(TileScene, "cast", no_returns)
+    out = tmp_path / "data"
+    assert_one_line_error(invoke("build-dataset", "--out", out, "--dtm", dtm, "--workers", "1", *BUILD_ARGS),
+                          "scan 0", "only 0.0% of the rays hit the terrain", "hills.tif")
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("hits,ok", [(0.0, False), (0.49, False), (0.5, True), (1.0, True)])
+def test_the_return_threshold(hits, ok):
+    status = np.full((10, 10), STATUS_MISS, np.uint8)
+    status[0, :] = STATUS_DEAD  # dead elements are not counted
+    working = np.flatnonzero(status.ravel() != STATUS_DEAD)
+    status.ravel()[working[: int(round(hits * working.size))]] = STATUS_RETURN
+    assert limits.MIN_RETURN_FRACTION == 0.5
+    if ok:
+        check_returns(status, 7, "x.tif")
+    else:
+        with pytest.raises(LidarsimError, match="scan 7: only"):
+            check_returns(status, 7, "x.tif")

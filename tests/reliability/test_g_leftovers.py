@@ -1,0 +1,162 @@
+"""Class G: no overwrite of what is not hd's, no leftovers after a failure, consistent runs after a kill."""
+
+from __future__ import annotations
+
+import csv
+import shutil
+import signal
+
+import pytest
+import torch
+from reliability_kit import (
+    BUILD_ARGS,
+    assert_one_line_error,
+    hd_process,
+    invoke,
+    kill_and_check_no_orphans,
+    partials,
+    wait_for,
+)
+
+
+def _train(data, run, *more):
+    return invoke("train", data, "--out", run, "--profile", "tiny", "--epochs", "1", *more)
+
+
+def _files(d):
+    return {p.name: p.read_bytes() for p in d.iterdir() if p.is_file()}
+
+
+# ------------------------------------------------------------------------------------- train --out
+def test_train_refuses_a_foreign_directory_unless_overwrite(tmp_path, labelled):
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "config.json").write_text('{"my": "settings"}')
+    (mine / "metrics.csv").write_text("my,metrics\n")
+    (mine / "notes.txt").write_text("keep me")
+    before = _files(mine)
+    assert_one_line_error(_train(labelled, mine), "not an hd run", "--overwrite")
+    assert _files(mine) == before
+    result = _train(labelled, mine, "--overwrite")
+    assert result.exit_code == 0, result.output
+    assert (mine / "notes.txt").read_text() == "keep me" and (mine / "last.pt").is_file()
+
+
+def test_train_refuses_an_existing_run_without_resume_or_overwrite(tmp_path, labelled, trained):
+    run = tmp_path / "run"
+    shutil.copytree(trained, run)
+    before = _files(run)
+    assert_one_line_error(_train(labelled, run), "already holds a checkpoint", "--resume", "--overwrite")
+    assert _files(run) == before
+    result = _train(labelled, run, "--overwrite", "--seed", "1")
+    assert result.exit_code == 0, result.output
+    assert _files(run)["last.pt"] != before["last.pt"]
+
+
+# ------------------------------------------------------------------------------------- eval --out
+def test_eval_refuses_an_existing_report_and_a_foreign_directory(tmp_path, labelled, trained):
+    report = tmp_path / "report"
+    args = ["eval", trained, "--data", labelled, "--out", report, "--mc-samples", "2"]
+    assert invoke(*args).exit_code == 0
+    before = _files(report)
+    assert_one_line_error(invoke(*args), "already holds a report", "--overwrite")
+    assert _files(report) == before
+    result = invoke(*args, "--overwrite", "--seed", "5")
+    assert result.exit_code == 0, result.output
+    assert sorted(_files(report)) == sorted(before) and partials(report) == []
+    foreign = tmp_path / "foreign"
+    foreign.mkdir()
+    (foreign / "report.md").write_text("my own report")
+    assert_one_line_error(invoke("eval", trained, "--data", labelled, "--out", foreign), "already holds a report")
+    (foreign / "report.md").rename(foreign / "thesis.md")
+    assert_one_line_error(invoke("eval", trained, "--data", labelled, "--out", foreign), "not an hd report")
+    assert (foreign / "thesis.md").read_text() == "my own report"
+
+
+# ------------------------------------------------------------------------------------- failed commands leave nothing
+def test_a_failed_labelling_leaves_no_empty_directory(tmp_path, reference, monkeypatch):
+    data = tmp_path / "data"
+    shutil.copytree(reference, data)
+
+    def fails(task):
+        from hdlabels.store import LabelStoreError
+
+        raise LabelStoreError("a clean DEM is all NaN")
+
+    monkeypatch.setattr("hdlabels.labeling.run_label_task", fails)
+    assert_one_line_error(invoke("label", data, "--workers", "1"), "all NaN")
+    assert not (data / "labels").exists() and partials(data) == [] and not (data / ".hd-lock").exists()
+
+
+@pytest.mark.slow
+def test_an_unreachable_scheduler_leaves_nothing(tmp_path, dtm):
+    out = tmp_path / "data"
+    assert_one_line_error(invoke("build-dataset", "--out", out, "--dtm", dtm, "--scheduler", "tcp://127.0.0.1:1",
+                                 *BUILD_ARGS), "cannot reach the Dask scheduler")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_build_failing_before_any_shard_removes_its_directory(tmp_path, dtm, monkeypatch):
+    def fails(task):
+        raise MemoryError
+
+    monkeypatch.setattr("lidarsim.build.run_shard", fails)
+    out = tmp_path / "new" / "deep" / "data"  # three directories created, all removed again
+    assert_one_line_error(invoke("build-dataset", "--out", out, "--dtm", dtm, "--workers", "1", *BUILD_ARGS),
+                          "out of memory")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_failed_train_and_eval_remove_the_directories_they_created(tmp_path, labelled, trained, monkeypatch):
+    from reliability_kit import inject_enospc
+
+    inject_enospc(monkeypatch, "config.json")
+    assert_one_line_error(_train(labelled, tmp_path / "a" / "b" / "run"), "no space left")
+    inject_enospc(monkeypatch, "report.json")
+    assert_one_line_error(invoke("eval", trained, "--data", labelled, "--out", tmp_path / "c" / "report",
+                                 "--mc-samples", "2"), "no space left")
+    assert list(tmp_path.iterdir()) == []
+
+
+# ------------------------------------------------------------------------------------- run consistency after kills
+def _epochs(path):
+    return int(torch.load(path, weights_only=True)["epoch"])
+
+
+def _rows(run):
+    with open(run / "metrics.csv") as fh:
+        return list(csv.DictReader(fh))
+
+
+@pytest.mark.parametrize("moment", ["best.pt", "metrics.csv"])
+def test_train_killed_after_the_last_checkpoint_is_consistent_after_resume(tmp_path, labelled, moment):
+    """SIGKILL right after last.pt's rename (while best.pt or metrics.csv is written), then --resume."""
+    run = tmp_path / "run"
+    args = ["train", labelled, "--out", run, "--profile", "tiny", "--epochs", "1"]
+    proc = hd_process(args, env={"HD_TEST_WRITE_PAUSE": f"{moment}:60"})
+    partial = f".{moment}.partial-*"
+    wait_for(lambda: run.is_dir() and list(run.glob(partial)), what=f"{moment} being written", proc=proc)
+    code, _ = kill_and_check_no_orphans(proc, signal.SIGKILL)
+    assert code == -signal.SIGKILL
+    assert _epochs(run / "last.pt") == 1
+    result = invoke(*args, "--resume")  # the run is already complete: only reconciled
+    assert result.exit_code == 0, result.output
+    rows = _rows(run)
+    assert [int(r["epoch"]) for r in rows] == [1]
+    assert _epochs(run / "best.pt") == 1 and partials(run) == [] and not (run / ".hd-lock").exists()
+
+
+def test_train_stopped_by_sigterm_is_clean_and_resumes(tmp_path, labelled, trained):
+    run = tmp_path / "run"
+    args = ["train", labelled, "--out", run, "--profile", "tiny", "--epochs", "1"]
+    proc = hd_process(args, env={"HD_TEST_WRITE_PAUSE": "last.pt:60"})
+    wait_for(lambda: run.is_dir() and list(run.glob(".last.pt.partial-*")), what="last.pt being written", proc=proc)
+    code, err = kill_and_check_no_orphans(proc, signal.SIGTERM)
+    assert code == 128 + signal.SIGTERM and "re-run the same command to resume" in err and "Traceback" not in err
+    assert partials(run) == [] and not (run / "last.pt").exists() and not (run / ".hd-lock").exists()
+    result = invoke(*args, "--resume")
+    assert result.exit_code == 0, result.output
+    a = torch.load(run / "last.pt", weights_only=True)["model"]
+    b = torch.load(trained / "last.pt", weights_only=True)["model"]  # the same seed, uninterrupted
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    assert [int(r["epoch"]) for r in _rows(run)] == [1]
