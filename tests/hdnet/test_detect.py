@@ -49,6 +49,7 @@ from hdnet.errors import HdNetError
 from hdnet.evaluate import evaluate
 from hdnet.fit import fit
 from hdnet.infer import mc_dropout_predict
+from hdnet.train import save_checkpoint
 from lidarsim.errors import TerrainError
 from lidarsim.procedural import MarsTerrainParams, generate_mars_terrain, write_geotiff
 from lidarsim.shards import sha256_file
@@ -68,7 +69,7 @@ def trained(tmp_path_factory):
     ckpt["model"]["classifier.weight"].zero_()
     ckpt["model"]["classifier.bias"] = torch.tensor([-3.0, 3.0])  # P(safe) = sigmoid(6) everywhere
     constant = root / "constant.pt"
-    torch.save(ckpt, constant)
+    save_checkpoint(constant, ckpt)
     return dataset, run, constant
 
 
@@ -169,10 +170,10 @@ def test_run_records_its_lander_and_old_runs_fall_back_to_their_dataset(trained,
     assert run.lander == lander_of(entry) and run.spacing_m == 1.0 and run.dem_shape == (100, 100)
     ckpt = torch.load(run_dir / "last.pt", weights_only=True)
     del ckpt["extra_config"]["labeling"]  # a run trained before the labelling was recorded
-    torch.save(ckpt, tmp_path / "old.pt")
+    save_checkpoint(tmp_path / "old.pt", ckpt)
     assert load_run(tmp_path / "old.pt", CPU).labeling["lander"] == entry["lander"]
     ckpt["extra_config"]["dataset"] = str(tmp_path / "gone")
-    torch.save(ckpt, tmp_path / "old-gone.pt")
+    save_checkpoint(tmp_path / "old-gone.pt", ckpt)
     with pytest.raises(HdNetError, match="does not record its lander"):
         load_run(tmp_path / "old-gone.pt", CPU)
 
@@ -309,7 +310,7 @@ def test_a_run_at_another_spacing_resamples_to_its_own_and_refuses_coarser_dtms(
     _, _, constant = trained
     ckpt = torch.load(constant, weights_only=True)
     ckpt["extra_config"]["labeling"]["dem"]["spacing_m"] = 0.5
-    torch.save(ckpt, tmp_path / "half.pt")
+    save_checkpoint(tmp_path / "half.pt", ckpt)
     fine = write_dtm(tmp_path / "fine.tif", tilted_plane(240, 0.25, 3.0), 0.25)
     detect(tmp_path / "half.pt", tmp_path / "out", dtm=fine, threshold="nats:0.5", mc_samples=1)
     prof = profile_of(tmp_path / "out" / "safety.tif")
@@ -555,7 +556,7 @@ def test_a_run_without_its_dataset_needs_a_fixed_threshold(trained, terrains, tm
     _, run_dir, _ = trained
     ckpt = torch.load(run_dir / "last.pt", weights_only=True)
     ckpt["extra_config"]["dataset"] = str(tmp_path / "moved-away")
-    torch.save(ckpt, tmp_path / "portable.pt")
+    save_checkpoint(tmp_path / "portable.pt", ckpt)
     with pytest.raises(HdNetError, match="nats:"):
         detect(tmp_path / "portable.pt", tmp_path / "a", dtm=terrains["ok"])
     assert not (tmp_path / "a").exists()
