@@ -271,7 +271,7 @@ def label_cmd(directory: Path, lander_diameter: float, pad_diameter: float, max_
 @main.command("train")
 @click.argument("dataset", type=click.Path(file_okay=False, path_type=Path))
 @click.option("--out", "run_dir", required=True, type=click.Path(file_okay=False, path_type=Path), help="Run directory (checkpoints, metrics.csv, config.json).")
-@click.option("--profile", type=click.Choice(["paper", "cpu", "tiny"]), default="cpu", show_default=True, help="Training profile: paper (GPU, 512x512, full width), cpu (2-core machine), tiny (tests, demos).")
+@click.option("--profile", type=click.Choice(["paper", "cpu", "tiny"]), default="cpu", show_default=True, help="Training profile: paper (GPU, 512x512, full width), cpu (2-core machine), tiny (tests, demos); docs/hdnet.md lists their settings.")
 @click.option("--epochs", type=int, default=None, help="Epochs (default: the profile's).")
 @click.option("--train-sigma", type=float, default=lidar_defaults.DEFAULT_SIGMA_M, show_default=True, help="Noise level of the training inputs, metres.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of initialisation and shuffling.")
@@ -287,9 +287,16 @@ def train_cmd(dataset: Path, run_dir: Path, profile: str, epochs: int | None, tr
 
     if epochs is not None and epochs <= 0:
         raise HdNetError(f"--epochs must be > 0, got {epochs}")
+    from hdnet.train import load_checkpoint, median_images_per_s
+
     checkpoint = fit(dataset, run_dir, profile_name=profile, epochs=epochs, train_sigma_m=train_sigma, seed=seed,
                      resume=resume, labels=labeling, progress=True, num_workers=num_workers)
-    click.echo(f"training done: {checkpoint} (metrics in {run_dir / 'metrics.csv'})")
+    ckpt = load_checkpoint(checkpoint)
+    timing = ckpt.get("timing", [])
+    rate = median_images_per_s(timing)
+    seconds = sum(float(t["train_seconds"]) for t in timing)
+    speed = "" if rate is None else f"; {rate:.1f} images/s (median over {len(timing)} epochs, {seconds / 60:.1f} min of training steps)"
+    click.echo(f"training done: {checkpoint} (metrics in {run_dir / 'metrics.csv'}){speed}")
 
 
 @main.command("eval")

@@ -24,16 +24,47 @@ from dataclasses import asdict, dataclass
 from typing import Literal
 
 from hdnet import defaults
+from hdnet.augment import AUGMENTATIONS
 from hdnet.errors import HdNetError
+from hdnet.inputs import EXTRA_CHANNELS, HEIGHTS
+
+LR_SCHEDULES: tuple[str, ...] = ("constant", "cosine", "onecycle")
+CLASS_WEIGHTINGS: tuple[str, ...] = ("none", "balanced")
+# torch.optim.lr_scheduler.OneCycleLR defaults (Smith and Topin 2019): warm-up share, start lr =
+# peak / 25, final lr = start / 10^4.
+ONECYCLE_PCT_START = 0.3
+ONECYCLE_DIV_FACTOR = 25.0
+ONECYCLE_FINAL_DIV_FACTOR = 1e4
 
 
 @dataclass(frozen=True)
 class TrainingProfile:
     """One training configuration.
 
-    ``input_size`` (pixels, square) is the size the dataset upsamples to; None = the native DEM size
-    (the model pads it to a multiple of 32 internally). ``width`` scales the channel counts; ``lr`` is
-    the learning rate; ``momentum`` is used by SGD only; ``epochs`` is the default epoch count.
+    The first fields are the paper's knobs: ``input_size`` (pixels, square) is the size the DEM is
+    upsampled to, None = the native DEM size (padded to a multiple of 2**depth); ``width`` scales
+    the channel counts; ``lr`` is the (peak) learning rate; ``momentum`` is used by SGD only;
+    ``epochs`` is the default epoch count.
+
+    The other fields default to the paper's choices, so a profile saved before they existed reads
+    back unchanged:
+
+    * ``lr_schedule``: ``constant``; ``cosine`` (from ``lr`` to 0); ``onecycle`` (Smith and Topin
+      2019, the shape of ``torch.optim.lr_scheduler.OneCycleLR`` with its defaults, in continuous
+      time: cosine warm-up from lr/25 to lr over the first 30 % of the run, then cosine down to
+      lr/25/10^4). Every schedule is a pure function of the (fractional) epoch, set before every
+      optimiser step;
+    * ``depth``: encoder blocks (pooling stages) of the SegNet, 5 = VGG16;
+    * ``dropout_p``: drop probability of the MC-dropout layers, in training and sampling;
+    * ``heights``, ``height_scale_m``, ``extra_channels``: the input representation
+      (``hdnet.inputs``): ``minmax`` = the paper's dataset min-max, ``median``/``plane`` = heights
+      relative to each DEM's median / least-squares plane in units of ``height_scale_m`` metres,
+      plus optional ``slope`` / ``highpass`` channels;
+    * ``augment``: ``none`` or ``d4`` (random rotation/flip of each training DEM and its label);
+    * ``class_weighting``: ``none`` or ``balanced`` (cross-entropy weighted by N / (2 N_c) with the
+      training split's pixel counts N_c of each class);
+    * ``channels_last``: run the network in the channels-last memory format (same numbers, faster
+      convolutions on CPUs).
     """
 
     name: str
@@ -44,18 +75,59 @@ class TrainingProfile:
     momentum: float
     epochs: int
     optimizer: Literal["sgd", "adam"]
-    lr_schedule: Literal["constant", "cosine"] = "constant"
+    lr_schedule: Literal["constant", "cosine", "onecycle"] = "constant"
+    depth: int = len(defaults.ENCODER_CHANNELS)
+    dropout_p: float = defaults.DROPOUT_P
+    heights: Literal["minmax", "median", "plane"] = "minmax"
+    height_scale_m: float = 1.0
+    extra_channels: tuple[str, ...] = ()
+    augment: Literal["none", "d4"] = "none"
+    class_weighting: Literal["none", "balanced"] = "none"
+    channels_last: bool = False
 
-    def learning_rate(self, epoch: int, total_epochs: int) -> float:
-        """Learning rate of ``epoch`` (0-based) in a run of ``total_epochs``: constant, or cosine-annealed
-        from ``lr`` towards 0 (a pure function of the epoch, so a resumed run gets the same rates)."""
-        if self.lr_schedule == "cosine" and total_epochs > 0:
-            return self.lr * 0.5 * (1.0 + math.cos(math.pi * epoch / total_epochs))
-        return self.lr
+    def __post_init__(self) -> None:
+        if self.lr_schedule not in LR_SCHEDULES:
+            raise HdNetError(f"lr_schedule must be one of {', '.join(LR_SCHEDULES)}, got {self.lr_schedule!r}.")
+        if self.class_weighting not in CLASS_WEIGHTINGS:
+            raise HdNetError(f"class_weighting must be one of {', '.join(CLASS_WEIGHTINGS)}, got {self.class_weighting!r}.")
+        if self.augment not in AUGMENTATIONS:
+            raise HdNetError(f"augment must be one of {', '.join(AUGMENTATIONS)}, got {self.augment!r}.")
+        if self.heights not in HEIGHTS:
+            raise HdNetError(f"heights must be one of {', '.join(HEIGHTS)}, got {self.heights!r}.")
+        if isinstance(self.extra_channels, list):
+            object.__setattr__(self, "extra_channels", tuple(self.extra_channels))
+        if any(c not in EXTRA_CHANNELS for c in self.extra_channels):
+            raise HdNetError(f"extra_channels must be names from {', '.join(EXTRA_CHANNELS)}, got {list(self.extra_channels)}.")
+        if isinstance(self.batch_size, bool) or not isinstance(self.batch_size, int) or self.batch_size < 1:
+            raise HdNetError(f"batch_size must be a positive integer, got {self.batch_size!r}.")
+
+    def learning_rate(self, epoch: float, total_epochs: int) -> float:
+        """Learning rate at (fractional, 0-based) ``epoch`` of a run of ``total_epochs``.
+
+        ``epoch`` = completed epochs + fraction of the current epoch's steps done: a pure function of
+        the position in the run, so a resumed run gets the same rates.
+        """
+        if total_epochs <= 0 or self.lr_schedule == "constant":
+            return self.lr
+        t = min(max(epoch / total_epochs, 0.0), 1.0)
+        if self.lr_schedule == "cosine":
+            return self.lr * 0.5 * (1.0 + math.cos(math.pi * t))
+        start = self.lr / ONECYCLE_DIV_FACTOR
+        end = start / ONECYCLE_FINAL_DIV_FACTOR
+        if t < ONECYCLE_PCT_START:
+            return _cosine_between(start, self.lr, t / ONECYCLE_PCT_START)
+        return _cosine_between(self.lr, end, (t - ONECYCLE_PCT_START) / (1.0 - ONECYCLE_PCT_START))
 
     def to_dict(self) -> dict[str, object]:
         """Plain-type dictionary (config.json, checkpoints)."""
-        return asdict(self)
+        out = asdict(self)
+        out["extra_channels"] = list(self.extra_channels)
+        return out
+
+
+def _cosine_between(start: float, end: float, fraction: float) -> float:
+    """Cosine interpolation from ``start`` (fraction 0) to ``end`` (fraction 1)."""
+    return end + (start - end) * 0.5 * (1.0 + math.cos(math.pi * fraction))
 
 
 PAPER = TrainingProfile(
@@ -88,7 +160,8 @@ def get_profile(name: str) -> TrainingProfile:
 
 
 def profile_from_dict(data: dict[str, object]) -> TrainingProfile:
-    """Rebuild a profile saved with ``to_dict`` (e.g. from a checkpoint or config.json)."""
+    """Rebuild a profile saved with ``to_dict`` (e.g. from a checkpoint or config.json); fields a
+    profile saved by an older hd lacks take their defaults (the paper's choices)."""
     try:
         return TrainingProfile(**data)  # type: ignore[arg-type]
     except TypeError as exc:

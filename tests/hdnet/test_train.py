@@ -40,8 +40,9 @@ def test_train_writes_checkpoint_config_and_metrics(tmp_path: Path) -> None:
     assert config["extra_config"] == {"norm_min_m": -1.5, "norm_max_m": 2.0} and config["profile"]["name"] == "tiny"
     rows = list(csv.DictReader((run / "metrics.csv").open()))
     assert [int(r["epoch"]) for r in rows] == [1, 2]
-    assert set(rows[0]) == {"epoch", "train_loss", "val_loss", "val_pixel_accuracy"}
+    assert list(rows[0]) == ["epoch", "train_loss", "val_loss", "val_pixel_accuracy", "val_miou", "lr", "train_images_per_s"]
     assert all(0.0 <= float(r["val_pixel_accuracy"]) <= 1.0 and float(r["train_loss"]) > 0 for r in rows)
+    assert all(0.0 <= float(r["val_miou"]) <= float(r["val_pixel_accuracy"]) and float(r["train_images_per_s"]) > 0 for r in rows)
     model, ckpt = load_trained_model(last)
     assert isinstance(model, BayesianSegNet) and not model.training and ckpt["epoch"] == 2
     assert ckpt["extra_config"]["norm_max_m"] == 2.0
