@@ -84,10 +84,12 @@ def fit(
     labels: str | None = None,
     progress: bool = True,
     num_workers: int = 0,
+    stop_after: int | None = None,
 ) -> Path:
     """Train a model on ``dataset_dir`` at noise level ``train_sigma_m`` (metres); returns ``last.pt``.
 
-    ``profile_name`` is a profile's name or a ``TrainingProfile`` (e.g. a variant in an ablation).
+    ``profile_name`` is a profile's name or a ``TrainingProfile`` (e.g. a variant in an ablation);
+    ``stop_after`` ends this call after that many epochs of the ``epochs``-long schedule (resume later).
 
     Raises:
         HdNetError: a dataset without labels, a sigma not in the dataset, an empty training or
@@ -106,4 +108,4 @@ def fit(
             raise HdNetError(f"{dataset_dir}: the {name} split is empty; build a dataset with more scans.")
     extra = run_data_config(dataset_dir, train_ds.labels, train_ds.sigma_m, spec, train_ds.dem_shape)
     return train(run_dir, train_ds, val_ds, profile, epochs=epochs, seed=seed, resume=resume, progress=progress,
-                 extra_config=extra, num_workers=num_workers)
+                 extra_config=extra, num_workers=num_workers, stop_after=stop_after)

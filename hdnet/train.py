@@ -267,6 +267,7 @@ def train(
     extra_config: dict[str, Any] | None = None,
     num_workers: int = 0,
     class_weights: list[float] | None = None,
+    stop_after: int | None = None,
 ) -> Path:
     """Train to ``epochs`` (default: the profile's) epochs in total; returns the path of ``last.pt``.
 
@@ -275,6 +276,8 @@ def train(
     without it an existing checkpoint in ``run_dir`` is an error. ``extra_config`` (JSON types) is
     stored in config.json and in every checkpoint. ``class_weights`` (one per class) are used with
     ``profile.class_weighting == "balanced"``; without them they are counted from ``train_ds``.
+    ``stop_after`` ends this call after that many completed epochs while the learning-rate schedule
+    still spans ``epochs`` (a run split over several calls; ``resume=True`` continues it exactly).
     """
     total_epochs = profile.epochs if epochs is None else int(epochs)
     if total_epochs < 1:
@@ -347,7 +350,8 @@ def train(
 
         bar = tqdm(total=total_epochs, initial=start_epoch, desc=f"train {profile.name}", unit="epoch")
     n_batches = max(1, len(train_loader))
-    for epoch in range(start_epoch, total_epochs):
+    end_epoch = total_epochs if stop_after is None else max(start_epoch, min(total_epochs, int(stop_after)))
+    for epoch in range(start_epoch, end_epoch):
         train_sampler.set_epoch(epoch)
         net.train()
         sums = torch.zeros(2, dtype=torch.float64, device=device)  # objective sum, its normaliser
