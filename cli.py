@@ -214,7 +214,10 @@ def verify_cmd(directory: Path, recipe: Path | None) -> None:
 @click.option("--max-slope-deg", type=float, default=10.0, show_default=True, help="Critical slope, degrees.")
 @click.option("--max-roughness", type=float, default=0.20, show_default=True, help="Critical roughness, metres.")
 @click.option("--lander", "layout", type=click.Choice(["square", "triangle"]), default="square", show_default=True, help="Pad layout: 4 pads in a square or 3 in a triangle.")
-@click.option("--yaws", type=int, default=None, help="Yaws per symmetry period of the pad layout (default 8).")
+@click.option("--convention", type=click.Choice(["paper", "hd"]), default="paper", show_default=True, help="Label rules: paper (the ALHAT replica the paper used) or hd (sub-pixel geometric convention).")
+@click.option("--baseline-combine", type=click.Choice(["product", "min"]), default=None, help="How the P(safe) baseline combines the nodes under the lander (default: paper product, hd min).")
+@click.option("--gridding", type=click.Choice(["linear", "mean", "max", "nearest"]), default=None, help="Points to DEM: linear interpolation, or the mean, max or most central of each cell's returns (default: the convention's).")
+@click.option("--yaws", type=int, default=None, help="hd convention: yaws per symmetry period of the pad layout (default 8).")
 @click.option("--count-holes", is_flag=True, help="Count terrain below the lander plane as roughness too.")
 @click.option("--dem-size", type=int, default=100, show_default=True, help="DEM side, pixels.")
 @click.option("--dem-spacing", type=float, default=1.0, show_default=True, help="DEM spacing, metres/pixel.")
@@ -224,7 +227,8 @@ def verify_cmd(directory: Path, recipe: Path | None) -> None:
 @friendly_errors
 def label_cmd(directory: Path, lander_diameter: float, pad_diameter: float, max_slope_deg: float, max_roughness: float,
               layout: str, yaws: int | None, count_holes: bool, dem_size: int, dem_spacing: float, workers: int | None,
-              scheduler: str | None, recipe: Path | None = None) -> None:
+              scheduler: str | None, recipe: Path | None = None, convention: str = "paper",
+              baseline_combine: str | None = None, gridding: str | None = None) -> None:
     """Grid every scan into DEMs and add ALHAT labels and the baseline P(safe) to the dataset."""
     from hdlabels import defaults as label_defaults
     from hdlabels.errors import HdLabelsError
@@ -237,7 +241,7 @@ def label_cmd(directory: Path, lander_diameter: float, pad_diameter: float, max_
 
         ctx = click.get_current_context()
         content = ("lander_diameter", "pad_diameter", "max_slope_deg", "max_roughness", "layout", "yaws",
-                   "count_holes", "dem_size", "dem_spacing")
+                   "count_holes", "dem_size", "dem_spacing", "convention", "baseline_combine", "gridding")
         given = [n for n in content if ctx.get_parameter_source(n) == click.core.ParameterSource.COMMANDLINE]
         if given:
             flags = ", ".join("--" + ("lander" if n == "layout" else n.replace("_", "-")) for n in given)
@@ -252,17 +256,23 @@ def label_cmd(directory: Path, lander_diameter: float, pad_diameter: float, max_
         count_holes = bool(settings.get("count_holes", count_holes))
         dem_size = int(settings.get("dem_size", dem_size))
         dem_spacing = float(settings.get("dem_spacing_m", dem_spacing))
+        convention = str(settings.get("convention", "hd"))  # recipes from before conventions: hd
+        baseline_combine = settings.get("baseline_combine", baseline_combine)
+        gridding = settings.get("gridding", gridding)
+    if yaws is not None and convention != "hd":
+        raise HdLabelsError("--yaws applies to --convention hd only (the paper convention turns the lander in 10-degree steps)")
     if workers is not None and workers <= 0:
         raise HdLabelsError(f"--workers must be > 0, got {workers}")
     if dem_size < 2 or not (dem_spacing > 0):
         raise HdLabelsError(f"the DEM must be at least 2 pixels of positive spacing, got {dem_size} x {dem_spacing}")
     lander = Lander(diameter_m=lander_diameter, pad_diameter_m=pad_diameter, max_slope_deg=max_slope_deg,
                     max_roughness_m=max_roughness, layout=layout,  # type: ignore[arg-type]
-                    n_yaws=yaws if yaws is not None else label_defaults.N_YAWS, count_holes=count_holes)
+                    n_yaws=yaws if yaws is not None else label_defaults.N_YAWS, count_holes=count_holes,
+                    convention=convention, baseline_combine=baseline_combine)  # type: ignore[arg-type]
+    grid = DemSpec.for_convention(convention, dem_size, dem_size, dem_spacing, gridding)
     progress = _ScanProgress("labels")
     try:
-        summary = label_dataset(directory, lander, DemSpec(dem_size, dem_size, dem_spacing), workers=workers,
-                                scheduler=scheduler, progress=progress)
+        summary = label_dataset(directory, lander, grid, workers=workers, scheduler=scheduler, progress=progress)
     finally:
         progress.close()
     click.echo(summary.paragraph())

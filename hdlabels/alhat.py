@@ -1,22 +1,32 @@
-"""ALHAT-style hazard maps of a DEM: slope, roughness, safe/unsafe labels and P(safe).
+"""ALHAT hazard maps of a DEM: slope, roughness, safe/unsafe labels and the P(safe) baseline.
 
 A replica of the deterministic slope / roughness evaluation and of the probabilistic roughness
 evaluation of Ivanov, Huertas & Carson (2013), as used by the paper for its labels (clean DEM)
-and its baseline (noisy DEM). For every aiming point (DEM pixel) and every sampled yaw:
+and its baseline (noisy DEM), in either of two conventions (``Lander.convention``; the sampling
+tables of each come from ``hdlabels.lander.geometry``). For every aiming point (DEM pixel) and every
+placement of the pads around it:
 
-1. each pad rests on the highest bilinear terrain under its disk (rim samples + nodes inside);
-2. the lander rests on a plane through three pads such that no remaining pad's contact point is
-   above it (the tipping rule; a square lander rocks on its higher diagonal, both ways are kept);
+1. each pad rests on the highest terrain under it (hd: bilinear terrain over the pad disk; paper:
+   the highest node of the pad's pixel disk);
+2. the lander rests on a plane through three pads such that no remaining pad is above it (the
+   tipping rule; a square lander rocks on its higher diagonal, both ways are kept);
 3. slope = angle of that plane's normal to vertical; roughness = largest perpendicular height of
-   the terrain nodes under the body (centres within the lander radius) above that plane.
+   the roughness nodes (hd: the body disk; paper: the nodes strictly inside the pad polygon)
+   above that plane;
+4. the baseline's probability that the configuration is safe combines the per-node probabilities
+   ``Phi((r_crit - r_n) / s)``, with ``r_n`` the node's signed perpendicular height (terrain below
+   the plane raises the probability; ``count_holes`` concerns the labels only) and ``s`` the noise
+   scale (paper: ``c sigma``, ``c`` the z-component of the plane's unit normal; hd: ``sigma``), by
+   their product (Ivanov et al. 2013, Eq. 13) or by the worst node ("min"). The hd convention's
+   "min" baseline keeps its original form, ``Phi((r_crit - roughness) / sigma)`` from the maps.
 
-Site slope and roughness are the worst case over yaws and resting planes. ``docs/labels.md``
-holds the equations, units and choices. Everything is in pixels internally (see ``lander.py``);
-heights are metres.
+Site slope and roughness are the worst case over configurations; P(safe) is the deterministic
+slope test times the smallest configuration probability. ``docs/labels.md`` holds the equations,
+units and choices. Everything is in pixels internally (see ``lander.py``); heights are metres.
 
 Two interchangeable back ends compute the same numbers: vectorised numpy (loops over yaws, pads
-and body offsets, each an array operation over all sites) and, when numba is installed, the
-same loops compiled (``backend="numba"``, the default via ``"auto"``).
+and nodes, each an array operation over all sites) and, when numba is installed, the same loops
+compiled (``backend="numba"``, the default via ``"auto"``).
 """
 
 from __future__ import annotations
@@ -27,7 +37,7 @@ from typing import Literal
 
 import numpy as np
 from scipy import ndimage
-from scipy.special import ndtr
+from scipy.special import log_ndtr, ndtr
 
 from hdlabels import defaults
 from hdlabels.errors import HdLabelsError
@@ -40,6 +50,8 @@ except ImportError:  # pragma: no cover - exercised only where numba is absent
 
 Backend = Literal["auto", "numba", "numpy"]
 
+# P(safe) modes of the kernels.
+_P_NONE, _P_PRODUCT, _P_MIN = 0, 1, 2
 
 
 @dataclass(frozen=True)
@@ -47,7 +59,7 @@ class HazardMaps:
     """Per-pixel hazard maps of one DEM (same shape as the DEM).
 
     Attributes:
-        slope_rad: float32, worst-case resting slope over yaws, radians; NaN where invalid.
+        slope_rad: float32, worst-case resting slope over the lander configurations, radians; NaN where invalid.
         roughness_m: float32, worst-case roughness (perpendicular height above the lander plane),
             metres, >= 0; NaN where invalid.
         label: uint8, ``LABEL_SAFE`` (1) iff slope < max slope and roughness < max roughness,
@@ -73,39 +85,53 @@ def hazard_maps(
     Args:
         dem: (H, W) terrain heights, metres, north-up; NaN marks cells without data.
         spacing_m: grid spacing, metres per pixel.
-        lander: lander geometry and thresholds.
+        lander: lander geometry, thresholds and convention.
         backend: ``"numba"``, ``"numpy"`` or ``"auto"`` (numba when installed).
 
     Returns:
         HazardMaps with slope (radians), roughness (metres) and the uint8 label.
     """
-    z, valid, geo = _prepare(dem, spacing_m, lander)
-    slope, rough = _worst_case(z, geo, lander, spacing_m, _choose(backend))
-    shape = z.shape
-    b = geo.band_px
-    slope_full = np.full(shape, np.nan, dtype=np.float64)
-    rough_full = np.full(shape, np.nan, dtype=np.float64)
-    slope_full[b : shape[0] - b, b : shape[1] - b] = slope
-    rough_full[b : shape[0] - b, b : shape[1] - b] = rough
-    slope_full[~valid] = np.nan
-    rough_full[~valid] = np.nan
-    safe = (slope_full < math.radians(lander.max_slope_deg)) & (rough_full < lander.max_roughness_m)
-    label = np.where(safe, defaults.LABEL_SAFE, defaults.LABEL_UNSAFE).astype(np.uint8)
-    label[~valid] = defaults.LABEL_INVALID
-    return HazardMaps(slope_full.astype(np.float32), rough_full.astype(np.float32), label)
+    return _evaluate(dem, spacing_m, lander, None, _choose(backend))[0]
+
+
+def safety_probability(
+    dem: np.ndarray, spacing_m: float, sigma_m: float, lander: Lander = Lander(), *, backend: Backend = "auto"
+) -> np.ndarray:
+    """Probabilistic baseline P(safe) of a noisy DEM whose heights have 1-sigma noise ``sigma_m`` (metres).
+
+    ``P = [slope ok] * min over configurations of combine_n Phi((r_crit - r_n) / s)`` with the
+    lander's convention and ``baseline_combine`` (module docstring). ``sigma_m = 0`` gives the
+    deterministic roughness test. Returns float32 in [0, 1], NaN where invalid; the baseline map is P >= 0.5.
+    """
+    return hazard_and_probability(dem, spacing_m, sigma_m, lander, backend=backend)[1]
+
+
+def hazard_and_probability(
+    dem: np.ndarray, spacing_m: float, sigma_m: float, lander: Lander = Lander(), *, backend: Backend = "auto"
+) -> tuple[HazardMaps, np.ndarray]:
+    """``hazard_maps`` and ``safety_probability`` of one DEM from a single pass over its sites."""
+    _check_sigma(sigma_m)
+    maps, p = _evaluate(dem, spacing_m, lander, float(sigma_m), _choose(backend))
+    assert p is not None
+    return maps, p
 
 
 def probability_from_maps(maps: HazardMaps, sigma_m: float, lander: Lander = Lander()) -> np.ndarray:
-    """P(safe) from the worst-case maps of a noisy DEM whose heights have 1-sigma noise ``sigma_m``.
+    """P(safe) of the worst-node ("min") baseline from the worst-case maps of a noisy DEM.
 
     ``P = [slope < max slope] * Phi((max roughness - roughness) / sigma_m)``: the deterministic slope
-    test times the Gaussian probability that the true roughness is below its limit. Taking the
-    worst case (minimum P) over yaws and resting planes equals this expression evaluated at the
-    worst-case slope and roughness, because it decreases in both. ``sigma_m = 0`` gives the
-    deterministic test. Returns float32 in [0, 1], NaN where invalid.
+    test times the Gaussian probability that the true roughness is below its limit. For the hd
+    convention, whose noise scale is ``sigma_m`` for every configuration, taking the worst case
+    over configurations equals this expression at the worst-case slope and roughness, because it
+    decreases in both. The product combination and the paper convention's per-configuration noise
+    scale need the DEM itself: use ``safety_probability``.
     """
-    if not (isinstance(sigma_m, (int, float)) and math.isfinite(sigma_m) and sigma_m >= 0):
-        raise HdLabelsError(f"DEM noise sigma must be a finite number of metres >= 0, got {sigma_m!r}.")
+    _check_sigma(sigma_m)
+    if lander.convention != "hd" or lander.baseline_combine != "min":
+        raise HdLabelsError(
+            "P(safe) follows from the hazard maps only for the hd convention with the 'min' combination; "
+            "use safety_probability(dem, ...)"
+        )
     slope = maps.slope_rad.astype(np.float64)
     rough = maps.roughness_m.astype(np.float64)
     slope_ok = slope < math.radians(lander.max_slope_deg)
@@ -117,17 +143,6 @@ def probability_from_maps(maps: HazardMaps, sigma_m: float, lander: Lander = Lan
     p = np.where(slope_ok, p_rough, 0.0)
     p[~maps.valid] = np.nan
     return p.astype(np.float32)
-
-
-def safety_probability(
-    dem: np.ndarray, spacing_m: float, sigma_m: float, lander: Lander = Lander(), *, backend: Backend = "auto"
-) -> np.ndarray:
-    """Probabilistic baseline P(safe) of a noisy DEM (float32 in [0, 1], NaN where invalid).
-
-    Deterministic slope test times P(roughness < limit) under Gaussian DEM noise ``sigma_m``
-    (metres), worst case over yaws; see ``probability_from_maps``. The baseline map is P >= 0.5.
-    """
-    return probability_from_maps(hazard_maps(dem, spacing_m, lander, backend=backend), sigma_m, lander)
 
 
 def valid_sites(dem: np.ndarray, spacing_m: float, lander: Lander = Lander()) -> np.ndarray:
@@ -198,30 +213,110 @@ def _resting_planes(heights: np.ndarray, geo: Geometry, n_pads: int) -> tuple[np
     return np.stack(gx), np.stack(gy), np.stack(c)
 
 
-def _worst_case(z: np.ndarray, geo: Geometry, lander: Lander, spacing_m: float, backend: str) -> tuple[np.ndarray, np.ndarray]:
-    """Worst-case slope (rad) and roughness (m) over the interior sites (band removed)."""
+def _check_sigma(sigma_m: float) -> None:
+    if isinstance(sigma_m, bool) or not (isinstance(sigma_m, (int, float)) and math.isfinite(sigma_m) and sigma_m >= 0):
+        raise HdLabelsError(f"DEM noise sigma must be a finite number of metres >= 0, got {sigma_m!r}.")
+
+
+def _evaluate(
+    dem: np.ndarray, spacing_m: float, lander: Lander, sigma_m: float | None, backend: str
+) -> tuple[HazardMaps, np.ndarray | None]:
+    """The hazard maps and, when ``sigma_m`` is given, P(safe) (float32, NaN where invalid)."""
+    z, valid, geo = _prepare(dem, spacing_m, lander)
+    legacy_min = lander.convention == "hd" and lander.baseline_combine == "min"
+    mode = _P_NONE
+    if sigma_m and not legacy_min:
+        mode = _P_PRODUCT if lander.baseline_combine == "product" else _P_MIN
+    slope, rough, score = _worst_case(z, geo, lander, spacing_m, backend, mode, sigma_m or 0.0)
+    b = geo.band_px
+    inner = (slice(b, z.shape[0] - b), slice(b, z.shape[1] - b))
+
+    def full(a: np.ndarray) -> np.ndarray:
+        out = np.full(z.shape, np.nan)
+        out[inner] = a
+        out[~valid] = np.nan
+        return out
+
+    slope_full, rough_full = full(slope), full(rough)
+    safe = (slope_full < math.radians(lander.max_slope_deg)) & (rough_full < lander.max_roughness_m)
+    label = np.where(safe, defaults.LABEL_SAFE, defaults.LABEL_UNSAFE).astype(np.uint8)
+    label[~valid] = defaults.LABEL_INVALID
+    maps = HazardMaps(slope_full.astype(np.float32), rough_full.astype(np.float32), label)
+    if sigma_m is None:
+        return maps, None
+    if legacy_min:
+        return maps, probability_from_maps(maps, sigma_m, lander)
+    if mode == _P_NONE:  # sigma 0: every node's probability is 0 or 1, whichever the combination
+        p = (rough_full < lander.max_roughness_m).astype(np.float64)
+    else:
+        p = _score_to_probability(full(score), mode)
+    # The slope test: the replica keeps a site whose slope equals the limit (slope > limit is
+    # unsafe); hd's own convention is strict (slope < limit is safe), as for the labels.
+    limit = math.radians(lander.max_slope_deg)
+    slope_ok = slope_full <= limit if lander.convention == "paper" else slope_full < limit
+    p = np.where(slope_ok, p, 0.0)
+    p[~valid] = np.nan
+    return maps, p.astype(np.float32)
+
+
+def _score_to_probability(score: np.ndarray, mode: int) -> np.ndarray:
+    """P of the kernels' per-site score: product mode, the smallest sum of log Phi over a
+    configuration's nodes (P = exp); min mode, the smallest standardised margin u (P = Phi(u))."""
+    with np.errstate(invalid="ignore"):
+        return np.exp(score) if mode == _P_PRODUCT else ndtr(score)
+
+
+def _worst_case(
+    z: np.ndarray, geo: Geometry, lander: Lander, spacing_m: float, backend: str, mode: int, sigma_m: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Worst-case slope (rad), roughness (m) and P score over the interior sites (band removed)."""
     b = geo.band_px
     hv, wv = z.shape[0] - 2 * b, z.shape[1] - 2 * b
+    scale_by_c = lander.convention == "paper"
+    inv_sigma = 1.0 / sigma_m if sigma_m > 0 else 0.0  # unused when sigma is 0 (no P mode)
+    score = np.zeros((hv, wv))
     if backend == "numba":
         z = z.astype(np.float32)  # half the memory traffic, twice the SIMD width; ~1e-6 m rounding
         heights = np.empty((geo.tap_w.shape[0], hv, wv), dtype=np.float32)
         _pad_heights_jit(z, b, geo.tap_di, geo.tap_dj, geo.tap_w.astype(np.float32), heights)
         slope = np.empty((hv, wv))
         rough = np.empty((hv, wv))
-        _worst_case_jit(z, b, heights, lander.n_pads, geo.plane_weights, geo.triples, geo.body_di, geo.body_dj,
-                        lander.count_holes, spacing_m, slope, rough)
-        return slope, rough
+        _worst_case_jit(z, b, heights, lander.n_pads, geo.plane_weights, geo.triples, geo.node_ptr, geo.node_di,
+                        geo.node_dj, lander.count_holes, spacing_m, mode, lander.max_roughness_m, inv_sigma,
+                        scale_by_c, _LOG_PHI, slope, rough, score)
+        return slope, rough, score
     heights = np.empty((geo.tap_w.shape[0], hv, wv))
     _pad_heights_numpy(z, b, geo, heights)
     gx, gy, c = _resting_planes(heights, geo, lander.n_pads)
-    dmax, dmin = _deviations_numpy(z, b, geo, gx, gy, c, lander.count_holes)
+    n_cfg = gx.shape[0] // geo.n_yaws
     tan2 = (gx * gx + gy * gy) / (spacing_m * spacing_m)
-    height = np.maximum(dmax, 0.0)
-    if lander.count_holes:
-        height = np.maximum(height, -dmin)
+    sec = np.sqrt(1.0 + tan2)
     slope = np.arctan(np.sqrt(tan2.max(axis=0)))
-    rough = (height / np.sqrt(1.0 + tan2)).max(axis=0)
-    return slope, rough
+    rough = np.zeros((hv, wv))
+    best = np.full((hv, wv), np.inf)
+    rc = lander.max_roughness_m
+    for q in range(gx.shape[0]):
+        di, dj = geo.nodes(q // n_cfg)
+        dev = np.stack([z[b + a : b + a + hv, b + e : b + e + wv] for a, e in zip(di, dj)])
+        dev = dev - c[q] - gx[q] * dj[:, None, None] + gy[q] * di[:, None, None]
+        height = np.maximum(dev.max(axis=0), 0.0)
+        if lander.count_holes:
+            height = np.maximum(height, -dev.min(axis=0))
+        r_q = height / sec[q]
+        np.maximum(rough, r_q, out=rough)
+        if mode == _P_NONE:
+            continue
+        # Standardised margin of a node at perpendicular height r: u = (rc - r) / s, with the noise
+        # scale s = c sigma (paper, c = 1 / sec) or sigma (hd).
+        scale = sec[q] * inv_sigma if scale_by_c else inv_sigma
+        if mode == _P_PRODUCT:
+            q_score = log_ndtr((rc - dev / sec[q]) * scale).sum(axis=0)
+        else:  # the worst node: the largest signed height above the plane
+            q_score = (rc - dev.max(axis=0) / sec[q]) * scale
+        np.minimum(best, q_score, out=best)
+    if mode != _P_NONE:
+        score = best
+    return slope, rough, score
 
 
 def _pad_heights_numpy(z: np.ndarray, b: int, geo: Geometry, out: np.ndarray) -> None:
@@ -241,20 +336,25 @@ def _pad_heights_numpy(z: np.ndarray, b: int, geo: Geometry, out: np.ndarray) ->
         out[p] = best
 
 
-def _deviations_numpy(
-    z: np.ndarray, b: int, geo: Geometry, gx: np.ndarray, gy: np.ndarray, c: np.ndarray, count_holes: bool
-) -> tuple[np.ndarray, np.ndarray]:
-    """Max and min vertical height (m) of the body nodes above each resting plane, numpy."""
-    hv, wv = gx.shape[1:]
-    dmax = np.full(gx.shape, -np.inf)
-    dmin = np.full(gx.shape, np.inf)
-    for di, dj in zip(geo.body_di, geo.body_dj):
-        znode = z[b + di : b + di + hv, b + dj : b + dj + wv]
-        dev = znode - c - gx * dj + gy * di  # node at map vector (x, y) = (dj, -di)
-        np.maximum(dmax, dev, out=dmax)
-        if count_holes:
-            np.minimum(dmin, dev, out=dmin)
-    return dmax, dmin
+# log Phi as a piecewise cubic on a grid of step 1/32 (cubic Hermite through the exact values and
+# slopes, stored as polynomial coefficients so one lookup is one cache line; absolute error below
+# 1e-9 per node; scipy's log_ndtr in the numpy back end). Below -40, log Phi < -800 and any product
+# is 0.0 in float64 whatever the exact value; above 8.5, log Phi > -1e-17, i.e. 0.
+_U_LO, _U_HI, _U_STEP = -40.0, 8.5, 1.0 / 32.0
+
+
+def _log_phi_coefficients() -> np.ndarray:
+    """(n + 1) * 4 coefficients: log Phi(LO + (k + t) STEP) = c0 + t (c1 + t (c2 + t c3)), t in [0, 1]."""
+    u = np.arange(_U_LO, _U_HI + _U_STEP / 2, _U_STEP)
+    f = log_ndtr(u)
+    d = np.exp(-0.5 * u**2 - 0.5 * math.log(2.0 * math.pi) - f) * _U_STEP  # d log Phi / dt
+    f0, f1, d0, d1 = f[:-1], f[1:], d[:-1], d[1:]
+    coef = np.stack([f0, d0, 3.0 * (f1 - f0) - 2.0 * d0 - d1, 2.0 * (f0 - f1) + d0 + d1], axis=1)
+    coef = np.vstack([coef, [f[-1], 0.0, 0.0, 0.0]])  # u = HI exactly lands on the last knot
+    return np.ascontiguousarray(coef.ravel())
+
+
+_LOG_PHI = _log_phi_coefficients()
 
 
 def _pad_heights_loops(z, b, tap_di, tap_dj, tap_w, out):  # pragma: no cover - compiled by numba
@@ -277,12 +377,13 @@ def _pad_heights_loops(z, b, tap_di, tap_dj, tap_w, out):  # pragma: no cover - 
                     row[j] = max(row[j], v)
 
 
-def _worst_case_loops(z, b, heights, n_pads, plane_weights, triples, body_di, body_dj, count_holes,
-                      spacing, slope, rough):  # pragma: no cover - compiled by numba
-    """Resting planes, slope and roughness, worst case over yaws, as explicit loops (numba).
+def _worst_case_loops(z, b, heights, n_pads, plane_weights, triples, node_ptr, node_di, node_dj, count_holes,
+                      spacing, mode, rc, inv_sigma, scale_by_c, log_phi, slope, rough, score):  # pragma: no cover - compiled by numba
+    """Resting planes, slope, roughness and the P score, worst case over configurations (numba).
 
-    Same numbers as ``_resting_planes`` + ``_deviations_numpy`` + the reduction in ``_worst_case``;
-    rows are processed one at a time so every working array stays in the L1 cache.
+    Same numbers as ``_worst_case``'s numpy path; rows are processed one at a time so every
+    working array stays in the L1 cache. ``score``: product mode, the smallest sum over a
+    configuration's nodes of log Phi(u); min mode, the smallest u of any node.
     """
     n_yaws = plane_weights.shape[0]
     hv, wv = slope.shape
@@ -292,8 +393,12 @@ def _worst_case_loops(z, b, heights, n_pads, plane_weights, triples, body_di, bo
     c = np.empty((n_cfg, wv), dtype=z.dtype)
     dmax = np.empty(wv, dtype=z.dtype)
     dmin = np.empty(wv, dtype=z.dtype)
+    acc = np.empty(wv)
+    ua = np.empty(wv)
+    ub = np.empty(wv)
     slope[:, :] = 0.0
     rough[:, :] = 0.0
+    score[:, :] = np.inf
     inv_s2 = 1.0 / (spacing * spacing)
     for i in range(hv):
         for m in range(n_yaws):
@@ -319,9 +424,23 @@ def _worst_case_loops(z, b, heights, n_pads, plane_weights, triples, body_di, bo
                 gxk, gyk, ck = gx[k], gy[k], c[k]
                 dmax[:] = -np.inf
                 dmin[:] = np.inf
-                for n in range(body_di.shape[0]):
-                    di = body_di[n]
-                    dj = body_dj[n]
+                if mode == 1:
+                    # u = ua - ub * h for a node at vertical height h above the plane (metres):
+                    # u = (rc - h cos) / s with s = cos sigma (paper) or sigma (hd).
+                    # In table units: x = (u - LO) / STEP = ua - ub * h, clamped to the table.
+                    for j in range(wv):
+                        tan2 = (gxk[j] * gxk[j] + gyk[j] * gyk[j]) * inv_s2
+                        sec = np.sqrt(1.0 + tan2)
+                        if scale_by_c:
+                            ua[j] = (rc * sec * inv_sigma - _U_LO) * (1.0 / _U_STEP)
+                            ub[j] = inv_sigma * (1.0 / _U_STEP)
+                        else:
+                            ua[j] = (rc * inv_sigma - _U_LO) * (1.0 / _U_STEP)
+                            ub[j] = inv_sigma / sec * (1.0 / _U_STEP)
+                        acc[j] = 0.0
+                for n in range(node_ptr[m], node_ptr[m + 1]):
+                    di = node_di[n]
+                    dj = node_dj[n]
                     zr = z[i + b + di, b + dj : b + dj + wv]
                     if count_holes:
                         for j in range(wv):
@@ -335,13 +454,28 @@ def _worst_case_loops(z, b, heights, n_pads, plane_weights, triples, body_di, bo
                             dev = zr[j] - ck[j] - gxk[j] * dj + gyk[j] * di
                             if dev > dmax[j]:
                                 dmax[j] = dev
+                    if mode == 1:  # acc += log Phi(u), the piecewise cubic of _LOG_PHI
+                        for j in range(wv):
+                            dev = zr[j] - ck[j] - gxk[j] * dj + gyk[j] * di
+                            x = min(max(ua[j] - ub[j] * dev, 0.0), (_U_HI - _U_LO) / _U_STEP)
+                            q = int(x)
+                            t = x - q
+                            q *= 4
+                            acc[j] += log_phi[q] + t * (log_phi[q + 1] + t * (log_phi[q + 2] + t * log_phi[q + 3]))
                 for j in range(wv):
                     tan2 = (gxk[j] * gxk[j] + gyk[j] * gyk[j]) * inv_s2
                     height = max(dmax[j], 0.0)
                     if count_holes:
                         height = max(height, -dmin[j])
+                    r = height / np.sqrt(1.0 + tan2)
                     slope[i, j] = max(slope[i, j], tan2)  # tan^2 for now; arctan at the end
-                    rough[i, j] = max(rough[i, j], height / np.sqrt(1.0 + tan2))
+                    rough[i, j] = max(rough[i, j], r)
+                    if mode == 1:
+                        score[i, j] = min(score[i, j], acc[j])
+                    elif mode == 2:  # the worst node: the largest signed height above the plane
+                        sec = np.sqrt(1.0 + tan2)
+                        scale = sec * inv_sigma if scale_by_c else inv_sigma
+                        score[i, j] = min(score[i, j], (rc - dmax[j] / sec) * scale)
     for i in range(hv):
         for j in range(wv):
             slope[i, j] = np.arctan(np.sqrt(slope[i, j]))

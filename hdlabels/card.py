@@ -53,7 +53,8 @@ def render_card(directory: str | os.PathLike, recipe: Recipe, machine: str = "")
             f"{counts['safe'] / total * 100:.1f}% safe, {counts['unsafe'] / total * 100:.1f}% unsafe, "
             f"{counts['invalid'] / total * 100:.1f}% invalid of {total:,} DEM pixels; "
             f"safe fraction of labelled pixels {lab['safe_fraction'] * 100:.1f}%.",
-            f"  Lander: {json.dumps(lab['lander'])}.",
+            f"  Convention: {lab.get('convention', 'hd')}; DEM: {json.dumps(lab.get('dem', {}))}; "
+            f"lander: {json.dumps(lab['lander'])}.",
             f"  ALHAT baseline (P(safe) ≥ 0.5) safe fraction: {base}.",
         ]
     dtm = m["dtm"]
@@ -61,7 +62,7 @@ def render_card(directory: str | os.PathLike, recipe: Recipe, machine: str = "")
                if cfg.get("dtm_path") is None else f"`{dtm.get('name')}` (sha256 {dtm.get('sha256')})")
     licence = PROCEDURAL_LICENCE if cfg.get("dtm_path") is None else "that of the DTM you supplied (check its source)"
     lines = [
-        f"# Dataset card: {recipe.name}",
+        f"# Dataset card: {recipe.name} (recipe version {recipe.version})",
         "",
         recipe.description or "",
         "",

@@ -23,7 +23,32 @@ MAX_ROUGHNESS_M: float = 0.20
 # Lander layout: 4 pads in a square (ALHAT / Morpheus); a 3-pad triangle is the option.
 LAYOUT: str = "square"
 
-# --- Evaluation choices (hd choice; docs/labels.md) -------------------------------------------------
+# --- Label conventions (docs/labels.md "Two conventions") -------------------------------------------
+# "paper": the ALHAT replica the paper's numbers rest on (the paper author's public pydem library at
+# commit e7734ae, April 2023, docs/references.md); "hd": hd's own geometric convention.
+CONVENTIONS: tuple[str, ...] = ("paper", "hd")
+CONVENTION: str = "paper"
+# How the baseline combines the per-node probabilities Phi((r_crit - r) / s) of one lander
+# configuration: "product" (Ivanov et al. 2013, Eq. 13; the paper's replica) or "min" (worst node).
+BASELINE_COMBINES: tuple[str, ...] = ("product", "min")
+BASELINE_COMBINE: dict[str, str] = {"paper": "product", "hd": "min"}
+# How points become a DEM: "linear" (the detector's triangulation interpolated at cell centres),
+# "mean", "max" or "nearest" (the points falling in each cell, binned). The paper convention's
+# choice is the one whose DEM keeps the paper's noise level: the paper's noisy DEMs carry 1-sigma
+# noise of 1.67 / 3 / 7 cm and its baseline uses that sigma as the DEM's noise. Measured on flat
+# terrain (docs/labels.md, "Gridding"): linear keeps 0.70 sigma, mean 0.89, max 1.01 with a
+# +0.25 sigma bias, nearest 1.00 without bias; nearest also brings the baseline closest to the
+# paper's Table 1 (with max a near tie).
+GRIDDINGS: tuple[str, ...] = ("linear", "mean", "max", "nearest")
+GRIDDING: dict[str, str] = {"paper": "nearest", "hd": "linear"}
+
+# --- Paper convention (the replica's rules, docs/labels.md "The paper convention") ------------------
+# Lander orientations are evaluated every 10 degrees over a full turn (the replica's default step).
+PAPER_ORIENTATION_STEP_DEG: float = 10.0
+# Deterministic labels ignore terrain below the lander plane (the replica's default at that commit).
+PAPER_NEGATIVE_ROUGHNESS_UNSAFE: bool = False
+
+# --- Evaluation choices of the hd convention (hd choice; docs/labels.md) ---------------------------
 # Yaws per symmetry period of the pad layout (90 deg for the square, 120 deg for the triangle):
 # 8 gives 11.25 deg steps, i.e. pad centres 0.88 m apart along their 4.5 m circle, one pad per pixel.
 N_YAWS: int = 8

@@ -1,11 +1,19 @@
-"""Organised flash-LiDAR points to a north-up DEM by linear interpolation over the detector's grid.
+"""Organised flash-LiDAR points to a north-up DEM, by one of three griddings.
 
-The detector's own grid is a triangulation of its returns: each 2x2 block of neighbouring
-returns is a quad, split into two triangles along the diagonal that the Delaunay (empty
-circumcircle) test prefers, so on a regular, convex scan the result equals the Delaunay
-triangulation that ``scipy.interpolate.LinearNDInterpolator`` builds. A DEM cell takes the value of
-the plane through the triangle that contains its centre. Cells inside no triangle (outside the
-scan, or under a missing return) stay NaN: nothing is extrapolated.
+* ``"linear"``: linear interpolation over the detector's own grid. Each 2x2 block of neighbouring
+  returns is a quad, split into two triangles along the diagonal that the Delaunay (empty
+  circumcircle) test prefers, so on a regular, convex scan the result equals the Delaunay
+  triangulation that ``scipy.interpolate.LinearNDInterpolator`` builds. A DEM cell takes the value
+  of the plane through the triangle that contains its centre. Cells inside no triangle (outside
+  the scan, or under a missing return) stay NaN: nothing is extrapolated.
+* ``"mean"`` / ``"max"`` / ``"nearest"``: binning. Every return falls in the cell whose square
+  contains it; a cell takes the mean, the highest, or the most central (closest to the cell centre)
+  height of its returns. A cell without a return of its own (the
+  returns are sparser than the cells) takes the linear interpolation at its centre, so binning
+  never leaves a hole where interpolation would not.
+
+Interpolation averages neighbouring returns and keeps less of the range noise than binning
+(docs/labels.md, "Gridding", has the residual DEM noise of each, measured on flat terrain).
 """
 
 from __future__ import annotations
@@ -42,6 +50,7 @@ def grid_points(
     shape: tuple[int, int] = (defaults.DEM_ROWS, defaults.DEM_COLS),
     spacing_m: float = defaults.DEM_SPACING_M,
     *,
+    method: str = "linear",
     backend: str = "auto",
 ) -> np.ndarray:
     """Grid organised LiDAR returns into a DEM (float32, metres, NaN where unsupported).
@@ -51,10 +60,12 @@ def grid_points(
             y north, z up, metres), in detector order; NaN where there is no return.
         shape: (rows, cols) of the DEM.
         spacing_m: DEM spacing, metres per pixel; the DEM is north-up and centred at (0, 0).
-        backend: ``"numba"``, ``"numpy"`` or ``"auto"`` (numba when installed).
+        method: ``"linear"`` (interpolation of the triangle containing each cell centre),
+            ``"mean"`` or ``"max"`` (of the returns falling in each cell); see the module docstring.
+        backend: ``"numba"``, ``"numpy"`` or ``"auto"`` (numba when installed); linear only.
 
     Returns:
-        (rows, cols) float32 heights: linear interpolation of the triangle containing each cell centre.
+        (rows, cols) float32 heights.
     """
     pts = np.asarray(points)
     if pts.ndim != 3 or pts.shape[2] != 3 or pts.shape[0] < 2 or pts.shape[1] < 2:
@@ -63,8 +74,15 @@ def grid_points(
         raise HdLabelsError(f"DEM shape must be two positive integers, got {shape!r}.")
     if not (math.isfinite(spacing_m) and spacing_m > 0):
         raise HdLabelsError(f"DEM spacing must be a finite positive number of metres per pixel, got {spacing_m!r}.")
+    if method not in defaults.GRIDDINGS:
+        raise HdLabelsError(f"Unknown gridding {method!r}: use one of {', '.join(defaults.GRIDDINGS)}.")
     pts = np.ascontiguousarray(pts, dtype=np.float64)
     rows, cols = int(shape[0]), int(shape[1])
+    binned = None
+    if method != "linear":
+        binned = bin_points(pts.reshape(-1, 3), (rows, cols), float(spacing_m), method)
+        if not np.isnan(binned).any():
+            return binned
     dem = np.full((rows, cols), np.nan)
     if backend == "auto":
         backend = "numba" if numba is not None else "numpy"
@@ -76,7 +94,50 @@ def grid_points(
         _rasterise_numpy(_triangles(pts), float(spacing_m), dem)
     else:
         raise HdLabelsError(f"Unknown back end {backend!r}: use 'auto', 'numba' or 'numpy'.")
-    return dem.astype(np.float32)
+    dem = dem.astype(np.float32)
+    if binned is not None:  # cells without a return of their own take the interpolated height
+        dem = np.where(np.isnan(binned), dem, binned)
+    return dem
+
+
+def bin_points(points: np.ndarray, shape: tuple[int, int], spacing_m: float, statistic: str) -> np.ndarray:
+    """Mean, highest or most central height (metres) of the points falling in each DEM cell; NaN if none.
+
+    ``statistic``: ``"mean"``, ``"max"`` or ``"nearest"`` (the point closest to the cell centre in x, y).
+
+    ``points`` is (N, 3) in the scan frame, NaN rows ignored. Cell (i, j) holds the points with
+    ``(j - (W - 1) / 2 - 1/2) s <= x < (j - (W - 1) / 2 + 1/2) s`` and
+    ``((H - 1) / 2 - i - 1/2) s < y <= ((H - 1) / 2 - i + 1/2) s`` (its square around its centre).
+    Returns float32 (H, W).
+    """
+    rows, cols = shape
+    pts = points[np.isfinite(points).all(axis=1)]
+    j = np.floor(pts[:, 0] / spacing_m + cols / 2.0)
+    i = np.floor(rows / 2.0 - pts[:, 1] / spacing_m)
+    inside = (i >= 0) & (i < rows) & (j >= 0) & (j < cols)
+    cell = (i[inside] * cols + j[inside]).astype(np.int64)
+    z = pts[inside, 2]
+    count = np.bincount(cell, minlength=rows * cols)
+    if statistic == "mean":
+        with np.errstate(invalid="ignore", divide="ignore"):
+            dem = np.bincount(cell, weights=z, minlength=rows * cols) / count
+    elif statistic == "max":
+        dem = np.full(rows * cols, -np.inf)
+        np.maximum.at(dem, cell, z)
+    else:  # nearest: the return closest (horizontally) to the cell centre
+        fx = pts[inside, 0] / spacing_m + cols / 2.0 - (j[inside] + 0.5)
+        fy = rows / 2.0 - pts[inside, 1] / spacing_m - (i[inside] + 0.5)
+        dist = fx * fx + fy * fy
+        best = np.full(rows * cols, np.inf)
+        np.minimum.at(best, cell, dist)
+        first = np.full(rows * cols, cell.size)  # among equally central returns, the first in detector order
+        candidates = np.flatnonzero(dist == best[cell])
+        np.minimum.at(first, cell[candidates], candidates)
+        dem = np.full(rows * cols, np.nan)
+        has = first < cell.size
+        dem[has] = z[first[has]]
+    dem[count == 0] = np.nan
+    return dem.reshape(rows, cols).astype(np.float32)
 
 
 def _triangles(pts: np.ndarray) -> np.ndarray:

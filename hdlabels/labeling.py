@@ -27,7 +27,7 @@ import numpy as np
 from hdlabels import defaults
 from hdlabels.alhat import hazard_maps, safety_probability
 from hdlabels.grid import grid_points
-from hdlabels.lander import Lander
+from hdlabels.lander import Lander, geometry
 from hdlabels.store import (
     LABEL_SCHEMA,
     LABEL_SCHEMA_VERSION,
@@ -88,9 +88,9 @@ class LabelSummary:
 
 
 def check_lander_fits(lander: Lander, dem: DemSpec) -> None:
-    """Refuse a lander whose border band leaves no pixel of the DEM to label."""
-    side_m = min(dem.rows, dem.cols) * dem.spacing_m
-    if lander.diameter_m >= side_m:
+    """Refuse a lander the convention cannot place on the grid, or whose border band leaves no pixel to label."""
+    band = geometry(lander, dem.spacing_m).band_px
+    if lander.diameter_m >= min(dem.rows, dem.cols) * dem.spacing_m or 2 * band >= min(dem.rows, dem.cols):
         raise LabelStoreError(
             f"the lander ({lander.diameter_m:g} m) is larger than the DEM ({dem.rows} x {dem.cols} cells of "
             f"{dem.spacing_m:g} m): no pixel could be labelled"
@@ -101,11 +101,12 @@ def label_scan(points_clean: np.ndarray, points_noisy: np.ndarray, sigmas_m: tup
                dem: DemSpec) -> dict[str, np.ndarray]:
     """DEMs, hazard maps and P(safe) of one scan (arrays as stored in a label shard)."""
     shape = (dem.rows, dem.cols)
-    dem_clean = grid_points(points_clean, shape, dem.spacing_m)
+    dem_clean = grid_points(points_clean, shape, dem.spacing_m, method=dem.gridding)
     if not np.isfinite(dem_clean).any():
         raise LabelStoreError("a clean DEM is all NaN: the scan has no returns under the DEM grid")
     maps = hazard_maps(dem_clean, dem.spacing_m, lander)
-    dem_noisy = np.stack([grid_points(points_noisy[s], shape, dem.spacing_m) for s in range(len(sigmas_m))])
+    dem_noisy = np.stack([grid_points(points_noisy[s], shape, dem.spacing_m, method=dem.gridding)
+                          for s in range(len(sigmas_m))])
     p_safe = np.stack([safety_probability(dem_noisy[s], dem.spacing_m, sigma, lander)
                        for s, sigma in enumerate(sigmas_m)])
     return {"dem_clean": dem_clean, "dem_noisy": dem_noisy, "label": maps.label, "slope_rad": maps.slope_rad,
@@ -176,12 +177,14 @@ def _existing(task: LabelTask) -> LabelRecord | None:
 def label_dataset(
     directory: str | os.PathLike,
     lander: Lander = Lander(),
-    dem: DemSpec = DemSpec(),
+    dem: DemSpec | None = None,
     workers: int | None = None,
     scheduler: str | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> LabelSummary:
     """Label every scan of the dataset at ``directory`` with ``lander`` on ``dem`` grids.
+
+    ``dem`` defaults to 100 x 100 cells of 1 m made with the lander's convention's gridding.
 
     Raises:
         LabelStoreError: not an hd dataset, a lander too large for the DEM, an all-NaN DEM.
@@ -192,6 +195,8 @@ def label_dataset(
         manifest = read_manifest(root)
     except ShardFormatError as exc:
         raise LabelStoreError(str(exc)) from None
+    if dem is None:
+        dem = DemSpec.for_convention(lander.convention)
     check_lander_fits(lander, dem)
     name = labeling_name(lander, dem)
     for lab in manifest.get("labelings", []):
@@ -236,8 +241,9 @@ def label_dataset(
         "name": name,
         "schema": LABEL_SCHEMA,
         "schema_version": LABEL_SCHEMA_VERSION,
+        "convention": lander.convention,
         "lander": lander.to_attrs(),
-        "dem": {"rows": dem.rows, "cols": dem.cols, "spacing_m": dem.spacing_m},
+        "dem": dem.to_entry(),
         "label_codes": {"unsafe": defaults.LABEL_UNSAFE, "safe": defaults.LABEL_SAFE, "invalid": defaults.LABEL_INVALID},
         "label_counts": {"unsafe": int(counts[0]), "safe": int(counts[1]), "invalid": int(counts[2])},
         "safe_fraction": safe_fraction,

@@ -46,6 +46,13 @@ class Lander:
             evenly spaced from 0.
         count_holes: if True, terrain below the lander plane counts as roughness too
             (absolute distance); by default only terrain above the plane counts.
+        convention: ``"paper"`` (the ALHAT replica the paper used: pads on pixel nodes, 10-degree
+            orientations over a full turn, roughness over the nodes strictly inside the pad polygon)
+            or ``"hd"`` (sub-pixel pads, ``n_yaws`` yaws, roughness over the body disk); see
+            ``docs/labels.md``.
+        baseline_combine: how the P(safe) baseline combines the per-node probabilities of one
+            lander configuration: ``"product"`` (Ivanov et al. 2013, Eq. 13) or ``"min"`` (the worst
+            node); None takes the convention's default (paper: product, hd: min).
     """
 
     diameter_m: float = defaults.LANDER_DIAMETER_M
@@ -55,6 +62,8 @@ class Lander:
     layout: Literal["square", "triangle"] = "square"
     n_yaws: int = defaults.N_YAWS
     count_holes: bool = defaults.COUNT_HOLES
+    convention: Literal["paper", "hd"] = "paper"
+    baseline_combine: Literal["product", "min"] | None = None
 
     def __post_init__(self) -> None:
         for name in ("diameter_m", "pad_diameter_m", "max_slope_deg", "max_roughness_m"):
@@ -76,6 +85,17 @@ class Lander:
             raise HdLabelsError(f"Lander n_yaws must be an integer >= 1, got {self.n_yaws!r}.")
         if not isinstance(self.count_holes, bool):
             raise HdLabelsError(f"Lander count_holes must be True or False, got {self.count_holes!r}.")
+        if self.convention not in defaults.CONVENTIONS:
+            raise HdLabelsError(f"Label convention must be 'paper' or 'hd', got {self.convention!r}.")
+        if self.convention == "paper" and self.n_yaws != defaults.N_YAWS:
+            raise HdLabelsError(
+                "n_yaws applies to the hd convention only; the paper convention evaluates orientations "
+                f"every {defaults.PAPER_ORIENTATION_STEP_DEG:g} degrees over a full turn."
+            )
+        if self.baseline_combine is None:
+            object.__setattr__(self, "baseline_combine", defaults.BASELINE_COMBINE[self.convention])
+        if self.baseline_combine not in defaults.BASELINE_COMBINES:
+            raise HdLabelsError(f"Baseline combination must be 'product' or 'min', got {self.baseline_combine!r}.")
 
     @property
     def n_pads(self) -> int:
@@ -103,18 +123,50 @@ class Lander:
         return np.arange(self.n_yaws, dtype=np.float64) * (period / self.n_yaws)
 
     def to_attrs(self) -> dict[str, float | int | str | bool]:
-        """The lander as plain attributes (HDF5/JSON-friendly), with derived values for readers."""
+        """The lander as plain attributes (HDF5/JSON-friendly), with derived values for readers.
+
+        The paper convention has no yaw count, rim samples or sub-pixel pad radius; it records its
+        orientation step and the pad and body radii in whole pixels of the 1 m grid instead.
+        """
         attrs: dict[str, float | int | str | bool] = dict(asdict(self))
         attrs["n_pads"] = self.n_pads
-        attrs["pad_centre_radius_m"] = self.pad_centre_radius_m
-        attrs["yaw_step_deg"] = 360.0 / self.n_pads / self.n_yaws
-        attrs["pad_rim_samples"] = defaults.PAD_RIM_SAMPLES
+        if self.convention == "hd":
+            attrs["pad_centre_radius_m"] = self.pad_centre_radius_m
+            attrs["yaw_step_deg"] = 360.0 / self.n_pads / self.n_yaws
+            attrs["pad_rim_samples"] = defaults.PAD_RIM_SAMPLES
+        else:
+            del attrs["n_yaws"]
+            attrs["orientation_step_deg"] = defaults.PAPER_ORIENTATION_STEP_DEG
         return attrs
+
+    @classmethod
+    def from_attrs(cls, attrs: dict[str, object]) -> Lander:
+        """The lander recorded by ``to_attrs`` (derived values are ignored).
+
+        Records written before the paper convention existed carry no ``convention``: they are
+        the hd convention with the worst-node ("min") baseline.
+        """
+        keys = ("diameter_m", "pad_diameter_m", "max_slope_deg", "max_roughness_m", "layout", "n_yaws",
+                "count_holes", "baseline_combine")
+        values: dict[str, object] = {k: _plain(attrs[k]) for k in keys if k in attrs}
+        values["convention"] = str(attrs.get("convention", "hd"))
+        if values["convention"] == "paper":
+            values.pop("n_yaws", None)
+        return cls(**values)  # type: ignore[arg-type]
+
+
+def _plain(value: object) -> object:
+    """numpy scalars (as h5py returns attributes) as plain Python values."""
+    return value.item() if isinstance(value, np.generic) else value
 
 
 @dataclass(frozen=True)
 class Geometry:
     """Sampling tables of one lander on one grid spacing (all offsets in pixels, relative to the site).
+
+    A *yaw* here is one placement of the pads around the site (the hd convention's yaws; the paper
+    convention's distinct pad polygons). Both conventions fill the same tables, so one kernel
+    (``hdlabels.alhat``) evaluates either.
 
     Attributes:
         pad_xy_px: (n_yaws, n_pads, 2) pad centres as map vectors (x east, y north), pixels.
@@ -122,10 +174,12 @@ class Geometry:
             every pad sample point (row, column); padding taps have weight 0.
         tap_w: (n_yaws * n_pads, n_samples, 4) bilinear weights; samples are padded by repeating
             the first sample, so the max over samples is unchanged.
-        body_di, body_dj: integer offsets of the nodes under the body (centre within the radius).
-        footprint: (2b+1, 2b+1) bool, every node any result of the site depends on (body nodes
-            and pad taps), centred on the site.
-        band_px: b, the half-width of ``footprint``: sites closer than this to the border are invalid.
+        node_ptr: (n_yaws + 1,) the roughness nodes of yaw m are ``node_di/dj[node_ptr[m]:node_ptr[m + 1]]``.
+        node_di, node_dj: integer offsets of the roughness nodes (hd: the body disk, the same for
+            every yaw; paper: the nodes strictly inside that yaw's pad polygon).
+        footprint: (2b+1, 2b+1) bool, every node any result of the site depends on (roughness
+            nodes and pad taps), centred on the site.
+        band_px: b, sites closer than this to the border are invalid (at least the footprint's half-width).
         triples: (n_triples, 3) the pads of each candidate resting plane (see ``RESTING_TRIPLES``).
         plane_weights: (n_yaws, n_triples, 3, 3) maps the three pad heights of a triple to the
             plane ``z = gx x + gy y + c`` (gx, gy in metres per pixel, c in metres at the site).
@@ -135,12 +189,23 @@ class Geometry:
     tap_di: np.ndarray
     tap_dj: np.ndarray
     tap_w: np.ndarray
-    body_di: np.ndarray
-    body_dj: np.ndarray
+    node_ptr: np.ndarray
+    node_di: np.ndarray
+    node_dj: np.ndarray
     footprint: np.ndarray
     band_px: int
     triples: np.ndarray
     plane_weights: np.ndarray
+
+    @property
+    def n_yaws(self) -> int:
+        """Number of pad placements evaluated per site."""
+        return int(self.pad_xy_px.shape[0])
+
+    def nodes(self, m: int) -> tuple[np.ndarray, np.ndarray]:
+        """(di, dj) offsets of the roughness nodes of yaw ``m``."""
+        lo, hi = int(self.node_ptr[m]), int(self.node_ptr[m + 1])
+        return self.node_di[lo:hi], self.node_dj[lo:hi]
 
 
 def pad_sample_points(centre_xy_px: tuple[float, float], pad_radius_px: float) -> list[tuple[float, float]]:
@@ -187,6 +252,15 @@ def geometry(lander: Lander, spacing_m: float) -> Geometry:
     """Sampling tables for ``lander`` on a grid of ``spacing_m`` metres per pixel (cached)."""
     if not (math.isfinite(spacing_m) and spacing_m > 0):
         raise HdLabelsError(f"DEM spacing must be a finite positive number of metres per pixel, got {spacing_m!r}.")
+    if lander.convention == "paper":
+        from hdlabels.paper_geometry import paper_geometry
+
+        return paper_geometry(lander, spacing_m)
+    return _hd_geometry(lander, spacing_m)
+
+
+def _hd_geometry(lander: Lander, spacing_m: float) -> Geometry:
+    """The hd convention's tables: sub-pixel pads on their circle, ``n_yaws`` yaws, the body disk."""
     rho = lander.pad_centre_radius_m / spacing_m
     r_pad = lander.pad_radius_m / spacing_m
     r_body = lander.radius_m / spacing_m
@@ -228,20 +302,32 @@ def geometry(lander: Lander, spacing_m: float) -> Geometry:
         footprint[a + band, b + band] = True
 
     triples = np.array(RESTING_TRIPLES[n_pads], dtype=np.int64)
-    plane_weights = np.empty((len(yaws), len(triples), 3, 3))
-    for m in range(len(yaws)):
-        for t, triple in enumerate(triples):
-            plane_weights[m, t] = np.linalg.inv(np.array([[*pad_xy[m, k], 1.0] for k in triple]))
+    plane_weights = plane_weights_of(pad_xy, triples)
 
+    n_body = body_di.size
     return Geometry(
         pad_xy_px=pad_xy,
         tap_di=tap_di,
         tap_dj=tap_dj,
         tap_w=tap_w,
-        body_di=body_di.astype(np.int64),
-        body_dj=body_dj.astype(np.int64),
+        node_ptr=np.arange(len(yaws) + 1, dtype=np.int64) * n_body,
+        node_di=np.tile(body_di.astype(np.int64), len(yaws)),
+        node_dj=np.tile(body_dj.astype(np.int64), len(yaws)),
         footprint=footprint,
         band_px=band,
         triples=triples,
         plane_weights=plane_weights,
     )
+
+
+def plane_weights_of(pad_xy: np.ndarray, triples: np.ndarray) -> np.ndarray:
+    """(n_yaws, n_triples, 3, 3): the inverse of [[x_k, y_k, 1]] for the pads of every triple.
+
+    Applied to the three pad heights (metres) it gives ``(gx, gy, c)`` of the plane
+    ``z = gx x + gy y + c`` (x, y in pixels).
+    """
+    weights = np.empty((pad_xy.shape[0], len(triples), 3, 3))
+    for m in range(pad_xy.shape[0]):
+        for t, triple in enumerate(triples):
+            weights[m, t] = np.linalg.inv(np.array([[*pad_xy[m, k], 1.0] for k in triple]))
+    return weights

@@ -19,6 +19,7 @@ from typing import Any
 import h5py
 import numpy as np
 
+from hdlabels import defaults
 from hdlabels._version import __version__
 from hdlabels.errors import HdLabelsError
 from hdlabels.lander import Lander
@@ -36,7 +37,10 @@ from lidarsim.shards import (
 )
 
 LABEL_SCHEMA = "hd.labels"
-LABEL_SCHEMA_VERSION = "1.0"
+# 1.1: the label convention, the baseline's combination and the gridding are recorded (attributes
+# lander_convention, lander_baseline_combine, dem_gridding); 1.0 shards are the hd convention,
+# the "min" combination and linear gridding.
+LABEL_SCHEMA_VERSION = "1.1"
 LABELS_DIR = "labels"
 
 
@@ -46,23 +50,54 @@ class LabelStoreError(HdLabelsError):
 
 @dataclass(frozen=True)
 class DemSpec:
-    """DEM grid: ``rows x cols`` cells of ``spacing_m`` metres, north-up, centred at the nadir point."""
+    """DEM grid: ``rows x cols`` cells of ``spacing_m`` metres, north-up, centred at the nadir point,
+    made from the points by ``gridding`` (``"linear"``, ``"mean"`` or ``"max"``, ``hdlabels.grid``)."""
 
-    rows: int = 100
-    cols: int = 100
-    spacing_m: float = 1.0
+    rows: int = defaults.DEM_ROWS
+    cols: int = defaults.DEM_COLS
+    spacing_m: float = defaults.DEM_SPACING_M
+    gridding: str = "linear"
 
-    def to_attrs(self) -> dict[str, float | int]:
-        return {"dem_rows": self.rows, "dem_cols": self.cols, "dem_spacing_m": self.spacing_m}
+    def __post_init__(self) -> None:
+        if self.gridding not in defaults.GRIDDINGS:
+            raise LabelStoreError(f"unknown gridding {self.gridding!r}; use one of {', '.join(defaults.GRIDDINGS)}")
+
+    def to_attrs(self) -> dict[str, float | int | str]:
+        return {"dem_rows": self.rows, "dem_cols": self.cols, "dem_spacing_m": self.spacing_m,
+                "dem_gridding": self.gridding}
+
+    def to_entry(self) -> dict[str, float | int | str]:
+        """The manifest's ``dem`` entry of a labelling."""
+        return {"rows": self.rows, "cols": self.cols, "spacing_m": self.spacing_m, "gridding": self.gridding}
+
+    @classmethod
+    def for_convention(cls, convention: str, rows: int = defaults.DEM_ROWS, cols: int = defaults.DEM_COLS,
+                       spacing_m: float = defaults.DEM_SPACING_M, gridding: str | None = None) -> DemSpec:
+        """A grid with the label convention's gridding unless ``gridding`` is given."""
+        return cls(rows, cols, spacing_m, gridding if gridding is not None else defaults.GRIDDING[convention])
+
+    @classmethod
+    def from_entry(cls, entry: dict[str, Any]) -> DemSpec:
+        """The grid of a manifest ``dem`` entry (entries written before griddings existed are linear)."""
+        return cls(int(entry.get("rows", defaults.DEM_ROWS)), int(entry.get("cols", defaults.DEM_COLS)),
+                   float(entry.get("spacing_m", defaults.DEM_SPACING_M)), str(entry.get("gridding", "linear")))
 
 
 def labeling_name(lander: Lander, dem: DemSpec) -> str:
-    """Directory name of a labelling, readable and unique per lander and DEM settings."""
+    """Directory name of a labelling, readable and unique per lander, convention and DEM settings.
+
+    hd-convention labellings with the "min" baseline on linear DEMs keep the names they had before
+    conventions existed, so existing datasets keep their labellings.
+    """
     holes = "-holes" if lander.count_holes else ""
-    return (
-        f"{lander.layout}-d{lander.diameter_m:g}m-pad{lander.pad_diameter_m:g}m-slope{lander.max_slope_deg:g}deg"
-        f"-rough{lander.max_roughness_m:g}m-yaws{lander.n_yaws}{holes}-dem{dem.rows}x{dem.cols}at{dem.spacing_m:g}m"
-    )
+    body = (f"{lander.layout}-d{lander.diameter_m:g}m-pad{lander.pad_diameter_m:g}m-slope{lander.max_slope_deg:g}deg"
+            f"-rough{lander.max_roughness_m:g}m")
+    grid = f"dem{dem.rows}x{dem.cols}at{dem.spacing_m:g}m"
+    if lander.convention == "paper":
+        return f"paper-{body}{holes}-{lander.baseline_combine}-{dem.gridding}-{grid}"
+    extra = "" if lander.baseline_combine == "min" else f"-{lander.baseline_combine}"
+    extra += "" if dem.gridding == "linear" else f"-{dem.gridding}"
+    return f"{body}-yaws{lander.n_yaws}{holes}{extra}-{grid}"
 
 
 def label_shard_name(index: int) -> str:

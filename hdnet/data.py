@@ -134,9 +134,7 @@ def sigma_index(sigmas_m: tuple[float, ...], sigma_m: float) -> int:
 
 def lander_of(entry: dict[str, Any]) -> Lander:
     """The lander a labelling was made with (from its manifest entry)."""
-    lander = entry.get("lander", {})
-    keys = ("diameter_m", "pad_diameter_m", "max_slope_deg", "max_roughness_m", "layout", "n_yaws", "count_holes")
-    return Lander(**{k: lander[k] for k in keys if k in lander})
+    return Lander.from_attrs(entry.get("lander", {}))
 
 
 def dem_spacing_m(entry: dict[str, Any]) -> float:

@@ -8,6 +8,7 @@ Recipe layout (every key optional; defaults are the paper's)::
 
     [dataset]
     name = "mars-paper"
+    version = 2         # bumped whenever the content changes (here: the label convention)
     [build]
     scans = 1000
     sigmas_m = [0.0167, 0.03, 0.07]
@@ -29,6 +30,9 @@ Recipe layout (every key optional; defaults are the paper's)::
     pad_diameter_m = 1.0
     max_slope_deg = 10.0
     max_roughness_m = 0.20
+    convention = "paper"     # "paper" or "hd"; a recipe without it is the hd convention
+    baseline_combine = "product"   # optional; default: the convention's
+    gridding = "nearest"     # optional; default: the convention's
 """
 
 from __future__ import annotations
@@ -54,7 +58,7 @@ _BUILD_KEYS = {
     "resolution", "fov_deg", "dead_elements", "damaged_elements", "compression",
 }
 _LABEL_KEYS = {"lander", "lander_diameter_m", "pad_diameter_m", "max_slope_deg", "max_roughness_m", "yaws",
-               "count_holes", "dem_size", "dem_spacing_m"}
+               "count_holes", "dem_size", "dem_spacing_m", "convention", "baseline_combine", "gridding"}
 
 
 class RecipeError(LidarsimError):
@@ -70,6 +74,7 @@ class Recipe:
     build: BuildConfig
     label: dict[str, Any] = field(default_factory=dict)
     description: str = ""
+    version: int = 1
 
     def checksums(self) -> dict[str, Any] | None:
         """The recorded checksums of the published build, or None when the recipe has none."""
@@ -134,8 +139,14 @@ def load_recipe(path: str | os.PathLike) -> Recipe:
             raise RecipeError(f"{path}: {exc}") from None
         raise RecipeError(f"{path}: invalid value ({exc})") from None
     meta = data.get("dataset", {})
+    unknown = set(meta) - {"name", "description", "version"}
+    if unknown:
+        raise RecipeError(f"{path}: unknown [dataset] key(s) {sorted(unknown)}")
+    version = meta.get("version", 1)
+    if isinstance(version, bool) or not isinstance(version, int) or version < 1:
+        raise RecipeError(f"{path}: [dataset] version must be a positive integer, got {version!r}")
     return Recipe(name=str(meta.get("name", path.parent.name)), path=path.resolve(), build=config, label=dict(label),
-                  description=str(meta.get("description", "")))
+                  description=str(meta.get("description", "")), version=version)
 
 
 def check_against_checksums(manifest: dict[str, Any], recorded: dict[str, Any]) -> list[str]:

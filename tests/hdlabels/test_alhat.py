@@ -13,6 +13,7 @@ from hdlabels.errors import HdLabelsError
 from hdlabels.lander import Lander
 
 BACKENDS = ["numpy", "numba"]
+HD = Lander(convention="hd")  # these hand-derived cases are of the hd convention (test_paper_convention.py: paper)
 N = 40  # DEM side, pixels (1 m): 30x30 labelled sites inside the 5-px band
 
 
@@ -44,7 +45,7 @@ def test_flat_plane_every_valid_site_safe(backend: str) -> None:
 @pytest.mark.parametrize(("slope_deg", "expected"), [(5.0, LABEL_SAFE), (15.0, LABEL_UNSAFE)])
 @pytest.mark.parametrize("azimuth_deg", [0.0, 30.0, 77.0])
 def test_tilted_plane_slope_recovered(backend: str, slope_deg: float, expected: int, azimuth_deg: float) -> None:
-    maps = hazard_maps(plane(slope_deg, azimuth_deg), 1.0, backend=backend)
+    maps = hazard_maps(plane(slope_deg, azimuth_deg), 1.0, HD, backend=backend)
     valid = maps.label != LABEL_INVALID
     # Every pad is lifted by the same r |grad z| cos(angle to the nearest rim sample), so the
     # resting plane is parallel to the terrain: slope exact, terrain entirely below it.
@@ -54,7 +55,7 @@ def test_tilted_plane_slope_recovered(backend: str, slope_deg: float, expected: 
 
 
 def test_border_band_is_invalid() -> None:
-    maps = hazard_maps(plane(2.0), 1.0)
+    maps = hazard_maps(plane(2.0), 1.0, HD)
     band = np.ones((N, N), dtype=bool)
     band[5:-5, 5:-5] = False  # one lander radius (5 m = 5 px)
     assert np.all(maps.label[band] == LABEL_INVALID)
@@ -67,7 +68,7 @@ def test_border_band_is_invalid() -> None:
 def test_single_boulder_unsafe_exactly_within_body_reach(backend: str, base_tilt_deg: float) -> None:
     dem = plane(base_tilt_deg)
     dem[20, 20] += 0.5  # a 0.5 m boulder on one node
-    maps = hazard_maps(dem, 1.0, backend=backend)
+    maps = hazard_maps(dem, 1.0, HD, backend=backend)
     di, dj = offsets_from((20, 20))
     valid = maps.label != LABEL_INVALID
     # By hand: a site is unsafe iff the boulder is under its body, i.e. within 5 m of the site
@@ -86,7 +87,7 @@ def test_single_boulder_unsafe_exactly_within_body_reach(backend: str, base_tilt
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_pit_under_one_pad_tips_the_lander(backend: str) -> None:
     # One yaw (0): pad 0 at 4.5 m east of the site, pads 1, 3 north/south, pad 2 west.
-    lander = Lander(n_yaws=1)
+    lander = Lander(convention="hd", n_yaws=1)
     dem = np.zeros((N, N))
     site = (20, 20)
     dem[18:23, 22:28] = -0.5  # pit 0.5 m deep, rows -2..2, cols +2..+7: holds pad 0 entirely
@@ -106,10 +107,10 @@ def test_pit_between_the_pads_counts_only_with_count_holes(backend: str) -> None
     di, dj = offsets_from((20, 20))
     dem[di**2 + dj**2 <= 4] = -0.5  # pit of radius 2 m, 0.5 m deep, centred on the site
     # The pads (4.5 +- 0.5 m out, taps within one pixel) never reach it: the lander straddles it.
-    default = hazard_maps(dem, 1.0, backend=backend)
+    default = hazard_maps(dem, 1.0, HD, backend=backend)
     assert default.slope_rad[20, 20] < 1e-9 and default.roughness_m[20, 20] < 1e-9
     assert default.label[20, 20] == LABEL_SAFE
-    holes = hazard_maps(dem, 1.0, Lander(count_holes=True), backend=backend)
+    holes = hazard_maps(dem, 1.0, Lander(convention="hd", count_holes=True), backend=backend)
     assert holes.roughness_m[20, 20] == pytest.approx(0.5)
     assert holes.label[20, 20] == LABEL_UNSAFE
 
@@ -119,14 +120,14 @@ def test_single_node_hole_unsafe_within_reach_only_when_holes_count(backend: str
     dem = plane(0.0)
     dem[20, 20] -= 0.5
     di, dj = offsets_from((20, 20))
-    holes = hazard_maps(dem, 1.0, Lander(count_holes=True), backend=backend)
+    holes = hazard_maps(dem, 1.0, Lander(convention="hd", count_holes=True), backend=backend)
     valid = holes.label != LABEL_INVALID
     within = (di**2 + dj**2 <= 25) & valid
     assert np.all(holes.label[within] == LABEL_UNSAFE)
     assert np.all(holes.label[valid & ~within] == LABEL_SAFE)
     # A 1 m pad never sits only over one node at 4.5 m (4.5^2 is not a sum of two integer squares),
     # so every pad bridges the hole; below the plane it is no hazard by default.
-    default = hazard_maps(dem, 1.0, backend=backend)
+    default = hazard_maps(dem, 1.0, HD, backend=backend)
     assert np.all(default.label[valid] == LABEL_SAFE)
 
 
@@ -134,7 +135,7 @@ def test_single_node_hole_unsafe_within_reach_only_when_holes_count(backend: str
 def test_nan_cell_invalidates_its_footprint_reach(backend: str) -> None:
     dem = plane(2.0)
     dem[20, 20] = np.nan
-    maps = hazard_maps(dem, 1.0, backend=backend)
+    maps = hazard_maps(dem, 1.0, HD, backend=backend)
     di, dj = offsets_from((20, 20))
     # By hand: body nodes reach 5 m; pad samples reach 5 m and their bilinear taps the nodes of
     # their cell: Chebyshev <= 5 and |di| + |dj| <= 8.
@@ -144,19 +145,19 @@ def test_nan_cell_invalidates_its_footprint_reach(backend: str) -> None:
     assert np.array_equal(maps.label == LABEL_INVALID, ~interior | reach)
     assert np.all(np.isnan(maps.slope_rad[reach])) and np.all(np.isnan(maps.roughness_m[reach]))
     assert np.all(maps.label[interior & ~reach] == LABEL_SAFE)
-    assert np.array_equal(valid_sites(dem, 1.0), interior & ~reach)
+    assert np.array_equal(valid_sites(dem, 1.0, HD), interior & ~reach)
 
 
 def test_spacing_scales_the_footprint() -> None:
     # At 0.5 m/px the 10 m lander spans 21 px: the band is 10 px and the plane is still exact.
-    maps = hazard_maps(plane(5.0, n=30, spacing=0.5), 0.5)
+    maps = hazard_maps(plane(5.0, n=30, spacing=0.5), 0.5, HD)
     assert (maps.label != LABEL_INVALID).sum() == 10 * 10
     valid = maps.label != LABEL_INVALID
     np.testing.assert_allclose(np.degrees(maps.slope_rad[valid]), 5.0, atol=0.01)
 
 
 def test_triangle_lander_on_tilted_plane() -> None:
-    maps = hazard_maps(plane(5.0, 50.0), 1.0, Lander(layout="triangle"))
+    maps = hazard_maps(plane(5.0, 50.0), 1.0, Lander(convention="hd", layout="triangle"))
     valid = maps.label != LABEL_INVALID
     np.testing.assert_allclose(np.degrees(maps.slope_rad[valid]), 5.0, atol=0.01)
     assert np.all(maps.label[valid] == LABEL_SAFE)
@@ -164,19 +165,19 @@ def test_triangle_lander_on_tilted_plane() -> None:
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_safety_probability_limits(backend: str) -> None:
-    p_flat = safety_probability(plane(0.0), 1.0, 1e-3, backend=backend)
+    p_flat = safety_probability(plane(0.0), 1.0, 1e-3, HD, backend=backend)
     valid = ~np.isnan(p_flat)
     assert valid.sum() == 30 * 30 and p_flat.dtype == np.float32
     assert np.all(p_flat[valid] == pytest.approx(1.0))
-    p_steep = safety_probability(plane(15.0), 1.0, 1e-3, backend=backend)
+    p_steep = safety_probability(plane(15.0), 1.0, 1e-3, HD, backend=backend)
     assert np.all(p_steep[valid] == 0.0)
 
 
 def test_safety_probability_is_gaussian_cdf_of_roughness_margin() -> None:
     dem = plane(0.0)
     dem[20, 20] += 0.25  # 5 cm above the limit at sites whose body covers it (free yaw, flat plane)
-    maps = hazard_maps(dem, 1.0)
-    p = probability_from_maps(maps, 0.05, Lander())
+    maps = hazard_maps(dem, 1.0, HD)
+    p = probability_from_maps(maps, 0.05, Lander(convention="hd"))
     assert maps.roughness_m[20, 20] == pytest.approx(0.25)
     assert p[20, 20] == pytest.approx(0.15865525, abs=1e-6)  # Phi(-1)
     assert p[30, 30] == pytest.approx(0.99996833, abs=1e-7)  # boulder > 5 m away: roughness 0, Phi(4)
@@ -184,15 +185,15 @@ def test_safety_probability_is_gaussian_cdf_of_roughness_margin() -> None:
     baseline = p >= 0.5
     assert np.array_equal(baseline[maps.valid], (maps.roughness_m <= 0.2)[maps.valid])
     # sigma = 0 is the deterministic test.
-    p0 = probability_from_maps(maps, 0.0, Lander())
+    p0 = probability_from_maps(maps, 0.0, Lander(convention="hd"))
     assert np.array_equal(p0[maps.valid] == 1.0, maps.label[maps.valid] == LABEL_SAFE)
 
 
 def test_probability_decreases_with_noise() -> None:
     rng = np.random.default_rng(4)
     dem = plane(2.0) + rng.normal(0.0, 0.03, (N, N))
-    maps = hazard_maps(dem, 1.0)
-    p_small, p_large = probability_from_maps(maps, 0.01), probability_from_maps(maps, 0.07)
+    maps = hazard_maps(dem, 1.0, HD)
+    p_small, p_large = probability_from_maps(maps, 0.01, HD), probability_from_maps(maps, 0.07, HD)
     ok = maps.valid & (maps.roughness_m < 0.2)
     assert np.all(p_large[ok] <= p_small[ok])
 
@@ -208,19 +209,19 @@ def test_probability_decreases_with_noise() -> None:
 )
 def test_bad_dem_is_one_line_error(dem: np.ndarray, spacing: float, message: str) -> None:
     with pytest.raises(HdLabelsError, match=message) as info:
-        hazard_maps(dem, spacing)
+        hazard_maps(dem, spacing, HD)
     assert "\n" not in str(info.value)
 
 
 def test_bad_sigma_and_backend() -> None:
     with pytest.raises(HdLabelsError, match="sigma"):
-        safety_probability(plane(0.0), 1.0, -0.1)
+        safety_probability(plane(0.0), 1.0, -0.1, HD)
     with pytest.raises(HdLabelsError, match="back end"):
-        hazard_maps(plane(0.0), 1.0, backend="fortran")  # type: ignore[arg-type]
+        hazard_maps(plane(0.0), 1.0, HD, backend="fortran")  # type: ignore[arg-type]
 
 
 def test_hazard_maps_is_a_frozen_record() -> None:
-    maps = hazard_maps(plane(0.0), 1.0)
+    maps = hazard_maps(plane(0.0), 1.0, HD)
     assert isinstance(maps, HazardMaps)
     with pytest.raises(AttributeError):
         maps.label = None  # type: ignore[misc]

@@ -31,7 +31,7 @@ def reference_for(lander: Lander) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 @pytest.mark.parametrize("backend", ["numpy", "numba"])
 @pytest.mark.parametrize(
     "lander",
-    [Lander(), Lander(count_holes=True), Lander(layout="triangle", n_yaws=5), Lander(max_roughness_m=0.1, n_yaws=3)],
+    [Lander(convention="hd"), Lander(convention="hd", count_holes=True), Lander(convention="hd", layout="triangle", n_yaws=5), Lander(convention="hd", max_roughness_m=0.1, n_yaws=3)],
     ids=["default", "holes", "triangle", "strict"],
 )
 def test_fast_equals_loop_reference(backend: str, lander: Lander) -> None:
@@ -48,7 +48,7 @@ def test_fast_equals_loop_reference(backend: str, lander: Lander) -> None:
 def test_fast_equals_reference_with_nan_and_other_spacing() -> None:
     dem = rough_terrain(5, n=36)
     dem[17, 12] = np.nan
-    lander = Lander(diameter_m=8.0, pad_diameter_m=0.8)
+    lander = Lander(convention="hd", diameter_m=8.0, pad_diameter_m=0.8)
     slope, rough, label = reference_maps(np.nan_to_num(dem), 0.8, lander)
     maps = hazard_maps(dem, 0.8, lander)
     ok = maps.label != LABEL_INVALID

@@ -42,13 +42,25 @@ def test_isolated_pixel_takes_the_mean_of_its_four_neighbours() -> None:
 
 def test_mask_is_the_lander_reach_around_each_dropped_pixel() -> None:
     dem = np.zeros((40, 40))
-    _, mask = drop_and_repair(dem, np.array([[20, 20]]), Lander(), 1.0)
+    _, mask = drop_and_repair(dem, np.array([[20, 20]]), Lander(convention="hd"), 1.0)
     di, dj = np.mgrid[0:40, 0:40]
     di, dj = di - 20, dj - 20
     # Same reach as a NaN cell: body (5 m) and pad taps, Chebyshev <= 5 and |di| + |dj| <= 8.
     expected = (np.maximum(abs(di), abs(dj)) <= 5) & (abs(di) + abs(dj) <= 8)
     assert np.array_equal(mask, expected)
     assert mask[20, 25] and mask[16, 16] and not mask[20, 26]
+
+
+def test_paper_mask_is_the_paper_footprint_around_each_dropped_pixel() -> None:
+    _, mask = drop_and_repair(np.zeros((40, 40)), np.array([[20, 20]]), Lander(), 1.0)
+    di, dj = np.mgrid[0:40, 0:40]
+    di, dj = di - 20, dj - 20
+    # Paper convention at 1 m: pads on nodes of the 7 distinct squares, the farthest at (+-5, 0) and
+    # (0, +-5), the others within Chebyshev 4 and |di| + |dj| <= 6 ((4, 2), (3, 3), ...), and the
+    # nodes strictly inside those squares, which lie in the same region.
+    expected = ((np.maximum(abs(di), abs(dj)) <= 4) & (abs(di) + abs(dj) <= 6)) | (
+        (abs(di) + abs(dj) == 5) & (di * dj == 0))
+    assert np.array_equal(mask, expected)
 
 
 def test_no_pixels_no_change() -> None:

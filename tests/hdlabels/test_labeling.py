@@ -17,7 +17,14 @@ from hdlabels.alhat import hazard_maps, safety_probability
 from hdlabels.grid import grid_points
 from hdlabels.labeling import label_dataset
 from hdlabels.lander import Lander
-from hdlabels.store import LabelShardReader, LabelStoreError, find_labeling, label_shard_paths
+from hdlabels.store import (
+    LABEL_SCHEMA_VERSION,
+    DemSpec,
+    LabelShardReader,
+    LabelStoreError,
+    find_labeling,
+    label_shard_paths,
+)
 from lidarsim.build import BuildConfig, build_dataset
 from lidarsim.sensor import SensorConfig
 from lidarsim.shards import ScanShardReader, read_manifest, sha256_file, verify_dataset
@@ -64,18 +71,22 @@ def test_label_shards_hold_the_maps_of_the_gridded_scans(dataset):
         assert labels.sigmas_m == (0.01, 0.07)
         scan, lab = scans[2], labels[2]
         assert lab.scan_index == scan.scan_index == 5
-        dem = grid_points(scan.points_clean)
+        # the default labelling: the paper convention, its gridding and its product baseline
+        lander, grid = Lander.from_attrs(entry["lander"]), DemSpec.from_entry(entry["dem"])
+        assert (lander, grid) == (Lander(), DemSpec.for_convention("paper")) and entry["convention"] == "paper"
+        assert labels.h5.attrs["lander_convention"] == "paper" and labels.h5.attrs["dem_gridding"] == grid.gridding
+        dem = grid_points(scan.points_clean, method=grid.gridding)
         np.testing.assert_array_equal(lab.dem_clean, dem)
-        maps = hazard_maps(dem, 1.0, Lander())
+        maps = hazard_maps(dem, 1.0, lander)
         np.testing.assert_array_equal(lab.label, maps.label)
         np.testing.assert_array_equal(lab.slope_rad, maps.slope_rad)
-        noisy = grid_points(scan.points_noisy[1])
+        noisy = grid_points(scan.points_noisy[1], method=grid.gridding)
         np.testing.assert_array_equal(lab.dem_noisy[1], noisy)
-        np.testing.assert_array_equal(lab.p_safe[1], safety_probability(noisy, 1.0, 0.07, Lander()))
+        np.testing.assert_array_equal(lab.p_safe[1], safety_probability(noisy, 1.0, 0.07, lander))
         assert lab.label.dtype == np.uint8 and set(np.unique(lab.label)) <= {0, 1, 255}
         assert (lab.label[:5] == 255).all() and (lab.label[:, -5:] == 255).all()  # border band of 5 m
         assert lab.split == scan.split
-    assert verify_dataset(dataset, {"hd.labels": "1.0"}) == []
+    assert verify_dataset(dataset, {"hd.labels": LABEL_SCHEMA_VERSION}) == []
     # the same settings again: nothing recomputed, nothing duplicated
     again = label_dataset(dataset, workers=1)
     assert again.reused and len(read_manifest(dataset)["labelings"]) == 1
@@ -135,4 +146,33 @@ def test_unknown_label_schema_version_is_refused(dataset, tmp_path):
     with pytest.raises(LabelStoreError, match="version 3.0"):
         LabelShardReader(copy)
     manifest = json.loads((dataset / "manifest.json").read_text())
-    assert all(lab["schema_version"] == "1.0" for lab in manifest["labelings"])
+    assert all(lab["schema_version"] == LABEL_SCHEMA_VERSION for lab in manifest["labelings"])
+
+
+def test_convention_options_name_and_record_the_labelling(dataset):
+    runner = CliRunner()
+    hd = runner.invoke(main, ["label", str(dataset), "--convention", "hd", "--workers", "1"])
+    assert hd.exit_code == 0, hd.output
+    entry = find_labeling(dataset, "square-d10m-pad1m-slope10deg-rough0.2m-yaws8-dem100x100at1m")  # the pre-convention name
+    assert entry["convention"] == "hd" and entry["dem"]["gridding"] == "linear"
+    assert Lander.from_attrs(entry["lander"]) == Lander(convention="hd")
+    with LabelShardReader(label_shard_paths(dataset, entry)[0]) as reader:
+        assert reader.h5.attrs["lander_convention"] == "hd" and reader.h5.attrs["lander_baseline_combine"] == "min"
+    mixed = runner.invoke(main, ["label", str(dataset), "--convention", "paper", "--baseline-combine", "min",
+                                 "--gridding", "mean", "--workers", "1"])
+    assert mixed.exit_code == 0, mixed.output
+    entry = find_labeling(dataset, "paper-square-d10m-pad1m-slope10deg-rough0.2m-min-mean-dem100x100at1m")
+    assert entry["lander"]["baseline_combine"] == "min" and entry["dem"]["gridding"] == "mean"
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["--yaws", "4"], "--yaws applies to --convention hd only"),
+    (["--convention", "alhat"], "Invalid value for '--convention'"),
+    (["--gridding", "cubic"], "Invalid value for '--gridding'"),
+    (["--lander-diameter", "3", "--pad-diameter", "1", "--dem-spacing", "1"], "too few"),
+])
+def test_bad_convention_settings_are_refused_before_any_work(dataset, args, needle):
+    before = (dataset / "manifest.json").read_text()
+    result = CliRunner().invoke(main, ["label", str(dataset), "--workers", "1", *args])
+    assert result.exit_code != 0 and needle in result.output and "Traceback" not in result.output
+    assert (dataset / "manifest.json").read_text() == before

@@ -13,7 +13,7 @@ from hdlabels.lander import Lander, bilinear_taps, geometry
 
 
 def test_defaults_are_the_paper_lander() -> None:
-    lander = Lander()
+    lander = Lander(convention="hd")
     assert (lander.diameter_m, lander.pad_diameter_m) == (10.0, 1.0)
     assert lander.pad_centre_radius_m == pytest.approx(4.5)
     assert (lander.max_slope_deg, lander.max_roughness_m) == (10.0, 0.20)
@@ -38,12 +38,12 @@ def test_defaults_are_the_paper_lander() -> None:
 )
 def test_bad_lander_is_one_line_error(kwargs: dict) -> None:
     with pytest.raises(HdLabelsError) as info:
-        Lander(**kwargs)
+        Lander(convention="hd", **kwargs)
     assert "\n" not in str(info.value)
 
 
 def test_to_attrs_is_plain_and_complete() -> None:
-    attrs = Lander(layout="triangle", n_yaws=6).to_attrs()
+    attrs = Lander(convention="hd", layout="triangle", n_yaws=6).to_attrs()
     assert attrs["layout"] == "triangle" and attrs["n_pads"] == 3
     assert attrs["yaw_step_deg"] == pytest.approx(20.0)
     assert attrs["pad_centre_radius_m"] == pytest.approx(4.5)
@@ -58,9 +58,9 @@ def test_bilinear_taps_weights_sum_to_one_and_skip_zero_weights() -> None:
 
 
 def test_geometry_of_default_lander_on_1m_grid() -> None:
-    geo = geometry(Lander(), 1.0)
+    geo = geometry(Lander(convention="hd"), 1.0)
     # Body: nodes with di^2 + dj^2 <= 25 -> 81 of them (hand count: 1+2*(5+5+5+5+4+3)... = 81).
-    assert geo.body_di.size == 81
+    assert all(geo.nodes(m)[0].size == 81 for m in range(geo.n_yaws))
     assert geo.band_px == 5
     # Footprint: body plus the bilinear taps of pad samples at radius <= 5: Chebyshev <= 5 and
     # |di| + |dj| <= 8 (a node like (5, 4) would need a sample at distance > 5).
@@ -73,4 +73,4 @@ def test_geometry_of_default_lander_on_1m_grid() -> None:
 
 def test_geometry_rejects_bad_spacing() -> None:
     with pytest.raises(HdLabelsError):
-        geometry(Lander(), 0.0)
+        geometry(Lander(convention="hd"), 0.0)

@@ -30,7 +30,7 @@ def test_tiny_fit_records_the_data_it_was_trained_on(dataset, tmp_path):
     assert extra["train_sigma_m"] == 0.0167
     assert extra["normalisation"] == compute_normalisation(dataset, 0.0167).to_dict()
     assert extra["input_size"] is None and extra["input_rule"] == "pad:32" and extra["dem_shape"] == [100, 100]
-    assert extra["labels"].startswith("square-d10m")
+    assert extra["labels"].startswith("paper-square-d10m")
     ckpt = load_checkpoint(last)
     assert ckpt["extra_config"] == extra and ckpt["epoch"] == 1 and ckpt["profile"]["name"] == "tiny"
 

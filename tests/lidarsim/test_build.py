@@ -275,6 +275,9 @@ def test_recipes_parse_and_mars_paper_is_what_reproduce_builds():
     user = load_recipe(REPO / "datasets" / "user-dtm-paper")
     assert user.build.dtm_path is not None and user.build.dtm_path.endswith("sabrina.tif")
     assert user.build.sigmas_m == paper.build.sigmas_m
+    for name in ("mars-paper", "mars-s167", "mars-s300", "mars-s700", "user-dtm-paper"):
+        r = load_recipe(REPO / "datasets" / name)
+        assert r.version == 2 and r.label["convention"] == "paper" and r.label["gridding"] == "nearest"
 
 
 def test_build_from_a_recipe_and_verify_against_its_checksums(tmp_path, dtm):
