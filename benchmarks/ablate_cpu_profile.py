@@ -67,7 +67,11 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "dropout0.2": ("dropout p = 0.2", {"dropout_p": 0.2}),
     "depth4": ("4 pooling stages (pad to 112 px)", {"depth": 4}),
     "depth3": ("3 pooling stages (pad to 104 px)", {"depth": 3}),
-    "width1/2": ("width 1/2", {"width": 0.5}),
+    "depth2": ("2 pooling stages (100 px, no padding)", {"depth": 2}),
+    "depth1": ("1 pooling stage (100 px, no padding)", {"depth": 1}),
+    "width0.5": ("width 1/2", {"width": 0.5}),
+    "width0.375": ("width 3/8", {"width": 0.375}),
+    "minmax": ("the paper's dataset min-max heights", {"heights": "minmax", "extra_channels": ()}),
     "channels_last": ("channels-last memory format", {"channels_last": True}),
 }
 

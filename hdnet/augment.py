@@ -6,11 +6,15 @@ flip. For a lander whose pads and evaluated yaws are symmetric under these maps,
 a transformed DEM is the transformed label of the DEM (tested on ``hdlabels.alhat.hazard_maps``), so
 each training DEM gives eight exact training samples.
 
-Which labellings qualify: a **square** lander's pads repeat every 90 degrees, so a quarter turn maps
-each evaluated yaw onto another one (the yaws are evenly spaced over the 90-degree period), and a
-flip maps yaw ``t`` to ``-t``, again an evaluated yaw. A triangular lander repeats every 120 degrees:
-a quarter turn is a symmetry only for particular yaw counts, and hd does not rely on that, so D4
-augmentation is refused for it. The noisy DEM comes from a nadir-looking square detector with noise
+Which labellings qualify: a **square** lander, in both label conventions. In the ``hd``
+convention its pads repeat every 90 degrees, so a quarter turn maps each evaluated yaw onto another
+one (the yaws are evenly spaced over the 90-degree period), and a flip maps yaw ``t`` to ``-t``,
+again an evaluated yaw. In the ``paper`` convention each pixel-grid square (pads snapped towards
+zero, an odd function) is mapped onto itself by a quarter turn and onto the square of orientation
+``-theta`` by a flip; the roughness nodes strictly inside it and the tipping rule (the diagonal with
+the higher pads) follow the pads. A triangular lander repeats every 120 degrees: a quarter turn is a
+symmetry only for particular yaw sets, and hd does not rely on that, so D4 augmentation is refused
+for it. The noisy DEM comes from a nadir-looking square detector with noise
 along each ray; its statistics do not depend on the grid's orientation either.
 """
 

@@ -45,9 +45,9 @@ def test_the_eight_elements_are_distinct_and_invertible() -> None:
         d4(a, 8)
 
 
-@pytest.mark.parametrize("n_yaws", [8, 3])
-def test_square_lander_labels_are_invariant_under_d4(n_yaws: int) -> None:
-    lander = Lander(diameter_m=6.0, pad_diameter_m=1.0, layout="square", n_yaws=n_yaws)
+@pytest.mark.parametrize("convention,n_yaws", [("paper", 8), ("hd", 8), ("hd", 3)])
+def test_square_lander_labels_are_invariant_under_d4(convention: str, n_yaws: int) -> None:
+    lander = Lander(diameter_m=6.0, pad_diameter_m=1.0, layout="square", n_yaws=n_yaws, convention=convention)  # type: ignore[arg-type]
     dem = _terrain()
     label = hazard_maps(dem, 1.0, lander, backend="numpy").label
     assert {0, 1} <= set(np.unique(label).tolist())  # both classes present: the check can fail
@@ -57,13 +57,17 @@ def test_square_lander_labels_are_invariant_under_d4(n_yaws: int) -> None:
     assert label_is_d4_invariant(lander)
 
 
-def test_a_triangle_lander_is_not_invariant_and_is_refused() -> None:
-    lander = Lander(diameter_m=6.0, pad_diameter_m=1.0, layout="triangle", n_yaws=1)
+@pytest.mark.parametrize("convention", ["paper", "hd"])
+def test_a_triangle_lander_is_not_invariant_and_is_refused(convention: str) -> None:
+    lander = Lander(diameter_m=6.0, pad_diameter_m=1.0, layout="triangle", convention=convention,  # type: ignore[arg-type]
+                    n_yaws=1 if convention == "hd" else 8)
     dem = _terrain()
     label = hazard_maps(dem, 1.0, lander, backend="numpy").label
-    moved = hazard_maps(np.ascontiguousarray(d4(dem, 1)), 1.0, lander, backend="numpy").label
-    assert (moved != d4(label, 1)).any()  # three pads at 0/120/240 deg turned by 90 deg are other pads
-    assert not label_is_d4_invariant(lander) and not label_is_d4_invariant(replace(lander, n_yaws=8))
+    changed = [k for k in range(D4_ORDER)
+               if (hazard_maps(np.ascontiguousarray(d4(dem, k)), 1.0, lander, backend="numpy").label != d4(label, k)).any()]
+    if convention == "hd":
+        assert changed  # three pads at 0/120/240 deg turned by 90 deg are other pads
+    assert not label_is_d4_invariant(lander)
     with pytest.raises(HdNetError, match="triangle"):
         check_augment("d4", lander)
     assert check_augment("none", lander) == "none"
