@@ -386,37 +386,61 @@ def validation_summary(
     seed: int = 0,
     batch_size: int = 8,
     quantile: float = 0.5,
+    other_sigmas_m: tuple[float, ...] = (),
+    risk_alpha: float = 0.05,
 ) -> dict[str, float]:
-    """Validation-split numbers of a run at its training noise level (for choosing settings without the test split).
+    """Validation-split numbers of a run (for choosing settings without ever reading the test split).
 
-    MC dropout over the validation split, then: the base net's ``base_pa``, ``base_miou``,
-    ``base_precision``, ``base_sensitivity``; the uncertainty-aware map at the mean validation entropy
-    (``ua_vc``, ``ua_pa``, ``ua_miou``, ``ua_precision``, ``ua_sensitivity``, ``threshold_nats``); and
-    at the ``quantile`` of the validation entropies (V/C = ``quantile`` by construction):
-    ``q_precision``, ``q_sensitivity``. Fractions in [0, 1].
+    MC dropout over the validation split at the training noise level, then: the base net's
+    ``base_pa``, ``base_miou``, ``base_precision``, ``base_sensitivity``; the uncertainty-aware map at
+    the mean validation entropy (``ua_vc``, ``ua_pa``, ``ua_miou``, ``ua_precision``,
+    ``ua_sensitivity``, ``threshold_nats``); at the ``quantile`` of the validation entropies (V/C =
+    ``quantile`` by construction): ``q_precision``, ``q_sensitivity``, ``q_vc``; at the conformal
+    ``risk:risk_alpha`` threshold chosen on these same images (in-sample, so an optimistic
+    estimate): ``risk_false_safe``, ``risk_sensitivity``, ``risk_vc``. For each of
+    ``other_sigmas_m`` (metres), the validation split at that noise level with the same two
+    thresholds: ``base_pa@S``, ``ua_vc@S``, ``ua_precision@S``, ``ua_sensitivity@S``,
+    ``q_precision@S`` with S the sigma in cm (e.g. ``ua_precision@7cm``). Fractions in [0, 1].
     """
     ckpt_path = _checkpoint_path(run_dir)
     dev = torch.device("cuda" if torch.cuda.is_available() else "cpu")
     model, ckpt = load_trained_model(ckpt_path, map_location=dev)
     train_sigma, input_spec, run_labels = _run_data(ckpt, ckpt_path)
     entry, _ = open_labeling(dataset_dir, labels if labels is not None else _prefer(dataset_dir, run_labels))
-    ds = HazardDataset(dataset_dir, "val", train_sigma, labels=str(entry["name"]), input_spec=input_spec)
-    if len(ds) == 0:
-        raise HdNetError(f"{dataset_dir}: the val split is empty.")
-    inf = infer_split(model, ds, mc_samples, batch_size, seed, dev)
-    entropy = inf.entropy_nats[inf.valid]
-    h_mean = float(np.mean(entropy, dtype=np.float64))
-    h_q = float(np.quantile(entropy, quantile))
+
+    def val_at(sigma: float) -> SplitInference:
+        ds = HazardDataset(dataset_dir, "val", sigma, labels=str(entry["name"]), input_spec=input_spec)
+        if len(ds) == 0:
+            raise HdNetError(f"{dataset_dir}: the val split is empty.")
+        return infer_split(model, ds, mc_samples, batch_size, seed, dev)
+
+    inf = val_at(train_sigma)
+    cal = EntropyCalibration()
+    cal.update(torch.from_numpy(inf.entropy_nats), torch.from_numpy(inf.prediction), torch.from_numpy(inf.label))
+    h_mean, h_q = cal.mean(), cal.quantile(quantile)
+    h_risk = select_threshold(f"risk:{risk_alpha}", cal)
     base = score(inf.label, inf.prediction, inf.ignore)
     ua = score(inf.label, inf.prediction, inf.ignore, inf.entropy_nats >= h_mean)
     q = score(inf.label, inf.prediction, inf.ignore, inf.entropy_nats >= h_q)
-    return {
+    risk = score(inf.label, inf.prediction, inf.ignore, inf.entropy_nats >= h_risk)
+    out = {
         "base_pa": base.pixel_accuracy, "base_miou": base.miou, "base_precision": base.precision_safe,
         "base_sensitivity": base.sensitivity_safe, "threshold_nats": h_mean, "ua_vc": float(ua.vc_fraction or 0.0),
         "ua_pa": ua.pixel_accuracy, "ua_miou": ua.miou, "ua_precision": ua.precision_safe,
         "ua_sensitivity": ua.sensitivity_safe, "q_precision": q.precision_safe, "q_sensitivity": q.sensitivity_safe,
-        "q_vc": float(q.vc_fraction or 0.0),
+        "q_vc": float(q.vc_fraction or 0.0), "risk_false_safe": cal.risk(h_risk), "risk_sensitivity": risk.sensitivity_safe,
+        "risk_vc": float(risk.vc_fraction or 0.0),
     }
+    for sigma in other_sigmas_m:
+        other = val_at(sigma)
+        tag = f"@{sigma * 100:.3g}cm"
+        b = score(other.label, other.prediction, other.ignore)
+        u = score(other.label, other.prediction, other.ignore, other.entropy_nats >= h_mean)
+        qq = score(other.label, other.prediction, other.ignore, other.entropy_nats >= h_q)
+        out.update({f"base_pa{tag}": b.pixel_accuracy, f"ua_vc{tag}": float(u.vc_fraction or 0.0),
+                    f"ua_precision{tag}": u.precision_safe, f"ua_sensitivity{tag}": u.sensitivity_safe,
+                    f"q_precision{tag}": qq.precision_safe})
+    return out
 
 
 def _prefer(dataset_dir: str | os.PathLike, run_labels: str | None) -> str | None:

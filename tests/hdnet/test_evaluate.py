@@ -182,7 +182,7 @@ def test_validation_summary_matches_the_validation_inference(setup):
     from hdnet.train import load_trained_model
 
     dataset, run, _, _ = setup
-    summary = validation_summary(run, dataset, mc_samples=3, seed=1)
+    summary = validation_summary(run, dataset, mc_samples=3, seed=1, other_sigmas_m=(0.07,), risk_alpha=0.3)
     model, ckpt = load_trained_model(run / "last.pt")
     spec = InputSpec.from_run_config(ckpt["extra_config"], ckpt["model_config"])
     inf = infer_split(model, HazardDataset(dataset, "val", 0.0167, input_spec=spec), 3, 8, 1, torch.device("cpu"))
@@ -195,3 +195,9 @@ def test_validation_summary_matches_the_validation_inference(setup):
     ua = score(inf.label, inf.prediction, inf.ignore, inf.entropy_nats >= h)
     assert summary["ua_vc"] == pytest.approx(ua.vc_fraction) and summary["ua_precision"] == pytest.approx(ua.precision_safe, nan_ok=True)
     assert summary["q_vc"] == pytest.approx(0.5, abs=0.02)
+    assert summary["risk_false_safe"] <= 0.3  # conformal risk control on the same images: in-sample bound
+    other = infer_split(model, HazardDataset(dataset, "val", 0.07, input_spec=spec), 3, 8, 1, torch.device("cpu"))
+    b7 = hand_metrics(other.label, other.prediction == 1, other.label != 255)
+    assert summary["base_pa@7cm"] == pytest.approx(b7[0])
+    certain = (other.label != 255) & (other.entropy_nats < h)
+    assert summary["ua_vc@7cm"] == pytest.approx(certain.sum() / (other.label != 255).sum())
