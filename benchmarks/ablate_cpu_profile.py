@@ -73,6 +73,7 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "depth1": ("1 pooling stage (100 px, no padding)", {"depth": 1}),
     "width0.5": ("width 1/2", {"width": 0.5}),
     "width0.375": ("width 3/8", {"width": 0.375}),
+    "width0.75": ("width 3/4", {"width": 0.75}),
     "minmax": ("the paper's dataset min-max heights", {"heights": "minmax", "extra_channels": ()}),
     "channels_last": ("channels-last memory format", {"channels_last": True}),
 }
