@@ -428,7 +428,7 @@ def label_cmd(directory: Path, lander_diameter: float, pad_diameter: float, max_
 @main.command("train")
 @click.argument("dataset", type=_Path(file_okay=False, path_type=Path))
 @click.option("--out", "run_dir", required=True, type=_Path(file_okay=False, path_type=Path), help="Run directory (checkpoints, metrics.csv, config.json).")
-@click.option("--profile", type=click.Choice(["paper", "cpu", "tiny"]), default="cpu", show_default=True, help="Training profile: paper (GPU, 512x512, full width), cpu (2-core machine), tiny (tests, demos).")
+@click.option("--profile", type=click.Choice(["paper", "cpu", "tiny"]), default="cpu", show_default=True, help="Training profile: paper (GPU, 512x512, full width), cpu (2-core machine), tiny (tests, demos); docs/hdnet.md lists their settings.")
 @click.option("--epochs", type=int, default=None, help="Epochs (default: the profile's).")
 @click.option("--train-sigma", type=float, default=lidar_defaults.DEFAULT_SIGMA_M, show_default=True, help="Noise level of the training inputs, metres.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of initialisation and shuffling.")
@@ -442,6 +442,7 @@ def train_cmd(dataset: Path, run_dir: Path, profile: str, epochs: int | None, tr
     """Train the Bayesian SegNet on the noisy DEMs of a labelled dataset."""
     from hdnet.errors import HdNetError
     from hdnet.fit import fit
+    from hdnet.train import load_checkpoint, median_images_per_s
 
     if epochs is not None and epochs <= 0:
         raise HdNetError(f"--epochs must be > 0, got {epochs}")
@@ -452,7 +453,11 @@ def train_cmd(dataset: Path, run_dir: Path, profile: str, epochs: int | None, tr
     _check_finite(train_sigma=train_sigma)
     checkpoint = fit(dataset, run_dir, profile_name=profile, epochs=epochs, train_sigma_m=train_sigma, seed=seed,
                      resume=resume, labels=labeling, progress=True, num_workers=num_workers, overwrite=overwrite)
-    click.echo(f"training done: {checkpoint} (metrics in {run_dir / 'metrics.csv'})")
+    timing = load_checkpoint(checkpoint).get("timing", [])
+    rate = median_images_per_s(timing)
+    seconds = sum(float(t["train_seconds"]) for t in timing)
+    speed = "" if rate is None else f"; {rate:.1f} images/s (median over {len(timing)} epochs, {seconds / 60:.1f} min of training steps)"
+    click.echo(f"training done: {checkpoint} (metrics in {run_dir / 'metrics.csv'}){speed}")
 
 
 @main.command("eval")

@@ -6,7 +6,8 @@ Prints, measured side by side in one run on one 100x100 frame at 1 m of the proc
 * the network path of ``hd detect`` per frame (input preparation, MC dropout with the shared prefix,
   back to the DEM grid, entropy), one frame at a time (latency, what a lander would do) and
   batched 8 frames per call (throughput, what ``hd detect`` does over a DTM), for the ``cpu``
-  profile (width 1/4, 100 -> 128 padding), full width at the same grid, and the ``paper`` profile
+  profile (its width and depth, its input channels, no padding of 100 x 100), the same at full
+  width, and the ``paper`` profile
   (full width, 100 -> 512 bilinear);
 * the ALHAT P(safe) baseline on the same frame (numba) and the site selection;
 * each as a fraction of ALHAT's onboard budget of 10 s per frame (target: < 1 s per frame at the
@@ -37,7 +38,6 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from hdlabels.lander import Lander  # noqa: E402
-from hdnet.data import Normalisation  # noqa: E402
 from hdnet.detect import (  # noqa: E402
     SAFETY_SAFE,
     DetectRun,
@@ -47,9 +47,11 @@ from hdnet.detect import (  # noqa: E402
     network_output,
     select_sites,
 )
+from hdnet.fit import input_spec_for  # noqa: E402
 from hdnet.infer import mc_dropout_predict, predictive_entropy  # noqa: E402
 from hdnet.model import BayesianSegNet, ModelConfig, count_parameters  # noqa: E402
-from hdnet.profiles import CPU, PAPER  # noqa: E402
+from hdnet.inputs import Normalisation, network_shape  # noqa: E402
+from hdnet.profiles import CPU, PAPER, TrainingProfile  # noqa: E402
 from hdnet.train import CHECKPOINT_SCHEMA, CHECKPOINT_VERSION, save_checkpoint  # noqa: E402
 from lidarsim.procedural import MarsTerrainParams, generate_mars_terrain, write_geotiff  # noqa: E402
 
@@ -69,12 +71,14 @@ def _median(fn, repeats: int, warmups: int = 2) -> float:
     return statistics.median(times)
 
 
-def _run(width: float, input_size: int | None, dem: np.ndarray) -> DetectRun:
+def _run(profile: TrainingProfile, width: float, dem: np.ndarray) -> DetectRun:
+    """An untrained model of ``profile``'s architecture and input preparation at ``width``."""
     torch.manual_seed(0)
-    model = BayesianSegNet(ModelConfig(width=width)).eval()
-    norm = Normalisation(float(np.nanmin(dem)) - 5.0, float(np.nanmax(dem)) + 5.0)
-    return DetectRun(Path("-"), model, {}, 0.0167, norm, input_size, LABELING["name"], LABELING, Lander(),
-                     (100, 100), 1.0, None)
+    norm = Normalisation(float(np.nanmin(dem)) - 5.0, float(np.nanmax(dem)) + 5.0) if profile.heights == "minmax" else None
+    spec = input_spec_for(profile, 1.0, norm)
+    model = BayesianSegNet(ModelConfig(in_channels=spec.n_channels, width=width, depth=profile.depth,
+                                       dropout_p=profile.dropout_p)).eval()
+    return DetectRun(Path("-"), model, {}, 0.0167, spec, LABELING["name"], LABELING, Lander(), (100, 100), 1.0, None)
 
 
 def _frame_seconds(run: DetectRun, dem: np.ndarray, samples: int, batch: int, repeats: int, warmups: int = 2) -> float:
@@ -104,12 +108,14 @@ def main() -> None:
     dem = terrain[::2, ::2].astype(np.float64)
     dem = dem - dem.mean()  # scan frame
     rows = []
-    configs = [("cpu profile", CPU.width, CPU.input_size), ("full width", 1.0, CPU.input_size)]
+    configs = [("cpu profile", CPU, CPU.width), ("cpu profile at full width", CPU, 1.0)]
     if not args.skip_paper:
-        configs.append(("paper profile", PAPER.width, PAPER.input_size))
-    for name, width, size in configs:
-        run = _run(width, size, dem)
-        grid = f"{size}x{size}" if size else "128x128 (padded)"
+        configs.append(("paper profile", PAPER, PAPER.width))
+    for name, profile, width in configs:
+        run = _run(profile, width, dem)
+        size = profile.input_size
+        rows_px, cols_px = network_shape((100, 100), size, run.input_spec.size_multiple)
+        grid = f"{size}x{size}" if size else f"{rows_px}x{cols_px}, depth {profile.depth}"
         if size is None:
             one = _frame_seconds(run, dem, args.samples, 1, args.repeats)
             eight = _frame_seconds(run, dem, args.samples, 8, args.repeats)
@@ -119,7 +125,7 @@ def main() -> None:
     threads = torch.get_num_threads()
     if threads > 1:  # one thread: no OpenMP barriers, which stall when other processes share the cores
         torch.set_num_threads(1)
-        run = _run(CPU.width, CPU.input_size, dem)
+        run = _run(CPU, CPU.width, dem)
         one = _frame_seconds(run, dem, args.samples, 1, args.repeats)
         eight = _frame_seconds(run, dem, args.samples, 8, args.repeats)
         rows.insert(1, ("cpu profile on 1 thread", one, eight))
@@ -151,13 +157,13 @@ def main() -> None:
             big = generate_mars_terrain(MarsTerrainParams(size_m=args.dtm_size), seed=2)
             dtm = Path(tmp) / "mars.tif"
             write_geotiff(dtm, big, 0.5, origin_xy=(0.0, args.dtm_size))
-            run = _run(CPU.width, CPU.input_size, dem)
+            run = _run(CPU, CPU.width, dem)
             ckpt = Path(tmp) / "run.pt"
             save_checkpoint(ckpt, {
                 "schema": CHECKPOINT_SCHEMA, "schema_version": CHECKPOINT_VERSION, "model_name": "bayesian_segnet",
                 "model_config": run.model.config.to_dict(), "profile": CPU.to_dict(), "epoch": 0,
                 "model": run.model.state_dict(),
-                "extra_config": {"train_sigma_m": 0.0167, "normalisation": run.normalisation.to_dict(),
+                "extra_config": {"train_sigma_m": 0.0167, "input": run.input_spec.to_dict(), "normalisation": None,
                                  "input_size": None, "labels": LABELING["name"], "dem_shape": [100, 100],
                                  "labeling": LABELING},
             })

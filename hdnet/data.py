@@ -2,7 +2,7 @@
 
 One sample is one scan: the noisy DEM at one noise level ``sigma_m`` (metres), prepared for the
 network, and its label (0 unsafe, 1 safe, 255 ignored), as a dict
-``{"image": (1, H, W) float32, "mask": (H, W) int64, "index": int}`` (plus ``"ignore"``, bool (H, W),
+``{"image": (C, H, W) float32, "mask": (H, W) int64, "index": int}`` (plus ``"ignore"``, bool (H, W),
 with dead pixels). Preparation, in order:
 
 1. dead pixels (``dead_pixels=K`` only): K pixels of the noisy DEM, drawn per scan index with
@@ -11,14 +11,19 @@ with dead pixels). Preparation, in order:
    lander-size neighbourhood mask becomes ``"ignore"``;
 2. holes: NaN cells of the noisy DEM (no lidar return) take the value of the nearest finite cell
    (Euclidean distance, ``scipy.ndimage.distance_transform_edt``) and their label is set to 255;
-3. min-max normalisation with the *training* split's min and max at the same noise level
-   (``compute_normalisation``), so 0 and 1 are the training extremes;
-4. grid: with ``input_size`` (the ``paper`` profile: 512) the image is resized bilinearly
+3. augmentation (``augment="d4"``, training only): one of the eight rotations/flips of the square
+   grid, drawn uniformly from torch's random stream, applied to the DEMs, label and masks alike
+   (``hdnet.augment``; allowed only for labellings whose rule is invariant under them);
+4. the input channels of ``hdnet.inputs.network_input`` with the run's ``InputSpec``: the paper's
+   min-max normalisation with the *training* split's min and max at the same noise level
+   (``compute_normalisation``) by default, or per-DEM relative heights and extra channels;
+5. grid: with ``input_size`` (the ``paper`` profile: 512) the image is resized bilinearly
    (``align_corners=False``) to ``input_size x input_size`` and the label and ignore mask by
    nearest neighbour (``nearest-exact``); without it the image is padded on the bottom and right to
-   the next multiple of 32 by edge replication and the label with 255 (never trained on).
+   the next multiple of the network's 2**depth (32 for the paper's depth) by edge replication and
+   the label with 255 (never trained on).
 
-``to_dem_grid`` undoes step 4 for network outputs: crop for padding, area averaging of the
+``to_dem_grid`` undoes step 5 for network outputs: crop for padding, area averaging of the
 probabilities over each DEM cell for resizing, so metrics are always computed on the DEM grid.
 
 The h5py handles are opened lazily in the process that reads (re-opened after a fork), never
@@ -37,8 +42,6 @@ from typing import Any
 
 import numpy as np
 import torch
-import torch.nn.functional as F
-from scipy import ndimage
 from torch.utils.data import Dataset
 
 from hdlabels.deadpixels import drop_and_repair, random_dead_pixels
@@ -51,7 +54,18 @@ from hdlabels.store import (
     open_label_shard,
 )
 from hdnet import defaults
+from hdnet.augment import D4_ORDER, check_augment, transform_sample
 from hdnet.errors import HdNetError
+from hdnet.inputs import (  # noqa: F401  (re-exported: the grid helpers belong to the input preparation)
+    InputSpec,
+    Normalisation,
+    fill_holes,
+    masks_to_network_grid,
+    network_input,
+    network_shape,
+    to_dem_grid,
+    to_network_grid,
+)
 from lidarsim.storage import CheckedH5File, FormatError, open_h5
 
 SPLITS: tuple[str, str, str] = ("train", "val", "test")  # split codes 0, 1, 2 of the label shards
@@ -60,29 +74,6 @@ SIGMA_EXACT_TOLERANCE_M = 1e-9  # hd choice: two noise levels closer than this a
 # for S-167 = 0.05/3 m, as written on the command line), when exactly one dataset sigma does.
 SIGMA_PRINTED_TOLERANCE_M = 0.5e-4
 DEAD_PIXEL_STREAM = 0xDEAD  # hd choice: stream key of the dead-pixel draws, (seed, scan index, this)
-
-
-@dataclass(frozen=True)
-class Normalisation:
-    """Min-max normalisation of heights: ``(z - min_m) / (max_m - min_m)`` (metres in, unitless out)."""
-
-    min_m: float
-    max_m: float
-
-    def apply(self, dem_m: np.ndarray) -> np.ndarray:
-        """Normalised heights (float32); a flat training set (max == min) only subtracts the min."""
-        span = self.max_m - self.min_m
-        return ((np.asarray(dem_m, np.float64) - self.min_m) / (span if span > 0 else 1.0)).astype(np.float32)
-
-    def to_dict(self) -> dict[str, float]:
-        return {"min_m": float(self.min_m), "max_m": float(self.max_m)}
-
-    @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> Normalisation:
-        try:
-            return cls(float(data["min_m"]), float(data["max_m"]))
-        except (KeyError, TypeError, ValueError):
-            raise HdNetError(f"a normalisation needs numeric 'min_m' and 'max_m', got {data!r}.") from None
 
 
 @dataclass(frozen=True)
@@ -183,54 +174,6 @@ def compute_normalisation(dataset_dir: str | os.PathLike, sigma_m: float, labels
     return Normalisation(lo, hi)
 
 
-# --- grids -------------------------------------------------------------------------------------
-def network_shape(dem_shape: tuple[int, int], input_size: int | None) -> tuple[int, int]:
-    """(H, W) the network sees: ``input_size`` squared, or the DEM padded to a multiple of 32."""
-    if input_size is not None:
-        return int(input_size), int(input_size)
-    m = defaults.SIZE_MULTIPLE_PX
-    return tuple(int(math.ceil(n / m) * m) for n in dem_shape)  # type: ignore[return-value]
-
-
-def to_network_grid(
-    image: torch.Tensor, masks: list[torch.Tensor], input_size: int | None, pad_values: list[int]
-) -> tuple[torch.Tensor, list[torch.Tensor]]:
-    """Image (C, h, w) float and masks (h, w) to the network grid (see the module docstring, step 4)."""
-    h, w = image.shape[-2:]
-    H, W = network_shape((h, w), input_size)
-    if input_size is not None:
-        img = F.interpolate(image[None], size=(H, W), mode="bilinear", align_corners=False)[0]
-        out = [F.interpolate(m[None, None].float(), size=(H, W), mode="nearest-exact")[0, 0].to(m.dtype) for m in masks]
-        return img, out
-    pad = (0, W - w, 0, H - h)
-    img = F.pad(image[None], pad, mode="replicate")[0] if (H, W) != (h, w) else image
-    out = [F.pad(m, pad, value=v) for m, v in zip(masks, pad_values)]
-    return img, out
-
-
-def to_dem_grid(probs: torch.Tensor, dem_shape: tuple[int, int], input_size: int | None) -> torch.Tensor:
-    """Network-grid probabilities (N, C, H, W) back to the DEM grid (N, C, h, w).
-
-    Padding: crop the top-left ``dem_shape``. Resizing: the mean over the network pixels covering
-    each DEM cell (``area`` interpolation = adaptive average pooling), which keeps probabilities summing to 1.
-    """
-    h, w = dem_shape
-    if input_size is None:
-        return probs[..., :h, :w]
-    return F.interpolate(probs, size=(h, w), mode="area")
-
-
-def fill_holes(dem_m: np.ndarray) -> np.ndarray:
-    """NaN cells take the value of the nearest finite cell (Euclidean); an all-NaN DEM becomes zeros."""
-    bad = ~np.isfinite(dem_m)
-    if not bad.any():
-        return dem_m
-    if bad.all():
-        return np.zeros_like(dem_m)
-    idx = ndimage.distance_transform_edt(bad, return_distances=False, return_indices=True)
-    return dem_m[tuple(idx)]
-
-
 # --- the dataset -------------------------------------------------------------------------------
 class HazardDataset(Dataset):
     """Samples of one split of a labelled dataset at one noise level (see the module docstring).
@@ -244,6 +187,10 @@ class HazardDataset(Dataset):
         normalisation: min/max heights; default: ``compute_normalisation`` on the training split.
         dead_pixels: K pixels dropped and repaired per noisy DEM (0: none).
         seed: seed of the dead-pixel draws.
+        input_spec: how DEMs become network inputs (``hdnet.inputs``); when given it replaces
+            ``input_size`` and ``normalisation`` (default: the paper's min-max heights with them).
+        augment: ``"none"`` or ``"d4"`` (a random rotation/flip per sample; refused for a labelling
+            whose lander rule is not invariant under them).
     """
 
     def __init__(
@@ -256,11 +203,11 @@ class HazardDataset(Dataset):
         normalisation: Normalisation | None = None,
         dead_pixels: int = 0,
         seed: int = 0,
+        input_spec: InputSpec | None = None,
+        augment: str = "none",
     ) -> None:
         if split not in SPLITS:
             raise HdNetError(f"split must be one of {', '.join(SPLITS)}, got {split!r}.")
-        if input_size is not None and (not isinstance(input_size, int) or input_size < 1):
-            raise HdNetError(f"input_size must be a positive integer number of pixels or None, got {input_size!r}.")
         self.dataset_dir = Path(dataset_dir)
         self.split = split
         self.entry, self.paths = open_labeling(dataset_dir, labels)
@@ -268,7 +215,6 @@ class HazardDataset(Dataset):
         self.sigmas_m = dataset_sigmas(self.paths)
         self.sigma_index = sigma_index(self.sigmas_m, sigma_m)
         self.sigma_m = self.sigmas_m[self.sigma_index]
-        self.input_size = input_size
         self.lander = lander_of(self.entry)
         self.spacing_m = dem_spacing_m(self.entry)
         dem = self.entry.get("dem", {})
@@ -291,7 +237,13 @@ class HazardDataset(Dataset):
                 raise HdNetError(f"{path}: its noise levels differ from the other label shards.")
             items += [(k, int(r), int(scans[r])) for r in np.flatnonzero(splits == code)]
         self.items = items
-        self.normalisation = normalisation if normalisation is not None else compute_normalisation(dataset_dir, self.sigma_m, labels)
+        if input_spec is None:
+            norm = normalisation if normalisation is not None else compute_normalisation(dataset_dir, self.sigma_m, labels)
+            input_spec = InputSpec(heights="minmax", normalisation=norm, input_size=input_size, spacing_m=self.spacing_m)
+        self.input_spec = input_spec
+        self.input_size = input_spec.input_size
+        self.normalisation = input_spec.normalisation
+        self.augment = check_augment(augment, self.lander)
         self._files: dict[int, CheckedH5File] = {}
         self._pid = -1
 
@@ -356,20 +308,24 @@ class HazardDataset(Dataset):
         )
 
     def prepare(self, sample: DemSample) -> dict[str, Any]:
-        """Steps 3-4: the network-ready dict of a DEM-grid sample."""
-        image = torch.from_numpy(self.normalisation.apply(sample.dem_filled_m))[None]
-        masks = [torch.from_numpy(sample.label)]
+        """Steps 4-5: the network-ready dict of a DEM-grid sample (``network_input`` for the image)."""
+        spec = self.input_spec
+        image = network_input(sample.dem_filled_m, spec)
+        masks = [torch.from_numpy(np.ascontiguousarray(sample.label))]
         if self.dead_pixels:
-            masks.append(torch.from_numpy(sample.ignore))
-        image, masks = to_network_grid(image, masks, self.input_size, [defaults.IGNORE_INDEX, True])
-        out: dict[str, Any] = {"image": image.contiguous(), "mask": masks[0].contiguous(), "index": sample.scan_index}
+            masks.append(torch.from_numpy(np.ascontiguousarray(sample.ignore)))
+        masks = masks_to_network_grid(masks, spec.input_size, [defaults.IGNORE_INDEX, True], spec.size_multiple)
+        out: dict[str, Any] = {"image": image, "mask": masks[0].contiguous(), "index": sample.scan_index}
         if self.dead_pixels:
             out["ignore"] = masks[1].contiguous()
         return out
 
     def __getitem__(self, i: int) -> dict[str, Any]:
-        return self.prepare(self.dem_sample(i))
+        sample = self.dem_sample(i)
+        if self.augment == "d4":
+            sample = transform_sample(sample, int(torch.randint(D4_ORDER, ())))
+        return self.prepare(sample)
 
     def to_dem_grid(self, probs: torch.Tensor) -> torch.Tensor:
         """Network-grid probabilities (N, C, H, W) of this dataset's samples back to the DEM grid."""
-        return to_dem_grid(probs, self.dem_shape, self.input_size)
+        return to_dem_grid(probs, self.dem_shape, self.input_spec.input_size)

@@ -60,17 +60,15 @@ from hdlabels.store import find_labeling
 from hdnet import defaults
 from hdnet._version import __version__
 from hdnet.data import (
-    Normalisation,
     dataset_sigmas,
     dem_spacing_m,
-    fill_holes,
     lander_of,
     open_labeling,
     sigma_index,
-    to_dem_grid,
-    to_network_grid,
 )
 from hdnet.errors import HdNetError
+from hdnet.inputs import InputSpec, to_dem_grid
+from hdnet.inputs import network_input as prepare_input
 from hdnet.evaluate import (
     checkpoint_path,
     preferred_labeling,
@@ -119,14 +117,18 @@ class DetectRun:
     model: BayesianSegNet
     ckpt: dict[str, Any] = field(repr=False)
     train_sigma_m: float
-    normalisation: Normalisation
-    input_size: int | None
+    input_spec: InputSpec
     labels: str
     labeling: dict[str, Any]
     lander: Lander
     dem_shape: tuple[int, int]
     spacing_m: float
     dataset: Path | None
+
+    @property
+    def input_size(self) -> int | None:
+        """Network input size in pixels (square), None when DEMs are padded instead of resized."""
+        return self.input_spec.input_size
 
 
 def load_run(run_dir: str | os.PathLike, device: torch.device) -> DetectRun:
@@ -139,7 +141,7 @@ def load_run(run_dir: str | os.PathLike, device: torch.device) -> DetectRun:
     if not Path(run_dir).exists():
         raise HdNetError(f"run {run_dir} does not exist.")
     model, ckpt = load_trained_model(path, map_location=device)
-    train_sigma, norm, input_size, labels = run_data(ckpt, path)
+    train_sigma, input_spec, labels = run_data(ckpt, path)
     extra = ckpt.get("extra_config") or {}
     dataset = Path(extra["dataset"]) if extra.get("dataset") else None
     if dataset is not None and not (dataset / MANIFEST_NAME).is_file():
@@ -152,19 +154,16 @@ def load_run(run_dir: str | os.PathLike, device: torch.device) -> DetectRun:
         labeling = {k: v for k, v in find_labeling(dataset, labels).items() if k != "shards"}
     dem = labeling.get("dem", {})
     shape = extra.get("dem_shape") or [dem.get("rows", defaults.DEM_SIZE_PX), dem.get("cols", defaults.DEM_SIZE_PX)]
-    return DetectRun(path, model, ckpt, train_sigma, norm, input_size, str(labeling.get("name", labels)), labeling,
+    return DetectRun(path, model, ckpt, train_sigma, input_spec, str(labeling.get("name", labels)), labeling,
                      lander_of(labeling), (int(shape[0]), int(shape[1])), dem_spacing_m(labeling), dataset)
 
 
 def network_input(dem_m: np.ndarray, run: DetectRun) -> torch.Tensor:
     """(1, C, H, W) network input of one DEM (metres, scan frame, NaN holes), prepared exactly as in training.
 
-    The one place where detection prepares inputs: hole filling, the run's normalisation and grid
-    (``hdnet.data``), the same calls as ``HazardDataset.dem_sample`` and ``prepare``.
+    ``hdnet.inputs.network_input`` with the run's ``InputSpec``: the call ``HazardDataset`` makes.
     """
-    image = torch.from_numpy(run.normalisation.apply(fill_holes(np.asarray(dem_m, np.float32))))[None]
-    image, _ = to_network_grid(image, [], run.input_size, [])
-    return image[None].contiguous()
+    return prepare_input(np.asarray(dem_m, np.float32), run.input_spec)[None].contiguous()
 
 
 def network_output(mean_probs: torch.Tensor, run: DetectRun) -> torch.Tensor:
@@ -625,8 +624,8 @@ def detect(
             timings: dict[str, float] = {}
             t0 = time.perf_counter()
             if spec is not None:
-                val_ds = split_dataset(calib_dir, "val", run.train_sigma_m, input_size=run.input_size,  # type: ignore[arg-type]
-                                       labels=calib_labels, normalisation=run.normalisation, seed=seed)
+                val_ds = split_dataset(calib_dir, "val", run.train_sigma_m, labels=calib_labels,  # type: ignore[arg-type]
+                                       input_spec=run.input_spec, seed=seed)
                 th = validation_threshold(run.model, val_ds, spec, mc_samples=mc_samples, batch_size=batch_size,
                                           seed=seed, device=dev)
                 h_t, threshold_info = th.value_nats, dict(th.info, calibration_dataset=str(Path(calib_dir).resolve()),  # type: ignore[arg-type]

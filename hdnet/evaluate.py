@@ -15,7 +15,8 @@ Protocol (docs/evaluation.md; paper, "Results & Discussion"):
    baseline recomputed on the repaired DEM and the lander-size neighbourhoods ignored for every
    method (table ``dead_pixels``, the paper's Table 2).
 
-Inputs are prepared exactly as in training (normalisation and grid from the checkpoint).
+Inputs are prepared exactly as in training: ``hdnet.inputs.network_input`` with the run's
+``InputSpec`` (from the checkpoint; runs older than input specs read as the paper's min-max).
 """
 
 from __future__ import annotations
@@ -33,13 +34,13 @@ from hdlabels.alhat import safety_probability
 from hdnet import defaults
 from hdnet.data import (
     HazardDataset,
-    Normalisation,
     dataset_sigmas,
     open_labeling,
     sigma_index,
 )
 from hdnet.errors import HdNetError
 from hdnet.infer import mc_dropout_predict, predictive_entropy
+from hdnet.inputs import InputSpec
 from hdnet.metrics import ConfusionAccumulator, SegmentationMetrics
 from hdnet.model import BayesianSegNet
 from hdnet.thresholds import (
@@ -242,25 +243,28 @@ def checkpoint_path(run_dir: str | os.PathLike) -> Path:
     return path / LAST if path.is_dir() else path
 
 
-def run_data(ckpt: dict[str, Any], path: Path) -> tuple[float, Normalisation, int | None, str | None]:
-    """(training sigma in metres, normalisation, network input size or None, labelling name) of a checkpoint.
+def run_data(ckpt: dict[str, Any], path: Path) -> tuple[float, InputSpec, str | None]:
+    """(training sigma in metres, input spec, labelling name) of a checkpoint.
 
     Raises HdNetError for a checkpoint not trained by ``hdnet.fit`` (no run data config).
     """
     extra = ckpt.get("extra_config") or {}
-    if "train_sigma_m" not in extra or "normalisation" not in extra:
+    if "train_sigma_m" not in extra or ("input" not in extra and "normalisation" not in extra):
         raise HdNetError(f"{path} was not trained by hdnet.fit: its run config lacks the training sigma and normalisation.")
-    size = extra.get("input_size")
-    return float(extra["train_sigma_m"]), Normalisation.from_dict(extra["normalisation"]), (None if size is None else int(size)), extra.get("labels")
+    try:
+        spec = InputSpec.from_run_config(extra, ckpt.get("model_config"))
+    except HdNetError as exc:
+        raise HdNetError(f"{path}: {str(exc).rstrip('.')}.") from None
+    return float(extra["train_sigma_m"]), spec, extra.get("labels")
 
 
 def split_dataset(
-    dataset_dir: str | os.PathLike, split: str, sigma_m: float, *, input_size: int | None, labels: str,
-    normalisation: Normalisation, dead_pixels: int = 0, seed: int = 0,
+    dataset_dir: str | os.PathLike, split: str, sigma_m: float, *, labels: str, input_spec: InputSpec,
+    dead_pixels: int = 0, seed: int = 0,
 ) -> HazardDataset:
     """One split of a labelled dataset prepared as the run's training inputs were; HdNetError when empty."""
-    ds = HazardDataset(dataset_dir, split, sigma_m, input_size=input_size, labels=labels, normalisation=normalisation,
-                       dead_pixels=dead_pixels, seed=seed)
+    ds = HazardDataset(dataset_dir, split, sigma_m, labels=labels, input_spec=input_spec, dead_pixels=dead_pixels,
+                       seed=seed)
     if len(ds) == 0:
         raise HdNetError(f"{dataset_dir}: the {split} split is empty.")
     return ds
@@ -349,7 +353,8 @@ def evaluate(
     ckpt_path = checkpoint_path(run_dir)
     dev = torch.device(device) if device else torch.device("cuda" if torch.cuda.is_available() else "cpu")
     model, ckpt = load_trained_model(ckpt_path, map_location=dev)
-    train_sigma, norm, input_size, run_labels = run_data(ckpt, ckpt_path)
+    train_sigma, input_spec, run_labels = run_data(ckpt, ckpt_path)
+    input_size = input_spec.input_size
     entry, paths = open_labeling(dataset_dir, labels if labels is not None else preferred_labeling(dataset_dir, run_labels))
     dem = entry.get("dem", {})
     n_pixels = int(dem.get("rows", defaults.DEM_SIZE_PX)) * int(dem.get("cols", defaults.DEM_SIZE_PX))
@@ -359,8 +364,7 @@ def evaluate(
     lab = str(entry["name"])
 
     def dataset(split: str, sigma: float, dead: int = 0) -> HazardDataset:
-        return split_dataset(dataset_dir, split, sigma, input_size=input_size, labels=lab, normalisation=norm,
-                             dead_pixels=dead, seed=seed)
+        return split_dataset(dataset_dir, split, sigma, labels=lab, input_spec=input_spec, dead_pixels=dead, seed=seed)
 
     # 1. threshold from the validation split at the training sigma
     th = validation_threshold(model, dataset("val", train_sigma), spec, mc_samples=mc_samples, batch_size=batch_size,
@@ -409,6 +413,7 @@ def evaluate(
     run_info = {
         "checkpoint": str(ckpt_path.resolve()), "epoch": int(ckpt.get("epoch", 0)), "profile": ckpt.get("profile", {}).get("name"),
         "model_config": ckpt.get("model_config"), "train_sigma_m": train_sigma, "input_size": input_size,
+        "input": input_spec.to_dict(),
         "dataset": str(root), "manifest_sha256": sha256_file(root / MANIFEST_NAME), "labels": lab,
         "same_dataset_as_training": extra.get("manifest_sha256") == sha256_file(root / MANIFEST_NAME),
         "sigmas_m": list(sigmas), "mc_samples": mc_samples, "drop_pixels": drop_pixels, "seed": seed,
@@ -418,6 +423,69 @@ def evaluate(
                               tests, val_entropy)
     write_report(result, Path(out_dir), figures=figures, overwrite=overwrite)
     return result
+
+
+def validation_summary(
+    run_dir: str | os.PathLike,
+    dataset_dir: str | os.PathLike,
+    mc_samples: int = defaults.MC_SAMPLES,
+    labels: str | None = None,
+    seed: int = 0,
+    batch_size: int = 8,
+    quantile: float = 0.5,
+    other_sigmas_m: tuple[float, ...] = (),
+    risk_alpha: float = 0.05,
+) -> dict[str, float]:
+    """Validation-split numbers of a run (for choosing settings without ever reading the test split).
+
+    MC dropout over the validation split at the training noise level, then: the base net's
+    ``base_pa``, ``base_miou``, ``base_precision``, ``base_sensitivity``; the uncertainty-aware map at
+    the mean validation entropy (``ua_vc``, ``ua_pa``, ``ua_miou``, ``ua_precision``,
+    ``ua_sensitivity``, ``threshold_nats``); at the ``quantile`` of the validation entropies (V/C =
+    ``quantile`` by construction): ``q_precision``, ``q_sensitivity``, ``q_vc``; at the conformal
+    ``risk:risk_alpha`` threshold chosen on these same images (in-sample, so an optimistic
+    estimate): ``risk_false_safe``, ``risk_sensitivity``, ``risk_vc``. For each of
+    ``other_sigmas_m`` (metres), the validation split at that noise level with the same two
+    thresholds: ``base_pa@S``, ``ua_vc@S``, ``ua_precision@S``, ``ua_sensitivity@S``,
+    ``q_precision@S`` with S the sigma in cm (e.g. ``ua_precision@7cm``). Fractions in [0, 1].
+    """
+    ckpt_path = checkpoint_path(run_dir)
+    dev = torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    model, ckpt = load_trained_model(ckpt_path, map_location=dev)
+    train_sigma, input_spec, run_labels = run_data(ckpt, ckpt_path)
+    entry, _ = open_labeling(dataset_dir, labels if labels is not None else preferred_labeling(dataset_dir, run_labels))
+
+    def val_at(sigma: float) -> SplitInference:
+        ds = split_dataset(dataset_dir, "val", sigma, labels=str(entry["name"]), input_spec=input_spec)
+        return infer_split(model, ds, mc_samples, batch_size, seed, dev)
+
+    inf = val_at(train_sigma)
+    cal = EntropyCalibration()
+    cal.update(torch.from_numpy(inf.entropy_nats), torch.from_numpy(inf.prediction), torch.from_numpy(inf.label))
+    h_mean, h_q = cal.mean(), cal.quantile(quantile)
+    h_risk = select_threshold(f"risk:{risk_alpha}", cal)
+    base = score(inf.label, inf.prediction, inf.ignore)
+    ua = score(inf.label, inf.prediction, inf.ignore, inf.entropy_nats >= h_mean)
+    q = score(inf.label, inf.prediction, inf.ignore, inf.entropy_nats >= h_q)
+    risk = score(inf.label, inf.prediction, inf.ignore, inf.entropy_nats >= h_risk)
+    out = {
+        "base_pa": base.pixel_accuracy, "base_miou": base.miou, "base_precision": base.precision_safe,
+        "base_sensitivity": base.sensitivity_safe, "threshold_nats": h_mean, "ua_vc": float(ua.vc_fraction or 0.0),
+        "ua_pa": ua.pixel_accuracy, "ua_miou": ua.miou, "ua_precision": ua.precision_safe,
+        "ua_sensitivity": ua.sensitivity_safe, "q_precision": q.precision_safe, "q_sensitivity": q.sensitivity_safe,
+        "q_vc": float(q.vc_fraction or 0.0), "risk_false_safe": cal.risk(h_risk), "risk_sensitivity": risk.sensitivity_safe,
+        "risk_vc": float(risk.vc_fraction or 0.0),
+    }
+    for sigma in other_sigmas_m:
+        other = val_at(sigma)
+        tag = f"@{sigma * 100:.3g}cm"
+        b = score(other.label, other.prediction, other.ignore)
+        u = score(other.label, other.prediction, other.ignore, other.entropy_nats >= h_mean)
+        qq = score(other.label, other.prediction, other.ignore, other.entropy_nats >= h_q)
+        out.update({f"base_pa{tag}": b.pixel_accuracy, f"ua_vc{tag}": float(u.vc_fraction or 0.0),
+                    f"ua_precision{tag}": u.precision_safe, f"ua_sensitivity{tag}": u.sensitivity_safe,
+                    f"q_precision{tag}": qq.precision_safe})
+    return out
 
 
 def preferred_labeling(dataset_dir: str | os.PathLike, run_labels: str | None) -> str | None:

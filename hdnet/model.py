@@ -12,8 +12,13 @@ Layout at width 1.0 (29,443,010 parameters with 1 input channel and 2 classes):
   (the "central" Bayesian SegNet placement), as ``MCDropout`` modules named ``drop_pool3``,
   ``drop_pool4``, ``drop_pool5``, ``drop_dec5``, ``drop_dec4``, ``drop_dec3``.
 
-Sizes not divisible by 32: ``prefix`` pads the input on the bottom and right with edge replication
-("replicate") up to the next multiple of 32, and ``suffix`` crops the logits back to the input size,
+``ModelConfig.depth`` < 5 keeps the first ``depth`` VGG16 blocks, their mirrored decoder units and
+the central dropout on the deepest three levels (``drop_pool{k}``, ``drop_dec{k}`` for k from
+``depth - 2`` to ``depth``; all levels when ``depth`` < 3). A shallower network sees less context
+(pooling halves the grid ``depth`` times) and needs less padding (to a multiple of 2**depth).
+
+Sizes not divisible by 2**depth (32 at depth 5): ``prefix`` pads the input on the bottom and right
+with edge replication ("replicate") up to the next multiple, and ``suffix`` crops the logits back to the input size,
 so any H, W >= 1 works and the output has the input's size. Replication keeps heights plausible at
 the padded border; those pixels never reach the loss (they are cropped away).
 
@@ -41,13 +46,17 @@ MODEL_NAME = "bayesian_segnet"
 class ModelConfig:
     """Hyper-parameters that define the architecture (stored in every checkpoint).
 
-    ``width`` scales every channel count (rounded, at least 1); ``dropout_p`` is the drop probability.
+    ``width`` scales every channel count (rounded, at least 1); ``dropout_p`` is the drop probability;
+    ``depth`` is the number of encoder blocks, each ending in a 2x2 max-pool (5 = the paper's VGG16
+    SegNet; fewer keeps VGG16's first ``depth`` blocks and their mirrored decoder units). Checkpoints
+    written before ``depth`` existed hold 5-block models and load with the default.
     """
 
     in_channels: int = defaults.IN_CHANNELS
     n_classes: int = defaults.N_CLASSES
     width: float = 1.0
     dropout_p: float = defaults.DROPOUT_P
+    depth: int = len(defaults.ENCODER_CHANNELS)
 
     def __post_init__(self) -> None:
         if self.in_channels < 1 or self.n_classes < 2:
@@ -56,6 +65,14 @@ class ModelConfig:
             raise HdNetError(f"width must be > 0, got {self.width}.")
         if not 0.0 <= self.dropout_p < 1.0:
             raise HdNetError(f"dropout_p must be in [0, 1), got {self.dropout_p}.")
+        n_blocks = len(defaults.ENCODER_CHANNELS)
+        if isinstance(self.depth, bool) or not isinstance(self.depth, int) or not 1 <= self.depth <= n_blocks:
+            raise HdNetError(f"depth must be an integer number of encoder blocks in [1, {n_blocks}], got {self.depth!r}.")
+
+    @property
+    def size_multiple(self) -> int:
+        """Inputs are padded to a multiple of 2**depth pixels (one halving per pooling stage)."""
+        return 2**self.depth
 
     def to_dict(self) -> dict[str, float | int]:
         """Plain-type dictionary (for checkpoints and config.json)."""
@@ -69,13 +86,14 @@ class MCDropout(nn.Dropout):
 class PrefixState(NamedTuple):
     """Output of ``BayesianSegNet.prefix``: what the stochastic suffix needs.
 
-    ``features``: pool3 output (N, C, H/8, W/8); ``indices``/``sizes``: pooling indices and pre-pool
-    sizes of pools 1-3 (for unpooling); ``input_hw``: the unpadded input size (pixels).
+    ``features``: output of the last pool before the first dropout (pool3, (N, C, H/8, W/8), at
+    depth 5); ``indices``/``sizes``: pooling indices and pre-pool sizes of those pools (for
+    unpooling); ``input_hw``: the unpadded input size (pixels).
     """
 
     features: torch.Tensor
-    indices: tuple[torch.Tensor, torch.Tensor, torch.Tensor]
-    sizes: tuple[torch.Size, torch.Size, torch.Size]
+    indices: tuple[torch.Tensor, ...]
+    sizes: tuple[torch.Size, ...]
     input_hw: tuple[int, int]
 
     def repeat(self, times: int) -> PrefixState:
@@ -106,67 +124,73 @@ class BayesianSegNet(nn.Module):
         super().__init__()
         self.config = config if config is not None else ModelConfig(**kwargs)  # type: ignore[arg-type]
         cfg = self.config
-        enc = [[_scaled(c, cfg.width) for c in block] for block in defaults.ENCODER_CHANNELS]
+        enc = [[_scaled(c, cfg.width) for c in block] for block in defaults.ENCODER_CHANNELS[: cfg.depth]]
         # Encoder: block k maps (previous block's last width) -> its channels.
         c_prev = cfg.in_channels
-        encoders = []
-        for block in enc:
-            encoders.append(_block([c_prev, *block]))
+        for k, block in enumerate(enc, start=1):
+            setattr(self, f"enc{k}", _block([c_prev, *block]))
             c_prev = block[-1]
-        self.enc1, self.enc2, self.enc3, self.enc4, self.enc5 = encoders
         # Decoder k mirrors encoder k: same widths, the last layer going to the previous block's width.
         # Unit 1 has one conv-BN-ReLU (64 -> 64); its second layer is the classifier conv (64 -> classes).
-        decoders = [_block(list(reversed(enc[0])))]
-        decoders += [_block([*reversed(block), enc[k - 1][-1]]) for k, block in enumerate(enc) if k > 0]
-        self.dec1, self.dec2, self.dec3, self.dec4, self.dec5 = decoders
+        setattr(self, "dec1", _block(list(reversed(enc[0]))))
+        for k in range(1, cfg.depth):
+            setattr(self, f"dec{k + 1}", _block([*reversed(enc[k]), enc[k - 1][-1]]))
         self.classifier = nn.Conv2d(enc[0][0], cfg.n_classes, kernel_size=3, padding=1)
         self.pool = nn.MaxPool2d(2, 2, return_indices=True)
         self.unpool = nn.MaxUnpool2d(2, 2)
-        p = cfg.dropout_p
-        self.drop_pool3, self.drop_pool4, self.drop_pool5 = MCDropout(p), MCDropout(p), MCDropout(p)
-        self.drop_dec5, self.drop_dec4, self.drop_dec3 = MCDropout(p), MCDropout(p), MCDropout(p)
+        # Central dropout: after the deepest pools and at the end of the deepest decoder units.
+        self.first_dropout_level = cfg.depth - min(defaults.DROPOUT_UNITS, cfg.depth) + 1
+        for k in range(self.first_dropout_level, cfg.depth + 1):
+            setattr(self, f"drop_pool{k}", MCDropout(cfg.dropout_p))
+        for k in range(cfg.depth, self.first_dropout_level - 1, -1):
+            setattr(self, f"drop_dec{k}", MCDropout(cfg.dropout_p))
+
+    @property
+    def size_multiple(self) -> int:
+        """Input sizes are padded internally to a multiple of this (2**depth pixels)."""
+        return self.config.size_multiple
 
     def dropout_modules(self) -> list[MCDropout]:
-        """The six MC-dropout modules, in forward order."""
+        """The MC-dropout modules, in forward order."""
         return [m for m in self.modules() if isinstance(m, MCDropout)]
 
+    def _level(self, kind: str, k: int) -> nn.Module:
+        return getattr(self, f"{kind}{k}")
+
     def prefix(self, x: torch.Tensor) -> PrefixState:
-        """Deterministic part: pad to a multiple of 32, encoder blocks 1-3 and pool3 (before any dropout)."""
+        """Deterministic part: pad to a multiple of 2**depth, the encoder blocks up to the first dropout
+        (blocks 1-3 and pool3 at depth 5)."""
         if x.dim() != 4 or x.shape[1] != self.config.in_channels:
             raise HdNetError(f"input must have shape (N, {self.config.in_channels}, H, W), got {tuple(x.shape)}.")
         h, w = int(x.shape[-2]), int(x.shape[-1])
-        m = defaults.SIZE_MULTIPLE_PX
+        m = self.size_multiple
         pad_h, pad_w = (-h) % m, (-w) % m
         if pad_h or pad_w:
             x = F.pad(x, (0, pad_w, 0, pad_h), mode="replicate")
-        x = self.enc1(x)
-        s1 = x.shape
-        x, i1 = self.pool(x)
-        x = self.enc2(x)
-        s2 = x.shape
-        x, i2 = self.pool(x)
-        x = self.enc3(x)
-        s3 = x.shape
-        x, i3 = self.pool(x)
-        return PrefixState(x, (i1, i2, i3), (s1, s2, s3), (h, w))
+        indices, sizes = [], []
+        for k in range(1, self.first_dropout_level + 1):
+            x = self._level("enc", k)(x)
+            sizes.append(x.shape)
+            x, idx = self.pool(x)
+            indices.append(idx)
+        return PrefixState(x, tuple(indices), tuple(sizes), (h, w))
 
     def suffix(self, state: PrefixState) -> torch.Tensor:
-        """Stochastic part: dropout after pool3, encoder 4-5, the decoder and the classifier; crops back."""
-        (i1, i2, i3), (s1, s2, s3) = state.indices, state.sizes
-        x = self.drop_pool3(state.features)
-        x = self.enc4(x)
-        s4 = x.shape
-        x, i4 = self.pool(x)
-        x = self.drop_pool4(x)
-        x = self.enc5(x)
-        s5 = x.shape
-        x, i5 = self.pool(x)
-        x = self.drop_pool5(x)
-        x = self.drop_dec5(self.dec5(self.unpool(x, i5, output_size=s5[-2:])))
-        x = self.drop_dec4(self.dec4(self.unpool(x, i4, output_size=s4[-2:])))
-        x = self.drop_dec3(self.dec3(self.unpool(x, i3, output_size=s3[-2:])))
-        x = self.dec2(self.unpool(x, i2, output_size=s2[-2:]))
-        x = self.dec1(self.unpool(x, i1, output_size=s1[-2:]))
+        """Stochastic part: the dropout after the prefix's last pool, the remaining encoder blocks, the
+        decoder and the classifier; crops back to the input size."""
+        indices, sizes = list(state.indices), list(state.sizes)
+        first, depth = self.first_dropout_level, self.config.depth
+        x = self._level("drop_pool", first)(state.features)
+        for k in range(first + 1, depth + 1):
+            x = self._level("enc", k)(x)
+            sizes.append(x.shape)
+            x, idx = self.pool(x)
+            indices.append(idx)
+            x = self._level("drop_pool", k)(x)
+        for k in range(depth, 0, -1):
+            x = self._level("dec", k)(self.unpool(x, indices[k - 1], output_size=sizes[k - 1][-2:]))
+            if k >= first:
+                x = self._level("drop_dec", k)(x)
         x = self.classifier(x)
         h, w = state.input_hw
         return x[..., :h, :w]

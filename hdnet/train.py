@@ -5,8 +5,12 @@ Run directory layout (all written by rank 0, each file atomically: temporary nam
 * ``config.json``: profile, model config, seed, epochs, world size, versions, ``extra_config``
   (e.g. the training split's normalisation min/max);
 * ``last.pt``: checkpoint after the latest epoch; ``best.pt``: the epoch with the lowest validation loss;
-* ``metrics.csv``: ``epoch, train_loss, val_loss, val_pixel_accuracy`` (rewritten from the checkpoint's
-  history each epoch, so it never holds an epoch the checkpoint does not).
+* ``metrics.csv``: ``epoch, train_loss, val_loss, val_pixel_accuracy, val_miou, lr, train_images_per_s``
+  (rewritten from the checkpoint's history each epoch, so it never holds an epoch the checkpoint
+  does not). ``train_loss`` is the optimised objective (class-weighted with ``class_weighting =
+  balanced``); ``val_loss`` is always the plain cross-entropy; ``lr`` is the rate of the epoch's
+  first step; ``train_images_per_s`` counts training samples over the wall-clock time of the
+  epoch's training steps (data loading included, validation excluded).
 
 Checkpoints hold only tensors and plain Python types (schema ``hdnet.checkpoint`` version 2) and
 are read with ``torch.load(weights_only=True)``: no code is ever unpickled. Version 2 adds
@@ -39,6 +43,7 @@ import json
 import math
 import os
 import random
+import time
 from pathlib import Path
 from typing import Any
 
@@ -196,12 +201,17 @@ def load_trained_model(path: str | Path, map_location: str | torch.device = "cpu
 
 
 # --- helpers ----------------------------------------------------------------------------------
-def _write_metrics_csv(path: Path, history: list[dict[str, float]]) -> None:
+METRIC_FIELDS = ("epoch", "train_loss", "val_loss", "val_pixel_accuracy", "val_miou", "lr", "train_images_per_s")
+
+
+def _write_metrics_csv(path: Path, history: list[dict[str, float]], timing: list[dict[str, float]]) -> None:
     buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=["epoch", "train_loss", "val_loss", "val_pixel_accuracy"], lineterminator="\n")
+    writer = csv.DictWriter(buf, fieldnames=list(METRIC_FIELDS), lineterminator="\n", restval="")
     writer.writeheader()
+    rates = {int(t["epoch"]): t for t in timing}
     for row in history:
-        writer.writerow({k: (int(v) if k == "epoch" else f"{v:.6g}") for k, v in row.items()})
+        full = {**row, **rates.get(int(row["epoch"]), {})}
+        writer.writerow({k: (int(v) if k == "epoch" else f"{v:.6g}") for k, v in full.items() if k in METRIC_FIELDS})
     _atomic_write_bytes(path, buf.getvalue().encode())
 
 
@@ -217,7 +227,7 @@ def _best_epoch(history: list[dict[str, float]]) -> int:
 def _reconcile_run(run_dir: Path, ckpt: dict[str, Any]) -> None:
     """Make ``metrics.csv`` and ``best.pt`` agree with ``last.pt`` (after a kill between their writes)."""
     history = list(ckpt["history"])
-    _write_metrics_csv(run_dir / METRICS, history)
+    _write_metrics_csv(run_dir / METRICS, history, list(ckpt.get("timing", [])))
     best = _best_epoch(history)
     if best and best == int(ckpt["epoch"]):
         current = None
@@ -230,6 +240,15 @@ def _reconcile_run(run_dir: Path, ckpt: dict[str, Any]) -> None:
             save_checkpoint(run_dir / BEST, {k: v for k, v in ckpt.items() if k != DIGEST_KEY})
 
 
+def median_images_per_s(timing: list[dict[str, float]]) -> float | None:
+    """Median training throughput (images/s) over the epochs of a checkpoint's ``timing`` list."""
+    rates = sorted(float(h["train_images_per_s"]) for h in timing if "train_images_per_s" in h)
+    if not rates:
+        return None
+    mid = len(rates) // 2
+    return rates[mid] if len(rates) % 2 else 0.5 * (rates[mid - 1] + rates[mid])
+
+
 def _make_optimizer(model: nn.Module, profile: TrainingProfile) -> torch.optim.Optimizer:
     if profile.optimizer == "sgd":
         return torch.optim.SGD(model.parameters(), lr=profile.lr, momentum=profile.momentum)
@@ -238,12 +257,52 @@ def _make_optimizer(model: nn.Module, profile: TrainingProfile) -> torch.optim.O
     raise HdNetError(f"unknown optimizer {profile.optimizer!r} in profile {profile.name!r}; use 'sgd' or 'adam'.")
 
 
-def _sum_loss(logits: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """(summed cross-entropy over valid pixels, correct valid pixels, valid pixels)."""
-    loss = F.cross_entropy(logits, mask, ignore_index=defaults.IGNORE_INDEX, reduction="sum")
+def _sum_loss(
+    logits: torch.Tensor, mask: torch.Tensor, weight: torch.Tensor | None = None
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """(cross-entropy summed over valid pixels, its normaliser): the valid pixel count, or with class
+    weights the sum of the weights of the valid pixels' classes."""
+    loss = F.cross_entropy(logits, mask, weight=weight, ignore_index=defaults.IGNORE_INDEX, reduction="sum")
     valid = mask != defaults.IGNORE_INDEX
-    correct = ((logits.argmax(1) == mask) & valid).sum()
-    return loss, correct, valid.sum()
+    if weight is None:
+        return loss, valid.sum()
+    return loss, weight[mask[valid]].sum()
+
+
+def _val_counts(logits: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """[summed cross-entropy, valid pixels, then the 2x2 confusion matrix (truth-major) of argmax]."""
+    loss, n_valid = _sum_loss(logits, mask)
+    valid = mask != defaults.IGNORE_INDEX
+    pred = logits.argmax(1)[valid]
+    truth = mask[valid]
+    confusion = torch.bincount(truth * defaults.N_CLASSES + pred, minlength=defaults.N_CLASSES**2)[: defaults.N_CLASSES**2]
+    return torch.cat([torch.stack([loss.double(), n_valid.double()]), confusion.double()])
+
+
+def _accuracy_and_miou(confusion: torch.Tensor) -> tuple[float, float]:
+    """Pixel accuracy and mean IoU (over classes with a non-empty union) of a 2x2 confusion matrix."""
+    cm = confusion.view(defaults.N_CLASSES, defaults.N_CLASSES)
+    total = float(cm.sum())
+    tp = cm.diag()
+    union = cm.sum(0) + cm.sum(1) - tp
+    ious = [float(t / u) for t, u in zip(tp, union) if u > 0]
+    return (float(tp.sum()) / total if total else math.nan), (sum(ious) / len(ious) if ious else math.nan)
+
+
+def class_weights_from_counts(counts: list[int] | tuple[int, ...]) -> list[float]:
+    """Balanced class weights N / (K N_c) from per-class pixel counts (a class with no pixel gets 0)."""
+    total = float(sum(counts))
+    k = len(counts)
+    return [total / (k * c) if c > 0 else 0.0 for c in counts]
+
+
+def dataset_class_counts(ds: Dataset) -> list[int]:
+    """Pixels of each class (0 unsafe, 1 safe) over the masks of a dataset (255 not counted)."""
+    counts = torch.zeros(defaults.N_CLASSES, dtype=torch.int64)
+    for i in range(len(ds)):  # type: ignore[arg-type]
+        mask = ds[i]["mask"]
+        counts += torch.bincount(mask[mask != defaults.IGNORE_INDEX].flatten(), minlength=defaults.N_CLASSES)[: defaults.N_CLASSES]
+    return [int(c) for c in counts]
 
 
 def _all_reduce(values: torch.Tensor) -> torch.Tensor:
@@ -284,13 +343,18 @@ def train(
     progress: bool = True,
     extra_config: dict[str, Any] | None = None,
     num_workers: int = 0,
+    class_weights: list[float] | None = None,
+    stop_after: int | None = None,
 ) -> Path:
     """Train to ``epochs`` (default: the profile's) epochs in total; returns the path of ``last.pt``.
 
     ``train_ds``/``val_ds`` yield ``{"image": float32 (C, H, W), "mask": int64 (H, W)}`` (0 unsafe, 1 safe,
     255 ignored). ``resume=True`` continues from ``run_dir/last.pt`` (from scratch if there is none);
     without it an existing checkpoint in ``run_dir`` is an error. ``extra_config`` (JSON types) is
-    stored in config.json and in every checkpoint.
+    stored in config.json and in every checkpoint. ``class_weights`` (one per class) are used with
+    ``profile.class_weighting == "balanced"``; without them they are counted from ``train_ds``.
+    ``stop_after`` ends this call after that many completed epochs while the learning-rate schedule
+    still spans ``epochs`` (a run split over several calls; ``resume=True`` continues it exactly).
     """
     total_epochs = profile.epochs if epochs is None else int(epochs)
     if total_epochs < 1:
@@ -304,7 +368,13 @@ def train(
     _check_sample(val_ds, "validation")
     run_dir = Path(run_dir)
     rank, world, device = _init_distributed()
-    model_config = ModelConfig(in_channels=in_channels, width=profile.width)
+    model_config = ModelConfig(in_channels=in_channels, width=profile.width, depth=profile.depth, dropout_p=profile.dropout_p)
+    weight = None
+    if profile.class_weighting == "balanced":
+        if class_weights is None:
+            class_weights = class_weights_from_counts(dataset_class_counts(train_ds))
+        if len(class_weights) != model_config.n_classes or not all(w >= 0 for w in class_weights):
+            raise HdNetError(f"class weights must be {model_config.n_classes} numbers >= 0, got {class_weights!r}.")
 
     last = run_dir / LAST
     ckpt = None
@@ -312,19 +382,25 @@ def train(
         if not resume:
             raise HdNetError(f"{run_dir} already holds a checkpoint; resume it or choose another run directory.")
         ckpt = load_checkpoint(last)
-        if ckpt["model_config"] != model_config.to_dict() or profile_from_dict(ckpt["profile"]) != profile:
+        if ModelConfig(**ckpt["model_config"]) != model_config or profile_from_dict(ckpt["profile"]) != profile:
             raise HdNetError(f"checkpoint {last} was trained with another model or profile ({ckpt['profile']['name']!r}).")
         if rank == 0:
             _reconcile_run(run_dir, ckpt)
 
     _seed_everything(seed + rank)
     model = BayesianSegNet(model_config).to(device)
+    memory_format = torch.channels_last if profile.channels_last else torch.contiguous_format
+    model = model.to(memory_format=memory_format)
+    if class_weights is not None and profile.class_weighting == "balanced":
+        weight = torch.tensor(class_weights, dtype=torch.float32, device=device)
     optimizer = _make_optimizer(model, profile)
     start_epoch, history, best_loss = 0, [], math.inf
+    timing: list[dict[str, float]] = []  # wall-clock figures, kept apart from the (reproducible) history
     if ckpt is not None:
         model.load_state_dict(ckpt["model"])
         optimizer.load_state_dict(ckpt["optimizer"])
         start_epoch, history = int(ckpt["epoch"]), list(ckpt["history"])
+        timing = list(ckpt.get("timing", []))
         best_loss = min((h["val_loss"] for h in history), default=math.inf)
         states = ckpt["rng"]
         _set_rng_state(states[rank] if rank < len(states) else states[0])
@@ -343,6 +419,7 @@ def train(
         "schema": "hdnet.run", "schema_version": 1, "model_name": MODEL_NAME, "model_config": model_config.to_dict(),
         "profile": profile.to_dict(), "epochs": total_epochs, "seed": seed, "world_size": world,
         "hd_version": __version__, "torch_version": torch.__version__, "extra_config": extra,
+        "class_weights": None if weight is None else [float(w) for w in class_weights],  # type: ignore[union-attr]
     }
     if rank == 0:
         run_dir.mkdir(parents=True, exist_ok=True)
@@ -353,35 +430,47 @@ def train(
         from tqdm.auto import tqdm
 
         bar = tqdm(total=total_epochs, initial=start_epoch, desc=f"train {profile.name}", unit="epoch")
-    for epoch in range(start_epoch, total_epochs):
-        for group in optimizer.param_groups:
-            group["lr"] = profile.learning_rate(epoch, total_epochs)
+    n_batches = max(1, len(train_loader))
+    end_epoch = total_epochs if stop_after is None else max(start_epoch, min(total_epochs, int(stop_after)))
+    for epoch in range(start_epoch, end_epoch):
         train_sampler.set_epoch(epoch)
         net.train()
-        sums = torch.zeros(3, dtype=torch.float64, device=device)  # loss sum, (unused), valid pixels
-        for batch in train_loader:
-            x = batch["image"].to(device, non_blocking=True)
+        sums = torch.zeros(2, dtype=torch.float64, device=device)  # objective sum, its normaliser
+        t0, seen = time.perf_counter(), 0
+        for b, batch in enumerate(train_loader):
+            for group in optimizer.param_groups:
+                group["lr"] = profile.learning_rate(epoch + b / n_batches, total_epochs)
+            x = batch["image"].to(device, non_blocking=True).contiguous(memory_format=memory_format)
             y = batch["mask"].to(device, non_blocking=True).long()
-            loss_sum, _, n_valid = _sum_loss(net(x), y)
+            loss_sum, norm = _sum_loss(net(x), y, weight)
             optimizer.zero_grad(set_to_none=True)
-            (loss_sum / n_valid.clamp(min=1)).backward()
+            (loss_sum / norm.clamp(min=1e-12)).backward()
             optimizer.step()
             sums[0] += loss_sum.detach().double()
-            sums[2] += n_valid.double()
+            sums[1] += norm.double()
+            seen += int(x.shape[0])
+        if device.type == "cuda":
+            torch.cuda.synchronize(device)
+        seconds = time.perf_counter() - t0
         train_sums = _all_reduce(sums)
+        rate = _all_reduce(torch.tensor([seen / max(seconds, 1e-9)], dtype=torch.float64, device=device))
         net.eval()
-        vsums = torch.zeros(3, dtype=torch.float64, device=device)
+        vsums = torch.zeros(2 + defaults.N_CLASSES**2, dtype=torch.float64, device=device)
         with torch.no_grad():
             for batch in val_loader:
-                x, y = batch["image"].to(device), batch["mask"].to(device).long()
-                vsums += torch.stack([v.double() for v in _sum_loss(net(x), y)])
+                x = batch["image"].to(device).contiguous(memory_format=memory_format)
+                vsums += _val_counts(net(x), batch["mask"].to(device).long())
         vsums = _all_reduce(vsums)
+        accuracy, miou = _accuracy_and_miou(vsums[2:].cpu())
         row = {
             "epoch": epoch + 1,
-            "train_loss": float(train_sums[0] / train_sums[2].clamp(min=1)),
-            "val_loss": float(vsums[0] / vsums[2].clamp(min=1)),
-            "val_pixel_accuracy": float(vsums[1] / vsums[2].clamp(min=1)),
+            "train_loss": float(train_sums[0] / train_sums[1].clamp(min=1e-12)),
+            "val_loss": float(vsums[0] / vsums[1].clamp(min=1)),
+            "val_pixel_accuracy": accuracy,
+            "val_miou": miou,
+            "lr": profile.learning_rate(epoch, total_epochs),
         }
+        timing.append({"epoch": epoch + 1, "train_seconds": seconds, "train_images_per_s": float(rate[0])})
         history.append(row)
         states = [_rng_state()]
         if world > 1:
@@ -393,17 +482,19 @@ def train(
                 "schema": CHECKPOINT_SCHEMA, "schema_version": CHECKPOINT_VERSION, "model_name": MODEL_NAME,
                 "model_config": model_config.to_dict(), "profile": profile.to_dict(), "epoch": epoch + 1,
                 "seed": seed, "model": {k: v.detach().cpu() for k, v in model.state_dict().items()},
-                "optimizer": optimizer.state_dict(), "rng": states, "history": history, "extra_config": extra,
+                "optimizer": optimizer.state_dict(), "rng": states, "history": history, "timing": timing, "extra_config": extra,
                 "hd_version": __version__,
             }
             save_checkpoint(last, ckpt_out)
             if row["val_loss"] < best_loss:
                 best_loss = row["val_loss"]
                 save_checkpoint(run_dir / BEST, ckpt_out)
-            _write_metrics_csv(run_dir / METRICS, history)
+            _write_metrics_csv(run_dir / METRICS, history, timing)
         if bar is not None:
             bar.update(1)
-            bar.set_postfix(train_loss=f"{row['train_loss']:.4f}", val_loss=f"{row['val_loss']:.4f}", val_acc=f"{row['val_pixel_accuracy']:.3f}")
+            bar.set_postfix(train_loss=f"{row['train_loss']:.4f}", val_loss=f"{row['val_loss']:.4f}",
+                            val_acc=f"{row['val_pixel_accuracy']:.3f}", val_miou=f"{row['val_miou']:.3f}",
+                            img_s=f"{timing[-1]['train_images_per_s']:.1f}")
         if world > 1:
             dist.barrier()
     if bar is not None:

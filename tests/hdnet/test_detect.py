@@ -152,11 +152,18 @@ def check_sites(out: Path, lander: Lander) -> list[dict]:
 
 
 # --- the contract with training and evaluation ------------------------------------------------------
-@pytest.mark.parametrize("input_size", [None, 64])
-def test_network_input_is_exactly_the_training_input(trained, input_size):
+@pytest.mark.parametrize("change", [
+    {},  # the tiny profile: the paper's min-max heights, padding to 32
+    {"input_size": 64},  # the paper profile's bilinear resize
+    {"heights": "median", "normalisation": None, "extra_channels": ("slope", "highpass"), "size_multiple": 4},  # cpu
+])
+def test_network_input_is_exactly_the_training_input(trained, change):
     dataset, run_dir, _ = trained
-    run = dataclasses.replace(load_run(run_dir, CPU), input_size=input_size)
-    ds = HazardDataset(dataset, "val", 0.07, input_size=input_size, normalisation=run.normalisation)
+    run = load_run(run_dir, CPU)
+    spec = dataclasses.replace(run.input_spec, **change)
+    run = dataclasses.replace(run, input_spec=spec)
+    ds = HazardDataset(dataset, "val", 0.07, input_spec=spec)
+    assert network_input(ds.dem_sample(0).dem_noisy_m, run).shape[1] == spec.n_channels
     for i in range(len(ds)):
         sample = ds.dem_sample(i)
         expected = ds.prepare(sample)["image"]
@@ -192,7 +199,7 @@ def test_scan_mode_is_the_evaluation_path(trained, tmp_path):
     result = detect(run_dir, out, dataset=dataset, scan=scan, sigma_m=0.07, threshold="nats:0.5", mc_samples=4, seed=3)
     assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUT_FILES)
     run = load_run(run_dir, CPU)
-    ds = next(d for d in (HazardDataset(dataset, s, 0.07, normalisation=run.normalisation) for s in ("train", "val", "test"))
+    ds = next(d for d in (HazardDataset(dataset, s, 0.07, input_spec=run.input_spec) for s in ("train", "val", "test"))
               if scan in d.scan_indices)
     sample = ds.dem_sample(ds.scan_indices.index(scan))
     torch.manual_seed(3)

@@ -156,3 +156,48 @@ def test_bad_input_fails_with_one_clear_sentence(setup, tmp_path):
     with pytest.raises(HdNetError, match="sigma 0.0167 m is not in the dataset; it has 0.03, 0.07 m"):
         evaluate(run, other_sigmas, tmp_path / "x")
     assert not (tmp_path / "x").exists()
+
+
+def test_a_run_saved_before_input_specs_evaluates_like_before(setup, tmp_path):
+    """An hd 0.1.0 checkpoint: no ``input`` spec in extra_config, no ``depth`` in the model config."""
+    from hdnet.train import load_checkpoint, save_checkpoint
+
+    dataset, run, _, _ = setup
+    ckpt = load_checkpoint(run / "last.pt")
+    old_extra = {k: v for k, v in ckpt["extra_config"].items() if k != "input"}
+    old_model = {k: v for k, v in ckpt["model_config"].items() if k != "depth"}
+    old = {**ckpt, "extra_config": old_extra, "model_config": old_model}
+    old.pop("timing")
+    old["history"] = [{k: h[k] for k in ("epoch", "train_loss", "val_loss", "val_pixel_accuracy")} for h in ckpt["history"]]
+    save_checkpoint(tmp_path / "old.pt", old)
+    before = evaluate(run, dataset, tmp_path / "new-report", mc_samples=2, figures=False)
+    after = evaluate(tmp_path / "old.pt", dataset, tmp_path / "old-report", mc_samples=2, figures=False)
+    assert after.rows == before.rows
+    assert after.run["input"] == before.run["input"] and after.run["input"]["heights"] == "minmax"
+
+
+def test_validation_summary_matches_the_validation_inference(setup):
+    from hdnet.evaluate import infer_split, score, validation_summary
+    from hdnet.inputs import InputSpec
+    from hdnet.train import load_trained_model
+
+    dataset, run, _, _ = setup
+    summary = validation_summary(run, dataset, mc_samples=3, seed=1, other_sigmas_m=(0.07,), risk_alpha=0.3)
+    model, ckpt = load_trained_model(run / "last.pt")
+    spec = InputSpec.from_run_config(ckpt["extra_config"], ckpt["model_config"])
+    inf = infer_split(model, HazardDataset(dataset, "val", 0.0167, input_spec=spec), 3, 8, 1, torch.device("cpu"))
+    valid = inf.label != 255
+    base = hand_metrics(inf.label, inf.prediction == 1, valid)
+    np.testing.assert_allclose([summary[k] for k in ("base_pa", "base_miou", "base_precision", "base_sensitivity")], base,
+                               rtol=1e-12)
+    h = float(inf.entropy_nats[valid].astype(np.float64).mean())
+    assert summary["threshold_nats"] == pytest.approx(h)
+    ua = score(inf.label, inf.prediction, inf.ignore, inf.entropy_nats >= h)
+    assert summary["ua_vc"] == pytest.approx(ua.vc_fraction) and summary["ua_precision"] == pytest.approx(ua.precision_safe, nan_ok=True)
+    assert summary["q_vc"] == pytest.approx(0.5, abs=0.02)
+    assert summary["risk_false_safe"] <= 0.3  # conformal risk control on the same images: in-sample bound
+    other = infer_split(model, HazardDataset(dataset, "val", 0.07, input_spec=spec), 3, 8, 1, torch.device("cpu"))
+    b7 = hand_metrics(other.label, other.prediction == 1, other.label != 255)
+    assert summary["base_pa@7cm"] == pytest.approx(b7[0])
+    certain = (other.label != 255) & (other.entropy_nats < h)
+    assert summary["ua_vc@7cm"] == pytest.approx(certain.sum() / (other.label != 255).sum())

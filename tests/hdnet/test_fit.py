@@ -50,3 +50,39 @@ def test_fit_refuses_bad_datasets(dataset, tmp_path):
     with pytest.raises(HdNetError, match="the val split is empty"):
         fit(two_scans, tmp_path / "d", profile_name="tiny", epochs=1, progress=False)
     assert not (tmp_path / "d" / "last.pt").exists()
+
+
+def test_fit_with_the_cpu_levers_records_its_input_spec_and_resumes_exactly(dataset, tmp_path):
+    import torch
+    from dataclasses import replace
+
+    from hdnet.inputs import InputSpec
+    from hdnet.profiles import TINY
+
+    profile = replace(TINY, heights="median", height_scale_m=0.5, extra_channels=("slope", "highpass"), depth=3,
+                      augment="d4", lr_schedule="onecycle", class_weighting="balanced")
+    straight = fit(dataset, tmp_path / "a", profile_name=profile, epochs=2, progress=False)
+    fit(dataset, tmp_path / "b", profile_name=profile, epochs=2, progress=False, stop_after=1)
+    resumed = fit(dataset, tmp_path / "b", profile_name=profile, epochs=2, progress=False, resume=True)
+    a, b = load_checkpoint(straight), load_checkpoint(resumed)
+    assert all(torch.equal(a["model"][k], b["model"][k]) for k in a["model"])  # D4 draws replay exactly
+    spec = InputSpec.from_dict(a["extra_config"]["input"])
+    assert spec == InputSpec(heights="median", height_scale_m=0.5, extra_channels=("slope", "highpass"),
+                             spacing_m=1.0, size_multiple=8)
+    assert a["extra_config"]["normalisation"] is None and a["extra_config"]["input_rule"] == "pad:8"
+    assert a["model_config"]["in_channels"] == 3 and a["model_config"]["depth"] == 3
+
+
+def test_d4_is_refused_for_a_triangle_lander(tmp_path):
+    from dataclasses import replace
+
+    from hdlabels.labeling import label_dataset
+    from hdlabels.lander import Lander
+    from hdnet.profiles import TINY
+    from hdnet_datasets import build_labelled as build
+
+    data = build(tmp_path / "tri", n_scans=20, label=False)
+    label_dataset(data, Lander(layout="triangle"), workers=1)
+    with pytest.raises(HdNetError, match="triangle"):
+        fit(data, tmp_path / "run", profile_name=replace(TINY, augment="d4"), epochs=1, progress=False)
+    assert not (tmp_path / "run").exists()

@@ -73,3 +73,31 @@ def test_state_dict_round_trip(tmp_path) -> None:
     other.load_state_dict(torch.load(tmp_path / "w.pt", weights_only=True))
     x = torch.randn(1, 1, 32, 32)
     torch.testing.assert_close(model(x), other(x))
+
+
+@pytest.mark.parametrize("depth,multiple", [(3, 8), (4, 16), (1, 2)])
+def test_shallower_networks_keep_the_first_blocks_and_central_dropout(depth: int, multiple: int) -> None:
+    model = BayesianSegNet(ModelConfig(width=1 / 16, depth=depth)).eval()
+    assert model.size_multiple == multiple
+    enc_convs = [n for n, m in model.named_modules() if n.startswith("enc") and isinstance(m, torch.nn.Conv2d)]
+    assert len(enc_convs) == sum(len(b) for b in defaults.ENCODER_CHANNELS[:depth])
+    levels = range(max(1, depth - 2), depth + 1)
+    names = [n for n, m in model.named_modules() if m in model.dropout_modules()]
+    assert names == [f"drop_pool{k}" for k in levels] + [f"drop_dec{k}" for k in reversed(levels)]
+    x = torch.randn(2, 1, 50, 37)
+    assert model(x).shape == (2, 2, 50, 37)
+    torch.testing.assert_close(model(x), model.suffix(model.prefix(x)))
+    padded = torch.nn.functional.pad(x, (0, (-37) % multiple, 0, (-50) % multiple), mode="replicate")
+    torch.testing.assert_close(model(x), model(padded)[..., :50, :37])
+    with pytest.raises(HdNetError, match="depth"):
+        ModelConfig(depth=6)
+
+
+def test_configs_saved_before_depth_existed_load_five_blocks() -> None:
+    old = {"in_channels": 1, "n_classes": 2, "width": 1 / 16, "dropout_p": 0.5}
+    config = ModelConfig(**old)
+    assert config.depth == 5 and config == ModelConfig(width=1 / 16)
+    torch.manual_seed(0)
+    reference = BayesianSegNet(ModelConfig(width=1 / 16))
+    loaded = BayesianSegNet(config)
+    loaded.load_state_dict(reference.state_dict())  # the same parameter names as before

@@ -24,3 +24,47 @@ def test_lookup_and_round_trip() -> None:
         get_profile("gpu")
     with pytest.raises(HdNetError):
         profile_from_dict({"name": "x"})
+
+
+def test_new_fields_default_to_the_papers_choices_and_old_profiles_load() -> None:
+    old_cpu = {"name": "cpu", "input_size": None, "width": 0.25, "batch_size": 8, "lr": 1e-3, "momentum": 0.9,
+               "epochs": 80, "optimizer": "adam", "lr_schedule": "cosine"}  # as saved by hd 0.1.0
+    p = profile_from_dict(old_cpu)
+    assert (p.depth, p.dropout_p, p.heights, p.extra_channels, p.augment, p.class_weighting, p.channels_last) == (
+        5, 0.5, "minmax", (), "none", "none", False)
+    assert (PAPER.depth, PAPER.heights, PAPER.augment, PAPER.lr_schedule, PAPER.dropout_p) == (5, "minmax", "none", "constant", 0.5)
+
+
+def test_every_profile_round_trips_through_json() -> None:
+    import json
+
+    for p in (PAPER, CPU, TINY):
+        back = profile_from_dict(json.loads(json.dumps(p.to_dict())))
+        assert back == p and isinstance(back.extra_channels, tuple)
+
+
+def test_invalid_fields_are_refused() -> None:
+    from dataclasses import replace
+
+    for field, value in (("lr_schedule", "step"), ("augment", "mixup"), ("class_weighting", "focal"),
+                         ("heights", "zscore"), ("extra_channels", ("curvature",)), ("batch_size", 0)):
+        with pytest.raises(HdNetError, match=field):
+            replace(CPU, **{field: value})
+
+
+def test_learning_rate_schedules_by_hand() -> None:
+    import math
+    from dataclasses import replace
+
+    const = replace(CPU, lr_schedule="constant", lr=2e-3)
+    assert const.learning_rate(0, 10) == const.learning_rate(7.5, 10) == 2e-3
+    cos = replace(CPU, lr_schedule="cosine", lr=2e-3)
+    assert cos.learning_rate(0, 10) == 2e-3 and math.isclose(cos.learning_rate(5, 10), 1e-3)
+    assert math.isclose(cos.learning_rate(2.5, 10), 1e-3 * (1 + math.cos(math.pi / 4)))
+    one = replace(CPU, lr_schedule="onecycle", lr=2e-3)
+    start, end = 2e-3 / 25, 2e-3 / 25 / 1e4
+    assert math.isclose(one.learning_rate(0, 10), start)
+    assert math.isclose(one.learning_rate(1.5, 10), (start + 2e-3) / 2)  # half-way up the warm-up cosine
+    assert math.isclose(one.learning_rate(3, 10), 2e-3)  # the peak at 30 %
+    assert math.isclose(one.learning_rate(6.5, 10), (2e-3 + end) / 2)  # half-way down
+    assert math.isclose(one.learning_rate(10, 10), end)

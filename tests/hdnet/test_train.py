@@ -40,8 +40,9 @@ def test_train_writes_checkpoint_config_and_metrics(tmp_path: Path) -> None:
     assert config["extra_config"] == {"norm_min_m": -1.5, "norm_max_m": 2.0} and config["profile"]["name"] == "tiny"
     rows = list(csv.DictReader((run / "metrics.csv").open()))
     assert [int(r["epoch"]) for r in rows] == [1, 2]
-    assert set(rows[0]) == {"epoch", "train_loss", "val_loss", "val_pixel_accuracy"}
+    assert list(rows[0]) == ["epoch", "train_loss", "val_loss", "val_pixel_accuracy", "val_miou", "lr", "train_images_per_s"]
     assert all(0.0 <= float(r["val_pixel_accuracy"]) <= 1.0 and float(r["train_loss"]) > 0 for r in rows)
+    assert all(0.0 <= float(r["val_miou"]) <= float(r["val_pixel_accuracy"]) and float(r["train_images_per_s"]) > 0 for r in rows)
     model, ckpt = load_trained_model(last)
     assert isinstance(model, BayesianSegNet) and not model.training and ckpt["epoch"] == 2
     assert ckpt["extra_config"]["norm_max_m"] == 2.0
@@ -134,3 +135,41 @@ def test_torchrun_two_gloo_processes(tmp_path: Path) -> None:
     # Rank 0 alone wrote: no leftovers, one metrics row per epoch.
     assert not list((tmp_path / "run").glob("*.partial"))
     assert len(list(csv.DictReader((tmp_path / "run" / "metrics.csv").open()))) == 2
+
+
+def test_validation_counts_and_class_weights_by_hand() -> None:
+    from hdnet.train import _accuracy_and_miou, _sum_loss, _val_counts, class_weights_from_counts
+
+    # truth 0,0,1,1,1 and 255; prediction 0,1,1,1,0 (argmax of the logits)
+    logits = torch.tensor([[2.0, 0.0], [0.0, 1.0], [0.0, 3.0], [0.0, 1.0], [1.0, 0.0], [0.0, 5.0]]).T.reshape(1, 2, 1, 6)
+    mask = torch.tensor([[[0, 0, 1, 1, 1, 255]]])
+    counts = _val_counts(logits, mask)
+    assert counts[1] == 5 and counts[2:].tolist() == [1, 1, 1, 2]  # [tu, fs, fu, ts] truth-major
+    pa, miou = _accuracy_and_miou(counts[2:])
+    assert pa == pytest.approx(3 / 5) and miou == pytest.approx((1 / 3 + 2 / 4) / 2)
+    assert class_weights_from_counts([30, 70]) == pytest.approx([100 / 60, 100 / 140])
+    assert class_weights_from_counts([0, 10]) == [0.0, 0.5]
+    w = torch.tensor([2.0, 0.5])
+    loss, norm = _sum_loss(logits, mask, w)
+    ce = torch.nn.functional.cross_entropy(logits, mask, ignore_index=255, reduction="none")[0, 0, :5]
+    assert norm.item() == pytest.approx(2 * 2.0 + 3 * 0.5)
+    assert loss.item() == pytest.approx(float((ce * torch.tensor([2.0, 2.0, 0.5, 0.5, 0.5])).sum()), rel=1e-6)
+
+
+def test_cpu_levers_train_and_resume_exactly(tmp_path: Path) -> None:
+    tr, va = _datasets()
+    profile = replace(PROFILE, depth=3, channels_last=True, class_weighting="balanced", lr_schedule="onecycle", dropout_p=0.2)
+    straight = train(tmp_path / "a", tr, va, profile, epochs=2, seed=1, progress=False)
+    train(tmp_path / "b", tr, va, profile, epochs=2, seed=1, progress=False, stop_after=1)  # "killed" after epoch 1
+    assert load_checkpoint(tmp_path / "b" / "last.pt")["epoch"] == 1
+    resumed = train(tmp_path / "b", tr, va, profile, epochs=2, seed=1, resume=True, progress=False)
+    a, b = _weights(straight), _weights(resumed)
+    assert all(torch.equal(a[k], b[k]) for k in a)  # the one-cycle schedule spans both calls
+    config = json.loads((tmp_path / "a" / "config.json").read_text())
+    assert config["model_config"]["depth"] == 3 and config["model_config"]["dropout_p"] == 0.2
+    masks = torch.stack([tr[i]["mask"] for i in range(len(tr))])
+    n0, n1 = int((masks == 0).sum()), int((masks == 1).sum())
+    assert config["class_weights"] == pytest.approx([(n0 + n1) / (2 * n0), (n0 + n1) / (2 * n1)])
+    model, ckpt = load_trained_model(straight)
+    assert model.config.depth == 3 and len(ckpt["timing"]) == 2 and ckpt["history"][1]["lr"] == pytest.approx(
+        profile.learning_rate(1, 2))
