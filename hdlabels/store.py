@@ -148,7 +148,8 @@ class LabelShardWriter:
             "roughness_m": f.create_dataset("roughness_m", (n, h, w), np.float32, chunks=(1, h, w), **gz),
             "p_safe": f.create_dataset("p_safe", (n, s, h, w), np.float32, chunks=(1, 1, h, w), **gz),
         }
-        self._d["label"].attrs["codes"] = "0 unsafe, 1 safe, 255 invalid"
+        self._d["label"].attrs["codes"] = (f"{defaults.LABEL_UNSAFE} unsafe, {defaults.LABEL_SAFE} safe, "
+                                           f"{defaults.LABEL_INVALID} invalid")
 
     def write(self, k: int, scan_index: int, split: int, dem_clean: np.ndarray, dem_noisy: np.ndarray,
               label: np.ndarray, slope_rad: np.ndarray, roughness_m: np.ndarray, p_safe: np.ndarray) -> None:
