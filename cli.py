@@ -1,4 +1,8 @@
-"""The ``hd`` command: wires lidarsim, hdlabels and hdnet together; holds no logic of its own.
+"""The ``hd`` command: options and messages only; lidarsim, hdlabels and hdnet do the work.
+
+Each command turns its options into the packages' settings (``lidarsim.recipe.BuildSettings``,
+``hdlabels.settings.LabelSettings``, ``hdnet.pipeline.Pipeline``) and prints what they return.
+Options that several commands share are declared once (the ``*_option`` factories below).
 
 Every command turns bad input into a one-line error and a non-zero exit status. Ctrl-C, SIGTERM
 and SIGHUP stop a command cleanly (partial files removed, resumable; a second signal does not
@@ -18,9 +22,17 @@ from typing import Any
 
 import click
 
+from click.core import ParameterSource
+
+from hdlabels import defaults as label_defaults
+from hdnet import defaults as net_defaults
 from lidarsim import defaults as lidar_defaults
+from lidarsim import limits
 from lidarsim._version import __version__
-from lidarsim.errors import LidarsimError
+from lidarsim.errors import HdError, LidarsimError
+
+# The paper's dataset recipe, which `hd reproduce` runs (beside this file in a source checkout).
+PAPER_RECIPE = Path(__file__).resolve().parent / "datasets" / "mars-paper"
 
 
 class Terminated(KeyboardInterrupt):
@@ -65,17 +77,6 @@ def _one_line(exc: BaseException) -> str:
     return " ".join(text.split()) if "\n" in text else text
 
 
-def _known_errors() -> tuple[type[BaseException], ...]:
-    errors: list[type[BaseException]] = [LidarsimError]
-    for module, name in (("hdlabels.errors", "HdLabelsError"), ("hdnet.errors", "HdNetError")):
-        try:
-            mod = __import__(module, fromlist=[name])
-            errors.append(getattr(mod, name))
-        except (ImportError, AttributeError):
-            pass
-    return tuple(errors)
-
-
 def _close_progress_bars() -> None:
     """End every open tqdm bar (with its newline), so that an error starts on its own line."""
     try:
@@ -108,7 +109,7 @@ def _one_line_errors(func: Callable[..., Any]) -> Callable[..., Any]:
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         try:
             return func(*args, **kwargs)
-        except _known_errors() as exc:
+        except HdError as exc:
             raise click.ClickException(_one_line(exc)) from None
         except OSError as exc:
             from lidarsim.storage import describe_os_error
@@ -126,22 +127,7 @@ def _one_line_errors(func: Callable[..., Any]) -> Callable[..., Any]:
     return wrapper
 
 
-def _check_finite(**values: float | None) -> None:
-    """Refuse NaN and infinite option values (``--altitude inf``) with the option's name."""
-    for name, value in values.items():
-        if value is not None and not math.isfinite(value):
-            raise LidarsimError(f"--{name.replace('_', '-')} must be a finite number, got {value}")
-
-
-def _check_range(name: str, value: int | None, low: int, high: int | None = None) -> None:
-    """Refuse an integer option outside [low, high]."""
-    if value is None:
-        return
-    if value < low or (high is not None and value > high):
-        span = f">= {low}" if high is None else f"in {low}..{high}"
-        raise LidarsimError(f"--{name} must be {span}, got {value}")
-
-
+# ------------------------------------------------------------------------------------ option types
 class _Path(click.Path):
     """click.Path that refuses an empty string (which click would turn into the current directory)."""
 
@@ -149,6 +135,105 @@ class _Path(click.Path):
         if isinstance(value, str) and not value.strip():
             self.fail("must not be empty", param, ctx)
         return super().convert(value, param, ctx)
+
+
+class _Finite(click.FloatRange):
+    """A float option that must be a finite number (``nan`` and ``inf`` are refused), within the
+    range when one is given."""
+
+    name = "float"
+
+    def _describe_range(self) -> str:
+        return super()._describe_range() if (self.min is not None or self.max is not None) else "finite"
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        number = super().convert(value, param, ctx)
+        if not math.isfinite(number):
+            self.fail(f"{number} is not a finite number", param, ctx)
+        return number
+
+
+_POSITIVE = _Finite(min=0.0, min_open=True)
+_NON_NEGATIVE_INT = click.IntRange(min=0)
+_DIRECTORY = _Path(file_okay=False, path_type=Path)
+_FILE_OR_DIRECTORY = _Path(path_type=Path)
+
+
+# ------------------------------------------------------------------ options shared by several commands
+Decorator = Callable[[Callable[..., Any]], Callable[..., Any]]
+
+
+def workers_option() -> Decorator:
+    return click.option("--workers", type=click.IntRange(1, limits.MAX_WORKERS), default=None,
+                        help="Local worker processes (default: all cores).")
+
+
+def scheduler_option() -> Decorator:
+    return click.option("--scheduler", default=None,
+                        help="Dask scheduler address (tcp://host:8786) to run the tasks on a cluster.")
+
+
+def seed_option(what: str) -> Decorator:
+    return click.option("--seed", type=_NON_NEGATIVE_INT, default=lidar_defaults.SEED, show_default=True,
+                        help=f"Seed of {what}.")
+
+
+def overwrite_option(what: str) -> Decorator:
+    return click.option("--overwrite", is_flag=True, help=what)
+
+
+def out_option(dest: str, what: str, required: bool = True, directory: bool = True, default: Path | None = None) -> Decorator:
+    return click.option("--out", dest, required=required, default=default, show_default=default is not None,
+                        type=_DIRECTORY if directory else _FILE_OR_DIRECTORY, help=what)
+
+
+def recipe_option(what: str, required: bool = False) -> Decorator:
+    return click.option("--recipe", type=_FILE_OR_DIRECTORY, required=required, default=None, help=what)
+
+
+def dtm_option(what: str) -> Decorator:
+    return click.option("--dtm", "dtm_path", type=_FILE_OR_DIRECTORY, default=None, help=what)
+
+
+def epochs_option(what: str, default: int | None = None) -> Decorator:
+    return click.option("--epochs", type=click.IntRange(min=1), default=default, show_default=default is not None,
+                        help=what)
+
+
+def labels_option(what: str) -> Decorator:
+    return click.option("--labels", "labeling", default=None, help=what)
+
+
+def mc_samples_option() -> Decorator:
+    return click.option("--mc-samples", type=int, default=net_defaults.MC_SAMPLES, show_default=True,
+                        help="MC-dropout samples M.")
+
+
+def batch_size_option(what: str) -> Decorator:
+    return click.option("--batch-size", type=int, default=net_defaults.BATCH_SIZE, show_default=True, help=what)
+
+
+def threshold_option(what: str) -> Decorator:
+    return click.option("--threshold", default=net_defaults.THRESHOLD_SPEC, show_default=True, help=what)
+
+
+def _options(*decorators: Decorator) -> Decorator:
+    """Apply ``decorators`` in the order given (the first is the first option of the help)."""
+
+    def apply(func: Callable[..., Any]) -> Callable[..., Any]:
+        for decorator in reversed(decorators):
+            func = decorator(func)
+        return func
+
+    return apply
+
+
+def _refuse_with_recipe(ctx: click.Context, names: set[str], what: str, error: type[HdError]) -> None:
+    """A recipe fixes the settings ``names``: refuse any of them given on the command line."""
+    given = [p for p in ctx.command.params if p.name in names and ctx.get_parameter_source(p.name) is ParameterSource.COMMANDLINE]
+    if given:
+        flags = ", ".join(p.opts[0] for p in given)
+        raise error(f"--recipe fixes {what}; edit the recipe instead of passing {flags}")
 
 
 class _ScanProgress:
@@ -172,6 +257,14 @@ class _ScanProgress:
             self.bar.close()
 
 
+def _known_schemas() -> dict[str, str]:
+    """The schemas of the files a dataset may hold beyond scan shards (label shards)."""
+    from hdlabels.store import LABEL_SCHEMA, LABEL_SCHEMA_VERSION
+
+    return {LABEL_SCHEMA: LABEL_SCHEMA_VERSION}
+
+
+# ------------------------------------------------------------------------------------------ commands
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="hd")
 @click.pass_context
@@ -184,74 +277,67 @@ def main(ctx: click.Context) -> None:
 
 
 @main.command("build-dataset")
-@click.option("--out", "out_dir", required=True, type=_Path(file_okay=False, path_type=Path), help="Dataset directory to create.")
-@click.option("--dtm", "dtm_path", type=_Path(path_type=Path), default=None, help="DTM (GeoTIFF, HiRISE PDS3 .IMG, any GDAL raster in metres). Default: the procedural Mars terrain.")
-@click.option("--sigma", "sigmas", type=float, multiple=True, help=f"Range noise 1-sigma in metres; repeat for several levels (default {lidar_defaults.DEFAULT_SIGMA_M}).")
-@click.option("--scans", type=int, default=lidar_defaults.N_SCANS, show_default=True, help="Number of scans.")
-@click.option("--seed", type=int, default=0, show_default=True, help="Master seed of every random stream.")
-@click.option("--workers", type=int, default=None, help="Local worker processes (default: all cores).")
-@click.option("--altitude", type=float, default=lidar_defaults.ALTITUDE_M, show_default=True, help="Sensor altitude above the terrain, metres.")
-@click.option("--dtm-scale", type=float, default=1.0, show_default=True, help="Resample the DTM by this factor (the paper used 0.25).")
-@click.option("--scheduler", default=None, help="Dask scheduler address (tcp://host:8786) to run shard tasks on a cluster.")
-@click.option("--overwrite", is_flag=True, help="Replace an existing dataset in --out.")
-@click.option("--shard-size", type=int, default=50, show_default=True, help="Scans per shard file.")
-@click.option("--tilt", type=float, default=0.0, show_default=True, help="Off-nadir tilt of the boresight, degrees.")
-@click.option("--jitter", type=float, default=0.0, show_default=True, help="1-sigma attitude jitter per axis, degrees.")
-@click.option("--resolution", type=int, default=lidar_defaults.DETECTOR_ROWS, show_default=True, help="Detector pixels per side.")
-@click.option("--fov", type=float, default=lidar_defaults.FOV_DEG, show_default=True, help="Field of view per side, degrees.")
-@click.option("--dead-elements", type=int, default=0, show_default=True, help="Dead detector elements (no return).")
-@click.option("--damaged-elements", type=int, default=0, show_default=True, help="Damaged detector elements (large range error).")
-@click.option("--compression", type=click.Choice(["gzip", "lzf", "none"]), default="gzip", show_default=True, help="HDF5 compression of the point arrays.")
-@click.option("--recipe", type=_Path(path_type=Path), default=None, help="Build exactly the dataset of a recipe (datasets/<name>); the recipe fixes every content setting.")
+@_options(
+    out_option("out_dir", "Dataset directory to create (default: named after the recipe, the DTM file or the "
+               "procedural terrain, in the current directory).", required=False),
+    dtm_option("DTM (GeoTIFF, HiRISE PDS3 .IMG, any GDAL raster in metres). Default: the procedural Mars terrain."),
+    click.option("--sigma", "sigmas_m", type=_POSITIVE, multiple=True, default=(lidar_defaults.DEFAULT_SIGMA_M,),
+                 help=f"Range noise 1-sigma in metres; repeat for several levels (default {lidar_defaults.DEFAULT_SIGMA_M})."),
+    click.option("--scans", type=click.IntRange(1, limits.MAX_SCANS), default=lidar_defaults.N_SCANS, show_default=True,
+                 help="Number of scans."),
+    seed_option("every random stream of the build"),
+    workers_option(),
+    click.option("--altitude", "altitude_m", type=_POSITIVE, default=lidar_defaults.ALTITUDE_M, show_default=True,
+                 help="Sensor altitude above the terrain, metres."),
+    click.option("--dtm-scale", type=_Finite(min=0.0, max=1.0, min_open=True), default=lidar_defaults.DTM_SCALE,
+                 show_default=True, help=f"Resample the DTM by this factor (the paper used {lidar_defaults.PAPER_DTM_SCALE})."),
+    scheduler_option(),
+    overwrite_option("Replace an existing dataset in --out."),
+    click.option("--shard-size", type=click.IntRange(min=1), default=lidar_defaults.SHARD_SIZE, show_default=True,
+                 help="Scans per shard file."),
+    click.option("--tilt", "tilt_deg", type=_Finite(), default=lidar_defaults.TILT_DEG, show_default=True,
+                 help="Off-nadir tilt of the boresight, degrees."),
+    click.option("--jitter", "jitter_deg", type=_Finite(), default=lidar_defaults.JITTER_DEG, show_default=True,
+                 help="1-sigma attitude jitter per axis, degrees."),
+    click.option("--resolution", type=click.IntRange(2, limits.MAX_DETECTOR_PX), default=lidar_defaults.DETECTOR_ROWS,
+                 show_default=True, help="Detector pixels per side."),
+    click.option("--fov", "fov_deg", type=_Finite(), default=lidar_defaults.FOV_DEG, show_default=True,
+                 help="Field of view per side, degrees."),
+    click.option("--dead-elements", type=_NON_NEGATIVE_INT, default=lidar_defaults.DEAD_ELEMENTS, show_default=True,
+                 help="Dead detector elements (no return)."),
+    click.option("--damaged-elements", type=_NON_NEGATIVE_INT, default=lidar_defaults.DAMAGED_ELEMENTS,
+                 show_default=True, help="Damaged detector elements (large range error)."),
+    click.option("--compression", type=click.Choice(lidar_defaults.COMPRESSIONS), default=lidar_defaults.COMPRESSION,
+                 show_default=True, help="HDF5 compression of the point arrays."),
+    recipe_option("Build exactly the dataset of a recipe (datasets/<name>); the recipe fixes every content setting."),
+)
+@click.pass_context
 @friendly_errors
-def build_dataset_cmd(out_dir: Path, dtm_path: Path | None, sigmas: tuple[float, ...], scans: int, seed: int,
-                      workers: int | None, altitude: float, dtm_scale: float, scheduler: str | None, overwrite: bool,
-                      shard_size: int, tilt: float, jitter: float, resolution: int, fov: float, dead_elements: int,
-                      damaged_elements: int, compression: str, recipe: Path | None = None) -> None:
+def build_dataset_cmd(ctx: click.Context, out_dir: Path | None, workers: int | None, scheduler: str | None,
+                      overwrite: bool, recipe: Path | None, **settings: Any) -> None:
     """Simulate flash-LiDAR scans over a terrain and write clean and noisy point clouds as HDF5 shards."""
-    from lidarsim.build import BuildConfig, build_dataset
-    from lidarsim.sensor import SensorConfig
-    from lidarsim.trajectory import TrajectoryConfig
-
-    from lidarsim import limits
+    from lidarsim.build import build_dataset, default_out_dir
+    from lidarsim.recipe import BuildSettings, load_recipe
     from lidarsim.storage import check_output_dir
 
-    _check_range("workers", workers, 1, limits.MAX_WORKERS)
-    _check_range("seed", seed, 0)
-    _check_range("scans", scans, 1, limits.MAX_SCANS)
-    _check_range("resolution", resolution, 2, limits.MAX_DETECTOR_PX)
-    _check_range("shard-size", shard_size, 1)
-    _check_finite(altitude=altitude, dtm_scale=dtm_scale, tilt=tilt, jitter=jitter, fov=fov)
-    for sigma in sigmas:
-        _check_finite(sigma=sigma)
-    check_output_dir(out_dir, "--out")
+    if out_dir is not None:
+        check_output_dir(out_dir, "--out")
     if scheduler is not None:
         from lidarsim.parallel import check_scheduler_address
 
         check_scheduler_address(scheduler)
     if recipe is not None:
-        from lidarsim.recipe import load_recipe
-
-        ctx = click.get_current_context()
-        content = ("dtm_path", "sigmas", "scans", "seed", "altitude", "dtm_scale", "shard_size", "tilt", "jitter",
-                   "resolution", "fov", "dead_elements", "damaged_elements", "compression")
-        given = [n for n in content if ctx.get_parameter_source(n) == click.core.ParameterSource.COMMANDLINE]
-        if given:
-            flags = ", ".join("--" + n.replace("_path", "").replace("_", "-") for n in given)
-            raise LidarsimError(f"--recipe fixes every content setting; edit the recipe instead of passing {flags}")
-        config = load_recipe(recipe).build
+        _refuse_with_recipe(ctx, set(settings), "every content setting", LidarsimError)
+        loaded = load_recipe(recipe)
+        config, name = loaded.build, loaded.name
     else:
-        config = BuildConfig(
-            sigmas_m=tuple(sigmas) if sigmas else (lidar_defaults.DEFAULT_SIGMA_M,),
-            seed=seed,
-            sensor=SensorConfig(rows=resolution, cols=resolution, fov_x_deg=fov, fov_y_deg=fov,
-                                dead_elements=dead_elements, damaged_elements=damaged_elements),
-            trajectory=TrajectoryConfig(n_scans=scans, altitude_m=altitude, tilt_deg=tilt, jitter_deg=jitter),
-            dtm_path=str(dtm_path) if dtm_path is not None else None,
-            dtm_scale=dtm_scale,
-            shard_size=shard_size,
-            compression=compression,
-        )
+        dtm_path = settings.pop("dtm_path")
+        config = BuildSettings(**settings, dtm_path=str(dtm_path) if dtm_path is not None else None).to_config()
+        name = None
+    if out_dir is None:
+        out_dir = default_out_dir(config, name)
+        check_output_dir(out_dir, "--out")
+        click.echo(f"no --out given: building into {out_dir}")
     progress = _ScanProgress("scans")
     try:
         summary = build_dataset(out_dir, config, workers=workers, scheduler=scheduler, overwrite=overwrite, progress=progress)
@@ -262,82 +348,63 @@ def build_dataset_cmd(out_dir: Path, dtm_path: Path | None, sigmas: tuple[float,
 
 @main.command("make-dtm")
 @click.argument("out_path", type=_Path(dir_okay=False, path_type=Path))
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the procedural terrain.")
-@click.option("--size", "size_m", type=float, default=None, help="Side of the square terrain, metres (default: the built-in size).")
-@click.option("--spacing", "spacing_m", type=float, default=None, help="Grid spacing, metres/pixel (<= 0.5).")
-@click.option("--rock-k", type=float, default=None, help="Golombek-Rapp rock abundance k (0.05 .. 0.4).")
-@click.option("--overwrite", is_flag=True, help="Replace an existing file.")
+@_options(
+    seed_option("the procedural terrain"),
+    click.option("--size", "size_m", type=_Finite(), default=None,
+                 help="Side of the square terrain, metres (default: the built-in size)."),
+    click.option("--spacing", "spacing_m", type=_Finite(), default=None, help="Grid spacing, metres/pixel (<= 0.5)."),
+    click.option("--rock-k", type=_Finite(), default=None, help="Golombek-Rapp rock abundance k (0.05 .. 0.4)."),
+    overwrite_option("Replace an existing file."),
+)
 @friendly_errors
-def make_dtm_cmd(out_path: Path, seed: int, size_m: float | None, spacing_m: float | None, rock_k: float | None, overwrite: bool) -> None:
+def make_dtm_cmd(out_path: Path, seed: int, size_m: float | None, spacing_m: float | None, rock_k: float | None,
+                 overwrite: bool) -> None:
     """Write the procedural Mars terrain as a GeoTIFF (the default terrain of build-dataset)."""
     import dataclasses
-    import json
 
-    from lidarsim.procedural import MarsTerrainParams, generate_mars_terrain, write_geotiff
+    from lidarsim.procedural import MarsTerrainParams, write_procedural_dtm
     from lidarsim.storage import check_output_file
 
-    _check_range("seed", seed, 0)
-    _check_finite(size=size_m, spacing=spacing_m, rock_k=rock_k)
     check_output_file(out_path, "OUT_PATH")
     if out_path.exists() and not overwrite:
         raise LidarsimError(f"{out_path} exists; pass --overwrite to replace it")
     changes = {k: v for k, v in (("size_m", size_m), ("spacing_m", spacing_m), ("rock_k", rock_k)) if v is not None}
     params = dataclasses.replace(MarsTerrainParams(), **changes)
-    heights = generate_mars_terrain(params, seed=seed)
-    tags = {"generator": "lidarsim.procedural", "seed": str(seed), "params": json.dumps(dataclasses.asdict(params))}
-    write_geotiff(out_path, heights, params.spacing_m, origin_xy=(0.0, 0.0), crs_wkt="", tags=tags)
+    heights = write_procedural_dtm(out_path, params, seed)
     click.echo(f"wrote {out_path}: {heights.shape[0]} x {heights.shape[1]} cells at {params.spacing_m:g} m/px, "
                f"heights {float(heights.min()):.1f} .. {float(heights.max()):.1f} m")
 
 
 @main.command("inspect")
-@click.argument("directory", type=_Path(file_okay=False, path_type=Path))
+@click.argument("directory", type=_DIRECTORY)
 @friendly_errors
 def inspect_cmd(directory: Path) -> None:
     """Summarise a dataset: scans, splits, noise levels, sensor, terrain, labels; and check every file."""
-    from lidarsim.inspect import describe_dataset
+    from lidarsim.inspect import INTACT_STATUS, damaged_message, damaged_status, describe_dataset
     from lidarsim.shards import verify_dataset
 
     summary = describe_dataset(directory)
     problems = verify_dataset(directory, known_schemas=_known_schemas())
     click.echo(summary)
     if problems:
-        click.echo(f"status    DAMAGED: {len(problems)} problem(s)", err=True)
-        for p in problems:
-            click.echo(f"          {p}", err=True)
-        raise click.ClickException(f"{directory} is damaged ({len(problems)} problem(s)); `hd verify {directory}` "
-                                   "lists them; rebuild or restore the damaged files")
-    click.echo("status    intact: every file matches the manifest's sha256 and schema")
-
-
-def _known_schemas() -> dict[str, str]:
-    schemas: dict[str, str] = {}
-    try:
-        from hdlabels.store import LABEL_SCHEMA, LABEL_SCHEMA_VERSION
-
-        schemas[LABEL_SCHEMA] = LABEL_SCHEMA_VERSION
-    except ImportError:
-        pass
-    return schemas
+        for line in damaged_status(problems):
+            click.echo(line, err=True)
+        raise click.ClickException(damaged_message(directory, problems))
+    click.echo(INTACT_STATUS)
 
 
 @main.command("verify")
-@click.argument("directory", type=_Path(file_okay=False, path_type=Path))
-@click.option("--recipe", type=_Path(path_type=Path), default=None, help="Also check the dataset against the checksums published with a recipe.")
+@click.argument("directory", type=_DIRECTORY)
+@recipe_option("Also check the dataset against the checksums published with a recipe.")
 @friendly_errors
 def verify_cmd(directory: Path, recipe: Path | None) -> None:
     """Check every file of a dataset against the manifest's checksums and the schema versions."""
+    from lidarsim.recipe import check_against_recipe
     from lidarsim.shards import read_manifest, verify_dataset
 
     problems = verify_dataset(directory, known_schemas=_known_schemas())
     if recipe is not None:
-        from lidarsim.recipe import RecipeError, check_against_checksums, load_recipe
-
-        loaded = load_recipe(recipe)
-        recorded = loaded.checksums()
-        if recorded is None:
-            raise RecipeError(f"{loaded.path.parent}: the recipe has no published checksums.json")
-        problems += check_against_checksums(read_manifest(directory), recorded)
+        problems += check_against_recipe(read_manifest(directory), recipe)
     if problems:
         for p in problems:
             click.echo(p, err=True)
@@ -348,75 +415,60 @@ def verify_cmd(directory: Path, recipe: Path | None) -> None:
 
 
 @main.command("label")
-@click.argument("directory", type=_Path(file_okay=False, path_type=Path))
-@click.option("--lander-diameter", type=float, default=10.0, show_default=True, help="Lander diameter, metres.")
-@click.option("--pad-diameter", type=float, default=1.0, show_default=True, help="Footpad diameter, metres.")
-@click.option("--max-slope-deg", type=float, default=10.0, show_default=True, help="Critical slope, degrees.")
-@click.option("--max-roughness", type=float, default=0.20, show_default=True, help="Critical roughness, metres.")
-@click.option("--lander", "layout", type=click.Choice(["square", "triangle"]), default="square", show_default=True, help="Pad layout: 4 pads in a square or 3 in a triangle.")
-@click.option("--convention", type=click.Choice(["paper", "hd"]), default="paper", show_default=True, help="Label rules: paper (the ALHAT replica the paper used) or hd (sub-pixel geometric convention).")
-@click.option("--baseline-combine", type=click.Choice(["product", "min"]), default=None, help="How the P(safe) baseline combines the nodes under the lander (default: paper product, hd min).")
-@click.option("--gridding", type=click.Choice(["linear", "mean", "max", "nearest"]), default=None, help="Points to DEM: linear interpolation, or the mean, max or most central of each cell's returns (default: the convention's).")
-@click.option("--yaws", type=int, default=None, help="hd convention: yaws per symmetry period of the pad layout (default 8).")
-@click.option("--count-holes", is_flag=True, help="Count terrain below the lander plane as roughness too.")
-@click.option("--dem-size", type=int, default=100, show_default=True, help="DEM side, pixels.")
-@click.option("--dem-spacing", type=float, default=1.0, show_default=True, help="DEM spacing, metres/pixel.")
-@click.option("--workers", type=int, default=None, help="Local worker processes (default: all cores).")
-@click.option("--scheduler", default=None, help="Dask scheduler address to run the label tasks on a cluster.")
-@click.option("--recipe", type=_Path(path_type=Path), default=None, help="Take the lander and DEM settings from a recipe's [label] section.")
+@click.argument("directory", type=_DIRECTORY)
+@_options(
+    click.option("--lander-diameter", "lander_diameter_m", type=_Finite(), default=label_defaults.LANDER_DIAMETER_M,
+                 show_default=True, help="Lander diameter, metres."),
+    click.option("--pad-diameter", "pad_diameter_m", type=_Finite(), default=label_defaults.PAD_DIAMETER_M,
+                 show_default=True, help="Footpad diameter, metres."),
+    click.option("--max-slope-deg", type=_Finite(), default=label_defaults.MAX_SLOPE_DEG, show_default=True,
+                 help="Critical slope, degrees."),
+    click.option("--max-roughness", "max_roughness_m", type=_Finite(), default=label_defaults.MAX_ROUGHNESS_M,
+                 show_default=True, help="Critical roughness, metres."),
+    click.option("--lander", type=click.Choice(label_defaults.LAYOUTS), default=label_defaults.LAYOUT, show_default=True,
+                 help="Pad layout: 4 pads in a square or 3 in a triangle."),
+    click.option("--convention", type=click.Choice(label_defaults.CONVENTIONS), default=label_defaults.CONVENTION,
+                 show_default=True,
+                 help="Label rules: paper (the ALHAT replica the paper used) or hd (sub-pixel geometric convention)."),
+    click.option("--baseline-combine", type=click.Choice(label_defaults.BASELINE_COMBINES), default=None,
+                 help="How the P(safe) baseline combines the nodes under the lander (default: paper product, hd min)."),
+    click.option("--gridding", type=click.Choice(label_defaults.GRIDDINGS), default=None,
+                 help="Points to DEM: linear interpolation, or the mean, max or most central of each cell's returns "
+                      "(default: the convention's)."),
+    click.option("--yaws", type=click.IntRange(min=1), default=None,
+                 help=f"hd convention: yaws per symmetry period of the pad layout (default {label_defaults.N_YAWS})."),
+    click.option("--count-holes", is_flag=True, help="Count terrain below the lander plane as roughness too."),
+    click.option("--dem-size", type=click.IntRange(2, label_defaults.MAX_DEM_SIDE_PX), default=label_defaults.DEM_ROWS,
+                 show_default=True, help="DEM side, pixels."),
+    click.option("--dem-spacing", "dem_spacing_m", type=_Finite(), default=label_defaults.DEM_SPACING_M,
+                 show_default=True, help="DEM spacing, metres/pixel."),
+    workers_option(),
+    scheduler_option(),
+    recipe_option("Take the lander and DEM settings from a recipe's [label] section."),
+)
+@click.pass_context
 @friendly_errors
-def label_cmd(directory: Path, lander_diameter: float, pad_diameter: float, max_slope_deg: float, max_roughness: float,
-              layout: str, yaws: int | None, count_holes: bool, dem_size: int, dem_spacing: float, workers: int | None,
-              scheduler: str | None, recipe: Path | None = None, convention: str = "paper",
-              baseline_combine: str | None = None, gridding: str | None = None) -> None:
+def label_cmd(ctx: click.Context, directory: Path, workers: int | None, scheduler: str | None, recipe: Path | None,
+              **settings: Any) -> None:
     """Grid every scan into DEMs and add ALHAT labels and the baseline P(safe) to the dataset."""
-    from hdlabels import defaults as label_defaults
     from hdlabels.errors import HdLabelsError
     from hdlabels.labeling import label_dataset
-    from hdlabels.lander import Lander
-    from hdlabels.store import DemSpec
+    from hdlabels.settings import LabelSettings
 
     if recipe is not None:
         from lidarsim.recipe import load_recipe
 
-        ctx = click.get_current_context()
-        content = ("lander_diameter", "pad_diameter", "max_slope_deg", "max_roughness", "layout", "yaws",
-                   "count_holes", "dem_size", "dem_spacing", "convention", "baseline_combine", "gridding")
-        given = [n for n in content if ctx.get_parameter_source(n) == click.core.ParameterSource.COMMANDLINE]
-        if given:
-            flags = ", ".join("--" + ("lander" if n == "layout" else n.replace("_", "-")) for n in given)
-            raise HdLabelsError(f"--recipe fixes the lander and DEM settings; edit the recipe instead of passing {flags}")
-        settings = load_recipe(recipe).label
-        layout = str(settings.get("lander", layout))
-        lander_diameter = float(settings.get("lander_diameter_m", lander_diameter))
-        pad_diameter = float(settings.get("pad_diameter_m", pad_diameter))
-        max_slope_deg = float(settings.get("max_slope_deg", max_slope_deg))
-        max_roughness = float(settings.get("max_roughness_m", max_roughness))
-        yaws = int(settings["yaws"]) if "yaws" in settings else yaws
-        count_holes = bool(settings.get("count_holes", count_holes))
-        dem_size = int(settings.get("dem_size", dem_size))
-        dem_spacing = float(settings.get("dem_spacing_m", dem_spacing))
-        convention = str(settings.get("convention", "hd"))  # recipes from before conventions: hd
-        baseline_combine = settings.get("baseline_combine", baseline_combine)
-        gridding = settings.get("gridding", gridding)
-    if yaws is not None and convention != "hd":
-        raise HdLabelsError("--yaws applies to --convention hd only (the paper convention turns the lander in 10-degree steps)")
-    from lidarsim import limits
-
-    _check_range("workers", workers, 1, limits.MAX_WORKERS)
-    _check_finite(lander_diameter=lander_diameter, pad_diameter=pad_diameter, max_slope_deg=max_slope_deg,
-                  max_roughness=max_roughness, dem_spacing=dem_spacing)
+        _refuse_with_recipe(ctx, set(settings), "the lander and DEM settings", HdLabelsError)
+        loaded = load_recipe(recipe)
+        label = LabelSettings.from_recipe(loaded.label, str(loaded.path))
+    else:
+        label = LabelSettings(**settings)
+    lander = label.to_lander()
     if scheduler is not None:
         from lidarsim.parallel import probe_scheduler
 
         probe_scheduler(scheduler)  # a malformed or unreachable address, before anything is written
-    if dem_size < 2 or not (dem_spacing > 0):
-        raise HdLabelsError(f"the DEM must be at least 2 pixels of positive spacing, got {dem_size} x {dem_spacing}")
-    lander = Lander(diameter_m=lander_diameter, pad_diameter_m=pad_diameter, max_slope_deg=max_slope_deg,
-                    max_roughness_m=max_roughness, layout=layout,  # type: ignore[arg-type]
-                    n_yaws=yaws if yaws is not None else label_defaults.N_YAWS, count_holes=count_holes,
-                    convention=convention, baseline_combine=baseline_combine)  # type: ignore[arg-type]
-    grid = DemSpec.for_convention(convention, dem_size, dem_size, dem_spacing, gridding)
+    grid = label.to_dem_spec()
     progress = _ScanProgress("labels")
     try:
         summary = label_dataset(directory, lander, grid, workers=workers, scheduler=scheduler, progress=progress)
@@ -426,90 +478,91 @@ def label_cmd(directory: Path, lander_diameter: float, pad_diameter: float, max_
 
 
 @main.command("train")
-@click.argument("dataset", type=_Path(file_okay=False, path_type=Path))
-@click.option("--out", "run_dir", required=True, type=_Path(file_okay=False, path_type=Path), help="Run directory (checkpoints, metrics.csv, config.json).")
-@click.option("--profile", type=click.Choice(["paper", "cpu", "tiny"]), default="cpu", show_default=True, help="Training profile: paper (GPU, 512x512, full width), cpu (2-core machine), tiny (tests, demos); docs/hdnet.md lists their settings.")
-@click.option("--epochs", type=int, default=None, help="Epochs (default: the profile's).")
-@click.option("--train-sigma", type=float, default=lidar_defaults.DEFAULT_SIGMA_M, show_default=True, help="Noise level of the training inputs, metres.")
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of initialisation and shuffling.")
-@click.option("--resume", is_flag=True, help="Continue an interrupted run from its last checkpoint.")
-@click.option("--labels", "labeling", default=None, help="Labelling to train on (when the dataset has several).")
-@click.option("--num-workers", type=int, default=0, show_default=True, help="DataLoader worker processes.")
-@click.option("--overwrite", is_flag=True, help="Start an existing run again, or write into a non-empty directory that is not a run.")
+@click.argument("dataset", type=_DIRECTORY)
+@_options(
+    out_option("run_dir", "Run directory (checkpoints, metrics.csv, config.json)."),
+    click.option("--profile", type=click.Choice(["paper", "cpu", "tiny"]), default="cpu", show_default=True,
+                 help="Training profile: paper (GPU, 512x512, full width), cpu (2-core machine), tiny (tests, demos); docs/hdnet.md lists their settings."),
+    epochs_option("Epochs (default: the profile's)."),
+    click.option("--train-sigma", type=_Finite(), default=lidar_defaults.DEFAULT_SIGMA_M, show_default=True,
+                 help="Noise level of the training inputs, metres."),
+    seed_option("initialisation and shuffling"),
+    click.option("--resume", is_flag=True, help="Continue an interrupted run from its last checkpoint."),
+    labels_option("Labelling to train on (when the dataset has several)."),
+    click.option("--num-workers", type=click.IntRange(0, limits.MAX_LOADER_WORKERS), default=0, show_default=True,
+                 help="DataLoader worker processes."),
+    overwrite_option("Start an existing run again, or write into a non-empty directory that is not a run."),
+)
 @friendly_errors
 def train_cmd(dataset: Path, run_dir: Path, profile: str, epochs: int | None, train_sigma: float, seed: int,
               resume: bool, labeling: str | None, num_workers: int = 0, overwrite: bool = False) -> None:
     """Train the Bayesian SegNet on the noisy DEMs of a labelled dataset."""
     from hdnet.errors import HdNetError
     from hdnet.fit import fit
-    from hdnet.train import load_checkpoint, median_images_per_s
+    from hdnet.pipeline import training_done_message
 
-    if epochs is not None and epochs <= 0:
-        raise HdNetError(f"--epochs must be > 0, got {epochs}")
     if resume and overwrite:
         raise HdNetError("--resume and --overwrite exclude each other")
-    _check_range("seed", seed, 0)
-    _check_range("num-workers", num_workers, 0, 256)
-    _check_finite(train_sigma=train_sigma)
     checkpoint = fit(dataset, run_dir, profile_name=profile, epochs=epochs, train_sigma_m=train_sigma, seed=seed,
                      resume=resume, labels=labeling, progress=True, num_workers=num_workers, overwrite=overwrite)
-    timing = load_checkpoint(checkpoint).get("timing", [])
-    rate = median_images_per_s(timing)
-    seconds = sum(float(t["train_seconds"]) for t in timing)
-    speed = "" if rate is None else f"; {rate:.1f} images/s (median over {len(timing)} epochs, {seconds / 60:.1f} min of training steps)"
-    click.echo(f"training done: {checkpoint} (metrics in {run_dir / 'metrics.csv'}){speed}")
+    click.echo(training_done_message(checkpoint, run_dir))
 
 
 @main.command("eval")
-@click.argument("run_dir", type=_Path(file_okay=False, path_type=Path))
-@click.option("--data", "dataset", required=True, type=_Path(file_okay=False, path_type=Path), help="Labelled dataset to evaluate on (its test split).")
-@click.option("--out", "out_dir", required=True, type=_Path(file_okay=False, path_type=Path), help="Report directory (report.md, report.json, figures).")
-@click.option("--mc-samples", type=int, default=8, show_default=True, help="MC-dropout samples M.")
-@click.option("--drop-pixels", type=int, default=0, show_default=True, help="Dead-pixel test: pixels dropped from each DEM and refilled (paper: 10).")
-@click.option("--threshold", default="mean", show_default=True, help="Uncertainty threshold: mean, quantile:Q or risk:ALPHA.")
-@click.option("--labels", "labeling", default=None, help="Labelling to evaluate against (when the dataset has several).")
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of MC dropout and dropped pixels.")
-@click.option("--batch-size", type=int, default=8, show_default=True, help="DEMs per inference batch.")
-@click.option("--overwrite", is_flag=True, help="Replace an existing report, or write into a non-empty directory that is not a report.")
+@click.argument("run_dir", type=_DIRECTORY)
+@_options(
+    click.option("--data", "dataset", required=True, type=_DIRECTORY, help="Labelled dataset to evaluate on (its test split)."),
+    out_option("out_dir", "Report directory (report.md, report.json, figures)."),
+    mc_samples_option(),
+    click.option("--drop-pixels", type=int, default=0, show_default=True,
+                 help=f"Dead-pixel test: pixels dropped from each DEM and refilled (paper: {label_defaults.N_DEAD_PIXELS})."),
+    threshold_option("Uncertainty threshold: mean, quantile:Q or risk:ALPHA."),
+    labels_option("Labelling to evaluate against (when the dataset has several)."),
+    seed_option("MC dropout and dropped pixels"),
+    batch_size_option("DEMs per inference batch."),
+    overwrite_option("Replace an existing report, or write into a non-empty directory that is not a report."),
+)
 @friendly_errors
 def eval_cmd(run_dir: Path, dataset: Path, out_dir: Path, mc_samples: int, drop_pixels: int, threshold: str,
-             labeling: str | None, seed: int, batch_size: int = 8, overwrite: bool = False) -> None:
+             labeling: str | None, seed: int, batch_size: int = net_defaults.BATCH_SIZE, overwrite: bool = False) -> None:
     """Evaluate a trained run: the paper's tables, threshold sweep, calibration and figures."""
     from hdnet.evaluate import evaluate
+    from hdnet.pipeline import report_written_message
 
-    _check_range("seed", seed, 0)
     result = evaluate(run_dir, dataset, out_dir, mc_samples=mc_samples, drop_pixels=drop_pixels,
                       threshold=threshold, labels=labeling, seed=seed, batch_size=batch_size, overwrite=overwrite)
     click.echo(result.summary())
-    click.echo(f"report: {out_dir / 'report.md'} (and report.json, figures)")
+    click.echo(report_written_message(out_dir))
 
 
 @main.command("detect")
-@click.argument("run_dir", type=_Path(path_type=Path))
-@click.option("--dtm", "dtm_path", type=_Path(path_type=Path), default=None, help="Terrain to map: any GDAL raster in metres (GeoTIFF, HiRISE PDS3 .IMG), any size.")
-@click.option("--data", "dataset", type=_Path(file_okay=False, path_type=Path), default=None, help="Instead of --dtm: a labelled dataset, with --scan.")
-@click.option("--scan", type=int, default=None, help="With --data: the scan whose noisy DEM to map (scan frame).")
-@click.option("--out", "out_dir", required=True, type=_Path(path_type=Path), help="Output directory (maps, sites, overview, detect.json).")
-@click.option("--mc-samples", type=int, default=8, show_default=True, help="MC-dropout samples M.")
-@click.option("--threshold", default="mean", show_default=True, help="Uncertainty threshold: mean, quantile:Q, risk:ALPHA (calibrated as hd eval does) or nats:H (fixed).")
-@click.option("--sigma", "sigma_m", type=float, default=None, help="DEM noise of the ALHAT baseline, metres (default: the run's training sigma); with --data also the noise level of the scan's DEM.")
-@click.option("--sites", "n_sites", type=int, default=10, show_default=True, help="Most landing sites to propose.")
-@click.option("--overwrite", is_flag=True, help="Replace a non-empty --out.")
-@click.option("--labels", "labeling", default=None, help="With --data: the labelling (when the dataset has several).")
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of MC dropout.")
-@click.option("--batch-size", type=int, default=8, show_default=True, help="Tiles per inference batch.")
+@click.argument("run_dir", type=_FILE_OR_DIRECTORY)
+@_options(
+    dtm_option("Terrain to map: any GDAL raster in metres (GeoTIFF, HiRISE PDS3 .IMG), any size."),
+    click.option("--data", "dataset", type=_DIRECTORY, default=None, help="Instead of --dtm: a labelled dataset, with --scan."),
+    click.option("--scan", type=int, default=None, help="With --data: the scan whose noisy DEM to map (scan frame)."),
+    out_option("out_dir", "Output directory (maps, sites, overview, detect.json).", directory=False),
+    mc_samples_option(),
+    threshold_option("Uncertainty threshold: mean, quantile:Q, risk:ALPHA (calibrated as hd eval does) or nats:H (fixed)."),
+    click.option("--sigma", "sigma_m", type=_Finite(), default=None,
+                 help="DEM noise of the ALHAT baseline, metres (default: the run's training sigma); with --data also "
+                      "the noise level of the scan's DEM."),
+    click.option("--sites", "n_sites", type=int, default=10, show_default=True, help="Most landing sites to propose."),
+    overwrite_option("Replace a non-empty --out."),
+    labels_option("With --data: the labelling (when the dataset has several)."),
+    seed_option("MC dropout"),
+    batch_size_option("Tiles per inference batch."),
+)
 @friendly_errors
-def detect_cmd(run_dir: Path, dtm_path: Path | None, dataset: Path | None, scan: int | None, out_dir: Path,
-               mc_samples: int, threshold: str, sigma_m: float | None, n_sites: int, overwrite: bool,
-               labeling: str | None, seed: int, batch_size: int) -> None:
+def detect_cmd(run_dir: Path, out_dir: Path, dataset: Path | None, scan: int | None, dtm_path: Path | None,
+               **options: Any) -> None:
     """Hazard maps and ranked landing sites of a DTM (or of one scan) from a trained run."""
     from hdnet.detect import detect
 
     progress = _ScanProgress("tiles", unit="tile")
     try:
-        result = detect(run_dir, out_dir, dtm=dtm_path, dataset=dataset, scan=scan, mc_samples=mc_samples,
-                        threshold=threshold, sigma_m=sigma_m, n_sites=n_sites, overwrite=overwrite, seed=seed,
-                        batch_size=batch_size, labels=labeling, progress=progress)
+        result = detect(run_dir, out_dir, dtm=dtm_path, dataset=dataset, scan=scan, labels=options.pop("labeling"),
+                        progress=progress, **options)
     finally:
         progress.close()
     click.echo(result.summary())
@@ -517,165 +570,57 @@ def detect_cmd(run_dir: Path, dtm_path: Path | None, dataset: Path | None, scan:
 
 
 @main.command("demo")
-@click.option("--out", "out_dir", type=_Path(file_okay=False, path_type=Path), default=Path("demo-out"), show_default=True, help="Directory of the demo run.")
-@click.option("--scans", type=int, default=200, show_default=True, help="Scans in the demo dataset.")
-@click.option("--epochs", type=int, default=10, show_default=True, help="Training epochs (cpu profile).")
-@click.option("--workers", type=int, default=None, help="Local worker processes (default: all cores).")
-@click.pass_context
+@_options(
+    out_option("out_dir", "Directory of the demo run.", required=False, default=Path("demo-out")),
+    click.option("--scans", type=click.IntRange(1, limits.MAX_SCANS), default=200, show_default=True,
+                 help="Scans in the demo dataset."),
+    epochs_option("Training epochs (cpu profile).", default=10),
+    workers_option(),
+)
 @friendly_errors
-def demo_cmd(ctx: click.Context, out_dir: Path, scans: int, epochs: int, workers: int | None) -> None:
+def demo_cmd(out_dir: Path, scans: int, epochs: int, workers: int | None) -> None:
     """The whole chain at demo scale on the built-in procedural Mars terrain (re-running resumes)."""
-    _check_chain(out_dir, scans, epochs, workers)
-    stages = _Stages(out_dir)
-    data, run, report = out_dir / "dataset", out_dir / "run", out_dir / "report"
-    with stages("build", f"{scans} scans x {len(lidar_defaults.PAPER_SIGMAS_M)} noise levels on the procedural Mars terrain"):
-        _build_unless_done(ctx, data, scans, None, workers)
-    with stages("label", "DEMs, ALHAT labels and the baseline"):
-        _label(ctx, data, workers)
-    ctx.invoke(inspect_cmd, directory=data)
-    with stages("train", f"Bayesian SegNet, cpu profile, {epochs} epochs at sigma = {lidar_defaults.DEFAULT_SIGMA_M} m"):
-        ctx.invoke(train_cmd, dataset=data, run_dir=run, profile="cpu", epochs=epochs,
-                   train_sigma=lidar_defaults.DEFAULT_SIGMA_M, seed=0, resume=True, labeling=None)
-    with stages("eval", "MC dropout (M=8), paper metrics, 10 dropped pixels"):
-        _eval_unless_done(ctx, run, data, report, "mean", 10)
-    stages.finish()
+    from hdnet.pipeline import demo_pipeline, run_pipeline
+
+    run_pipeline(demo_pipeline(out_dir, scans, epochs), workers, echo=click.echo, progress=_ScanProgress)
 
 
 @main.command("reproduce")
-@click.option("--profile", type=click.Choice(["cpu", "paper"]), default="cpu", show_default=True, help="Training profile: cpu (this machine, <= 1 h) or paper (GPU).")
-@click.option("--dtm", "dtm_path", type=_Path(path_type=Path), default=None, help="Use this DTM instead of the procedural Mars terrain.")
-@click.option("--out", "out_dir", type=_Path(file_okay=False, path_type=Path), default=Path("reproduction"), show_default=True, help="Directory of the reproduction.")
-@click.option("--epochs", type=int, default=None, help="Training epochs (default: the profile's).")
-@click.option("--workers", type=int, default=None, help="Local worker processes (default: all cores).")
-@click.pass_context
+@_options(
+    click.option("--profile", type=click.Choice(["cpu", "paper"]), default="cpu", show_default=True,
+                 help="Training profile: cpu (this machine, <= 1 h) or paper (GPU)."),
+    dtm_option("Use this DTM instead of the recipe's terrain."),
+    out_option("out_dir", "Directory of the reproduction.", required=False, default=Path("reproduction")),
+    epochs_option("Training epochs (default: the profile's)."),
+    workers_option(),
+    recipe_option(f"The dataset recipe to reproduce the paper on (default: {PAPER_RECIPE.parent.name}/{PAPER_RECIPE.name} "
+                  "of the hd source tree)."),
+)
 @friendly_errors
-def reproduce_cmd(ctx: click.Context, profile: str, dtm_path: Path | None, out_dir: Path, epochs: int | None,
-                  workers: int | None) -> None:
-    """The paper end to end: S-167/S-300/S-700 on one terrain and trajectory (1000 scans, 800/100/100),
-    labels, training at 1.67 cm, Table 1, Table 2 (10 dropped pixels), threshold sweep and panels,
-    plus the risk-controlled threshold (alpha = 0.05). Each stage is resumable; finished stages are skipped."""
-    _check_chain(out_dir, lidar_defaults.N_SCANS, epochs, workers)
-    if dtm_path is not None:
-        from lidarsim.terrain import DTM
+def reproduce_cmd(profile: str, dtm_path: Path | None, out_dir: Path, epochs: int | None, workers: int | None,
+                  recipe: Path | None) -> None:
+    """The paper end to end: the dataset of datasets/mars-paper (S-167/S-300/S-700 on one terrain and trajectory,
+    1000 scans, 800/100/100) and its labels, training at 1.67 cm, Table 1, Table 2 (10 dropped pixels), threshold
+    sweep and panels, plus the risk-controlled threshold (alpha = 0.05). Each stage is resumable; finished stages
+    are skipped."""
+    from hdnet.pipeline import reproduce_pipeline, run_pipeline
 
-        with DTM.open(dtm_path):
-            pass
-    stages = _Stages(out_dir)
-    data, run = out_dir / "dataset", out_dir / "run"
-    with stages("build", "1000 scans x (1.67, 3, 7) cm on one terrain and trajectory"):
-        _build_unless_done(ctx, data, lidar_defaults.N_SCANS, dtm_path, workers)
-    with stages("label", "DEMs, ALHAT labels and the baseline"):
-        _label(ctx, data, workers)
-    with stages("train", f"Bayesian SegNet, {profile} profile, trained at sigma = {lidar_defaults.DEFAULT_SIGMA_M} m"):
-        ctx.invoke(train_cmd, dataset=data, run_dir=run, profile=profile, epochs=epochs,
-                   train_sigma=lidar_defaults.DEFAULT_SIGMA_M, seed=0, resume=True, labeling=None)
-    with stages("eval", "Table 1, Table 2 (10 dropped pixels), sweep, calibration, panels (mean-entropy threshold)"):
-        _eval_unless_done(ctx, run, data, out_dir / "report", "mean", 10)
-    with stages("eval-risk", "risk-controlled threshold, alpha = 0.05"):
-        _eval_unless_done(ctx, run, data, out_dir / "report-risk", "risk:0.05", 0)
-    stages.finish()
+    pipeline = reproduce_pipeline(out_dir, recipe if recipe is not None else PAPER_RECIPE, profile, epochs, dtm_path)
+    run_pipeline(pipeline, workers, echo=click.echo, progress=_ScanProgress)
 
 
 @main.command("card")
-@click.argument("dataset", type=_Path(file_okay=False, path_type=Path))
-@click.option("--recipe", required=True, type=_Path(path_type=Path), help="Recipe directory the dataset was built from; card.md and checksums.json are written there.")
+@click.argument("dataset", type=_DIRECTORY)
+@recipe_option("Recipe directory the dataset was built from; card.md and checksums.json are written there.",
+               required=True)
 @click.option("--machine", default="", help="Where the published build was made (recorded in the card).")
 @friendly_errors
 def card_cmd(dataset: Path, recipe: Path, machine: str) -> None:
     """Write the dataset card (card.md) and the published checksums (checksums.json) of a recipe."""
-    from hdlabels.card import checksums_of, render_card
-    from lidarsim.recipe import CHECKSUMS_FILE, load_recipe
-    from lidarsim.shards import read_manifest, write_json_atomic
-    from lidarsim.storage import write_text_atomic
+    from lidarsim.card import publish_card
 
-    loaded = load_recipe(recipe)
-    manifest = read_manifest(dataset)
-    if manifest["config_sha256"] != loaded.build.fingerprint():
-        raise LidarsimError(f"{dataset} was not built from {loaded.path} (settings differ); build it with --recipe")
-    directory = loaded.path.parent
-    sums = checksums_of(dataset)
-    write_json_atomic(directory / CHECKSUMS_FILE, sums)
-    write_text_atomic(directory / "card.md", render_card(dataset, loaded, machine))
-    click.echo(f"wrote {directory / 'card.md'} and {directory / CHECKSUMS_FILE} ({len(sums['shards'])} shards)")
-
-
-def _check_chain(out_dir: Path, scans: int, epochs: int | None, workers: int | None) -> None:
-    """Every option of a multi-stage command, checked before its first stage runs."""
-    from lidarsim import limits
-    from lidarsim.build import assign_splits
-    from lidarsim.storage import check_output_dir
-
-    _check_range("scans", scans, 3, limits.MAX_SCANS)
-    _check_range("epochs", epochs, 1)
-    _check_range("workers", workers, 1, limits.MAX_WORKERS)
-    if min(int((assign_splits(scans, seed=0) == code).sum()) for code in (0, 1, 2)) == 0:
-        raise LidarsimError(f"--scans {scans} leaves a split empty; use more scans")
-    check_output_dir(out_dir, "--out")
-
-
-class _Stages:
-    """Prints, times and records (OUT/stages.json) the stages of a multi-stage command."""
-
-    def __init__(self, out_dir: Path) -> None:
-        self.out_dir = out_dir
-        self.times: dict[str, float] = {}
-
-    def __call__(self, name: str, what: str) -> Any:
-        import contextlib
-        import time
-
-        @contextlib.contextmanager
-        def stage() -> Any:
-            click.echo(f"== {name}: {what}")
-            t0 = time.perf_counter()
-            yield
-            self.times[name] = round(time.perf_counter() - t0, 1)
-            click.echo(f"== {name}: done in {self.times[name]:.1f} s")
-
-        return stage()
-
-    def finish(self) -> None:
-        import json
-
-        from lidarsim.storage import make_dirs, write_json_atomic
-
-        make_dirs(self.out_dir)
-        path = self.out_dir / "stages.json"
-        try:
-            previous = json.loads(path.read_text()) if path.exists() else {}
-        except (OSError, ValueError):
-            previous = {}
-        if not isinstance(previous, dict) or not isinstance(previous.get("runs", []), list):
-            previous = {}
-        previous.setdefault("runs", []).append(self.times)
-        write_json_atomic(path, previous)
-        click.echo("stage times (s): " + ", ".join(f"{k} {v:.1f}" for k, v in self.times.items()))
-
-
-def _build_unless_done(ctx: click.Context, data: Path, scans: int, dtm_path: Path | None, workers: int | None) -> None:
-    from lidarsim.shards import MANIFEST_NAME
-
-    if (data / MANIFEST_NAME).exists():
-        click.echo(f"dataset {data} already built")
-        return
-    ctx.invoke(build_dataset_cmd, out_dir=data, dtm_path=dtm_path, sigmas=lidar_defaults.PAPER_SIGMAS_M, scans=scans,
-               seed=0, workers=workers, altitude=lidar_defaults.ALTITUDE_M, dtm_scale=1.0, scheduler=None,
-               overwrite=False, shard_size=50, tilt=0.0, jitter=0.0, resolution=lidar_defaults.DETECTOR_ROWS,
-               fov=lidar_defaults.FOV_DEG, dead_elements=0, damaged_elements=0, compression="gzip")
-
-
-def _label(ctx: click.Context, data: Path, workers: int | None) -> None:
-    ctx.invoke(label_cmd, directory=data, lander_diameter=10.0, pad_diameter=1.0, max_slope_deg=10.0,
-               max_roughness=0.20, layout="square", yaws=None, count_holes=False, dem_size=100, dem_spacing=1.0,
-               workers=workers, scheduler=None)
-
-
-def _eval_unless_done(ctx: click.Context, run: Path, data: Path, report: Path, threshold: str, drop: int) -> None:
-    if (report / "report.json").exists():
-        click.echo(f"report {report} already written")
-        return
-    ctx.invoke(eval_cmd, run_dir=run, dataset=data, out_dir=report, mc_samples=8, drop_pixels=drop,
-               threshold=threshold, labeling=None, seed=0)
+    card = publish_card(dataset, recipe, machine)
+    click.echo(f"wrote {card.card_path} and {card.checksums_path} ({card.n_shards} shards)")
 
 
 if __name__ == "__main__":

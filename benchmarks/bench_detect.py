@@ -55,7 +55,7 @@ from hdnet.profiles import CPU, PAPER, TrainingProfile  # noqa: E402
 from hdnet.train import CHECKPOINT_SCHEMA, CHECKPOINT_VERSION, save_checkpoint  # noqa: E402
 from lidarsim.procedural import MarsTerrainParams, generate_mars_terrain, write_geotiff  # noqa: E402
 
-BUDGET_S = 10.0  # ALHAT's onboard budget per frame (issue "hd detect", after Johnson et al.)
+BUDGET_S = 10.0  # hd choice: the per-frame time budget detection is measured against (docs/benchmarks.md)
 LABELING = {"name": "default-lander-dem100x100at1m", "lander": Lander().to_attrs(),  # the default label convention
             "dem": {"rows": 100, "cols": 100, "spacing_m": 1.0}}
 

@@ -87,7 +87,7 @@ class LabelSummary:
         return (
             f"Labelling {self.name}: {self.n_scans} scans in {self.n_shards} label shards, {verb}. "
             f"{self.safe_fraction * 100:.1f}% of labelled pixels are safe (clean DEMs); the ALHAT baseline "
-            f"(P(safe) >= 0.5) calls safe {base} of them per noise level."
+            f"(P(safe) >= {defaults.SAFE_PROBABILITY_THRESHOLD:g}) calls safe {base} of them per noise level."
         )
 
 

@@ -59,10 +59,10 @@ class Lander:
     pad_diameter_m: float = defaults.PAD_DIAMETER_M
     max_slope_deg: float = defaults.MAX_SLOPE_DEG
     max_roughness_m: float = defaults.MAX_ROUGHNESS_M
-    layout: Literal["square", "triangle"] = "square"
+    layout: Literal["square", "triangle"] = defaults.LAYOUT
     n_yaws: int = defaults.N_YAWS
     count_holes: bool = defaults.COUNT_HOLES
-    convention: Literal["paper", "hd"] = "paper"
+    convention: Literal["paper", "hd"] = defaults.CONVENTION
     baseline_combine: Literal["product", "min"] | None = None
 
     def __post_init__(self) -> None:
@@ -79,7 +79,7 @@ class Lander:
             )
         if self.max_slope_deg >= 90:
             raise HdLabelsError(f"Lander max_slope_deg must be below 90 degrees, got {self.max_slope_deg!r}.")
-        if self.layout not in ("square", "triangle"):
+        if self.layout not in defaults.LAYOUTS:
             raise HdLabelsError(f"Lander layout must be 'square' or 'triangle', got {self.layout!r}.")
         if isinstance(self.n_yaws, bool) or not isinstance(self.n_yaws, int) or self.n_yaws < 1:
             raise HdLabelsError(f"Lander n_yaws must be an integer >= 1, got {self.n_yaws!r}.")

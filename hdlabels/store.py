@@ -22,7 +22,7 @@ import numpy as np
 
 from hdlabels import defaults
 from hdlabels._version import __version__
-from hdlabels.errors import HdLabelsError
+from hdlabels.errors import LabelStoreError
 from hdlabels.lander import Lander
 from lidarsim.shards import (
     MANIFEST_NAME,
@@ -43,12 +43,6 @@ LABEL_SCHEMA = "hd.labels"
 # combination and linear gridding.
 LABEL_SCHEMA_VERSION = "1.1"
 LABELS_DIR = "labels"
-# hd choice: largest DEM side accepted (pixels), checked before anything is allocated; the paper's is 100.
-MAX_DEM_SIDE_PX = 2048
-
-
-class LabelStoreError(HdLabelsError):
-    """A dataset without the requested labels, or a label shard of an unknown format."""
 
 
 @dataclass(frozen=True)
@@ -59,13 +53,13 @@ class DemSpec:
     rows: int = defaults.DEM_ROWS
     cols: int = defaults.DEM_COLS
     spacing_m: float = defaults.DEM_SPACING_M
-    gridding: str = "linear"
+    gridding: str = defaults.GRIDDING["hd"]
 
     def __post_init__(self) -> None:
         for name in ("rows", "cols"):
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 2 <= value <= MAX_DEM_SIDE_PX:
-                raise LabelStoreError(f"the DEM side (--dem-size) must be an integer in 2..{MAX_DEM_SIDE_PX} pixels, got {value!r}")
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 2 <= value <= defaults.MAX_DEM_SIDE_PX:
+                raise LabelStoreError(f"the DEM side (--dem-size) must be an integer in 2..{defaults.MAX_DEM_SIDE_PX} pixels, got {value!r}")
         s = self.spacing_m
         if isinstance(s, bool) or not isinstance(s, (int, float)) or not math.isfinite(s) or s <= 0:
             raise LabelStoreError(f"the DEM spacing (--dem-spacing) must be a positive finite number of metres, got {s!r}")
@@ -88,9 +82,11 @@ class DemSpec:
 
     @classmethod
     def from_entry(cls, entry: dict[str, Any]) -> DemSpec:
-        """The grid of a manifest ``dem`` entry (entries written before griddings existed are linear)."""
+        """The grid of a manifest ``dem`` entry (entries written before griddings existed are the hd
+        convention's, linear)."""
         return cls(int(entry.get("rows", defaults.DEM_ROWS)), int(entry.get("cols", defaults.DEM_COLS)),
-                   float(entry.get("spacing_m", defaults.DEM_SPACING_M)), str(entry.get("gridding", "linear")))
+                   float(entry.get("spacing_m", defaults.DEM_SPACING_M)),
+                   str(entry.get("gridding", defaults.GRIDDING["hd"])))
 
 
 def labeling_name(lander: Lander, dem: DemSpec) -> str:
@@ -105,8 +101,8 @@ def labeling_name(lander: Lander, dem: DemSpec) -> str:
     grid = f"dem{dem.rows}x{dem.cols}at{dem.spacing_m:g}m"
     if lander.convention == "paper":
         return f"paper-{body}{holes}-{lander.baseline_combine}-{dem.gridding}-{grid}"
-    extra = "" if lander.baseline_combine == "min" else f"-{lander.baseline_combine}"
-    extra += "" if dem.gridding == "linear" else f"-{dem.gridding}"
+    extra = "" if lander.baseline_combine == defaults.BASELINE_COMBINE["hd"] else f"-{lander.baseline_combine}"
+    extra += "" if dem.gridding == defaults.GRIDDING["hd"] else f"-{dem.gridding}"
     return f"{body}-yaws{lander.n_yaws}{holes}{extra}-{grid}"
 
 
@@ -152,7 +148,8 @@ class LabelShardWriter:
             "roughness_m": f.create_dataset("roughness_m", (n, h, w), np.float32, chunks=(1, h, w), **gz),
             "p_safe": f.create_dataset("p_safe", (n, s, h, w), np.float32, chunks=(1, 1, h, w), **gz),
         }
-        self._d["label"].attrs["codes"] = "0 unsafe, 1 safe, 255 invalid"
+        self._d["label"].attrs["codes"] = (f"{defaults.LABEL_UNSAFE} unsafe, {defaults.LABEL_SAFE} safe, "
+                                           f"{defaults.LABEL_INVALID} invalid")
 
     def write(self, k: int, scan_index: int, split: int, dem_clean: np.ndarray, dem_noisy: np.ndarray,
               label: np.ndarray, slope_rad: np.ndarray, roughness_m: np.ndarray, p_safe: np.ndarray) -> None:

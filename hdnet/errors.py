@@ -1,5 +1,10 @@
-"""The one exception type raised by hdnet for bad input (shapes, specs, checkpoints, options)."""
+"""The one exception type raised by hdnet for bad input (shapes, specs, checkpoints, options).
+
+It sits under hd's root error, ``lidarsim.errors.HdError`` (documented there).
+"""
+
+from lidarsim.errors import HdError
 
 
-class HdNetError(ValueError):
+class HdNetError(HdError):
     """Bad input to hdnet: the message is one sentence naming the value and what is wrong with it."""

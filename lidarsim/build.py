@@ -28,9 +28,9 @@ import numpy as np
 
 from lidarsim import defaults, limits
 from lidarsim._version import __version__
-from lidarsim.errors import LidarsimError
+from lidarsim.errors import LidarsimError, OutputExistsError
 from lidarsim.parallel import probe_scheduler, run_tasks
-from lidarsim.procedural import MarsTerrainParams, generate_mars_terrain, geotiff_bytes
+from lidarsim.procedural import MarsTerrainParams, generate_mars_terrain, geotiff_bytes, terrain_tags
 from lidarsim.scan import STATUS_DAMAGED, STATUS_DEAD, STATUS_RETURN, TileScene, scan_geometry, simulate_scans
 from lidarsim.sensor import SensorConfig
 from lidarsim.shards import (
@@ -74,10 +74,6 @@ CAST_BATCH_SCANS = 16
 OVERVIEW_CELL_M = 2.0
 
 
-class OutputExistsError(LidarsimError):
-    """The output directory already holds something the build must not overwrite."""
-
-
 @dataclass(frozen=True)
 class BuildConfig:
     """Everything that determines the content of a dataset (workers and scheduler do not).
@@ -95,14 +91,14 @@ class BuildConfig:
     """
 
     sigmas_m: tuple[float, ...] = (defaults.DEFAULT_SIGMA_M,)
-    seed: int = 0
+    seed: int = defaults.SEED
     sensor: SensorConfig = field(default_factory=SensorConfig)
     trajectory: TrajectoryConfig = field(default_factory=TrajectoryConfig)
     dtm_path: str | None = None
-    dtm_scale: float = 1.0
+    dtm_scale: float = defaults.DTM_SCALE
     terrain: MarsTerrainParams = field(default_factory=MarsTerrainParams)
-    shard_size: int = 50
-    compression: str = "gzip"
+    shard_size: int = defaults.SHARD_SIZE
+    compression: str = defaults.COMPRESSION
 
     def __post_init__(self) -> None:
         if not self.sigmas_m:
@@ -118,8 +114,8 @@ class BuildConfig:
             raise LidarsimError(f"shard size must be > 0, got {self.shard_size}")
         if not (math.isfinite(self.dtm_scale) and 0.0 < self.dtm_scale <= 1.0):
             raise LidarsimError(f"--dtm-scale must be in (0, 1], got {self.dtm_scale}")
-        if self.compression not in ("gzip", "lzf", "none"):
-            raise LidarsimError(f"unknown compression {self.compression!r}; use gzip, lzf or none")
+        if self.compression not in defaults.COMPRESSIONS:
+            raise LidarsimError(f"unknown compression {self.compression!r}; use {', '.join(defaults.COMPRESSIONS)}")
         per_scan = self.sensor.rows * self.sensor.cols * (4 * 3 * (1 + len(self.sigmas_m)) + 2)
         scans = min(self.shard_size, self.trajectory.n_scans)
         if scans * per_scan > limits.MAX_SHARD_BYTES:
@@ -424,12 +420,26 @@ def procedural_terrain_name(seed: int) -> str:
     return f"mars-procedural-seed{seed}.tif"
 
 
+def default_out_dir(config: BuildConfig, recipe_name: str | None = None) -> Path:
+    """The dataset directory ``hd build-dataset`` writes when no ``--out`` is given, relative to the
+    current directory: the recipe's name; else the DTM's file name without its suffix
+    (``sabrina.tif`` -> ``sabrina``; ``NAME-dataset`` for a DTM file without a suffix, so that the
+    directory never takes the DTM's own name); else the procedural terrain's (``mars-procedural-seedS``).
+    """
+    if recipe_name:
+        return Path(recipe_name)
+    if config.dtm_path is not None:
+        dtm = Path(config.dtm_path)
+        return Path(dtm.stem if dtm.suffix else f"{dtm.name}-dataset")
+    return Path(Path(procedural_terrain_name(config.seed)).stem)
+
+
 def _procedural_terrain_bytes(config: BuildConfig, path: Path) -> bytes:
     """The procedural terrain of ``config`` as GeoTIFF bytes (built in memory; nothing is written)."""
     params = config.terrain
     heights = generate_mars_terrain(params, seed=config.seed)
-    tags = {"generator": "lidarsim.procedural", "seed": str(config.seed), "params": json.dumps(asdict(params))}
-    return geotiff_bytes(heights, params.spacing_m, origin_xy=(0.0, 0.0), crs_wkt="", tags=tags, name=str(path))
+    return geotiff_bytes(heights, params.spacing_m, origin_xy=(0.0, 0.0), crs_wkt="",
+                         tags=terrain_tags(params, config.seed), name=str(path))
 
 
 def check_workers(workers: int | None, flag: str = "--workers") -> None:

@@ -1,8 +1,8 @@
-"""The paper's sensor and scene numbers, in one place.
+"""The sensor, scene and build numbers lidarsim uses by default, each with its source, in one place.
 
-Source: Tomita, Skinner & Ho, "Bayesian Deep Learning for Segmentation for Autonomous Safe
-Planetary Landing" (``shared/seed/bayesian-segnet-hazard-detection.tex``), section
-"Dataset Preparation" and Table "Sensor parameters".
+Source of the paper's numbers: Tomita, Skinner & Ho, "Bayesian Deep Learning for Segmentation for
+Autonomous Safe Planetary Landing" ("the paper" in ``docs/references.md``), section "Dataset
+Preparation" and Table "Sensor parameters". Values marked "hd choice" are not in the paper.
 """
 
 from __future__ import annotations
@@ -29,7 +29,26 @@ DEFAULT_SIGMA_M: float = SIGMA_S167_M
 N_SCANS: int = 1000
 SPLIT_FRACTIONS: tuple[float, float, float] = (0.8, 0.1, 0.1)
 # "Due to memory limitations, we load the DTM at 25% of the full resolution"; hd reads
-# windows instead, so its default is full resolution (1.0). The paper's value is kept for recipes.
+# windows instead, so its default is full resolution (DTM_SCALE). The paper's value is quoted in
+# the help of --dtm-scale.
 PAPER_DTM_SCALE: float = 0.25
 # HiRISE DTM NULL value (PDS3 label MISSING_CONSTANT); mask with <=, never ==.
 HIRISE_NULL: float = -3.4028227e38
+
+# --- Build settings that are not in the paper (hd choices; docs/lidarsim.md) ------------------------
+# Master seed of every random stream of a build.
+SEED: int = 0
+# DTM resampling factor: full resolution (hd reads windows, so memory does not force 0.25).
+DTM_SCALE: float = 1.0
+# Scans per shard file (50 scans of 128 x 128 px at 3 noise levels: ~40 MB in memory per worker).
+SHARD_SIZE: int = 50
+# Off-nadir tilt of the boresight and 1-sigma attitude jitter per axis, degrees: the paper's nadir
+# sensor with perfect pointing.
+TILT_DEG: float = 0.0
+JITTER_DEG: float = 0.0
+# Detector elements that never return, or return with a large range error: none by default.
+DEAD_ELEMENTS: int = 0
+DAMAGED_ELEMENTS: int = 0
+# HDF5 compression of the point arrays (docs/shard-format.md): deflate level 1 + shuffle by default.
+COMPRESSIONS: tuple[str, ...] = ("gzip", "lzf", "none")
+COMPRESSION: str = "gzip"

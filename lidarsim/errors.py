@@ -1,11 +1,67 @@
-"""Errors raised by lidarsim for bad input: one-line messages that name the problem."""
+"""hd's errors: one root for the whole project and lidarsim's own hierarchy under it.
+
+Every error hd raises for bad input or a bad file derives from :class:`HdError`; its message is
+one sentence that names the value, option or file and what is wrong with it, and the ``hd``
+command prints it as one ``Error: ...`` line with exit status 1. A program using hd as a library
+catches ``HdError`` for "the input was refused" and lets everything else through as a bug.
+``HdError`` subclasses ``ValueError``, so code written against the earlier hierarchies still
+catches them. Each package keeps a small hierarchy under the root in its ``errors`` module::
+
+    HdError
+    ├── LidarsimError              lidarsim (this module)
+    │   ├── TerrainError           a DTM file or terrain request that cannot be used
+    │   ├── RecipeError            a dataset recipe that cannot be read or holds invalid settings
+    │   ├── OutputExistsError      an output directory that must not be overwritten
+    │   └── StorageError           a file or directory that cannot be written or read
+    │       ├── LockedError        another hd process is writing the directory
+    │       └── FormatError        not a format (or major version) this hd reads
+    │           └── DamagedFileError   checksum mismatch, unreadable chunk, truncated file
+    ├── HdLabelsError              hdlabels.errors
+    │   └── LabelStoreError        missing labels, a label shard of an unknown format
+    └── HdNetError                 hdnet.errors
+
+:class:`WorkerError` is not an input error: a task that failed in a worker process with an
+unexpected exception (a bug), re-raised in the parent with the worker's traceback attached.
+"""
 
 from __future__ import annotations
 
 
-class LidarsimError(ValueError):
+class HdError(ValueError):
+    """Root of every error hd raises for bad input or a bad file (one-line message)."""
+
+
+class LidarsimError(HdError):
     """Base class of every error lidarsim raises for bad input or bad files."""
 
 
 class TerrainError(LidarsimError):
     """A DTM file or terrain request that cannot be used (message names the file and the problem)."""
+
+
+class RecipeError(LidarsimError):
+    """A recipe that cannot be read or holds unknown or invalid settings."""
+
+
+class OutputExistsError(LidarsimError):
+    """The output directory already holds something the build must not overwrite."""
+
+
+class StorageError(LidarsimError):
+    """A file or directory that cannot be written or read (the message names the path and the cause)."""
+
+
+class FormatError(StorageError):
+    """A file that is not of a format (or major version) this hd reads."""
+
+
+class DamagedFileError(FormatError):
+    """A file whose bytes are damaged: checksum mismatch, unreadable chunk, truncated."""
+
+
+class LockedError(StorageError):
+    """Another hd process is writing the directory."""
+
+
+class WorkerError(RuntimeError):
+    """A task failed in a worker with an exception that is not one of hd's input errors."""

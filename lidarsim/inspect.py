@@ -101,3 +101,18 @@ def _short_crs(wkt: str) -> str:
     start = wkt.find('"')
     end = wkt.find('"', start + 1)
     return wkt[start + 1 : end] if start >= 0 and end > start else wkt[:40]
+
+
+# The status lines `hd inspect` prints after the summary.
+INTACT_STATUS = "status    intact: every file matches the manifest's sha256 and schema"
+
+
+def damaged_status(problems: list[str]) -> list[str]:
+    """The status lines of a damaged dataset: a count, then one indented line per problem."""
+    return [f"status    DAMAGED: {len(problems)} problem(s)", *(f"          {p}" for p in problems)]
+
+
+def damaged_message(directory: str | os.PathLike, problems: list[str]) -> str:
+    """The one-line error of a damaged dataset."""
+    return (f"{directory} is damaged ({len(problems)} problem(s)); `hd verify {directory}` lists them; rebuild or "
+            "restore the damaged files")

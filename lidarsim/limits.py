@@ -18,3 +18,5 @@ MAX_WORKERS: int = 512
 # A scan whose rays hit the terrain less often than this (dead elements aside) fails the build:
 # the planner places every footprint on valid terrain, so ~100% of the rays return.
 MIN_RETURN_FRACTION: float = 0.5
+# DataLoader worker processes of `hd train`.
+MAX_LOADER_WORKERS: int = 256

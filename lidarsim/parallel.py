@@ -31,7 +31,7 @@ from multiprocessing import get_context
 from multiprocessing.connection import Connection, wait
 from typing import Any, TypeVar
 
-from lidarsim.errors import LidarsimError
+from lidarsim.errors import LidarsimError, WorkerError
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -42,10 +42,6 @@ _PR_SET_PDEATHSIG = 1
 _WATCHDOG_PERIOD_S = 0.5
 # Seconds the parent waits for killed workers to exit.
 _JOIN_TIMEOUT_S = 10.0
-
-
-class WorkerError(RuntimeError):
-    """A task failed in a worker with an exception that is not one of hd's input errors."""
 
 
 class RemoteTraceback(Exception):

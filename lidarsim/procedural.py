@@ -45,7 +45,9 @@ __all__ = [
     "sample_rock_diameters",
     "stamp_crater",
     "stamp_rocks",
+    "terrain_tags",
     "write_geotiff",
+    "write_procedural_dtm",
 ]
 
 # Largest grid accepted (cells per side): 2**14 cells = 1 GiB of float32 heights.
@@ -351,6 +353,21 @@ def params_tags(params: MarsTerrainParams, seed: int) -> dict[str, str]:
         "HD_PARAMS": json.dumps(dataclasses.asdict(params), sort_keys=True),
         "HD_SEED": str(int(seed)),
     }
+
+
+def terrain_tags(params: MarsTerrainParams, seed: int) -> dict[str, str]:
+    """GeoTIFF tags of the procedural terrain files hd writes (``hd make-dtm`` and a build's
+    ``terrain/``): the generator, the seed and the parameters (JSON). A build's terrain bytes, and so
+    its shards' ``dtm_sha256``, depend on them: they do not change."""
+    return {"generator": "lidarsim.procedural", "seed": str(seed), "params": json.dumps(dataclasses.asdict(params))}
+
+
+def write_procedural_dtm(path: str | os.PathLike[str], params: MarsTerrainParams, seed: int) -> np.ndarray:
+    """Generate the procedural terrain and write it to ``path`` as a GeoTIFF (local metres, origin
+    (0, 0), no CRS); returns the heights (metres)."""
+    heights = generate_mars_terrain(params, seed=seed)
+    write_geotiff(path, heights, params.spacing_m, origin_xy=(0.0, 0.0), crs_wkt="", tags=terrain_tags(params, seed))
+    return heights
 
 
 def geotiff_profile(

@@ -40,29 +40,86 @@ from __future__ import annotations
 import json
 import os
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
 from lidarsim import defaults
 from lidarsim.build import BuildConfig
-from lidarsim.errors import LidarsimError
+from lidarsim.errors import LidarsimError, RecipeError
 from lidarsim.sensor import SensorConfig
 from lidarsim.trajectory import TrajectoryConfig
 
 RECIPE_FILE = "recipe.toml"
 CHECKSUMS_FILE = "checksums.json"
 
-_BUILD_KEYS = {
-    "scans", "sigmas_m", "seed", "altitude_m", "dtm", "dtm_scale", "shard_size", "tilt_deg", "jitter_deg",
-    "resolution", "fov_deg", "dead_elements", "damaged_elements", "compression",
-}
 _LABEL_KEYS = {"lander", "lander_diameter_m", "pad_diameter_m", "max_slope_deg", "max_roughness_m", "yaws",
                "count_holes", "dem_size", "dem_spacing_m", "convention", "baseline_combine", "gridding"}
 
 
-class RecipeError(LidarsimError):
-    """A recipe that cannot be read or holds unknown or invalid settings."""
+@dataclass(frozen=True)
+class BuildSettings:
+    """The content settings of a dataset as ``hd build-dataset`` takes them and a recipe's
+    ``[build]`` section records them (one flat record; :meth:`to_config` makes the
+    :class:`~lidarsim.build.BuildConfig`). Defaults are ``lidarsim.defaults``'.
+
+    Attributes:
+        sigmas_m: noise levels (1-sigma along each ray), metres.
+        scans: number of scans.
+        seed: master seed of every random stream.
+        altitude_m: sensor altitude above the terrain, metres.
+        dtm_path: DTM file; None builds on the procedural Mars terrain.
+        dtm_scale: resampling factor of the DTM (1 = full resolution).
+        shard_size: scans per shard file.
+        tilt_deg: off-nadir tilt of the boresight, degrees.
+        jitter_deg: 1-sigma attitude jitter per axis, degrees.
+        resolution: detector pixels per side.
+        fov_deg: field of view per side, degrees.
+        dead_elements: detector elements that never return.
+        damaged_elements: detector elements with a large range error.
+        compression: HDF5 compression of the point arrays: gzip, lzf or none.
+    """
+
+    sigmas_m: tuple[float, ...] = (defaults.DEFAULT_SIGMA_M,)
+    scans: int = defaults.N_SCANS
+    seed: int = defaults.SEED
+    altitude_m: float = defaults.ALTITUDE_M
+    dtm_path: str | None = None
+    dtm_scale: float = defaults.DTM_SCALE
+    shard_size: int = defaults.SHARD_SIZE
+    tilt_deg: float = defaults.TILT_DEG
+    jitter_deg: float = defaults.JITTER_DEG
+    resolution: int = defaults.DETECTOR_ROWS
+    fov_deg: float = defaults.FOV_DEG
+    dead_elements: int = defaults.DEAD_ELEMENTS
+    damaged_elements: int = defaults.DAMAGED_ELEMENTS
+    compression: str = defaults.COMPRESSION
+
+    def to_config(self) -> BuildConfig:
+        """The build configuration (a square detector with the same FOV on both axes).
+
+        Raises:
+            LidarsimError: an invalid value, named by its option.
+        """
+        return BuildConfig(
+            sigmas_m=tuple(float(s) for s in self.sigmas_m),
+            seed=int(self.seed),
+            sensor=SensorConfig(rows=int(self.resolution), cols=int(self.resolution), fov_x_deg=float(self.fov_deg),
+                                fov_y_deg=float(self.fov_deg), dead_elements=int(self.dead_elements),
+                                damaged_elements=int(self.damaged_elements)),
+            trajectory=TrajectoryConfig(n_scans=int(self.scans), altitude_m=float(self.altitude_m),
+                                        tilt_deg=float(self.tilt_deg), jitter_deg=float(self.jitter_deg)),
+            dtm_path=self.dtm_path,
+            dtm_scale=float(self.dtm_scale),
+            shard_size=int(self.shard_size),
+            compression=str(self.compression),
+        )
+
+
+# Recipe [build] keys that differ from the BuildSettings field they fill.
+_BUILD_KEY_FIELDS = {"dtm": "dtm_path"}
+_BUILD_KEYS = {k for k in (f.name for f in fields(BuildSettings)) if k not in _BUILD_KEY_FIELDS.values()} | set(
+    _BUILD_KEY_FIELDS)
 
 
 @dataclass(frozen=True)
@@ -111,29 +168,15 @@ def load_recipe(path: str | os.PathLike) -> Recipe:
         unknown = set(keys) - known
         if unknown:
             raise RecipeError(f"{path}: unknown [{section}] key(s) {sorted(unknown)}")
-    dtm = build.get("dtm", "")
-    dtm_path = None
-    if dtm:
-        dtm_path = Path(dtm) if Path(dtm).is_absolute() else (path.parent / dtm)
-        dtm_path = str(dtm_path.resolve())
+    values = {_BUILD_KEY_FIELDS.get(k, k): v for k, v in build.items()}
     try:
-        resolution = int(build.get("resolution", defaults.DETECTOR_ROWS))
-        fov = float(build.get("fov_deg", defaults.FOV_DEG))
-        config = BuildConfig(
-            sigmas_m=tuple(float(s) for s in build.get("sigmas_m", [defaults.DEFAULT_SIGMA_M])),
-            seed=int(build.get("seed", 0)),
-            sensor=SensorConfig(rows=resolution, cols=resolution, fov_x_deg=fov, fov_y_deg=fov,
-                                dead_elements=int(build.get("dead_elements", 0)),
-                                damaged_elements=int(build.get("damaged_elements", 0))),
-            trajectory=TrajectoryConfig(n_scans=int(build.get("scans", defaults.N_SCANS)),
-                                        altitude_m=float(build.get("altitude_m", defaults.ALTITUDE_M)),
-                                        tilt_deg=float(build.get("tilt_deg", 0.0)),
-                                        jitter_deg=float(build.get("jitter_deg", 0.0))),
-            dtm_path=dtm_path,
-            dtm_scale=float(build.get("dtm_scale", 1.0)),
-            shard_size=int(build.get("shard_size", 50)),
-            compression=str(build.get("compression", "gzip")),
-        )
+        dtm = values.pop("dtm_path", "")
+        if dtm:  # "" is the procedural terrain; a relative path is relative to the recipe
+            dtm_path = Path(dtm) if Path(dtm).is_absolute() else (path.parent / dtm)
+            values["dtm_path"] = str(dtm_path.resolve())
+        if "sigmas_m" in values:
+            values["sigmas_m"] = tuple(values["sigmas_m"])
+        config = BuildSettings(**values).to_config()
     except (TypeError, ValueError) as exc:
         if isinstance(exc, LidarsimError):
             raise RecipeError(f"{path}: {exc}") from None
@@ -174,3 +217,16 @@ def check_against_checksums(manifest: dict[str, Any], recorded: dict[str, Any]) 
         elif want[p] != have[p]:
             problems.append(f"{p}: sha256 differs from the recipe's published build")
     return problems
+
+
+def check_against_recipe(manifest: dict[str, Any], recipe_dir: str | os.PathLike) -> list[str]:
+    """Compare a dataset's manifest with the checksums published with a recipe (``hd verify --recipe``).
+
+    Raises:
+        RecipeError: the recipe cannot be read or has no published ``checksums.json``.
+    """
+    recipe = load_recipe(recipe_dir)
+    recorded = recipe.checksums()
+    if recorded is None:
+        raise RecipeError(f"{recipe.path.parent}: the recipe has no published {CHECKSUMS_FILE}")
+    return check_against_checksums(manifest, recorded)

@@ -47,8 +47,8 @@ class SensorConfig:
     fov_x_deg: float = defaults.FOV_DEG
     fov_y_deg: float = defaults.FOV_DEG
     focal_length_m: float = defaults.FOCAL_LENGTH_M
-    dead_elements: int = 0
-    damaged_elements: int = 0
+    dead_elements: int = defaults.DEAD_ELEMENTS
+    damaged_elements: int = defaults.DAMAGED_ELEMENTS
     damaged_error_m: float = 5.0
 
     def __post_init__(self) -> None:

@@ -19,6 +19,7 @@ from typing import Any
 import h5py
 import numpy as np
 
+from lidarsim import defaults
 from lidarsim._version import __version__
 from lidarsim.errors import LidarsimError
 from lidarsim.storage import (
@@ -102,7 +103,7 @@ class ScanShardWriter:
     cols: int
     sigmas_m: tuple[float, ...]
     attrs: dict[str, Any]
-    compression: str = "gzip"
+    compression: str = defaults.COMPRESSION
 
     def __enter__(self) -> ScanShardWriter:
         kw = compression_kwargs(self.compression)

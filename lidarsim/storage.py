@@ -50,7 +50,7 @@ from typing import Any
 import h5py
 import numpy as np
 
-from lidarsim.errors import LidarsimError
+from lidarsim.errors import DamagedFileError, FormatError, LockedError, StorageError
 
 LOCK_NAME = ".hd-lock"
 PARTIAL_MARK = ".partial-"
@@ -58,22 +58,6 @@ PARTIAL_MARK = ".partial-"
 NAME_MAX_BYTES = 255
 _HASH_CHUNK_BYTES = 1 << 22
 _SHA256_RE = re.compile(r"^[0-9a-f]{64}$")
-
-
-class StorageError(LidarsimError):
-    """A file or directory that cannot be written or read (the message names the path and the cause)."""
-
-
-class FormatError(StorageError):
-    """A file that is not of a format (or major version) this hd reads."""
-
-
-class DamagedFileError(FormatError):
-    """A file whose bytes are damaged: checksum mismatch, unreadable chunk, truncated."""
-
-
-class LockedError(StorageError):
-    """Another hd process is writing the directory."""
 
 
 # --------------------------------------------------------------------------------------- errors

@@ -43,8 +43,8 @@ class TrajectoryConfig:
 
     n_scans: int = defaults.N_SCANS
     altitude_m: float = defaults.ALTITUDE_M
-    tilt_deg: float = 0.0
-    jitter_deg: float = 0.0
+    tilt_deg: float = defaults.TILT_DEG
+    jitter_deg: float = defaults.JITTER_DEG
     margin_m: float = 5.0
     tile_m: float = 256.0
 

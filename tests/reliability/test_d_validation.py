@@ -233,7 +233,7 @@ def test_eval_refuses(case, args, needle, places, labelled, trained, monkeypatch
 ], ids=["demo-epochs-0", "demo-scans-0", "demo-scans-2", "demo-workers-0", "demo-proc", "demo-under-file",
         "reproduce-epochs-0", "reproduce-proc", "reproduce-dtm-missing"])
 def test_multi_stage_commands_check_every_stage_first(command, args, needle, places, monkeypatch):
-    _no_work(monkeypatch, ("cli", "_build_unless_done"))
+    _no_work(monkeypatch, ("hdnet.pipeline", "_build_unless_done"))
     argv = _fill(args, places)
     if "--out" not in argv:
         argv = ["--out", f"{places['tmp']}/chain", *argv]
@@ -253,13 +253,14 @@ def test_read_only_file_system_is_refused_before_work(tmp_path, dtm, monkeypatch
 
 def test_every_float_option_rejects_nan_and_inf():
     """Guard for new options: each float option of every command is covered by a case above."""
-    from click import FLOAT
+    from click.types import FloatParamType
 
     from cli import main
 
     covered = {a for rows in (BUILD, LABEL, MAKE_DTM, TRAIN) for _, args, _ in rows for a in args if a.startswith("--")}
     floats = {f"{c}:{o}" for c, cmd in main.commands.items() for p in cmd.params
-              if p.type is FLOAT for o in p.opts}
+              if isinstance(p.type, FloatParamType) for o in p.opts}
+    assert len(floats) >= 15  # every float option of every command, FloatRange ones included
     missing = sorted(f for f in floats if f.split(":")[1] not in covered)
     assert missing == [], f"float options without a non-finite case: {missing}"
     assert math.isnan(float("nan"))

@@ -1,19 +1,25 @@
-"""Dataset cards: a Markdown description of a built (and labelled) dataset, and its checksums.
+"""Dataset cards: a Markdown description of a dataset built from a recipe, and its checksums.
 
 ``hd card DATASET --recipe datasets/<name>`` writes ``card.md`` and ``checksums.json`` into the
-recipe directory: what the dataset is, every build setting, the software version, sizes, schema
-versions, class balance, how to cite the paper and the terrain's licence.
+recipe directory (:func:`publish_card`): what the dataset is, every build setting, the software
+version, sizes, schema versions, class balance (from the manifest's labelling entries,
+``docs/labels-format.md``), how to cite the paper and the terrain's licence.
 """
 
 from __future__ import annotations
 
 import json
 import os
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from lidarsim.recipe import CHECKSUMS_FILE, Recipe
-from lidarsim.shards import read_manifest
+from lidarsim.errors import RecipeError
+from lidarsim.recipe import CHECKSUMS_FILE, Recipe, load_recipe
+from lidarsim.shards import read_manifest, write_json_atomic
+from lidarsim.storage import write_text_atomic
+
+CARD_FILE = "card.md"
 
 PAPER_CITATION = (
     "K. Tomita, K. A. Skinner and K. Ho, \"Bayesian Deep Learning for Segmentation for Autonomous Safe "
@@ -112,3 +118,29 @@ def render_card(directory: str | os.PathLike, recipe: Recipe, machine: str = "")
         "",
     ]
     return "\n".join(lines)
+
+
+@dataclass(frozen=True)
+class PublishedCard:
+    """What :func:`publish_card` wrote."""
+
+    card_path: Path
+    checksums_path: Path
+    n_shards: int
+
+
+def publish_card(dataset: str | os.PathLike, recipe_dir: str | os.PathLike, machine: str = "") -> PublishedCard:
+    """Write the card and the published checksums of ``dataset`` into its recipe's directory.
+
+    Raises:
+        RecipeError: the dataset was not built from the recipe (its settings differ).
+    """
+    recipe = load_recipe(recipe_dir)
+    manifest = read_manifest(dataset)
+    if manifest["config_sha256"] != recipe.build.fingerprint():
+        raise RecipeError(f"{dataset} was not built from {recipe.path} (settings differ); build it with --recipe")
+    directory = recipe.path.parent
+    sums = checksums_of(dataset)
+    write_json_atomic(directory / CHECKSUMS_FILE, sums)
+    write_text_atomic(directory / CARD_FILE, render_card(dataset, recipe, machine))
+    return PublishedCard(directory / CARD_FILE, directory / CHECKSUMS_FILE, len(sums["shards"]))
