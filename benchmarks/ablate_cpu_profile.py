@@ -112,6 +112,7 @@ def throughput(dataset: Path, names: list[str], rounds: int, steps: int, labels:
     """Median images/s of each variant's training step (data preparation included), interleaved rounds."""
     entry, _ = open_labeling(dataset, labels)
     rates: dict[str, list[float]] = {n: [] for n in names}
+    data_share: dict[str, list[float]] = {n: [] for n in names}
     setups = {}
     for n in names:
         p = profile_of(n, 1)
@@ -126,17 +127,25 @@ def throughput(dataset: Path, names: list[str], rounds: int, steps: int, labels:
         for n in names:
             p, ds, model, opt, fmt = setups[n]
             t0 = time.perf_counter()
+            t_data = 0.0
             for s in range(steps):
+                t1 = time.perf_counter()
                 batch = [ds[(s * p.batch_size + j) % len(ds)] for j in range(p.batch_size)]
                 x = torch.stack([b["image"] for b in batch]).contiguous(memory_format=fmt)
                 y = torch.stack([b["mask"] for b in batch])
+                t_data += time.perf_counter() - t1
                 opt.zero_grad(set_to_none=True)
                 torch.nn.functional.cross_entropy(model(x), y, ignore_index=defaults.IGNORE_INDEX).backward()
                 opt.step()
             if r:
-                rates[n].append(steps * p.batch_size / (time.perf_counter() - t0))
+                elapsed = time.perf_counter() - t0
+                rates[n].append(steps * p.batch_size / elapsed)
+                data_share[n].append(t_data / elapsed)
         if r:
             print(f"round {r}: " + ", ".join(f"{n} {rates[n][-1]:.1f}" for n in names), flush=True)
+    for n in names:
+        print(f"{n}: median {statistics.median(rates[n]):.1f} images/s, reading and preparing the samples "
+              f"{100 * statistics.median(data_share[n]):.0f} % of a step")
     return {n: statistics.median(v) for n, v in rates.items()}
 
 

@@ -1,0 +1,122 @@
+"""Markdown tables of docs/results.md from the reports of a reproduction.
+
+Reads ``report.json`` files written by ``hd eval`` (``hd reproduce`` writes ``report/`` with the mean
+threshold and 10 dropped pixels, and ``report-risk/`` with ``risk:0.05``) and prints, next to the
+paper's numbers (``hdnet.paper_results``): Table 1 (noise), Table 2 (dead pixels), the threshold
+sweep and the risk-controlled rows. Nothing is typed by hand: regenerate the tables whenever the
+science changes.
+
+Usage::
+
+    python scripts/results_tables.py REPORT_DIR [--risk RISK_REPORT_DIR] [--title "paper convention"]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from hdnet.paper_results import paper_row  # noqa: E402
+
+METHODS = {"alhat_baseline": "ALHAT baseline", "base_net": "base net", "uncertainty_aware": "uncertainty-aware"}
+
+
+def _num(x: float | None, digits: int = 4) -> str:
+    return "–" if x is None or not math.isfinite(x) else f"{x:.{digits}f}"
+
+
+def _cm(sigma_m: float) -> str:
+    return f"{sigma_m * 100:.3g} cm"
+
+
+def _vc(row: dict[str, Any], paper: Any) -> str:
+    if row["vc_fraction"] is None:
+        return "–"
+    ours = f"{100 * row['vc_fraction']:.0f}"
+    return ours if paper is None or paper.vc_fraction is None else f"{ours} (paper {100 * paper.vc_fraction:.0f})"
+
+
+def table(report: dict[str, Any], which: str) -> list[str]:
+    """Rows of ``which`` (``noise`` = Table 1, ``dead_pixels`` = Table 2) beside the paper's."""
+    lines = ["| method | test σ | V/C % | PA | mIoU | precision | sensitivity | paper PA | paper mIoU | paper prec. | paper sens. |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in report["rows"]:
+        if r["table"] != which:
+            continue
+        p = paper_row(which, r["method"], r["test_sigma_m"])
+        theirs = ["–"] * 4 if p is None else [_num(p.pixel_accuracy), _num(p.miou), _num(p.precision), _num(p.sensitivity)]
+        lines.append(f"| {METHODS.get(r['method'], r['method'])} | {_cm(r['test_sigma_m'])} | {_vc(r, p)} | "
+                     f"{_num(r['pixel_accuracy'])} | {_num(r['miou'])} | {_num(r['precision'])} | "
+                     f"{_num(r['sensitivity'])} | " + " | ".join(theirs) + " |")
+    return lines
+
+
+def sweep(report: dict[str, Any]) -> list[str]:
+    """The threshold sweep: precision / sensitivity per quantile and test sigma."""
+    points = report.get("sweep") or []
+    sigmas = sorted({p["test_sigma_m"] for p in points})
+    quantiles = sorted({p["quantile"] for p in points})
+    by = {(p["quantile"], p["test_sigma_m"]): p for p in points}
+    lines = ["| quantile | " + " | ".join(f"{_cm(s)} V/C % / prec. / sens." for s in sigmas) + " |",
+             "|---" * (len(sigmas) + 1) + "|"]
+    for q in quantiles:
+        cells = []
+        for s in sigmas:
+            p = by.get((q, s))
+            cells.append("–" if p is None else f"{100 * (p.get('vc_fraction') or 0):.0f} / {_num(p['precision'], 3)} / "
+                                                 f"{_num(p['sensitivity'], 3)}")
+        lines.append(f"| {q:g} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def risk(report: dict[str, Any]) -> list[str]:
+    """The uncertainty-aware rows at the risk-controlled threshold, with the false-safe rate achieved on test.
+
+    The false-safe rate is ``hdnet.thresholds``' loss: certain pixels predicted safe that are unsafe,
+    over the valid pixels of a DEM, averaged over the test DEMs.
+    """
+    achieved = {(a["table"], a["test_sigma_m"]): a["false_safe_rate"] for a in report["threshold"].get("achieved_risk", [])}
+    lines = ["| test σ | V/C % | PA | mIoU | precision | sensitivity | false-safe rate |",
+             "|---|---|---|---|---|---|---|"]
+    for r in report["rows"]:
+        if r["table"] == "noise" and r["method"] == "uncertainty_aware":
+            fs = achieved.get(("noise", r["test_sigma_m"]))
+            lines.append(f"| {_cm(r['test_sigma_m'])} | {100 * r['vc_fraction']:.0f} | {_num(r['pixel_accuracy'])} | "
+                         f"{_num(r['miou'])} | {_num(r['precision'])} | {_num(r['sensitivity'])} | {_num(fs, 3)} |")
+    return lines
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("report", type=Path, help="report directory of the mean threshold (hd reproduce: report/)")
+    parser.add_argument("--risk", type=Path, default=None, help="report directory of risk:ALPHA (report-risk/)")
+    parser.add_argument("--title", default="", help="words after each table's heading")
+    args = parser.parse_args()
+    rep = json.loads((args.report / "report.json").read_text())
+    th = rep["threshold"]
+    suffix = f" — {args.title}" if args.title else ""
+    print(f"### Table 1{suffix} (threshold {th['spec']}: {th['value_nats']:.3f} nats)\n")
+    print("\n".join(table(rep, "noise")) + "\n")
+    print(f"### Table 2{suffix} (10 dropped pixels)\n")
+    print("\n".join(table(rep, "dead_pixels")) + "\n")
+    print(f"### Threshold sweep{suffix}\n")
+    print("\n".join(sweep(rep)) + "\n")
+    cal = rep.get("calibration", {}).get("per_sigma") or []
+    if cal:
+        print("ECE: " + ", ".join(f"{c.get('ece', float('nan')):.3f} ({_cm(c['test_sigma_m'])})" for c in cal) + "\n")
+    if args.risk is not None:
+        rr = json.loads((args.risk / "report.json").read_text())
+        t = rr["threshold"]
+        value = "+inf nats: no pixel is discarded" if t["value_nats"] is None else f"{t['value_nats']:.3f} nats"
+        print(f"### Risk-controlled threshold{suffix} ({t['spec']}: {value})\n")
+        print("\n".join(risk(rr)) + "\n")
+
+
+if __name__ == "__main__":
+    main()
