@@ -76,15 +76,18 @@ def main() -> None:
         raw, n_rays = raw_cast_rate(dtm_path, config)
         print(f"raw cast_rays:            {raw / 1e6:6.2f} M rays/s ({n_rays / 1e6:.1f} M rays, all cores)")
         for compression in ("gzip", "lzf", "none"):
-            cfg = BuildConfig(sigmas_m=PAPER_SIGMAS_M, trajectory=base.trajectory, dtm_path=str(dtm_path),
-                              compression=compression)
+            cfg = BuildConfig(
+                sigmas_m=PAPER_SIGMAS_M, trajectory=base.trajectory, dtm_path=str(dtm_path), compression=compression
+            )
             t0 = time.perf_counter()
             summary = build_dataset(tmp_path / f"out-{compression}", cfg, workers=args.workers)
             wall = time.perf_counter() - t0
             rate = n_rays / wall
-            print(f"end-to-end ({compression:4s}, {len(cfg.sigmas_m)} sigma): {rate / 1e6:6.2f} M rays/s, "
-                  f"{args.scans} scans in {wall:5.1f} s (target < 30 s), {summary.bytes_written / 1e6:.0f} MB, "
-                  f"ratio end-to-end/raw = {rate / raw:.2f} (target >= 0.8)")
+            print(
+                f"end-to-end ({compression:4s}, {len(cfg.sigmas_m)} sigma): {rate / 1e6:6.2f} M rays/s, "
+                f"{args.scans} scans in {wall:5.1f} s (target < 30 s), {summary.bytes_written / 1e6:.0f} MB, "
+                f"ratio end-to-end/raw = {rate / raw:.2f} (target >= 0.8)"
+            )
 
 
 if __name__ == "__main__":

@@ -58,8 +58,10 @@ def main() -> None:
     torch.manual_seed(0)
 
     model = BayesianSegNet(width=args.width).to(device)
-    print(f"device {device}, torch {torch.__version__}, threads {torch.get_num_threads()}, "
-          f"width {args.width}, {count_parameters(model):,} parameters")
+    print(
+        f"device {device}, torch {torch.__version__}, threads {torch.get_num_threads()}, "
+        f"width {args.width}, {count_parameters(model):,} parameters"
+    )
 
     # --- training throughput ------------------------------------------------------------------
     opt = torch.optim.SGD(model.parameters(), lr=1e-4, momentum=0.9)
@@ -75,8 +77,10 @@ def main() -> None:
         sync()
 
     t = _timed(step, args.repeats)
-    print(f"train fwd+bwd  {args.size}x{args.size} batch {args.batch}: {t:.3f} s/step, "
-          f"{args.batch / t:.2f} images/s, {flops / 1e9:.1f} GFLOP/step, {flops / t / 1e9:.1f} GFLOP/s achieved")
+    print(
+        f"train fwd+bwd  {args.size}x{args.size} batch {args.batch}: {t:.3f} s/step, "
+        f"{args.batch / t:.2f} images/s, {flops / 1e9:.1f} GFLOP/step, {flops / t / 1e9:.1f} GFLOP/s achieved"
+    )
 
     # --- MC dropout: shared prefix vs naive ----------------------------------------------------
     xm = torch.randn(args.mc_batch, 1, args.size, args.size, device=device)
@@ -95,8 +99,10 @@ def main() -> None:
         shared_t.append(_once(shared))
         naive_t.append(_once(naive))
     s, n = statistics.median(shared_t), statistics.median(naive_t)
-    print(f"MC dropout M={args.samples}, {args.mc_batch} x {args.size}x{args.size}: shared prefix {s:.3f} s, "
-          f"naive {n:.3f} s, speed-up {n / s:.2f}x (target >= 1.3x)")
+    print(
+        f"MC dropout M={args.samples}, {args.mc_batch} x {args.size}x{args.size}: shared prefix {s:.3f} s, "
+        f"naive {n:.3f} s, speed-up {n / s:.2f}x (target >= 1.3x)"
+    )
 
 
 def _once(fn) -> float:

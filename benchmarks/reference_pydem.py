@@ -62,8 +62,10 @@ def main() -> None:
             p[k, s] = hd.alhat(noisy[k, s], 1.0, sigma=sigma)[4]
     timings = {}
     if args.repeat > 0:
-        for name, call in (("dhd_s", lambda: hd.dhd(dems[0], 1.0)),
-                           ("alhat_s", lambda: hd.alhat(noisy[0, -1], 1.0, sigma=sigmas[-1]))):
+        for name, call in (
+            ("dhd_s", lambda: hd.dhd(dems[0], 1.0)),
+            ("alhat_s", lambda: hd.alhat(noisy[0, -1], 1.0, sigma=sigmas[-1])),
+        ):
             call()
             times = []
             for _ in range(args.repeat):

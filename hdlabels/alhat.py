@@ -201,8 +201,9 @@ def _resting_planes(heights: np.ndarray, geo: Geometry, n_pads: int) -> tuple[np
     h = heights.reshape(n_yaws, n_pads, *heights.shape[1:])
     gx, gy, c = [], [], []
     for m in range(n_yaws):
-        coeffs = [np.tensordot(geo.plane_weights[m, t], h[m, list(triple)], axes=1)
-                  for t, triple in enumerate(geo.triples)]
+        coeffs = [
+            np.tensordot(geo.plane_weights[m, t], h[m, list(triple)], axes=1) for t, triple in enumerate(geo.triples)
+        ]
         if n_pads == 4:  # rock on the higher diagonal, both ways
             on_02 = h[m, 0] + h[m, 2] >= h[m, 1] + h[m, 3]
             coeffs = [np.where(on_02, coeffs[0], coeffs[2]), np.where(on_02, coeffs[1], coeffs[3])]
@@ -281,9 +282,27 @@ def _worst_case(
         _pad_heights_jit(z, b, geo.tap_di, geo.tap_dj, geo.tap_w.astype(np.float32), heights)
         slope = np.empty((hv, wv))
         rough = np.empty((hv, wv))
-        _worst_case_jit(z, b, heights, lander.n_pads, geo.plane_weights, geo.triples, geo.node_ptr, geo.node_di,
-                        geo.node_dj, lander.count_holes, spacing_m, mode, lander.max_roughness_m, inv_sigma,
-                        scale_by_c, _LOG_PHI, slope, rough, score)
+        _worst_case_jit(
+            z,
+            b,
+            heights,
+            lander.n_pads,
+            geo.plane_weights,
+            geo.triples,
+            geo.node_ptr,
+            geo.node_di,
+            geo.node_dj,
+            lander.count_holes,
+            spacing_m,
+            mode,
+            lander.max_roughness_m,
+            inv_sigma,
+            scale_by_c,
+            _LOG_PHI,
+            slope,
+            rough,
+            score,
+        )
         return slope, rough, score
     heights = np.empty((geo.tap_w.shape[0], hv, wv))
     _pad_heights_numpy(z, b, geo, heights)
@@ -377,8 +396,27 @@ def _pad_heights_loops(z, b, tap_di, tap_dj, tap_w, out):  # pragma: no cover - 
                     row[j] = max(row[j], v)
 
 
-def _worst_case_loops(z, b, heights, n_pads, plane_weights, triples, node_ptr, node_di, node_dj, count_holes,
-                      spacing, mode, rc, inv_sigma, scale_by_c, log_phi, slope, rough, score):  # pragma: no cover - compiled by numba
+def _worst_case_loops(
+    z,
+    b,
+    heights,
+    n_pads,
+    plane_weights,
+    triples,
+    node_ptr,
+    node_di,
+    node_dj,
+    count_holes,
+    spacing,
+    mode,
+    rc,
+    inv_sigma,
+    scale_by_c,
+    log_phi,
+    slope,
+    rough,
+    score,
+):  # pragma: no cover - compiled by numba
     """Resting planes, slope, roughness and the P score, worst case over configurations (numba).
 
     Same numbers as ``_worst_case``'s numpy path; rows are processed one at a time so every

@@ -167,8 +167,11 @@ def _in_circumcircle(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray)
     ax, ay = a[:, 0] - d[:, 0], a[:, 1] - d[:, 1]
     bx, by = b[:, 0] - d[:, 0], b[:, 1] - d[:, 1]
     cx, cy = c[:, 0] - d[:, 0], c[:, 1] - d[:, 1]
-    det = ((ax * ax + ay * ay) * (bx * cy - cx * by) - (bx * bx + by * by) * (ax * cy - cx * ay)
-           + (cx * cx + cy * cy) * (ax * by - bx * ay))
+    det = (
+        (ax * ax + ay * ay) * (bx * cy - cx * by)
+        - (bx * bx + by * by) * (ax * cy - cx * ay)
+        + (cx * cx + cy * cy) * (ax * by - bx * ay)
+    )
     orient = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
     return det * np.sign(orient)
 
@@ -245,8 +248,11 @@ def _in_circle_one(a, b, c, d):  # pragma: no cover - compiled by numba
     ax, ay = a[0] - d[0], a[1] - d[1]
     bx, by = b[0] - d[0], b[1] - d[1]
     cx, cy = c[0] - d[0], c[1] - d[1]
-    det = ((ax * ax + ay * ay) * (bx * cy - cx * by) - (bx * bx + by * by) * (ax * cy - cx * ay)
-           + (cx * cx + cy * cy) * (ax * by - bx * ay))
+    det = (
+        (ax * ax + ay * ay) * (bx * cy - cx * by)
+        - (bx * bx + by * by) * (ax * cy - cx * ay)
+        + (cx * cx + cy * cy) * (ax * by - bx * ay)
+    )
     orient = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
     return det * np.sign(orient)
 

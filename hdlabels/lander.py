@@ -146,8 +146,16 @@ class Lander:
         Records written before the paper convention existed carry no ``convention``: they are
         the hd convention with the worst-node ("min") baseline.
         """
-        keys = ("diameter_m", "pad_diameter_m", "max_slope_deg", "max_roughness_m", "layout", "n_yaws",
-                "count_holes", "baseline_combine")
+        keys = (
+            "diameter_m",
+            "pad_diameter_m",
+            "max_slope_deg",
+            "max_roughness_m",
+            "layout",
+            "n_yaws",
+            "count_holes",
+            "baseline_combine",
+        )
         values: dict[str, object] = {k: _plain(attrs[k]) for k in keys if k in attrs}
         values["convention"] = str(attrs.get("convention", "hd"))
         if values["convention"] == "paper":

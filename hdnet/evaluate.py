@@ -126,15 +126,20 @@ class EvaluationResult:
 
     def summary(self) -> str:
         """A compact text table of the rows (for the terminal)."""
-        lines = [f"{'table':11s} {'method':18s} {'test sigma':>10s} {'V/C%':>5s} {'PA':>6s} {'mIoU':>6s} "
-                 f"{'prec.':>6s} {'sens.':>6s}"]
+        lines = [
+            f"{'table':11s} {'method':18s} {'test sigma':>10s} {'V/C%':>5s} {'PA':>6s} {'mIoU':>6s} "
+            f"{'prec.':>6s} {'sens.':>6s}"
+        ]
         for r in self.rows:
             vc = "-" if r.vc_fraction is None else f"{r.vc_fraction * 100:.0f}"
-            lines.append(f"{r.table:11s} {r.method:18s} {r.test_sigma_m * 100:8.2f}cm {vc:>5s} "
-                         f"{r.pixel_accuracy:6.4f} {r.miou:6.4f} {r.precision:6.4f} {r.sensitivity:6.4f}")
+            lines.append(
+                f"{r.table:11s} {r.method:18s} {r.test_sigma_m * 100:8.2f}cm {vc:>5s} "
+                f"{r.pixel_accuracy:6.4f} {r.miou:6.4f} {r.precision:6.4f} {r.sensitivity:6.4f}"
+            )
         value = self.threshold.get("value_nats")
-        lines.append(f"threshold {self.threshold.get('spec', '')}: "
-                     f"{'unbounded' if value is None else f'{value:.4f} nats'}")
+        lines.append(
+            f"threshold {self.threshold.get('spec', '')}: {'unbounded' if value is None else f'{value:.4f} nats'}"
+        )
         return "\n".join(lines)
 
 
@@ -185,23 +190,43 @@ def method_rows(inf: SplitInference, table: str, train_sigma_m: float, threshold
             m = score(inf.label, inf.prediction, inf.ignore)
         else:
             m = score(inf.label, inf.prediction, inf.ignore, uncertain)
-        out.append(ReportRow(table, method, None if method == "alhat_baseline" else train_sigma_m, inf.sigma_m,
-                             m.vc_fraction, m.pixel_accuracy, m.miou, m.precision_safe, m.sensitivity_safe))
+        out.append(
+            ReportRow(
+                table,
+                method,
+                None if method == "alhat_baseline" else train_sigma_m,
+                inf.sigma_m,
+                m.vc_fraction,
+                m.pixel_accuracy,
+                m.miou,
+                m.precision_safe,
+                m.sensitivity_safe,
+            )
+        )
     return out
 
 
 def false_safe_rate(inf: SplitInference, threshold_nats: float) -> float:
     """Mean over images of (certain false-safe pixels / valid pixels): the loss risk control bounds."""
     cal = EntropyCalibration()
-    cal.update(torch.from_numpy(inf.entropy_nats), torch.from_numpy(inf.prediction), torch.from_numpy(inf.label),
-               torch.from_numpy(inf.ignore))
+    cal.update(
+        torch.from_numpy(inf.entropy_nats),
+        torch.from_numpy(inf.prediction),
+        torch.from_numpy(inf.label),
+        torch.from_numpy(inf.ignore),
+    )
     return cal.risk(threshold_nats)
 
 
 # --- inference -----------------------------------------------------------------------------------
 def infer_split(
-    model: BayesianSegNet, ds: HazardDataset, mc_samples: int, batch_size: int, seed: int,
-    device: torch.device, recompute_baseline: bool = False,
+    model: BayesianSegNet,
+    ds: HazardDataset,
+    mc_samples: int,
+    batch_size: int,
+    seed: int,
+    device: torch.device,
+    recompute_baseline: bool = False,
 ) -> SplitInference:
     """MC dropout over a whole split, brought back to the DEM grid; dropout masks seeded by ``seed``.
 
@@ -230,10 +255,24 @@ def infer_split(
         for j, s in zip(idx, samples):
             scans[j], label[j], ignore[j] = s.scan_index, s.label, s.ignore
             arrays["clean"][j], arrays["noisy"][j] = s.dem_clean_m, s.dem_noisy_m
-            p_safe = safety_probability(s.dem_noisy_m, ds.spacing_m, ds.sigma_m, ds.lander) if recompute_baseline else s.p_safe
+            p_safe = (
+                safety_probability(s.dem_noisy_m, ds.spacing_m, ds.sigma_m, ds.lander)
+                if recompute_baseline
+                else s.p_safe
+            )
             base[j] = np.nan_to_num(p_safe, nan=0.0) >= BASELINE_THRESHOLD
-    return SplitInference(ds.sigma_m, scans, label, ignore, arrays["prob"], pred, arrays["entropy"], base,
-                          arrays["clean"], arrays["noisy"])
+    return SplitInference(
+        ds.sigma_m,
+        scans,
+        label,
+        ignore,
+        arrays["prob"],
+        pred,
+        arrays["entropy"],
+        base,
+        arrays["clean"],
+        arrays["noisy"],
+    )
 
 
 # --- the run and its threshold ---------------------------------------------------------------------
@@ -250,7 +289,9 @@ def run_data(ckpt: dict[str, Any], path: Path) -> tuple[float, InputSpec, str | 
     """
     extra = ckpt.get("extra_config") or {}
     if "train_sigma_m" not in extra or ("input" not in extra and "normalisation" not in extra):
-        raise HdNetError(f"{path} was not trained by hdnet.fit: its run config lacks the training sigma and normalisation.")
+        raise HdNetError(
+            f"{path} was not trained by hdnet.fit: its run config lacks the training sigma and normalisation."
+        )
     try:
         spec = InputSpec.from_run_config(extra, ckpt.get("model_config"))
     except HdNetError as exc:
@@ -259,12 +300,19 @@ def run_data(ckpt: dict[str, Any], path: Path) -> tuple[float, InputSpec, str | 
 
 
 def split_dataset(
-    dataset_dir: str | os.PathLike, split: str, sigma_m: float, *, labels: str, input_spec: InputSpec,
-    dead_pixels: int = 0, seed: int = 0,
+    dataset_dir: str | os.PathLike,
+    split: str,
+    sigma_m: float,
+    *,
+    labels: str,
+    input_spec: InputSpec,
+    dead_pixels: int = 0,
+    seed: int = 0,
 ) -> HazardDataset:
     """One split of a labelled dataset prepared as the run's training inputs were; HdNetError when empty."""
-    ds = HazardDataset(dataset_dir, split, sigma_m, labels=labels, input_spec=input_spec, dead_pixels=dead_pixels,
-                       seed=seed)
+    ds = HazardDataset(
+        dataset_dir, split, sigma_m, labels=labels, input_spec=input_spec, dead_pixels=dead_pixels, seed=seed
+    )
     if len(ds) == 0:
         raise HdNetError(f"{dataset_dir}: the {split} split is empty.")
     return ds
@@ -288,8 +336,14 @@ class ValidationThreshold:
 
 
 def validation_threshold(
-    model: BayesianSegNet, val_ds: HazardDataset, spec: ThresholdSpec, *, mc_samples: int, batch_size: int,
-    seed: int, device: torch.device,
+    model: BayesianSegNet,
+    val_ds: HazardDataset,
+    spec: ThresholdSpec,
+    *,
+    mc_samples: int,
+    batch_size: int,
+    seed: int,
+    device: torch.device,
 ) -> ValidationThreshold:
     """Step 1 of the protocol: MC dropout over the validation split, entropies collected, H_t selected."""
     val = infer_split(model, val_ds, mc_samples, batch_size, seed, device)
@@ -299,9 +353,15 @@ def validation_threshold(
     h_mean = cal.mean()
     val_entropy = val.entropy_nats[val.valid]
     info: dict[str, Any] = {
-        "spec": str(spec), "kind": spec.kind, "parameter": spec.value, "value_nats": _finite_or_none(h_t),
-        "mean_nats": h_mean, "mean_quantile": float(np.mean(val_entropy < h_mean)),
-        "calibration_split": "val", "calibration_sigma_m": val.sigma_m, "calibration_images": cal.n_images,
+        "spec": str(spec),
+        "kind": spec.kind,
+        "parameter": spec.value,
+        "value_nats": _finite_or_none(h_t),
+        "mean_nats": h_mean,
+        "mean_quantile": float(np.mean(val_entropy < h_mean)),
+        "calibration_split": "val",
+        "calibration_sigma_m": val.sigma_m,
+        "calibration_images": cal.n_images,
         "calibration_pixels": int(val_entropy.size),
     }
     return ValidationThreshold(h_t, info, cal, val)
@@ -312,7 +372,9 @@ def _check_counts(mc_samples: int, drop_pixels: int, n_pixels: int, batch_size: 
     if isinstance(mc_samples, bool) or not isinstance(mc_samples, int) or not 1 <= mc_samples <= MAX_MC_SAMPLES:
         raise HdNetError(f"the number of MC samples must be an integer in 1..{MAX_MC_SAMPLES}, got {mc_samples!r}.")
     if isinstance(drop_pixels, bool) or not isinstance(drop_pixels, int) or not 0 <= drop_pixels < n_pixels:
-        raise HdNetError(f"--drop-pixels must be an integer in [0, {n_pixels - 1}] for {n_pixels}-pixel DEMs, got {drop_pixels!r}.")
+        raise HdNetError(
+            f"--drop-pixels must be an integer in [0, {n_pixels - 1}] for {n_pixels}-pixel DEMs, got {drop_pixels!r}."
+        )
     if isinstance(batch_size, bool) or not isinstance(batch_size, int) or not 1 <= batch_size <= MAX_BATCH_SIZE:
         raise HdNetError(f"the batch size must be an integer in 1..{MAX_BATCH_SIZE}, got {batch_size!r}.")
 
@@ -355,7 +417,9 @@ def evaluate(
     model, ckpt = load_trained_model(ckpt_path, map_location=dev)
     train_sigma, input_spec, run_labels = run_data(ckpt, ckpt_path)
     input_size = input_spec.input_size
-    entry, paths = open_labeling(dataset_dir, labels if labels is not None else preferred_labeling(dataset_dir, run_labels))
+    entry, paths = open_labeling(
+        dataset_dir, labels if labels is not None else preferred_labeling(dataset_dir, run_labels)
+    )
     dem = entry.get("dem", {})
     n_pixels = int(dem.get("rows", defaults.DEM_SIZE_PX)) * int(dem.get("cols", defaults.DEM_SIZE_PX))
     _check_counts(mc_samples, drop_pixels, n_pixels, batch_size)
@@ -367,8 +431,9 @@ def evaluate(
         return split_dataset(dataset_dir, split, sigma, labels=lab, input_spec=input_spec, dead_pixels=dead, seed=seed)
 
     # 1. threshold from the validation split at the training sigma
-    th = validation_threshold(model, dataset("val", train_sigma), spec, mc_samples=mc_samples, batch_size=batch_size,
-                              seed=seed, device=dev)
+    th = validation_threshold(
+        model, dataset("val", train_sigma), spec, mc_samples=mc_samples, batch_size=batch_size, seed=seed, device=dev
+    )
     val, cal, h_t, threshold_info = th.inference, th.calibration, th.value_nats, th.info
     val_entropy = val.entropy_nats[val.valid]
 
@@ -385,25 +450,44 @@ def evaluate(
         rows += method_rows(inf, "noise", val.sigma_m, h_t)
         for q, t in quantile_thresholds:
             m = score(inf.label, inf.prediction, inf.ignore, inf.entropy_nats >= t)
-            sweep.append({"test_sigma_m": sigma, "quantile": q, "threshold_nats": t, "vc_fraction": m.vc_fraction,
-                          "pixel_accuracy": m.pixel_accuracy, "miou": m.miou, "precision": m.precision_safe,
-                          "sensitivity": m.sensitivity_safe})
+            sweep.append(
+                {
+                    "test_sigma_m": sigma,
+                    "quantile": q,
+                    "threshold_nats": t,
+                    "vc_fraction": m.vc_fraction,
+                    "pixel_accuracy": m.pixel_accuracy,
+                    "miou": m.miou,
+                    "precision": m.precision_safe,
+                    "sensitivity": m.sensitivity_safe,
+                }
+            )
         v = inf.valid
         rel = reliability(inf.prob_safe[v], inf.label[v] == defaults.CLASS_SAFE)
-        cal_rows.append({"test_sigma_m": sigma, "ece": rel.ece, "bin_edges": rel.edges.tolist(),
-                         "bin_count": rel.count.tolist(), "bin_mean_prob": rel.mean_prob.tolist(),
-                         "bin_safe_fraction": rel.safe_fraction.tolist()})
+        cal_rows.append(
+            {
+                "test_sigma_m": sigma,
+                "ece": rel.ece,
+                "bin_edges": rel.edges.tolist(),
+                "bin_count": rel.count.tolist(),
+                "bin_mean_prob": rel.mean_prob.tolist(),
+                "bin_safe_fraction": rel.safe_fraction.tolist(),
+            }
+        )
         if spec.kind == "risk":
             achieved.append({"test_sigma_m": sigma, "table": "noise", "false_safe_rate": false_safe_rate(inf, h_t)})
 
     # 4. dead pixels
     if drop_pixels:
         for sigma in sigmas:
-            inf = infer_split(model, dataset("test", sigma, drop_pixels), mc_samples, batch_size, seed, dev,
-                              recompute_baseline=True)
+            inf = infer_split(
+                model, dataset("test", sigma, drop_pixels), mc_samples, batch_size, seed, dev, recompute_baseline=True
+            )
             rows += method_rows(inf, "dead_pixels", val.sigma_m, h_t)
             if spec.kind == "risk":
-                achieved.append({"test_sigma_m": sigma, "table": "dead_pixels", "false_safe_rate": false_safe_rate(inf, h_t)})
+                achieved.append(
+                    {"test_sigma_m": sigma, "table": "dead_pixels", "false_safe_rate": false_safe_rate(inf, h_t)}
+                )
     if spec.kind == "risk":
         threshold_info["alpha"] = spec.value
         threshold_info["achieved_risk"] = achieved
@@ -411,16 +495,27 @@ def evaluate(
     root = Path(dataset_dir).resolve()
     extra = ckpt.get("extra_config") or {}
     run_info = {
-        "checkpoint": str(ckpt_path.resolve()), "epoch": int(ckpt.get("epoch", 0)), "profile": ckpt.get("profile", {}).get("name"),
-        "model_config": ckpt.get("model_config"), "train_sigma_m": train_sigma, "input_size": input_size,
+        "checkpoint": str(ckpt_path.resolve()),
+        "epoch": int(ckpt.get("epoch", 0)),
+        "profile": ckpt.get("profile", {}).get("name"),
+        "model_config": ckpt.get("model_config"),
+        "train_sigma_m": train_sigma,
+        "input_size": input_size,
         "input": input_spec.to_dict(),
-        "dataset": str(root), "manifest_sha256": sha256_file(root / MANIFEST_NAME), "labels": lab,
+        "dataset": str(root),
+        "manifest_sha256": sha256_file(root / MANIFEST_NAME),
+        "labels": lab,
         "same_dataset_as_training": extra.get("manifest_sha256") == sha256_file(root / MANIFEST_NAME),
-        "sigmas_m": list(sigmas), "mc_samples": mc_samples, "drop_pixels": drop_pixels, "seed": seed,
-        "test_scans": len(next(iter(tests.values())).scan_index), "val_scans": len(val.scan_index),
+        "sigmas_m": list(sigmas),
+        "mc_samples": mc_samples,
+        "drop_pixels": drop_pixels,
+        "seed": seed,
+        "test_scans": len(next(iter(tests.values())).scan_index),
+        "val_scans": len(val.scan_index),
     }
-    result = EvaluationResult(rows, threshold_info, sweep, {"bins": ECE_BINS, "per_sigma": cal_rows}, run_info,
-                              tests, val_entropy)
+    result = EvaluationResult(
+        rows, threshold_info, sweep, {"bins": ECE_BINS, "per_sigma": cal_rows}, run_info, tests, val_entropy
+    )
     write_report(result, Path(out_dir), figures=figures, overwrite=overwrite)
     return result
 
@@ -469,11 +564,21 @@ def validation_summary(
     q = score(inf.label, inf.prediction, inf.ignore, inf.entropy_nats >= h_q)
     risk = score(inf.label, inf.prediction, inf.ignore, inf.entropy_nats >= h_risk)
     out = {
-        "base_pa": base.pixel_accuracy, "base_miou": base.miou, "base_precision": base.precision_safe,
-        "base_sensitivity": base.sensitivity_safe, "threshold_nats": h_mean, "ua_vc": float(ua.vc_fraction or 0.0),
-        "ua_pa": ua.pixel_accuracy, "ua_miou": ua.miou, "ua_precision": ua.precision_safe,
-        "ua_sensitivity": ua.sensitivity_safe, "q_precision": q.precision_safe, "q_sensitivity": q.sensitivity_safe,
-        "q_vc": float(q.vc_fraction or 0.0), "risk_false_safe": cal.risk(h_risk), "risk_sensitivity": risk.sensitivity_safe,
+        "base_pa": base.pixel_accuracy,
+        "base_miou": base.miou,
+        "base_precision": base.precision_safe,
+        "base_sensitivity": base.sensitivity_safe,
+        "threshold_nats": h_mean,
+        "ua_vc": float(ua.vc_fraction or 0.0),
+        "ua_pa": ua.pixel_accuracy,
+        "ua_miou": ua.miou,
+        "ua_precision": ua.precision_safe,
+        "ua_sensitivity": ua.sensitivity_safe,
+        "q_precision": q.precision_safe,
+        "q_sensitivity": q.sensitivity_safe,
+        "q_vc": float(q.vc_fraction or 0.0),
+        "risk_false_safe": cal.risk(h_risk),
+        "risk_sensitivity": risk.sensitivity_safe,
         "risk_vc": float(risk.vc_fraction or 0.0),
     }
     for sigma in other_sigmas_m:
@@ -482,9 +587,15 @@ def validation_summary(
         b = score(other.label, other.prediction, other.ignore)
         u = score(other.label, other.prediction, other.ignore, other.entropy_nats >= h_mean)
         qq = score(other.label, other.prediction, other.ignore, other.entropy_nats >= h_q)
-        out.update({f"base_pa{tag}": b.pixel_accuracy, f"ua_vc{tag}": float(u.vc_fraction or 0.0),
-                    f"ua_precision{tag}": u.precision_safe, f"ua_sensitivity{tag}": u.sensitivity_safe,
-                    f"q_precision{tag}": qq.precision_safe})
+        out.update(
+            {
+                f"base_pa{tag}": b.pixel_accuracy,
+                f"ua_vc{tag}": float(u.vc_fraction or 0.0),
+                f"ua_precision{tag}": u.precision_safe,
+                f"ua_sensitivity{tag}": u.sensitivity_safe,
+                f"q_precision{tag}": qq.precision_safe,
+            }
+        )
     return out
 
 

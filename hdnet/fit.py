@@ -48,8 +48,18 @@ from lidarsim.storage import (
 
 RUN_FILES = (LAST, BEST, METRICS, CONFIG)
 
-RUN_DATA_KEYS = ("dataset", "manifest_sha256", "labels", "labeling", "train_sigma_m", "normalisation", "input_size",
-                 "input_rule", "dem_shape", "input")
+RUN_DATA_KEYS = (
+    "dataset",
+    "manifest_sha256",
+    "labels",
+    "labeling",
+    "train_sigma_m",
+    "normalisation",
+    "input_size",
+    "input_rule",
+    "dem_shape",
+    "input",
+)
 
 
 def input_rule(input_size: int | None, size_multiple: int = defaults.SIZE_MULTIPLE_PX) -> str:
@@ -71,7 +81,11 @@ def input_spec_for(profile: TrainingProfile, spacing_m: float, normalisation: No
 
 
 def run_data_config(
-    dataset_dir: str | os.PathLike, labels: str, sigma_m: float, spec: InputSpec, dem_shape: tuple[int, int],
+    dataset_dir: str | os.PathLike,
+    labels: str,
+    sigma_m: float,
+    spec: InputSpec,
+    dem_shape: tuple[int, int],
     labeling: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """The ``extra_config`` of a run: the data a model was trained on and how inputs were prepared.
@@ -125,13 +139,17 @@ def prepare_run_dir(run_dir: str | os.PathLike, resume: bool, overwrite: bool) -
     if not _is_run(path):
         if overwrite:
             return path, False
-        raise HdNetError(f"{path} is not empty and is not an hd run; choose another --out, or pass --overwrite to "
-                         "write the run there anyway (files of the same names are replaced).")
+        raise HdNetError(
+            f"{path} is not empty and is not an hd run; choose another --out, or pass --overwrite to "
+            "write the run there anyway (files of the same names are replaced)."
+        )
     if overwrite:
         return path, True
     if (path / LAST).exists() and not resume:
-        raise HdNetError(f"{path} already holds a checkpoint; resume it (--resume), start again (--overwrite) "
-                         "or choose another run directory.")
+        raise HdNetError(
+            f"{path} already holds a checkpoint; resume it (--resume), start again (--overwrite) "
+            "or choose another run directory."
+        )
     return path, False
 
 
@@ -194,8 +212,9 @@ def fit(
     for name, ds in (("train", train_ds), ("val", val_ds)):
         if len(ds) == 0:
             raise HdNetError(f"{dataset_dir}: the {name} split is empty; build a dataset with more scans.")
-    extra = run_data_config(dataset_dir, train_ds.labels, train_ds.sigma_m, spec, train_ds.dem_shape,
-                            labeling=train_ds.entry)
+    extra = run_data_config(
+        dataset_dir, train_ds.labels, train_ds.sigma_m, spec, train_ds.dem_shape, labeling=train_ds.entry
+    )
     top = first_missing(run_path)
     try:
         with run_dir_lock(run_path):
@@ -204,8 +223,18 @@ def fit(
             if replace:
                 for name in RUN_FILES:
                     (run_path / name).unlink(missing_ok=True)
-            return train(run_path, train_ds, val_ds, profile, epochs=epochs, seed=seed, resume=resume and not replace,
-                         progress=progress, extra_config=extra, num_workers=num_workers,
-                         stop_after=stop_after)
+            return train(
+                run_path,
+                train_ds,
+                val_ds,
+                profile,
+                epochs=epochs,
+                seed=seed,
+                resume=resume and not replace,
+                progress=progress,
+                extra_config=extra,
+                num_workers=num_workers,
+                stop_after=stop_after,
+            )
     finally:
         remove_empty_dirs(run_path, top)

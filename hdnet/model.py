@@ -60,14 +60,18 @@ class ModelConfig:
 
     def __post_init__(self) -> None:
         if self.in_channels < 1 or self.n_classes < 2:
-            raise HdNetError(f"in_channels must be >= 1 and n_classes >= 2, got {self.in_channels} and {self.n_classes}.")
+            raise HdNetError(
+                f"in_channels must be >= 1 and n_classes >= 2, got {self.in_channels} and {self.n_classes}."
+            )
         if not self.width > 0:
             raise HdNetError(f"width must be > 0, got {self.width}.")
         if not 0.0 <= self.dropout_p < 1.0:
             raise HdNetError(f"dropout_p must be in [0, 1), got {self.dropout_p}.")
         n_blocks = len(defaults.ENCODER_CHANNELS)
         if isinstance(self.depth, bool) or not isinstance(self.depth, int) or not 1 <= self.depth <= n_blocks:
-            raise HdNetError(f"depth must be an integer number of encoder blocks in [1, {n_blocks}], got {self.depth!r}.")
+            raise HdNetError(
+                f"depth must be an integer number of encoder blocks in [1, {n_blocks}], got {self.depth!r}."
+            )
 
     @property
     def size_multiple(self) -> int:

@@ -134,19 +134,34 @@ class Pipeline:
 def demo_pipeline(out_dir: Path, scans: int, epochs: int) -> Pipeline:
     """``hd demo``: the paper's three noise levels on the procedural Mars terrain at demo scale, the
     default labels, the cpu profile, one evaluation with the dead-pixel test."""
-    build = dataclasses.replace(_paper_build(), trajectory=dataclasses.replace(_paper_build().trajectory, n_scans=scans))
+    build = dataclasses.replace(
+        _paper_build(), trajectory=dataclasses.replace(_paper_build().trajectory, n_scans=scans)
+    )
     sigma = lidar_defaults.DEFAULT_SIGMA_M
     n_dead = label_defaults.N_DEAD_PIXELS
     return Pipeline(
-        out_dir=out_dir, build=build, label=LabelSettings(), profile="cpu", epochs=epochs, inspect=True,
-        evaluations=(Evaluation("eval", "report", net_defaults.THRESHOLD_SPEC, n_dead,
-                                f"MC dropout (M={net_defaults.MC_SAMPLES}), paper metrics, {n_dead} dropped pixels"),),
+        out_dir=out_dir,
+        build=build,
+        label=LabelSettings(),
+        profile="cpu",
+        epochs=epochs,
+        inspect=True,
+        evaluations=(
+            Evaluation(
+                "eval",
+                "report",
+                net_defaults.THRESHOLD_SPEC,
+                n_dead,
+                f"MC dropout (M={net_defaults.MC_SAMPLES}), paper metrics, {n_dead} dropped pixels",
+            ),
+        ),
         train_what=f"Bayesian SegNet, cpu profile, {epochs} epochs at sigma = {sigma} m",
     )
 
 
-def reproduce_pipeline(out_dir: Path, recipe_dir: Path, profile: str, epochs: int | None,
-                       dtm_path: Path | None = None) -> Pipeline:
+def reproduce_pipeline(
+    out_dir: Path, recipe_dir: Path, profile: str, epochs: int | None, dtm_path: Path | None = None
+) -> Pipeline:
     """``hd reproduce``: the dataset and labels of the recipe at ``recipe_dir`` (the paper's,
     ``datasets/mars-paper``), optionally on another DTM, then Table 1, Table 2 and the risk-controlled
     threshold.
@@ -163,13 +178,26 @@ def reproduce_pipeline(out_dir: Path, recipe_dir: Path, profile: str, epochs: in
     n_dead = label_defaults.N_DEAD_PIXELS
     sigma = lidar_defaults.DEFAULT_SIGMA_M
     return Pipeline(
-        out_dir=out_dir, build=build, label=LabelSettings.from_recipe(recipe.label, str(recipe.path)), profile=profile,
+        out_dir=out_dir,
+        build=build,
+        label=LabelSettings.from_recipe(recipe.label, str(recipe.path)),
+        profile=profile,
         epochs=epochs,
         evaluations=(
-            Evaluation("eval", "report", net_defaults.THRESHOLD_SPEC, n_dead,
-                       f"Table 1, Table 2 ({n_dead} dropped pixels), sweep, calibration, panels (mean-entropy threshold)"),
-            Evaluation("eval-risk", "report-risk", f"risk:{REPRODUCE_RISK_ALPHA:g}", 0,
-                       f"risk-controlled threshold, alpha = {REPRODUCE_RISK_ALPHA:g}"),
+            Evaluation(
+                "eval",
+                "report",
+                net_defaults.THRESHOLD_SPEC,
+                n_dead,
+                f"Table 1, Table 2 ({n_dead} dropped pixels), sweep, calibration, panels (mean-entropy threshold)",
+            ),
+            Evaluation(
+                "eval-risk",
+                "report-risk",
+                f"risk:{REPRODUCE_RISK_ALPHA:g}",
+                0,
+                f"risk-controlled threshold, alpha = {REPRODUCE_RISK_ALPHA:g}",
+            ),
         ),
         train_what=f"Bayesian SegNet, {profile} profile, trained at sigma = {sigma} m",
     )
@@ -214,8 +242,11 @@ def training_done_message(checkpoint: Path, run_dir: Path) -> str:
     timing = load_checkpoint(checkpoint).get("timing", [])
     rate = median_images_per_s(timing)
     seconds = sum(float(t["train_seconds"]) for t in timing)
-    speed = "" if rate is None else (f"; {rate:.1f} images/s (median over {len(timing)} epochs, "
-                                     f"{seconds / 60:.1f} min of training steps)")
+    speed = (
+        ""
+        if rate is None
+        else (f"; {rate:.1f} images/s (median over {len(timing)} epochs, {seconds / 60:.1f} min of training steps)")
+    )
     return f"training done: {checkpoint} (metrics in {Path(run_dir) / 'metrics.csv'}){speed}"
 
 
@@ -242,8 +273,13 @@ def _label(pipeline: Pipeline, workers: int | None, echo: Echo, progress: Progre
     from hdlabels.labeling import label_dataset
 
     with _closing(progress("labels", "scan")) as bar:
-        summary = label_dataset(pipeline.dataset_dir, pipeline.label.to_lander(), pipeline.label.to_dem_spec(),
-                                workers=workers, progress=bar)
+        summary = label_dataset(
+            pipeline.dataset_dir,
+            pipeline.label.to_lander(),
+            pipeline.label.to_dem_spec(),
+            workers=workers,
+            progress=bar,
+        )
     echo(summary.paragraph())
 
 
@@ -265,8 +301,16 @@ def _inspect(directory: Path, echo: Echo) -> None:
 def _train(pipeline: Pipeline, echo: Echo) -> None:
     from hdnet.fit import fit
 
-    checkpoint = fit(pipeline.dataset_dir, pipeline.run_dir, profile_name=pipeline.profile, epochs=pipeline.epochs,
-                     train_sigma_m=pipeline.train_sigma_m, seed=pipeline.seed, resume=True, progress=True)
+    checkpoint = fit(
+        pipeline.dataset_dir,
+        pipeline.run_dir,
+        profile_name=pipeline.profile,
+        epochs=pipeline.epochs,
+        train_sigma_m=pipeline.train_sigma_m,
+        seed=pipeline.seed,
+        resume=True,
+        progress=True,
+    )
     echo(training_done_message(checkpoint, pipeline.run_dir))
 
 
@@ -277,8 +321,15 @@ def _evaluate_unless_done(pipeline: Pipeline, evaluation: Evaluation, echo: Echo
     if (report / "report.json").exists():
         echo(f"report {report} already written")
         return
-    result = evaluate(pipeline.run_dir, pipeline.dataset_dir, report, mc_samples=pipeline.mc_samples,
-                      drop_pixels=evaluation.drop_pixels, threshold=evaluation.threshold, seed=pipeline.seed)
+    result = evaluate(
+        pipeline.run_dir,
+        pipeline.dataset_dir,
+        report,
+        mc_samples=pipeline.mc_samples,
+        drop_pixels=evaluation.drop_pixels,
+        threshold=evaluation.threshold,
+        seed=pipeline.seed,
+    )
     echo(result.summary())
     echo(report_written_message(report))
 

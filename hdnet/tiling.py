@@ -91,11 +91,17 @@ class TilePlan:
     def strips(self) -> Iterator[tuple[tuple[int, int], list[Tile]]]:
         """Per row of tiles: the grid rows it owns ([lo, hi)) and its tiles, west to east."""
         for r0, own_r in zip(self.rows.starts, self.rows.owned):
-            tiles = [Tile(r0, c0, self.rows.tile, self.cols.tile, own_r, own_c)
-                     for c0, own_c in zip(self.cols.starts, self.cols.owned)]
+            tiles = [
+                Tile(r0, c0, self.rows.tile, self.cols.tile, own_r, own_c)
+                for c0, own_c in zip(self.cols.starts, self.cols.owned)
+            ]
             yield own_r, tiles
 
     def to_dict(self) -> dict[str, object]:
         """Plain summary for reports: tile size, overlap, tile counts."""
-        return {"tile_px": list(self.tile_shape), "min_overlap_px": self.overlap,
-                "tiles": [len(self.rows.starts), len(self.cols.starts)], "n_tiles": self.n_tiles}
+        return {
+            "tile_px": list(self.tile_shape),
+            "min_overlap_px": self.overlap,
+            "tiles": [len(self.rows.starts), len(self.cols.starts)],
+            "n_tiles": self.n_tiles,
+        }

@@ -94,8 +94,13 @@ def _rng_state() -> dict[str, Any]:
     return {
         "torch": torch.get_rng_state(),
         "cuda": torch.cuda.get_rng_state() if torch.cuda.is_available() else None,
-        "numpy": {"name": np_state[0], "key": torch.from_numpy(np_state[1].astype(np.int64)),
-                  "pos": int(np_state[2]), "has_gauss": int(np_state[3]), "cached_gaussian": float(np_state[4])},
+        "numpy": {
+            "name": np_state[0],
+            "key": torch.from_numpy(np_state[1].astype(np.int64)),
+            "pos": int(np_state[2]),
+            "has_gauss": int(np_state[3]),
+            "cached_gaussian": float(np_state[4]),
+        },
         "python": {"version": py_version, "state": torch.tensor(py_state, dtype=torch.int64), "gauss_next": py_gauss},
     }
 
@@ -174,8 +179,10 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
     if not isinstance(ckpt, dict) or ckpt.get("schema") != CHECKPOINT_SCHEMA:
         raise HdNetError(f"{path} is not an hdnet checkpoint (schema {CHECKPOINT_SCHEMA!r} missing).")
     if ckpt.get("schema_version") not in READABLE_CHECKPOINT_VERSIONS:
-        raise HdNetError(f"{path} has checkpoint schema version {ckpt.get('schema_version')}, this hdnet reads "
-                         f"{', '.join(map(str, READABLE_CHECKPOINT_VERSIONS))}.")
+        raise HdNetError(
+            f"{path} has checkpoint schema version {ckpt.get('schema_version')}, this hdnet reads "
+            f"{', '.join(map(str, READABLE_CHECKPOINT_VERSIONS))}."
+        )
     if ckpt.get("schema_version") >= 2:
         recorded = ckpt.get(DIGEST_KEY)
         if not isinstance(recorded, str):
@@ -185,14 +192,18 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
         except Exception:  # noqa: BLE001 - a structure the digest cannot walk is damage too
             actual = ""
         if actual != recorded:
-            raise HdNetError(f"{path}: checksum mismatch (content sha256 {actual[:12]}..., recorded "
-                             f"{recorded[:12]}...); the checkpoint is damaged.")
+            raise HdNetError(
+                f"{path}: checksum mismatch (content sha256 {actual[:12]}..., recorded "
+                f"{recorded[:12]}...); the checkpoint is damaged."
+            )
     if ckpt.get("model_name") != MODEL_NAME:
         raise HdNetError(f"{path} holds a {ckpt.get('model_name')!r} model, not {MODEL_NAME!r}.")
     return ckpt
 
 
-def load_trained_model(path: str | Path, map_location: str | torch.device = "cpu") -> tuple[BayesianSegNet, dict[str, Any]]:
+def load_trained_model(
+    path: str | Path, map_location: str | torch.device = "cpu"
+) -> tuple[BayesianSegNet, dict[str, Any]]:
     """The model of a checkpoint (in eval mode) and the checkpoint dictionary (``extra_config`` etc.)."""
     ckpt = load_checkpoint(path, map_location)
     model = BayesianSegNet(ModelConfig(**ckpt["model_config"]))
@@ -275,7 +286,9 @@ def _val_counts(logits: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     valid = mask != defaults.IGNORE_INDEX
     pred = logits.argmax(1)[valid]
     truth = mask[valid]
-    confusion = torch.bincount(truth * defaults.N_CLASSES + pred, minlength=defaults.N_CLASSES**2)[: defaults.N_CLASSES**2]
+    confusion = torch.bincount(truth * defaults.N_CLASSES + pred, minlength=defaults.N_CLASSES**2)[
+        : defaults.N_CLASSES**2
+    ]
     return torch.cat([torch.stack([loss.double(), n_valid.double()]), confusion.double()])
 
 
@@ -301,7 +314,9 @@ def dataset_class_counts(ds: Dataset) -> list[int]:
     counts = torch.zeros(defaults.N_CLASSES, dtype=torch.int64)
     for i in range(len(ds)):  # type: ignore[arg-type]
         mask = ds[i]["mask"]
-        counts += torch.bincount(mask[mask != defaults.IGNORE_INDEX].flatten(), minlength=defaults.N_CLASSES)[: defaults.N_CLASSES]
+        counts += torch.bincount(mask[mask != defaults.IGNORE_INDEX].flatten(), minlength=defaults.N_CLASSES)[
+            : defaults.N_CLASSES
+        ]
     return [int(c) for c in counts]
 
 
@@ -320,7 +335,9 @@ def _check_sample(ds: Dataset, name: str) -> int:
         raise HdNetError(f"the {name} dataset must yield dicts with 'image' and 'mask'.")
     image, mask = sample["image"], sample["mask"]
     if image.dim() != 3 or mask.dim() != 2 or image.shape[-2:] != mask.shape:
-        raise HdNetError(f"the {name} dataset must yield image (C, H, W) and mask (H, W), got {tuple(image.shape)} and {tuple(mask.shape)}.")
+        raise HdNetError(
+            f"the {name} dataset must yield image (C, H, W) and mask (H, W), got {tuple(image.shape)} and {tuple(mask.shape)}."
+        )
     return int(image.shape[0])
 
 
@@ -368,7 +385,9 @@ def train(
     _check_sample(val_ds, "validation")
     run_dir = Path(run_dir)
     rank, world, device = _init_distributed()
-    model_config = ModelConfig(in_channels=in_channels, width=profile.width, depth=profile.depth, dropout_p=profile.dropout_p)
+    model_config = ModelConfig(
+        in_channels=in_channels, width=profile.width, depth=profile.depth, dropout_p=profile.dropout_p
+    )
     weight = None
     if profile.class_weighting == "balanced":
         if class_weights is None:
@@ -383,7 +402,9 @@ def train(
             raise HdNetError(f"{run_dir} already holds a checkpoint; resume it or choose another run directory.")
         ckpt = load_checkpoint(last)
         if ModelConfig(**ckpt["model_config"]) != model_config or profile_from_dict(ckpt["profile"]) != profile:
-            raise HdNetError(f"checkpoint {last} was trained with another model or profile ({ckpt['profile']['name']!r}).")
+            raise HdNetError(
+                f"checkpoint {last} was trained with another model or profile ({ckpt['profile']['name']!r})."
+            )
         if rank == 0:
             _reconcile_run(run_dir, ckpt)
 
@@ -412,13 +433,25 @@ def train(
     train_sampler = DistributedSampler(train_ds, num_replicas=world, rank=rank, shuffle=True, seed=seed)
     val_sampler = DistributedSampler(val_ds, num_replicas=world, rank=rank, shuffle=False)
     pin = device.type == "cuda"
-    train_loader = DataLoader(train_ds, batch_size=per_rank_batch, sampler=train_sampler, num_workers=num_workers, pin_memory=pin)
-    val_loader = DataLoader(val_ds, batch_size=per_rank_batch, sampler=val_sampler, num_workers=num_workers, pin_memory=pin)
+    train_loader = DataLoader(
+        train_ds, batch_size=per_rank_batch, sampler=train_sampler, num_workers=num_workers, pin_memory=pin
+    )
+    val_loader = DataLoader(
+        val_ds, batch_size=per_rank_batch, sampler=val_sampler, num_workers=num_workers, pin_memory=pin
+    )
 
     config = {
-        "schema": "hdnet.run", "schema_version": 1, "model_name": MODEL_NAME, "model_config": model_config.to_dict(),
-        "profile": profile.to_dict(), "epochs": total_epochs, "seed": seed, "world_size": world,
-        "hd_version": __version__, "torch_version": torch.__version__, "extra_config": extra,
+        "schema": "hdnet.run",
+        "schema_version": 1,
+        "model_name": MODEL_NAME,
+        "model_config": model_config.to_dict(),
+        "profile": profile.to_dict(),
+        "epochs": total_epochs,
+        "seed": seed,
+        "world_size": world,
+        "hd_version": __version__,
+        "torch_version": torch.__version__,
+        "extra_config": extra,
         "class_weights": None if weight is None else [float(w) for w in class_weights],  # type: ignore[union-attr]
     }
     if rank == 0:
@@ -479,10 +512,19 @@ def train(
             states = gathered
         if rank == 0:
             ckpt_out = {
-                "schema": CHECKPOINT_SCHEMA, "schema_version": CHECKPOINT_VERSION, "model_name": MODEL_NAME,
-                "model_config": model_config.to_dict(), "profile": profile.to_dict(), "epoch": epoch + 1,
-                "seed": seed, "model": {k: v.detach().cpu() for k, v in model.state_dict().items()},
-                "optimizer": optimizer.state_dict(), "rng": states, "history": history, "timing": timing, "extra_config": extra,
+                "schema": CHECKPOINT_SCHEMA,
+                "schema_version": CHECKPOINT_VERSION,
+                "model_name": MODEL_NAME,
+                "model_config": model_config.to_dict(),
+                "profile": profile.to_dict(),
+                "epoch": epoch + 1,
+                "seed": seed,
+                "model": {k: v.detach().cpu() for k, v in model.state_dict().items()},
+                "optimizer": optimizer.state_dict(),
+                "rng": states,
+                "history": history,
+                "timing": timing,
+                "extra_config": extra,
                 "hd_version": __version__,
             }
             save_checkpoint(last, ckpt_out)
@@ -492,9 +534,13 @@ def train(
             _write_metrics_csv(run_dir / METRICS, history, timing)
         if bar is not None:
             bar.update(1)
-            bar.set_postfix(train_loss=f"{row['train_loss']:.4f}", val_loss=f"{row['val_loss']:.4f}",
-                            val_acc=f"{row['val_pixel_accuracy']:.3f}", val_miou=f"{row['val_miou']:.3f}",
-                            img_s=f"{timing[-1]['train_images_per_s']:.1f}")
+            bar.set_postfix(
+                train_loss=f"{row['train_loss']:.4f}",
+                val_loss=f"{row['val_loss']:.4f}",
+                val_acc=f"{row['val_pixel_accuracy']:.3f}",
+                val_miou=f"{row['val_miou']:.3f}",
+                img_s=f"{timing[-1]['train_images_per_s']:.1f}",
+            )
         if world > 1:
             dist.barrier()
     if bar is not None:

@@ -214,7 +214,9 @@ def split_block_size(n_scans: int) -> int:
     return max(1, min(50, n_scans // 20))
 
 
-def assign_splits(n_scans: int, seed: int, fractions: tuple[float, float, float] = defaults.SPLIT_FRACTIONS) -> np.ndarray:
+def assign_splits(
+    n_scans: int, seed: int, fractions: tuple[float, float, float] = defaults.SPLIT_FRACTIONS
+) -> np.ndarray:
     """Split of every scan: 0 train, 1 val, 2 test.
 
     Consecutive scans along the trajectory form blocks (``split_block_size``); blocks, not scans,
@@ -261,9 +263,12 @@ def run_shard(task: ShardTask) -> ShardRecord:
                     scan_geometry(scene, task.nadir_xy[m], task.first_scan + m, cfg.trajectory, footprint_hw, cfg.seed)
                     for m in batch
                 ]
-                for m, scan_index, result in zip(batch, indices, simulate_scans(
-                    scene, geoms, indices, cfg.sensor, cfg.sigmas_m, cfg.seed, n_threads=task.n_threads
-                ), strict=True):
+                for m, scan_index, result in zip(
+                    batch,
+                    indices,
+                    simulate_scans(scene, geoms, indices, cfg.sensor, cfg.sigmas_m, cfg.seed, n_threads=task.n_threads),
+                    strict=True,
+                ):
                     check_returns(result.status, scan_index, task.dtm_path)
                     g = result.geometry
                     writer.write_scan(
@@ -438,8 +443,14 @@ def _procedural_terrain_bytes(config: BuildConfig, path: Path) -> bytes:
     """The procedural terrain of ``config`` as GeoTIFF bytes (built in memory; nothing is written)."""
     params = config.terrain
     heights = generate_mars_terrain(params, seed=config.seed)
-    return geotiff_bytes(heights, params.spacing_m, origin_xy=(0.0, 0.0), crs_wkt="",
-                         tags=terrain_tags(params, config.seed), name=str(path))
+    return geotiff_bytes(
+        heights,
+        params.spacing_m,
+        origin_xy=(0.0, 0.0),
+        crs_wkt="",
+        tags=terrain_tags(params, config.seed),
+        name=str(path),
+    )
 
 
 def check_workers(workers: int | None, flag: str = "--workers") -> None:
@@ -498,8 +509,11 @@ def build_dataset(
         terrain_bytes = _procedural_terrain_bytes(config, dtm_path)
     else:
         dtm_path = Path(config.dtm_path).resolve()
-    opened = DTM.from_bytes(terrain_bytes, dtm_path, scale=config.dtm_scale) if terrain_bytes is not None \
+    opened = (
+        DTM.from_bytes(terrain_bytes, dtm_path, scale=config.dtm_scale)
+        if terrain_bytes is not None
         else DTM.open(dtm_path, scale=config.dtm_scale)
+    )
     with opened as dtm:
         cell = max(OVERVIEW_CELL_M, *dtm.info.spacing_m)
         valid, overview_transform = dtm.validity_overview(cell)
@@ -520,9 +534,10 @@ def build_dataset(
     try:
         resume = prepare_output(out_dir, config, overwrite)  # again, now that no other writer can run
         # The build's settings first: from here on, a kill leaves a build the same command resumes.
-        write_json_atomic(out_dir / BUILD_STATE_NAME, {"config_sha256": config.fingerprint(),
-                                                        "dtm_sha256": dtm_attrs["dtm_sha256"],
-                                                        "config": config.to_dict()})
+        write_json_atomic(
+            out_dir / BUILD_STATE_NAME,
+            {"config_sha256": config.fingerprint(), "dtm_sha256": dtm_attrs["dtm_sha256"], "config": config.to_dict()},
+        )
         if overwrite:
             clear_output(out_dir, keep_state=True)
         if terrain_bytes is not None:
@@ -531,8 +546,9 @@ def build_dataset(
                 write_bytes_atomic(dtm_path, terrain_bytes)
             del terrain_bytes
         make_subdir(out_dir, SHARD_DIR)
-        summary = _build_locked(out_dir, config, resume, dtm_path, dtm_attrs, dtm_provenance, plan, workers,
-                                scheduler, progress, t_start)
+        summary = _build_locked(
+            out_dir, config, resume, dtm_path, dtm_attrs, dtm_provenance, plan, workers, scheduler, progress, t_start
+        )
         finished = True
         return summary
     finally:
@@ -603,7 +619,8 @@ def _build_locked(
         "seed": config.seed,
         "config_sha256": fingerprint,
         "config": config.to_dict(),
-        "dtm": dtm_provenance | {"path": os.path.relpath(dtm_path, out_dir) if dtm_path.is_relative_to(out_dir) else str(dtm_path)},
+        "dtm": dtm_provenance
+        | {"path": os.path.relpath(dtm_path, out_dir) if dtm_path.is_relative_to(out_dir) else str(dtm_path)},
         "trajectory": {"step_m": plan.step_m, "footprint_half_width_m": plan.half_width_m},
         "splits": {name: int((splits == i).sum()) for i, name in enumerate(SPLIT_NAMES)},
         "shards": [records[i].to_dict() for i in sorted(records)],
@@ -641,19 +658,21 @@ def _make_tasks(
     tasks = []
     for shard_index, first in enumerate(range(0, n, config.shard_size)):
         last = min(n, first + config.shard_size)
-        tasks.append(ShardTask(
-            out_dir=str(out_dir),
-            shard_index=shard_index,
-            first_scan=first,
-            nadir_xy=plan.nadir_xy[first:last],
-            tile_ij=plan.tile_ij[first:last],
-            splits=splits[first:last],
-            dtm_path=dtm_path,
-            config=config,
-            plan_half_width_m=plan.half_width_m,
-            tile_anchor_xy=plan.tile_anchor_xy,
-            tile_m=plan.tile_m,
-            file_attrs=file_attrs,
-            n_threads=threads,
-        ))
+        tasks.append(
+            ShardTask(
+                out_dir=str(out_dir),
+                shard_index=shard_index,
+                first_scan=first,
+                nadir_xy=plan.nadir_xy[first:last],
+                tile_ij=plan.tile_ij[first:last],
+                splits=splits[first:last],
+                dtm_path=dtm_path,
+                config=config,
+                plan_half_width_m=plan.half_width_m,
+                tile_anchor_xy=plan.tile_anchor_xy,
+                tile_m=plan.tile_m,
+                file_attrs=file_attrs,
+                n_threads=threads,
+            )
+        )
     return tasks

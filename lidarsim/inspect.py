@@ -83,8 +83,10 @@ def describe_dataset(directory: str | os.PathLike) -> str:
         for d in sorted(labels_dir.iterdir()):
             if d.is_dir() and d.name not in listed:
                 n = len(list(d.glob("labels-*.h5")))
-                lines.append(f"labels    {d.name}: unfinished ({n} label shards written); re-run the same `hd label` "
-                             "command to finish it")
+                lines.append(
+                    f"labels    {d.name}: unfinished ({n} label shards written); re-run the same `hd label` "
+                    "command to finish it"
+                )
     holder = lock_holder(directory)
     if holder is not None:
         lines.append(f"writing   another hd process (PID {holder}) is writing this dataset now")
@@ -114,5 +116,7 @@ def damaged_status(problems: list[str]) -> list[str]:
 
 def damaged_message(directory: str | os.PathLike, problems: list[str]) -> str:
     """The one-line error of a damaged dataset."""
-    return (f"{directory} is damaged ({len(problems)} problem(s)); `hd verify {directory}` lists them; rebuild or "
-            "restore the damaged files")
+    return (
+        f"{directory} is damaged ({len(problems)} problem(s)); `hd verify {directory}` lists them; rebuild or "
+        "restore the damaged files"
+    )

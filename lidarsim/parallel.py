@@ -183,8 +183,12 @@ def _run_pool(func: Callable[[T], R], tasks: Sequence[T], workers: int) -> Itera
     try:
         for group in balanced_groups(len(tasks), workers):
             reader, writer = ctx.Pipe(duplex=False)
-            p = ctx.Process(target=_worker_main, args=(func, [(i, tasks[i]) for i in group], writer, os.getpid()),
-                            name="hd-worker", daemon=True)
+            p = ctx.Process(
+                target=_worker_main,
+                args=(func, [(i, tasks[i]) for i in group], writer, os.getpid()),
+                name="hd-worker",
+                daemon=True,
+            )
             p.start()
             writer.close()
             processes.append(p)

@@ -219,9 +219,7 @@ def stamp_crater(
     heights[r0:r1, c0:c1] += crater_profile(r, diameter_m, params).astype(heights.dtype)
 
 
-def sample_craters(
-    params: MarsTerrainParams, rng: np.random.Generator
-) -> tuple[np.ndarray, np.ndarray]:
+def sample_craters(params: MarsTerrainParams, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """Crater centres (k, 2) as (east_m, south_m) and diameters (k,) in metres.
 
     Count ~ Poisson(area * [N(>D_min) - N(>D_max)]) over the tile grown by the largest ejecta reach

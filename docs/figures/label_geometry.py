@@ -100,10 +100,20 @@ def main() -> None:
     side.plot([-4.5, 4.5], [0.0, 0.5], "o", color="tab:red")
     side.annotate("pad 0 on a 0.5 m rock", (4.4, 0.62), ha="right", fontsize=8)
     side.annotate("pad 2", (-4.5, 0.08), ha="center", fontsize=8)
-    side.annotate("hole: below the plane, not roughness\n(Lander(count_holes=True) counts it)",
-                  (-1.5, -0.55), ha="center", fontsize=8, color="tab:blue")
-    side.text(-5.3, 0.85, "slope = angle of the plane's normal to vertical\n"
-              "roughness = max height of body nodes above it x cos(slope)", fontsize=8, va="top")
+    side.annotate(
+        "hole: below the plane, not roughness\n(Lander(count_holes=True) counts it)",
+        (-1.5, -0.55),
+        ha="center",
+        fontsize=8,
+        color="tab:blue",
+    )
+    side.text(
+        -5.3,
+        0.85,
+        "slope = angle of the plane's normal to vertical\nroughness = max height of body nodes above it x cos(slope)",
+        fontsize=8,
+        va="top",
+    )
     side.set_xlim(-5.5, 5.5)
     side.set_ylim(-0.8, 1.0)
     side.set_xlabel("distance along the pad 2 - pad 0 diagonal (m)")

@@ -81,7 +81,9 @@ def test_single_boulder_unsafe_exactly_within_body_reach(backend: str, base_tilt
     assert np.all(maps.label[within] == LABEL_UNSAFE)
     assert np.all(maps.label[valid & ~within] == LABEL_SAFE)
     assert np.all(maps.roughness_m[within] > 0.45 * math.cos(math.radians(base_tilt_deg)))
-    assert np.nanmax(np.degrees(maps.slope_rad)) < base_tilt_deg + math.degrees(math.atan(0.5 * math.sqrt(2) / 9)) + 0.01
+    assert (
+        np.nanmax(np.degrees(maps.slope_rad)) < base_tilt_deg + math.degrees(math.atan(0.5 * math.sqrt(2) / 9)) + 0.01
+    )
 
 
 @pytest.mark.parametrize("backend", BACKENDS)

@@ -31,7 +31,12 @@ def reference_for(lander: Lander) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 @pytest.mark.parametrize("backend", ["numpy", "numba"])
 @pytest.mark.parametrize(
     "lander",
-    [Lander(convention="hd"), Lander(convention="hd", count_holes=True), Lander(convention="hd", layout="triangle", n_yaws=5), Lander(convention="hd", max_roughness_m=0.1, n_yaws=3)],
+    [
+        Lander(convention="hd"),
+        Lander(convention="hd", count_holes=True),
+        Lander(convention="hd", layout="triangle", n_yaws=5),
+        Lander(convention="hd", max_roughness_m=0.1, n_yaws=3),
+    ],
     ids=["default", "holes", "triangle", "strict"],
 )
 def test_fast_equals_loop_reference(backend: str, lander: Lander) -> None:

@@ -35,8 +35,17 @@ def test_default_lander_is_the_paper_convention() -> None:
     assert attrs["convention"] == "paper" and attrs["orientation_step_deg"] == 10.0 and "n_yaws" not in attrs
     assert Lander.from_attrs(attrs) == PAPER
     # records from before conventions existed are the hd convention with the worst-node baseline
-    old = {"diameter_m": 10.0, "pad_diameter_m": 1.0, "max_slope_deg": 10.0, "max_roughness_m": 0.2,
-           "layout": "square", "n_yaws": 8, "count_holes": False, "n_pads": 4, "yaw_step_deg": 11.25}
+    old = {
+        "diameter_m": 10.0,
+        "pad_diameter_m": 1.0,
+        "max_slope_deg": 10.0,
+        "max_roughness_m": 0.2,
+        "layout": "square",
+        "n_yaws": 8,
+        "count_holes": False,
+        "n_pads": 4,
+        "yaw_step_deg": 11.25,
+    }
     assert Lander.from_attrs(old) == Lander(convention="hd")
 
 
@@ -46,8 +55,10 @@ def test_the_36_orientations_give_7_squares_of_pixel_pads() -> None:
     assert pad_offsets("square", 5, math.radians(20)) == ((1, -4), (4, 1), (-1, 4), (-4, -1))
     squares = distinct_polygons("square", 5)
     assert len(squares) == 7  # (3,3) twice; (0,4) is (4,0) turned by 90 degrees
-    assert {frozenset(p) for p in squares} >= {frozenset({(0, -5), (5, 0), (0, 5), (-5, 0)}),
-                                               frozenset({(3, -3), (3, 3), (-3, 3), (-3, -3)})}
+    assert {frozenset(p) for p in squares} >= {
+        frozenset({(0, -5), (5, 0), (0, 5), (-5, 0)}),
+        frozenset({(3, -3), (3, 3), (-3, 3), (-3, -3)}),
+    }
     geo = geometry(PAPER, 1.0)
     counts = [geo.nodes(m)[0].size for m in range(geo.n_yaws)]
     # strictly inside |di| + |dj| < 5: 41 nodes; inside the axis-aligned 6 m square: 5 x 5 = 25.
@@ -104,7 +115,9 @@ def test_tilted_plane_slope_exact(backend: str, slope_deg: float, expected: int,
     assert np.all(maps.roughness_m[valid] < 1e-4)
     assert np.all(maps.label[valid] == expected)
     p = safety_probability(plane(slope_deg, azimuth_deg), 1.0, 0.03, PAPER, backend=backend)
-    assert np.all((p[valid] > 0.99) == (expected == LABEL_SAFE)) and np.all((p[valid] == 0) == (expected == LABEL_UNSAFE))
+    assert np.all((p[valid] > 0.99) == (expected == LABEL_SAFE)) and np.all(
+        (p[valid] == 0) == (expected == LABEL_UNSAFE)
+    )
 
 
 @pytest.mark.parametrize("backend", BACKENDS)

@@ -96,9 +96,13 @@ def test_resized_sample_round_trips_to_the_dem_grid(dataset):
     np.testing.assert_allclose(ds.to_dem_grid(probs).sum(1).numpy(), 1.0, atol=1e-6)
     np.testing.assert_allclose(to_dem_grid(torch.full((1, 2, 512, 512), 0.5), (100, 100), 512).numpy(), 0.5)
     # padding is undone by cropping
-    pad_img, (pad_mask,) = to_network_grid(torch.arange(1e4).view(1, 100, 100), [torch.zeros(100, 100, dtype=torch.int64)], None, [255])
+    pad_img, (pad_mask,) = to_network_grid(
+        torch.arange(1e4).view(1, 100, 100), [torch.zeros(100, 100, dtype=torch.int64)], None, [255]
+    )
     assert pad_img.shape == (1, 128, 128) and int(pad_mask.sum()) == 255 * (128 * 128 - 100 * 100)
-    np.testing.assert_array_equal(to_dem_grid(pad_img[None], (100, 100), None)[0, 0].numpy(), np.arange(1e4).reshape(100, 100))
+    np.testing.assert_array_equal(
+        to_dem_grid(pad_img[None], (100, 100), None)[0, 0].numpy(), np.arange(1e4).reshape(100, 100)
+    )
 
 
 def test_fill_holes_takes_the_nearest_finite_value():
@@ -135,7 +139,9 @@ def test_dead_pixels_repair_the_dem_and_give_an_ignore_mask(dataset):
     s = dead_hi[0]
     assert s["ignore"].shape == (160, 160) and s["ignore"].dtype == torch.bool and s["ignore"].any()
     assert "ignore" not in plain[0]
-    assert not np.array_equal(HazardDataset(dataset, "test", 0.0167, dead_pixels=10, seed=5).dem_sample(0).dead_pixels, b.dead_pixels)
+    assert not np.array_equal(
+        HazardDataset(dataset, "test", 0.0167, dead_pixels=10, seed=5).dem_sample(0).dead_pixels, b.dead_pixels
+    )
 
 
 def test_pickles_without_open_files_and_works_with_worker_processes(dataset):

@@ -74,8 +74,15 @@ def trained(tmp_path_factory):
 
 
 def write_dtm(path: Path, z: np.ndarray, spacing: float, origin=(1000.0, 2000.0), crs=None, nodata=None) -> Path:
-    profile = {"driver": "GTiff", "width": z.shape[1], "height": z.shape[0], "count": 1, "dtype": "float32",
-               "transform": from_origin(origin[0], origin[1], spacing, spacing), "nodata": nodata}
+    profile = {
+        "driver": "GTiff",
+        "width": z.shape[1],
+        "height": z.shape[0],
+        "count": 1,
+        "dtype": "float32",
+        "transform": from_origin(origin[0], origin[1], spacing, spacing),
+        "nodata": nodata,
+    }
     if crs is not None:
         profile["crs"] = crs
     with rasterio.open(path, "w", **profile) as dst:
@@ -98,8 +105,14 @@ def read(path: Path) -> tuple[np.ndarray, rasterio.DatasetReader]:
 def profile_of(path: Path) -> dict:
     with rasterio.open(path) as src:
         t, (h, w) = src.transform, src.shape
-        return {"crs": src.crs, "transform": t, "shape": (h, w), "bounds": (t.c, t.f + t.e * h, t.c + t.a * w, t.f),
-                "dtype": src.dtypes[0], "nodata": src.nodata}
+        return {
+            "crs": src.crs,
+            "transform": t,
+            "shape": (h, w),
+            "bounds": (t.c, t.f + t.e * h, t.c + t.a * w, t.f),
+            "dtype": src.dtypes[0],
+            "nodata": src.nodata,
+        }
 
 
 def check_consistent_maps(out: Path, threshold_nats: float) -> dict[str, np.ndarray]:
@@ -123,7 +136,11 @@ def check_sites(out: Path, lander: Lander) -> list[dict]:
     rows = list(csv.DictReader((out / "sites.csv").open()))
     gj = json.loads((out / "sites.geojson").read_text())
     assert gj["type"] == "FeatureCollection" and len(gj["features"]) == len(rows)
-    assert list(rows[0].keys()) == list(SITE_COLUMNS) if rows else (out / "sites.csv").read_text().strip() == ",".join(SITE_COLUMNS)
+    assert (
+        list(rows[0].keys()) == list(SITE_COLUMNS)
+        if rows
+        else (out / "sites.csv").read_text().strip() == ",".join(SITE_COLUMNS)
+    )
     safety, src = read(out / "safety.tif")
     transform = src.transform
     dx, dy = transform.a, -transform.e
@@ -152,11 +169,19 @@ def check_sites(out: Path, lander: Lander) -> list[dict]:
 
 
 # --- the contract with training and evaluation ------------------------------------------------------
-@pytest.mark.parametrize("change", [
-    {},  # the tiny profile: the paper's min-max heights, padding to 32
-    {"input_size": 64},  # the paper profile's bilinear resize
-    {"heights": "median", "normalisation": None, "extra_channels": ("slope", "highpass"), "size_multiple": 4},  # cpu
-])
+@pytest.mark.parametrize(
+    "change",
+    [
+        {},  # the tiny profile: the paper's min-max heights, padding to 32
+        {"input_size": 64},  # the paper profile's bilinear resize
+        {
+            "heights": "median",
+            "normalisation": None,
+            "extra_channels": ("slope", "highpass"),
+            "size_multiple": 4,
+        },  # cpu
+    ],
+)
 def test_network_input_is_exactly_the_training_input(trained, change):
     dataset, run_dir, _ = trained
     run = load_run(run_dir, CPU)
@@ -199,11 +224,16 @@ def test_scan_mode_is_the_evaluation_path(trained, tmp_path):
     result = detect(run_dir, out, dataset=dataset, scan=scan, sigma_m=0.07, threshold="nats:0.5", mc_samples=4, seed=3)
     assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUT_FILES)
     run = load_run(run_dir, CPU)
-    ds = next(d for d in (HazardDataset(dataset, s, 0.07, input_spec=run.input_spec) for s in ("train", "val", "test"))
-              if scan in d.scan_indices)
+    ds = next(
+        d
+        for d in (HazardDataset(dataset, s, 0.07, input_spec=run.input_spec) for s in ("train", "val", "test"))
+        if scan in d.scan_indices
+    )
     sample = ds.dem_sample(ds.scan_indices.index(scan))
     torch.manual_seed(3)
-    probs = to_dem_grid(mc_dropout_predict(run.model, ds.prepare(sample)["image"][None], n_samples=4).mean_probs, (100, 100), None)
+    probs = to_dem_grid(
+        mc_dropout_predict(run.model, ds.prepare(sample)["image"][None], n_samples=4).mean_probs, (100, 100), None
+    )
     maps = check_consistent_maps(out, 0.5)
     valid = maps["safety.tif"] != SAFETY_INVALID
     np.testing.assert_allclose(maps["p_safe.tif"][valid], probs[0, 1].numpy()[valid], rtol=0, atol=1e-6)
@@ -219,13 +249,28 @@ def test_scan_mode_is_the_evaluation_path(trained, tmp_path):
 
 def test_threshold_is_calibrated_as_hd_eval_does(trained, tmp_path):
     dataset, run_dir, _ = trained
-    report = evaluate(run_dir, dataset, tmp_path / "report", mc_samples=3, threshold="quantile:0.3", seed=5,
-                      batch_size=8, figures=False)
+    report = evaluate(
+        run_dir,
+        dataset,
+        tmp_path / "report",
+        mc_samples=3,
+        threshold="quantile:0.3",
+        seed=5,
+        batch_size=8,
+        figures=False,
+    )
     dtm = write_dtm(tmp_path / "hill.tif", tilted_plane(40, 1.0, 3.0), 1.0)
     result = detect(run_dir, tmp_path / "out", dtm=dtm, mc_samples=3, threshold="quantile:0.3", seed=5)
     info = json.loads((tmp_path / "out" / "detect.json").read_text())["threshold"]
     assert result.threshold_nats == pytest.approx(report.threshold["value_nats"], rel=0, abs=0)
-    for key in ("spec", "mean_nats", "calibration_split", "calibration_sigma_m", "calibration_images", "calibration_pixels"):
+    for key in (
+        "spec",
+        "mean_nats",
+        "calibration_split",
+        "calibration_sigma_m",
+        "calibration_images",
+        "calibration_pixels",
+    ):
         assert info[key] == report.threshold[key]
     check_consistent_maps(tmp_path / "out", result.threshold_nats)
 
@@ -261,9 +306,13 @@ def test_real_terrain_maps_cover_the_input_with_its_crs(trained, tmp_path, name,
         np.testing.assert_array_equal(safety == SAFETY_INVALID, expected)
     info = json.loads((out / "detect.json").read_text())
     assert calls[-1][0] == calls[-1][1] == info["tiling"]["n_tiles"]
-    assert info["counts"] == {"safe": int((safety == SAFETY_SAFE).sum()), "unsafe": int((safety == SAFETY_UNSAFE).sum()),
-                              "uncertain": int((safety == SAFETY_UNCERTAIN).sum()), "invalid": int((safety == SAFETY_INVALID).sum()),
-                              "baseline_safe": int((np.nan_to_num(maps["baseline_p_safe.tif"]) >= 0.5).sum())}
+    assert info["counts"] == {
+        "safe": int((safety == SAFETY_SAFE).sum()),
+        "unsafe": int((safety == SAFETY_UNSAFE).sum()),
+        "uncertain": int((safety == SAFETY_UNCERTAIN).sum()),
+        "invalid": int((safety == SAFETY_INVALID).sum()),
+        "baseline_safe": int((np.nan_to_num(maps["baseline_p_safe.tif"]) >= 0.5).sum()),
+    }
     assert info["input"]["sha256"] == sha256_file(REAL / name)
     assert info["input"]["scale"] == (1.0 if name.startswith("autzen") else 0.5)
     assert set(info["timings_s"]) >= {"calibration", "network", "baseline", "sites", "total"}
@@ -335,7 +384,9 @@ def test_hirise_pds3_at_1_01_m_keeps_its_mars_crs(trained, tmp_path):
     """A HiRISE-like PDS3 DTM (1.01 m, equirectangular Mars, NULL cells) is read as is, within the 2 % tolerance."""
     import importlib.util
 
-    spec = importlib.util.spec_from_file_location("terrain_files", Path(__file__).parents[1] / "lidarsim" / "terrain_files.py")
+    spec = importlib.util.spec_from_file_location(
+        "terrain_files", Path(__file__).parents[1] / "lidarsim" / "terrain_files.py"
+    )
     terrain_files = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(terrain_files)
     z = tilted_plane(60, 1.01, 2.0).astype(np.float32) - 2000.0
@@ -438,7 +489,12 @@ def test_select_sites_equals_the_plain_reference_on_random_maps(seed):
     smooth = ndimage.gaussian_filter(rng.normal(size=shape), 6)
     safety = np.where(smooth > np.quantile(smooth, 0.3), SAFETY_SAFE, SAFETY_UNSAFE).astype(np.uint8)
     safety[rng.random(shape) < 0.002] = SAFETY_UNCERTAIN
-    safety[:5], safety[-5:], safety[:, :5], safety[:, -5:] = SAFETY_INVALID, SAFETY_INVALID, SAFETY_INVALID, SAFETY_INVALID
+    safety[:5], safety[-5:], safety[:, :5], safety[:, -5:] = (
+        SAFETY_INVALID,
+        SAFETY_INVALID,
+        SAFETY_INVALID,
+        SAFETY_INVALID,
+    )
     p = (0.5 + 0.5 * ndimage.gaussian_filter(rng.random(shape), 3)).astype(np.float32)
     p[:, 45:] = np.round(p[:, 45:], 2)  # plateaus of equal P(safe): clearance decides there
     h = rng.random(shape).astype(np.float32)
@@ -521,7 +577,9 @@ def test_bad_input_is_one_line_and_writes_nothing(trained, terrains, tmp_path, a
 def test_missing_run_and_occupied_out_are_refused(trained, terrains, tmp_path):
     _, run_dir, _ = trained
     runner = CliRunner()
-    result = runner.invoke(main, ["detect", str(tmp_path / "no-run"), "--dtm", str(terrains["ok"]), "--out", str(tmp_path / "o")])
+    result = runner.invoke(
+        main, ["detect", str(tmp_path / "no-run"), "--dtm", str(terrains["ok"]), "--out", str(tmp_path / "o")]
+    )
     assert result.exit_code == 1 and "does not exist" in result.output and not (tmp_path / "o").exists()
     occupied = tmp_path / "occupied"
     occupied.mkdir()
@@ -574,8 +632,10 @@ def test_a_run_without_its_dataset_needs_a_fixed_threshold(trained, terrains, tm
 def test_cli_detect_prints_a_summary(trained, terrains, tmp_path):
     _, run_dir, _ = trained
     out = tmp_path / "cli"
-    result = CliRunner().invoke(main, ["detect", str(run_dir), "--dtm", str(terrains["ok"]), "--out", str(out),
-                                       "--mc-samples", "2", "--sites", "3"])
+    result = CliRunner().invoke(
+        main,
+        ["detect", str(run_dir), "--dtm", str(terrains["ok"]), "--out", str(out), "--mc-samples", "2", "--sites", "3"],
+    )
     assert result.exit_code == 0, result.output
     assert "valid cells" in result.output and "detect.json" in result.output
     info = json.loads((out / "detect.json").read_text())

@@ -72,7 +72,9 @@ def test_baseline_rows_equal_a_hand_count_from_the_label_shards(setup):
                 pred.append(np.nan_to_num(f["p_safe"][:, s][rows]) >= 0.5)
         t, p = np.concatenate(truth), np.concatenate(pred)
         expected = hand_metrics(t, p, t != 255)
-        row = next(r for r in result.rows if r.table == "noise" and r.method == "alhat_baseline" and r.test_sigma_m == sigma)
+        row = next(
+            r for r in result.rows if r.table == "noise" and r.method == "alhat_baseline" and r.test_sigma_m == sigma
+        )
         np.testing.assert_allclose((row.pixel_accuracy, row.miou, row.precision, row.sensitivity), expected, rtol=1e-12)
 
 
@@ -82,9 +84,14 @@ def test_network_rows_follow_from_the_stored_inference(setup):
     for sigma, inf in result.test.items():
         valid = inf.label != 255
         base = next(r for r in result.rows if r.table == "noise" and r.method == "base_net" and r.test_sigma_m == sigma)
-        np.testing.assert_allclose((base.pixel_accuracy, base.miou, base.precision, base.sensitivity),
-                                   hand_metrics(inf.label, inf.prediction == 1, valid), rtol=1e-12)
-        ua = next(r for r in result.rows if r.table == "noise" and r.method == "uncertainty_aware" and r.test_sigma_m == sigma)
+        np.testing.assert_allclose(
+            (base.pixel_accuracy, base.miou, base.precision, base.sensitivity),
+            hand_metrics(inf.label, inf.prediction == 1, valid),
+            rtol=1e-12,
+        )
+        ua = next(
+            r for r in result.rows if r.table == "noise" and r.method == "uncertainty_aware" and r.test_sigma_m == sigma
+        )
         certain = inf.entropy_nats < h_t
         assert ua.vc_fraction == pytest.approx((valid & certain).sum() / valid.sum())
         # sensitivity: uncertain truly safe pixels count as false unsafe
@@ -105,7 +112,9 @@ def test_dead_pixel_rows_ignore_the_lander_neighbourhoods(setup):
     assert (valid & ~ignore).sum() < valid.sum()
     # Outside the ignored neighbourhoods the repaired DEM gives the same baseline as the shard's.
     expected = hand_metrics(inf.label, inf.baseline_safe, valid & ~ignore)
-    row = next(r for r in result.rows if r.table == "dead_pixels" and r.method == "alhat_baseline" and r.test_sigma_m == 0.0167)
+    row = next(
+        r for r in result.rows if r.table == "dead_pixels" and r.method == "alhat_baseline" and r.test_sigma_m == 0.0167
+    )
     np.testing.assert_allclose((row.pixel_accuracy, row.miou, row.precision, row.sensitivity), expected, rtol=1e-12)
 
 
@@ -128,8 +137,9 @@ def test_risk_threshold_reports_the_achieved_false_safe_rate(setup, tmp_path):
         inf = result.test[a["test_sigma_m"]]
         t = math.inf if th["value_nats"] is None else th["value_nats"]
         valid = inf.label != 255
-        per_image = ((valid & (inf.label == 0) & (inf.prediction == 1) & (inf.entropy_nats < t)).sum((1, 2))
-                     / valid.sum((1, 2)))
+        per_image = (valid & (inf.label == 0) & (inf.prediction == 1) & (inf.entropy_nats < t)).sum((1, 2)) / valid.sum(
+            (1, 2)
+        )
         assert a["false_safe_rate"] == pytest.approx(per_image.mean())
     assert not list(tmp_path.glob("*.png"))
 
@@ -168,7 +178,9 @@ def test_a_run_saved_before_input_specs_evaluates_like_before(setup, tmp_path):
     old_model = {k: v for k, v in ckpt["model_config"].items() if k != "depth"}
     old = {**ckpt, "extra_config": old_extra, "model_config": old_model}
     old.pop("timing")
-    old["history"] = [{k: h[k] for k in ("epoch", "train_loss", "val_loss", "val_pixel_accuracy")} for h in ckpt["history"]]
+    old["history"] = [
+        {k: h[k] for k in ("epoch", "train_loss", "val_loss", "val_pixel_accuracy")} for h in ckpt["history"]
+    ]
     save_checkpoint(tmp_path / "old.pt", old)
     before = evaluate(run, dataset, tmp_path / "new-report", mc_samples=2, figures=False)
     after = evaluate(tmp_path / "old.pt", dataset, tmp_path / "old-report", mc_samples=2, figures=False)
@@ -188,12 +200,15 @@ def test_validation_summary_matches_the_validation_inference(setup):
     inf = infer_split(model, HazardDataset(dataset, "val", 0.0167, input_spec=spec), 3, 8, 1, torch.device("cpu"))
     valid = inf.label != 255
     base = hand_metrics(inf.label, inf.prediction == 1, valid)
-    np.testing.assert_allclose([summary[k] for k in ("base_pa", "base_miou", "base_precision", "base_sensitivity")], base,
-                               rtol=1e-12)
+    np.testing.assert_allclose(
+        [summary[k] for k in ("base_pa", "base_miou", "base_precision", "base_sensitivity")], base, rtol=1e-12
+    )
     h = float(inf.entropy_nats[valid].astype(np.float64).mean())
     assert summary["threshold_nats"] == pytest.approx(h)
     ua = score(inf.label, inf.prediction, inf.ignore, inf.entropy_nats >= h)
-    assert summary["ua_vc"] == pytest.approx(ua.vc_fraction) and summary["ua_precision"] == pytest.approx(ua.precision_safe, nan_ok=True)
+    assert summary["ua_vc"] == pytest.approx(ua.vc_fraction) and summary["ua_precision"] == pytest.approx(
+        ua.precision_safe, nan_ok=True
+    )
     assert summary["q_vc"] == pytest.approx(0.5, abs=0.02)
     assert summary["risk_false_safe"] <= 0.3  # conformal risk control on the same images: in-sample bound
     other = infer_split(model, HazardDataset(dataset, "val", 0.07, input_spec=spec), 3, 8, 1, torch.device("cpu"))

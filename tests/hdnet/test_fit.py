@@ -59,16 +59,25 @@ def test_fit_with_the_cpu_levers_records_its_input_spec_and_resumes_exactly(data
     from hdnet.inputs import InputSpec
     from hdnet.profiles import TINY
 
-    profile = replace(TINY, heights="median", height_scale_m=0.5, extra_channels=("slope", "highpass"), depth=3,
-                      augment="d4", lr_schedule="onecycle", class_weighting="balanced")
+    profile = replace(
+        TINY,
+        heights="median",
+        height_scale_m=0.5,
+        extra_channels=("slope", "highpass"),
+        depth=3,
+        augment="d4",
+        lr_schedule="onecycle",
+        class_weighting="balanced",
+    )
     straight = fit(dataset, tmp_path / "a", profile_name=profile, epochs=2, progress=False)
     fit(dataset, tmp_path / "b", profile_name=profile, epochs=2, progress=False, stop_after=1)
     resumed = fit(dataset, tmp_path / "b", profile_name=profile, epochs=2, progress=False, resume=True)
     a, b = load_checkpoint(straight), load_checkpoint(resumed)
     assert all(torch.equal(a["model"][k], b["model"][k]) for k in a["model"])  # D4 draws replay exactly
     spec = InputSpec.from_dict(a["extra_config"]["input"])
-    assert spec == InputSpec(heights="median", height_scale_m=0.5, extra_channels=("slope", "highpass"),
-                             spacing_m=1.0, size_multiple=8)
+    assert spec == InputSpec(
+        heights="median", height_scale_m=0.5, extra_channels=("slope", "highpass"), spacing_m=1.0, size_multiple=8
+    )
     assert a["extra_config"]["normalisation"] is None and a["extra_config"]["input_rule"] == "pad:8"
     assert a["model_config"]["in_channels"] == 3 and a["model_config"]["depth"] == 3
 

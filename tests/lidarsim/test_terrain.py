@@ -268,7 +268,13 @@ def test_rotated_grid_is_refused(tmp_path: Path) -> None:
 
     path = tmp_path / "rotated.tif"
     with rasterio.open(
-        path, "w", driver="GTiff", height=4, width=4, count=1, dtype="float32",
+        path,
+        "w",
+        driver="GTiff",
+        height=4,
+        width=4,
+        count=1,
+        dtype="float32",
         transform=Affine(0.9, 0.1, 0.0, 0.1, -0.9, 4.0),
     ) as dst:
         dst.write(np.zeros((1, 4, 4), dtype=np.float32))

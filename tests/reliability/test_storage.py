@@ -71,8 +71,12 @@ def test_atomic_path_for_writers_that_need_a_name(tmp_path):
 def test_hdf5_is_built_in_memory_and_written_once(tmp_path):
     def make(path):
         with H5Image(path) as img:
-            img.file.create_dataset("a", data=np.arange(100, dtype=np.float32).reshape(10, 10), chunks=(1, 10),
-                                    **storage.h5_chunk_kwargs("gzip"))
+            img.file.create_dataset(
+                "a",
+                data=np.arange(100, dtype=np.float32).reshape(10, 10),
+                chunks=(1, 10),
+                **storage.h5_chunk_kwargs("gzip"),
+            )
             assert not path.exists()  # nothing on disk until commit
             return img.commit()
 
@@ -86,10 +90,21 @@ def test_hdf5_is_built_in_memory_and_written_once(tmp_path):
     assert sorted(os.listdir(tmp_path)) == ["a.h5", "b.h5"]
 
 
-@pytest.mark.parametrize("relative,ok", [
-    ("shards/scans-00000.h5", True), ("../etc/passwd", False), ("/etc/passwd", False), ("a/../../b", False),
-    ("a/./b", False), ("", False), ("a//b", False), ("link-out/x", False), ("link-in/x", True), (7, False),
-])
+@pytest.mark.parametrize(
+    "relative,ok",
+    [
+        ("shards/scans-00000.h5", True),
+        ("../etc/passwd", False),
+        ("/etc/passwd", False),
+        ("a/../../b", False),
+        ("a/./b", False),
+        ("", False),
+        ("a//b", False),
+        ("link-out/x", False),
+        ("link-in/x", True),
+        (7, False),
+    ],
+)
 def test_manifest_paths_are_confined_to_the_dataset(tmp_path, relative, ok):
     root = tmp_path / "data"
     (root / "shards").mkdir(parents=True)
@@ -132,11 +147,22 @@ def test_remove_partials_and_error_lines(tmp_path):
     assert "free some space" in describe_os_error(OSError(errno.ENOSPC, "No space left on device"), "/x")
 
 
-@pytest.mark.parametrize("address,ok", [
-    ("tcp://127.0.0.1:8786", True), ("127.0.0.1:8786", True), ("tls://host.example:443", True), ("inproc://x", True),
-    ("garbage", False), ("tcp://host", False), ("tcp://host:0", False), ("tcp://host:abc", False),
-    ("http://host:80", False), ("", False), ("tcp://:8786", False),
-])
+@pytest.mark.parametrize(
+    "address,ok",
+    [
+        ("tcp://127.0.0.1:8786", True),
+        ("127.0.0.1:8786", True),
+        ("tls://host.example:443", True),
+        ("inproc://x", True),
+        ("garbage", False),
+        ("tcp://host", False),
+        ("tcp://host:0", False),
+        ("tcp://host:abc", False),
+        ("http://host:80", False),
+        ("", False),
+        ("tcp://:8786", False),
+    ],
+)
 def test_scheduler_addresses(address, ok):
     if ok:
         assert check_scheduler_address(address) == address
