@@ -12,6 +12,7 @@ interrupt the clean-up) with exit status 128 + the signal number: 130, 143, 129
 
 from __future__ import annotations
 
+import contextlib
 import math
 import signal
 import sys
@@ -21,7 +22,6 @@ from pathlib import Path
 from typing import Any
 
 import click
-
 from click.core import ParameterSource
 
 from hdlabels import defaults as label_defaults
@@ -84,10 +84,8 @@ def _close_progress_bars() -> None:
     except ImportError:
         return
     for bar in list(getattr(tqdm, "_instances", [])):
-        try:
+        with contextlib.suppress(Exception):  # a bar that cannot close must not hide the error
             bar.close()
-        except Exception:  # noqa: BLE001 - a bar that cannot close must not hide the error
-            pass
 
 
 def friendly_errors(func: Callable[..., Any]) -> Callable[..., Any]:
@@ -655,7 +653,8 @@ def label_cmd(
         type=click.Choice(["paper", "cpu", "tiny"]),
         default="cpu",
         show_default=True,
-        help="Training profile: paper (GPU, 512x512, full width), cpu (2-core machine), tiny (tests, demos); docs/hdnet.md lists their settings.",
+        help="Training profile: paper (GPU, 512x512, full width), cpu (2-core machine), tiny (tests, demos); "
+        "docs/hdnet.md lists their settings.",
     ),
     epochs_option("Epochs (default: the profile's)."),
     click.option(

@@ -39,14 +39,14 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from hdnet import defaults  # noqa: E402
-from hdnet.data import HazardDataset, dem_spacing_m, open_labeling  # noqa: E402
-from hdnet.evaluate import validation_summary  # noqa: E402
-from hdnet.fit import fit, input_spec_for  # noqa: E402
-from hdnet.inputs import Normalisation  # noqa: E402
-from hdnet.model import BayesianSegNet, ModelConfig  # noqa: E402
-from hdnet.profiles import CPU, TrainingProfile  # noqa: E402
-from hdnet.train import load_checkpoint, median_images_per_s  # noqa: E402
+from hdnet import defaults
+from hdnet.data import HazardDataset, dem_spacing_m, open_labeling
+from hdnet.evaluate import validation_summary
+from hdnet.fit import fit, input_spec_for
+from hdnet.inputs import Normalisation
+from hdnet.model import BayesianSegNet, ModelConfig
+from hdnet.profiles import CPU, TrainingProfile
+from hdnet.train import load_checkpoint, median_images_per_s
 
 # The cpu profile as shipped before this study (hd 0.1.0): the reference every lever is measured against.
 REFERENCE = replace(
@@ -174,9 +174,13 @@ def write_report(out: Path, n_train: int) -> None:
     results = json.loads((out / "results.json").read_text()) if (out / "results.json").exists() else {}
     rates = json.loads((out / "throughput.json").read_text()) if (out / "throughput.json").exists() else {}
     lines = [
-        "| variant | change | epochs | val PA | val mIoU | UA V/C % | UA PA | UA mIoU | UA precision | UA sensitivity "
-        "| precision @ V/C 50 % | sensitivity @ V/C 50 % | UA precision 7 cm (V/C %) | risk:0.05 sensitivity (in-sample) "
-        "| images/s | s for the budget |",
+        (
+            "| variant | change | epochs | val PA | val mIoU | UA V/C % | UA PA | UA mIoU | UA precision "
+            "| UA sensitivity "
+            "| precision @ V/C 50 % | sensitivity @ V/C 50 % | UA precision 7 cm (V/C %) "
+            "| risk:0.05 sensitivity (in-sample) "
+            "| images/s | s for the budget |"
+        ),
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, r in results.items():
@@ -185,7 +189,8 @@ def write_report(out: Path, n_train: int) -> None:
         rate = rates.get(name)
         secs = f"{r['epochs'] * n_train / rate:.0f}" if rate else "-"
         lines.append(
-            f"| {name} | {change} | {r['epochs']} | {v['base_pa']:.4f} | {v['base_miou']:.4f} | {100 * v['ua_vc']:.0f} | "
+            f"| {name} | {change} | {r['epochs']} | {v['base_pa']:.4f} | {v['base_miou']:.4f} | "
+            f"{100 * v['ua_vc']:.0f} | "
             f"{v['ua_pa']:.4f} | {v['ua_miou']:.4f} | {v['ua_precision']:.4f} | {v['ua_sensitivity']:.4f} | "
             f"{v['q_precision']:.4f} | {v['q_sensitivity']:.4f} | {_at7(v)} | {_get(v, 'risk_sensitivity')} | "
             f"{f'{rate:.1f}' if rate else '-'} | {secs} |"

@@ -25,12 +25,12 @@ import open3d as o3d
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from lidarsim.build import BuildConfig, _procedural_terrain_bytes, build_dataset, procedural_terrain_name  # noqa: E402
-from lidarsim.defaults import PAPER_SIGMAS_M  # noqa: E402
-from lidarsim.scan import TileScene  # noqa: E402
-from lidarsim.sensor import ray_directions, sensor_attitude  # noqa: E402
-from lidarsim.terrain import DTM  # noqa: E402
-from lidarsim.trajectory import TrajectoryConfig, plan_scans  # noqa: E402
+from lidarsim.build import BuildConfig, _procedural_terrain_bytes, build_dataset, procedural_terrain_name
+from lidarsim.defaults import PAPER_SIGMAS_M
+from lidarsim.scan import TileScene
+from lidarsim.sensor import ray_directions, sensor_attitude
+from lidarsim.terrain import DTM
+from lidarsim.trajectory import TrajectoryConfig, plan_scans
 
 
 def raw_cast_rate(dtm_path: Path, config: BuildConfig) -> tuple[float, int]:

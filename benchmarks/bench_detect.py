@@ -37,8 +37,8 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from hdlabels.lander import Lander  # noqa: E402
-from hdnet.detect import (  # noqa: E402
+from hdlabels.lander import Lander
+from hdnet.detect import (
     SAFETY_SAFE,
     DetectRun,
     baseline_p_safe,
@@ -47,13 +47,13 @@ from hdnet.detect import (  # noqa: E402
     network_output,
     select_sites,
 )
-from hdnet.fit import input_spec_for  # noqa: E402
-from hdnet.infer import mc_dropout_predict, predictive_entropy  # noqa: E402
-from hdnet.model import BayesianSegNet, ModelConfig, count_parameters  # noqa: E402
-from hdnet.inputs import Normalisation, network_shape  # noqa: E402
-from hdnet.profiles import CPU, PAPER, TrainingProfile  # noqa: E402
-from hdnet.train import CHECKPOINT_SCHEMA, CHECKPOINT_VERSION, save_checkpoint  # noqa: E402
-from lidarsim.procedural import MarsTerrainParams, generate_mars_terrain, write_geotiff  # noqa: E402
+from hdnet.fit import input_spec_for
+from hdnet.infer import mc_dropout_predict, predictive_entropy
+from hdnet.inputs import Normalisation, network_shape
+from hdnet.model import BayesianSegNet, ModelConfig, count_parameters
+from hdnet.profiles import CPU, PAPER, TrainingProfile
+from hdnet.train import CHECKPOINT_SCHEMA, CHECKPOINT_VERSION, save_checkpoint
+from lidarsim.procedural import MarsTerrainParams, generate_mars_terrain, write_geotiff
 
 BUDGET_S = 10.0  # hd choice: the per-frame time budget detection is measured against (docs/benchmarks.md)
 LABELING = {

@@ -30,12 +30,12 @@ from scipy.ndimage import gaussian_filter
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "hdlabels"))
 
-from alhat_reference import reference_maps  # noqa: E402
+from alhat_reference import reference_maps
 
-from hdlabels.alhat import hazard_and_probability, hazard_maps, safety_probability  # noqa: E402
-from hdlabels.defaults import GRIDDING, GRIDDINGS  # noqa: E402
-from hdlabels.grid import grid_points  # noqa: E402
-from hdlabels.lander import Lander  # noqa: E402
+from hdlabels.alhat import hazard_and_probability, hazard_maps, safety_probability
+from hdlabels.defaults import GRIDDING, GRIDDINGS
+from hdlabels.grid import grid_points
+from hdlabels.lander import Lander
 
 
 def terrain(rng: np.random.Generator, n: int) -> np.ndarray:
@@ -113,7 +113,8 @@ def main() -> None:
                     lambda d, b=backend, la=lander, s=sigma: hazard_and_probability(d, 1.0, s, la, backend=b), noisy
                 )
                 print(
-                    f"  sigma {sigma * 100:4.2f} cm {backend:6s} deterministic maps {det:7.2f} ms   P(safe) {prob:7.2f} ms"
+                    f"  sigma {sigma * 100:4.2f} cm {backend:6s} deterministic maps {det:7.2f} ms   "
+                    f"P(safe) {prob:7.2f} ms"
                     f"   both maps from one pass {both:7.2f} ms (target <= 10 ms)"
                 )
                 if backend == "numba":

@@ -22,8 +22,8 @@ from torch.utils.flop_counter import FlopCounterMode
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from hdnet.infer import mc_dropout_predict, mc_dropout_predict_naive  # noqa: E402
-from hdnet.model import BayesianSegNet, count_parameters  # noqa: E402
+from hdnet.infer import mc_dropout_predict, mc_dropout_predict_naive
+from hdnet.model import BayesianSegNet, count_parameters
 
 
 def _train_step(model: BayesianSegNet, opt: torch.optim.Optimizer, x: torch.Tensor, y: torch.Tensor) -> None:

@@ -31,7 +31,7 @@ import numpy as np
 
 def load_hazard_detection(src: str) -> types.ModuleType:
     """pydem.HazardDetection from a checkout, without pydem's package __init__."""
-    np.int = int  # type: ignore[attr-defined]  # pydem (2023) uses the alias numpy removed in 1.24
+    np.int = int  # type: ignore[attr-defined]  # noqa: NPY001 - pydem (2023) uses the alias numpy removed in 1.24
     package = types.ModuleType("pydem")
     package.__path__ = [f"{src}/pydem"]  # type: ignore[attr-defined]
     sys.modules["pydem"] = package

@@ -136,10 +136,7 @@ def probability_from_maps(maps: HazardMaps, sigma_m: float, lander: Lander = Lan
     rough = maps.roughness_m.astype(np.float64)
     slope_ok = slope < math.radians(lander.max_slope_deg)
     margin = lander.max_roughness_m - rough
-    if sigma_m > 0:
-        p_rough = ndtr(margin / sigma_m)
-    else:
-        p_rough = (margin > 0).astype(np.float64)
+    p_rough = ndtr(margin / sigma_m) if sigma_m > 0 else (margin > 0).astype(np.float64)
     p = np.where(slope_ok, p_rough, 0.0)
     p[~maps.valid] = np.nan
     return p.astype(np.float32)
@@ -316,7 +313,7 @@ def _worst_case(
     rc = lander.max_roughness_m
     for q in range(gx.shape[0]):
         di, dj = geo.nodes(q // n_cfg)
-        dev = np.stack([z[b + a : b + a + hv, b + e : b + e + wv] for a, e in zip(di, dj)])
+        dev = np.stack([z[b + a : b + a + hv, b + e : b + e + wv] for a, e in zip(di, dj, strict=True)])
         dev = dev - c[q] - gx[q] * dj[:, None, None] + gy[q] * di[:, None, None]
         height = np.maximum(dev.max(axis=0), 0.0)
         if lander.count_holes:

@@ -191,7 +191,7 @@ def _rasterise_numpy(tri: np.ndarray, spacing: float, dem: np.ndarray) -> None:
     ni, nj = (i_hi - i_lo + 1)[keep], (j_hi - j_lo + 1)[keep]
     tri, i_lo, j_lo = tri[keep], i_lo[keep], j_lo[keep]
     # Triangles grouped by bounding-box size, each group one array operation.
-    for size_i, size_j in set(zip(ni.tolist(), nj.tolist())):
+    for size_i, size_j in set(zip(ni.tolist(), nj.tolist(), strict=True)):
         g = (ni == size_i) & (nj == size_j)
         ii = i_lo[g][:, None, None] + np.arange(size_i)[None, :, None]
         jj = j_lo[g][:, None, None] + np.arange(size_j)[None, None, :]

@@ -230,10 +230,12 @@ def pad_sample_points(centre_xy_px: tuple[float, float], pad_radius_px: float) -
         for q in range(n)
     ]
     inner = pad_radius_px * math.cos(math.pi / n) + _EPS_PX
-    for x in range(math.floor(cx - inner), math.ceil(cx + inner) + 1):
-        for y in range(math.floor(cy - inner), math.ceil(cy + inner) + 1):
-            if (x - cx) ** 2 + (y - cy) ** 2 <= inner**2:
-                points.append((float(x), float(y)))
+    points += [
+        (float(x), float(y))
+        for x in range(math.floor(cx - inner), math.ceil(cx + inner) + 1)
+        for y in range(math.floor(cy - inner), math.ceil(cy + inner) + 1)
+        if (x - cx) ** 2 + (y - cy) ** 2 <= inner**2
+    ]
     return points
 
 
@@ -302,8 +304,10 @@ def _hd_geometry(lander: Lander, spacing_m: float) -> Geometry:
     inside = di**2 + dj**2 <= r_body**2 + _EPS_PX
     body_di, body_dj = di[inside], dj[inside]
 
-    nodes = set(zip(body_di.tolist(), body_dj.tolist()))
-    nodes.update((int(a), int(b)) for a, b, w in zip(tap_di.ravel(), tap_dj.ravel(), tap_w.ravel()) if w > 0)
+    nodes = set(zip(body_di.tolist(), body_dj.tolist(), strict=True))
+    nodes.update(
+        (int(a), int(b)) for a, b, w in zip(tap_di.ravel(), tap_dj.ravel(), tap_w.ravel(), strict=True) if w > 0
+    )
     band = max(max(abs(a), abs(b)) for a, b in nodes)
     footprint = np.zeros((2 * band + 1, 2 * band + 1), dtype=bool)
     for a, b in nodes:

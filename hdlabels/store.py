@@ -64,7 +64,8 @@ class DemSpec:
                 or not 2 <= value <= defaults.MAX_DEM_SIDE_PX
             ):
                 raise LabelStoreError(
-                    f"the DEM side (--dem-size) must be an integer in 2..{defaults.MAX_DEM_SIDE_PX} pixels, got {value!r}"
+                    f"the DEM side (--dem-size) must be an integer in 2..{defaults.MAX_DEM_SIDE_PX} pixels, "
+                    f"got {value!r}"
                 )
         s = self.spacing_m
         if isinstance(s, bool) or not isinstance(s, (int, float)) or not math.isfinite(s) or s <= 0:

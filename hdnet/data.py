@@ -240,7 +240,7 @@ class HazardDataset(Dataset):
             except FormatError as exc:
                 raise HdNetError(str(exc).rstrip(".") + ".") from None
             if len(shard_sigmas) != len(self.sigmas_m) or any(
-                abs(a - b) > SIGMA_EXACT_TOLERANCE_M for a, b in zip(shard_sigmas, self.sigmas_m)
+                abs(a - b) > SIGMA_EXACT_TOLERANCE_M for a, b in zip(shard_sigmas, self.sigmas_m, strict=True)
             ):
                 raise HdNetError(f"{path}: its noise levels differ from the other label shards.")
             items += [(k, int(r), int(scans[r])) for r in np.flatnonzero(splits == code)]

@@ -67,8 +67,6 @@ from hdnet.data import (
     sigma_index,
 )
 from hdnet.errors import HdNetError
-from hdnet.inputs import InputSpec, to_dem_grid
-from hdnet.inputs import network_input as prepare_input
 from hdnet.evaluate import (
     checkpoint_path,
     preferred_labeling,
@@ -77,6 +75,8 @@ from hdnet.evaluate import (
     validation_threshold,
 )
 from hdnet.infer import mc_dropout_predict, predictive_entropy
+from hdnet.inputs import InputSpec, to_dem_grid
+from hdnet.inputs import network_input as prepare_input
 from hdnet.model import BayesianSegNet
 from hdnet.report import json_plain
 from hdnet.thresholds import parse_threshold_spec, uncertain_mask
@@ -355,7 +355,9 @@ class _ScanTerrain(_Terrain):
             "label_shard": Path(found[0]).name,
             "origin_map": origin,
             "dtm_crs_wkt": manifest.get("dtm", {}).get("crs_wkt", ""),
-            "frame": "scan frame: origin at the nadir point on the reference height (origin_map); x east, y north; metres",
+            "frame": (
+                "scan frame: origin at the nadir point on the reference height (origin_map); x east, y north; metres"
+            ),
         }
         self.sigma_m = sigmas[k]
         self.labels = str(entry["name"])
@@ -846,7 +848,7 @@ def _write_maps(
                     progress(done, plan.n_tiles)
             t0 = time.perf_counter()
             window = Window(0, r_lo, n_cols, n_rows)
-            for name, key in zip(MAP_FILES, ("p", "h", "s", "b")):
+            for name, key in zip(MAP_FILES, ("p", "h", "s", "b"), strict=True):
                 dst[name].write(strip[key], 1, window=window)
             t_write += time.perf_counter() - t0
             for name, code in (

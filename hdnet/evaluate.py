@@ -127,8 +127,10 @@ class EvaluationResult:
     def summary(self) -> str:
         """A compact text table of the rows (for the terminal)."""
         lines = [
-            f"{'table':11s} {'method':18s} {'test sigma':>10s} {'V/C%':>5s} {'PA':>6s} {'mIoU':>6s} "
-            f"{'prec.':>6s} {'sens.':>6s}"
+            (
+                f"{'table':11s} {'method':18s} {'test sigma':>10s} {'V/C%':>5s} {'PA':>6s} {'mIoU':>6s} "
+                f"{'prec.':>6s} {'sens.':>6s}"
+            )
         ]
         for r in self.rows:
             vc = "-" if r.vc_fraction is None else f"{r.vc_fraction * 100:.0f}"
@@ -252,7 +254,7 @@ def infer_split(
         arrays["prob"][sl] = probs[:, defaults.CLASS_SAFE].numpy()
         arrays["entropy"][sl] = predictive_entropy(probs).numpy()
         pred[sl] = probs.argmax(dim=1).numpy()
-        for j, s in zip(idx, samples):
+        for j, s in zip(idx, samples, strict=True):
             scans[j], label[j], ignore[j] = s.scan_index, s.label, s.ignore
             arrays["clean"][j], arrays["noisy"][j] = s.dem_clean_m, s.dem_noisy_m
             p_safe = (

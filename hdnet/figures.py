@@ -64,7 +64,7 @@ def threshold_sweep(result: EvaluationResult, path: Path) -> None:
     """
     sigmas = sorted({row["test_sigma_m"] for row in result.sweep})
     fig, axes = plt.subplots(1, len(sigmas), figsize=(4.2 * len(sigmas), 3.8), squeeze=False)
-    for ax, sigma in zip(axes[0], sigmas):
+    for ax, sigma in zip(axes[0], sigmas, strict=True):
         pts = [r for r in result.sweep if r["test_sigma_m"] == sigma]
         q = [r["quantile"] for r in pts]
         ax.plot(q, [r["precision"] for r in pts], "o-", color="tab:blue", label="precision")
@@ -131,7 +131,7 @@ def qualitative_panel(inf: SplitInference, row: int, threshold_nats: float | Non
         ),
     ]
     fig, axes = plt.subplots(1, len(panels), figsize=(3.0 * len(panels), 3.3))
-    for ax, (title, img, kw) in zip(axes, panels):
+    for ax, (title, img, kw) in zip(axes, panels, strict=True):
         im = ax.imshow(img, interpolation="nearest", **kw)
         ax.set_title(title, fontsize=9)
         ax.set_xticks([])

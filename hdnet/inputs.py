@@ -112,7 +112,8 @@ class InputSpec:
         bad = [c for c in self.extra_channels if c not in EXTRA_CHANNELS]
         if bad or len(set(self.extra_channels)) != len(self.extra_channels):
             raise HdNetError(
-                f"extra channels must be distinct names from {', '.join(EXTRA_CHANNELS)}, got {list(self.extra_channels)}."
+                f"extra channels must be distinct names from {', '.join(EXTRA_CHANNELS)}, "
+                f"got {list(self.extra_channels)}."
             )
         if self.input_size is not None and (
             isinstance(self.input_size, bool) or not isinstance(self.input_size, int) or self.input_size < 1
@@ -287,7 +288,7 @@ def to_network_grid(
     H, W = network_shape((h, w), input_size, size_multiple)
     if input_size is not None:
         img = F.interpolate(image[None], size=(H, W), mode="bilinear", align_corners=False)[0]
-    elif (H, W) != (h, w):
+    elif (h, w) != (H, W):
         img = F.pad(image[None], (0, W - w, 0, H - h), mode="replicate")[0]
     else:
         img = image
@@ -303,7 +304,7 @@ def masks_to_network_grid(
     """Masks (h, w) to the network grid: nearest neighbour (``nearest-exact``) to ``input_size``, or
     padded on the bottom and right with ``pad_values`` (one per mask) to a multiple of ``size_multiple``."""
     out = []
-    for m, v in zip(masks, pad_values):
+    for m, v in zip(masks, pad_values, strict=True):
         h, w = m.shape[-2:]
         H, W = network_shape((h, w), input_size, size_multiple)
         if input_size is not None:

@@ -29,6 +29,7 @@ in training mode). ``forward(x) == suffix(prefix(x))``.
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import asdict, dataclass
 from typing import NamedTuple
 
@@ -116,7 +117,7 @@ def _cbr(c_in: int, c_out: int) -> list[nn.Module]:
 
 def _block(channels: list[int]) -> nn.Sequential:
     layers: list[nn.Module] = []
-    for c_in, c_out in zip(channels[:-1], channels[1:]):
+    for c_in, c_out in itertools.pairwise(channels):
         layers += _cbr(c_in, c_out)
     return nn.Sequential(*layers)
 
@@ -136,7 +137,7 @@ class BayesianSegNet(nn.Module):
             c_prev = block[-1]
         # Decoder k mirrors encoder k: same widths, the last layer going to the previous block's width.
         # Unit 1 has one conv-BN-ReLU (64 -> 64); its second layer is the classifier conv (64 -> classes).
-        setattr(self, "dec1", _block(list(reversed(enc[0]))))
+        self.dec1 = _block(list(reversed(enc[0])))
         for k in range(1, cfg.depth):
             setattr(self, f"dec{k + 1}", _block([*reversed(enc[k]), enc[k - 1][-1]]))
         self.classifier = nn.Conv2d(enc[0][0], cfg.n_classes, kernel_size=3, padding=1)

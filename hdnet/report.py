@@ -109,14 +109,15 @@ HEADER = (
 
 
 def _table(rows: list[ReportRow]) -> list[str]:
-    lines = [HEADER]
-    for r in rows:
-        lines.append(
+    return [
+        HEADER,
+        *(
             f"| {METHOD_NAMES.get(r.method, r.method)} | {_cm(r.train_sigma_m)} | {_cm(r.test_sigma_m)} | "
             f"{_pct(r.vc_fraction)} | {_num(r.pixel_accuracy)} | {_num(r.miou)} | {_num(r.precision)} | "
             f"{_num(r.sensitivity)} |"
-        )
-    return lines
+            for r in rows
+        ),
+    ]
 
 
 def _paper_table(rows: list[ReportRow]) -> list[str]:
@@ -137,10 +138,7 @@ def report_markdown(result: EvaluationResult, figures: list[str] | None = None) 
     """The content of ``report.md``."""
     run, th = result.run, result.threshold
     out = ["# hd evaluation report", ""]
-    if th["value_nats"] is None:
-        h_t = "unbounded (every pixel certain)"
-    else:
-        h_t = f"{_num(th['value_nats'])} nats"
+    h_t = "unbounded (every pixel certain)" if th["value_nats"] is None else f"{_num(th['value_nats'])} nats"
     out += [
         f"- checkpoint: `{run.get('checkpoint')}` (epoch {run.get('epoch')}, profile `{run.get('profile')}`)",
         (
@@ -168,7 +166,7 @@ def report_markdown(result: EvaluationResult, figures: list[str] | None = None) 
                 ),
                 "",
             ]
-        out += _table(rows) + [""]
+        out += [*_table(rows), ""]
         paper = _paper_table(rows)
         if paper:
             which = "Table 1" if table == "noise" else "Table 2"

@@ -89,7 +89,7 @@ def _init_distributed() -> tuple[int, int, torch.device]:
 
 # --- RNG state as plain types ------------------------------------------------------------------
 def _rng_state() -> dict[str, Any]:
-    np_state = np.random.get_state()
+    np_state = np.random.get_state()  # noqa: NPY002 - the global state, which a resumed run must restore
     py_version, py_state, py_gauss = random.getstate()
     return {
         "torch": torch.get_rng_state(),
@@ -110,14 +110,15 @@ def _set_rng_state(state: dict[str, Any]) -> None:
     if state.get("cuda") is not None and torch.cuda.is_available():
         torch.cuda.set_rng_state(state["cuda"])
     n = state["numpy"]
-    np.random.set_state((n["name"], n["key"].numpy().astype(np.uint32), n["pos"], n["has_gauss"], n["cached_gaussian"]))
+    legacy = (n["name"], n["key"].numpy().astype(np.uint32), n["pos"], n["has_gauss"], n["cached_gaussian"])
+    np.random.set_state(legacy)  # noqa: NPY002 - the global state, which a resumed run must restore
     p = state["python"]
     random.setstate((p["version"], tuple(int(v) for v in p["state"].tolist()), p["gauss_next"]))
 
 
 def _seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
-    np.random.seed(seed % 2**32)
+    np.random.seed(seed % 2**32)  # noqa: NPY002 - the global state, for code that draws from it
     random.seed(seed)
 
 
@@ -174,7 +175,7 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
         raise HdNetError(f"checkpoint {path} does not exist.")
     try:
         ckpt = torch.load(path, map_location=map_location, weights_only=True)
-    except Exception as exc:  # unpickling errors of every kind: the file is not ours
+    except Exception as exc:  # noqa: BLE001 - unpickling errors of every kind: the file is not ours
         raise HdNetError(f"{path} is not a readable hdnet checkpoint ({type(exc).__name__}).") from None
     if not isinstance(ckpt, dict) or ckpt.get("schema") != CHECKPOINT_SCHEMA:
         raise HdNetError(f"{path} is not an hdnet checkpoint (schema {CHECKPOINT_SCHEMA!r} missing).")
@@ -298,7 +299,7 @@ def _accuracy_and_miou(confusion: torch.Tensor) -> tuple[float, float]:
     total = float(cm.sum())
     tp = cm.diag()
     union = cm.sum(0) + cm.sum(1) - tp
-    ious = [float(t / u) for t, u in zip(tp, union) if u > 0]
+    ious = [float(t / u) for t, u in zip(tp, union, strict=True) if u > 0]
     return (float(tp.sum()) / total if total else math.nan), (sum(ious) / len(ious) if ious else math.nan)
 
 
@@ -329,14 +330,15 @@ def _all_reduce(values: torch.Tensor) -> torch.Tensor:
 def _check_sample(ds: Dataset, name: str) -> int:
     try:
         sample = ds[0]
-    except Exception as exc:
+    except Exception as exc:  # noqa: BLE001 - a user's dataset may fail in any way; named in the message
         raise HdNetError(f"the {name} dataset cannot give its first sample ({exc}).") from None
     if not isinstance(sample, dict) or "image" not in sample or "mask" not in sample:
         raise HdNetError(f"the {name} dataset must yield dicts with 'image' and 'mask'.")
     image, mask = sample["image"], sample["mask"]
     if image.dim() != 3 or mask.dim() != 2 or image.shape[-2:] != mask.shape:
         raise HdNetError(
-            f"the {name} dataset must yield image (C, H, W) and mask (H, W), got {tuple(image.shape)} and {tuple(mask.shape)}."
+            f"the {name} dataset must yield image (C, H, W) and mask (H, W), "
+            f"got {tuple(image.shape)} and {tuple(mask.shape)}."
         )
     return int(image.shape[0])
 

@@ -300,7 +300,8 @@ def check_returns(status: np.ndarray, scan_index: int, dtm_name: str) -> None:
     hits = int(((status == STATUS_RETURN) | (status == STATUS_DAMAGED)).sum())
     if working and hits < limits.MIN_RETURN_FRACTION * working:
         raise LidarsimError(
-            f"scan {scan_index}: only {100.0 * hits / working:.1f}% of the rays hit the terrain of {Path(dtm_name).name} "
+            f"scan {scan_index}: only {100.0 * hits / working:.1f}% of the rays hit the terrain of "
+            f"{Path(dtm_name).name} "
             "although its footprint lies on valid cells; the DTM's heights look invalid (check its nodata value "
             "and height range)"
         )
@@ -580,7 +581,9 @@ def _build_locked(
         "seed": config.seed,
         "config_json": json.dumps(config.to_dict(), sort_keys=True),
         "config_sha256": fingerprint,
-        "frame": "scan frame: origin at the nadir point on the reference height (origin_map); x east, y north, z up; metres",
+        "frame": (
+            "scan frame: origin at the nadir point on the reference height (origin_map); x east, y north, z up; metres"
+        ),
         **config.sensor.to_attrs(),
         **config.trajectory.to_attrs(),
         **dtm_attrs,

@@ -58,12 +58,16 @@ def render_card(directory: str | os.PathLike, recipe: Recipe, machine: str = "")
         total = sum(counts.values())
         base = ", ".join(f"σ = {k} m: {v * 100:.1f}%" for k, v in lab.get("baseline_safe_fraction", {}).items())
         label_lines += [
-            f"- **{lab['name']}** (schema {lab['schema']} {lab['schema_version']}): "
-            f"{counts['safe'] / total * 100:.1f}% safe, {counts['unsafe'] / total * 100:.1f}% unsafe, "
-            f"{counts['invalid'] / total * 100:.1f}% invalid of {total:,} DEM pixels; "
-            f"safe fraction of labelled pixels {lab['safe_fraction'] * 100:.1f}%.",
-            f"  Convention: {lab.get('convention', 'hd')}; DEM: {json.dumps(lab.get('dem', {}))}; "
-            f"lander: {json.dumps(lab['lander'])}.",
+            (
+                f"- **{lab['name']}** (schema {lab['schema']} {lab['schema_version']}): "
+                f"{counts['safe'] / total * 100:.1f}% safe, {counts['unsafe'] / total * 100:.1f}% unsafe, "
+                f"{counts['invalid'] / total * 100:.1f}% invalid of {total:,} DEM pixels; "
+                f"safe fraction of labelled pixels {lab['safe_fraction'] * 100:.1f}%."
+            ),
+            (
+                f"  Convention: {lab.get('convention', 'hd')}; DEM: {json.dumps(lab.get('dem', {}))}; "
+                f"lander: {json.dumps(lab['lander'])}."
+            ),
             f"  ALHAT baseline (P(safe) ≥ 0.5) safe fraction: {base}.",
         ]
     dtm = m["dtm"]
@@ -79,11 +83,14 @@ def render_card(directory: str | os.PathLike, recipe: Recipe, machine: str = "")
         recipe.description or "",
         "",
         "## What it is",
-        f"{m['n_scans']} simulated flash-LiDAR scans ({cfg['sensor']['rows']}×{cfg['sensor']['cols']} px, "
-        f"{cfg['sensor']['fov_x_deg']}° FOV, {cfg['trajectory']['altitude_m']} m altitude) over {terrain}, with clean "
-        f"points and noisy points at σ = {', '.join(f'{s:g}' for s in m['sigmas_m'])} m, split "
-        f"{m['splits']['train']}/{m['splits']['val']}/{m['splits']['test']} (train/val/test, seeded blocks of "
-        "consecutive scans).",
+        (
+            f"{m['n_scans']} simulated flash-LiDAR scans ({cfg['sensor']['rows']}×{cfg['sensor']['cols']} px, "
+            f"{cfg['sensor']['fov_x_deg']}° FOV, {cfg['trajectory']['altitude_m']} m altitude) over {terrain}, "
+            "with clean "
+            f"points and noisy points at σ = {', '.join(f'{s:g}' for s in m['sigmas_m'])} m, split "
+            f"{m['splits']['train']}/{m['splits']['val']}/{m['splits']['test']} (train/val/test, seeded blocks of "
+            "consecutive scans)."
+        ),
         "",
         "## How to rebuild and check it",
         "```bash",
@@ -96,9 +103,11 @@ def render_card(directory: str | os.PathLike, recipe: Recipe, machine: str = "")
         + ".",
         "",
         "## Build settings",
-        f"- software: hd {m['software_version']}; manifest schema {m['schema']} {m['schema_version']}, scan shards "
-        f"{m['shards'][0]['schema']} {m['shards'][0]['schema_version']}; "
-        f"settings hash `{m['config_sha256']}`",
+        (
+            f"- software: hd {m['software_version']}; manifest schema {m['schema']} {m['schema_version']}, scan shards "
+            f"{m['shards'][0]['schema']} {m['shards'][0]['schema_version']}; "
+            f"settings hash `{m['config_sha256']}`"
+        ),
         f"- seed {cfg['seed']}; shard size {cfg['shard_size']}; compression {cfg['compression']}",
         f"- sensor: `{json.dumps(cfg['sensor'])}`",
         f"- trajectory: `{json.dumps(cfg['trajectory'])}` (lattice step {m['trajectory']['step_m']} m)",

@@ -192,8 +192,7 @@ def crater_profile(r_m: np.ndarray, diameter_m: float, params: MarsTerrainParams
     inside = rim - depth + depth * rho**2
     with np.errstate(divide="ignore"):
         outside = rim * (np.maximum(rho, 1.0) ** (-n) - tail) / (1.0 - tail)
-    out = np.where(rho <= 1.0, inside, np.maximum(outside, 0.0))
-    return out
+    return np.where(rho <= 1.0, inside, np.maximum(outside, 0.0))
 
 
 def stamp_crater(

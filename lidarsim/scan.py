@@ -214,7 +214,7 @@ def simulate_scans(
         status[dead] = STATUS_DEAD
         d = directions[k]
         clean = (g.sensor_position + r[..., None] * d).astype(np.float32)
-        noisy = np.empty((len(sigmas_m),) + clean.shape, dtype=np.float32)
+        noisy = np.empty((len(sigmas_m), *clean.shape), dtype=np.float32)
         for s_i, sigma in enumerate(sigmas_m):
             key = sigma_key(sigma)
             r_noisy = r + sigma * stream(seed, Purpose.RANGE_NOISE, scan, key).standard_normal(r.shape)

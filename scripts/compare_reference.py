@@ -26,8 +26,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from hdlabels.defaults import LABEL_INVALID, LABEL_SAFE, SAFE_PROBABILITY_THRESHOLD  # noqa: E402
-from hdlabels.store import LabelShardReader, find_labeling, label_shard_paths  # noqa: E402
+from hdlabels.defaults import LABEL_INVALID, LABEL_SAFE, SAFE_PROBABILITY_THRESHOLD
+from hdlabels.store import LabelShardReader, find_labeling, label_shard_paths
 
 RUNNER = Path(__file__).resolve().parents[1] / "benchmarks" / "reference_pydem.py"
 
@@ -90,7 +90,8 @@ def main() -> None:
         agree = (p >= SAFE_PROBABILITY_THRESHOLD) == (pr >= SAFE_PROBABILITY_THRESHOLD)
         print(
             f"baseline sigma {sigma * 100:g} cm: P >= 0.5 agrees on {agree[ok].mean() * 100:.3f}% of pixels valid "
-            f"in both ({(~agree[ok]).sum()} differ; safe: hd {np.mean(p[ok] >= 0.5) * 100:.2f}%, reference {np.mean(pr[ok] >= 0.5) * 100:.2f}%); "
+            f"in both ({(~agree[ok]).sum()} differ; safe: hd {np.mean(p[ok] >= 0.5) * 100:.2f}%, "
+            f"reference {np.mean(pr[ok] >= 0.5) * 100:.2f}%); "
             f"max |P - P_ref| = {np.abs(p - pr)[ok].max():.2e}"
         )
 

@@ -29,13 +29,13 @@ from rasterio.transform import from_origin
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from hdlabels import defaults as label_defaults  # noqa: E402
-from hdlabels.grid import grid_points  # noqa: E402
-from hdnet.paper_results import PAPER_ROWS  # noqa: E402
-from lidarsim import defaults as lidar_defaults  # noqa: E402
-from lidarsim.build import BuildConfig, build_dataset  # noqa: E402
-from lidarsim.shards import ScanShardReader, read_manifest  # noqa: E402
-from lidarsim.trajectory import TrajectoryConfig  # noqa: E402
+from hdlabels import defaults as label_defaults
+from hdlabels.grid import grid_points
+from hdnet.paper_results import PAPER_ROWS
+from lidarsim import defaults as lidar_defaults
+from lidarsim.build import BuildConfig, build_dataset
+from lidarsim.shards import ScanShardReader, read_manifest
+from lidarsim.trajectory import TrajectoryConfig
 
 
 def flat_terrain(path: Path, side_m: float = 400.0, spacing_m: float = 0.5) -> Path:

@@ -65,7 +65,7 @@ def reference(
                     )
                     for a, b in pads
                 ]
-                p3 = [(a * spacing, b * spacing, zz) for (a, b), zz in zip(pads, z)]
+                p3 = [(a * spacing, b * spacing, zz) for (a, b), zz in zip(pads, z, strict=True)]
                 v1 = np.subtract(p3[1], p3[0])
                 v2 = np.subtract(p3[2], p3[0])
                 normal = np.cross(v1, v2)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 import pytest
@@ -22,7 +22,7 @@ def rough_terrain(seed: int, n: int = 30) -> np.ndarray:
     return hills + rocks + rng.normal(0.0, 0.01, (n, n))
 
 
-@lru_cache(maxsize=None)
+@cache
 def reference_for(lander: Lander) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Loop-reference maps of ``rough_terrain(3)``, computed once per lander for both back ends."""
     return reference_maps(rough_terrain(3), 1.0, lander)
@@ -54,7 +54,7 @@ def test_fast_equals_reference_with_nan_and_other_spacing() -> None:
     dem = rough_terrain(5, n=36)
     dem[17, 12] = np.nan
     lander = Lander(convention="hd", diameter_m=8.0, pad_diameter_m=0.8)
-    slope, rough, label = reference_maps(np.nan_to_num(dem), 0.8, lander)
+    _slope, rough, label = reference_maps(np.nan_to_num(dem), 0.8, lander)
     maps = hazard_maps(dem, 0.8, lander)
     ok = maps.label != LABEL_INVALID
     assert ok.sum() > 100 and not ok[17, 12]

@@ -128,7 +128,7 @@ def test_other_lander_makes_a_second_labelling(dataset):
 
 
 @pytest.mark.parametrize(
-    "args,needle",
+    ("args", "needle"),
     [
         (["--lander-diameter", "150"], "larger than the DEM"),
         (["--pad-diameter", "12"], "pad diameter"),
@@ -169,7 +169,7 @@ def test_unknown_label_schema_version_is_refused(dataset, tmp_path):
     copy.write_bytes(label_shard_paths(dataset, entry)[0].read_bytes())
     with h5py.File(copy, "r+") as f:
         f.attrs["schema_version"] = "3.0"
-    with pytest.raises(LabelStoreError, match="version 3.0"):
+    with pytest.raises(LabelStoreError, match=r"version 3\.0"):
         LabelShardReader(copy)
     manifest = json.loads((dataset / "manifest.json").read_text())
     assert all(lab["schema_version"] == LABEL_SCHEMA_VERSION for lab in manifest["labelings"])
@@ -207,7 +207,7 @@ def test_convention_options_name_and_record_the_labelling(dataset):
 
 
 @pytest.mark.parametrize(
-    "args,needle",
+    ("args", "needle"),
     [
         (["--yaws", "4"], "--yaws applies to --convention hd only"),
         (["--convention", "alhat"], "Invalid value for '--convention'"),

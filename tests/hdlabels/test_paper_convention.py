@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from paper_reference import reference
 from scipy.special import ndtr
 
 from hdlabels.alhat import hazard_and_probability, hazard_maps, safety_probability, valid_sites
@@ -13,8 +14,6 @@ from hdlabels.defaults import LABEL_INVALID, LABEL_SAFE, LABEL_UNSAFE
 from hdlabels.errors import HdLabelsError
 from hdlabels.lander import Lander, geometry
 from hdlabels.paper_geometry import distinct_polygons, orientations_rad, pad_offsets, strictly_inside
-
-from paper_reference import reference
 
 BACKENDS = ["numpy", "numba"]
 PAPER = Lander()  # the default lander is the paper convention with the product baseline
@@ -51,7 +50,8 @@ def test_default_lander_is_the_paper_convention() -> None:
 
 def test_the_36_orientations_give_7_squares_of_pixel_pads() -> None:
     assert len(orientations_rad()) == 36
-    # hand: c = trunc(5 cos t), s = trunc(5 sin t) for t = 0..80 deg: (5,0) (4,0) (4,1) (4,2) (3,3) (3,3) (2,4) (1,4) (0,4)
+    # hand: c = trunc(5 cos t), s = trunc(5 sin t) for t = 0..80 deg:
+    # (5,0) (4,0) (4,1) (4,2) (3,3) (3,3) (2,4) (1,4) (0,4)
     assert pad_offsets("square", 5, math.radians(20)) == ((1, -4), (4, 1), (-1, 4), (-4, -1))
     squares = distinct_polygons("square", 5)
     assert len(squares) == 7  # (3,3) twice; (0,4) is (4,0) turned by 90 degrees
@@ -156,9 +156,9 @@ def test_border_band_and_nan_cells_are_invalid(backend: str) -> None:
 
 
 CASES = [
-    dict(layout="square", combine="product", holes=False, sigma=0.05),
-    dict(layout="square", combine="min", holes=True, sigma=0.03),
-    dict(layout="triangle", combine="product", holes=False, sigma=0.07),
+    {"layout": "square", "combine": "product", "holes": False, "sigma": 0.05},
+    {"layout": "square", "combine": "min", "holes": True, "sigma": 0.03},
+    {"layout": "triangle", "combine": "product", "holes": False, "sigma": 0.07},
 ]
 
 

@@ -15,9 +15,9 @@ from rasterio.transform import from_origin
 from scipy import ndimage
 
 from hdlabels.labeling import label_dataset
-from lidarsim.shards import read_manifest, sha256_file, write_json_atomic
 from lidarsim.build import BuildConfig, build_dataset
 from lidarsim.sensor import SensorConfig
+from lidarsim.shards import read_manifest, sha256_file, write_json_atomic
 from lidarsim.trajectory import TrajectoryConfig
 
 SIGMAS_M = (0.0167, 0.07)

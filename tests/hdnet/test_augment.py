@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -45,7 +44,7 @@ def test_the_eight_elements_are_distinct_and_invertible() -> None:
         d4(a, 8)
 
 
-@pytest.mark.parametrize("convention,n_yaws", [("paper", 8), ("hd", 8), ("hd", 3)])
+@pytest.mark.parametrize(("convention", "n_yaws"), [("paper", 8), ("hd", 8), ("hd", 3)])
 def test_square_lander_labels_are_invariant_under_d4(convention: str, n_yaws: int) -> None:
     lander = Lander(diameter_m=6.0, pad_diameter_m=1.0, layout="square", n_yaws=n_yaws, convention=convention)  # type: ignore[arg-type]
     dem = _terrain()

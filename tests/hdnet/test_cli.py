@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
+from hdnet_datasets import build_labelled
 
 from cli import main
-from hdnet_datasets import build_labelled
 
 
 @pytest.fixture(scope="module")
@@ -37,7 +37,7 @@ def test_train_then_eval_writes_the_report(dataset, tmp_path):
 
 
 @pytest.mark.parametrize(
-    "args,needle",
+    ("args", "needle"),
     [
         (["--mc-samples", "0"], "M"),
         (["--drop-pixels", "-1"], "drop"),

@@ -148,7 +148,7 @@ def check_sites(out: Path, lander: Lander) -> list[dict]:
     r = disk.shape[0] // 2
     bad_r, bad_c = np.nonzero(safety != SAFETY_SAFE)
     pos = []
-    for k, (row, feat) in enumerate(zip(rows, gj["features"])):
+    for k, (row, feat) in enumerate(zip(rows, gj["features"], strict=True)):
         assert int(row["rank"]) == k + 1 == feat["properties"]["rank"]
         x, y = float(row["x"]), float(row["y"])
         assert feat["geometry"] == {"type": "Point", "coordinates": [pytest.approx(x), pytest.approx(y)]}
@@ -277,7 +277,7 @@ def test_threshold_is_calibrated_as_hd_eval_does(trained, tmp_path):
 
 # --- DTMs ---------------------------------------------------------------------------------------------
 @needs_real
-@pytest.mark.parametrize("name,crs", [("autzen-ground-1m.tif", None), ("ames-0.5m.tif", CRS.from_epsg(32610))])
+@pytest.mark.parametrize(("name", "crs"), [("autzen-ground-1m.tif", None), ("ames-0.5m.tif", CRS.from_epsg(32610))])
 def test_real_terrain_maps_cover_the_input_with_its_crs(trained, tmp_path, name, crs):
     _, run_dir, _ = trained
     out = tmp_path / "out"
@@ -291,7 +291,7 @@ def test_real_terrain_maps_cover_the_input_with_its_crs(trained, tmp_path, name,
     for f in MAP_FILES:
         prof = profile_of(out / f)
         assert prof["crs"] == crs and prof["dtype"] == ("uint8" if f == "safety.tif" else "float32")
-        for a, b in zip(prof["bounds"], src["bounds"]):
+        for a, b in zip(prof["bounds"], src["bounds"], strict=True):
             assert a == pytest.approx(b, abs=1e-6)  # the input's extent, exactly
         assert abs(prof["transform"].a - 1.0) <= 0.02 and abs(-prof["transform"].e - 1.0) <= 0.02  # run spacing
     maps = check_consistent_maps(out, result.threshold_nats)
@@ -343,7 +343,7 @@ def test_procedural_terrain_constant_run_sites_by_hand(trained, tmp_path):
     assert profile_of(out / "safety.tif")["crs"] is None
 
 
-@pytest.mark.parametrize("slope_deg,safe", [(0.0, True), (5.0, True), (9.0, True), (11.0, False), (15.0, False)])
+@pytest.mark.parametrize(("slope_deg", "safe"), [(0.0, True), (5.0, True), (9.0, True), (11.0, False), (15.0, False)])
 def test_tilted_plane_baseline_is_all_safe_below_10_degrees_and_all_unsafe_above(trained, tmp_path, slope_deg, safe):
     _, _, constant = trained
     n = 150  # two tiles per axis
@@ -501,7 +501,7 @@ def test_select_sites_equals_the_plain_reference_on_random_maps(seed):
     sites = select_sites(safety, p, h, p, from_origin(0, 70, 1, 1), (1.0, 1.0), Lander(), 12)
     expected = reference_sites(safety, p, Lander(), 12)
     assert len(sites) == len(expected) > 3
-    for s, (i, j, mean, clearance) in zip(sites, expected):
+    for s, (i, j, mean, clearance) in zip(sites, expected, strict=True):
         assert (s.row, s.col) == (i, j)
         assert s.p_safe == pytest.approx(mean, abs=1e-9) and s.clearance_m == pytest.approx(clearance, abs=1e-5)
         assert s.entropy_max == h[i - 5 : i + 6, j - 5 : j + 6][body_disk(Lander(), 1.0)].max()
@@ -562,7 +562,7 @@ BAD = [
 ]
 
 
-@pytest.mark.parametrize("args,needle", BAD)
+@pytest.mark.parametrize(("args", "needle"), BAD)
 def test_bad_input_is_one_line_and_writes_nothing(trained, terrains, tmp_path, args, needle):
     dataset, run_dir, _ = trained
     names = {**{k: str(v) for k, v in terrains.items()}, "dataset": str(dataset), "missing": str(tmp_path / "nope.tif")}

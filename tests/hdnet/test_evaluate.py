@@ -163,7 +163,7 @@ def test_bad_input_fails_with_one_clear_sentence(setup, tmp_path):
     with pytest.raises(HdNetError, match="no labels"):
         evaluate(run, unlabelled, tmp_path / "x")
     other_sigmas = build_labelled(tmp_path / "s", n_scans=4, sigmas_m=(0.03, 0.07))
-    with pytest.raises(HdNetError, match="sigma 0.0167 m is not in the dataset; it has 0.03, 0.07 m"):
+    with pytest.raises(HdNetError, match=r"sigma 0\.0167 m is not in the dataset; it has 0\.03, 0\.07 m"):
         evaluate(run, other_sigmas, tmp_path / "x")
     assert not (tmp_path / "x").exists()
 

@@ -39,7 +39,7 @@ def test_tiny_fit_records_the_data_it_was_trained_on(dataset, tmp_path):
 
 
 def test_fit_refuses_bad_datasets(dataset, tmp_path):
-    with pytest.raises(HdNetError, match="sigma 0.03 m is not in the dataset"):
+    with pytest.raises(HdNetError, match=r"sigma 0\.03 m is not in the dataset"):
         fit(dataset, tmp_path / "a", profile_name="tiny", epochs=1, train_sigma_m=0.03, progress=False)
     with pytest.raises(HdNetError, match="unknown training profile"):
         fit(dataset, tmp_path / "b", profile_name="huge", epochs=1, progress=False)
@@ -53,8 +53,9 @@ def test_fit_refuses_bad_datasets(dataset, tmp_path):
 
 
 def test_fit_with_the_cpu_levers_records_its_input_spec_and_resumes_exactly(dataset, tmp_path):
-    import torch
     from dataclasses import replace
+
+    import torch
 
     from hdnet.inputs import InputSpec
     from hdnet.profiles import TINY
@@ -85,10 +86,11 @@ def test_fit_with_the_cpu_levers_records_its_input_spec_and_resumes_exactly(data
 def test_d4_is_refused_for_a_triangle_lander(tmp_path):
     from dataclasses import replace
 
+    from hdnet_datasets import build_labelled as build
+
     from hdlabels.labeling import label_dataset
     from hdlabels.lander import Lander
     from hdnet.profiles import TINY
-    from hdnet_datasets import build_labelled as build
 
     data = build(tmp_path / "tri", n_scans=20, label=False)
     label_dataset(data, Lander(layout="triangle"), workers=1)

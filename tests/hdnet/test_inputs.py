@@ -147,5 +147,5 @@ def test_runs_saved_before_input_specs_read_as_the_papers_min_max() -> None:
     assert InputSpec.from_run_config({**old_extra, "input_size": 512}).input_size == 512
     new = InputSpec(heights="median", size_multiple=8)
     assert InputSpec.from_run_config({**old_extra, "input": new.to_dict()}) == new
-    with pytest.raises(HdNetError, match="not trained by hdnet.fit"):
+    with pytest.raises(HdNetError, match=r"not trained by hdnet\.fit"):
         InputSpec.from_run_config({"train_sigma_m": 0.0167})

@@ -25,7 +25,7 @@ def test_layout_13_encoder_layers_and_six_named_dropouts() -> None:
     assert all(type(m).__name__ == "MCDropout" and m.p == 0.5 for m in model.dropout_modules())
 
 
-@pytest.mark.parametrize("in_channels,n_classes", [(1, 2), (3, 5)])
+@pytest.mark.parametrize(("in_channels", "n_classes"), [(1, 2), (3, 5)])
 def test_forward_backward_tiny(in_channels: int, n_classes: int) -> None:
     torch.manual_seed(0)
     model = BayesianSegNet(in_channels=in_channels, n_classes=n_classes, width=1 / 16)
@@ -75,7 +75,7 @@ def test_state_dict_round_trip(tmp_path) -> None:
     torch.testing.assert_close(model(x), other(x))
 
 
-@pytest.mark.parametrize("depth,multiple", [(3, 8), (4, 16), (1, 2)])
+@pytest.mark.parametrize(("depth", "multiple"), [(3, 8), (4, 16), (1, 2)])
 def test_shallower_networks_keep_the_first_blocks_and_central_dropout(depth: int, multiple: int) -> None:
     model = BayesianSegNet(ModelConfig(width=1 / 16, depth=depth)).eval()
     assert model.size_multiple == multiple

@@ -58,7 +58,7 @@ def test_demo_is_the_paper_dataset_at_demo_scale(tmp_path):
 
 
 @pytest.mark.parametrize(
-    "change,needle",
+    ("change", "needle"),
     [
         ({"scans": 2}, "leaves a split empty"),
         ({"dtm": "missing.tif"}, "missing.tif"),

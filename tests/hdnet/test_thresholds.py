@@ -11,7 +11,7 @@ from hdnet.thresholds import EntropyCalibration, ThresholdSpec, parse_threshold_
 
 
 @pytest.mark.parametrize(
-    "text,expected",
+    ("text", "expected"),
     [
         ("mean", ThresholdSpec("mean")),
         ("quantile:0.4", ThresholdSpec("quantile", 0.4)),

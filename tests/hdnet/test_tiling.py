@@ -10,7 +10,7 @@ from hdnet.tiling import TilePlan, axis_tiles
 
 
 @pytest.mark.parametrize(
-    "n,tile,overlap",
+    ("n", "tile", "overlap"),
     [
         (100, 100, 20),
         (101, 100, 20),
@@ -31,7 +31,7 @@ def test_tiles_cover_the_axis_and_own_each_cell_once(n, tile, overlap):
         assert steps.max() - steps.min() <= 1  # spread evenly
         assert len(ax.starts) == int(np.ceil((n - tile) / (tile - overlap))) + 1  # no spare tile
     owned = np.zeros(n, int)
-    for s, (lo, hi) in zip(ax.starts, ax.owned):
+    for s, (lo, hi) in zip(ax.starts, ax.owned, strict=True):
         assert s <= lo < hi <= s + tile
         owned[lo:hi] += 1
         if lo > 0:
@@ -77,7 +77,7 @@ def test_centre_crops_stitch_a_position_function_exactly():
 
 
 @pytest.mark.parametrize(
-    "args,needle",
+    ("args", "needle"),
     [((0, 100, 20), "grid size"), ((50, 0, 0), "tile size"), ((500, 100, 100), "overlap"), ((500, 100, -1), "overlap")],
 )
 def test_bad_tilings_are_refused(args, needle):

@@ -13,12 +13,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from hdnet_fakes import FakeHazardDataset
 
 from hdnet.errors import HdNetError
 from hdnet.model import BayesianSegNet
 from hdnet.profiles import TINY
 from hdnet.train import load_checkpoint, load_trained_model, save_checkpoint, train
-from hdnet_fakes import FakeHazardDataset
 
 PROFILE = replace(TINY, batch_size=4)
 
@@ -73,7 +73,7 @@ def test_resume_after_kill_reproduces_uninterrupted_run(tmp_path: Path) -> None:
     straight = train(tmp_path / "a", tr, va, PROFILE, epochs=2, seed=3, progress=False)
     train(tmp_path / "b", tr, va, PROFILE, epochs=1, seed=3, progress=False)
     # A new process would start from other RNG states: scramble them before resuming.
-    torch.manual_seed(12345), np.random.seed(12345), random.seed(12345)
+    torch.manual_seed(12345), np.random.seed(12345), random.seed(12345)  # noqa: NPY002 - the global state on purpose
     resumed = train(tmp_path / "b", tr, va, PROFILE, epochs=2, seed=3, resume=True, progress=False)
     a, b = _weights(straight), _weights(resumed)
     assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)

@@ -110,7 +110,7 @@ def _scan_plane(
     return results, plane
 
 
-@pytest.mark.parametrize("origin,crs", [((0.0, 150.0), None), ((582600.0, 4141950.0), "EPSG:32610")])
+@pytest.mark.parametrize(("origin", "crs"), [((0.0, 150.0), None), ((582600.0, 4141950.0), "EPSG:32610")])
 def test_clean_points_lie_on_a_tilted_plane(tmp_path, origin, crs):
     results, plane = _scan_plane(tmp_path, origin, crs)
     for res in results:

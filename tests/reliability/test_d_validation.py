@@ -85,7 +85,7 @@ def _snapshot(tmp):
     return sorted(str(p) for p in Path(tmp).rglob("*"))
 
 
-@pytest.mark.parametrize("case,args,needle", BUILD, ids=[c[0] for c in BUILD])
+@pytest.mark.parametrize(("case", "args", "needle"), BUILD, ids=[c[0] for c in BUILD])
 def test_build_dataset_refuses(case, args, needle, places, dtm, monkeypatch):
     _no_work(monkeypatch, ("lidarsim.build", "plan_scans"), ("lidarsim.build", "_procedural_terrain_bytes"))
     argv = _fill(args, places)
@@ -120,7 +120,7 @@ LABEL = [
 ]
 
 
-@pytest.mark.parametrize("case,args,needle", LABEL, ids=[c[0] for c in LABEL])
+@pytest.mark.parametrize(("case", "args", "needle"), LABEL, ids=[c[0] for c in LABEL])
 def test_label_refuses(case, args, needle, data_copy, monkeypatch):
     _no_work(monkeypatch, ("hdlabels.labeling", "run_label_task"))
     before = _snapshot(data_copy)
@@ -129,7 +129,7 @@ def test_label_refuses(case, args, needle, data_copy, monkeypatch):
 
 
 @pytest.mark.parametrize(
-    "target,needle",
+    ("target", "needle"),
     [
         ("/proc", "not an hd dataset"),
         ("{file}", "not a directory|is a file"),
@@ -159,7 +159,7 @@ MAKE_DTM = [
 ]
 
 
-@pytest.mark.parametrize("case,args,needle", MAKE_DTM, ids=[c[0] for c in MAKE_DTM])
+@pytest.mark.parametrize(("case", "args", "needle"), MAKE_DTM, ids=[c[0] for c in MAKE_DTM])
 def test_make_dtm_refuses(case, args, needle, places, monkeypatch):
     _no_work(monkeypatch, ("lidarsim.procedural", "generate_mars_terrain"))
     before = _snapshot(places["tmp"])
@@ -183,7 +183,7 @@ TRAIN = [
 ]
 
 
-@pytest.mark.parametrize("case,args,needle", TRAIN, ids=[c[0] for c in TRAIN])
+@pytest.mark.parametrize(("case", "args", "needle"), TRAIN, ids=[c[0] for c in TRAIN])
 def test_train_refuses(case, args, needle, places, labelled, monkeypatch):
     _no_work(monkeypatch, ("hdnet.fit", "compute_normalisation"))
     argv = _fill(args, places)
@@ -212,7 +212,7 @@ EVAL = [
 ]
 
 
-@pytest.mark.parametrize("case,args,needle", EVAL, ids=[c[0] for c in EVAL])
+@pytest.mark.parametrize(("case", "args", "needle"), EVAL, ids=[c[0] for c in EVAL])
 def test_eval_refuses(case, args, needle, places, labelled, trained, monkeypatch):
     if case.startswith(("out-", "mc-", "batch-", "seed-", "threshold-")):
         _no_work(monkeypatch, ("hdnet.evaluate", "load_trained_model"))  # checked before the model is loaded
@@ -227,7 +227,7 @@ def test_eval_refuses(case, args, needle, places, labelled, trained, monkeypatch
 
 
 @pytest.mark.parametrize(
-    "command,args,needle",
+    ("command", "args", "needle"),
     [
         ("demo", ["--epochs", "0"], "--epochs"),
         ("demo", ["--scans", "0"], "--scans"),

@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import rasterio
-from reliability_kit import BUILD_ARGS, assert_one_line_error, hills, invoke
 from rasterio.transform import from_origin
+from reliability_kit import BUILD_ARGS, assert_one_line_error, hills, invoke
 
 from lidarsim import limits
 from lidarsim.build import check_returns
@@ -79,7 +79,7 @@ def test_a_build_whose_rays_miss_fails_and_leaves_nothing(tmp_path, dtm, monkeyp
     assert not out.exists()
 
 
-@pytest.mark.parametrize("hits,ok", [(0.0, False), (0.49, False), (0.5, True), (1.0, True)])
+@pytest.mark.parametrize(("hits", "ok"), [(0.0, False), (0.49, False), (0.5, True), (1.0, True)])
 def test_the_return_threshold(hits, ok):
     status = np.full((10, 10), STATUS_MISS, np.uint8)
     status[0, :] = STATUS_DEAD  # dead elements are not counted
