@@ -424,6 +424,10 @@ class CheckedH5File:
     def __contains__(self, name: str) -> bool:
         return name in self._f
 
+    def __iter__(self) -> Iterator[str]:
+        """The names of the file's members, as ``h5py.File`` iterates them."""
+        return iter(self._f)
+
     def __getattr__(self, name: str) -> Any:
         return getattr(self._f, name)
 
