@@ -149,7 +149,7 @@ def throughput(dataset: Path, names: list[str], rounds: int, steps: int, labels:
             ModelConfig(in_channels=spec.n_channels, width=p.width, depth=p.depth, dropout_p=p.dropout_p)
         )
         fmt = torch.channels_last if p.channels_last else torch.contiguous_format
-        model = model.to(memory_format=fmt).train()
+        model = model.to(memory_format=fmt).train()  # type: ignore[call-overload]  # the stubs omit memory_format
         opt = torch.optim.Adam(model.parameters(), lr=p.lr)
         setups[n] = (p, ds, model, opt, fmt)
     for r in range(rounds + 1):  # round 0 warms up

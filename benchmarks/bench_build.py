@@ -45,14 +45,15 @@ def raw_cast_rate(dtm_path: Path, config: BuildConfig) -> tuple[float, int]:
         elapsed, n_rays = 0.0, 0
         for tile, members in tiles.items():
             scene = TileScene(dtm, plan.tile_centre_xy(*tile), plan.tile_m / 2 + plan.half_width_m)
-            scene.scene.cast_rays(o3d.core.Tensor(np.zeros((1, 6), np.float32)))  # builds the BVH
+            probe = o3d.core.Tensor(np.zeros((1, 6), np.float32))  # type: ignore[call-overload]  # stubs omit ndarray
+            scene.scene.cast_rays(probe)  # builds the BVH
             rays = np.empty((len(members), *d.shape[:2], 6), np.float32)
             for k, m in enumerate(members):
                 x, y = plan.nadir_xy[m]
                 z = scene.mean_height(x, y, plan.half_width_m) + config.trajectory.altitude_m
                 rays[k, ..., :3] = np.array([x, y, z]) - scene.origin
                 rays[k, ..., 3:] = d
-            tensor = o3d.core.Tensor(rays.reshape(-1, 6))
+            tensor = o3d.core.Tensor(rays.reshape(-1, 6))  # type: ignore[call-overload]  # stubs omit ndarray
             t0 = time.perf_counter()
             scene.scene.cast_rays(tensor)
             elapsed += time.perf_counter() - t0

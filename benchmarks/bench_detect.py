@@ -30,7 +30,9 @@ import statistics
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -56,14 +58,14 @@ from hdnet.train import CHECKPOINT_SCHEMA, CHECKPOINT_VERSION, save_checkpoint
 from lidarsim.procedural import MarsTerrainParams, generate_mars_terrain, write_geotiff
 
 BUDGET_S = 10.0  # hd choice: the per-frame time budget detection is measured against (docs/benchmarks.md)
-LABELING = {
+LABELING: dict[str, Any] = {
     "name": "default-lander-dem100x100at1m",
     "lander": Lander().to_attrs(),  # the default label convention
     "dem": {"rows": 100, "cols": 100, "spacing_m": 1.0},
 }
 
 
-def _median(fn, repeats: int, warmups: int = 2) -> float:
+def _median(fn: Callable[[], object], repeats: int, warmups: int = 2) -> float:
     for _ in range(warmups):  # numba compilation, oneDNN primitives, the allocator: the first call of a
         fn()  # new model is several times slower than the steady state
     times = []

@@ -15,6 +15,7 @@ import argparse
 import statistics
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import torch
@@ -32,7 +33,7 @@ def _train_step(model: BayesianSegNet, opt: torch.optim.Optimizer, x: torch.Tens
     opt.step()
 
 
-def _timed(fn, repeats: int) -> float:
+def _timed(fn: Callable[[], object], repeats: int) -> float:
     """Median seconds of ``repeats`` calls after one warm-up call."""
     fn()
     times = []
@@ -94,7 +95,8 @@ def main() -> None:
         mc_dropout_predict_naive(model, xm, n_samples=args.samples)
         sync()
 
-    shared(), naive()  # warm-up both
+    shared()  # warm-up both
+    naive()
     for _ in range(args.repeats):  # interleaved, so load changes hit both alike
         shared_t.append(_once(shared))
         naive_t.append(_once(naive))
@@ -105,7 +107,7 @@ def main() -> None:
     )
 
 
-def _once(fn) -> float:
+def _once(fn: Callable[[], object]) -> float:
     t0 = time.perf_counter()
     fn()
     return time.perf_counter() - t0

@@ -25,6 +25,7 @@ import argparse
 import sys
 import time
 import types
+from typing import Any
 
 import numpy as np
 
@@ -33,9 +34,9 @@ def load_hazard_detection(src: str) -> types.ModuleType:
     """pydem.HazardDetection from a checkout, without pydem's package __init__."""
     np.int = int  # type: ignore[attr-defined]  # noqa: NPY001 - pydem (2023) uses the alias numpy removed in 1.24
     package = types.ModuleType("pydem")
-    package.__path__ = [f"{src}/pydem"]  # type: ignore[attr-defined]
+    package.__path__ = [f"{src}/pydem"]
     sys.modules["pydem"] = package
-    import pydem.HazardDetection as hazard_detection  # type: ignore[import-not-found]
+    import pydem.HazardDetection as hazard_detection  # type: ignore[import-not-found]  # a checkout, not installed
 
     return hazard_detection
 
@@ -73,7 +74,8 @@ def main() -> None:
                 call()
                 times.append(time.perf_counter() - t0)
             timings[name] = float(np.median(times))
-    np.savez(args.outputs, label=label, valid=valid, p=p, **timings)
+    arrays: dict[str, Any] = {"label": label, "valid": valid, "p": p, **timings}
+    np.savez(args.outputs, **arrays)
 
 
 if __name__ == "__main__":

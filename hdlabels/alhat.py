@@ -46,7 +46,7 @@ from hdlabels.lander import Geometry, Lander, geometry
 try:  # numba is optional: the numpy back end computes the same numbers, slower.
     import numba
 except ImportError:  # pragma: no cover - exercised only where numba is absent
-    numba = None
+    numba = None  # type: ignore[assignment]  # absent: the numpy back end is taken
 
 Backend = Literal["auto", "numba", "numpy"]
 

@@ -28,7 +28,7 @@ from hdlabels.errors import HdLabelsError
 try:  # numba is optional: the numpy path computes the same DEM, slower.
     import numba
 except ImportError:  # pragma: no cover
-    numba = None
+    numba = None  # type: ignore[assignment]  # absent: the numpy path is taken
 
 # A cell centre counts as inside a triangle if its barycentric coordinates are >= -_BARY_EPS.
 _BARY_EPS = 1e-9

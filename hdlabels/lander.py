@@ -9,6 +9,7 @@ See ``docs/labels.md`` for the equations.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from functools import lru_cache
 from typing import Literal
@@ -140,7 +141,7 @@ class Lander:
         return attrs
 
     @classmethod
-    def from_attrs(cls, attrs: dict[str, object]) -> Lander:
+    def from_attrs(cls, attrs: Mapping[str, object]) -> Lander:
         """The lander recorded by ``to_attrs`` (derived values are ignored).
 
         Records written before the paper convention existed carry no ``convention``: they are
@@ -160,7 +161,7 @@ class Lander:
         values["convention"] = str(attrs.get("convention", "hd"))
         if values["convention"] == "paper":
             values.pop("n_yaws", None)
-        return cls(**values)  # type: ignore[arg-type]
+        return cls(**values)  # type: ignore[arg-type]  # recorded values, checked by __post_init__
 
 
 def _plain(value: object) -> object:

@@ -106,8 +106,8 @@ class LabelSettings:
             n_yaws=self.yaws if self.yaws is not None else defaults.N_YAWS,
             count_holes=self.count_holes,
             convention=self.convention,  # type: ignore[arg-type]  # checked by Lander against CONVENTIONS
-            baseline_combine=self.baseline_combine,
-        )  # type: ignore[arg-type]  # checked by Lander
+            baseline_combine=self.baseline_combine,  # type: ignore[arg-type]  # checked by Lander against its combines
+        )
 
     def to_dem_spec(self) -> DemSpec:
         """The square DEM grid of these settings, with the convention's gridding unless one is given.

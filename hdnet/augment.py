@@ -21,7 +21,7 @@ along each ray; its statistics do not depend on the grid's orientation either.
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -72,7 +72,7 @@ def transform_sample(sample: DemSample, k: int) -> DemSample:
 
     Dead-pixel coordinates are mapped too.
     """
-    grids = {
+    grids: dict[str, Any] = {
         name: np.ascontiguousarray(d4(getattr(sample, name), k))
         for name in ("dem_clean_m", "dem_noisy_m", "dem_filled_m", "label", "p_safe", "ignore")
     }

@@ -79,7 +79,7 @@ from hdnet.inputs import InputSpec, to_dem_grid
 from hdnet.inputs import network_input as prepare_input
 from hdnet.model import BayesianSegNet
 from hdnet.report import json_plain
-from hdnet.thresholds import parse_threshold_spec, uncertain_mask
+from hdnet.thresholds import ThresholdSpec, parse_threshold_spec, uncertain_mask
 from hdnet.tiling import TilePlan
 from hdnet.train import load_trained_model
 from lidarsim.errors import TerrainError
@@ -668,37 +668,14 @@ def detect(
     out = Path(out_dir)
     fixed = _fixed_threshold(threshold)
     spec = parse_threshold_spec(threshold) if fixed is None else None
-    _check_int("the number of MC samples", mc_samples, 1)
-    _check_int("the number of sites", n_sites, 1)
-    _check_int("the batch size", batch_size, 1)
-    if sigma_m is not None and not (isinstance(sigma_m, (int, float)) and math.isfinite(sigma_m) and sigma_m >= 0):
-        raise HdNetError(f"sigma must be a finite number of metres >= 0, got {sigma_m!r}.")
-    if (dtm is None) == (dataset is None):
-        raise HdNetError("give either a DTM (--dtm) or a dataset and a scan (--data with --scan).")
-    if dataset is not None and scan is None:
-        raise HdNetError("--data needs --scan: the index of the scan whose noisy DEM to use.")
-    if dtm is not None and scan is not None:
-        raise HdNetError("--scan goes with --data, not with --dtm.")
+    _check_detect_options(mc_samples, n_sites, batch_size, sigma_m, dtm, dataset, scan)
     _check_out_dir(out, overwrite)
     dev = torch.device(device) if device else torch.device("cuda" if torch.cuda.is_available() else "cpu")
     run = load_run(run_dir, dev)
     baseline_sigma = run.train_sigma_m if sigma_m is None else float(sigma_m)
-
-    terrain: _Terrain
-    if dtm is not None:
-        terrain = _DtmTerrain(Path(dtm), run)
-        calib_dir, calib_labels = run.dataset, run.labels
-    else:
-        lab = labels if labels is not None else preferred_labeling(dataset, run.labels)  # type: ignore[arg-type]
-        terrain = _ScanTerrain(
-            Path(dataset),
-            int(scan) if not isinstance(scan, bool) else scan,
-            baseline_sigma,  # type: ignore[arg-type]
-            lab,
-            run,
-        )
+    terrain, calib_dir, calib_labels = _open_terrain(run, dtm, dataset, scan, labels, baseline_sigma)
+    if isinstance(terrain, _ScanTerrain):
         baseline_sigma = terrain.sigma_m
-        calib_dir, calib_labels = Path(dataset), terrain.labels  # type: ignore[arg-type]
     try:
         if spec is not None and calib_dir is None:
             raise HdNetError(
@@ -710,28 +687,13 @@ def detect(
         with _staging(out) as tmp:
             timings: dict[str, float] = {}
             t0 = time.perf_counter()
-            if spec is not None:
-                val_ds = split_dataset(
-                    calib_dir,
-                    "val",
-                    run.train_sigma_m,
-                    labels=calib_labels,  # type: ignore[arg-type]
-                    input_spec=run.input_spec,
-                    seed=seed,
-                )
-                th = validation_threshold(
-                    run.model, val_ds, spec, mc_samples=mc_samples, batch_size=batch_size, seed=seed, device=dev
-                )
-                h_t, threshold_info = (
-                    th.value_nats,
-                    dict(
-                        th.info,
-                        calibration_dataset=str(Path(calib_dir).resolve()),  # type: ignore[arg-type]
-                        calibration_labels=calib_labels,
-                    ),
+            if spec is not None and calib_dir is not None:
+                h_t, threshold_info = _calibrated_threshold(
+                    run, spec, calib_dir, calib_labels, mc_samples, batch_size, seed, dev
                 )
             else:
-                h_t = float(fixed)  # type: ignore[arg-type]
+                assert fixed is not None  # exactly one of fixed and spec is set
+                h_t = float(fixed)
                 threshold_info = {"spec": f"nats:{h_t:g}", "kind": "fixed", "parameter": h_t, "value_nats": h_t}
             timings["calibration"] = time.perf_counter() - t0
             counts, map_timings = _write_maps(
@@ -739,19 +701,7 @@ def detect(
             )
             timings |= map_timings
             t0 = time.perf_counter()
-            with rasterio.open(tmp / "entropy.tif") as h_src, rasterio.open(tmp / "baseline_p_safe.tif") as b_src:
-                sites = select_sites(
-                    _read_map(tmp / "safety.tif"),
-                    _read_map(tmp / "p_safe.tif"),
-                    _RasterWindows(h_src),
-                    _RasterWindows(b_src),
-                    terrain.transform,
-                    terrain.spacing_xy_m,
-                    run.lander,
-                    n_sites,
-                )
-            (tmp / "sites.csv").write_text(_sites_csv(sites))
-            (tmp / "sites.geojson").write_text(json.dumps(_sites_geojson(sites, terrain.crs_wkt), indent=1) + "\n")
+            sites = _write_sites(tmp, terrain, run, n_sites)
             timings["sites"] = time.perf_counter() - t0
             t0 = time.perf_counter()
             _overview(tmp, terrain, sites, run, h_t)
@@ -762,6 +712,87 @@ def detect(
     finally:
         terrain.close()
     return DetectResult(out, sites, h_t, counts, {k: round(v, 3) for k, v in timings.items()}, info)
+
+
+def _check_detect_options(
+    mc_samples: int,
+    n_sites: int,
+    batch_size: int,
+    sigma_m: float | None,
+    dtm: str | os.PathLike | None,
+    dataset: str | os.PathLike | None,
+    scan: int | None,
+) -> None:
+    """Step 1: the options alone (before the run is loaded or anything is written)."""
+    _check_int("the number of MC samples", mc_samples, 1)
+    _check_int("the number of sites", n_sites, 1)
+    _check_int("the batch size", batch_size, 1)
+    if sigma_m is not None and not (isinstance(sigma_m, (int, float)) and math.isfinite(sigma_m) and sigma_m >= 0):
+        raise HdNetError(f"sigma must be a finite number of metres >= 0, got {sigma_m!r}.")
+    if (dtm is None) == (dataset is None):
+        raise HdNetError("give either a DTM (--dtm) or a dataset and a scan (--data with --scan).")
+    if dataset is not None and scan is None:
+        raise HdNetError("--data needs --scan: the index of the scan whose noisy DEM to use.")
+    if dtm is not None and scan is not None:
+        raise HdNetError("--scan goes with --data, not with --dtm.")
+
+
+def _open_terrain(
+    run: DetectRun,
+    dtm: str | os.PathLike | None,
+    dataset: str | os.PathLike | None,
+    scan: int | None,
+    labels: str | None,
+    sigma_m: float,
+) -> tuple[_Terrain, Path | None, str]:
+    """Step 2: the terrain (a DTM, or one scan's noisy DEM at ``sigma_m`` metres), with the dataset and
+    labelling the threshold is calibrated on (the run's for a DTM, the scan's dataset's for a scan)."""
+    if dtm is not None:
+        return _DtmTerrain(Path(dtm), run), run.dataset, run.labels
+    if dataset is None or scan is None:  # excluded by _check_detect_options
+        raise HdNetError("give either a DTM (--dtm) or a dataset and a scan (--data with --scan).")
+    lab = labels if labels is not None else preferred_labeling(dataset, run.labels)
+    terrain = _ScanTerrain(Path(dataset), int(scan) if not isinstance(scan, bool) else scan, sigma_m, lab, run)
+    return terrain, Path(dataset), terrain.labels
+
+
+def _calibrated_threshold(
+    run: DetectRun,
+    spec: ThresholdSpec,
+    calib_dir: Path,
+    calib_labels: str,
+    mc_samples: int,
+    batch_size: int,
+    seed: int,
+    dev: torch.device,
+) -> tuple[float, dict[str, Any]]:
+    """Step 3: the entropy threshold (nats) calibrated on the validation split of ``calib_dir``, as ``hd eval`` does."""
+    val_ds = split_dataset(
+        calib_dir, "val", run.train_sigma_m, labels=calib_labels, input_spec=run.input_spec, seed=seed
+    )
+    th = validation_threshold(
+        run.model, val_ds, spec, mc_samples=mc_samples, batch_size=batch_size, seed=seed, device=dev
+    )
+    info = dict(th.info, calibration_dataset=str(Path(calib_dir).resolve()), calibration_labels=calib_labels)
+    return th.value_nats, info
+
+
+def _write_sites(tmp: Path, terrain: _Terrain, run: DetectRun, n_sites: int) -> list[Site]:
+    """Step 5: the ranked landing sites from the written maps, as ``sites.csv`` and ``sites.geojson``."""
+    with rasterio.open(tmp / "entropy.tif") as h_src, rasterio.open(tmp / "baseline_p_safe.tif") as b_src:
+        sites = select_sites(
+            _read_map(tmp / "safety.tif"),
+            _read_map(tmp / "p_safe.tif"),
+            _RasterWindows(h_src),
+            _RasterWindows(b_src),
+            terrain.transform,
+            terrain.spacing_xy_m,
+            run.lander,
+            n_sites,
+        )
+    (tmp / "sites.csv").write_text(_sites_csv(sites))
+    (tmp / "sites.geojson").write_text(json.dumps(_sites_geojson(sites, terrain.crs_wkt), indent=1) + "\n")
+    return sites
 
 
 def _read_map(path: Path) -> np.ndarray:
@@ -782,7 +813,7 @@ def _write_maps(
     dev: torch.device,
     progress: Callable[[int, int], None] | None,
 ) -> tuple[dict[str, int], dict[str, float]]:
-    """Step 3: every row of tiles through the network and the baseline, owned crops written to the four maps."""
+    """Step 4: every row of tiles through the network and the baseline, owned crops written to the four maps."""
     # The baseline, like the network, takes the cells as the run's: the grid is within 2 % of that
     # spacing, and the lander's sampling (pads on grid nodes in the paper convention) is then exactly
     # the one of the training labels.
@@ -806,7 +837,7 @@ def _write_maps(
             progress(0, plan.n_tiles)
         for (r_lo, r_hi), tiles in plan.strips():
             n_rows, n_cols = r_hi - r_lo, terrain.shape[1]
-            strip = {
+            strip: dict[str, np.ndarray] = {
                 "p": np.full((n_rows, n_cols), np.nan, np.float32),
                 "h": np.full((n_rows, n_cols), np.nan, np.float32),
                 "b": np.full((n_rows, n_cols), np.nan, np.float32),

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import matplotlib
 
@@ -24,7 +24,8 @@ if TYPE_CHECKING:
     from hdnet.detect import Site
     from hdnet.evaluate import EvaluationResult, SplitInference
 
-SAFETY_COLOURS = ListedColormap(["#c0392b", "#27ae60", "#9e9e9e", "#ffffff"])  # unsafe, safe, uncertain, invalid
+SAFETY_HEX = ("#c0392b", "#27ae60", "#9e9e9e", "#ffffff")  # unsafe, safe, uncertain, invalid
+SAFETY_COLOURS = ListedColormap(list(SAFETY_HEX))
 UNCERTAIN_CODE, INVALID_CODE = 2, 3
 DPI = 110
 
@@ -114,7 +115,7 @@ def qualitative_panel(inf: SplitInference, row: int, threshold_nats: float | Non
     label = inf.label[row]
     t = math.inf if threshold_nats is None else threshold_nats
     uncertain = inf.entropy_nats[row] >= t
-    panels = [
+    panels: list[tuple[str, np.ndarray, dict[str, Any]]] = [
         ("true DEM (m)", inf.dem_clean_m[row], {"cmap": "terrain"}),
         ("label", _safety_codes(label == defaults.CLASS_SAFE, label), {"cmap": SAFETY_COLOURS, "vmin": 0, "vmax": 3}),
         ("noisy DEM (m)", inf.dem_noisy_m[row], {"cmap": "terrain"}),
@@ -187,7 +188,7 @@ def detect_overview(
     filled = np.where(finite, z, np.nanmean(z) if finite.any() else 0.0)
     shade = LightSource(azdeg=315, altdeg=45).hillshade(filled, vert_exag=1.0, dx=cell_m, dy=cell_m)
     shade = np.where(finite, shade, np.nan)
-    colours = SAFETY_COLOURS.colors
+    colours = SAFETY_HEX
     rgba = np.zeros((*safety.shape, 4))
     for code, colour, alpha in ((0, colours[0], 0.45), (1, colours[1], 0.35), (2, colours[2], 0.6)):
         rgba[safety == code] = (*matplotlib.colors.to_rgb(colour), alpha)

@@ -206,9 +206,9 @@ def fit(
     check_augment(profile.augment, lander_of(entry))
     normalisation = compute_normalisation(dataset_dir, train_sigma_m, labels) if profile.heights == "minmax" else None
     spec = input_spec_for(profile, dem_spacing_m(entry), normalisation)
-    common = {"sigma_m": train_sigma_m, "labels": labels, "input_spec": spec}
-    train_ds = HazardDataset(dataset_dir, "train", augment=profile.augment, **common)  # type: ignore[arg-type]
-    val_ds = HazardDataset(dataset_dir, "val", **common)  # type: ignore[arg-type]
+    common: dict[str, Any] = {"sigma_m": train_sigma_m, "labels": labels, "input_spec": spec}
+    train_ds = HazardDataset(dataset_dir, "train", augment=profile.augment, **common)
+    val_ds = HazardDataset(dataset_dir, "val", **common)
     for name, ds in (("train", train_ds), ("val", val_ds)):
         if len(ds) == 0:
             raise HdNetError(f"{dataset_dir}: the {name} split is empty; build a dataset with more scans.")

@@ -273,7 +273,8 @@ def network_shape(
     if input_size is not None:
         return int(input_size), int(input_size)
     m = int(size_multiple)
-    return tuple(int(math.ceil(n / m) * m) for n in dem_shape)  # type: ignore[return-value]
+    rows, cols = dem_shape
+    return int(math.ceil(rows / m) * m), int(math.ceil(cols / m) * m)
 
 
 def to_network_grid(
@@ -304,7 +305,7 @@ def masks_to_network_grid(
     """Masks (h, w) to the network grid: nearest neighbour (``nearest-exact``) to ``input_size``, or
     padded on the bottom and right with ``pad_values`` (one per mask) to a multiple of ``size_multiple``."""
     out = []
-    for m, v in zip(masks, pad_values, strict=True):
+    for m, v in zip(masks, pad_values, strict=False):  # pad_values may name more masks than given
         h, w = m.shape[-2:]
         H, W = network_shape((h, w), input_size, size_multiple)
         if input_size is not None:

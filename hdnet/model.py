@@ -104,7 +104,7 @@ class PrefixState(NamedTuple):
     def repeat(self, times: int) -> PrefixState:
         """The same state tiled ``times`` along the batch: sample-major, (times*N, ...)."""
         rep = lambda t: t.repeat(times, *([1] * (t.dim() - 1)))  # noqa: E731
-        return PrefixState(rep(self.features), tuple(rep(i) for i in self.indices), self.sizes, self.input_hw)  # type: ignore[arg-type]
+        return PrefixState(rep(self.features), tuple(rep(i) for i in self.indices), self.sizes, self.input_hw)
 
 
 def _scaled(channels: int, width: float) -> int:
@@ -127,7 +127,7 @@ class BayesianSegNet(nn.Module):
 
     def __init__(self, config: ModelConfig | None = None, **kwargs: float) -> None:
         super().__init__()
-        self.config = config if config is not None else ModelConfig(**kwargs)  # type: ignore[arg-type]
+        self.config = config if config is not None else ModelConfig(**kwargs)  # type: ignore[arg-type]  # checked by ModelConfig
         cfg = self.config
         enc = [[_scaled(c, cfg.width) for c in block] for block in defaults.ENCODER_CHANNELS[: cfg.depth]]
         # Encoder: block k maps (previous block's last width) -> its channels.

@@ -18,6 +18,7 @@ replaces the paper's SGD (lr 1e-4, momentum 0.9), which needs the paper's 10^4 e
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from typing import Literal
 
@@ -173,10 +174,10 @@ def get_profile(name: str) -> TrainingProfile:
         raise HdNetError(f"unknown training profile {name!r}; choose one of {', '.join(PROFILES)}.") from None
 
 
-def profile_from_dict(data: dict[str, object]) -> TrainingProfile:
+def profile_from_dict(data: Mapping[str, object]) -> TrainingProfile:
     """Rebuild a profile saved with ``to_dict`` (e.g. from a checkpoint or config.json); fields a
     profile saved by an older hd lacks take their defaults (the paper's choices)."""
     try:
-        return TrainingProfile(**data)  # type: ignore[arg-type]
+        return TrainingProfile(**data)  # type: ignore[arg-type]  # saved fields, checked by TrainingProfile
     except TypeError as exc:
         raise HdNetError(f"saved training profile does not match TrainingProfile: {exc}.") from None

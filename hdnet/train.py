@@ -89,7 +89,7 @@ def _init_distributed() -> tuple[int, int, torch.device]:
 
 # --- RNG state as plain types ------------------------------------------------------------------
 def _rng_state() -> dict[str, Any]:
-    np_state = np.random.get_state()  # noqa: NPY002 - the global state, which a resumed run must restore
+    np_state: Any = np.random.get_state()  # noqa: NPY002 - the global state, which a resumed run must restore
     py_version, py_state, py_gauss = random.getstate()
     return {
         "torch": torch.get_rng_state(),
@@ -184,7 +184,7 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
             f"{path} has checkpoint schema version {ckpt.get('schema_version')}, this hdnet reads "
             f"{', '.join(map(str, READABLE_CHECKPOINT_VERSIONS))}."
         )
-    if ckpt.get("schema_version") >= 2:
+    if int(ckpt["schema_version"]) >= 2:
         recorded = ckpt.get(DIGEST_KEY)
         if not isinstance(recorded, str):
             raise HdNetError(f"{path} lacks its {DIGEST_KEY}; the checkpoint is damaged.")
@@ -313,7 +313,7 @@ def class_weights_from_counts(counts: list[int] | tuple[int, ...]) -> list[float
 def dataset_class_counts(ds: Dataset) -> list[int]:
     """Pixels of each class (0 unsafe, 1 safe) over the masks of a dataset (255 not counted)."""
     counts = torch.zeros(defaults.N_CLASSES, dtype=torch.int64)
-    for i in range(len(ds)):  # type: ignore[arg-type]
+    for i in range(len(ds)):  # type: ignore[arg-type]  # map-style datasets have a length
         mask = ds[i]["mask"]
         counts += torch.bincount(mask[mask != defaults.IGNORE_INDEX].flatten(), minlength=defaults.N_CLASSES)[
             : defaults.N_CLASSES
@@ -380,7 +380,7 @@ def train(
         raise HdNetError(f"epochs must be >= 1, got {total_epochs}.")
     if isinstance(num_workers, bool) or not isinstance(num_workers, int) or num_workers < 0:
         raise HdNetError(f"the number of DataLoader workers must be an integer >= 0, got {num_workers!r}.")
-    if len(train_ds) == 0 or len(val_ds) == 0:  # type: ignore[arg-type]
+    if len(train_ds) == 0 or len(val_ds) == 0:  # type: ignore[arg-type]  # map-style datasets have a length
         raise HdNetError("the training and validation datasets must not be empty.")
     extra = _json_plain(dict(extra_config or {}), "extra_config")
     in_channels = _check_sample(train_ds, "training")
@@ -413,7 +413,7 @@ def train(
     _seed_everything(seed + rank)
     model = BayesianSegNet(model_config).to(device)
     memory_format = torch.channels_last if profile.channels_last else torch.contiguous_format
-    model = model.to(memory_format=memory_format)
+    model = model.to(memory_format=memory_format)  # type: ignore[call-overload]  # the stubs omit memory_format
     if class_weights is not None and profile.class_weighting == "balanced":
         weight = torch.tensor(class_weights, dtype=torch.float32, device=device)
     optimizer = _make_optimizer(model, profile)
@@ -432,8 +432,10 @@ def train(
         net = nn.parallel.DistributedDataParallel(model, device_ids=[device.index] if device.type == "cuda" else None)
 
     per_rank_batch = max(1, profile.batch_size // world)
-    train_sampler = DistributedSampler(train_ds, num_replicas=world, rank=rank, shuffle=True, seed=seed)
-    val_sampler = DistributedSampler(val_ds, num_replicas=world, rank=rank, shuffle=False)
+    train_sampler: DistributedSampler[Any] = DistributedSampler(
+        train_ds, num_replicas=world, rank=rank, shuffle=True, seed=seed
+    )
+    val_sampler: DistributedSampler[Any] = DistributedSampler(val_ds, num_replicas=world, rank=rank, shuffle=False)
     pin = device.type == "cuda"
     train_loader = DataLoader(
         train_ds, batch_size=per_rank_batch, sampler=train_sampler, num_workers=num_workers, pin_memory=pin
@@ -454,7 +456,7 @@ def train(
         "hd_version": __version__,
         "torch_version": torch.__version__,
         "extra_config": extra,
-        "class_weights": None if weight is None else [float(w) for w in class_weights],  # type: ignore[union-attr]
+        "class_weights": None if weight is None else [float(w) for w in class_weights],  # type: ignore[union-attr]  # set with weight
     }
     if rank == 0:
         run_dir.mkdir(parents=True, exist_ok=True)

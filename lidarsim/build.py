@@ -611,7 +611,7 @@ def _build_locked(
             if progress:
                 progress(done, total)
     t_end = time.perf_counter()
-    manifest = {
+    manifest: dict[str, Any] = {
         "schema": MANIFEST_SCHEMA,
         "schema_version": MANIFEST_SCHEMA_VERSION,
         "kind": "lidar-scans",

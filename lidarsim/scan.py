@@ -135,7 +135,7 @@ class TileScene:
         self.n_triangles = int(triangles.shape[0])
         self.scene = o3d.t.geometry.RaycastingScene()
         if self.n_triangles:
-            self.scene.add_triangles(o3d.core.Tensor(vertices), o3d.core.Tensor(triangles))
+            self.scene.add_triangles(o3d.core.Tensor(vertices), o3d.core.Tensor(triangles))  # type: ignore[call-overload]  # stubs omit ndarray
 
     def mean_height(self, x: float, y: float, half_width_m: float) -> float:
         """Mean valid terrain height in the square of half-width ``half_width_m`` around (x, y), metres."""
@@ -161,7 +161,8 @@ class TileScene:
         rays[..., 3:] = directions
         if self.n_triangles == 0:
             return np.full((s, rows, cols), np.nan, dtype=np.float32)
-        hit = self.scene.cast_rays(o3d.core.Tensor(rays.reshape(-1, 6)), nthreads=n_threads)
+        rays_o3d = o3d.core.Tensor(rays.reshape(-1, 6))  # type: ignore[call-overload]  # stubs omit ndarray
+        hit = self.scene.cast_rays(rays_o3d, nthreads=n_threads)
         t = hit["t_hit"].numpy().reshape(s, rows, cols)
         return np.where(np.isfinite(t), t, np.float32(np.nan)).astype(np.float32, copy=False)
 

@@ -14,6 +14,7 @@ import os
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from types import TracebackType
 from typing import Any
 
 import h5py
@@ -198,7 +199,9 @@ class ScanShardWriter:
         """
         return self._image.commit()
 
-    def __exit__(self, exc_type, exc, tb) -> None:
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
         if exc_type is not None:
             self._image.discard()
 
@@ -512,7 +515,7 @@ def _terrain_problems(directory: Path, manifest: dict[str, Any]) -> list[str]:
     except StorageError as exc:
         return [str(exc)]
     if is_sha256(recorded) and digest != recorded:
-        return [f"{rel}: checksum mismatch (sha256 {digest[:12]}..., manifest says {recorded[:12]}...)"]
+        return [f"{rel}: checksum mismatch (sha256 {digest[:12]}..., manifest says {str(recorded)[:12]}...)"]
     return []
 
 

@@ -9,7 +9,7 @@ import pytest
 from alhat_reference import reference_maps
 from scipy.ndimage import gaussian_filter
 
-from hdlabels.alhat import hazard_maps
+from hdlabels.alhat import Backend, hazard_maps
 from hdlabels.defaults import LABEL_INVALID
 from hdlabels.lander import Lander
 
@@ -39,7 +39,7 @@ def reference_for(lander: Lander) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     ],
     ids=["default", "holes", "triangle", "strict"],
 )
-def test_fast_equals_loop_reference(backend: str, lander: Lander) -> None:
+def test_fast_equals_loop_reference(backend: Backend, lander: Lander) -> None:
     slope, rough, label = reference_for(lander)
     maps = hazard_maps(rough_terrain(3), 1.0, lander, backend=backend)
     assert np.array_equal(maps.label, label)

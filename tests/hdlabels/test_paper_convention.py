@@ -9,7 +9,7 @@ import pytest
 from paper_reference import reference
 from scipy.special import ndtr
 
-from hdlabels.alhat import hazard_and_probability, hazard_maps, safety_probability, valid_sites
+from hdlabels.alhat import Backend, hazard_and_probability, hazard_maps, safety_probability, valid_sites
 from hdlabels.defaults import LABEL_INVALID, LABEL_SAFE, LABEL_UNSAFE
 from hdlabels.errors import HdLabelsError
 from hdlabels.lander import Lander, geometry
@@ -82,7 +82,7 @@ def test_lander_too_small_for_the_grid_is_refused() -> None:
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
-def test_flat_plane_all_safe_and_probability_by_hand(backend: str) -> None:
+def test_flat_plane_all_safe_and_probability_by_hand(backend: Backend) -> None:
     dem = np.full((N, N), 12.5)
     maps, p = hazard_and_probability(dem, 1.0, 0.07, PAPER, backend=backend)
     valid = maps.valid
@@ -93,7 +93,7 @@ def test_flat_plane_all_safe_and_probability_by_hand(backend: str) -> None:
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
-def test_product_and_min_disagree_on_a_flat_noisy_plane(backend: str) -> None:
+def test_product_and_min_disagree_on_a_flat_noisy_plane(backend: Backend) -> None:
     dem = np.zeros((N, N))
     sigma = 0.1  # u = 2 at every node: Phi(2) = 0.97725 per node
     product = safety_probability(dem, 1.0, sigma, PAPER, backend=backend)
@@ -107,7 +107,7 @@ def test_product_and_min_disagree_on_a_flat_noisy_plane(backend: str) -> None:
 @pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize(("slope_deg", "expected"), [(5.0, LABEL_SAFE), (15.0, LABEL_UNSAFE)])
 @pytest.mark.parametrize("azimuth_deg", [0.0, 30.0, 77.0])
-def test_tilted_plane_slope_exact(backend: str, slope_deg: float, expected: int, azimuth_deg: float) -> None:
+def test_tilted_plane_slope_exact(backend: Backend, slope_deg: float, expected: int, azimuth_deg: float) -> None:
     maps = hazard_maps(plane(slope_deg, azimuth_deg), 1.0, PAPER, backend=backend)
     valid = maps.valid
     # Pads sit on nodes of the plane: every resting plane is the terrain plane itself.
@@ -121,7 +121,7 @@ def test_tilted_plane_slope_exact(backend: str, slope_deg: float, expected: int,
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
-def test_a_rock_counts_only_strictly_inside_the_pad_polygon(backend: str) -> None:
+def test_a_rock_counts_only_strictly_inside_the_pad_polygon(backend: Backend) -> None:
     dem = np.zeros((N, N))
     dem[15, 15] = 0.3  # a 0.3 m rock on one node
     paper = hazard_maps(dem, 1.0, PAPER, backend=backend)
@@ -141,7 +141,7 @@ def test_a_rock_counts_only_strictly_inside_the_pad_polygon(backend: str) -> Non
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
-def test_border_band_and_nan_cells_are_invalid(backend: str) -> None:
+def test_border_band_and_nan_cells_are_invalid(backend: Backend) -> None:
     dem = plane(2.0)
     dem[15, 15] = np.nan
     maps = hazard_maps(dem, 1.0, PAPER, backend=backend)
@@ -164,7 +164,7 @@ CASES = [
 
 @pytest.mark.parametrize("case", CASES, ids=lambda c: f"{c['layout']}-{c['combine']}")
 @pytest.mark.parametrize("backend", BACKENDS)
-def test_matches_the_literal_36_orientation_replica(case: dict, backend: str) -> None:
+def test_matches_the_literal_36_orientation_replica(case: dict, backend: Backend) -> None:
     rng = np.random.default_rng(21)
     n = 22
     dem = rng.normal(0.0, 0.06, (n, n)) + 0.02 * np.arange(n)[None, :]
@@ -184,7 +184,7 @@ def test_matches_the_literal_36_orientation_replica(case: dict, backend: str) ->
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
-def test_half_metre_grid_uses_pixel_disk_pads(backend: str) -> None:
+def test_half_metre_grid_uses_pixel_disk_pads(backend: Backend) -> None:
     rng = np.random.default_rng(3)
     n = 26  # 0.5 m: lander radius 10 px, pad radius 1 px (5-node pad disks), pad circle 9 px
     dem = rng.normal(0.0, 0.04, (n, n))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import pytest
@@ -45,8 +46,8 @@ def test_the_eight_elements_are_distinct_and_invertible() -> None:
 
 
 @pytest.mark.parametrize(("convention", "n_yaws"), [("paper", 8), ("hd", 8), ("hd", 3)])
-def test_square_lander_labels_are_invariant_under_d4(convention: str, n_yaws: int) -> None:
-    lander = Lander(diameter_m=6.0, pad_diameter_m=1.0, layout="square", n_yaws=n_yaws, convention=convention)  # type: ignore[arg-type]
+def test_square_lander_labels_are_invariant_under_d4(convention: Literal["paper", "hd"], n_yaws: int) -> None:
+    lander = Lander(diameter_m=6.0, pad_diameter_m=1.0, layout="square", n_yaws=n_yaws, convention=convention)
     dem = _terrain()
     label = hazard_maps(dem, 1.0, lander, backend="numpy").label
     assert {0, 1} <= set(np.unique(label).tolist())  # both classes present: the check can fail
@@ -57,12 +58,12 @@ def test_square_lander_labels_are_invariant_under_d4(convention: str, n_yaws: in
 
 
 @pytest.mark.parametrize("convention", ["paper", "hd"])
-def test_a_triangle_lander_is_not_invariant_and_is_refused(convention: str) -> None:
+def test_a_triangle_lander_is_not_invariant_and_is_refused(convention: Literal["paper", "hd"]) -> None:
     lander = Lander(
         diameter_m=6.0,
         pad_diameter_m=1.0,
         layout="triangle",
-        convention=convention,  # type: ignore[arg-type]
+        convention=convention,
         n_yaws=1 if convention == "hd" else 8,
     )
     dem = _terrain()

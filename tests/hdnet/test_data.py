@@ -75,6 +75,7 @@ def test_padded_sample_matches_the_label_shard(dataset):
     assert s["index"] == raw["scan"][0]
     assert (s["mask"][100:] == 255).all() and (s["mask"][:, 100:] == 255).all()
     np.testing.assert_array_equal(s["mask"][:100, :100].numpy(), raw["label"][0])  # no holes in this terrain
+    assert ds.normalisation is not None
     expected = ds.normalisation.apply(raw["noisy"][0])
     np.testing.assert_allclose(s["image"][0, :100, :100].numpy(), expected, rtol=0, atol=1e-6)
     # edge replication in the padding

@@ -387,6 +387,7 @@ def test_hirise_pds3_at_1_01_m_keeps_its_mars_crs(trained, tmp_path):
     spec = importlib.util.spec_from_file_location(
         "terrain_files", Path(__file__).parents[1] / "lidarsim" / "terrain_files.py"
     )
+    assert spec is not None and spec.loader is not None
     terrain_files = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(terrain_files)
     z = tilted_plane(60, 1.01, 2.0).astype(np.float32) - 2000.0
@@ -473,7 +474,7 @@ def reference_sites(safety, p, lander, n):
                 mean = float(np.mean(p[i - r : i + r + 1, j - r : j + r + 1].astype(np.float64)[disk]))
                 clearance = float(np.sqrt(((bad - (i, j)) ** 2).sum(axis=1)).min())
                 scored.append((-round(mean, 3), -clearance, i, j, mean, clearance))
-    chosen = []
+    chosen: list[tuple[float, float, int, int, float, float]] = []
     for item in sorted(scored):
         if all(math.dist(item[2:4], c[2:4]) >= lander.diameter_m for c in chosen):
             chosen.append(item)

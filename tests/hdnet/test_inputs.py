@@ -118,7 +118,7 @@ def test_spec_round_trips_through_json_and_checks_its_fields() -> None:
     with pytest.raises(HdNetError, match="extra channels"):
         InputSpec(heights="median", extra_channels=("curvature",))
     with pytest.raises(HdNetError, match="heights"):
-        InputSpec(heights="zscore")  # type: ignore[arg-type]
+        InputSpec(heights="zscore")  # type: ignore[arg-type]  # the point: refused
     with pytest.raises(HdNetError, match="height_scale_m"):
         InputSpec(heights="median", height_scale_m=0.0)
     with pytest.raises(HdNetError, match="schema version 2"):

@@ -1,6 +1,7 @@
 """Bayesian SegNet: parameter count, layout, forward/backward, odd sizes, prefix/suffix split."""
 
 import math
+from typing import Any
 
 import pytest
 import torch
@@ -94,7 +95,7 @@ def test_shallower_networks_keep_the_first_blocks_and_central_dropout(depth: int
 
 
 def test_configs_saved_before_depth_existed_load_five_blocks() -> None:
-    old = {"in_channels": 1, "n_classes": 2, "width": 1 / 16, "dropout_p": 0.5}
+    old: dict[str, Any] = {"in_channels": 1, "n_classes": 2, "width": 1 / 16, "dropout_p": 0.5}
     config = ModelConfig(**old)
     assert config.depth == 5 and config == ModelConfig(width=1 / 16)
     torch.manual_seed(0)

@@ -1,5 +1,7 @@
 """Training profiles: the paper's numbers, lookup and round trip."""
 
+from typing import Any
+
 import pytest
 
 from hdnet.errors import HdNetError
@@ -76,8 +78,9 @@ def test_invalid_fields_are_refused() -> None:
         ("extra_channels", ("curvature",)),
         ("batch_size", 0),
     ):
+        changed: dict[str, Any] = {field: value}
         with pytest.raises(HdNetError, match=field):
-            replace(CPU, **{field: value})
+            replace(CPU, **changed)
 
 
 def test_learning_rate_schedules_by_hand() -> None:

@@ -176,7 +176,7 @@ def test_scaled_windows_agree_with_the_full_scaled_grid(tilted_tif: Path) -> Non
 @pytest.mark.parametrize("scale", [0.0, -0.5, 1.5, math.nan, math.inf, "half"])
 def test_bad_scale_is_refused(flat_tif: Path, scale: object) -> None:
     with pytest.raises(TerrainError, match="scale"):
-        DTM.open(flat_tif, scale=scale)  # type: ignore[arg-type]
+        DTM.open(flat_tif, scale=scale)  # type: ignore[arg-type]  # the point: refused
 
 
 # ---------------------------------------------------------------------------- validity overview

@@ -8,7 +8,7 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -55,7 +55,7 @@ def hills(path: Path, n: int = 300, seed: int = 3, fill_rows: int = 0, fill: flo
     return path
 
 
-def invoke(*args: str) -> Result:
+def invoke(*args: str | os.PathLike[str]) -> Result:
     """Run ``hd ARGS`` in this process."""
     return CliRunner().invoke(main, [str(a) for a in args])
 
@@ -86,7 +86,9 @@ def partials(root: Path) -> list[Path]:
 
 
 # ---------------------------------------------------------------------------------------- processes
-def hd_process(args: list[str], env: dict[str, str] | None = None, cwd: Path | None = None) -> subprocess.Popen:
+def hd_process(
+    args: Sequence[str | os.PathLike[str]], env: dict[str, str] | None = None, cwd: Path | None = None
+) -> subprocess.Popen:
     """Start ``hd ARGS`` as a separate process (own session) with the fault injector loaded."""
     full_env = {
         **os.environ,

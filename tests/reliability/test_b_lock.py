@@ -108,7 +108,7 @@ def test_the_lock_dies_with_its_holder(tmp_path):
     holder = subprocess.Popen(
         [sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(REPO)}
     )
-    assert holder.stdout.readline().strip() == "held"
+    assert holder.stdout is not None and holder.stdout.readline().strip() == "held"
     with pytest.raises(Exception, match=f"PID {holder.pid}"):
         WriterLock(d).acquire()
     holder.send_signal(signal.SIGKILL)

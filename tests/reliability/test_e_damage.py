@@ -400,7 +400,8 @@ def test_a_dtm_changed_during_an_interrupted_build_is_not_mixed_in(tmp_path, mon
 
     dtm = hills(tmp_path / "dtm.tif")
     out = tmp_path / "data"
-    real, calls = build.run_shard, []
+    real = build.run_shard
+    calls: list[object] = []
 
     def stop_after_two(task):
         if len(calls) == 2:

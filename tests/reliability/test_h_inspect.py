@@ -39,7 +39,7 @@ def test_a_damaged_dataset_is_not_summarised_as_normal(data_copy, damage):
 
 def test_an_unfinished_build_is_named_as_such(tmp_path, dtm, monkeypatch):
     out = tmp_path / "data"
-    calls = []
+    calls: list[object] = []
     import lidarsim.build as build
 
     real = build.run_shard

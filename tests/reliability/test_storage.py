@@ -199,6 +199,7 @@ def test_a_worker_dies_with_its_parent(tmp_path, prctl):
     """)
     (tmp_path / "parent.py").write_text(script)
     parent = subprocess.Popen([sys.executable, str(tmp_path / "parent.py")], stdout=subprocess.PIPE, text=True)
+    assert parent.stdout is not None
     child = int(parent.stdout.readline())
     time.sleep(1.0)  # the child has called die_with_parent
     with open(f"/proc/{child}/stat", "rb") as fh:
