@@ -504,8 +504,64 @@ def build_dataset(
     if scheduler is not None:
         probe_scheduler(scheduler)
     prepare_output(out_dir, config, overwrite)
+    terrain = _open_terrain(out_dir, config)
+    # Input is valid: from here on the output directory is written, by this process alone.
+    top = first_missing(out_dir)
+    created = top is not None
+    make_dirs(out_dir)
+    try:
+        lock = WriterLock(out_dir, "dataset").acquire()
+    except BaseException:
+        remove_empty_dirs(out_dir, top)
+        raise
+    finished = False
+    try:
+        resume = prepare_output(out_dir, config, overwrite)  # again, now that no other writer can run
+        # The build's settings first: from here on, a kill leaves a build the same command resumes.
+        write_json_atomic(
+            out_dir / BUILD_STATE_NAME,
+            {
+                "config_sha256": config.fingerprint(),
+                "dtm_sha256": terrain.attrs["dtm_sha256"],
+                "config": config.to_dict(),
+            },
+        )
+        if overwrite:
+            clear_output(out_dir, keep_state=True)
+        if terrain.data is not None:
+            make_subdir(out_dir, TERRAIN_DIR)
+            if not (terrain.path.is_file() and sha256_file(terrain.path) == terrain.attrs["dtm_sha256"]):
+                write_bytes_atomic(terrain.path, terrain.data)
+            terrain.data = None
+        make_subdir(out_dir, SHARD_DIR)
+        summary = _build_locked(out_dir, config, resume, terrain, workers, scheduler, progress, t_start)
+        finished = True
+        return summary
+    finally:
+        if not finished:
+            _clean_after_failure(out_dir, created)
+        lock.release()
+        if not finished:
+            remove_empty_dirs(out_dir, top)
+
+
+@dataclass
+class _BuildTerrain:
+    """The terrain of a build: its path, the procedural terrain's GeoTIFF bytes (None for a user's
+    DTM), the scan plan over it, the shards' ``dtm_*`` attributes and the manifest's provenance."""
+
+    path: Path
+    data: bytes | None
+    plan: ScanPlan
+    attrs: dict[str, Any]
+    provenance: dict[str, Any]
+
+
+def _open_terrain(out_dir: Path, config: BuildConfig) -> _BuildTerrain:
+    """Step 1: the terrain read (a user's DTM) or generated in memory (the procedural terrain, also
+    on resume: a damaged terrain file is rewritten), checked and planned; nothing is written."""
     terrain_bytes: bytes | None = None
-    if config.dtm_path is None:  # generated in memory, also on resume (a damaged terrain file is rewritten)
+    if config.dtm_path is None:
         dtm_path = out_dir / TERRAIN_DIR / procedural_terrain_name(config.seed)
         terrain_bytes = _procedural_terrain_bytes(config, dtm_path)
     else:
@@ -522,52 +578,14 @@ def build_dataset(
         dtm_attrs = {f"dtm_{k}": v for k, v in dtm.info.to_attrs().items()}
         dtm_attrs["dtm_sha256"] = dtm.sha256()
         dtm_provenance = {**dtm.info.to_attrs(), "sha256": dtm_attrs["dtm_sha256"]}
-    # Input is valid: from here on the output directory is written, by this process alone.
-    top = first_missing(out_dir)
-    created = top is not None
-    make_dirs(out_dir)
-    try:
-        lock = WriterLock(out_dir, "dataset").acquire()
-    except BaseException:
-        remove_empty_dirs(out_dir, top)
-        raise
-    finished = False
-    try:
-        resume = prepare_output(out_dir, config, overwrite)  # again, now that no other writer can run
-        # The build's settings first: from here on, a kill leaves a build the same command resumes.
-        write_json_atomic(
-            out_dir / BUILD_STATE_NAME,
-            {"config_sha256": config.fingerprint(), "dtm_sha256": dtm_attrs["dtm_sha256"], "config": config.to_dict()},
-        )
-        if overwrite:
-            clear_output(out_dir, keep_state=True)
-        if terrain_bytes is not None:
-            make_subdir(out_dir, TERRAIN_DIR)
-            if not (dtm_path.is_file() and sha256_file(dtm_path) == dtm_attrs["dtm_sha256"]):
-                write_bytes_atomic(dtm_path, terrain_bytes)
-            del terrain_bytes
-        make_subdir(out_dir, SHARD_DIR)
-        summary = _build_locked(
-            out_dir, config, resume, dtm_path, dtm_attrs, dtm_provenance, plan, workers, scheduler, progress, t_start
-        )
-        finished = True
-        return summary
-    finally:
-        if not finished:
-            _clean_after_failure(out_dir, created)
-        lock.release()
-        if not finished:
-            remove_empty_dirs(out_dir, top)
+    return _BuildTerrain(dtm_path, terrain_bytes, plan, dtm_attrs, dtm_provenance)
 
 
 def _build_locked(
     out_dir: Path,
     config: BuildConfig,
     resume: bool,
-    dtm_path: Path,
-    dtm_attrs: dict[str, Any],
-    dtm_provenance: dict[str, Any],
-    plan: ScanPlan,
+    terrain: _BuildTerrain,
     workers: int | None,
     scheduler: str | None,
     progress: Callable[[int, int], None] | None,
@@ -577,66 +595,22 @@ def _build_locked(
     fingerprint = config.fingerprint()
     remove_partials(out_dir / SHARD_DIR)
     splits = assign_splits(config.trajectory.n_scans, config.seed)
-    file_attrs = {
-        "seed": config.seed,
-        "config_json": json.dumps(config.to_dict(), sort_keys=True),
-        "config_sha256": fingerprint,
-        "frame": (
-            "scan frame: origin at the nadir point on the reference height (origin_map); x east, y north, z up; metres"
-        ),
-        **config.sensor.to_attrs(),
-        **config.trajectory.to_attrs(),
-        **dtm_attrs,
-        "dtm_path": dtm_path.name,
-    }
     n_workers = max(1, workers if workers is not None else (os.cpu_count() or 1))
-    tasks = _make_tasks(out_dir, plan, splits, str(dtm_path), config, file_attrs, n_workers)
-    records: dict[int, ShardRecord] = {}
-    pending: list[ShardTask] = []
-    for task in tasks:
-        existing_record = _check_existing_shard(task, fingerprint) if resume else None
-        if existing_record is not None:
-            records[task.shard_index] = existing_record
-        else:
-            pending.append(task)
-    total = config.trajectory.n_scans
-    done = sum(r.n_scans for r in records.values())
-    if progress:
-        progress(done, total)
+    tasks = _make_tasks(
+        out_dir, terrain.plan, splits, str(terrain.path), config, _file_attrs(config, terrain), n_workers
+    )
+    records, pending = _finished_shards(tasks, fingerprint, resume)
     t_work = time.perf_counter()
-    with contextlib.closing(run_tasks(run_shard, pending, n_workers, scheduler)) as results:
-        for position, record in results:
-            records[pending[position].shard_index] = record
-            done += record.n_scans
-            if progress:
-                progress(done, total)
+    _run_shards(pending, records, config.trajectory.n_scans, n_workers, scheduler, progress)
     t_end = time.perf_counter()
-    manifest: dict[str, Any] = {
-        "schema": MANIFEST_SCHEMA,
-        "schema_version": MANIFEST_SCHEMA_VERSION,
-        "kind": "lidar-scans",
-        "software": "hd",
-        "software_version": __version__,
-        "n_scans": total,
-        "sigmas_m": list(config.sigmas_m),
-        "seed": config.seed,
-        "config_sha256": fingerprint,
-        "config": config.to_dict(),
-        "dtm": dtm_provenance
-        | {"path": os.path.relpath(dtm_path, out_dir) if dtm_path.is_relative_to(out_dir) else str(dtm_path)},
-        "trajectory": {"step_m": plan.step_m, "footprint_half_width_m": plan.half_width_m},
-        "splits": {name: int((splits == i).sum()) for i, name in enumerate(SPLIT_NAMES)},
-        "shards": [records[i].to_dict() for i in sorted(records)],
-        "labelings": [],
-    }
-    write_json_atomic(out_dir / MANIFEST_NAME, manifest)
+    manifest = _write_manifest(out_dir, config, terrain, splits, records)
     (out_dir / BUILD_STATE_NAME).unlink(missing_ok=True)
     new_scans = sum(t.nadir_xy.shape[0] for t in pending)
     rays = new_scans * config.sensor.rows * config.sensor.cols
     size = sum((out_dir / r.path).stat().st_size for r in records.values())
     return BuildSummary(
         out_dir=out_dir,
-        n_scans=total,
+        n_scans=config.trajectory.n_scans,
         n_shards=len(records),
         sigmas_m=config.sigmas_m,
         split_counts=manifest["splits"],
@@ -645,6 +619,84 @@ def _build_locked(
         bytes_written=size,
         rays_per_second=rays / max(t_end - t_work, 1e-9),
     )
+
+
+def _file_attrs(config: BuildConfig, terrain: _BuildTerrain) -> dict[str, Any]:
+    """Step 2: the root attributes of every scan shard (settings, sensor, trajectory, terrain)."""
+    return {
+        "seed": config.seed,
+        "config_json": json.dumps(config.to_dict(), sort_keys=True),
+        "config_sha256": config.fingerprint(),
+        "frame": (
+            "scan frame: origin at the nadir point on the reference height (origin_map); x east, y north, z up; metres"
+        ),
+        **config.sensor.to_attrs(),
+        **config.trajectory.to_attrs(),
+        **terrain.attrs,
+        "dtm_path": terrain.path.name,
+    }
+
+
+def _finished_shards(
+    tasks: list[ShardTask], fingerprint: str, resume: bool
+) -> tuple[dict[int, ShardRecord], list[ShardTask]]:
+    """Step 3: the shards a resumed build already holds intact (by shard index), and the tasks left."""
+    records: dict[int, ShardRecord] = {}
+    pending: list[ShardTask] = []
+    for task in tasks:
+        existing_record = _check_existing_shard(task, fingerprint) if resume else None
+        if existing_record is not None:
+            records[task.shard_index] = existing_record
+        else:
+            pending.append(task)
+    return records, pending
+
+
+def _run_shards(
+    pending: list[ShardTask],
+    records: dict[int, ShardRecord],
+    total: int,
+    n_workers: int,
+    scheduler: str | None,
+    progress: Callable[[int, int], None] | None,
+) -> None:
+    """Step 4: the pending shards simulated and written by the workers; ``records`` completed as they finish."""
+    done = sum(r.n_scans for r in records.values())
+    if progress:
+        progress(done, total)
+    with contextlib.closing(run_tasks(run_shard, pending, n_workers, scheduler)) as results:
+        for position, record in results:
+            records[pending[position].shard_index] = record
+            done += record.n_scans
+            if progress:
+                progress(done, total)
+
+
+def _write_manifest(
+    out_dir: Path, config: BuildConfig, terrain: _BuildTerrain, splits: np.ndarray, records: dict[int, ShardRecord]
+) -> dict[str, Any]:
+    """Step 5: ``manifest.json``, written last: the dataset is complete once it exists."""
+    dtm_path = terrain.path
+    manifest: dict[str, Any] = {
+        "schema": MANIFEST_SCHEMA,
+        "schema_version": MANIFEST_SCHEMA_VERSION,
+        "kind": "lidar-scans",
+        "software": "hd",
+        "software_version": __version__,
+        "n_scans": config.trajectory.n_scans,
+        "sigmas_m": list(config.sigmas_m),
+        "seed": config.seed,
+        "config_sha256": config.fingerprint(),
+        "config": config.to_dict(),
+        "dtm": terrain.provenance
+        | {"path": os.path.relpath(dtm_path, out_dir) if dtm_path.is_relative_to(out_dir) else str(dtm_path)},
+        "trajectory": {"step_m": terrain.plan.step_m, "footprint_half_width_m": terrain.plan.half_width_m},
+        "splits": {name: int((splits == i).sum()) for i, name in enumerate(SPLIT_NAMES)},
+        "shards": [records[i].to_dict() for i in sorted(records)],
+        "labelings": [],
+    }
+    write_json_atomic(out_dir / MANIFEST_NAME, manifest)
+    return manifest
 
 
 def _make_tasks(
