@@ -691,15 +691,13 @@ def train_cmd(
 ) -> None:
     """Train the Bayesian SegNet on the noisy DEMs of a labelled dataset."""
     from hdnet.errors import HdNetError
-    from hdnet.fit import fit
+    from hdnet.fit import FitConfig, fit
     from hdnet.pipeline import training_done_message
 
     if resume and overwrite:
         raise HdNetError("--resume and --overwrite exclude each other")
-    checkpoint = fit(
-        dataset,
-        run_dir,
-        profile_name=profile,
+    config = FitConfig(
+        profile=profile,
         epochs=epochs,
         train_sigma_m=train_sigma,
         seed=seed,
@@ -709,6 +707,7 @@ def train_cmd(
         num_workers=num_workers,
         overwrite=overwrite,
     )
+    checkpoint = fit(dataset, run_dir, config)
     click.echo(training_done_message(checkpoint, run_dir))
 
 
@@ -747,21 +746,18 @@ def eval_cmd(
     overwrite: bool = False,
 ) -> None:
     """Evaluate a trained run: the paper's tables, threshold sweep, calibration and figures."""
-    from hdnet.evaluate import evaluate
-    from hdnet.pipeline import report_written_message
+    from hdnet.evaluate import EvalConfig
+    from hdnet.pipeline import evaluate_to_report, report_written_message
 
-    result = evaluate(
-        run_dir,
-        dataset,
-        out_dir,
+    config = EvalConfig(
         mc_samples=mc_samples,
         drop_pixels=drop_pixels,
         threshold=threshold,
         labels=labeling,
         seed=seed,
         batch_size=batch_size,
-        overwrite=overwrite,
     )
+    result = evaluate_to_report(run_dir, dataset, out_dir, config, overwrite=overwrite)
     click.echo(result.summary())
     click.echo(report_written_message(out_dir))
 

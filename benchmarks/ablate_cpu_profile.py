@@ -42,7 +42,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from hdnet import defaults
 from hdnet.data import HazardDataset, dem_spacing_m, open_labeling
 from hdnet.evaluate import validation_summary
-from hdnet.fit import fit, input_spec_for
+from hdnet.fit import FitConfig, fit, input_spec_for
 from hdnet.inputs import Normalisation
 from hdnet.model import BayesianSegNet, ModelConfig
 from hdnet.profiles import CPU, TrainingProfile
@@ -121,7 +121,7 @@ def _parts(name: str) -> list[str]:
 def train_and_score(dataset: Path, out: Path, name: str, epochs: int, labels: str | None) -> dict[str, Any]:
     run = out / "runs" / name
     profile = profile_of(name, epochs)
-    last = fit(dataset, run, profile_name=profile, epochs=epochs, resume=True, labels=labels, progress=False)
+    last = fit(dataset, run, FitConfig(profile=profile, epochs=epochs, resume=True, labels=labels, progress=False))
     ckpt = load_checkpoint(last)
     timing = ckpt.get("timing", [])
     summary = validation_summary(run, dataset, labels=labels, other_sigmas_m=OTHER_SIGMAS_M)

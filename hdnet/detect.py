@@ -79,6 +79,7 @@ from hdnet.inputs import InputSpec, to_dem_grid
 from hdnet.inputs import network_input as prepare_input
 from hdnet.model import BayesianSegNet
 from hdnet.report import json_plain
+from hdnet.results import SITE_COLUMNS, Site
 from hdnet.thresholds import ThresholdSpec, parse_threshold_spec, uncertain_mask
 from hdnet.tiling import TilePlan
 from hdnet.train import load_trained_model
@@ -91,7 +92,6 @@ from lidarsim.terrain import DTM
 SAFETY_UNSAFE, SAFETY_SAFE, SAFETY_UNCERTAIN, SAFETY_INVALID = 0, 1, 2, 255
 MAP_FILES = ("p_safe.tif", "entropy.tif", "safety.tif", "baseline_p_safe.tif")
 OUTPUT_FILES = (*MAP_FILES, "sites.csv", "sites.geojson", "overview.png", "detect.json")
-SITE_COLUMNS = ("rank", "x", "y", "p_safe", "entropy_max", "clearance_m", "baseline_p_safe")
 BASELINE_THRESHOLD = 0.5  # paper, "Label generation": the baseline is safe where P(safe) >= 50 %
 # hd choice: a DTM may be up to 2 % coarser than the run's DEM spacing (HiRISE "1 m" products are
 # 1.01 m); it is then read at full resolution. Anything coarser would have to invent detail.
@@ -449,25 +449,6 @@ def _staging(out: Path) -> Iterator[Path]:
 
 
 # --- sites -----------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class Site:
-    """A proposed landing site: rank (1 = best), map position of its cell centre (metres, input CRS),
-    footprint-mean P(safe), footprint-max entropy (nats), clearance (metres) and baseline P(safe)."""
-
-    rank: int
-    x: float
-    y: float
-    p_safe: float
-    entropy_max: float
-    clearance_m: float
-    baseline_p_safe: float
-    row: int
-    col: int
-
-    def columns(self) -> dict[str, float | int]:
-        return {k: getattr(self, k) for k in SITE_COLUMNS}
-
-
 def body_disk(lander: Lander, spacing_m: float) -> np.ndarray:
     """(2k+1, 2k+1) bool: the cells whose centres lie under the lander body (a disk of the lander's
     diameter) when it is centred on the middle cell; ``spacing_m`` in metres per cell."""

@@ -1,7 +1,7 @@
 """PNG figures (matplotlib, Agg): an evaluation's reliability, threshold sweep and qualitative panels,
 and a detection's overview.
 
-Every evaluation figure takes an ``EvaluationResult`` (``hdnet.evaluate``) and a file path, draws one
+Every evaluation figure takes an ``EvaluationResult`` (``hdnet.results``) and a file path, draws one
 figure and closes it. Colours of safety maps: unsafe red, safe green, uncertain grey, invalid white.
 """
 
@@ -21,8 +21,7 @@ from matplotlib.colors import ListedColormap
 from hdnet import defaults
 
 if TYPE_CHECKING:
-    from hdnet.detect import Site
-    from hdnet.evaluate import EvaluationResult, SplitInference
+    from hdnet.results import EvaluationResult, Site, SplitInference
 
 SAFETY_HEX = ("#c0392b", "#27ae60", "#9e9e9e", "#ffffff")  # unsafe, safe, uncertain, invalid
 SAFETY_COLOURS = ListedColormap(list(SAFETY_HEX))

@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -170,38 +171,58 @@ def run_dir_lock(run_dir: Path) -> Any:
         lock.release()
 
 
-def fit(
-    dataset_dir: str | os.PathLike,
-    run_dir: str | os.PathLike,
-    profile_name: str | TrainingProfile = "cpu",
-    epochs: int | None = None,
-    train_sigma_m: float = defaults.TRAIN_SIGMA_M,
-    seed: int = 0,
-    resume: bool = False,
-    labels: str | None = None,
-    progress: bool = True,
-    num_workers: int = 0,
-    overwrite: bool = False,
-    stop_after: int | None = None,
-) -> Path:
-    """Train a model on ``dataset_dir`` at noise level ``train_sigma_m`` (metres); returns ``last.pt``.
+@dataclass(frozen=True)
+class FitConfig:
+    """How ``fit`` trains (the options of ``hd train``).
 
-    ``profile_name`` is a profile's name or a ``TrainingProfile`` (e.g. a variant in an ablation);
-    ``overwrite``: write into a non-empty directory that is not an hd run, or start an existing run
-    again (its checkpoints, metrics.csv and config.json are replaced); ``stop_after`` ends this call
-    after that many epochs of the ``epochs``-long schedule (resume later).
+    ``profile``: a profile's name or a ``TrainingProfile`` (e.g. a variant in an ablation);
+    ``epochs``: the schedule's length (None: the profile's); ``train_sigma_m``: the noise level of
+    the training inputs, metres; ``seed``: initialisation and shuffling; ``resume``: continue the
+    run's ``last.pt``; ``labels``: the labelling to train on (None: the dataset's only or newest);
+    ``progress``: progress bars; ``num_workers``: DataLoader worker processes; ``overwrite``: write
+    into a non-empty directory that is not an hd run, or start an existing run again (its
+    checkpoints, metrics.csv and config.json are replaced); ``stop_after``: end this call after
+    that many epochs of the ``epochs``-long schedule (resume later).
+
+    Raises:
+        HdNetError: a negative seed or number of workers (checked here, before any file is looked at).
+    """
+
+    profile: str | TrainingProfile = "cpu"
+    epochs: int | None = None
+    train_sigma_m: float = defaults.TRAIN_SIGMA_M
+    seed: int = 0
+    resume: bool = False
+    labels: str | None = None
+    progress: bool = True
+    num_workers: int = 0
+    overwrite: bool = False
+    stop_after: int | None = None
+
+    def __post_init__(self) -> None:
+        workers = self.num_workers
+        if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
+            raise HdNetError(f"--num-workers must be an integer >= 0, got {workers!r}.")
+        if self.seed < 0:
+            raise HdNetError(f"--seed must be >= 0, got {self.seed}.")
+
+    def training_profile(self) -> TrainingProfile:
+        """The profile itself (a name is looked up in ``hdnet.profiles``)."""
+        return self.profile if isinstance(self.profile, TrainingProfile) else get_profile(self.profile)
+
+
+def fit(dataset_dir: str | os.PathLike, run_dir: str | os.PathLike, config: FitConfig | None = None) -> Path:
+    """Train a model on ``dataset_dir`` as ``config`` says (default: ``FitConfig()``); returns ``last.pt``.
 
     Raises:
         HdNetError: a bad run directory (see ``prepare_run_dir``), a dataset without labels, a sigma
             not in the dataset, an empty training or validation split, an unknown profile, or
             anything ``hdnet.train.train`` refuses.
     """
-    if isinstance(num_workers, bool) or not isinstance(num_workers, int) or num_workers < 0:
-        raise HdNetError(f"--num-workers must be an integer >= 0, got {num_workers!r}.")
-    if seed < 0:
-        raise HdNetError(f"--seed must be >= 0, got {seed}.")
+    cfg = config if config is not None else FitConfig()
+    resume, overwrite, labels, train_sigma_m = cfg.resume, cfg.overwrite, cfg.labels, cfg.train_sigma_m
     run_path, _ = prepare_run_dir(run_dir, resume, overwrite)
-    profile = profile_name if isinstance(profile_name, TrainingProfile) else get_profile(profile_name)
+    profile = cfg.training_profile()
     entry, _ = open_labeling(dataset_dir, labels)  # the clear "no labels" error first
     check_augment(profile.augment, lander_of(entry))
     normalisation = compute_normalisation(dataset_dir, train_sigma_m, labels) if profile.heights == "minmax" else None
@@ -228,13 +249,13 @@ def fit(
                 train_ds,
                 val_ds,
                 profile,
-                epochs=epochs,
-                seed=seed,
+                epochs=cfg.epochs,
+                seed=cfg.seed,
                 resume=resume and not replace,
-                progress=progress,
+                progress=cfg.progress,
                 extra_config=extra,
-                num_workers=num_workers,
-                stop_after=stop_after,
+                num_workers=cfg.num_workers,
+                stop_after=cfg.stop_after,
             )
     finally:
         remove_empty_dirs(run_path, top)

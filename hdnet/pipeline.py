@@ -19,11 +19,12 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import json
+import os
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from hdlabels import defaults as label_defaults
 from hdlabels.settings import LabelSettings
@@ -31,6 +32,10 @@ from hdnet import defaults as net_defaults
 from lidarsim import defaults as lidar_defaults
 from lidarsim.build import BuildConfig
 from lidarsim.errors import LidarsimError
+
+if TYPE_CHECKING:
+    from hdnet.evaluate import EvalConfig
+    from hdnet.results import EvaluationResult
 
 # hd choice: the risk level of the risk-controlled threshold `hd reproduce` adds to the paper's
 # mean-entropy threshold (docs/evaluation.md, "risk:ALPHA").
@@ -299,39 +304,64 @@ def _inspect(directory: Path, echo: Echo) -> None:
 
 
 def _train(pipeline: Pipeline, echo: Echo) -> None:
-    from hdnet.fit import fit
+    from hdnet.fit import FitConfig, fit
 
-    checkpoint = fit(
-        pipeline.dataset_dir,
-        pipeline.run_dir,
-        profile_name=pipeline.profile,
+    config = FitConfig(
+        profile=pipeline.profile,
         epochs=pipeline.epochs,
         train_sigma_m=pipeline.train_sigma_m,
         seed=pipeline.seed,
         resume=True,
         progress=True,
     )
+    checkpoint = fit(pipeline.dataset_dir, pipeline.run_dir, config)
     echo(training_done_message(checkpoint, pipeline.run_dir))
 
 
 def _evaluate_unless_done(pipeline: Pipeline, evaluation: Evaluation, echo: Echo) -> None:
-    from hdnet.evaluate import evaluate
+    from hdnet.evaluate import EvalConfig
 
     report = pipeline.out_dir / evaluation.directory
     if (report / "report.json").exists():
         echo(f"report {report} already written")
         return
-    result = evaluate(
-        pipeline.run_dir,
-        pipeline.dataset_dir,
-        report,
+    config = EvalConfig(
         mc_samples=pipeline.mc_samples,
         drop_pixels=evaluation.drop_pixels,
         threshold=evaluation.threshold,
         seed=pipeline.seed,
     )
+    result = evaluate_to_report(pipeline.run_dir, pipeline.dataset_dir, report, config)
     echo(result.summary())
     echo(report_written_message(report))
+
+
+def evaluate_to_report(
+    run_dir: str | os.PathLike,
+    dataset_dir: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    config: EvalConfig | None = None,
+    *,
+    figures: bool = True,
+    overwrite: bool = False,
+) -> EvaluationResult:
+    """``hd eval``: the report directory checked, the run evaluated, the report written; returns the result.
+
+    ``out_dir`` is checked before the evaluation runs (a bad or occupied directory fails at once);
+    an existing report, or a non-empty directory that is not a report, is replaced only with
+    ``overwrite``. The report is ``report.json``, ``report.md`` and, with ``figures``, the PNGs.
+
+    Raises:
+        HdNetError: see ``hdnet.report.check_report_dir``, ``hdnet.evaluate.evaluate`` and
+            ``hdnet.report.write_report``.
+    """
+    from hdnet.evaluate import evaluate
+    from hdnet.report import check_report_dir, write_report
+
+    check_report_dir(out_dir, overwrite)  # before the evaluation runs
+    result = evaluate(run_dir, dataset_dir, config)
+    write_report(result, Path(out_dir), figures=figures, overwrite=overwrite)
+    return result
 
 
 @contextlib.contextmanager

@@ -42,7 +42,7 @@ from lidarsim.storage import (
 )
 
 if TYPE_CHECKING:
-    from hdnet.evaluate import EvaluationResult, ReportRow
+    from hdnet.results import EvaluationResult, ReportRow
 
 ROW_KEYS = (
     "table",

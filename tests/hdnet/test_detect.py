@@ -46,8 +46,8 @@ from hdnet.detect import (
     select_sites,
 )
 from hdnet.errors import HdNetError
-from hdnet.evaluate import evaluate
-from hdnet.fit import fit
+from hdnet.evaluate import EvalConfig, evaluate
+from hdnet.fit import FitConfig, fit
 from hdnet.infer import mc_dropout_predict
 from hdnet.train import save_checkpoint
 from lidarsim.errors import TerrainError
@@ -64,7 +64,7 @@ def trained(tmp_path_factory):
     root = tmp_path_factory.mktemp("detect")
     dataset = build_labelled(root / "data")
     run = root / "run"
-    fit(dataset, run, profile_name="tiny", epochs=1, progress=False)
+    fit(dataset, run, FitConfig(profile="tiny", epochs=1, progress=False))
     ckpt = torch.load(run / "last.pt", weights_only=True)
     ckpt["model"]["classifier.weight"].zero_()
     ckpt["model"]["classifier.bias"] = torch.tensor([-3.0, 3.0])  # P(safe) = sigmoid(6) everywhere
@@ -249,16 +249,7 @@ def test_scan_mode_is_the_evaluation_path(trained, tmp_path):
 
 def test_threshold_is_calibrated_as_hd_eval_does(trained, tmp_path):
     dataset, run_dir, _ = trained
-    report = evaluate(
-        run_dir,
-        dataset,
-        tmp_path / "report",
-        mc_samples=3,
-        threshold="quantile:0.3",
-        seed=5,
-        batch_size=8,
-        figures=False,
-    )
+    report = evaluate(run_dir, dataset, EvalConfig(mc_samples=3, threshold="quantile:0.3", seed=5, batch_size=8))
     dtm = write_dtm(tmp_path / "hill.tif", tilted_plane(40, 1.0, 3.0), 1.0)
     result = detect(run_dir, tmp_path / "out", dtm=dtm, mc_samples=3, threshold="quantile:0.3", seed=5)
     info = json.loads((tmp_path / "out" / "detect.json").read_text())["threshold"]
