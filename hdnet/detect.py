@@ -54,6 +54,7 @@ from rasterio.transform import Affine
 from rasterio.windows import Window
 from scipy import ndimage
 
+from hdlabels import defaults as label_defaults
 from hdlabels.alhat import safety_probability
 from hdlabels.lander import Lander, geometry
 from hdlabels.store import find_labeling
@@ -92,7 +93,8 @@ from lidarsim.terrain import DTM
 SAFETY_UNSAFE, SAFETY_SAFE, SAFETY_UNCERTAIN, SAFETY_INVALID = 0, 1, 2, 255
 MAP_FILES = ("p_safe.tif", "entropy.tif", "safety.tif", "baseline_p_safe.tif")
 OUTPUT_FILES = (*MAP_FILES, "sites.csv", "sites.geojson", "overview.png", "detect.json")
-BASELINE_THRESHOLD = 0.5  # paper, "Label generation": the baseline is safe where P(safe) >= 50 %
+# The ALHAT baseline is safe where P(safe) >= this (paper, "Label generation"; one source: hdlabels.defaults).
+BASELINE_THRESHOLD = label_defaults.SAFE_PROBABILITY_THRESHOLD
 # hd choice: a DTM may be up to 2 % coarser than the run's DEM spacing (HiRISE "1 m" products are
 # 1.01 m); it is then read at full resolution. Anything coarser would have to invent detail.
 SPACING_TOLERANCE = 0.02

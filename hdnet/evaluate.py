@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from hdlabels import defaults as label_defaults
 from hdlabels.alhat import safety_probability
 from hdnet import defaults
 from hdnet.data import (
@@ -57,7 +58,8 @@ METHODS: tuple[str, str, str] = ("alhat_baseline", "base_net", "uncertainty_awar
 MAX_MC_SAMPLES = 1024  # hd choice: the tiled suffix of one batch holds M copies in memory (paper: M = 8)
 MAX_BATCH_SIZE = 1024  # hd choice: DEMs per inference batch
 ECE_BINS = 15  # hd choice: bins of the reliability diagram (the common choice since Guo et al. 2017)
-BASELINE_THRESHOLD = 0.5  # paper, "Label generation": the baseline is safe where P(safe) >= 50 %
+# The ALHAT baseline is safe where P(safe) >= this (paper, "Label generation"; one source: hdlabels.defaults).
+BASELINE_THRESHOLD = label_defaults.SAFE_PROBABILITY_THRESHOLD
 
 
 # --- pure scoring --------------------------------------------------------------------------------
