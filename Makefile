@@ -9,7 +9,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.hd-installed
 DEMO_OUT ?= demo-out
 
-.PHONY: demo test test-all bench venv clean
+.PHONY: demo test test-all lint bench venv clean
 
 venv: $(STAMP)
 
@@ -23,7 +23,18 @@ $(STAMP): pyproject.toml requirements/cpu-constraints.txt scripts/ensure-system-
 demo: $(STAMP)
 	$(BIN)/hd demo --out $(DEMO_OUT)
 
-test: $(STAMP)
+# Lint and types (rules and their reasons: docs/development.md). mypy checks the packages, the CLI,
+# benchmarks and scripts in one run, then each test folder on its own: they are flat folders of
+# modules (two conftest.py), imported by pytest from their own directory.
+lint: $(STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+	$(BIN)/mypy
+	for d in tests/*/; do $(BIN)/mypy --allow-incomplete-defs "$$d" || exit 1; done
+	@! grep -rnE --include='*.py' --exclude-dir=.venv 'type: ignore\[[^]]*\] *$$' . \
+		|| { echo "error: the type: ignore above lacks its reason comment"; exit 1; }
+
+test: lint
 	$(BIN)/python -m pytest -q
 
 test-all: $(STAMP)
@@ -33,4 +44,4 @@ bench: $(STAMP)
 	for b in benchmarks/bench_*.py; do $(BIN)/python $$b || exit 1; done
 
 clean:
-	rm -rf $(VENV) $(DEMO_OUT) .pytest_cache
+	rm -rf $(VENV) $(DEMO_OUT) .pytest_cache .mypy_cache .ruff_cache

@@ -12,6 +12,7 @@ interrupt the clean-up) with exit status 128 + the signal number: 130, 143, 129
 
 from __future__ import annotations
 
+import contextlib
 import math
 import signal
 import sys
@@ -21,7 +22,6 @@ from pathlib import Path
 from typing import Any
 
 import click
-
 from click.core import ParameterSource
 
 from hdlabels import defaults as label_defaults
@@ -84,10 +84,8 @@ def _close_progress_bars() -> None:
     except ImportError:
         return
     for bar in list(getattr(tqdm, "_instances", [])):
-        try:
+        with contextlib.suppress(Exception):  # a bar that cannot close must not hide the error
             bar.close()
-        except Exception:  # noqa: BLE001 - a bar that cannot close must not hide the error
-            pass
 
 
 def friendly_errors(func: Callable[..., Any]) -> Callable[..., Any]:
@@ -116,8 +114,9 @@ def _one_line_errors(func: Callable[..., Any]) -> Callable[..., Any]:
 
             raise click.ClickException(describe_os_error(exc)) from None
         except MemoryError:
-            raise click.ClickException("out of memory; use smaller settings (fewer scans per shard, "
-                                       "a smaller batch or resolution)") from None
+            raise click.ClickException(
+                "out of memory; use smaller settings (fewer scans per shard, a smaller batch or resolution)"
+            ) from None
         except KeyboardInterrupt as exc:
             signum = getattr(exc, "signum", signal.SIGINT)
             what = "interrupted" if signum == signal.SIGINT else f"stopped by {signal.Signals(signum).name}"
@@ -164,27 +163,42 @@ Decorator = Callable[[Callable[..., Any]], Callable[..., Any]]
 
 
 def workers_option() -> Decorator:
-    return click.option("--workers", type=click.IntRange(1, limits.MAX_WORKERS), default=None,
-                        help="Local worker processes (default: all cores).")
+    return click.option(
+        "--workers",
+        type=click.IntRange(1, limits.MAX_WORKERS),
+        default=None,
+        help="Local worker processes (default: all cores).",
+    )
 
 
 def scheduler_option() -> Decorator:
-    return click.option("--scheduler", default=None,
-                        help="Dask scheduler address (tcp://host:8786) to run the tasks on a cluster.")
+    return click.option(
+        "--scheduler", default=None, help="Dask scheduler address (tcp://host:8786) to run the tasks on a cluster."
+    )
 
 
 def seed_option(what: str) -> Decorator:
-    return click.option("--seed", type=_NON_NEGATIVE_INT, default=lidar_defaults.SEED, show_default=True,
-                        help=f"Seed of {what}.")
+    return click.option(
+        "--seed", type=_NON_NEGATIVE_INT, default=lidar_defaults.SEED, show_default=True, help=f"Seed of {what}."
+    )
 
 
 def overwrite_option(what: str) -> Decorator:
     return click.option("--overwrite", is_flag=True, help=what)
 
 
-def out_option(dest: str, what: str, required: bool = True, directory: bool = True, default: Path | None = None) -> Decorator:
-    return click.option("--out", dest, required=required, default=default, show_default=default is not None,
-                        type=_DIRECTORY if directory else _FILE_OR_DIRECTORY, help=what)
+def out_option(
+    dest: str, what: str, required: bool = True, directory: bool = True, default: Path | None = None
+) -> Decorator:
+    return click.option(
+        "--out",
+        dest,
+        required=required,
+        default=default,
+        show_default=default is not None,
+        type=_DIRECTORY if directory else _FILE_OR_DIRECTORY,
+        help=what,
+    )
 
 
 def recipe_option(what: str, required: bool = False) -> Decorator:
@@ -196,8 +210,9 @@ def dtm_option(what: str) -> Decorator:
 
 
 def epochs_option(what: str, default: int | None = None) -> Decorator:
-    return click.option("--epochs", type=click.IntRange(min=1), default=default, show_default=default is not None,
-                        help=what)
+    return click.option(
+        "--epochs", type=click.IntRange(min=1), default=default, show_default=default is not None, help=what
+    )
 
 
 def labels_option(what: str) -> Decorator:
@@ -205,8 +220,9 @@ def labels_option(what: str) -> Decorator:
 
 
 def mc_samples_option() -> Decorator:
-    return click.option("--mc-samples", type=int, default=net_defaults.MC_SAMPLES, show_default=True,
-                        help="MC-dropout samples M.")
+    return click.option(
+        "--mc-samples", type=int, default=net_defaults.MC_SAMPLES, show_default=True, help="MC-dropout samples M."
+    )
 
 
 def batch_size_option(what: str) -> Decorator:
@@ -230,7 +246,11 @@ def _options(*decorators: Decorator) -> Decorator:
 
 def _refuse_with_recipe(ctx: click.Context, names: set[str], what: str, error: type[HdError]) -> None:
     """A recipe fixes the settings ``names``: refuse any of them given on the command line."""
-    given = [p for p in ctx.command.params if p.name in names and ctx.get_parameter_source(p.name) is ParameterSource.COMMANDLINE]
+    given = [
+        p
+        for p in ctx.command.params
+        if p.name in names and ctx.get_parameter_source(p.name) is ParameterSource.COMMANDLINE
+    ]
     if given:
         flags = ", ".join(p.opts[0] for p in given)
         raise error(f"--recipe fixes {what}; edit the recipe instead of passing {flags}")
@@ -278,43 +298,119 @@ def main(ctx: click.Context) -> None:
 
 @main.command("build-dataset")
 @_options(
-    out_option("out_dir", "Dataset directory to create (default: named after the recipe, the DTM file or the "
-               "procedural terrain, in the current directory).", required=False),
+    out_option(
+        "out_dir",
+        "Dataset directory to create (default: named after the recipe, the DTM file or the "
+        "procedural terrain, in the current directory).",
+        required=False,
+    ),
     dtm_option("DTM (GeoTIFF, HiRISE PDS3 .IMG, any GDAL raster in metres). Default: the procedural Mars terrain."),
-    click.option("--sigma", "sigmas_m", type=_POSITIVE, multiple=True, default=(lidar_defaults.DEFAULT_SIGMA_M,),
-                 help=f"Range noise 1-sigma in metres; repeat for several levels (default {lidar_defaults.DEFAULT_SIGMA_M})."),
-    click.option("--scans", type=click.IntRange(1, limits.MAX_SCANS), default=lidar_defaults.N_SCANS, show_default=True,
-                 help="Number of scans."),
+    click.option(
+        "--sigma",
+        "sigmas_m",
+        type=_POSITIVE,
+        multiple=True,
+        default=(lidar_defaults.DEFAULT_SIGMA_M,),
+        help=f"Range noise 1-sigma in metres; repeat for several levels (default {lidar_defaults.DEFAULT_SIGMA_M}).",
+    ),
+    click.option(
+        "--scans",
+        type=click.IntRange(1, limits.MAX_SCANS),
+        default=lidar_defaults.N_SCANS,
+        show_default=True,
+        help="Number of scans.",
+    ),
     seed_option("every random stream of the build"),
     workers_option(),
-    click.option("--altitude", "altitude_m", type=_POSITIVE, default=lidar_defaults.ALTITUDE_M, show_default=True,
-                 help="Sensor altitude above the terrain, metres."),
-    click.option("--dtm-scale", type=_Finite(min=0.0, max=1.0, min_open=True), default=lidar_defaults.DTM_SCALE,
-                 show_default=True, help=f"Resample the DTM by this factor (the paper used {lidar_defaults.PAPER_DTM_SCALE})."),
+    click.option(
+        "--altitude",
+        "altitude_m",
+        type=_POSITIVE,
+        default=lidar_defaults.ALTITUDE_M,
+        show_default=True,
+        help="Sensor altitude above the terrain, metres.",
+    ),
+    click.option(
+        "--dtm-scale",
+        type=_Finite(min=0.0, max=1.0, min_open=True),
+        default=lidar_defaults.DTM_SCALE,
+        show_default=True,
+        help=f"Resample the DTM by this factor (the paper used {lidar_defaults.PAPER_DTM_SCALE}).",
+    ),
     scheduler_option(),
     overwrite_option("Replace an existing dataset in --out."),
-    click.option("--shard-size", type=click.IntRange(min=1), default=lidar_defaults.SHARD_SIZE, show_default=True,
-                 help="Scans per shard file."),
-    click.option("--tilt", "tilt_deg", type=_Finite(), default=lidar_defaults.TILT_DEG, show_default=True,
-                 help="Off-nadir tilt of the boresight, degrees."),
-    click.option("--jitter", "jitter_deg", type=_Finite(), default=lidar_defaults.JITTER_DEG, show_default=True,
-                 help="1-sigma attitude jitter per axis, degrees."),
-    click.option("--resolution", type=click.IntRange(2, limits.MAX_DETECTOR_PX), default=lidar_defaults.DETECTOR_ROWS,
-                 show_default=True, help="Detector pixels per side."),
-    click.option("--fov", "fov_deg", type=_Finite(), default=lidar_defaults.FOV_DEG, show_default=True,
-                 help="Field of view per side, degrees."),
-    click.option("--dead-elements", type=_NON_NEGATIVE_INT, default=lidar_defaults.DEAD_ELEMENTS, show_default=True,
-                 help="Dead detector elements (no return)."),
-    click.option("--damaged-elements", type=_NON_NEGATIVE_INT, default=lidar_defaults.DAMAGED_ELEMENTS,
-                 show_default=True, help="Damaged detector elements (large range error)."),
-    click.option("--compression", type=click.Choice(lidar_defaults.COMPRESSIONS), default=lidar_defaults.COMPRESSION,
-                 show_default=True, help="HDF5 compression of the point arrays."),
+    click.option(
+        "--shard-size",
+        type=click.IntRange(min=1),
+        default=lidar_defaults.SHARD_SIZE,
+        show_default=True,
+        help="Scans per shard file.",
+    ),
+    click.option(
+        "--tilt",
+        "tilt_deg",
+        type=_Finite(),
+        default=lidar_defaults.TILT_DEG,
+        show_default=True,
+        help="Off-nadir tilt of the boresight, degrees.",
+    ),
+    click.option(
+        "--jitter",
+        "jitter_deg",
+        type=_Finite(),
+        default=lidar_defaults.JITTER_DEG,
+        show_default=True,
+        help="1-sigma attitude jitter per axis, degrees.",
+    ),
+    click.option(
+        "--resolution",
+        type=click.IntRange(2, limits.MAX_DETECTOR_PX),
+        default=lidar_defaults.DETECTOR_ROWS,
+        show_default=True,
+        help="Detector pixels per side.",
+    ),
+    click.option(
+        "--fov",
+        "fov_deg",
+        type=_Finite(),
+        default=lidar_defaults.FOV_DEG,
+        show_default=True,
+        help="Field of view per side, degrees.",
+    ),
+    click.option(
+        "--dead-elements",
+        type=_NON_NEGATIVE_INT,
+        default=lidar_defaults.DEAD_ELEMENTS,
+        show_default=True,
+        help="Dead detector elements (no return).",
+    ),
+    click.option(
+        "--damaged-elements",
+        type=_NON_NEGATIVE_INT,
+        default=lidar_defaults.DAMAGED_ELEMENTS,
+        show_default=True,
+        help="Damaged detector elements (large range error).",
+    ),
+    click.option(
+        "--compression",
+        type=click.Choice(lidar_defaults.COMPRESSIONS),
+        default=lidar_defaults.COMPRESSION,
+        show_default=True,
+        help="HDF5 compression of the point arrays.",
+    ),
     recipe_option("Build exactly the dataset of a recipe (datasets/<name>); the recipe fixes every content setting."),
 )
 @click.pass_context
 @friendly_errors
-def build_dataset_cmd(ctx: click.Context, out_dir: Path | None, workers: int | None, scheduler: str | None,
-                      overwrite: bool, recipe: Path | None, **settings: Any) -> None:
+def build_dataset_cmd(
+    ctx: click.Context,
+    out_dir: Path | None,
+    workers: int | None,
+    scheduler: str | None,
+    overwrite: bool,
+    recipe: Path | None,
+    **settings: Any,
+) -> None:
     """Simulate flash-LiDAR scans over a terrain and write clean and noisy point clouds as HDF5 shards."""
     from lidarsim.build import build_dataset, default_out_dir
     from lidarsim.recipe import BuildSettings, load_recipe
@@ -340,7 +436,9 @@ def build_dataset_cmd(ctx: click.Context, out_dir: Path | None, workers: int | N
         click.echo(f"no --out given: building into {out_dir}")
     progress = _ScanProgress("scans")
     try:
-        summary = build_dataset(out_dir, config, workers=workers, scheduler=scheduler, overwrite=overwrite, progress=progress)
+        summary = build_dataset(
+            out_dir, config, workers=workers, scheduler=scheduler, overwrite=overwrite, progress=progress
+        )
     finally:
         progress.close()
     click.echo(summary.paragraph())
@@ -350,15 +448,21 @@ def build_dataset_cmd(ctx: click.Context, out_dir: Path | None, workers: int | N
 @click.argument("out_path", type=_Path(dir_okay=False, path_type=Path))
 @_options(
     seed_option("the procedural terrain"),
-    click.option("--size", "size_m", type=_Finite(), default=None,
-                 help="Side of the square terrain, metres (default: the built-in size)."),
+    click.option(
+        "--size",
+        "size_m",
+        type=_Finite(),
+        default=None,
+        help="Side of the square terrain, metres (default: the built-in size).",
+    ),
     click.option("--spacing", "spacing_m", type=_Finite(), default=None, help="Grid spacing, metres/pixel (<= 0.5)."),
     click.option("--rock-k", type=_Finite(), default=None, help="Golombek-Rapp rock abundance k (0.05 .. 0.4)."),
     overwrite_option("Replace an existing file."),
 )
 @friendly_errors
-def make_dtm_cmd(out_path: Path, seed: int, size_m: float | None, spacing_m: float | None, rock_k: float | None,
-                 overwrite: bool) -> None:
+def make_dtm_cmd(
+    out_path: Path, seed: int, size_m: float | None, spacing_m: float | None, rock_k: float | None, overwrite: bool
+) -> None:
     """Write the procedural Mars terrain as a GeoTIFF (the default terrain of build-dataset)."""
     import dataclasses
 
@@ -371,8 +475,10 @@ def make_dtm_cmd(out_path: Path, seed: int, size_m: float | None, spacing_m: flo
     changes = {k: v for k, v in (("size_m", size_m), ("spacing_m", spacing_m), ("rock_k", rock_k)) if v is not None}
     params = dataclasses.replace(MarsTerrainParams(), **changes)
     heights = write_procedural_dtm(out_path, params, seed)
-    click.echo(f"wrote {out_path}: {heights.shape[0]} x {heights.shape[1]} cells at {params.spacing_m:g} m/px, "
-               f"heights {float(heights.min()):.1f} .. {float(heights.max()):.1f} m")
+    click.echo(
+        f"wrote {out_path}: {heights.shape[0]} x {heights.shape[1]} cells at {params.spacing_m:g} m/px, "
+        f"heights {float(heights.min()):.1f} .. {float(heights.max()):.1f} m"
+    )
 
 
 @main.command("inspect")
@@ -417,39 +523,100 @@ def verify_cmd(directory: Path, recipe: Path | None) -> None:
 @main.command("label")
 @click.argument("directory", type=_DIRECTORY)
 @_options(
-    click.option("--lander-diameter", "lander_diameter_m", type=_Finite(), default=label_defaults.LANDER_DIAMETER_M,
-                 show_default=True, help="Lander diameter, metres."),
-    click.option("--pad-diameter", "pad_diameter_m", type=_Finite(), default=label_defaults.PAD_DIAMETER_M,
-                 show_default=True, help="Footpad diameter, metres."),
-    click.option("--max-slope-deg", type=_Finite(), default=label_defaults.MAX_SLOPE_DEG, show_default=True,
-                 help="Critical slope, degrees."),
-    click.option("--max-roughness", "max_roughness_m", type=_Finite(), default=label_defaults.MAX_ROUGHNESS_M,
-                 show_default=True, help="Critical roughness, metres."),
-    click.option("--lander", type=click.Choice(label_defaults.LAYOUTS), default=label_defaults.LAYOUT, show_default=True,
-                 help="Pad layout: 4 pads in a square or 3 in a triangle."),
-    click.option("--convention", type=click.Choice(label_defaults.CONVENTIONS), default=label_defaults.CONVENTION,
-                 show_default=True,
-                 help="Label rules: paper (the ALHAT replica the paper used) or hd (sub-pixel geometric convention)."),
-    click.option("--baseline-combine", type=click.Choice(label_defaults.BASELINE_COMBINES), default=None,
-                 help="How the P(safe) baseline combines the nodes under the lander (default: paper product, hd min)."),
-    click.option("--gridding", type=click.Choice(label_defaults.GRIDDINGS), default=None,
-                 help="Points to DEM: linear interpolation, or the mean, max or most central of each cell's returns "
-                      "(default: the convention's)."),
-    click.option("--yaws", type=click.IntRange(min=1), default=None,
-                 help=f"hd convention: yaws per symmetry period of the pad layout (default {label_defaults.N_YAWS})."),
+    click.option(
+        "--lander-diameter",
+        "lander_diameter_m",
+        type=_Finite(),
+        default=label_defaults.LANDER_DIAMETER_M,
+        show_default=True,
+        help="Lander diameter, metres.",
+    ),
+    click.option(
+        "--pad-diameter",
+        "pad_diameter_m",
+        type=_Finite(),
+        default=label_defaults.PAD_DIAMETER_M,
+        show_default=True,
+        help="Footpad diameter, metres.",
+    ),
+    click.option(
+        "--max-slope-deg",
+        type=_Finite(),
+        default=label_defaults.MAX_SLOPE_DEG,
+        show_default=True,
+        help="Critical slope, degrees.",
+    ),
+    click.option(
+        "--max-roughness",
+        "max_roughness_m",
+        type=_Finite(),
+        default=label_defaults.MAX_ROUGHNESS_M,
+        show_default=True,
+        help="Critical roughness, metres.",
+    ),
+    click.option(
+        "--lander",
+        type=click.Choice(label_defaults.LAYOUTS),
+        default=label_defaults.LAYOUT,
+        show_default=True,
+        help="Pad layout: 4 pads in a square or 3 in a triangle.",
+    ),
+    click.option(
+        "--convention",
+        type=click.Choice(label_defaults.CONVENTIONS),
+        default=label_defaults.CONVENTION,
+        show_default=True,
+        help="Label rules: paper (the ALHAT replica the paper used) or hd (sub-pixel geometric convention).",
+    ),
+    click.option(
+        "--baseline-combine",
+        type=click.Choice(label_defaults.BASELINE_COMBINES),
+        default=None,
+        help="How the P(safe) baseline combines the nodes under the lander (default: paper product, hd min).",
+    ),
+    click.option(
+        "--gridding",
+        type=click.Choice(label_defaults.GRIDDINGS),
+        default=None,
+        help="Points to DEM: linear interpolation, or the mean, max or most central of each cell's returns "
+        "(default: the convention's).",
+    ),
+    click.option(
+        "--yaws",
+        type=click.IntRange(min=1),
+        default=None,
+        help=f"hd convention: yaws per symmetry period of the pad layout (default {label_defaults.N_YAWS}).",
+    ),
     click.option("--count-holes", is_flag=True, help="Count terrain below the lander plane as roughness too."),
-    click.option("--dem-size", type=click.IntRange(2, label_defaults.MAX_DEM_SIDE_PX), default=label_defaults.DEM_ROWS,
-                 show_default=True, help="DEM side, pixels."),
-    click.option("--dem-spacing", "dem_spacing_m", type=_Finite(), default=label_defaults.DEM_SPACING_M,
-                 show_default=True, help="DEM spacing, metres/pixel."),
+    click.option(
+        "--dem-size",
+        type=click.IntRange(2, label_defaults.MAX_DEM_SIDE_PX),
+        default=label_defaults.DEM_ROWS,
+        show_default=True,
+        help="DEM side, pixels.",
+    ),
+    click.option(
+        "--dem-spacing",
+        "dem_spacing_m",
+        type=_Finite(),
+        default=label_defaults.DEM_SPACING_M,
+        show_default=True,
+        help="DEM spacing, metres/pixel.",
+    ),
     workers_option(),
     scheduler_option(),
     recipe_option("Take the lander and DEM settings from a recipe's [label] section."),
 )
 @click.pass_context
 @friendly_errors
-def label_cmd(ctx: click.Context, directory: Path, workers: int | None, scheduler: str | None, recipe: Path | None,
-              **settings: Any) -> None:
+def label_cmd(
+    ctx: click.Context,
+    directory: Path,
+    workers: int | None,
+    scheduler: str | None,
+    recipe: Path | None,
+    **settings: Any,
+) -> None:
     """Grid every scan into DEMs and add ALHAT labels and the baseline P(safe) to the dataset."""
     from hdlabels.errors import HdLabelsError
     from hdlabels.labeling import label_dataset
@@ -481,41 +648,84 @@ def label_cmd(ctx: click.Context, directory: Path, workers: int | None, schedule
 @click.argument("dataset", type=_DIRECTORY)
 @_options(
     out_option("run_dir", "Run directory (checkpoints, metrics.csv, config.json)."),
-    click.option("--profile", type=click.Choice(["paper", "cpu", "tiny"]), default="cpu", show_default=True,
-                 help="Training profile: paper (GPU, 512x512, full width), cpu (2-core machine), tiny (tests, demos); docs/hdnet.md lists their settings."),
+    click.option(
+        "--profile",
+        type=click.Choice(["paper", "cpu", "tiny"]),
+        default="cpu",
+        show_default=True,
+        help="Training profile: paper (GPU, 512x512, full width), cpu (2-core machine), tiny (tests, demos); "
+        "docs/hdnet.md lists their settings.",
+    ),
     epochs_option("Epochs (default: the profile's)."),
-    click.option("--train-sigma", type=_Finite(), default=lidar_defaults.DEFAULT_SIGMA_M, show_default=True,
-                 help="Noise level of the training inputs, metres."),
+    click.option(
+        "--train-sigma",
+        type=_Finite(),
+        default=lidar_defaults.DEFAULT_SIGMA_M,
+        show_default=True,
+        help="Noise level of the training inputs, metres.",
+    ),
     seed_option("initialisation and shuffling"),
     click.option("--resume", is_flag=True, help="Continue an interrupted run from its last checkpoint."),
     labels_option("Labelling to train on (when the dataset has several)."),
-    click.option("--num-workers", type=click.IntRange(0, limits.MAX_LOADER_WORKERS), default=0, show_default=True,
-                 help="DataLoader worker processes."),
+    click.option(
+        "--num-workers",
+        type=click.IntRange(0, limits.MAX_LOADER_WORKERS),
+        default=0,
+        show_default=True,
+        help="DataLoader worker processes.",
+    ),
     overwrite_option("Start an existing run again, or write into a non-empty directory that is not a run."),
 )
 @friendly_errors
-def train_cmd(dataset: Path, run_dir: Path, profile: str, epochs: int | None, train_sigma: float, seed: int,
-              resume: bool, labeling: str | None, num_workers: int = 0, overwrite: bool = False) -> None:
+def train_cmd(
+    dataset: Path,
+    run_dir: Path,
+    profile: str,
+    epochs: int | None,
+    train_sigma: float,
+    seed: int,
+    resume: bool,
+    labeling: str | None,
+    num_workers: int = 0,
+    overwrite: bool = False,
+) -> None:
     """Train the Bayesian SegNet on the noisy DEMs of a labelled dataset."""
     from hdnet.errors import HdNetError
-    from hdnet.fit import fit
+    from hdnet.fit import FitConfig, fit
     from hdnet.pipeline import training_done_message
 
     if resume and overwrite:
         raise HdNetError("--resume and --overwrite exclude each other")
-    checkpoint = fit(dataset, run_dir, profile_name=profile, epochs=epochs, train_sigma_m=train_sigma, seed=seed,
-                     resume=resume, labels=labeling, progress=True, num_workers=num_workers, overwrite=overwrite)
+    config = FitConfig(
+        profile=profile,
+        epochs=epochs,
+        train_sigma_m=train_sigma,
+        seed=seed,
+        resume=resume,
+        labels=labeling,
+        progress=True,
+        num_workers=num_workers,
+        overwrite=overwrite,
+    )
+    checkpoint = fit(dataset, run_dir, config)
     click.echo(training_done_message(checkpoint, run_dir))
 
 
 @main.command("eval")
 @click.argument("run_dir", type=_DIRECTORY)
 @_options(
-    click.option("--data", "dataset", required=True, type=_DIRECTORY, help="Labelled dataset to evaluate on (its test split)."),
+    click.option(
+        "--data", "dataset", required=True, type=_DIRECTORY, help="Labelled dataset to evaluate on (its test split)."
+    ),
     out_option("out_dir", "Report directory (report.md, report.json, figures)."),
     mc_samples_option(),
-    click.option("--drop-pixels", type=int, default=0, show_default=True,
-                 help=f"Dead-pixel test: pixels dropped from each DEM and refilled (paper: {label_defaults.N_DEAD_PIXELS})."),
+    click.option(
+        "--drop-pixels",
+        type=int,
+        default=0,
+        show_default=True,
+        help=f"Dead-pixel test: pixels dropped from each DEM and refilled (paper: {label_defaults.N_DEAD_PIXELS}).",
+    ),
     threshold_option("Uncertainty threshold: mean, quantile:Q or risk:ALPHA."),
     labels_option("Labelling to evaluate against (when the dataset has several)."),
     seed_option("MC dropout and dropped pixels"),
@@ -523,14 +733,31 @@ def train_cmd(dataset: Path, run_dir: Path, profile: str, epochs: int | None, tr
     overwrite_option("Replace an existing report, or write into a non-empty directory that is not a report."),
 )
 @friendly_errors
-def eval_cmd(run_dir: Path, dataset: Path, out_dir: Path, mc_samples: int, drop_pixels: int, threshold: str,
-             labeling: str | None, seed: int, batch_size: int = net_defaults.BATCH_SIZE, overwrite: bool = False) -> None:
+def eval_cmd(
+    run_dir: Path,
+    dataset: Path,
+    out_dir: Path,
+    mc_samples: int,
+    drop_pixels: int,
+    threshold: str,
+    labeling: str | None,
+    seed: int,
+    batch_size: int = net_defaults.BATCH_SIZE,
+    overwrite: bool = False,
+) -> None:
     """Evaluate a trained run: the paper's tables, threshold sweep, calibration and figures."""
-    from hdnet.evaluate import evaluate
-    from hdnet.pipeline import report_written_message
+    from hdnet.evaluate import EvalConfig
+    from hdnet.pipeline import evaluate_to_report, report_written_message
 
-    result = evaluate(run_dir, dataset, out_dir, mc_samples=mc_samples, drop_pixels=drop_pixels,
-                      threshold=threshold, labels=labeling, seed=seed, batch_size=batch_size, overwrite=overwrite)
+    config = EvalConfig(
+        mc_samples=mc_samples,
+        drop_pixels=drop_pixels,
+        threshold=threshold,
+        labels=labeling,
+        seed=seed,
+        batch_size=batch_size,
+    )
+    result = evaluate_to_report(run_dir, dataset, out_dir, config, overwrite=overwrite)
     click.echo(result.summary())
     click.echo(report_written_message(out_dir))
 
@@ -539,14 +766,23 @@ def eval_cmd(run_dir: Path, dataset: Path, out_dir: Path, mc_samples: int, drop_
 @click.argument("run_dir", type=_FILE_OR_DIRECTORY)
 @_options(
     dtm_option("Terrain to map: any GDAL raster in metres (GeoTIFF, HiRISE PDS3 .IMG), any size."),
-    click.option("--data", "dataset", type=_DIRECTORY, default=None, help="Instead of --dtm: a labelled dataset, with --scan."),
+    click.option(
+        "--data", "dataset", type=_DIRECTORY, default=None, help="Instead of --dtm: a labelled dataset, with --scan."
+    ),
     click.option("--scan", type=int, default=None, help="With --data: the scan whose noisy DEM to map (scan frame)."),
     out_option("out_dir", "Output directory (maps, sites, overview, detect.json).", directory=False),
     mc_samples_option(),
-    threshold_option("Uncertainty threshold: mean, quantile:Q, risk:ALPHA (calibrated as hd eval does) or nats:H (fixed)."),
-    click.option("--sigma", "sigma_m", type=_Finite(), default=None,
-                 help="DEM noise of the ALHAT baseline, metres (default: the run's training sigma); with --data also "
-                      "the noise level of the scan's DEM."),
+    threshold_option(
+        "Uncertainty threshold: mean, quantile:Q, risk:ALPHA (calibrated as hd eval does) or nats:H (fixed)."
+    ),
+    click.option(
+        "--sigma",
+        "sigma_m",
+        type=_Finite(),
+        default=None,
+        help="DEM noise of the ALHAT baseline, metres (default: the run's training sigma); with --data also "
+        "the noise level of the scan's DEM.",
+    ),
     click.option("--sites", "n_sites", type=int, default=10, show_default=True, help="Most landing sites to propose."),
     overwrite_option("Replace a non-empty --out."),
     labels_option("With --data: the labelling (when the dataset has several)."),
@@ -554,15 +790,24 @@ def eval_cmd(run_dir: Path, dataset: Path, out_dir: Path, mc_samples: int, drop_
     batch_size_option("Tiles per inference batch."),
 )
 @friendly_errors
-def detect_cmd(run_dir: Path, out_dir: Path, dataset: Path | None, scan: int | None, dtm_path: Path | None,
-               **options: Any) -> None:
+def detect_cmd(
+    run_dir: Path, out_dir: Path, dataset: Path | None, scan: int | None, dtm_path: Path | None, **options: Any
+) -> None:
     """Hazard maps and ranked landing sites of a DTM (or of one scan) from a trained run."""
     from hdnet.detect import detect
 
     progress = _ScanProgress("tiles", unit="tile")
     try:
-        result = detect(run_dir, out_dir, dtm=dtm_path, dataset=dataset, scan=scan, labels=options.pop("labeling"),
-                        progress=progress, **options)
+        result = detect(
+            run_dir,
+            out_dir,
+            dtm=dtm_path,
+            dataset=dataset,
+            scan=scan,
+            labels=options.pop("labeling"),
+            progress=progress,
+            **options,
+        )
     finally:
         progress.close()
     click.echo(result.summary())
@@ -572,8 +817,13 @@ def detect_cmd(run_dir: Path, out_dir: Path, dataset: Path | None, scan: int | N
 @main.command("demo")
 @_options(
     out_option("out_dir", "Directory of the demo run.", required=False, default=Path("demo-out")),
-    click.option("--scans", type=click.IntRange(1, limits.MAX_SCANS), default=200, show_default=True,
-                 help="Scans in the demo dataset."),
+    click.option(
+        "--scans",
+        type=click.IntRange(1, limits.MAX_SCANS),
+        default=200,
+        show_default=True,
+        help="Scans in the demo dataset.",
+    ),
     epochs_option("Training epochs (cpu profile).", default=10),
     workers_option(),
 )
@@ -587,18 +837,26 @@ def demo_cmd(out_dir: Path, scans: int, epochs: int, workers: int | None) -> Non
 
 @main.command("reproduce")
 @_options(
-    click.option("--profile", type=click.Choice(["cpu", "paper"]), default="cpu", show_default=True,
-                 help="Training profile: cpu (this machine, <= 1 h) or paper (GPU)."),
+    click.option(
+        "--profile",
+        type=click.Choice(["cpu", "paper"]),
+        default="cpu",
+        show_default=True,
+        help="Training profile: cpu (this machine, <= 1 h) or paper (GPU).",
+    ),
     dtm_option("Use this DTM instead of the recipe's terrain."),
     out_option("out_dir", "Directory of the reproduction.", required=False, default=Path("reproduction")),
     epochs_option("Training epochs (default: the profile's)."),
     workers_option(),
-    recipe_option(f"The dataset recipe to reproduce the paper on (default: {PAPER_RECIPE.parent.name}/{PAPER_RECIPE.name} "
-                  "of the hd source tree)."),
+    recipe_option(
+        f"The dataset recipe to reproduce the paper on (default: {PAPER_RECIPE.parent.name}/{PAPER_RECIPE.name} "
+        "of the hd source tree)."
+    ),
 )
 @friendly_errors
-def reproduce_cmd(profile: str, dtm_path: Path | None, out_dir: Path, epochs: int | None, workers: int | None,
-                  recipe: Path | None) -> None:
+def reproduce_cmd(
+    profile: str, dtm_path: Path | None, out_dir: Path, epochs: int | None, workers: int | None, recipe: Path | None
+) -> None:
     """The paper end to end: the dataset of datasets/mars-paper (S-167/S-300/S-700 on one terrain and trajectory,
     1000 scans, 800/100/100) and its labels, training at 1.67 cm, Table 1, Table 2 (10 dropped pixels), threshold
     sweep and panels, plus the risk-controlled threshold (alpha = 0.05). Each stage is resumable; finished stages
@@ -611,8 +869,9 @@ def reproduce_cmd(profile: str, dtm_path: Path | None, out_dir: Path, epochs: in
 
 @main.command("card")
 @click.argument("dataset", type=_DIRECTORY)
-@recipe_option("Recipe directory the dataset was built from; card.md and checksums.json are written there.",
-               required=True)
+@recipe_option(
+    "Recipe directory the dataset was built from; card.md and checksums.json are written there.", required=True
+)
 @click.option("--machine", default="", help="Where the published build was made (recorded in the card).")
 @friendly_errors
 def card_cmd(dataset: Path, recipe: Path, machine: str) -> None:

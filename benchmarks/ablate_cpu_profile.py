@@ -39,19 +39,35 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from hdnet import defaults  # noqa: E402
-from hdnet.data import HazardDataset, dem_spacing_m, open_labeling  # noqa: E402
-from hdnet.evaluate import validation_summary  # noqa: E402
-from hdnet.fit import fit, input_spec_for  # noqa: E402
-from hdnet.inputs import Normalisation  # noqa: E402
-from hdnet.model import BayesianSegNet, ModelConfig  # noqa: E402
-from hdnet.profiles import CPU, TrainingProfile  # noqa: E402
-from hdnet.train import load_checkpoint, median_images_per_s  # noqa: E402
+from hdnet import defaults
+from hdnet.data import HazardDataset, dem_spacing_m, open_labeling
+from hdnet.evaluate import validation_summary
+from hdnet.fit import FitConfig, fit, input_spec_for
+from hdnet.inputs import Normalisation
+from hdnet.model import BayesianSegNet, ModelConfig
+from hdnet.profiles import CPU, TrainingProfile
+from hdnet.train import load_checkpoint, median_images_per_s
 
 # The cpu profile as shipped before this study (hd 0.1.0): the reference every lever is measured against.
-REFERENCE = replace(CPU, name="cpu-v1", input_size=None, width=0.25, batch_size=8, lr=1e-3, epochs=80, optimizer="adam",
-                    lr_schedule="cosine", depth=5, dropout_p=0.5, heights="minmax", height_scale_m=1.0,
-                    extra_channels=(), augment="none", class_weighting="none", channels_last=False)
+REFERENCE = replace(
+    CPU,
+    name="cpu-v1",
+    input_size=None,
+    width=0.25,
+    batch_size=8,
+    lr=1e-3,
+    epochs=80,
+    optimizer="adam",
+    lr_schedule="cosine",
+    depth=5,
+    dropout_p=0.5,
+    heights="minmax",
+    height_scale_m=1.0,
+    extra_channels=(),
+    augment="none",
+    class_weighting="none",
+    channels_last=False,
+)
 
 OTHER_SIGMAS_M = (0.07,)  # the validation split is also scored at 7 cm with the 1.67 cm thresholds
 
@@ -59,8 +75,14 @@ OTHER_SIGMAS_M = (0.07,)  # the validation split is also scored at 7 cm with the
 VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "reference": ("cpu profile before this study: width 1/4, depth 5, min-max heights, cosine Adam 1e-3, batch 8", {}),
     "median": ("heights relative to each DEM's median, metres", {"heights": "median"}),
-    "plane_slope": ("heights relative to each DEM's plane + slope channel", {"heights": "plane", "extra_channels": ("slope",)}),
-    "median_slope_hp": ("median heights + slope + high-pass channels", {"heights": "median", "extra_channels": ("slope", "highpass")}),
+    "plane_slope": (
+        "heights relative to each DEM's plane + slope channel",
+        {"heights": "plane", "extra_channels": ("slope",)},
+    ),
+    "median_slope_hp": (
+        "median heights + slope + high-pass channels",
+        {"heights": "median", "extra_channels": ("slope", "highpass")},
+    ),
     "d4": ("D4 augmentation", {"augment": "d4"}),
     "balanced": ("class-balanced cross-entropy", {"class_weighting": "balanced"}),
     "onecycle": ("one-cycle learning rate (peak 1e-3)", {"lr_schedule": "onecycle"}),
@@ -99,13 +121,19 @@ def _parts(name: str) -> list[str]:
 def train_and_score(dataset: Path, out: Path, name: str, epochs: int, labels: str | None) -> dict[str, Any]:
     run = out / "runs" / name
     profile = profile_of(name, epochs)
-    last = fit(dataset, run, profile_name=profile, epochs=epochs, resume=True, labels=labels, progress=False)
+    last = fit(dataset, run, FitConfig(profile=profile, epochs=epochs, resume=True, labels=labels, progress=False))
     ckpt = load_checkpoint(last)
     timing = ckpt.get("timing", [])
     summary = validation_summary(run, dataset, labels=labels, other_sigmas_m=OTHER_SIGMAS_M)
-    return {"variant": name, "epochs": epochs, "profile": profile.to_dict(), "history": ckpt["history"],
-            "train_seconds_measured": sum(t["train_seconds"] for t in timing),
-            "images_per_s_measured": median_images_per_s(timing), "validation": summary}
+    return {
+        "variant": name,
+        "epochs": epochs,
+        "profile": profile.to_dict(),
+        "history": ckpt["history"],
+        "train_seconds_measured": sum(t["train_seconds"] for t in timing),
+        "images_per_s_measured": median_images_per_s(timing),
+        "validation": summary,
+    }
 
 
 def throughput(dataset: Path, names: list[str], rounds: int, steps: int, labels: str | None) -> dict[str, float]:
@@ -118,9 +146,11 @@ def throughput(dataset: Path, names: list[str], rounds: int, steps: int, labels:
         p = profile_of(n, 1)
         spec = input_spec_for(p, dem_spacing_m(entry), Normalisation(-10.0, 10.0) if p.heights == "minmax" else None)
         ds = HazardDataset(dataset, "train", defaults.TRAIN_SIGMA_M, labels=labels, input_spec=spec, augment=p.augment)
-        model = BayesianSegNet(ModelConfig(in_channels=spec.n_channels, width=p.width, depth=p.depth, dropout_p=p.dropout_p))
+        model = BayesianSegNet(
+            ModelConfig(in_channels=spec.n_channels, width=p.width, depth=p.depth, dropout_p=p.dropout_p)
+        )
         fmt = torch.channels_last if p.channels_last else torch.contiguous_format
-        model = model.to(memory_format=fmt).train()
+        model = model.to(memory_format=fmt).train()  # type: ignore[call-overload]  # the stubs omit memory_format
         opt = torch.optim.Adam(model.parameters(), lr=p.lr)
         setups[n] = (p, ds, model, opt, fmt)
     for r in range(rounds + 1):  # round 0 warms up
@@ -152,19 +182,28 @@ def throughput(dataset: Path, names: list[str], rounds: int, steps: int, labels:
 def write_report(out: Path, n_train: int) -> None:
     results = json.loads((out / "results.json").read_text()) if (out / "results.json").exists() else {}
     rates = json.loads((out / "throughput.json").read_text()) if (out / "throughput.json").exists() else {}
-    lines = ["| variant | change | epochs | val PA | val mIoU | UA V/C % | UA PA | UA mIoU | UA precision | UA sensitivity "
-             "| precision @ V/C 50 % | sensitivity @ V/C 50 % | UA precision 7 cm (V/C %) | risk:0.05 sensitivity (in-sample) "
-             "| images/s | s for the budget |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        (
+            "| variant | change | epochs | val PA | val mIoU | UA V/C % | UA PA | UA mIoU | UA precision "
+            "| UA sensitivity "
+            "| precision @ V/C 50 % | sensitivity @ V/C 50 % | UA precision 7 cm (V/C %) "
+            "| risk:0.05 sensitivity (in-sample) "
+            "| images/s | s for the budget |"
+        ),
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for name, r in results.items():
         v = r["validation"]
         change = " + ".join(VARIANTS[p][0] for p in _parts(name)) if name != "reference" else VARIANTS["reference"][0]
         rate = rates.get(name)
         secs = f"{r['epochs'] * n_train / rate:.0f}" if rate else "-"
-        lines.append(f"| {name} | {change} | {r['epochs']} | {v['base_pa']:.4f} | {v['base_miou']:.4f} | {100 * v['ua_vc']:.0f} | "
-                     f"{v['ua_pa']:.4f} | {v['ua_miou']:.4f} | {v['ua_precision']:.4f} | {v['ua_sensitivity']:.4f} | "
-                     f"{v['q_precision']:.4f} | {v['q_sensitivity']:.4f} | {_at7(v)} | {_get(v, 'risk_sensitivity')} | "
-                     f"{f'{rate:.1f}' if rate else '-'} | {secs} |")
+        lines.append(
+            f"| {name} | {change} | {r['epochs']} | {v['base_pa']:.4f} | {v['base_miou']:.4f} | "
+            f"{100 * v['ua_vc']:.0f} | "
+            f"{v['ua_pa']:.4f} | {v['ua_miou']:.4f} | {v['ua_precision']:.4f} | {v['ua_sensitivity']:.4f} | "
+            f"{v['q_precision']:.4f} | {v['q_sensitivity']:.4f} | {_at7(v)} | {_get(v, 'risk_sensitivity')} | "
+            f"{f'{rate:.1f}' if rate else '-'} | {secs} |"
+        )
     (out / "ablation.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
     if results:
@@ -209,11 +248,16 @@ def main() -> None:
     parser.add_argument("dataset", type=Path)
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--epochs", type=int, default=20)
-    parser.add_argument("--variants", default=",".join(VARIANTS),
-                        help="comma-separated variants; a combination of levers is written with '+' between names, e.g. median+d4")
+    parser.add_argument(
+        "--variants",
+        default=",".join(VARIANTS),
+        help="comma-separated variants; a combination of levers is written with '+' between names, e.g. median+d4",
+    )
     parser.add_argument("--labels", default=None, help="labelling to train on (when the dataset has several)")
     parser.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
-    parser.add_argument("--throughput", action="store_true", help="measure images/s of the variants instead of training")
+    parser.add_argument(
+        "--throughput", action="store_true", help="measure images/s of the variants instead of training"
+    )
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--steps", type=int, default=4, help="training steps per variant and round (--throughput)")
     parser.add_argument("--report", action="store_true", help="only rewrite the table and the figure")
@@ -225,8 +269,15 @@ def main() -> None:
     names = [n for n in args.variants.split(",") if n]
     for n in names:
         _parts(n)
-    n_train = len(HazardDataset(args.dataset, "train", defaults.TRAIN_SIGMA_M, labels=args.labels,
-                                input_spec=input_spec_for(REFERENCE, 1.0, Normalisation(0.0, 1.0))))
+    n_train = len(
+        HazardDataset(
+            args.dataset,
+            "train",
+            defaults.TRAIN_SIGMA_M,
+            labels=args.labels,
+            input_spec=input_spec_for(REFERENCE, 1.0, Normalisation(0.0, 1.0)),
+        )
+    )
     if args.report:
         write_report(args.out, n_train)
         return
@@ -242,8 +293,9 @@ def main() -> None:
         path = args.out / "results.json"
         if args.rescore:
             result = json.loads(path.read_text())[name]
-            result["validation"] = validation_summary(args.out / "runs" / name, args.dataset, labels=args.labels,
-                                                      other_sigmas_m=OTHER_SIGMAS_M)
+            result["validation"] = validation_summary(
+                args.out / "runs" / name, args.dataset, labels=args.labels, other_sigmas_m=OTHER_SIGMAS_M
+            )
         else:
             result = train_and_score(args.dataset, args.out, name, args.epochs, args.labels)
         previous = json.loads(path.read_text()) if path.exists() else {}  # re-read: parallel instances share it
@@ -252,9 +304,12 @@ def main() -> None:
         tmp.write_text(json.dumps(previous, indent=1) + "\n")
         tmp.replace(path)
         v = result["validation"]
-        print(f"{name}: {time.perf_counter() - t0:.0f} s; val PA {v['base_pa']:.4f} mIoU {v['base_miou']:.4f} | "
-              f"UA V/C {v['ua_vc']:.2f} prec {v['ua_precision']:.4f} sens {v['ua_sensitivity']:.4f} | "
-              f"@50% prec {v['q_precision']:.4f} sens {v['q_sensitivity']:.4f}", flush=True)
+        print(
+            f"{name}: {time.perf_counter() - t0:.0f} s; val PA {v['base_pa']:.4f} mIoU {v['base_miou']:.4f} | "
+            f"UA V/C {v['ua_vc']:.2f} prec {v['ua_precision']:.4f} sens {v['ua_sensitivity']:.4f} | "
+            f"@50% prec {v['q_precision']:.4f} sens {v['q_sensitivity']:.4f}",
+            flush=True,
+        )
     write_report(args.out, n_train)
 
 

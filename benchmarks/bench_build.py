@@ -25,12 +25,12 @@ import open3d as o3d
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from lidarsim.build import BuildConfig, _procedural_terrain_bytes, build_dataset, procedural_terrain_name  # noqa: E402
-from lidarsim.defaults import PAPER_SIGMAS_M  # noqa: E402
-from lidarsim.scan import TileScene  # noqa: E402
-from lidarsim.sensor import ray_directions, sensor_attitude  # noqa: E402
-from lidarsim.terrain import DTM  # noqa: E402
-from lidarsim.trajectory import TrajectoryConfig, plan_scans  # noqa: E402
+from lidarsim.build import BuildConfig, _procedural_terrain_bytes, build_dataset, procedural_terrain_name
+from lidarsim.defaults import PAPER_SIGMAS_M
+from lidarsim.scan import TileScene
+from lidarsim.sensor import ray_directions, sensor_attitude
+from lidarsim.terrain import DTM
+from lidarsim.trajectory import TrajectoryConfig, plan_scans
 
 
 def raw_cast_rate(dtm_path: Path, config: BuildConfig) -> tuple[float, int]:
@@ -45,14 +45,15 @@ def raw_cast_rate(dtm_path: Path, config: BuildConfig) -> tuple[float, int]:
         elapsed, n_rays = 0.0, 0
         for tile, members in tiles.items():
             scene = TileScene(dtm, plan.tile_centre_xy(*tile), plan.tile_m / 2 + plan.half_width_m)
-            scene.scene.cast_rays(o3d.core.Tensor(np.zeros((1, 6), np.float32)))  # builds the BVH
+            probe = o3d.core.Tensor(np.zeros((1, 6), np.float32))  # type: ignore[call-overload]  # stubs omit ndarray
+            scene.scene.cast_rays(probe)  # builds the BVH
             rays = np.empty((len(members), *d.shape[:2], 6), np.float32)
             for k, m in enumerate(members):
                 x, y = plan.nadir_xy[m]
                 z = scene.mean_height(x, y, plan.half_width_m) + config.trajectory.altitude_m
                 rays[k, ..., :3] = np.array([x, y, z]) - scene.origin
                 rays[k, ..., 3:] = d
-            tensor = o3d.core.Tensor(rays.reshape(-1, 6))
+            tensor = o3d.core.Tensor(rays.reshape(-1, 6))  # type: ignore[call-overload]  # stubs omit ndarray
             t0 = time.perf_counter()
             scene.scene.cast_rays(tensor)
             elapsed += time.perf_counter() - t0
@@ -76,15 +77,18 @@ def main() -> None:
         raw, n_rays = raw_cast_rate(dtm_path, config)
         print(f"raw cast_rays:            {raw / 1e6:6.2f} M rays/s ({n_rays / 1e6:.1f} M rays, all cores)")
         for compression in ("gzip", "lzf", "none"):
-            cfg = BuildConfig(sigmas_m=PAPER_SIGMAS_M, trajectory=base.trajectory, dtm_path=str(dtm_path),
-                              compression=compression)
+            cfg = BuildConfig(
+                sigmas_m=PAPER_SIGMAS_M, trajectory=base.trajectory, dtm_path=str(dtm_path), compression=compression
+            )
             t0 = time.perf_counter()
             summary = build_dataset(tmp_path / f"out-{compression}", cfg, workers=args.workers)
             wall = time.perf_counter() - t0
             rate = n_rays / wall
-            print(f"end-to-end ({compression:4s}, {len(cfg.sigmas_m)} sigma): {rate / 1e6:6.2f} M rays/s, "
-                  f"{args.scans} scans in {wall:5.1f} s (target < 30 s), {summary.bytes_written / 1e6:.0f} MB, "
-                  f"ratio end-to-end/raw = {rate / raw:.2f} (target >= 0.8)")
+            print(
+                f"end-to-end ({compression:4s}, {len(cfg.sigmas_m)} sigma): {rate / 1e6:6.2f} M rays/s, "
+                f"{args.scans} scans in {wall:5.1f} s (target < 30 s), {summary.bytes_written / 1e6:.0f} MB, "
+                f"ratio end-to-end/raw = {rate / raw:.2f} (target >= 0.8)"
+            )
 
 
 if __name__ == "__main__":

@@ -30,15 +30,17 @@ import statistics
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from hdlabels.lander import Lander  # noqa: E402
-from hdnet.detect import (  # noqa: E402
+from hdlabels.lander import Lander
+from hdnet.detect import (
     SAFETY_SAFE,
     DetectRun,
     baseline_p_safe,
@@ -47,20 +49,23 @@ from hdnet.detect import (  # noqa: E402
     network_output,
     select_sites,
 )
-from hdnet.fit import input_spec_for  # noqa: E402
-from hdnet.infer import mc_dropout_predict, predictive_entropy  # noqa: E402
-from hdnet.model import BayesianSegNet, ModelConfig, count_parameters  # noqa: E402
-from hdnet.inputs import Normalisation, network_shape  # noqa: E402
-from hdnet.profiles import CPU, PAPER, TrainingProfile  # noqa: E402
-from hdnet.train import CHECKPOINT_SCHEMA, CHECKPOINT_VERSION, save_checkpoint  # noqa: E402
-from lidarsim.procedural import MarsTerrainParams, generate_mars_terrain, write_geotiff  # noqa: E402
+from hdnet.fit import input_spec_for
+from hdnet.infer import mc_dropout_predict, predictive_entropy
+from hdnet.inputs import Normalisation, network_shape
+from hdnet.model import BayesianSegNet, ModelConfig, count_parameters
+from hdnet.profiles import CPU, PAPER, TrainingProfile
+from hdnet.train import CHECKPOINT_SCHEMA, CHECKPOINT_VERSION, save_checkpoint
+from lidarsim.procedural import MarsTerrainParams, generate_mars_terrain, write_geotiff
 
 BUDGET_S = 10.0  # hd choice: the per-frame time budget detection is measured against (docs/benchmarks.md)
-LABELING = {"name": "default-lander-dem100x100at1m", "lander": Lander().to_attrs(),  # the default label convention
-            "dem": {"rows": 100, "cols": 100, "spacing_m": 1.0}}
+LABELING: dict[str, Any] = {
+    "name": "default-lander-dem100x100at1m",
+    "lander": Lander().to_attrs(),  # the default label convention
+    "dem": {"rows": 100, "cols": 100, "spacing_m": 1.0},
+}
 
 
-def _median(fn, repeats: int, warmups: int = 2) -> float:
+def _median(fn: Callable[[], object], repeats: int, warmups: int = 2) -> float:
     for _ in range(warmups):  # numba compilation, oneDNN primitives, the allocator: the first call of a
         fn()  # new model is several times slower than the steady state
     times = []
@@ -74,10 +79,13 @@ def _median(fn, repeats: int, warmups: int = 2) -> float:
 def _run(profile: TrainingProfile, width: float, dem: np.ndarray) -> DetectRun:
     """An untrained model of ``profile``'s architecture and input preparation at ``width``."""
     torch.manual_seed(0)
-    norm = Normalisation(float(np.nanmin(dem)) - 5.0, float(np.nanmax(dem)) + 5.0) if profile.heights == "minmax" else None
+    norm = (
+        Normalisation(float(np.nanmin(dem)) - 5.0, float(np.nanmax(dem)) + 5.0) if profile.heights == "minmax" else None
+    )
     spec = input_spec_for(profile, 1.0, norm)
-    model = BayesianSegNet(ModelConfig(in_channels=spec.n_channels, width=width, depth=profile.depth,
-                                       dropout_p=profile.dropout_p)).eval()
+    model = BayesianSegNet(
+        ModelConfig(in_channels=spec.n_channels, width=width, depth=profile.depth, dropout_p=profile.dropout_p)
+    ).eval()
     return DetectRun(Path("-"), model, {}, 0.0167, spec, LABELING["name"], LABELING, Lander(), (100, 100), 1.0, None)
 
 
@@ -100,9 +108,11 @@ def main() -> None:
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
-    print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, OMP_WAIT_POLICY="
-          f"{os.environ.get('OMP_WAIT_POLICY', '(default)')}, load average {os.getloadavg()[0]:.1f}, M = {args.samples}, "
-          f"budget {BUDGET_S:g} s/frame")
+    print(
+        f"torch {torch.__version__}, {torch.get_num_threads()} threads, OMP_WAIT_POLICY="
+        f"{os.environ.get('OMP_WAIT_POLICY', '(default)')}, load average {os.getloadavg()[0]:.1f}, M = {args.samples}, "
+        f"budget {BUDGET_S:g} s/frame"
+    )
 
     terrain = generate_mars_terrain(MarsTerrainParams(size_m=100.0), seed=1)  # 200 x 200 at 0.5 m
     dem = terrain[::2, ::2].astype(np.float64)
@@ -135,8 +145,12 @@ def main() -> None:
     from rasterio.transform import from_origin
 
     safety = np.where(np.isfinite(p), SAFETY_SAFE, 255).astype(np.uint8)  # worst case: every valid cell safe
-    sites = _median(lambda: select_sites(safety, np.nan_to_num(p), np.zeros_like(p), p, from_origin(0, 100, 1, 1),
-                                         (1.0, 1.0), Lander(), 10), args.repeats * 3)
+    sites = _median(
+        lambda: select_sites(
+            safety, np.nan_to_num(p), np.zeros_like(p), p, from_origin(0, 100, 1, 1), (1.0, 1.0), Lander(), 10
+        ),
+        args.repeats * 3,
+    )
     print(f"\n{'per 100x100 frame':68s} {'1 at a time':>12s} {'batch of 8':>11s} {'/ budget':>9s}")
     for label, one, eight in rows:
         batched = f"{eight:9.3f} s" if np.isfinite(eight) else f"{'-':>11s}"
@@ -148,9 +162,11 @@ def main() -> None:
     for label, one, _ in rows:
         if label.startswith("cpu profile"):
             name = label.split(":")[0]
-            print(f"{name}, one frame at a time: network {one:.3f} s + baseline {base:.4f} s = {one + base:.3f} s per "
-                  f"frame, {(one + base) / BUDGET_S:.3f} of the 10 s budget (target < 1 s: "
-                  f"{'met' if one + base < 1.0 else 'NOT met'}); network / baseline = {one / base:.0f}x")
+            print(
+                f"{name}, one frame at a time: network {one:.3f} s + baseline {base:.4f} s = {one + base:.3f} s per "
+                f"frame, {(one + base) / BUDGET_S:.3f} of the 10 s budget (target < 1 s: "
+                f"{'met' if one + base < 1.0 else 'NOT met'}); network / baseline = {one / base:.0f}x"
+            )
 
     if args.dtm_size > 0:
         with tempfile.TemporaryDirectory() as tmp:
@@ -159,24 +175,39 @@ def main() -> None:
             write_geotiff(dtm, big, 0.5, origin_xy=(0.0, args.dtm_size))
             run = _run(CPU, CPU.width, dem)
             ckpt = Path(tmp) / "run.pt"
-            save_checkpoint(ckpt, {
-                "schema": CHECKPOINT_SCHEMA, "schema_version": CHECKPOINT_VERSION, "model_name": "bayesian_segnet",
-                "model_config": run.model.config.to_dict(), "profile": CPU.to_dict(), "epoch": 0,
-                "model": run.model.state_dict(),
-                "extra_config": {"train_sigma_m": 0.0167, "input": run.input_spec.to_dict(), "normalisation": None,
-                                 "input_size": None, "labels": LABELING["name"], "dem_shape": [100, 100],
-                                 "labeling": LABELING},
-            })
+            save_checkpoint(
+                ckpt,
+                {
+                    "schema": CHECKPOINT_SCHEMA,
+                    "schema_version": CHECKPOINT_VERSION,
+                    "model_name": "bayesian_segnet",
+                    "model_config": run.model.config.to_dict(),
+                    "profile": CPU.to_dict(),
+                    "epoch": 0,
+                    "model": run.model.state_dict(),
+                    "extra_config": {
+                        "train_sigma_m": 0.0167,
+                        "input": run.input_spec.to_dict(),
+                        "normalisation": None,
+                        "input_size": None,
+                        "labels": LABELING["name"],
+                        "dem_shape": [100, 100],
+                        "labeling": LABELING,
+                    },
+                },
+            )
             t0 = time.perf_counter()
             result = detect(ckpt, Path(tmp) / "out", dtm=dtm, threshold="nats:0.35", mc_samples=args.samples)
             total = time.perf_counter() - t0
             n = result.info["tiling"]["n_tiles"]
             km2 = (args.dtm_size / 1000.0) ** 2
             t = result.timings_s
-            print(f"\nend to end, {args.dtm_size:g} m x {args.dtm_size:g} m procedural DTM (0.5 m -> 1 m), cpu profile: "
-                  f"{total:.1f} s for {n} tiles = {total / n:.3f} s per tile, {total / km2:.0f} s per km^2 "
-                  f"(network {t['network']:.1f} s, baseline {t['baseline']:.1f} s, read {t['read']:.1f} s, "
-                  f"write {t['write']:.1f} s, sites {t['sites']:.1f} s, overview {t['overview']:.1f} s)")
+            print(
+                f"\nend to end, {args.dtm_size:g} m x {args.dtm_size:g} m procedural DTM (0.5 m -> 1 m), cpu profile: "
+                f"{total:.1f} s for {n} tiles = {total / n:.3f} s per tile, {total / km2:.0f} s per km^2 "
+                f"(network {t['network']:.1f} s, baseline {t['baseline']:.1f} s, read {t['read']:.1f} s, "
+                f"write {t['write']:.1f} s, sites {t['sites']:.1f} s, overview {t['overview']:.1f} s)"
+            )
 
 
 if __name__ == "__main__":

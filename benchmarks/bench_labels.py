@@ -30,12 +30,12 @@ from scipy.ndimage import gaussian_filter
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "hdlabels"))
 
-from alhat_reference import reference_maps  # noqa: E402
+from alhat_reference import reference_maps
 
-from hdlabels.alhat import hazard_and_probability, hazard_maps, safety_probability  # noqa: E402
-from hdlabels.defaults import GRIDDING, GRIDDINGS  # noqa: E402
-from hdlabels.grid import grid_points  # noqa: E402
-from hdlabels.lander import Lander  # noqa: E402
+from hdlabels.alhat import hazard_and_probability, hazard_maps, safety_probability
+from hdlabels.defaults import GRIDDING, GRIDDINGS
+from hdlabels.grid import grid_points
+from hdlabels.lander import Lander
 
 
 def terrain(rng: np.random.Generator, n: int) -> np.ndarray:
@@ -43,7 +43,7 @@ def terrain(rng: np.random.Generator, n: int) -> np.ndarray:
     return gaussian_filter(rng.normal(0.0, 1.0, (n, n)), 3.0) * 2.0 + (rng.random((n, n)) < 0.02) * 0.15
 
 
-def per_call_ms(fn: Callable[[np.ndarray], object], inputs: list[np.ndarray]) -> float:
+def per_call_ms(fn: Callable[..., object], inputs: list[np.ndarray]) -> float:
     """Median wall time of ``fn`` over ``inputs``, milliseconds (one warm-up call first)."""
     fn(inputs[0])
     times = []
@@ -73,8 +73,12 @@ def reference_ms(python: str, src: str, dems: list[np.ndarray], sigma: float, re
     with tempfile.TemporaryDirectory() as tmp:
         inputs, outputs = Path(tmp) / "in.npz", Path(tmp) / "out.npz"
         np.savez(inputs, dems=np.stack(dems[:1]).astype(np.float32), sigmas=np.array([sigma]))
-        subprocess.run([python, str(runner), str(inputs), str(outputs), "--src", src, "--repeat", str(repeat)],
-                       check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        subprocess.run(
+            [python, str(runner), str(inputs), str(outputs), "--src", src, "--repeat", str(repeat)],
+            check=True,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
         out = np.load(outputs)
         return 1e3 * float(out["dhd_s"]), 1e3 * float(out["alhat_s"])
 
@@ -84,8 +88,9 @@ def main() -> None:
     parser.add_argument("--dems", type=int, default=20, help="100x100 DEMs timed per back end")
     parser.add_argument("--ref-size", type=int, default=40, help="side of the DEMs the loop reference runs on")
     parser.add_argument("--ref-dems", type=int, default=2, help="DEMs the loop reference runs on")
-    parser.add_argument("--reference-python", default=os.environ.get("HD_PYDEM_PYTHON"),
-                        help="python of pydem's throw-away environment")
+    parser.add_argument(
+        "--reference-python", default=os.environ.get("HD_PYDEM_PYTHON"), help="python of pydem's throw-away environment"
+    )
     parser.add_argument("--reference-src", default=os.environ.get("HD_PYDEM_SRC"), help="pydem checkout (e7734ae)")
     args = parser.parse_args()
     rng = np.random.default_rng(0)
@@ -93,18 +98,25 @@ def main() -> None:
     dems = [terrain(rng, 100).astype(np.float32) for _ in range(args.dems)]
     both_ms: dict[str, float] = {}
     for name, lander in (("paper", Lander()), ("hd", Lander(convention="hd"))):
-        print(f"{name} convention ({lander.baseline_combine} baseline), per 100x100 DEM at 1 m "
-              f"({args.dems} DEMs, median):")
+        print(
+            f"{name} convention ({lander.baseline_combine} baseline), per 100x100 DEM at 1 m "
+            f"({args.dems} DEMs, median):"
+        )
         for sigma in (0.0167, 0.07):
             noisy = [(d + rng.normal(0.0, sigma, d.shape)).astype(np.float32) for d in dems]
             for backend in ("numba", "numpy"):
                 det = per_call_ms(lambda d, b=backend, la=lander: hazard_maps(d, 1.0, la, backend=b), dems)
-                prob = per_call_ms(lambda d, b=backend, la=lander, s=sigma: safety_probability(d, 1.0, s, la, backend=b),
-                                   noisy)
+                prob = per_call_ms(
+                    lambda d, b=backend, la=lander, s=sigma: safety_probability(d, 1.0, s, la, backend=b), noisy
+                )
                 both = per_call_ms(
-                    lambda d, b=backend, la=lander, s=sigma: hazard_and_probability(d, 1.0, s, la, backend=b), noisy)
-                print(f"  sigma {sigma * 100:4.2f} cm {backend:6s} deterministic maps {det:7.2f} ms   P(safe) {prob:7.2f} ms"
-                      f"   both maps from one pass {both:7.2f} ms (target <= 10 ms)")
+                    lambda d, b=backend, la=lander, s=sigma: hazard_and_probability(d, 1.0, s, la, backend=b), noisy
+                )
+                print(
+                    f"  sigma {sigma * 100:4.2f} cm {backend:6s} deterministic maps {det:7.2f} ms   "
+                    f"P(safe) {prob:7.2f} ms"
+                    f"   both maps from one pass {both:7.2f} ms (target <= 10 ms)"
+                )
                 if backend == "numba":
                     both_ms[f"{name} {sigma}"] = both
                     both_ms[f"{name} {sigma} det"] = det
@@ -115,9 +127,11 @@ def main() -> None:
         for sigma in (0.0167, 0.07):
             dhd, alhat = reference_ms(args.reference_python, args.reference_src, dems, sigma, repeat=5)
             ours = both_ms[f"paper {sigma}"]
-            print(f"  sigma {sigma * 100:4.2f} cm: dhd {dhd:7.1f} ms + alhat {alhat:7.1f} ms = {dhd + alhat:7.1f} ms; "
-                  f"hd paper convention, both maps from one pass {ours:6.2f} ms: {(dhd + alhat) / ours:5.0f}x faster "
-                  "(target >= 5x)")
+            print(
+                f"  sigma {sigma * 100:4.2f} cm: dhd {dhd:7.1f} ms + alhat {alhat:7.1f} ms = {dhd + alhat:7.1f} ms; "
+                f"hd paper convention, both maps from one pass {ours:6.2f} ms: {(dhd + alhat) / ours:5.0f}x faster "
+                "(target >= 5x)"
+            )
     else:
         print("the paper's replica: skipped (give --reference-python and --reference-src)")
 
@@ -129,21 +143,27 @@ def main() -> None:
         fast = per_call_ms(lambda d, b=backend: hazard_maps(d, 1.0, lander, backend=b), small * 5)
         print(f"  reference {ref:9.1f} ms   {backend:6s} {fast:7.2f} ms   ratio {ref / fast:8.0f}x")
 
-    scans = [nadir_scan(lambda x, y, k=k: 2 * np.sin(x / 7 + k) + np.cos(y / 5)) for k in range(5)]
+    def hills(k: int) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+        return lambda x, y: 2 * np.sin(x / 7 + k) + np.cos(y / 5)
+
+    scans = [nadir_scan(hills(k)) for k in range(5)]
     print("grid_points per 128x128 scan -> 100x100 DEM:")
     grid_ms = {}
     for method in GRIDDINGS:
         backends = ("numba", "numpy") if method == "linear" else ("auto",)
         for backend in backends:
             grid_ms[f"{method} {backend}"] = per_call_ms(
-                lambda p, b=backend, m=method: grid_points(p, method=m, backend=b), scans)
+                lambda p, b=backend, m=method: grid_points(p, method=m, backend=b), scans
+            )
             print(f"  {method:8s} {backend:6s} {grid_ms[f'{method} {backend}']:8.2f} ms")
 
     for name, grid in (("paper", f"{GRIDDING['paper']} auto"), ("hd", "linear numba")):
         det, prob = both_ms[f"{name} 0.07 det"], both_ms[f"{name} 0.07 prob"]
         total = 1000 * (grid_ms[grid] + det) + 3000 * (grid_ms[grid] + prob)
-        print(f"projected, {name} convention: 1000 scans x 3 sigma (grid + labels + P(safe), numba, one core): "
-              f"{total / 1e3:.1f} s")
+        print(
+            f"projected, {name} convention: 1000 scans x 3 sigma (grid + labels + P(safe), numba, one core): "
+            f"{total / 1e3:.1f} s"
+        )
 
 
 if __name__ == "__main__":

@@ -15,6 +15,7 @@ import argparse
 import statistics
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import torch
@@ -22,8 +23,8 @@ from torch.utils.flop_counter import FlopCounterMode
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from hdnet.infer import mc_dropout_predict, mc_dropout_predict_naive  # noqa: E402
-from hdnet.model import BayesianSegNet, count_parameters  # noqa: E402
+from hdnet.infer import mc_dropout_predict, mc_dropout_predict_naive
+from hdnet.model import BayesianSegNet, count_parameters
 
 
 def _train_step(model: BayesianSegNet, opt: torch.optim.Optimizer, x: torch.Tensor, y: torch.Tensor) -> None:
@@ -32,7 +33,7 @@ def _train_step(model: BayesianSegNet, opt: torch.optim.Optimizer, x: torch.Tens
     opt.step()
 
 
-def _timed(fn, repeats: int) -> float:
+def _timed(fn: Callable[[], object], repeats: int) -> float:
     """Median seconds of ``repeats`` calls after one warm-up call."""
     fn()
     times = []
@@ -58,8 +59,10 @@ def main() -> None:
     torch.manual_seed(0)
 
     model = BayesianSegNet(width=args.width).to(device)
-    print(f"device {device}, torch {torch.__version__}, threads {torch.get_num_threads()}, "
-          f"width {args.width}, {count_parameters(model):,} parameters")
+    print(
+        f"device {device}, torch {torch.__version__}, threads {torch.get_num_threads()}, "
+        f"width {args.width}, {count_parameters(model):,} parameters"
+    )
 
     # --- training throughput ------------------------------------------------------------------
     opt = torch.optim.SGD(model.parameters(), lr=1e-4, momentum=0.9)
@@ -75,8 +78,10 @@ def main() -> None:
         sync()
 
     t = _timed(step, args.repeats)
-    print(f"train fwd+bwd  {args.size}x{args.size} batch {args.batch}: {t:.3f} s/step, "
-          f"{args.batch / t:.2f} images/s, {flops / 1e9:.1f} GFLOP/step, {flops / t / 1e9:.1f} GFLOP/s achieved")
+    print(
+        f"train fwd+bwd  {args.size}x{args.size} batch {args.batch}: {t:.3f} s/step, "
+        f"{args.batch / t:.2f} images/s, {flops / 1e9:.1f} GFLOP/step, {flops / t / 1e9:.1f} GFLOP/s achieved"
+    )
 
     # --- MC dropout: shared prefix vs naive ----------------------------------------------------
     xm = torch.randn(args.mc_batch, 1, args.size, args.size, device=device)
@@ -90,16 +95,19 @@ def main() -> None:
         mc_dropout_predict_naive(model, xm, n_samples=args.samples)
         sync()
 
-    shared(), naive()  # warm-up both
+    shared()  # warm-up both
+    naive()
     for _ in range(args.repeats):  # interleaved, so load changes hit both alike
         shared_t.append(_once(shared))
         naive_t.append(_once(naive))
     s, n = statistics.median(shared_t), statistics.median(naive_t)
-    print(f"MC dropout M={args.samples}, {args.mc_batch} x {args.size}x{args.size}: shared prefix {s:.3f} s, "
-          f"naive {n:.3f} s, speed-up {n / s:.2f}x (target >= 1.3x)")
+    print(
+        f"MC dropout M={args.samples}, {args.mc_batch} x {args.size}x{args.size}: shared prefix {s:.3f} s, "
+        f"naive {n:.3f} s, speed-up {n / s:.2f}x (target >= 1.3x)"
+    )
 
 
-def _once(fn) -> float:
+def _once(fn: Callable[[], object]) -> float:
     t0 = time.perf_counter()
     fn()
     return time.perf_counter() - t0

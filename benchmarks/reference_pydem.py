@@ -25,17 +25,18 @@ import argparse
 import sys
 import time
 import types
+from typing import Any
 
 import numpy as np
 
 
 def load_hazard_detection(src: str) -> types.ModuleType:
     """pydem.HazardDetection from a checkout, without pydem's package __init__."""
-    np.int = int  # type: ignore[attr-defined]  # pydem (2023) uses the alias numpy removed in 1.24
+    np.int = int  # type: ignore[attr-defined]  # noqa: NPY001 - pydem (2023) uses the alias numpy removed in 1.24
     package = types.ModuleType("pydem")
-    package.__path__ = [f"{src}/pydem"]  # type: ignore[attr-defined]
+    package.__path__ = [f"{src}/pydem"]
     sys.modules["pydem"] = package
-    import pydem.HazardDetection as hazard_detection  # type: ignore[import-not-found]
+    import pydem.HazardDetection as hazard_detection  # type: ignore[import-not-found]  # a checkout, not installed
 
     return hazard_detection
 
@@ -62,8 +63,10 @@ def main() -> None:
             p[k, s] = hd.alhat(noisy[k, s], 1.0, sigma=sigma)[4]
     timings = {}
     if args.repeat > 0:
-        for name, call in (("dhd_s", lambda: hd.dhd(dems[0], 1.0)),
-                           ("alhat_s", lambda: hd.alhat(noisy[0, -1], 1.0, sigma=sigmas[-1]))):
+        for name, call in (
+            ("dhd_s", lambda: hd.dhd(dems[0], 1.0)),
+            ("alhat_s", lambda: hd.alhat(noisy[0, -1], 1.0, sigma=sigmas[-1])),
+        ):
             call()
             times = []
             for _ in range(args.repeat):
@@ -71,7 +74,8 @@ def main() -> None:
                 call()
                 times.append(time.perf_counter() - t0)
             timings[name] = float(np.median(times))
-    np.savez(args.outputs, label=label, valid=valid, p=p, **timings)
+    arrays: dict[str, Any] = {"label": label, "valid": valid, "p": p, **timings}
+    np.savez(args.outputs, **arrays)
 
 
 if __name__ == "__main__":

@@ -46,7 +46,7 @@ from hdlabels.lander import Geometry, Lander, geometry
 try:  # numba is optional: the numpy back end computes the same numbers, slower.
     import numba
 except ImportError:  # pragma: no cover - exercised only where numba is absent
-    numba = None
+    numba = None  # type: ignore[assignment]  # absent: the numpy back end is taken
 
 Backend = Literal["auto", "numba", "numpy"]
 
@@ -136,10 +136,7 @@ def probability_from_maps(maps: HazardMaps, sigma_m: float, lander: Lander = Lan
     rough = maps.roughness_m.astype(np.float64)
     slope_ok = slope < math.radians(lander.max_slope_deg)
     margin = lander.max_roughness_m - rough
-    if sigma_m > 0:
-        p_rough = ndtr(margin / sigma_m)
-    else:
-        p_rough = (margin > 0).astype(np.float64)
+    p_rough = ndtr(margin / sigma_m) if sigma_m > 0 else (margin > 0).astype(np.float64)
     p = np.where(slope_ok, p_rough, 0.0)
     p[~maps.valid] = np.nan
     return p.astype(np.float32)
@@ -201,8 +198,9 @@ def _resting_planes(heights: np.ndarray, geo: Geometry, n_pads: int) -> tuple[np
     h = heights.reshape(n_yaws, n_pads, *heights.shape[1:])
     gx, gy, c = [], [], []
     for m in range(n_yaws):
-        coeffs = [np.tensordot(geo.plane_weights[m, t], h[m, list(triple)], axes=1)
-                  for t, triple in enumerate(geo.triples)]
+        coeffs = [
+            np.tensordot(geo.plane_weights[m, t], h[m, list(triple)], axes=1) for t, triple in enumerate(geo.triples)
+        ]
         if n_pads == 4:  # rock on the higher diagonal, both ways
             on_02 = h[m, 0] + h[m, 2] >= h[m, 1] + h[m, 3]
             coeffs = [np.where(on_02, coeffs[0], coeffs[2]), np.where(on_02, coeffs[1], coeffs[3])]
@@ -281,9 +279,27 @@ def _worst_case(
         _pad_heights_jit(z, b, geo.tap_di, geo.tap_dj, geo.tap_w.astype(np.float32), heights)
         slope = np.empty((hv, wv))
         rough = np.empty((hv, wv))
-        _worst_case_jit(z, b, heights, lander.n_pads, geo.plane_weights, geo.triples, geo.node_ptr, geo.node_di,
-                        geo.node_dj, lander.count_holes, spacing_m, mode, lander.max_roughness_m, inv_sigma,
-                        scale_by_c, _LOG_PHI, slope, rough, score)
+        _worst_case_jit(
+            z,
+            b,
+            heights,
+            lander.n_pads,
+            geo.plane_weights,
+            geo.triples,
+            geo.node_ptr,
+            geo.node_di,
+            geo.node_dj,
+            lander.count_holes,
+            spacing_m,
+            mode,
+            lander.max_roughness_m,
+            inv_sigma,
+            scale_by_c,
+            _LOG_PHI,
+            slope,
+            rough,
+            score,
+        )
         return slope, rough, score
     heights = np.empty((geo.tap_w.shape[0], hv, wv))
     _pad_heights_numpy(z, b, geo, heights)
@@ -297,7 +313,7 @@ def _worst_case(
     rc = lander.max_roughness_m
     for q in range(gx.shape[0]):
         di, dj = geo.nodes(q // n_cfg)
-        dev = np.stack([z[b + a : b + a + hv, b + e : b + e + wv] for a, e in zip(di, dj)])
+        dev = np.stack([z[b + a : b + a + hv, b + e : b + e + wv] for a, e in zip(di, dj, strict=True)])
         dev = dev - c[q] - gx[q] * dj[:, None, None] + gy[q] * di[:, None, None]
         height = np.maximum(dev.max(axis=0), 0.0)
         if lander.count_holes:
@@ -377,8 +393,27 @@ def _pad_heights_loops(z, b, tap_di, tap_dj, tap_w, out):  # pragma: no cover - 
                     row[j] = max(row[j], v)
 
 
-def _worst_case_loops(z, b, heights, n_pads, plane_weights, triples, node_ptr, node_di, node_dj, count_holes,
-                      spacing, mode, rc, inv_sigma, scale_by_c, log_phi, slope, rough, score):  # pragma: no cover - compiled by numba
+def _worst_case_loops(
+    z,
+    b,
+    heights,
+    n_pads,
+    plane_weights,
+    triples,
+    node_ptr,
+    node_di,
+    node_dj,
+    count_holes,
+    spacing,
+    mode,
+    rc,
+    inv_sigma,
+    scale_by_c,
+    log_phi,
+    slope,
+    rough,
+    score,
+):  # pragma: no cover - compiled by numba
     """Resting planes, slope, roughness and the P score, worst case over configurations (numba).
 
     Same numbers as ``_worst_case``'s numpy path; rows are processed one at a time so every

@@ -80,7 +80,8 @@ def drop_and_repair(
 
 def _refill(z: np.ndarray, good: np.ndarray, i: int, j: int) -> float:
     """Refill pixel (i, j) from the nearest good pixels along its row and its column (see drop_and_repair)."""
-    between, beyond = [], []
+    between: list[float] = []
+    beyond: list[float] = []
     for line, good_line, pos in ((z[i, :], good[i, :], j), (z[:, j], good[:, j], i)):
         before = np.flatnonzero(good_line[:pos])
         after = np.flatnonzero(good_line[pos + 1 :]) + pos + 1

@@ -28,7 +28,7 @@ from hdlabels.errors import HdLabelsError
 try:  # numba is optional: the numpy path computes the same DEM, slower.
     import numba
 except ImportError:  # pragma: no cover
-    numba = None
+    numba = None  # type: ignore[assignment]  # absent: the numpy path is taken
 
 # A cell centre counts as inside a triangle if its barycentric coordinates are >= -_BARY_EPS.
 _BARY_EPS = 1e-9
@@ -167,8 +167,11 @@ def _in_circumcircle(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray)
     ax, ay = a[:, 0] - d[:, 0], a[:, 1] - d[:, 1]
     bx, by = b[:, 0] - d[:, 0], b[:, 1] - d[:, 1]
     cx, cy = c[:, 0] - d[:, 0], c[:, 1] - d[:, 1]
-    det = ((ax * ax + ay * ay) * (bx * cy - cx * by) - (bx * bx + by * by) * (ax * cy - cx * ay)
-           + (cx * cx + cy * cy) * (ax * by - bx * ay))
+    det = (
+        (ax * ax + ay * ay) * (bx * cy - cx * by)
+        - (bx * bx + by * by) * (ax * cy - cx * ay)
+        + (cx * cx + cy * cy) * (ax * by - bx * ay)
+    )
     orient = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
     return det * np.sign(orient)
 
@@ -188,7 +191,7 @@ def _rasterise_numpy(tri: np.ndarray, spacing: float, dem: np.ndarray) -> None:
     ni, nj = (i_hi - i_lo + 1)[keep], (j_hi - j_lo + 1)[keep]
     tri, i_lo, j_lo = tri[keep], i_lo[keep], j_lo[keep]
     # Triangles grouped by bounding-box size, each group one array operation.
-    for size_i, size_j in set(zip(ni.tolist(), nj.tolist())):
+    for size_i, size_j in set(zip(ni.tolist(), nj.tolist(), strict=True)):
         g = (ni == size_i) & (nj == size_j)
         ii = i_lo[g][:, None, None] + np.arange(size_i)[None, :, None]
         jj = j_lo[g][:, None, None] + np.arange(size_j)[None, None, :]
@@ -245,8 +248,11 @@ def _in_circle_one(a, b, c, d):  # pragma: no cover - compiled by numba
     ax, ay = a[0] - d[0], a[1] - d[1]
     bx, by = b[0] - d[0], b[1] - d[1]
     cx, cy = c[0] - d[0], c[1] - d[1]
-    det = ((ax * ax + ay * ay) * (bx * cy - cx * by) - (bx * bx + by * by) * (ax * cy - cx * ay)
-           + (cx * cx + cy * cy) * (ax * by - bx * ay))
+    det = (
+        (ax * ax + ay * ay) * (bx * cy - cx * by)
+        - (bx * bx + by * by) * (ax * cy - cx * ay)
+        + (cx * cx + cy * cy) * (ax * by - bx * ay)
+    )
     orient = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
     return det * np.sign(orient)
 

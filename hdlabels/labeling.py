@@ -101,26 +101,37 @@ def check_lander_fits(lander: Lander, dem: DemSpec) -> None:
         )
 
 
-def label_scan(points_clean: np.ndarray, points_noisy: np.ndarray, sigmas_m: tuple[float, ...], lander: Lander,
-               dem: DemSpec) -> dict[str, np.ndarray]:
+def label_scan(
+    points_clean: np.ndarray, points_noisy: np.ndarray, sigmas_m: tuple[float, ...], lander: Lander, dem: DemSpec
+) -> dict[str, np.ndarray]:
     """DEMs, hazard maps and P(safe) of one scan (arrays as stored in a label shard)."""
     shape = (dem.rows, dem.cols)
     dem_clean = grid_points(points_clean, shape, dem.spacing_m, method=dem.gridding)
     if not np.isfinite(dem_clean).any():
         raise LabelStoreError("a clean DEM is all NaN: the scan has no returns under the DEM grid")
     maps = hazard_maps(dem_clean, dem.spacing_m, lander)
-    dem_noisy = np.stack([grid_points(points_noisy[s], shape, dem.spacing_m, method=dem.gridding)
-                          for s in range(len(sigmas_m))])
-    p_safe = np.stack([safety_probability(dem_noisy[s], dem.spacing_m, sigma, lander)
-                       for s, sigma in enumerate(sigmas_m)])
-    return {"dem_clean": dem_clean, "dem_noisy": dem_noisy, "label": maps.label, "slope_rad": maps.slope_rad,
-            "roughness_m": maps.roughness_m, "p_safe": p_safe}
+    dem_noisy = np.stack(
+        [grid_points(points_noisy[s], shape, dem.spacing_m, method=dem.gridding) for s in range(len(sigmas_m))]
+    )
+    p_safe = np.stack(
+        [safety_probability(dem_noisy[s], dem.spacing_m, sigma, lander) for s, sigma in enumerate(sigmas_m)]
+    )
+    return {
+        "dem_clean": dem_clean,
+        "dem_noisy": dem_noisy,
+        "label": maps.label,
+        "slope_rad": maps.slope_rad,
+        "roughness_m": maps.roughness_m,
+        "p_safe": p_safe,
+    }
 
 
 def label_counts(label: np.ndarray) -> np.ndarray:
     """Pixel counts (unsafe, safe, invalid) of a label array, int64 (3,)."""
-    return np.array([(label == code).sum() for code in
-                     (defaults.LABEL_UNSAFE, defaults.LABEL_SAFE, defaults.LABEL_INVALID)], dtype=np.int64)
+    return np.array(
+        [(label == code).sum() for code in (defaults.LABEL_UNSAFE, defaults.LABEL_SAFE, defaults.LABEL_INVALID)],
+        dtype=np.int64,
+    )
 
 
 def run_label_task(task: LabelTask) -> LabelRecord:
@@ -156,8 +167,15 @@ def run_label_task(task: LabelTask) -> LabelRecord:
 
 
 def _record(task: LabelTask, out: Path, n_scans: int, counts: np.ndarray) -> LabelRecord:
-    entry = {"path": task.out_path, "sha256": sha256_file(out), "n_scans": n_scans, "source_path": task.source_path,
-             "source_sha256": task.source_sha256, "schema": LABEL_SCHEMA, "schema_version": LABEL_SCHEMA_VERSION}
+    entry = {
+        "path": task.out_path,
+        "sha256": sha256_file(out),
+        "n_scans": n_scans,
+        "source_path": task.source_path,
+        "source_sha256": task.source_sha256,
+        "schema": LABEL_SCHEMA,
+        "schema_version": LABEL_SCHEMA_VERSION,
+    }
     return LabelRecord(entry=entry, counts=(int(counts[0]), int(counts[1]), int(counts[2])))
 
 
@@ -198,7 +216,7 @@ def _single_writer(func: Callable[..., LabelSummary]) -> Callable[..., LabelSumm
             try:
                 return func(root, *args, **kwargs)
             except BaseException:
-                for d in (labels.iterdir() if labels.is_dir() else []):
+                for d in labels.iterdir() if labels.is_dir() else []:
                     if d.is_dir() and not d.is_symlink():
                         remove_partials(d)
                         if (before is None or d.name not in before) and not any(d.iterdir()):
@@ -244,8 +262,15 @@ def label_dataset(
     out_dir.mkdir(parents=True, exist_ok=True)
     remove_partials(out_dir)
     tasks = [
-        LabelTask(dataset=str(root), source_path=s["path"], source_sha256=s["sha256"],
-                  out_path=f"{LABELS_DIR}/{name}/{label_shard_name(i)}", lander=lander, dem=dem, labeling=name)
+        LabelTask(
+            dataset=str(root),
+            source_path=s["path"],
+            source_sha256=s["sha256"],
+            out_path=f"{LABELS_DIR}/{name}/{label_shard_name(i)}",
+            lander=lander,
+            dem=dem,
+            labeling=name,
+        )
         for i, s in enumerate(manifest["shards"])
     ]
     records: dict[int, LabelRecord] = {}
@@ -281,7 +306,11 @@ def label_dataset(
         "convention": lander.convention,
         "lander": lander.to_attrs(),
         "dem": dem.to_entry(),
-        "label_codes": {"unsafe": defaults.LABEL_UNSAFE, "safe": defaults.LABEL_SAFE, "invalid": defaults.LABEL_INVALID},
+        "label_codes": {
+            "unsafe": defaults.LABEL_UNSAFE,
+            "safe": defaults.LABEL_SAFE,
+            "invalid": defaults.LABEL_INVALID,
+        },
         "label_counts": {"unsafe": int(counts[0]), "safe": int(counts[1]), "invalid": int(counts[2])},
         "safe_fraction": safe_fraction,
         "baseline_safe_fraction": _baseline_fractions(root, [records[i].entry for i in sorted(records)], manifest),
@@ -308,6 +337,12 @@ def _baseline_fractions(root: Path, entries: list[dict[str, Any]], manifest: dic
 
 
 def _summary_from_entry(entry: dict[str, Any], manifest: dict[str, Any], seconds: float, reused: bool) -> LabelSummary:
-    return LabelSummary(name=entry["name"], n_scans=int(manifest["n_scans"]), n_shards=len(entry["shards"]),
-                        safe_fraction=float(entry["safe_fraction"]),
-                        baseline_safe_fraction=entry.get("baseline_safe_fraction", {}), seconds=seconds, reused=reused)
+    return LabelSummary(
+        name=entry["name"],
+        n_scans=int(manifest["n_scans"]),
+        n_shards=len(entry["shards"]),
+        safe_fraction=float(entry["safe_fraction"]),
+        baseline_safe_fraction=entry.get("baseline_safe_fraction", {}),
+        seconds=seconds,
+        reused=reused,
+    )

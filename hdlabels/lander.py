@@ -9,6 +9,7 @@ See ``docs/labels.md`` for the equations.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from functools import lru_cache
 from typing import Literal
@@ -140,19 +141,27 @@ class Lander:
         return attrs
 
     @classmethod
-    def from_attrs(cls, attrs: dict[str, object]) -> Lander:
+    def from_attrs(cls, attrs: Mapping[str, object]) -> Lander:
         """The lander recorded by ``to_attrs`` (derived values are ignored).
 
         Records written before the paper convention existed carry no ``convention``: they are
         the hd convention with the worst-node ("min") baseline.
         """
-        keys = ("diameter_m", "pad_diameter_m", "max_slope_deg", "max_roughness_m", "layout", "n_yaws",
-                "count_holes", "baseline_combine")
+        keys = (
+            "diameter_m",
+            "pad_diameter_m",
+            "max_slope_deg",
+            "max_roughness_m",
+            "layout",
+            "n_yaws",
+            "count_holes",
+            "baseline_combine",
+        )
         values: dict[str, object] = {k: _plain(attrs[k]) for k in keys if k in attrs}
         values["convention"] = str(attrs.get("convention", "hd"))
         if values["convention"] == "paper":
             values.pop("n_yaws", None)
-        return cls(**values)  # type: ignore[arg-type]
+        return cls(**values)  # type: ignore[arg-type]  # recorded values, checked by __post_init__
 
 
 def _plain(value: object) -> object:
@@ -222,10 +231,12 @@ def pad_sample_points(centre_xy_px: tuple[float, float], pad_radius_px: float) -
         for q in range(n)
     ]
     inner = pad_radius_px * math.cos(math.pi / n) + _EPS_PX
-    for x in range(math.floor(cx - inner), math.ceil(cx + inner) + 1):
-        for y in range(math.floor(cy - inner), math.ceil(cy + inner) + 1):
-            if (x - cx) ** 2 + (y - cy) ** 2 <= inner**2:
-                points.append((float(x), float(y)))
+    points += [
+        (float(x), float(y))
+        for x in range(math.floor(cx - inner), math.ceil(cx + inner) + 1)
+        for y in range(math.floor(cy - inner), math.ceil(cy + inner) + 1)
+        if (x - cx) ** 2 + (y - cy) ** 2 <= inner**2
+    ]
     return points
 
 
@@ -294,8 +305,10 @@ def _hd_geometry(lander: Lander, spacing_m: float) -> Geometry:
     inside = di**2 + dj**2 <= r_body**2 + _EPS_PX
     body_di, body_dj = di[inside], dj[inside]
 
-    nodes = set(zip(body_di.tolist(), body_dj.tolist()))
-    nodes.update((int(a), int(b)) for a, b, w in zip(tap_di.ravel(), tap_dj.ravel(), tap_w.ravel()) if w > 0)
+    nodes = set(zip(body_di.tolist(), body_dj.tolist(), strict=True))
+    nodes.update(
+        (int(a), int(b)) for a, b, w in zip(tap_di.ravel(), tap_dj.ravel(), tap_w.ravel(), strict=True) if w > 0
+    )
     band = max(max(abs(a), abs(b)) for a, b in nodes)
     footprint = np.zeros((2 * band + 1, 2 * band + 1), dtype=bool)
     for a, b in nodes:

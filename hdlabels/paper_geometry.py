@@ -127,7 +127,9 @@ def paper_geometry(lander: Lander, spacing_m: float) -> Geometry:
             f"{spacing_m:g} m for the paper convention (lander radius {n_body} px, pad radius {n_pad} px)"
         )
     polygons = distinct_polygons(lander.layout, radius)
-    disk = [(i, j) for i in range(-n_pad, n_pad + 1) for j in range(-n_pad, n_pad + 1) if i * i + j * j <= n_pad * n_pad]
+    disk = [
+        (i, j) for i in range(-n_pad, n_pad + 1) for j in range(-n_pad, n_pad + 1) if i * i + j * j <= n_pad * n_pad
+    ]
 
     n_pads = lander.n_pads
     n_yaws = len(polygons)

@@ -64,9 +64,20 @@ class LabelSettings:
         unknown = sorted(set(section) - set(known))
         if unknown:
             raise HdLabelsError(f"{where}: unknown [label] key(s) {unknown}")
-        casts = {"lander": str, "lander_diameter_m": float, "pad_diameter_m": float, "max_slope_deg": float,
-                 "max_roughness_m": float, "yaws": int, "count_holes": bool, "dem_size": int, "dem_spacing_m": float,
-                 "convention": str, "baseline_combine": str, "gridding": str}
+        casts = {
+            "lander": str,
+            "lander_diameter_m": float,
+            "pad_diameter_m": float,
+            "max_slope_deg": float,
+            "max_roughness_m": float,
+            "yaws": int,
+            "count_holes": bool,
+            "dem_size": int,
+            "dem_spacing_m": float,
+            "convention": str,
+            "baseline_combine": str,
+            "gridding": str,
+        }
         values: dict[str, Any] = {"convention": RECIPE_CONVENTION_BEFORE_CONVENTIONS}
         for key, value in section.items():
             try:
@@ -82,14 +93,21 @@ class LabelSettings:
             HdLabelsError: an invalid lander, or ``yaws`` with the paper convention.
         """
         if self.yaws is not None and self.convention != "hd":
-            raise HdLabelsError("--yaws applies to --convention hd only (the paper convention turns the lander in "
-                                f"{defaults.PAPER_ORIENTATION_STEP_DEG:g}-degree steps)")
-        return Lander(diameter_m=self.lander_diameter_m, pad_diameter_m=self.pad_diameter_m,
-                      max_slope_deg=self.max_slope_deg, max_roughness_m=self.max_roughness_m,
-                      layout=self.lander,  # type: ignore[arg-type]  # a str, checked by Lander against LAYOUTS
-                      n_yaws=self.yaws if self.yaws is not None else defaults.N_YAWS, count_holes=self.count_holes,
-                      convention=self.convention,  # type: ignore[arg-type]  # checked by Lander against CONVENTIONS
-                      baseline_combine=self.baseline_combine)  # type: ignore[arg-type]  # checked by Lander
+            raise HdLabelsError(
+                "--yaws applies to --convention hd only (the paper convention turns the lander in "
+                f"{defaults.PAPER_ORIENTATION_STEP_DEG:g}-degree steps)"
+            )
+        return Lander(
+            diameter_m=self.lander_diameter_m,
+            pad_diameter_m=self.pad_diameter_m,
+            max_slope_deg=self.max_slope_deg,
+            max_roughness_m=self.max_roughness_m,
+            layout=self.lander,  # type: ignore[arg-type]  # a str, checked by Lander against LAYOUTS
+            n_yaws=self.yaws if self.yaws is not None else defaults.N_YAWS,
+            count_holes=self.count_holes,
+            convention=self.convention,  # type: ignore[arg-type]  # checked by Lander against CONVENTIONS
+            baseline_combine=self.baseline_combine,  # type: ignore[arg-type]  # checked by Lander against its combines
+        )
 
     def to_dem_spec(self) -> DemSpec:
         """The square DEM grid of these settings, with the convention's gridding unless one is given.

@@ -58,25 +58,44 @@ class DemSpec:
     def __post_init__(self) -> None:
         for name in ("rows", "cols"):
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 2 <= value <= defaults.MAX_DEM_SIDE_PX:
-                raise LabelStoreError(f"the DEM side (--dem-size) must be an integer in 2..{defaults.MAX_DEM_SIDE_PX} pixels, got {value!r}")
+            if (
+                isinstance(value, bool)
+                or not isinstance(value, (int, np.integer))
+                or not 2 <= value <= defaults.MAX_DEM_SIDE_PX
+            ):
+                raise LabelStoreError(
+                    f"the DEM side (--dem-size) must be an integer in 2..{defaults.MAX_DEM_SIDE_PX} pixels, "
+                    f"got {value!r}"
+                )
         s = self.spacing_m
         if isinstance(s, bool) or not isinstance(s, (int, float)) or not math.isfinite(s) or s <= 0:
-            raise LabelStoreError(f"the DEM spacing (--dem-spacing) must be a positive finite number of metres, got {s!r}")
+            raise LabelStoreError(
+                f"the DEM spacing (--dem-spacing) must be a positive finite number of metres, got {s!r}"
+            )
         if self.gridding not in defaults.GRIDDINGS:
             raise LabelStoreError(f"unknown gridding {self.gridding!r}; use one of {', '.join(defaults.GRIDDINGS)}")
 
     def to_attrs(self) -> dict[str, float | int | str]:
-        return {"dem_rows": self.rows, "dem_cols": self.cols, "dem_spacing_m": self.spacing_m,
-                "dem_gridding": self.gridding}
+        return {
+            "dem_rows": self.rows,
+            "dem_cols": self.cols,
+            "dem_spacing_m": self.spacing_m,
+            "dem_gridding": self.gridding,
+        }
 
     def to_entry(self) -> dict[str, float | int | str]:
         """The manifest's ``dem`` entry of a labelling."""
         return {"rows": self.rows, "cols": self.cols, "spacing_m": self.spacing_m, "gridding": self.gridding}
 
     @classmethod
-    def for_convention(cls, convention: str, rows: int = defaults.DEM_ROWS, cols: int = defaults.DEM_COLS,
-                       spacing_m: float = defaults.DEM_SPACING_M, gridding: str | None = None) -> DemSpec:
+    def for_convention(
+        cls,
+        convention: str,
+        rows: int = defaults.DEM_ROWS,
+        cols: int = defaults.DEM_COLS,
+        spacing_m: float = defaults.DEM_SPACING_M,
+        gridding: str | None = None,
+    ) -> DemSpec:
         """A grid with the label convention's gridding unless ``gridding`` is given."""
         return cls(rows, cols, spacing_m, gridding if gridding is not None else defaults.GRIDDING[convention])
 
@@ -84,9 +103,12 @@ class DemSpec:
     def from_entry(cls, entry: dict[str, Any]) -> DemSpec:
         """The grid of a manifest ``dem`` entry (entries written before griddings existed are the hd
         convention's, linear)."""
-        return cls(int(entry.get("rows", defaults.DEM_ROWS)), int(entry.get("cols", defaults.DEM_COLS)),
-                   float(entry.get("spacing_m", defaults.DEM_SPACING_M)),
-                   str(entry.get("gridding", defaults.GRIDDING["hd"])))
+        return cls(
+            int(entry.get("rows", defaults.DEM_ROWS)),
+            int(entry.get("cols", defaults.DEM_COLS)),
+            float(entry.get("spacing_m", defaults.DEM_SPACING_M)),
+            str(entry.get("gridding", defaults.GRIDDING["hd"])),
+        )
 
 
 def labeling_name(lander: Lander, dem: DemSpec) -> str:
@@ -96,8 +118,10 @@ def labeling_name(lander: Lander, dem: DemSpec) -> str:
     conventions existed, so existing datasets keep their labellings.
     """
     holes = "-holes" if lander.count_holes else ""
-    body = (f"{lander.layout}-d{lander.diameter_m:g}m-pad{lander.pad_diameter_m:g}m-slope{lander.max_slope_deg:g}deg"
-            f"-rough{lander.max_roughness_m:g}m")
+    body = (
+        f"{lander.layout}-d{lander.diameter_m:g}m-pad{lander.pad_diameter_m:g}m-slope{lander.max_slope_deg:g}deg"
+        f"-rough{lander.max_roughness_m:g}m"
+    )
     grid = f"dem{dem.rows}x{dem.cols}at{dem.spacing_m:g}m"
     if lander.convention == "paper":
         return f"paper-{body}{holes}-{lander.baseline_combine}-{dem.gridding}-{grid}"
@@ -132,8 +156,18 @@ class LabelShardWriter:
         self.path = path
         self._image = H5Image(path)
         self._f = self._image.file
-        write_attrs(self._f, {"schema": LABEL_SCHEMA, "schema_version": LABEL_SCHEMA_VERSION, "software": "hd",
-                              "software_version": __version__, "n_scans": n_scans, **dem.to_attrs(), **attrs})
+        write_attrs(
+            self._f,
+            {
+                "schema": LABEL_SCHEMA,
+                "schema_version": LABEL_SCHEMA_VERSION,
+                "software": "hd",
+                "software_version": __version__,
+                "n_scans": n_scans,
+                **dem.to_attrs(),
+                **attrs,
+            },
+        )
         h, w, n, s = dem.rows, dem.cols, n_scans, n_sigmas
         gz = compression_kwargs("gzip")
         small = compression_kwargs("none")
@@ -148,11 +182,22 @@ class LabelShardWriter:
             "roughness_m": f.create_dataset("roughness_m", (n, h, w), np.float32, chunks=(1, h, w), **gz),
             "p_safe": f.create_dataset("p_safe", (n, s, h, w), np.float32, chunks=(1, 1, h, w), **gz),
         }
-        self._d["label"].attrs["codes"] = (f"{defaults.LABEL_UNSAFE} unsafe, {defaults.LABEL_SAFE} safe, "
-                                           f"{defaults.LABEL_INVALID} invalid")
+        self._d["label"].attrs["codes"] = (
+            f"{defaults.LABEL_UNSAFE} unsafe, {defaults.LABEL_SAFE} safe, {defaults.LABEL_INVALID} invalid"
+        )
 
-    def write(self, k: int, scan_index: int, split: int, dem_clean: np.ndarray, dem_noisy: np.ndarray,
-              label: np.ndarray, slope_rad: np.ndarray, roughness_m: np.ndarray, p_safe: np.ndarray) -> None:
+    def write(
+        self,
+        k: int,
+        scan_index: int,
+        split: int,
+        dem_clean: np.ndarray,
+        dem_noisy: np.ndarray,
+        label: np.ndarray,
+        slope_rad: np.ndarray,
+        roughness_m: np.ndarray,
+        p_safe: np.ndarray,
+    ) -> None:
         """Write the labels of scan ``k`` of the shard."""
         d = self._d
         d["scan_index"][k] = scan_index
@@ -203,8 +248,13 @@ class LabelShardReader:
             raise LabelStoreError(str(exc)) from None
         attrs = self.h5.attrs
         try:
-            check_schema(_text(attrs.get("schema", "")), _text(attrs.get("schema_version", "")),
-                         LABEL_SCHEMA, LABEL_SCHEMA_VERSION, self.what)
+            check_schema(
+                _text(attrs.get("schema", "")),
+                _text(attrs.get("schema_version", "")),
+                LABEL_SCHEMA,
+                LABEL_SCHEMA_VERSION,
+                self.what,
+            )
             self.sigmas_m: tuple[float, ...] = tuple(float(s) for s in np.atleast_1d(attrs["sigmas_m"]))
             self._n = int(self.h5["scan_index"].shape[0])
         except (ShardFormatError, KeyError, TypeError, ValueError, OSError) as exc:
@@ -265,10 +315,17 @@ def find_labeling(directory: str | os.PathLike, name: str | None = None) -> dict
     for lab in labelings:
         check = str(lab.get("schema", "")), str(lab.get("schema_version", ""))
         try:
-            check_schema(check[0], check[1], LABEL_SCHEMA, LABEL_SCHEMA_VERSION, f"{directory} labelling {lab.get('name')}")
+            check_schema(
+                check[0], check[1], LABEL_SCHEMA, LABEL_SCHEMA_VERSION, f"{directory} labelling {lab.get('name')}"
+            )
             for entry in lab["shards"]:
-                check_schema(str(entry.get("schema", LABEL_SCHEMA)), str(entry.get("schema_version", check[1])),
-                             LABEL_SCHEMA, LABEL_SCHEMA_VERSION, f"{directory}/{entry['path']}")
+                check_schema(
+                    str(entry.get("schema", LABEL_SCHEMA)),
+                    str(entry.get("schema_version", check[1])),
+                    LABEL_SCHEMA,
+                    LABEL_SCHEMA_VERSION,
+                    f"{directory}/{entry['path']}",
+                )
         except ShardFormatError as exc:
             raise LabelStoreError(str(exc)) from None
     if name is None:
@@ -316,4 +373,3 @@ def add_labeling_to_manifest(directory: Path, entry: dict[str, Any]) -> None:
         raise LabelStoreError(str(exc)) from None
     manifest["labelings"] = [lab for lab in manifest.get("labelings", []) if lab["name"] != entry["name"]] + [entry]
     write_json_atomic(directory / MANIFEST_NAME, manifest)
-

@@ -21,7 +21,7 @@ along each ray; its statistics do not depend on the grid's orientation either.
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -60,8 +60,10 @@ def check_augment(augment: str, lander: Lander) -> str:
     if augment not in AUGMENTATIONS:
         raise HdNetError(f"augmentation must be one of {', '.join(AUGMENTATIONS)}, got {augment!r}.")
     if augment == "d4" and not label_is_d4_invariant(lander):
-        raise HdNetError(f"D4 augmentation needs labels invariant under rotations and flips; "
-                         f"a {lander.layout} lander's are not (use augment 'none').")
+        raise HdNetError(
+            f"D4 augmentation needs labels invariant under rotations and flips; "
+            f"a {lander.layout} lander's are not (use augment 'none')."
+        )
     return augment
 
 
@@ -70,8 +72,10 @@ def transform_sample(sample: DemSample, k: int) -> DemSample:
 
     Dead-pixel coordinates are mapped too.
     """
-    grids = {name: np.ascontiguousarray(d4(getattr(sample, name), k))
-             for name in ("dem_clean_m", "dem_noisy_m", "dem_filled_m", "label", "p_safe", "ignore")}
+    grids: dict[str, Any] = {
+        name: np.ascontiguousarray(d4(getattr(sample, name), k))
+        for name in ("dem_clean_m", "dem_noisy_m", "dem_filled_m", "label", "p_safe", "ignore")
+    }
     dead = sample.dead_pixels
     if dead.size:
         marks = np.zeros(sample.label.shape, dtype=np.int64)

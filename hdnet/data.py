@@ -220,8 +220,14 @@ class HazardDataset(Dataset):
         dem = self.entry.get("dem", {})
         self.dem_shape = (int(dem.get("rows", defaults.DEM_SIZE_PX)), int(dem.get("cols", defaults.DEM_SIZE_PX)))
         n_pixels = self.dem_shape[0] * self.dem_shape[1]
-        if isinstance(dead_pixels, bool) or not isinstance(dead_pixels, (int, np.integer)) or not 0 <= dead_pixels < n_pixels:
-            raise HdNetError(f"the number of dead pixels must be an integer in [0, {n_pixels - 1}], got {dead_pixels!r}.")
+        if (
+            isinstance(dead_pixels, bool)
+            or not isinstance(dead_pixels, (int, np.integer))
+            or not 0 <= dead_pixels < n_pixels
+        ):
+            raise HdNetError(
+                f"the number of dead pixels must be an integer in [0, {n_pixels - 1}], got {dead_pixels!r}."
+            )
         self.dead_pixels = int(dead_pixels)
         self.seed = int(seed)
         code = SPLITS.index(split)
@@ -233,13 +239,19 @@ class HazardDataset(Dataset):
                     shard_sigmas = reader.sigmas_m
             except FormatError as exc:
                 raise HdNetError(str(exc).rstrip(".") + ".") from None
-            if len(shard_sigmas) != len(self.sigmas_m) or any(abs(a - b) > SIGMA_EXACT_TOLERANCE_M for a, b in zip(shard_sigmas, self.sigmas_m)):
+            if len(shard_sigmas) != len(self.sigmas_m) or any(
+                abs(a - b) > SIGMA_EXACT_TOLERANCE_M for a, b in zip(shard_sigmas, self.sigmas_m, strict=True)
+            ):
                 raise HdNetError(f"{path}: its noise levels differ from the other label shards.")
             items += [(k, int(r), int(scans[r])) for r in np.flatnonzero(splits == code)]
         self.items = items
         if input_spec is None:
-            norm = normalisation if normalisation is not None else compute_normalisation(dataset_dir, self.sigma_m, labels)
-            input_spec = InputSpec(heights="minmax", normalisation=norm, input_size=input_size, spacing_m=self.spacing_m)
+            norm = (
+                normalisation if normalisation is not None else compute_normalisation(dataset_dir, self.sigma_m, labels)
+            )
+            input_spec = InputSpec(
+                heights="minmax", normalisation=norm, input_size=input_size, spacing_m=self.spacing_m
+            )
         self.input_spec = input_spec
         self.input_size = input_spec.input_size
         self.normalisation = input_spec.normalisation

@@ -14,7 +14,13 @@ IGNORE_INDEX = 255  # project label convention: invalid (border) pixels, ignored
 
 # --- architecture -------------------------------------------------------------------------------
 # VGG16 encoder blocks (Kendall 2015, Sec. 3; Badrinarayanan et al. 2017): 13 conv3x3-BN-ReLU layers.
-ENCODER_CHANNELS: tuple[tuple[int, ...], ...] = ((64, 64), (128, 128), (256, 256, 256), (512, 512, 512), (512, 512, 512))
+ENCODER_CHANNELS: tuple[tuple[int, ...], ...] = (
+    (64, 64),
+    (128, 128),
+    (256, 256, 256),
+    (512, 512, 512),
+    (512, 512, 512),
+)
 DROPOUT_P = 0.5  # paper, "Implementation Details" (following Kendall 2015)
 # Kendall 2015, Sec. 4 ("Central Enc-Dec"): dropout after the deepest three encoder units and at the
 # end of the deepest three decoder units (pools 3-5 and decoders 5-3 of the five-block SegNet).

@@ -54,6 +54,7 @@ from rasterio.transform import Affine
 from rasterio.windows import Window
 from scipy import ndimage
 
+from hdlabels import defaults as label_defaults
 from hdlabels.alhat import safety_probability
 from hdlabels.lander import Lander, geometry
 from hdlabels.store import find_labeling
@@ -67,8 +68,6 @@ from hdnet.data import (
     sigma_index,
 )
 from hdnet.errors import HdNetError
-from hdnet.inputs import InputSpec, to_dem_grid
-from hdnet.inputs import network_input as prepare_input
 from hdnet.evaluate import (
     checkpoint_path,
     preferred_labeling,
@@ -77,9 +76,12 @@ from hdnet.evaluate import (
     validation_threshold,
 )
 from hdnet.infer import mc_dropout_predict, predictive_entropy
+from hdnet.inputs import InputSpec, to_dem_grid
+from hdnet.inputs import network_input as prepare_input
 from hdnet.model import BayesianSegNet
 from hdnet.report import json_plain
-from hdnet.thresholds import parse_threshold_spec, uncertain_mask
+from hdnet.results import SITE_COLUMNS, Site
+from hdnet.thresholds import ThresholdSpec, parse_threshold_spec, uncertain_mask
 from hdnet.tiling import TilePlan
 from hdnet.train import load_trained_model
 from lidarsim.errors import TerrainError
@@ -91,8 +93,8 @@ from lidarsim.terrain import DTM
 SAFETY_UNSAFE, SAFETY_SAFE, SAFETY_UNCERTAIN, SAFETY_INVALID = 0, 1, 2, 255
 MAP_FILES = ("p_safe.tif", "entropy.tif", "safety.tif", "baseline_p_safe.tif")
 OUTPUT_FILES = (*MAP_FILES, "sites.csv", "sites.geojson", "overview.png", "detect.json")
-SITE_COLUMNS = ("rank", "x", "y", "p_safe", "entropy_max", "clearance_m", "baseline_p_safe")
-BASELINE_THRESHOLD = 0.5  # paper, "Label generation": the baseline is safe where P(safe) >= 50 %
+# The ALHAT baseline is safe where P(safe) >= this (paper, "Label generation"; one source: hdlabels.defaults).
+BASELINE_THRESHOLD = label_defaults.SAFE_PROBABILITY_THRESHOLD
 # hd choice: a DTM may be up to 2 % coarser than the run's DEM spacing (HiRISE "1 m" products are
 # 1.01 m); it is then read at full resolution. Anything coarser would have to invent detail.
 SPACING_TOLERANCE = 0.02
@@ -149,13 +151,26 @@ def load_run(run_dir: str | os.PathLike, device: torch.device) -> DetectRun:
     labeling = extra.get("labeling") or None
     if labeling is None:
         if dataset is None:
-            raise HdNetError(f"{path} does not record its lander and its dataset {extra.get('dataset')} is not present; "
-                             "retrain it with this hd or restore the dataset.")
+            raise HdNetError(
+                f"{path} does not record its lander and its dataset {extra.get('dataset')} is not present; "
+                "retrain it with this hd or restore the dataset."
+            )
         labeling = {k: v for k, v in find_labeling(dataset, labels).items() if k != "shards"}
     dem = labeling.get("dem", {})
     shape = extra.get("dem_shape") or [dem.get("rows", defaults.DEM_SIZE_PX), dem.get("cols", defaults.DEM_SIZE_PX)]
-    return DetectRun(path, model, ckpt, train_sigma, input_spec, str(labeling.get("name", labels)), labeling,
-                     lander_of(labeling), (int(shape[0]), int(shape[1])), dem_spacing_m(labeling), dataset)
+    return DetectRun(
+        path,
+        model,
+        ckpt,
+        train_sigma,
+        input_spec,
+        str(labeling.get("name", labels)),
+        labeling,
+        lander_of(labeling),
+        (int(shape[0]), int(shape[1])),
+        dem_spacing_m(labeling),
+        dataset,
+    )
 
 
 def network_input(dem_m: np.ndarray, run: DetectRun) -> torch.Tensor:
@@ -217,13 +232,17 @@ class _DtmTerrain(_Terrain):
             info = probe.info
         sx, sy = info.spacing_m
         if abs(sx - sy) > SPACING_TOLERANCE * min(sx, sy):
-            raise TerrainError(f"{info.path}: has non-square cells ({sx:g} m x {sy:g} m); warp it to square cells "
-                               "first, e.g. with gdalwarp -tr")
+            raise TerrainError(
+                f"{info.path}: has non-square cells ({sx:g} m x {sy:g} m); warp it to square cells "
+                "first, e.g. with gdalwarp -tr"
+            )
         coarse = max(sx, sy)
         if coarse > run.spacing_m * (1.0 + SPACING_TOLERANCE):
-            raise TerrainError(f"{info.path}: its {coarse:g} m cells are coarser than the run's DEM spacing "
-                               f"({run.spacing_m:g} m/px); use a DTM of at most {run.spacing_m:g} m/px "
-                               "(hd detect resamples finer DTMs, it does not invent detail)")
+            raise TerrainError(
+                f"{info.path}: its {coarse:g} m cells are coarser than the run's DEM spacing "
+                f"({run.spacing_m:g} m/px); use a DTM of at most {run.spacing_m:g} m/px "
+                "(hd detect resamples finer DTMs, it does not invent detail)"
+            )
         self.scale = min(1.0, coarse / run.spacing_m)  # spacing / scale = the run's spacing
         self.path = Path(info.path)
         self.dtm = DTM.open(path, scale=self.scale)
@@ -241,9 +260,17 @@ class _DtmTerrain(_Terrain):
         self.crs_wkt = i.crs_wkt
         self.spacing_xy_m = (float(i.spacing_m[0]), float(i.spacing_m[1]))
         self.scan_frame = False
-        self.provenance = {"kind": "dtm", "path": str(self.path), "name": i.name, "sha256": self.dtm.sha256(),
-                           "driver": i.driver, "source_spacing_m": [sx, sy], "scale": self.scale,
-                           "source_transform": list(info.transform), "source_shape": [info.rows, info.cols]}
+        self.provenance = {
+            "kind": "dtm",
+            "path": str(self.path),
+            "name": i.name,
+            "sha256": self.dtm.sha256(),
+            "driver": i.driver,
+            "source_spacing_m": [sx, sy],
+            "scale": self.scale,
+            "source_transform": list(info.transform),
+            "source_shape": [info.rows, info.cols],
+        }
         self._check_fits(run)
 
     def _check_fits(self, run: DetectRun) -> None:
@@ -257,14 +284,16 @@ class _DtmTerrain(_Terrain):
             raise TerrainError(
                 f"{name} is too small for the lander footprint: a {run.lander.diameter_m:g} m lander needs "
                 f"{need} x {need} cells of valid terrain at {run.spacing_m:g} m/px, the DTM covers "
-                f"{cols * sx:.0f} m x {rows * sy:.0f} m ({rows} x {cols} cells); use a larger DTM")
+                f"{cols * sx:.0f} m x {rows * sy:.0f} m ({rows} x {cols} cells); use a larger DTM"
+            )
         valid, _ = self.dtm.validity_overview(max(sx, sy))  # "every cell is nodata" from here
         fits = ndimage.binary_erosion(valid, structure=np.ones((need, need), bool), border_value=0)
         if not fits.any():
             raise TerrainError(
                 f"{name} is too small for the lander footprint: a {run.lander.diameter_m:g} m lander needs "
                 f"{need} x {need} cells of valid terrain at {run.spacing_m:g} m/px and the DTM has no such "
-                "valid square; use a larger DTM")
+                "valid square; use a larger DTM"
+            )
 
     def read(self, row0: int, col0: int, rows: int, cols: int) -> np.ndarray:
         return self.dtm.read(row0, col0, rows, cols)
@@ -290,7 +319,9 @@ class _ScanTerrain(_Terrain):
         k = sigma_index(sigmas, sigma_m)
         spacing = dem_spacing_m(entry)
         if abs(spacing - run.spacing_m) > SPACING_TOLERANCE * run.spacing_m:
-            raise HdNetError(f"{dataset}: its DEMs are at {spacing:g} m/px, the run was trained at {run.spacing_m:g} m/px.")
+            raise HdNetError(
+                f"{dataset}: its DEMs are at {spacing:g} m/px, the run was trained at {run.spacing_m:g} m/px."
+            )
         if isinstance(scan, bool) or not isinstance(scan, int):
             raise HdNetError(f"the scan index must be an integer, got {scan!r}.")
         found = None
@@ -316,11 +347,19 @@ class _ScanTerrain(_Terrain):
         manifest = read_manifest(dataset)
         origin = _origin_map(dataset, manifest, scan)
         self.provenance = {
-            "kind": "scan", "dataset": str(Path(dataset).resolve()), "manifest_sha256": sha256_file(Path(dataset) / MANIFEST_NAME),
-            "labels": str(entry["name"]), "scan_index": scan, "split": ("train", "val", "test")[found[2]],
-            "sigma_m": sigmas[k], "label_shard": Path(found[0]).name, "origin_map": origin,
+            "kind": "scan",
+            "dataset": str(Path(dataset).resolve()),
+            "manifest_sha256": sha256_file(Path(dataset) / MANIFEST_NAME),
+            "labels": str(entry["name"]),
+            "scan_index": scan,
+            "split": ("train", "val", "test")[found[2]],
+            "sigma_m": sigmas[k],
+            "label_shard": Path(found[0]).name,
+            "origin_map": origin,
             "dtm_crs_wkt": manifest.get("dtm", {}).get("crs_wkt", ""),
-            "frame": "scan frame: origin at the nadir point on the reference height (origin_map); x east, y north; metres",
+            "frame": (
+                "scan frame: origin at the nadir point on the reference height (origin_map); x east, y north; metres"
+            ),
         }
         self.sigma_m = sigmas[k]
         self.labels = str(entry["name"])
@@ -412,25 +451,6 @@ def _staging(out: Path) -> Iterator[Path]:
 
 
 # --- sites -----------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class Site:
-    """A proposed landing site: rank (1 = best), map position of its cell centre (metres, input CRS),
-    footprint-mean P(safe), footprint-max entropy (nats), clearance (metres) and baseline P(safe)."""
-
-    rank: int
-    x: float
-    y: float
-    p_safe: float
-    entropy_max: float
-    clearance_m: float
-    baseline_p_safe: float
-    row: int
-    col: int
-
-    def columns(self) -> dict[str, float | int]:
-        return {k: getattr(self, k) for k in SITE_COLUMNS}
-
-
 def body_disk(lander: Lander, spacing_m: float) -> np.ndarray:
     """(2k+1, 2k+1) bool: the cells whose centres lie under the lander body (a disk of the lander's
     diameter) when it is centred on the middle cell; ``spacing_m`` in metres per cell."""
@@ -441,8 +461,14 @@ def body_disk(lander: Lander, spacing_m: float) -> np.ndarray:
 
 
 def select_sites(
-    safety: np.ndarray, p_safe: np.ndarray, entropy: Any, baseline: Any, transform: Affine,
-    spacing_xy_m: tuple[float, float], lander: Lander, n_sites: int,
+    safety: np.ndarray,
+    p_safe: np.ndarray,
+    entropy: Any,
+    baseline: Any,
+    transform: Affine,
+    spacing_xy_m: tuple[float, float],
+    lander: Lander,
+    n_sites: int,
 ) -> list[Site]:
     """Ranked, non-overlapping landing sites of a safety map.
 
@@ -487,10 +513,19 @@ def select_sites(
             break
         window = (slice(r - rd, r + rd + 1), slice(c - rd, c + rd + 1))
         x, y = transform @ (c + 0.5, r + 0.5)
-        sites.append(Site(len(sites) + 1, float(x), float(y),
-                          float(np.mean(np.asarray(p_safe[window], np.float64)[disk])),
-                          float(np.max(np.asarray(entropy[window])[disk])), float(clearance[r, c]),
-                          float(np.asarray(baseline[r : r + 1, c : c + 1])[0, 0]), r, c))
+        sites.append(
+            Site(
+                len(sites) + 1,
+                float(x),
+                float(y),
+                float(np.mean(np.asarray(p_safe[window], np.float64)[disk])),
+                float(np.max(np.asarray(entropy[window])[disk])),
+                float(clearance[r, c]),
+                float(np.asarray(baseline[r : r + 1, c : c + 1])[0, 0]),
+                r,
+                c,
+            )
+        )
         r0, r1, c0, c1 = max(r - ri, 0), min(r + ri + 1, h), max(c - rj, 0), min(c + rj + 1, w)
         key[r0:r1, c0:c1][too_close[r0 - r + ri : r1 - r + ri, c0 - c + rj : c1 - c + rj]] = -np.inf
     return sites
@@ -512,15 +547,32 @@ def _sites_csv(sites: list[Site]) -> str:
     writer = csv.writer(buf, lineterminator="\n")
     writer.writerow(SITE_COLUMNS)
     for s in sites:
-        writer.writerow([s.rank, f"{s.x:.3f}", f"{s.y:.3f}", f"{s.p_safe:.6f}", f"{s.entropy_max:.6f}",
-                         f"{s.clearance_m:.3f}", "" if not math.isfinite(s.baseline_p_safe) else f"{s.baseline_p_safe:.6f}"])
+        writer.writerow(
+            [
+                s.rank,
+                f"{s.x:.3f}",
+                f"{s.y:.3f}",
+                f"{s.p_safe:.6f}",
+                f"{s.entropy_max:.6f}",
+                f"{s.clearance_m:.3f}",
+                "" if not math.isfinite(s.baseline_p_safe) else f"{s.baseline_p_safe:.6f}",
+            ]
+        )
     return buf.getvalue()
 
 
 def _sites_geojson(sites: list[Site], crs_wkt: str) -> dict[str, Any]:
-    collection: dict[str, Any] = {"type": "FeatureCollection", "features": [
-        {"type": "Feature", "geometry": {"type": "Point", "coordinates": [round(s.x, 3), round(s.y, 3)]},
-         "properties": json_plain(s.columns())} for s in sites]}
+    collection: dict[str, Any] = {
+        "type": "FeatureCollection",
+        "features": [
+            {
+                "type": "Feature",
+                "geometry": {"type": "Point", "coordinates": [round(s.x, 3), round(s.y, 3)]},
+                "properties": json_plain(s.columns()),
+            }
+            for s in sites
+        ],
+    }
     if crs_wkt:
         from rasterio.crs import CRS
 
@@ -544,13 +596,24 @@ class DetectResult:
 
     def summary(self) -> str:
         valid = sum(self.counts[k] for k in ("safe", "unsafe", "uncertain"))
-        pct = {k: 100.0 * self.counts[k] / valid if valid else 0.0 for k in ("safe", "unsafe", "uncertain", "baseline_safe")}
+        pct = {
+            k: 100.0 * self.counts[k] / valid if valid else 0.0
+            for k in ("safe", "unsafe", "uncertain", "baseline_safe")
+        }
         t = "unbounded" if not math.isfinite(self.threshold_nats) else f"{self.threshold_nats:.4f} nats"
-        best = (f"; best site #1 at ({self.sites[0].x:.1f}, {self.sites[0].y:.1f}) P(safe) {self.sites[0].p_safe:.3f}, "
-                f"clearance {self.sites[0].clearance_m:.1f} m") if self.sites else "; no site: no lander footprint is wholly safe and certain"
-        return (f"{self.out_dir}: {pct['safe']:.1f}% safe, {pct['unsafe']:.1f}% unsafe, {pct['uncertain']:.1f}% uncertain "
-                f"of {valid} valid cells (H_t {t}; the ALHAT baseline calls {pct['baseline_safe']:.1f}% safe); "
-                f"{len(self.sites)} site(s){best}; {self.timings_s['total']:.1f} s")
+        best = (
+            (
+                f"; best site #1 at ({self.sites[0].x:.1f}, {self.sites[0].y:.1f}) P(safe) {self.sites[0].p_safe:.3f}, "
+                f"clearance {self.sites[0].clearance_m:.1f} m"
+            )
+            if self.sites
+            else "; no site: no lander footprint is wholly safe and certain"
+        )
+        return (
+            f"{self.out_dir}: {pct['safe']:.1f}% safe, {pct['unsafe']:.1f}% unsafe, {pct['uncertain']:.1f}% uncertain "
+            f"of {valid} valid cells (H_t {t}; the ALHAT baseline calls {pct['baseline_safe']:.1f}% safe); "
+            f"{len(self.sites)} site(s){best}; {self.timings_s['total']:.1f} s"
+        )
 
 
 def detect(
@@ -588,61 +651,40 @@ def detect(
     out = Path(out_dir)
     fixed = _fixed_threshold(threshold)
     spec = parse_threshold_spec(threshold) if fixed is None else None
-    _check_int("the number of MC samples", mc_samples, 1)
-    _check_int("the number of sites", n_sites, 1)
-    _check_int("the batch size", batch_size, 1)
-    if sigma_m is not None and not (isinstance(sigma_m, (int, float)) and math.isfinite(sigma_m) and sigma_m >= 0):
-        raise HdNetError(f"sigma must be a finite number of metres >= 0, got {sigma_m!r}.")
-    if (dtm is None) == (dataset is None):
-        raise HdNetError("give either a DTM (--dtm) or a dataset and a scan (--data with --scan).")
-    if dataset is not None and scan is None:
-        raise HdNetError("--data needs --scan: the index of the scan whose noisy DEM to use.")
-    if dtm is not None and scan is not None:
-        raise HdNetError("--scan goes with --data, not with --dtm.")
+    _check_detect_options(mc_samples, n_sites, batch_size, sigma_m, dtm, dataset, scan)
     _check_out_dir(out, overwrite)
     dev = torch.device(device) if device else torch.device("cuda" if torch.cuda.is_available() else "cpu")
     run = load_run(run_dir, dev)
     baseline_sigma = run.train_sigma_m if sigma_m is None else float(sigma_m)
-
-    terrain: _Terrain
-    if dtm is not None:
-        terrain = _DtmTerrain(Path(dtm), run)
-        calib_dir, calib_labels = run.dataset, run.labels
-    else:
-        lab = labels if labels is not None else preferred_labeling(dataset, run.labels)  # type: ignore[arg-type]
-        terrain = _ScanTerrain(Path(dataset), int(scan) if not isinstance(scan, bool) else scan, baseline_sigma,  # type: ignore[arg-type]
-                               lab, run)
+    terrain, calib_dir, calib_labels = _open_terrain(run, dtm, dataset, scan, labels, baseline_sigma)
+    if isinstance(terrain, _ScanTerrain):
         baseline_sigma = terrain.sigma_m
-        calib_dir, calib_labels = Path(dataset), terrain.labels  # type: ignore[arg-type]
     try:
         if spec is not None and calib_dir is None:
-            raise HdNetError(f"the {spec} threshold is calibrated on the run's validation split, but its dataset "
-                             f"{run.ckpt.get('extra_config', {}).get('dataset')} is not present; restore it or give "
-                             "a fixed threshold, e.g. --threshold nats:0.3.")
+            raise HdNetError(
+                f"the {spec} threshold is calibrated on the run's validation split, but its dataset "
+                f"{run.ckpt.get('extra_config', {}).get('dataset')} is not present; restore it or give "
+                "a fixed threshold, e.g. --threshold nats:0.3."
+            )
         plan = TilePlan.make(terrain.shape, run.dem_shape, overlap_px(run.lander, run.spacing_m))
         with _staging(out) as tmp:
             timings: dict[str, float] = {}
             t0 = time.perf_counter()
-            if spec is not None:
-                val_ds = split_dataset(calib_dir, "val", run.train_sigma_m, labels=calib_labels,  # type: ignore[arg-type]
-                                       input_spec=run.input_spec, seed=seed)
-                th = validation_threshold(run.model, val_ds, spec, mc_samples=mc_samples, batch_size=batch_size,
-                                          seed=seed, device=dev)
-                h_t, threshold_info = th.value_nats, dict(th.info, calibration_dataset=str(Path(calib_dir).resolve()),  # type: ignore[arg-type]
-                                                          calibration_labels=calib_labels)
+            if spec is not None and calib_dir is not None:
+                h_t, threshold_info = _calibrated_threshold(
+                    run, spec, calib_dir, calib_labels, mc_samples, batch_size, seed, dev
+                )
             else:
-                h_t = float(fixed)  # type: ignore[arg-type]
+                assert fixed is not None  # exactly one of fixed and spec is set
+                h_t = float(fixed)
                 threshold_info = {"spec": f"nats:{h_t:g}", "kind": "fixed", "parameter": h_t, "value_nats": h_t}
             timings["calibration"] = time.perf_counter() - t0
-            counts, map_timings = _write_maps(tmp, terrain, run, plan, h_t, baseline_sigma, mc_samples, batch_size,
-                                              seed, dev, progress)
+            counts, map_timings = _write_maps(
+                tmp, terrain, run, plan, h_t, baseline_sigma, mc_samples, batch_size, seed, dev, progress
+            )
             timings |= map_timings
             t0 = time.perf_counter()
-            with rasterio.open(tmp / "entropy.tif") as h_src, rasterio.open(tmp / "baseline_p_safe.tif") as b_src:
-                sites = select_sites(_read_map(tmp / "safety.tif"), _read_map(tmp / "p_safe.tif"), _RasterWindows(h_src),
-                                     _RasterWindows(b_src), terrain.transform, terrain.spacing_xy_m, run.lander, n_sites)
-            (tmp / "sites.csv").write_text(_sites_csv(sites))
-            (tmp / "sites.geojson").write_text(json.dumps(_sites_geojson(sites, terrain.crs_wkt), indent=1) + "\n")
+            sites = _write_sites(tmp, terrain, run, n_sites)
             timings["sites"] = time.perf_counter() - t0
             t0 = time.perf_counter()
             _overview(tmp, terrain, sites, run, h_t)
@@ -655,16 +697,106 @@ def detect(
     return DetectResult(out, sites, h_t, counts, {k: round(v, 3) for k, v in timings.items()}, info)
 
 
+def _check_detect_options(
+    mc_samples: int,
+    n_sites: int,
+    batch_size: int,
+    sigma_m: float | None,
+    dtm: str | os.PathLike | None,
+    dataset: str | os.PathLike | None,
+    scan: int | None,
+) -> None:
+    """Step 1: the options alone (before the run is loaded or anything is written)."""
+    _check_int("the number of MC samples", mc_samples, 1)
+    _check_int("the number of sites", n_sites, 1)
+    _check_int("the batch size", batch_size, 1)
+    if sigma_m is not None and not (isinstance(sigma_m, (int, float)) and math.isfinite(sigma_m) and sigma_m >= 0):
+        raise HdNetError(f"sigma must be a finite number of metres >= 0, got {sigma_m!r}.")
+    if (dtm is None) == (dataset is None):
+        raise HdNetError("give either a DTM (--dtm) or a dataset and a scan (--data with --scan).")
+    if dataset is not None and scan is None:
+        raise HdNetError("--data needs --scan: the index of the scan whose noisy DEM to use.")
+    if dtm is not None and scan is not None:
+        raise HdNetError("--scan goes with --data, not with --dtm.")
+
+
+def _open_terrain(
+    run: DetectRun,
+    dtm: str | os.PathLike | None,
+    dataset: str | os.PathLike | None,
+    scan: int | None,
+    labels: str | None,
+    sigma_m: float,
+) -> tuple[_Terrain, Path | None, str]:
+    """Step 2: the terrain (a DTM, or one scan's noisy DEM at ``sigma_m`` metres), with the dataset and
+    labelling the threshold is calibrated on (the run's for a DTM, the scan's dataset's for a scan)."""
+    if dtm is not None:
+        return _DtmTerrain(Path(dtm), run), run.dataset, run.labels
+    if dataset is None or scan is None:  # excluded by _check_detect_options
+        raise HdNetError("give either a DTM (--dtm) or a dataset and a scan (--data with --scan).")
+    lab = labels if labels is not None else preferred_labeling(dataset, run.labels)
+    terrain = _ScanTerrain(Path(dataset), int(scan) if not isinstance(scan, bool) else scan, sigma_m, lab, run)
+    return terrain, Path(dataset), terrain.labels
+
+
+def _calibrated_threshold(
+    run: DetectRun,
+    spec: ThresholdSpec,
+    calib_dir: Path,
+    calib_labels: str,
+    mc_samples: int,
+    batch_size: int,
+    seed: int,
+    dev: torch.device,
+) -> tuple[float, dict[str, Any]]:
+    """Step 3: the entropy threshold (nats) calibrated on the validation split of ``calib_dir``, as ``hd eval`` does."""
+    val_ds = split_dataset(
+        calib_dir, "val", run.train_sigma_m, labels=calib_labels, input_spec=run.input_spec, seed=seed
+    )
+    th = validation_threshold(
+        run.model, val_ds, spec, mc_samples=mc_samples, batch_size=batch_size, seed=seed, device=dev
+    )
+    info = dict(th.info, calibration_dataset=str(Path(calib_dir).resolve()), calibration_labels=calib_labels)
+    return th.value_nats, info
+
+
+def _write_sites(tmp: Path, terrain: _Terrain, run: DetectRun, n_sites: int) -> list[Site]:
+    """Step 5: the ranked landing sites from the written maps, as ``sites.csv`` and ``sites.geojson``."""
+    with rasterio.open(tmp / "entropy.tif") as h_src, rasterio.open(tmp / "baseline_p_safe.tif") as b_src:
+        sites = select_sites(
+            _read_map(tmp / "safety.tif"),
+            _read_map(tmp / "p_safe.tif"),
+            _RasterWindows(h_src),
+            _RasterWindows(b_src),
+            terrain.transform,
+            terrain.spacing_xy_m,
+            run.lander,
+            n_sites,
+        )
+    (tmp / "sites.csv").write_text(_sites_csv(sites))
+    (tmp / "sites.geojson").write_text(json.dumps(_sites_geojson(sites, terrain.crs_wkt), indent=1) + "\n")
+    return sites
+
+
 def _read_map(path: Path) -> np.ndarray:
     with rasterio.open(path) as src:
         return src.read(1)
 
 
 def _write_maps(
-    tmp: Path, terrain: _Terrain, run: DetectRun, plan: TilePlan, h_t: float, sigma_m: float, mc_samples: int,
-    batch_size: int, seed: int, dev: torch.device, progress: Callable[[int, int], None] | None,
+    tmp: Path,
+    terrain: _Terrain,
+    run: DetectRun,
+    plan: TilePlan,
+    h_t: float,
+    sigma_m: float,
+    mc_samples: int,
+    batch_size: int,
+    seed: int,
+    dev: torch.device,
+    progress: Callable[[int, int], None] | None,
 ) -> tuple[dict[str, int], dict[str, float]]:
-    """Step 3: every row of tiles through the network and the baseline, owned crops written to the four maps."""
+    """Step 4: every row of tiles through the network and the baseline, owned crops written to the four maps."""
     # The baseline, like the network, takes the cells as the run's: the grid is within 2 % of that
     # spacing, and the lander's sampling (pads on grid nodes in the paper convention) is then exactly
     # the one of the training labels.
@@ -674,8 +806,13 @@ def _write_maps(
     done = 0
     torch.manual_seed(seed)
     profiles = {
-        name: geotiff_profile(terrain.shape, terrain.transform, terrain.crs_wkt, dtype=("uint8" if name == "safety.tif" else "float32"),
-                              nodata=(SAFETY_INVALID if name == "safety.tif" else float("nan")))
+        name: geotiff_profile(
+            terrain.shape,
+            terrain.transform,
+            terrain.crs_wkt,
+            dtype=("uint8" if name == "safety.tif" else "float32"),
+            nodata=(SAFETY_INVALID if name == "safety.tif" else float("nan")),
+        )
         for name in MAP_FILES
     }
     with _writers(tmp, profiles) as dst:
@@ -683,8 +820,12 @@ def _write_maps(
             progress(0, plan.n_tiles)
         for (r_lo, r_hi), tiles in plan.strips():
             n_rows, n_cols = r_hi - r_lo, terrain.shape[1]
-            strip = {"p": np.full((n_rows, n_cols), np.nan, np.float32), "h": np.full((n_rows, n_cols), np.nan, np.float32),
-                     "b": np.full((n_rows, n_cols), np.nan, np.float32), "s": np.full((n_rows, n_cols), SAFETY_INVALID, np.uint8)}
+            strip: dict[str, np.ndarray] = {
+                "p": np.full((n_rows, n_cols), np.nan, np.float32),
+                "h": np.full((n_rows, n_cols), np.nan, np.float32),
+                "b": np.full((n_rows, n_cols), np.nan, np.float32),
+                "s": np.full((n_rows, n_cols), SAFETY_INVALID, np.uint8),
+            }
             for start in range(0, len(tiles), batch_size):
                 batch = tiles[start : start + batch_size]
                 t0 = time.perf_counter()
@@ -694,7 +835,9 @@ def _write_maps(
                 if live:
                     t0 = time.perf_counter()
                     x = torch.cat([network_input(_scan_frame(dems[k], terrain), run) for k in live]).to(dev)
-                    probs = network_output(mc_dropout_predict(run.model, x, n_samples=mc_samples).mean_probs.float(), run).cpu()
+                    probs = network_output(
+                        mc_dropout_predict(run.model, x, n_samples=mc_samples).mean_probs.float(), run
+                    ).cpu()
                     p_all = probs[:, defaults.CLASS_SAFE].numpy()
                     h_all = predictive_entropy(probs).numpy()
                     safe_all = (probs.argmax(dim=1) == defaults.CLASS_SAFE).numpy()
@@ -719,11 +862,15 @@ def _write_maps(
                     progress(done, plan.n_tiles)
             t0 = time.perf_counter()
             window = Window(0, r_lo, n_cols, n_rows)
-            for name, key in zip(MAP_FILES, ("p", "h", "s", "b")):
+            for name, key in zip(MAP_FILES, ("p", "h", "s", "b"), strict=True):
                 dst[name].write(strip[key], 1, window=window)
             t_write += time.perf_counter() - t0
-            for name, code in (("unsafe", SAFETY_UNSAFE), ("safe", SAFETY_SAFE), ("uncertain", SAFETY_UNCERTAIN),
-                               ("invalid", SAFETY_INVALID)):
+            for name, code in (
+                ("unsafe", SAFETY_UNSAFE),
+                ("safe", SAFETY_SAFE),
+                ("uncertain", SAFETY_UNCERTAIN),
+                ("invalid", SAFETY_INVALID),
+            ):
                 counts[name] += int((strip["s"] == code).sum())
             counts["baseline_safe"] += int((np.nan_to_num(strip["b"], nan=0.0) >= BASELINE_THRESHOLD).sum())
     return counts, {"read": t_read, "network": t_net, "baseline": t_base, "write": t_write}
@@ -760,34 +907,66 @@ def _overview(tmp: Path, terrain: _Terrain, sites: list[Site], run: DetectRun, h
     name = terrain.provenance.get("name") or f"scan {terrain.provenance.get('scan_index')}"
     t = "unbounded" if not math.isfinite(h_t) else f"{h_t:.3f} nats"
     title = f"{name}: {len(sites)} site(s), lander {run.lander.diameter_m:g} m, H_t {t}"
-    detect_overview(heights, cell_m, safety, (left, right, bottom, top), sites, run.lander.radius_m, title,
-                    tmp / "overview.png")
+    detect_overview(
+        heights, cell_m, safety, (left, right, bottom, top), sites, run.lander.radius_m, title, tmp / "overview.png"
+    )
 
 
 def _info(
-    run: DetectRun, terrain: _Terrain, plan: TilePlan, threshold_info: dict[str, Any], sigma_m: float,
-    mc_samples: int, seed: int, counts: dict[str, int], sites: list[Site], timings: dict[str, float],
+    run: DetectRun,
+    terrain: _Terrain,
+    plan: TilePlan,
+    threshold_info: dict[str, Any],
+    sigma_m: float,
+    mc_samples: int,
+    seed: int,
+    counts: dict[str, int],
+    sites: list[Site],
+    timings: dict[str, float],
 ) -> dict[str, Any]:
     extra = run.ckpt.get("extra_config") or {}
     return {
-        "software": "hd", "software_version": __version__,
-        "run": {"checkpoint": str(run.checkpoint.resolve()), "epoch": int(run.ckpt.get("epoch", 0)),
-                "profile": run.ckpt.get("profile", {}).get("name"), "model_config": run.ckpt.get("model_config"),
-                "train_sigma_m": run.train_sigma_m, "input_size": run.input_size, "dataset": extra.get("dataset"),
-                "labels": run.labels, "dem_shape": list(run.dem_shape), "dem_spacing_m": run.spacing_m},
+        "software": "hd",
+        "software_version": __version__,
+        "run": {
+            "checkpoint": str(run.checkpoint.resolve()),
+            "epoch": int(run.ckpt.get("epoch", 0)),
+            "profile": run.ckpt.get("profile", {}).get("name"),
+            "model_config": run.ckpt.get("model_config"),
+            "train_sigma_m": run.train_sigma_m,
+            "input_size": run.input_size,
+            "dataset": extra.get("dataset"),
+            "labels": run.labels,
+            "dem_shape": list(run.dem_shape),
+            "dem_spacing_m": run.spacing_m,
+        },
         "input": terrain.provenance,
-        "grid": {"rows": terrain.shape[0], "cols": terrain.shape[1], "spacing_m": list(terrain.spacing_xy_m),
-                 "transform": list(terrain.transform)[:6], "crs_wkt": terrain.crs_wkt},
+        "grid": {
+            "rows": terrain.shape[0],
+            "cols": terrain.shape[1],
+            "spacing_m": list(terrain.spacing_xy_m),
+            "transform": list(terrain.transform)[:6],
+            "crs_wkt": terrain.crs_wkt,
+        },
         "lander": asdict(run.lander),
         "threshold": threshold_info,
         "baseline": {"sigma_m": sigma_m, "safe_if_p_safe_at_least": BASELINE_THRESHOLD},
-        "mc_samples": mc_samples, "seed": seed,
+        "mc_samples": mc_samples,
+        "seed": seed,
         "tiling": plan.to_dict(),
-        "safety_codes": {"unsafe": SAFETY_UNSAFE, "safe": SAFETY_SAFE, "uncertain": SAFETY_UNCERTAIN, "invalid": SAFETY_INVALID},
+        "safety_codes": {
+            "unsafe": SAFETY_UNSAFE,
+            "safe": SAFETY_SAFE,
+            "uncertain": SAFETY_UNCERTAIN,
+            "invalid": SAFETY_INVALID,
+        },
         "counts": counts,
         "sites": [s.columns() for s in sites],
-        "site_rule": {"footprint": "lander body disk", "min_separation_m": run.lander.diameter_m,
-                      "rank_by": f"footprint-mean p_safe rounded to {SITE_RANK_DECIMALS} decimals, then clearance_m"},
+        "site_rule": {
+            "footprint": "lander body disk",
+            "min_separation_m": run.lander.diameter_m,
+            "rank_by": f"footprint-mean p_safe rounded to {SITE_RANK_DECIMALS} decimals, then clearance_m",
+        },
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
         "files": list(OUTPUT_FILES),
     }

@@ -23,13 +23,14 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
+from hdlabels import defaults as label_defaults
 from hdlabels.alhat import safety_probability
 from hdnet import defaults
 from hdnet.data import (
@@ -43,6 +44,7 @@ from hdnet.infer import mc_dropout_predict, predictive_entropy
 from hdnet.inputs import InputSpec
 from hdnet.metrics import ConfusionAccumulator, SegmentationMetrics
 from hdnet.model import BayesianSegNet
+from hdnet.results import EvaluationResult, ReliabilityBins, ReportRow, SplitInference
 from hdnet.thresholds import (
     EntropyCalibration,
     ThresholdSpec,
@@ -56,86 +58,8 @@ METHODS: tuple[str, str, str] = ("alhat_baseline", "base_net", "uncertainty_awar
 MAX_MC_SAMPLES = 1024  # hd choice: the tiled suffix of one batch holds M copies in memory (paper: M = 8)
 MAX_BATCH_SIZE = 1024  # hd choice: DEMs per inference batch
 ECE_BINS = 15  # hd choice: bins of the reliability diagram (the common choice since Guo et al. 2017)
-BASELINE_THRESHOLD = 0.5  # paper, "Label generation": the baseline is safe where P(safe) >= 50 %
-
-
-@dataclass(frozen=True)
-class SplitInference:
-    """MC-dropout output and ground truth of one split at one noise level, on the DEM grid.
-
-    Arrays are (N, H, W): ``label`` int64 (0 unsafe, 1 safe, 255 ignored: invalid cells and DEM
-    holes); ``ignore`` bool (dead-pixel neighbourhoods); ``prob_safe`` float32 mean softmax of
-    "safe"; ``prediction`` int64 (argmax); ``entropy_nats`` float32; ``baseline_safe`` bool
-    (P(safe) >= 0.5); ``dem_clean_m`` / ``dem_noisy_m`` float32 heights (metres) for figures.
-    """
-
-    sigma_m: float
-    scan_index: np.ndarray
-    label: np.ndarray
-    ignore: np.ndarray
-    prob_safe: np.ndarray
-    prediction: np.ndarray
-    entropy_nats: np.ndarray
-    baseline_safe: np.ndarray
-    dem_clean_m: np.ndarray
-    dem_noisy_m: np.ndarray
-
-    @property
-    def valid(self) -> np.ndarray:
-        """Pixels that count in metrics: labelled and not ignored."""
-        return (self.label != defaults.IGNORE_INDEX) & ~self.ignore
-
-
-@dataclass(frozen=True)
-class ReportRow:
-    """One row of Table 1 / Table 2; fractions in [0, 1] (NaN when undefined); sigmas in metres."""
-
-    table: str  # "noise" or "dead_pixels"
-    method: str
-    train_sigma_m: float | None  # None for the baseline (not trained)
-    test_sigma_m: float
-    vc_fraction: float | None  # None for methods without thresholding
-    pixel_accuracy: float
-    miou: float
-    precision: float
-    sensitivity: float
-
-
-@dataclass(frozen=True)
-class ReliabilityBins:
-    """Reliability of the safe probability in equal-width bins of [0, 1]."""
-
-    edges: np.ndarray  # (B + 1,)
-    count: np.ndarray  # (B,) pixels per bin
-    mean_prob: np.ndarray  # (B,) mean predicted P(safe) (NaN for an empty bin)
-    safe_fraction: np.ndarray  # (B,) observed fraction of truly safe pixels (NaN for an empty bin)
-    ece: float  # sum_b n_b / N * |safe_fraction_b - mean_prob_b|
-
-
-@dataclass
-class EvaluationResult:
-    """Everything ``evaluate`` measured; ``report.json`` is ``to_json()``."""
-
-    rows: list[ReportRow]
-    threshold: dict[str, Any]
-    sweep: list[dict[str, Any]]
-    calibration: dict[str, Any]
-    run: dict[str, Any] = field(default_factory=dict)
-    test: dict[float, SplitInference] = field(default_factory=dict, repr=False)
-    validation_entropy_nats: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32), repr=False)
-
-    def summary(self) -> str:
-        """A compact text table of the rows (for the terminal)."""
-        lines = [f"{'table':11s} {'method':18s} {'test sigma':>10s} {'V/C%':>5s} {'PA':>6s} {'mIoU':>6s} "
-                 f"{'prec.':>6s} {'sens.':>6s}"]
-        for r in self.rows:
-            vc = "-" if r.vc_fraction is None else f"{r.vc_fraction * 100:.0f}"
-            lines.append(f"{r.table:11s} {r.method:18s} {r.test_sigma_m * 100:8.2f}cm {vc:>5s} "
-                         f"{r.pixel_accuracy:6.4f} {r.miou:6.4f} {r.precision:6.4f} {r.sensitivity:6.4f}")
-        value = self.threshold.get("value_nats")
-        lines.append(f"threshold {self.threshold.get('spec', '')}: "
-                     f"{'unbounded' if value is None else f'{value:.4f} nats'}")
-        return "\n".join(lines)
+# The ALHAT baseline is safe where P(safe) >= this (paper, "Label generation"; one source: hdlabels.defaults).
+BASELINE_THRESHOLD = label_defaults.SAFE_PROBABILITY_THRESHOLD
 
 
 # --- pure scoring --------------------------------------------------------------------------------
@@ -185,23 +109,43 @@ def method_rows(inf: SplitInference, table: str, train_sigma_m: float, threshold
             m = score(inf.label, inf.prediction, inf.ignore)
         else:
             m = score(inf.label, inf.prediction, inf.ignore, uncertain)
-        out.append(ReportRow(table, method, None if method == "alhat_baseline" else train_sigma_m, inf.sigma_m,
-                             m.vc_fraction, m.pixel_accuracy, m.miou, m.precision_safe, m.sensitivity_safe))
+        out.append(
+            ReportRow(
+                table,
+                method,
+                None if method == "alhat_baseline" else train_sigma_m,
+                inf.sigma_m,
+                m.vc_fraction,
+                m.pixel_accuracy,
+                m.miou,
+                m.precision_safe,
+                m.sensitivity_safe,
+            )
+        )
     return out
 
 
 def false_safe_rate(inf: SplitInference, threshold_nats: float) -> float:
     """Mean over images of (certain false-safe pixels / valid pixels): the loss risk control bounds."""
     cal = EntropyCalibration()
-    cal.update(torch.from_numpy(inf.entropy_nats), torch.from_numpy(inf.prediction), torch.from_numpy(inf.label),
-               torch.from_numpy(inf.ignore))
+    cal.update(
+        torch.from_numpy(inf.entropy_nats),
+        torch.from_numpy(inf.prediction),
+        torch.from_numpy(inf.label),
+        torch.from_numpy(inf.ignore),
+    )
     return cal.risk(threshold_nats)
 
 
 # --- inference -----------------------------------------------------------------------------------
 def infer_split(
-    model: BayesianSegNet, ds: HazardDataset, mc_samples: int, batch_size: int, seed: int,
-    device: torch.device, recompute_baseline: bool = False,
+    model: BayesianSegNet,
+    ds: HazardDataset,
+    mc_samples: int,
+    batch_size: int,
+    seed: int,
+    device: torch.device,
+    recompute_baseline: bool = False,
 ) -> SplitInference:
     """MC dropout over a whole split, brought back to the DEM grid; dropout masks seeded by ``seed``.
 
@@ -227,13 +171,27 @@ def infer_split(
         arrays["prob"][sl] = probs[:, defaults.CLASS_SAFE].numpy()
         arrays["entropy"][sl] = predictive_entropy(probs).numpy()
         pred[sl] = probs.argmax(dim=1).numpy()
-        for j, s in zip(idx, samples):
+        for j, s in zip(idx, samples, strict=True):
             scans[j], label[j], ignore[j] = s.scan_index, s.label, s.ignore
             arrays["clean"][j], arrays["noisy"][j] = s.dem_clean_m, s.dem_noisy_m
-            p_safe = safety_probability(s.dem_noisy_m, ds.spacing_m, ds.sigma_m, ds.lander) if recompute_baseline else s.p_safe
+            p_safe = (
+                safety_probability(s.dem_noisy_m, ds.spacing_m, ds.sigma_m, ds.lander)
+                if recompute_baseline
+                else s.p_safe
+            )
             base[j] = np.nan_to_num(p_safe, nan=0.0) >= BASELINE_THRESHOLD
-    return SplitInference(ds.sigma_m, scans, label, ignore, arrays["prob"], pred, arrays["entropy"], base,
-                          arrays["clean"], arrays["noisy"])
+    return SplitInference(
+        ds.sigma_m,
+        scans,
+        label,
+        ignore,
+        arrays["prob"],
+        pred,
+        arrays["entropy"],
+        base,
+        arrays["clean"],
+        arrays["noisy"],
+    )
 
 
 # --- the run and its threshold ---------------------------------------------------------------------
@@ -250,7 +208,9 @@ def run_data(ckpt: dict[str, Any], path: Path) -> tuple[float, InputSpec, str | 
     """
     extra = ckpt.get("extra_config") or {}
     if "train_sigma_m" not in extra or ("input" not in extra and "normalisation" not in extra):
-        raise HdNetError(f"{path} was not trained by hdnet.fit: its run config lacks the training sigma and normalisation.")
+        raise HdNetError(
+            f"{path} was not trained by hdnet.fit: its run config lacks the training sigma and normalisation."
+        )
     try:
         spec = InputSpec.from_run_config(extra, ckpt.get("model_config"))
     except HdNetError as exc:
@@ -259,12 +219,19 @@ def run_data(ckpt: dict[str, Any], path: Path) -> tuple[float, InputSpec, str | 
 
 
 def split_dataset(
-    dataset_dir: str | os.PathLike, split: str, sigma_m: float, *, labels: str, input_spec: InputSpec,
-    dead_pixels: int = 0, seed: int = 0,
+    dataset_dir: str | os.PathLike,
+    split: str,
+    sigma_m: float,
+    *,
+    labels: str,
+    input_spec: InputSpec,
+    dead_pixels: int = 0,
+    seed: int = 0,
 ) -> HazardDataset:
     """One split of a labelled dataset prepared as the run's training inputs were; HdNetError when empty."""
-    ds = HazardDataset(dataset_dir, split, sigma_m, labels=labels, input_spec=input_spec, dead_pixels=dead_pixels,
-                       seed=seed)
+    ds = HazardDataset(
+        dataset_dir, split, sigma_m, labels=labels, input_spec=input_spec, dead_pixels=dead_pixels, seed=seed
+    )
     if len(ds) == 0:
         raise HdNetError(f"{dataset_dir}: the {split} split is empty.")
     return ds
@@ -288,8 +255,14 @@ class ValidationThreshold:
 
 
 def validation_threshold(
-    model: BayesianSegNet, val_ds: HazardDataset, spec: ThresholdSpec, *, mc_samples: int, batch_size: int,
-    seed: int, device: torch.device,
+    model: BayesianSegNet,
+    val_ds: HazardDataset,
+    spec: ThresholdSpec,
+    *,
+    mc_samples: int,
+    batch_size: int,
+    seed: int,
+    device: torch.device,
 ) -> ValidationThreshold:
     """Step 1 of the protocol: MC dropout over the validation split, entropies collected, H_t selected."""
     val = infer_split(model, val_ds, mc_samples, batch_size, seed, device)
@@ -299,9 +272,15 @@ def validation_threshold(
     h_mean = cal.mean()
     val_entropy = val.entropy_nats[val.valid]
     info: dict[str, Any] = {
-        "spec": str(spec), "kind": spec.kind, "parameter": spec.value, "value_nats": _finite_or_none(h_t),
-        "mean_nats": h_mean, "mean_quantile": float(np.mean(val_entropy < h_mean)),
-        "calibration_split": "val", "calibration_sigma_m": val.sigma_m, "calibration_images": cal.n_images,
+        "spec": str(spec),
+        "kind": spec.kind,
+        "parameter": spec.value,
+        "value_nats": _finite_or_none(h_t),
+        "mean_nats": h_mean,
+        "mean_quantile": float(np.mean(val_entropy < h_mean)),
+        "calibration_split": "val",
+        "calibration_sigma_m": val.sigma_m,
+        "calibration_images": cal.n_images,
         "calibration_pixels": int(val_entropy.size),
     }
     return ValidationThreshold(h_t, info, cal, val)
@@ -312,117 +291,252 @@ def _check_counts(mc_samples: int, drop_pixels: int, n_pixels: int, batch_size: 
     if isinstance(mc_samples, bool) or not isinstance(mc_samples, int) or not 1 <= mc_samples <= MAX_MC_SAMPLES:
         raise HdNetError(f"the number of MC samples must be an integer in 1..{MAX_MC_SAMPLES}, got {mc_samples!r}.")
     if isinstance(drop_pixels, bool) or not isinstance(drop_pixels, int) or not 0 <= drop_pixels < n_pixels:
-        raise HdNetError(f"--drop-pixels must be an integer in [0, {n_pixels - 1}] for {n_pixels}-pixel DEMs, got {drop_pixels!r}.")
+        raise HdNetError(
+            f"--drop-pixels must be an integer in [0, {n_pixels - 1}] for {n_pixels}-pixel DEMs, got {drop_pixels!r}."
+        )
     if isinstance(batch_size, bool) or not isinstance(batch_size, int) or not 1 <= batch_size <= MAX_BATCH_SIZE:
         raise HdNetError(f"the batch size must be an integer in 1..{MAX_BATCH_SIZE}, got {batch_size!r}.")
 
 
+@dataclass(frozen=True)
+class EvalConfig:
+    """How ``evaluate`` runs (the options of ``hd eval``).
+
+    ``mc_samples``: MC-dropout samples per DEM (1..``MAX_MC_SAMPLES``); ``drop_pixels``: dead pixels
+    per test DEM for Table 2 (0: no dead-pixel table); ``threshold``: ``mean``, ``quantile:Q`` or
+    ``risk:ALPHA``; ``labels``: the labelling to score against (None: the one the run was trained
+    on when the dataset has it, else the dataset's newest); ``seed``: dropout masks and dead pixels;
+    ``batch_size``: DEMs per inference batch (1..``MAX_BATCH_SIZE``); ``device``: a torch device
+    (None: CUDA when available, else the CPU).
+
+    Raises:
+        HdNetError: a bad threshold spec or seed (checked here, before any file is looked at); the
+            counts are checked by ``evaluate`` once the DEM size is known.
+    """
+
+    mc_samples: int = defaults.MC_SAMPLES
+    drop_pixels: int = 0
+    threshold: str = defaults.THRESHOLD_SPEC
+    labels: str | None = None
+    seed: int = 0
+    batch_size: int = defaults.BATCH_SIZE
+    device: str | None = None
+
+    def __post_init__(self) -> None:
+        parse_threshold_spec(self.threshold)
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise HdNetError(f"the seed must be an integer >= 0, got {self.seed!r}.")
+
+    @property
+    def threshold_spec(self) -> ThresholdSpec:
+        """The parsed ``threshold``."""
+        return parse_threshold_spec(self.threshold)
+
+
+@dataclass(frozen=True)
+class _Setup:
+    """What every step of an evaluation shares: the model and its run, the labelling, the noise levels."""
+
+    model: BayesianSegNet
+    ckpt: dict[str, Any]
+    ckpt_path: Path
+    device: torch.device
+    train_sigma_m: float
+    input_spec: InputSpec
+    labels: str
+    sigmas_m: tuple[float, ...]
+
+    def dataset(
+        self, dataset_dir: str | os.PathLike, split: str, sigma: float, seed: int, dead: int = 0
+    ) -> HazardDataset:
+        """One split at one noise level (metres), prepared as the run's inputs; ``dead`` dead pixels per DEM."""
+        return split_dataset(
+            dataset_dir, split, sigma, labels=self.labels, input_spec=self.input_spec, dead_pixels=dead, seed=seed
+        )
+
+
 def evaluate(
-    run_dir: str | os.PathLike,
-    dataset_dir: str | os.PathLike,
-    out_dir: str | os.PathLike,
-    mc_samples: int = defaults.MC_SAMPLES,
-    drop_pixels: int = 0,
-    threshold: str = defaults.THRESHOLD_SPEC,
-    labels: str | None = None,
-    seed: int = 0,
-    batch_size: int = 8,
-    device: str | None = None,
-    figures: bool = True,
-    overwrite: bool = False,
+    run_dir: str | os.PathLike, dataset_dir: str | os.PathLike, config: EvalConfig | None = None
 ) -> EvaluationResult:
     """Evaluate the run at ``run_dir`` (its ``last.pt``, or a checkpoint file) on ``dataset_dir``.
 
-    Writes ``report.json``, ``report.md`` and PNG figures into ``out_dir`` and returns the result.
-    ``out_dir`` is checked before the evaluation runs; an existing report (or a non-empty
-    directory that is not a report) is replaced only with ``overwrite``.
+    Returns the result; writing it is the caller's (``hdnet.report.write_report``, after checking
+    the report directory with ``check_report_dir`` before the evaluation runs, as
+    ``hdnet.pipeline.evaluate_to_report`` does).
 
     Raises:
         HdNetError: a dataset without labels, a training sigma not in the dataset, a checkpoint of
             another model or schema, ``drop_pixels`` outside [0, DEM pixels), ``mc_samples`` < 1,
-            a bad threshold spec (e.g. alpha outside (0, 1)), an empty validation or test split.
+            an empty validation or test split.
     """
-    from hdnet.report import check_report_dir, write_report
-
-    spec: ThresholdSpec = parse_threshold_spec(threshold)
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise HdNetError(f"the seed must be an integer >= 0, got {seed!r}.")
-    check_report_dir(out_dir, overwrite)  # before the evaluation runs
-    open_labeling(dataset_dir, labels)  # the clear "no labels" error before anything else
-    _check_counts(mc_samples, 0, 1, batch_size)
-    ckpt_path = checkpoint_path(run_dir)
-    dev = torch.device(device) if device else torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    model, ckpt = load_trained_model(ckpt_path, map_location=dev)
-    train_sigma, input_spec, run_labels = run_data(ckpt, ckpt_path)
-    input_size = input_spec.input_size
-    entry, paths = open_labeling(dataset_dir, labels if labels is not None else preferred_labeling(dataset_dir, run_labels))
-    dem = entry.get("dem", {})
-    n_pixels = int(dem.get("rows", defaults.DEM_SIZE_PX)) * int(dem.get("cols", defaults.DEM_SIZE_PX))
-    _check_counts(mc_samples, drop_pixels, n_pixels, batch_size)
-    sigmas = dataset_sigmas(paths)
-    sigma_index(sigmas, train_sigma)  # the training sigma must be in the dataset
-    lab = str(entry["name"])
-
-    def dataset(split: str, sigma: float, dead: int = 0) -> HazardDataset:
-        return split_dataset(dataset_dir, split, sigma, labels=lab, input_spec=input_spec, dead_pixels=dead, seed=seed)
+    cfg = config if config is not None else EvalConfig()
+    spec = cfg.threshold_spec
+    setup = _open_evaluation(run_dir, dataset_dir, cfg)
 
     # 1. threshold from the validation split at the training sigma
-    th = validation_threshold(model, dataset("val", train_sigma), spec, mc_samples=mc_samples, batch_size=batch_size,
-                              seed=seed, device=dev)
-    val, cal, h_t, threshold_info = th.inference, th.calibration, th.value_nats, th.info
-    val_entropy = val.entropy_nats[val.valid]
-
+    th = validation_threshold(
+        setup.model,
+        setup.dataset(dataset_dir, "val", setup.train_sigma_m, cfg.seed),
+        spec,
+        mc_samples=cfg.mc_samples,
+        batch_size=cfg.batch_size,
+        seed=cfg.seed,
+        device=setup.device,
+    )
     # 2-3. every sigma: the three methods, the sweep, calibration
+    tests, rows, sweep, cal_rows, achieved = _noise_table(setup, dataset_dir, cfg, th)
+    # 4. dead pixels
+    if cfg.drop_pixels:
+        dead_rows, dead_achieved = _dead_pixel_table(setup, dataset_dir, cfg, th)
+        rows += dead_rows
+        achieved += dead_achieved
+    threshold_info = th.info
+    if spec.kind == "risk":
+        threshold_info["alpha"] = spec.value
+        threshold_info["achieved_risk"] = achieved
+    val = th.inference
+    return EvaluationResult(
+        rows,
+        threshold_info,
+        sweep,
+        {"bins": ECE_BINS, "per_sigma": cal_rows},
+        _run_info(setup, dataset_dir, cfg, tests, val),
+        tests,
+        val.entropy_nats[val.valid],
+    )
+
+
+def _open_evaluation(run_dir: str | os.PathLike, dataset_dir: str | os.PathLike, cfg: EvalConfig) -> _Setup:
+    """Step 0: the checks that need the dataset or the run, then the model and the labelling."""
+    open_labeling(dataset_dir, cfg.labels)  # the clear "no labels" error before anything else
+    _check_counts(cfg.mc_samples, 0, 1, cfg.batch_size)
+    ckpt_path = checkpoint_path(run_dir)
+    dev = torch.device(cfg.device) if cfg.device else torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    model, ckpt = load_trained_model(ckpt_path, map_location=dev)
+    train_sigma, input_spec, run_labels = run_data(ckpt, ckpt_path)
+    entry, paths = open_labeling(
+        dataset_dir, cfg.labels if cfg.labels is not None else preferred_labeling(dataset_dir, run_labels)
+    )
+    dem = entry.get("dem", {})
+    n_pixels = int(dem.get("rows", defaults.DEM_SIZE_PX)) * int(dem.get("cols", defaults.DEM_SIZE_PX))
+    _check_counts(cfg.mc_samples, cfg.drop_pixels, n_pixels, cfg.batch_size)
+    sigmas = dataset_sigmas(paths)
+    sigma_index(sigmas, train_sigma)  # the training sigma must be in the dataset
+    return _Setup(model, ckpt, ckpt_path, dev, train_sigma, input_spec, str(entry["name"]), tuple(sigmas))
+
+
+def _noise_table(
+    setup: _Setup, dataset_dir: str | os.PathLike, cfg: EvalConfig, th: ValidationThreshold
+) -> tuple[
+    dict[float, SplitInference], list[ReportRow], list[dict[str, Any]], list[dict[str, Any]], list[dict[str, Any]]
+]:
+    """Steps 2-3: the test split at every noise level: the three methods (Table 1), the sweep over
+    threshold quantiles, the calibration of P(safe) and, for ``risk:ALPHA``, the false-safe rate."""
+    h_t, val_sigma = th.value_nats, th.inference.sigma_m
     rows: list[ReportRow] = []
     sweep: list[dict[str, Any]] = []
     cal_rows: list[dict[str, Any]] = []
     tests: dict[float, SplitInference] = {}
     achieved: list[dict[str, Any]] = []
-    quantile_thresholds = [(q, cal.quantile(q)) for q in defaults.QUANTILE_SWEEP]
-    for sigma in sigmas:
-        inf = infer_split(model, dataset("test", sigma), mc_samples, batch_size, seed, dev)
+    quantile_thresholds = [(q, th.calibration.quantile(q)) for q in defaults.QUANTILE_SWEEP]
+    for sigma in setup.sigmas_m:
+        inf = infer_split(
+            setup.model,
+            setup.dataset(dataset_dir, "test", sigma, cfg.seed),
+            cfg.mc_samples,
+            cfg.batch_size,
+            cfg.seed,
+            setup.device,
+        )
         tests[sigma] = inf
-        rows += method_rows(inf, "noise", val.sigma_m, h_t)
+        rows += method_rows(inf, "noise", val_sigma, h_t)
         for q, t in quantile_thresholds:
             m = score(inf.label, inf.prediction, inf.ignore, inf.entropy_nats >= t)
-            sweep.append({"test_sigma_m": sigma, "quantile": q, "threshold_nats": t, "vc_fraction": m.vc_fraction,
-                          "pixel_accuracy": m.pixel_accuracy, "miou": m.miou, "precision": m.precision_safe,
-                          "sensitivity": m.sensitivity_safe})
+            sweep.append(
+                {
+                    "test_sigma_m": sigma,
+                    "quantile": q,
+                    "threshold_nats": t,
+                    "vc_fraction": m.vc_fraction,
+                    "pixel_accuracy": m.pixel_accuracy,
+                    "miou": m.miou,
+                    "precision": m.precision_safe,
+                    "sensitivity": m.sensitivity_safe,
+                }
+            )
         v = inf.valid
         rel = reliability(inf.prob_safe[v], inf.label[v] == defaults.CLASS_SAFE)
-        cal_rows.append({"test_sigma_m": sigma, "ece": rel.ece, "bin_edges": rel.edges.tolist(),
-                         "bin_count": rel.count.tolist(), "bin_mean_prob": rel.mean_prob.tolist(),
-                         "bin_safe_fraction": rel.safe_fraction.tolist()})
-        if spec.kind == "risk":
+        cal_rows.append(
+            {
+                "test_sigma_m": sigma,
+                "ece": rel.ece,
+                "bin_edges": rel.edges.tolist(),
+                "bin_count": rel.count.tolist(),
+                "bin_mean_prob": rel.mean_prob.tolist(),
+                "bin_safe_fraction": rel.safe_fraction.tolist(),
+            }
+        )
+        if cfg.threshold_spec.kind == "risk":
             achieved.append({"test_sigma_m": sigma, "table": "noise", "false_safe_rate": false_safe_rate(inf, h_t)})
+    return tests, rows, sweep, cal_rows, achieved
 
-    # 4. dead pixels
-    if drop_pixels:
-        for sigma in sigmas:
-            inf = infer_split(model, dataset("test", sigma, drop_pixels), mc_samples, batch_size, seed, dev,
-                              recompute_baseline=True)
-            rows += method_rows(inf, "dead_pixels", val.sigma_m, h_t)
-            if spec.kind == "risk":
-                achieved.append({"test_sigma_m": sigma, "table": "dead_pixels", "false_safe_rate": false_safe_rate(inf, h_t)})
-    if spec.kind == "risk":
-        threshold_info["alpha"] = spec.value
-        threshold_info["achieved_risk"] = achieved
 
+def _dead_pixel_table(
+    setup: _Setup, dataset_dir: str | os.PathLike, cfg: EvalConfig, th: ValidationThreshold
+) -> tuple[list[ReportRow], list[dict[str, Any]]]:
+    """Step 4: the test split again with ``drop_pixels`` dead pixels per DEM, repaired, the baseline
+    recomputed on the repaired DEM (Table 2); the false-safe rate for ``risk:ALPHA``."""
+    h_t, val_sigma = th.value_nats, th.inference.sigma_m
+    rows: list[ReportRow] = []
+    achieved: list[dict[str, Any]] = []
+    for sigma in setup.sigmas_m:
+        inf = infer_split(
+            setup.model,
+            setup.dataset(dataset_dir, "test", sigma, cfg.seed, cfg.drop_pixels),
+            cfg.mc_samples,
+            cfg.batch_size,
+            cfg.seed,
+            setup.device,
+            recompute_baseline=True,
+        )
+        rows += method_rows(inf, "dead_pixels", val_sigma, h_t)
+        if cfg.threshold_spec.kind == "risk":
+            achieved.append(
+                {"test_sigma_m": sigma, "table": "dead_pixels", "false_safe_rate": false_safe_rate(inf, h_t)}
+            )
+    return rows, achieved
+
+
+def _run_info(
+    setup: _Setup,
+    dataset_dir: str | os.PathLike,
+    cfg: EvalConfig,
+    tests: dict[float, SplitInference],
+    val: SplitInference,
+) -> dict[str, Any]:
+    """Step 5: the ``run`` entry of the report: checkpoint, run settings, dataset and evaluation settings."""
     root = Path(dataset_dir).resolve()
+    ckpt = setup.ckpt
     extra = ckpt.get("extra_config") or {}
-    run_info = {
-        "checkpoint": str(ckpt_path.resolve()), "epoch": int(ckpt.get("epoch", 0)), "profile": ckpt.get("profile", {}).get("name"),
-        "model_config": ckpt.get("model_config"), "train_sigma_m": train_sigma, "input_size": input_size,
-        "input": input_spec.to_dict(),
-        "dataset": str(root), "manifest_sha256": sha256_file(root / MANIFEST_NAME), "labels": lab,
+    return {
+        "checkpoint": str(setup.ckpt_path.resolve()),
+        "epoch": int(ckpt.get("epoch", 0)),
+        "profile": ckpt.get("profile", {}).get("name"),
+        "model_config": ckpt.get("model_config"),
+        "train_sigma_m": setup.train_sigma_m,
+        "input_size": setup.input_spec.input_size,
+        "input": setup.input_spec.to_dict(),
+        "dataset": str(root),
+        "manifest_sha256": sha256_file(root / MANIFEST_NAME),
+        "labels": setup.labels,
         "same_dataset_as_training": extra.get("manifest_sha256") == sha256_file(root / MANIFEST_NAME),
-        "sigmas_m": list(sigmas), "mc_samples": mc_samples, "drop_pixels": drop_pixels, "seed": seed,
-        "test_scans": len(next(iter(tests.values())).scan_index), "val_scans": len(val.scan_index),
+        "sigmas_m": list(setup.sigmas_m),
+        "mc_samples": cfg.mc_samples,
+        "drop_pixels": cfg.drop_pixels,
+        "seed": cfg.seed,
+        "test_scans": len(next(iter(tests.values())).scan_index),
+        "val_scans": len(val.scan_index),
     }
-    result = EvaluationResult(rows, threshold_info, sweep, {"bins": ECE_BINS, "per_sigma": cal_rows}, run_info,
-                              tests, val_entropy)
-    write_report(result, Path(out_dir), figures=figures, overwrite=overwrite)
-    return result
 
 
 def validation_summary(
@@ -469,11 +583,21 @@ def validation_summary(
     q = score(inf.label, inf.prediction, inf.ignore, inf.entropy_nats >= h_q)
     risk = score(inf.label, inf.prediction, inf.ignore, inf.entropy_nats >= h_risk)
     out = {
-        "base_pa": base.pixel_accuracy, "base_miou": base.miou, "base_precision": base.precision_safe,
-        "base_sensitivity": base.sensitivity_safe, "threshold_nats": h_mean, "ua_vc": float(ua.vc_fraction or 0.0),
-        "ua_pa": ua.pixel_accuracy, "ua_miou": ua.miou, "ua_precision": ua.precision_safe,
-        "ua_sensitivity": ua.sensitivity_safe, "q_precision": q.precision_safe, "q_sensitivity": q.sensitivity_safe,
-        "q_vc": float(q.vc_fraction or 0.0), "risk_false_safe": cal.risk(h_risk), "risk_sensitivity": risk.sensitivity_safe,
+        "base_pa": base.pixel_accuracy,
+        "base_miou": base.miou,
+        "base_precision": base.precision_safe,
+        "base_sensitivity": base.sensitivity_safe,
+        "threshold_nats": h_mean,
+        "ua_vc": float(ua.vc_fraction or 0.0),
+        "ua_pa": ua.pixel_accuracy,
+        "ua_miou": ua.miou,
+        "ua_precision": ua.precision_safe,
+        "ua_sensitivity": ua.sensitivity_safe,
+        "q_precision": q.precision_safe,
+        "q_sensitivity": q.sensitivity_safe,
+        "q_vc": float(q.vc_fraction or 0.0),
+        "risk_false_safe": cal.risk(h_risk),
+        "risk_sensitivity": risk.sensitivity_safe,
         "risk_vc": float(risk.vc_fraction or 0.0),
     }
     for sigma in other_sigmas_m:
@@ -482,9 +606,15 @@ def validation_summary(
         b = score(other.label, other.prediction, other.ignore)
         u = score(other.label, other.prediction, other.ignore, other.entropy_nats >= h_mean)
         qq = score(other.label, other.prediction, other.ignore, other.entropy_nats >= h_q)
-        out.update({f"base_pa{tag}": b.pixel_accuracy, f"ua_vc{tag}": float(u.vc_fraction or 0.0),
-                    f"ua_precision{tag}": u.precision_safe, f"ua_sensitivity{tag}": u.sensitivity_safe,
-                    f"q_precision{tag}": qq.precision_safe})
+        out.update(
+            {
+                f"base_pa{tag}": b.pixel_accuracy,
+                f"ua_vc{tag}": float(u.vc_fraction or 0.0),
+                f"ua_precision{tag}": u.precision_safe,
+                f"ua_sensitivity{tag}": u.sensitivity_safe,
+                f"q_precision{tag}": qq.precision_safe,
+            }
+        )
     return out
 
 

@@ -1,7 +1,7 @@
 """PNG figures (matplotlib, Agg): an evaluation's reliability, threshold sweep and qualitative panels,
 and a detection's overview.
 
-Every evaluation figure takes an ``EvaluationResult`` (``hdnet.evaluate``) and a file path, draws one
+Every evaluation figure takes an ``EvaluationResult`` (``hdnet.results``) and a file path, draws one
 figure and closes it. Colours of safety maps: unsafe red, safe green, uncertain grey, invalid white.
 """
 
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import matplotlib
 
@@ -21,10 +21,10 @@ from matplotlib.colors import ListedColormap
 from hdnet import defaults
 
 if TYPE_CHECKING:
-    from hdnet.detect import Site
-    from hdnet.evaluate import EvaluationResult, SplitInference
+    from hdnet.results import EvaluationResult, Site, SplitInference
 
-SAFETY_COLOURS = ListedColormap(["#c0392b", "#27ae60", "#9e9e9e", "#ffffff"])  # unsafe, safe, uncertain, invalid
+SAFETY_HEX = ("#c0392b", "#27ae60", "#9e9e9e", "#ffffff")  # unsafe, safe, uncertain, invalid
+SAFETY_COLOURS = ListedColormap(list(SAFETY_HEX))
 UNCERTAIN_CODE, INVALID_CODE = 2, 3
 DPI = 110
 
@@ -43,8 +43,13 @@ def reliability_diagram(result: EvaluationResult, path: Path) -> None:
         y = np.asarray(row["bin_safe_fraction"], float)
         ok = np.isfinite(p) & np.isfinite(y)
         ax.plot(p[ok], y[ok], "o-", ms=4, label=f"test {sigma_label(row['test_sigma_m'])} (ECE {row['ece']:.3f})")
-    ax.set(xlim=(0, 1), ylim=(0, 1), xlabel="mean predicted P(safe)", ylabel="observed safe fraction",
-           title=f"Reliability ({result.calibration['bins']} bins)")
+    ax.set(
+        xlim=(0, 1),
+        ylim=(0, 1),
+        xlabel="mean predicted P(safe)",
+        ylabel="observed safe fraction",
+        title=f"Reliability ({result.calibration['bins']} bins)",
+    )
     ax.legend(fontsize=8, loc="upper left")
     fig.tight_layout()
     fig.savefig(path, dpi=DPI)
@@ -59,21 +64,27 @@ def threshold_sweep(result: EvaluationResult, path: Path) -> None:
     """
     sigmas = sorted({row["test_sigma_m"] for row in result.sweep})
     fig, axes = plt.subplots(1, len(sigmas), figsize=(4.2 * len(sigmas), 3.8), squeeze=False)
-    for ax, sigma in zip(axes[0], sigmas):
+    for ax, sigma in zip(axes[0], sigmas, strict=True):
         pts = [r for r in result.sweep if r["test_sigma_m"] == sigma]
         q = [r["quantile"] for r in pts]
         ax.plot(q, [r["precision"] for r in pts], "o-", color="tab:blue", label="precision")
         ax.plot(q, [r["sensitivity"] for r in pts], "s-", color="tab:orange", label="sensitivity")
         ax.axvline(result.threshold["mean_quantile"], color="k", ls="--", lw=1, label="mean-entropy threshold")
-        base = [r for r in result.rows if r.table == "noise" and r.method == "alhat_baseline" and r.test_sigma_m == sigma]
+        base = [
+            r for r in result.rows if r.table == "noise" and r.method == "alhat_baseline" and r.test_sigma_m == sigma
+        ]
         if base:
             b = base[0]
             ax.axhline(b.precision, color="tab:blue", ls=":", lw=1, label="baseline precision")
             ax.axhline(b.sensitivity, color="tab:orange", ls=":", lw=1, label="baseline sensitivity")
             ax.plot([1.0], [b.precision], "D", color="tab:blue", ms=5)
             ax.plot([1.0], [b.sensitivity], "D", color="tab:orange", ms=5)
-        ax.set(xlim=(0, 1.05), ylim=(0, 1.02), xlabel="threshold quantile (validation entropy)",
-               title=f"test sigma {sigma_label(sigma)}")
+        ax.set(
+            xlim=(0, 1.05),
+            ylim=(0, 1.02),
+            xlabel="threshold quantile (validation entropy)",
+            title=f"test sigma {sigma_label(sigma)}",
+        )
     axes[0][0].set_ylabel("fraction")
     axes[0][-1].legend(fontsize=7, loc="lower right")
     fig.tight_layout()
@@ -103,25 +114,35 @@ def qualitative_panel(inf: SplitInference, row: int, threshold_nats: float | Non
     label = inf.label[row]
     t = math.inf if threshold_nats is None else threshold_nats
     uncertain = inf.entropy_nats[row] >= t
-    panels = [
+    panels: list[tuple[str, np.ndarray, dict[str, Any]]] = [
         ("true DEM (m)", inf.dem_clean_m[row], {"cmap": "terrain"}),
         ("label", _safety_codes(label == defaults.CLASS_SAFE, label), {"cmap": SAFETY_COLOURS, "vmin": 0, "vmax": 3}),
         ("noisy DEM (m)", inf.dem_noisy_m[row], {"cmap": "terrain"}),
         ("uncertainty (nats)", inf.entropy_nats[row], {"cmap": "viridis", "vmin": 0.0, "vmax": math.log(2)}),
-        ("uncertainty-aware", _safety_codes(inf.prediction[row] == defaults.CLASS_SAFE, label, uncertain),
-         {"cmap": SAFETY_COLOURS, "vmin": 0, "vmax": 3}),
-        ("ALHAT baseline", _safety_codes(inf.baseline_safe[row], label), {"cmap": SAFETY_COLOURS, "vmin": 0, "vmax": 3}),
+        (
+            "uncertainty-aware",
+            _safety_codes(inf.prediction[row] == defaults.CLASS_SAFE, label, uncertain),
+            {"cmap": SAFETY_COLOURS, "vmin": 0, "vmax": 3},
+        ),
+        (
+            "ALHAT baseline",
+            _safety_codes(inf.baseline_safe[row], label),
+            {"cmap": SAFETY_COLOURS, "vmin": 0, "vmax": 3},
+        ),
     ]
     fig, axes = plt.subplots(1, len(panels), figsize=(3.0 * len(panels), 3.3))
-    for ax, (title, img, kw) in zip(axes, panels):
+    for ax, (title, img, kw) in zip(axes, panels, strict=True):
         im = ax.imshow(img, interpolation="nearest", **kw)
         ax.set_title(title, fontsize=9)
         ax.set_xticks([])
         ax.set_yticks([])
         if title.endswith(")"):
             fig.colorbar(im, ax=ax, fraction=0.046, pad=0.02)
-    fig.suptitle(f"scan {int(inf.scan_index[row])}, test sigma {sigma_label(inf.sigma_m)} "
-                 "(red unsafe, green safe, grey uncertain, white invalid)", fontsize=9)
+    fig.suptitle(
+        f"scan {int(inf.scan_index[row])}, test sigma {sigma_label(inf.sigma_m)} "
+        "(red unsafe, green safe, grey uncertain, white invalid)",
+        fontsize=9,
+    )
     fig.tight_layout()
     fig.savefig(path, dpi=DPI)
     plt.close(fig)
@@ -144,8 +165,14 @@ def write_figures(result: EvaluationResult, out_dir: Path) -> list[Path]:
 
 
 def detect_overview(
-    heights_m: np.ndarray, cell_m: float, safety: np.ndarray, extent: tuple[float, float, float, float],
-    sites: list[Site], lander_radius_m: float, title: str, path: Path,
+    heights_m: np.ndarray,
+    cell_m: float,
+    safety: np.ndarray,
+    extent: tuple[float, float, float, float],
+    sites: list[Site],
+    lander_radius_m: float,
+    title: str,
+    path: Path,
 ) -> None:
     """Hillshade of the terrain, the safety map over it and the numbered sites (circles of the lander's size).
 
@@ -160,7 +187,7 @@ def detect_overview(
     filled = np.where(finite, z, np.nanmean(z) if finite.any() else 0.0)
     shade = LightSource(azdeg=315, altdeg=45).hillshade(filled, vert_exag=1.0, dx=cell_m, dy=cell_m)
     shade = np.where(finite, shade, np.nan)
-    colours = SAFETY_COLOURS.colors
+    colours = SAFETY_HEX
     rgba = np.zeros((*safety.shape, 4))
     for code, colour, alpha in ((0, colours[0], 0.45), (1, colours[1], 0.35), (2, colours[2], 0.6)):
         rgba[safety == code] = (*matplotlib.colors.to_rgb(colour), alpha)
@@ -173,20 +200,31 @@ def detect_overview(
     for s in sites:
         ax.add_patch(Circle((s.x, s.y), lander_radius_m, fill=False, ec="black", lw=1.6))
         ax.add_patch(Circle((s.x, s.y), lander_radius_m, fill=False, ec="white", lw=0.7))
-        ax.annotate(str(s.rank), (s.x, s.y), xytext=(5, 5), textcoords="offset points",
-                    fontsize=8, fontweight="bold", color="black",
-                    bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.8})
+        ax.annotate(
+            str(s.rank),
+            (s.x, s.y),
+            xytext=(5, 5),
+            textcoords="offset points",
+            fontsize=8,
+            fontweight="bold",
+            color="black",
+            bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.8},
+        )
     ax.set_xlim(left, right)
     ax.set_ylim(bottom, top)
     ax.ticklabel_format(useOffset=False, style="plain")
     ax.set(xlabel="x (m)", ylabel="y (m)", title=title)
     ax.title.set_fontsize(9)
-    handles = [Patch(color=colours[0], alpha=0.6, label="unsafe"), Patch(color=colours[1], alpha=0.6, label="safe"),
-               Patch(color=colours[2], alpha=0.8, label="uncertain"),
-               Patch(fc="white", ec="0.6", label="no colour: invalid (border, nodata)"),
-               Patch(fc="none", ec="black", label="landing site (lander size)")]
-    ax.legend(handles=handles, fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=len(handles),
-              frameon=False)
+    handles = [
+        Patch(color=colours[0], alpha=0.6, label="unsafe"),
+        Patch(color=colours[1], alpha=0.6, label="safe"),
+        Patch(color=colours[2], alpha=0.8, label="uncertain"),
+        Patch(fc="white", ec="0.6", label="no colour: invalid (border, nodata)"),
+        Patch(fc="none", ec="black", label="landing site (lander size)"),
+    ]
+    ax.legend(
+        handles=handles, fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=len(handles), frameon=False
+    )
     fig.tight_layout()
     fig.savefig(path, dpi=DPI)
     plt.close(fig)

@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -48,8 +49,18 @@ from lidarsim.storage import (
 
 RUN_FILES = (LAST, BEST, METRICS, CONFIG)
 
-RUN_DATA_KEYS = ("dataset", "manifest_sha256", "labels", "labeling", "train_sigma_m", "normalisation", "input_size",
-                 "input_rule", "dem_shape", "input")
+RUN_DATA_KEYS = (
+    "dataset",
+    "manifest_sha256",
+    "labels",
+    "labeling",
+    "train_sigma_m",
+    "normalisation",
+    "input_size",
+    "input_rule",
+    "dem_shape",
+    "input",
+)
 
 
 def input_rule(input_size: int | None, size_multiple: int = defaults.SIZE_MULTIPLE_PX) -> str:
@@ -71,7 +82,11 @@ def input_spec_for(profile: TrainingProfile, spacing_m: float, normalisation: No
 
 
 def run_data_config(
-    dataset_dir: str | os.PathLike, labels: str, sigma_m: float, spec: InputSpec, dem_shape: tuple[int, int],
+    dataset_dir: str | os.PathLike,
+    labels: str,
+    sigma_m: float,
+    spec: InputSpec,
+    dem_shape: tuple[int, int],
     labeling: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """The ``extra_config`` of a run: the data a model was trained on and how inputs were prepared.
@@ -125,13 +140,17 @@ def prepare_run_dir(run_dir: str | os.PathLike, resume: bool, overwrite: bool) -
     if not _is_run(path):
         if overwrite:
             return path, False
-        raise HdNetError(f"{path} is not empty and is not an hd run; choose another --out, or pass --overwrite to "
-                         "write the run there anyway (files of the same names are replaced).")
+        raise HdNetError(
+            f"{path} is not empty and is not an hd run; choose another --out, or pass --overwrite to "
+            "write the run there anyway (files of the same names are replaced)."
+        )
     if overwrite:
         return path, True
     if (path / LAST).exists() and not resume:
-        raise HdNetError(f"{path} already holds a checkpoint; resume it (--resume), start again (--overwrite) "
-                         "or choose another run directory.")
+        raise HdNetError(
+            f"{path} already holds a checkpoint; resume it (--resume), start again (--overwrite) "
+            "or choose another run directory."
+        )
     return path, False
 
 
@@ -152,50 +171,71 @@ def run_dir_lock(run_dir: Path) -> Any:
         lock.release()
 
 
-def fit(
-    dataset_dir: str | os.PathLike,
-    run_dir: str | os.PathLike,
-    profile_name: str | TrainingProfile = "cpu",
-    epochs: int | None = None,
-    train_sigma_m: float = defaults.TRAIN_SIGMA_M,
-    seed: int = 0,
-    resume: bool = False,
-    labels: str | None = None,
-    progress: bool = True,
-    num_workers: int = 0,
-    overwrite: bool = False,
-    stop_after: int | None = None,
-) -> Path:
-    """Train a model on ``dataset_dir`` at noise level ``train_sigma_m`` (metres); returns ``last.pt``.
+@dataclass(frozen=True)
+class FitConfig:
+    """How ``fit`` trains (the options of ``hd train``).
 
-    ``profile_name`` is a profile's name or a ``TrainingProfile`` (e.g. a variant in an ablation);
-    ``overwrite``: write into a non-empty directory that is not an hd run, or start an existing run
-    again (its checkpoints, metrics.csv and config.json are replaced); ``stop_after`` ends this call
-    after that many epochs of the ``epochs``-long schedule (resume later).
+    ``profile``: a profile's name or a ``TrainingProfile`` (e.g. a variant in an ablation);
+    ``epochs``: the schedule's length (None: the profile's); ``train_sigma_m``: the noise level of
+    the training inputs, metres; ``seed``: initialisation and shuffling; ``resume``: continue the
+    run's ``last.pt``; ``labels``: the labelling to train on (None: the dataset's only or newest);
+    ``progress``: progress bars; ``num_workers``: DataLoader worker processes; ``overwrite``: write
+    into a non-empty directory that is not an hd run, or start an existing run again (its
+    checkpoints, metrics.csv and config.json are replaced); ``stop_after``: end this call after
+    that many epochs of the ``epochs``-long schedule (resume later).
+
+    Raises:
+        HdNetError: a negative seed or number of workers (checked here, before any file is looked at).
+    """
+
+    profile: str | TrainingProfile = "cpu"
+    epochs: int | None = None
+    train_sigma_m: float = defaults.TRAIN_SIGMA_M
+    seed: int = 0
+    resume: bool = False
+    labels: str | None = None
+    progress: bool = True
+    num_workers: int = 0
+    overwrite: bool = False
+    stop_after: int | None = None
+
+    def __post_init__(self) -> None:
+        workers = self.num_workers
+        if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
+            raise HdNetError(f"--num-workers must be an integer >= 0, got {workers!r}.")
+        if self.seed < 0:
+            raise HdNetError(f"--seed must be >= 0, got {self.seed}.")
+
+    def training_profile(self) -> TrainingProfile:
+        """The profile itself (a name is looked up in ``hdnet.profiles``)."""
+        return self.profile if isinstance(self.profile, TrainingProfile) else get_profile(self.profile)
+
+
+def fit(dataset_dir: str | os.PathLike, run_dir: str | os.PathLike, config: FitConfig | None = None) -> Path:
+    """Train a model on ``dataset_dir`` as ``config`` says (default: ``FitConfig()``); returns ``last.pt``.
 
     Raises:
         HdNetError: a bad run directory (see ``prepare_run_dir``), a dataset without labels, a sigma
             not in the dataset, an empty training or validation split, an unknown profile, or
             anything ``hdnet.train.train`` refuses.
     """
-    if isinstance(num_workers, bool) or not isinstance(num_workers, int) or num_workers < 0:
-        raise HdNetError(f"--num-workers must be an integer >= 0, got {num_workers!r}.")
-    if seed < 0:
-        raise HdNetError(f"--seed must be >= 0, got {seed}.")
+    cfg = config if config is not None else FitConfig()
+    resume, overwrite, labels, train_sigma_m = cfg.resume, cfg.overwrite, cfg.labels, cfg.train_sigma_m
     run_path, _ = prepare_run_dir(run_dir, resume, overwrite)
-    profile = profile_name if isinstance(profile_name, TrainingProfile) else get_profile(profile_name)
+    profile = cfg.training_profile()
     entry, _ = open_labeling(dataset_dir, labels)  # the clear "no labels" error first
     check_augment(profile.augment, lander_of(entry))
     normalisation = compute_normalisation(dataset_dir, train_sigma_m, labels) if profile.heights == "minmax" else None
     spec = input_spec_for(profile, dem_spacing_m(entry), normalisation)
-    common = {"sigma_m": train_sigma_m, "labels": labels, "input_spec": spec}
-    train_ds = HazardDataset(dataset_dir, "train", augment=profile.augment, **common)  # type: ignore[arg-type]
-    val_ds = HazardDataset(dataset_dir, "val", **common)  # type: ignore[arg-type]
+    common: dict[str, Any] = {"sigma_m": train_sigma_m, "labels": labels, "input_spec": spec}
+    train_ds = HazardDataset(dataset_dir, "train", augment=profile.augment, **common)
+    val_ds = HazardDataset(dataset_dir, "val", **common)
     for name, ds in (("train", train_ds), ("val", val_ds)):
         if len(ds) == 0:
             raise HdNetError(f"{dataset_dir}: the {name} split is empty; build a dataset with more scans.")
-    extra = run_data_config(dataset_dir, train_ds.labels, train_ds.sigma_m, spec, train_ds.dem_shape,
-                            labeling=train_ds.entry)
+    extra = run_data_config(
+        dataset_dir, train_ds.labels, train_ds.sigma_m, spec, train_ds.dem_shape, labeling=train_ds.entry
+    )
     top = first_missing(run_path)
     try:
         with run_dir_lock(run_path):
@@ -204,8 +244,18 @@ def fit(
             if replace:
                 for name in RUN_FILES:
                     (run_path / name).unlink(missing_ok=True)
-            return train(run_path, train_ds, val_ds, profile, epochs=epochs, seed=seed, resume=resume and not replace,
-                         progress=progress, extra_config=extra, num_workers=num_workers,
-                         stop_after=stop_after)
+            return train(
+                run_path,
+                train_ds,
+                val_ds,
+                profile,
+                epochs=cfg.epochs,
+                seed=cfg.seed,
+                resume=resume and not replace,
+                progress=cfg.progress,
+                extra_config=extra,
+                num_workers=cfg.num_workers,
+                stop_after=cfg.stop_after,
+            )
     finally:
         remove_empty_dirs(run_path, top)

@@ -53,8 +53,8 @@ def mc_dropout_mode(model: nn.Module) -> Iterator[BayesianSegNet]:
             m.train()
         yield net
     finally:
-        for m, mode in saved:
-            m.training = mode
+        for module, mode in saved:
+            module.training = mode
 
 
 def predictive_entropy(mean_probs: torch.Tensor, dim: int = 1) -> torch.Tensor:
@@ -103,7 +103,7 @@ def mc_dropout_predict_naive(model: nn.Module, x: torch.Tensor, n_samples: int =
     _check_samples(n_samples)
     with mc_dropout_mode(model) as net:
         total = sum(torch.softmax(net(x), dim=1) for _ in range(n_samples))
-        return _summarise(total / n_samples)  # type: ignore[operator]
+        return _summarise(total / n_samples)  # type: ignore[arg-type]  # a sum of tensors is a tensor
 
 
 def dropout_modules(model: nn.Module) -> list[MCDropout]:

@@ -111,9 +111,16 @@ class InputSpec:
                 raise HdNetError(f"{name} must be a positive number, got {value!r}.")
         bad = [c for c in self.extra_channels if c not in EXTRA_CHANNELS]
         if bad or len(set(self.extra_channels)) != len(self.extra_channels):
-            raise HdNetError(f"extra channels must be distinct names from {', '.join(EXTRA_CHANNELS)}, got {list(self.extra_channels)}.")
-        if self.input_size is not None and (isinstance(self.input_size, bool) or not isinstance(self.input_size, int) or self.input_size < 1):
-            raise HdNetError(f"input_size must be a positive integer number of pixels or None, got {self.input_size!r}.")
+            raise HdNetError(
+                f"extra channels must be distinct names from {', '.join(EXTRA_CHANNELS)}, "
+                f"got {list(self.extra_channels)}."
+            )
+        if self.input_size is not None and (
+            isinstance(self.input_size, bool) or not isinstance(self.input_size, int) or self.input_size < 1
+        ):
+            raise HdNetError(
+                f"input_size must be a positive integer number of pixels or None, got {self.input_size!r}."
+            )
         if isinstance(self.size_multiple, bool) or not isinstance(self.size_multiple, int) or self.size_multiple < 1:
             raise HdNetError(f"size_multiple must be a positive integer, got {self.size_multiple!r}.")
 
@@ -148,9 +155,19 @@ class InputSpec:
             raise HdNetError(f"an input spec must be a dictionary, got {type(data).__name__}.")
         version = data.get("schema_version", INPUT_SCHEMA_VERSION)
         if version != INPUT_SCHEMA_VERSION:
-            raise HdNetError(f"input spec schema version {version} is not readable by this hdnet (reads {INPUT_SCHEMA_VERSION}).")
-        known = {"heights", "normalisation", "height_scale_m", "extra_channels", "highpass_window_m", "spacing_m",
-                 "input_size", "size_multiple"}
+            raise HdNetError(
+                f"input spec schema version {version} is not readable by this hdnet (reads {INPUT_SCHEMA_VERSION})."
+            )
+        known = {
+            "heights",
+            "normalisation",
+            "height_scale_m",
+            "extra_channels",
+            "highpass_window_m",
+            "spacing_m",
+            "input_size",
+            "size_multiple",
+        }
         unknown = set(data) - known - {"schema_version"}
         if unknown:
             raise HdNetError(f"input spec has unknown field(s) {sorted(unknown)}.")
@@ -173,11 +190,17 @@ class InputSpec:
         if "input" in extra:
             return cls.from_dict(extra["input"])
         if "normalisation" not in extra:
-            raise HdNetError("the run config holds no input spec and no normalisation: it was not trained by hdnet.fit.")
+            raise HdNetError(
+                "the run config holds no input spec and no normalisation: it was not trained by hdnet.fit."
+            )
         size = extra.get("input_size")
         depth = int((model_config or {}).get("depth", len(defaults.ENCODER_CHANNELS)))
-        return cls(heights="minmax", normalisation=Normalisation.from_dict(extra["normalisation"]),
-                   input_size=None if size is None else int(size), size_multiple=2**depth)
+        return cls(
+            heights="minmax",
+            normalisation=Normalisation.from_dict(extra["normalisation"]),
+            input_size=None if size is None else int(size),
+            size_multiple=2**depth,
+        )
 
 
 # --- step 1: holes ------------------------------------------------------------------------------
@@ -243,16 +266,22 @@ def input_channels(dem_filled_m: np.ndarray, spec: InputSpec) -> np.ndarray:
 
 
 # --- step 4: grids ------------------------------------------------------------------------------
-def network_shape(dem_shape: tuple[int, int], input_size: int | None, size_multiple: int = defaults.SIZE_MULTIPLE_PX) -> tuple[int, int]:
+def network_shape(
+    dem_shape: tuple[int, int], input_size: int | None, size_multiple: int = defaults.SIZE_MULTIPLE_PX
+) -> tuple[int, int]:
     """(H, W) the network sees: ``input_size`` squared, or the DEM padded to a multiple of ``size_multiple``."""
     if input_size is not None:
         return int(input_size), int(input_size)
     m = int(size_multiple)
-    return tuple(int(math.ceil(n / m) * m) for n in dem_shape)  # type: ignore[return-value]
+    rows, cols = dem_shape
+    return int(math.ceil(rows / m) * m), int(math.ceil(cols / m) * m)
 
 
 def to_network_grid(
-    image: torch.Tensor, masks: list[torch.Tensor], input_size: int | None, pad_values: list[int],
+    image: torch.Tensor,
+    masks: list[torch.Tensor],
+    input_size: int | None,
+    pad_values: list[int],
     size_multiple: int = defaults.SIZE_MULTIPLE_PX,
 ) -> tuple[torch.Tensor, list[torch.Tensor]]:
     """Image (C, h, w) float and masks (h, w) to the network grid (step 4 of the module docstring)."""
@@ -260,7 +289,7 @@ def to_network_grid(
     H, W = network_shape((h, w), input_size, size_multiple)
     if input_size is not None:
         img = F.interpolate(image[None], size=(H, W), mode="bilinear", align_corners=False)[0]
-    elif (H, W) != (h, w):
+    elif (h, w) != (H, W):
         img = F.pad(image[None], (0, W - w, 0, H - h), mode="replicate")[0]
     else:
         img = image
@@ -268,12 +297,15 @@ def to_network_grid(
 
 
 def masks_to_network_grid(
-    masks: list[torch.Tensor], input_size: int | None, pad_values: list[int], size_multiple: int = defaults.SIZE_MULTIPLE_PX
+    masks: list[torch.Tensor],
+    input_size: int | None,
+    pad_values: list[int],
+    size_multiple: int = defaults.SIZE_MULTIPLE_PX,
 ) -> list[torch.Tensor]:
     """Masks (h, w) to the network grid: nearest neighbour (``nearest-exact``) to ``input_size``, or
     padded on the bottom and right with ``pad_values`` (one per mask) to a multiple of ``size_multiple``."""
     out = []
-    for m, v in zip(masks, pad_values):
+    for m, v in zip(masks, pad_values, strict=False):  # pad_values may name more masks than given
         h, w = m.shape[-2:]
         H, W = network_shape((h, w), input_size, size_multiple)
         if input_size is not None:

@@ -62,10 +62,14 @@ class ConfusionAccumulator:
         """Add one batch. ``truth`` (..., H, W) in {0, 1, ignore_index}; ``prediction`` same shape in {0, 1};
         ``ignore`` / ``uncertain``: optional boolean masks of the same shape."""
         if truth.shape != prediction.shape:
-            raise HdNetError(f"truth shape {tuple(truth.shape)} differs from prediction shape {tuple(prediction.shape)}.")
+            raise HdNetError(
+                f"truth shape {tuple(truth.shape)} differs from prediction shape {tuple(prediction.shape)}."
+            )
         for name, mask in (("ignore", ignore), ("uncertain", uncertain)):
             if mask is not None and mask.shape != truth.shape:
-                raise HdNetError(f"{name} mask shape {tuple(mask.shape)} differs from truth shape {tuple(truth.shape)}.")
+                raise HdNetError(
+                    f"{name} mask shape {tuple(mask.shape)} differs from truth shape {tuple(truth.shape)}."
+                )
         if self.uncertainty_aware and uncertain is None:
             raise HdNetError("an uncertainty-aware accumulator needs an uncertain mask for every update.")
         if not self.uncertainty_aware and uncertain is not None:
@@ -77,7 +81,9 @@ class ConfusionAccumulator:
             valid &= ~ignore.detach().cpu().bool()
         bad_truth = valid & (truth != 0) & (truth != 1)
         if bad_truth.any() or ((prediction[valid] != 0) & (prediction[valid] != 1)).any():
-            raise HdNetError(f"labels and predictions must be 0 (unsafe) or 1 (safe) on valid pixels (else {self.ignore_index}).")
+            raise HdNetError(
+                f"labels and predictions must be 0 (unsafe) or 1 (safe) on valid pixels (else {self.ignore_index})."
+            )
         self.n_valid += int(valid.sum())
         certain = valid
         if uncertain is not None:

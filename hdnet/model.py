@@ -29,6 +29,7 @@ in training mode). ``forward(x) == suffix(prefix(x))``.
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import asdict, dataclass
 from typing import NamedTuple
 
@@ -60,14 +61,18 @@ class ModelConfig:
 
     def __post_init__(self) -> None:
         if self.in_channels < 1 or self.n_classes < 2:
-            raise HdNetError(f"in_channels must be >= 1 and n_classes >= 2, got {self.in_channels} and {self.n_classes}.")
+            raise HdNetError(
+                f"in_channels must be >= 1 and n_classes >= 2, got {self.in_channels} and {self.n_classes}."
+            )
         if not self.width > 0:
             raise HdNetError(f"width must be > 0, got {self.width}.")
         if not 0.0 <= self.dropout_p < 1.0:
             raise HdNetError(f"dropout_p must be in [0, 1), got {self.dropout_p}.")
         n_blocks = len(defaults.ENCODER_CHANNELS)
         if isinstance(self.depth, bool) or not isinstance(self.depth, int) or not 1 <= self.depth <= n_blocks:
-            raise HdNetError(f"depth must be an integer number of encoder blocks in [1, {n_blocks}], got {self.depth!r}.")
+            raise HdNetError(
+                f"depth must be an integer number of encoder blocks in [1, {n_blocks}], got {self.depth!r}."
+            )
 
     @property
     def size_multiple(self) -> int:
@@ -99,7 +104,7 @@ class PrefixState(NamedTuple):
     def repeat(self, times: int) -> PrefixState:
         """The same state tiled ``times`` along the batch: sample-major, (times*N, ...)."""
         rep = lambda t: t.repeat(times, *([1] * (t.dim() - 1)))  # noqa: E731
-        return PrefixState(rep(self.features), tuple(rep(i) for i in self.indices), self.sizes, self.input_hw)  # type: ignore[arg-type]
+        return PrefixState(rep(self.features), tuple(rep(i) for i in self.indices), self.sizes, self.input_hw)
 
 
 def _scaled(channels: int, width: float) -> int:
@@ -112,7 +117,7 @@ def _cbr(c_in: int, c_out: int) -> list[nn.Module]:
 
 def _block(channels: list[int]) -> nn.Sequential:
     layers: list[nn.Module] = []
-    for c_in, c_out in zip(channels[:-1], channels[1:]):
+    for c_in, c_out in itertools.pairwise(channels):
         layers += _cbr(c_in, c_out)
     return nn.Sequential(*layers)
 
@@ -122,7 +127,7 @@ class BayesianSegNet(nn.Module):
 
     def __init__(self, config: ModelConfig | None = None, **kwargs: float) -> None:
         super().__init__()
-        self.config = config if config is not None else ModelConfig(**kwargs)  # type: ignore[arg-type]
+        self.config = config if config is not None else ModelConfig(**kwargs)  # type: ignore[arg-type]  # checked by ModelConfig
         cfg = self.config
         enc = [[_scaled(c, cfg.width) for c in block] for block in defaults.ENCODER_CHANNELS[: cfg.depth]]
         # Encoder: block k maps (previous block's last width) -> its channels.
@@ -132,7 +137,7 @@ class BayesianSegNet(nn.Module):
             c_prev = block[-1]
         # Decoder k mirrors encoder k: same widths, the last layer going to the previous block's width.
         # Unit 1 has one conv-BN-ReLU (64 -> 64); its second layer is the classifier conv (64 -> classes).
-        setattr(self, "dec1", _block(list(reversed(enc[0]))))
+        self.dec1 = _block(list(reversed(enc[0])))
         for k in range(1, cfg.depth):
             setattr(self, f"dec{k + 1}", _block([*reversed(enc[k]), enc[k - 1][-1]]))
         self.classifier = nn.Conv2d(enc[0][0], cfg.n_classes, kernel_size=3, padding=1)

@@ -52,6 +52,10 @@ PAPER_ROWS: tuple[PaperRow, ...] = (
 def paper_row(table: str, method: str, test_sigma_m: float) -> PaperRow | None:
     """The paper's row for (table, method, test sigma in metres), or None if the paper has none."""
     for row in PAPER_ROWS:
-        if row.table == table and row.method == method and abs(row.test_sigma_m - test_sigma_m) <= PAPER_SIGMA_TOLERANCE_M:
+        if (
+            row.table == table
+            and row.method == method
+            and abs(row.test_sigma_m - test_sigma_m) <= PAPER_SIGMA_TOLERANCE_M
+        ):
             return row
     return None

@@ -19,11 +19,12 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import json
+import os
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from hdlabels import defaults as label_defaults
 from hdlabels.settings import LabelSettings
@@ -31,6 +32,10 @@ from hdnet import defaults as net_defaults
 from lidarsim import defaults as lidar_defaults
 from lidarsim.build import BuildConfig
 from lidarsim.errors import LidarsimError
+
+if TYPE_CHECKING:
+    from hdnet.evaluate import EvalConfig
+    from hdnet.results import EvaluationResult
 
 # hd choice: the risk level of the risk-controlled threshold `hd reproduce` adds to the paper's
 # mean-entropy threshold (docs/evaluation.md, "risk:ALPHA").
@@ -134,19 +139,34 @@ class Pipeline:
 def demo_pipeline(out_dir: Path, scans: int, epochs: int) -> Pipeline:
     """``hd demo``: the paper's three noise levels on the procedural Mars terrain at demo scale, the
     default labels, the cpu profile, one evaluation with the dead-pixel test."""
-    build = dataclasses.replace(_paper_build(), trajectory=dataclasses.replace(_paper_build().trajectory, n_scans=scans))
+    build = dataclasses.replace(
+        _paper_build(), trajectory=dataclasses.replace(_paper_build().trajectory, n_scans=scans)
+    )
     sigma = lidar_defaults.DEFAULT_SIGMA_M
     n_dead = label_defaults.N_DEAD_PIXELS
     return Pipeline(
-        out_dir=out_dir, build=build, label=LabelSettings(), profile="cpu", epochs=epochs, inspect=True,
-        evaluations=(Evaluation("eval", "report", net_defaults.THRESHOLD_SPEC, n_dead,
-                                f"MC dropout (M={net_defaults.MC_SAMPLES}), paper metrics, {n_dead} dropped pixels"),),
+        out_dir=out_dir,
+        build=build,
+        label=LabelSettings(),
+        profile="cpu",
+        epochs=epochs,
+        inspect=True,
+        evaluations=(
+            Evaluation(
+                "eval",
+                "report",
+                net_defaults.THRESHOLD_SPEC,
+                n_dead,
+                f"MC dropout (M={net_defaults.MC_SAMPLES}), paper metrics, {n_dead} dropped pixels",
+            ),
+        ),
         train_what=f"Bayesian SegNet, cpu profile, {epochs} epochs at sigma = {sigma} m",
     )
 
 
-def reproduce_pipeline(out_dir: Path, recipe_dir: Path, profile: str, epochs: int | None,
-                       dtm_path: Path | None = None) -> Pipeline:
+def reproduce_pipeline(
+    out_dir: Path, recipe_dir: Path, profile: str, epochs: int | None, dtm_path: Path | None = None
+) -> Pipeline:
     """``hd reproduce``: the dataset and labels of the recipe at ``recipe_dir`` (the paper's,
     ``datasets/mars-paper``), optionally on another DTM, then Table 1, Table 2 and the risk-controlled
     threshold.
@@ -163,13 +183,26 @@ def reproduce_pipeline(out_dir: Path, recipe_dir: Path, profile: str, epochs: in
     n_dead = label_defaults.N_DEAD_PIXELS
     sigma = lidar_defaults.DEFAULT_SIGMA_M
     return Pipeline(
-        out_dir=out_dir, build=build, label=LabelSettings.from_recipe(recipe.label, str(recipe.path)), profile=profile,
+        out_dir=out_dir,
+        build=build,
+        label=LabelSettings.from_recipe(recipe.label, str(recipe.path)),
+        profile=profile,
         epochs=epochs,
         evaluations=(
-            Evaluation("eval", "report", net_defaults.THRESHOLD_SPEC, n_dead,
-                       f"Table 1, Table 2 ({n_dead} dropped pixels), sweep, calibration, panels (mean-entropy threshold)"),
-            Evaluation("eval-risk", "report-risk", f"risk:{REPRODUCE_RISK_ALPHA:g}", 0,
-                       f"risk-controlled threshold, alpha = {REPRODUCE_RISK_ALPHA:g}"),
+            Evaluation(
+                "eval",
+                "report",
+                net_defaults.THRESHOLD_SPEC,
+                n_dead,
+                f"Table 1, Table 2 ({n_dead} dropped pixels), sweep, calibration, panels (mean-entropy threshold)",
+            ),
+            Evaluation(
+                "eval-risk",
+                "report-risk",
+                f"risk:{REPRODUCE_RISK_ALPHA:g}",
+                0,
+                f"risk-controlled threshold, alpha = {REPRODUCE_RISK_ALPHA:g}",
+            ),
         ),
         train_what=f"Bayesian SegNet, {profile} profile, trained at sigma = {sigma} m",
     )
@@ -214,8 +247,11 @@ def training_done_message(checkpoint: Path, run_dir: Path) -> str:
     timing = load_checkpoint(checkpoint).get("timing", [])
     rate = median_images_per_s(timing)
     seconds = sum(float(t["train_seconds"]) for t in timing)
-    speed = "" if rate is None else (f"; {rate:.1f} images/s (median over {len(timing)} epochs, "
-                                     f"{seconds / 60:.1f} min of training steps)")
+    speed = (
+        ""
+        if rate is None
+        else (f"; {rate:.1f} images/s (median over {len(timing)} epochs, {seconds / 60:.1f} min of training steps)")
+    )
     return f"training done: {checkpoint} (metrics in {Path(run_dir) / 'metrics.csv'}){speed}"
 
 
@@ -242,8 +278,13 @@ def _label(pipeline: Pipeline, workers: int | None, echo: Echo, progress: Progre
     from hdlabels.labeling import label_dataset
 
     with _closing(progress("labels", "scan")) as bar:
-        summary = label_dataset(pipeline.dataset_dir, pipeline.label.to_lander(), pipeline.label.to_dem_spec(),
-                                workers=workers, progress=bar)
+        summary = label_dataset(
+            pipeline.dataset_dir,
+            pipeline.label.to_lander(),
+            pipeline.label.to_dem_spec(),
+            workers=workers,
+            progress=bar,
+        )
     echo(summary.paragraph())
 
 
@@ -263,24 +304,64 @@ def _inspect(directory: Path, echo: Echo) -> None:
 
 
 def _train(pipeline: Pipeline, echo: Echo) -> None:
-    from hdnet.fit import fit
+    from hdnet.fit import FitConfig, fit
 
-    checkpoint = fit(pipeline.dataset_dir, pipeline.run_dir, profile_name=pipeline.profile, epochs=pipeline.epochs,
-                     train_sigma_m=pipeline.train_sigma_m, seed=pipeline.seed, resume=True, progress=True)
+    config = FitConfig(
+        profile=pipeline.profile,
+        epochs=pipeline.epochs,
+        train_sigma_m=pipeline.train_sigma_m,
+        seed=pipeline.seed,
+        resume=True,
+        progress=True,
+    )
+    checkpoint = fit(pipeline.dataset_dir, pipeline.run_dir, config)
     echo(training_done_message(checkpoint, pipeline.run_dir))
 
 
 def _evaluate_unless_done(pipeline: Pipeline, evaluation: Evaluation, echo: Echo) -> None:
-    from hdnet.evaluate import evaluate
+    from hdnet.evaluate import EvalConfig
 
     report = pipeline.out_dir / evaluation.directory
     if (report / "report.json").exists():
         echo(f"report {report} already written")
         return
-    result = evaluate(pipeline.run_dir, pipeline.dataset_dir, report, mc_samples=pipeline.mc_samples,
-                      drop_pixels=evaluation.drop_pixels, threshold=evaluation.threshold, seed=pipeline.seed)
+    config = EvalConfig(
+        mc_samples=pipeline.mc_samples,
+        drop_pixels=evaluation.drop_pixels,
+        threshold=evaluation.threshold,
+        seed=pipeline.seed,
+    )
+    result = evaluate_to_report(pipeline.run_dir, pipeline.dataset_dir, report, config)
     echo(result.summary())
     echo(report_written_message(report))
+
+
+def evaluate_to_report(
+    run_dir: str | os.PathLike,
+    dataset_dir: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    config: EvalConfig | None = None,
+    *,
+    figures: bool = True,
+    overwrite: bool = False,
+) -> EvaluationResult:
+    """``hd eval``: the report directory checked, the run evaluated, the report written; returns the result.
+
+    ``out_dir`` is checked before the evaluation runs (a bad or occupied directory fails at once);
+    an existing report, or a non-empty directory that is not a report, is replaced only with
+    ``overwrite``. The report is ``report.json``, ``report.md`` and, with ``figures``, the PNGs.
+
+    Raises:
+        HdNetError: see ``hdnet.report.check_report_dir``, ``hdnet.evaluate.evaluate`` and
+            ``hdnet.report.write_report``.
+    """
+    from hdnet.evaluate import evaluate
+    from hdnet.report import check_report_dir, write_report
+
+    check_report_dir(out_dir, overwrite)  # before the evaluation runs
+    result = evaluate(run_dir, dataset_dir, config)
+    write_report(result, Path(out_dir), figures=figures, overwrite=overwrite)
+    return result
 
 
 @contextlib.contextmanager

@@ -18,6 +18,7 @@ replaces the paper's SGD (lr 1e-4, momentum 0.9), which needs the paper's 10^4 e
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from typing import Literal
 
@@ -87,7 +88,9 @@ class TrainingProfile:
         if self.lr_schedule not in LR_SCHEDULES:
             raise HdNetError(f"lr_schedule must be one of {', '.join(LR_SCHEDULES)}, got {self.lr_schedule!r}.")
         if self.class_weighting not in CLASS_WEIGHTINGS:
-            raise HdNetError(f"class_weighting must be one of {', '.join(CLASS_WEIGHTINGS)}, got {self.class_weighting!r}.")
+            raise HdNetError(
+                f"class_weighting must be one of {', '.join(CLASS_WEIGHTINGS)}, got {self.class_weighting!r}."
+            )
         if self.augment not in AUGMENTATIONS:
             raise HdNetError(f"augment must be one of {', '.join(AUGMENTATIONS)}, got {self.augment!r}.")
         if self.heights not in HEIGHTS:
@@ -95,7 +98,9 @@ class TrainingProfile:
         if isinstance(self.extra_channels, list):
             object.__setattr__(self, "extra_channels", tuple(self.extra_channels))
         if any(c not in EXTRA_CHANNELS for c in self.extra_channels):
-            raise HdNetError(f"extra_channels must be names from {', '.join(EXTRA_CHANNELS)}, got {list(self.extra_channels)}.")
+            raise HdNetError(
+                f"extra_channels must be names from {', '.join(EXTRA_CHANNELS)}, got {list(self.extra_channels)}."
+            )
         if isinstance(self.batch_size, bool) or not isinstance(self.batch_size, int) or self.batch_size < 1:
             raise HdNetError(f"batch_size must be a positive integer, got {self.batch_size!r}.")
 
@@ -139,8 +144,20 @@ PAPER = TrainingProfile(
     optimizer="sgd",
 )
 CPU = TrainingProfile(
-    name="cpu", input_size=None, width=0.5, batch_size=8, lr=1e-3, momentum=0.9, epochs=40, optimizer="adam",
-    lr_schedule="cosine", depth=2, dropout_p=0.2, heights="median", extra_channels=("slope", "highpass"), augment="d4",
+    name="cpu",
+    input_size=None,
+    width=0.5,
+    batch_size=8,
+    lr=1e-3,
+    momentum=0.9,
+    epochs=40,
+    optimizer="adam",
+    lr_schedule="cosine",
+    depth=2,
+    dropout_p=0.2,
+    heights="median",
+    extra_channels=("slope", "highpass"),
+    augment="d4",
 )
 TINY = TrainingProfile(
     name="tiny", input_size=None, width=1 / 16, batch_size=4, lr=1e-3, momentum=0.9, epochs=2, optimizer="adam"
@@ -157,10 +174,10 @@ def get_profile(name: str) -> TrainingProfile:
         raise HdNetError(f"unknown training profile {name!r}; choose one of {', '.join(PROFILES)}.") from None
 
 
-def profile_from_dict(data: dict[str, object]) -> TrainingProfile:
+def profile_from_dict(data: Mapping[str, object]) -> TrainingProfile:
     """Rebuild a profile saved with ``to_dict`` (e.g. from a checkpoint or config.json); fields a
     profile saved by an older hd lacks take their defaults (the paper's choices)."""
     try:
-        return TrainingProfile(**data)  # type: ignore[arg-type]
+        return TrainingProfile(**data)  # type: ignore[arg-type]  # saved fields, checked by TrainingProfile
     except TypeError as exc:
         raise HdNetError(f"saved training profile does not match TrainingProfile: {exc}.") from None

@@ -42,12 +42,24 @@ from lidarsim.storage import (
 )
 
 if TYPE_CHECKING:
-    from hdnet.evaluate import EvaluationResult, ReportRow
+    from hdnet.results import EvaluationResult, ReportRow
 
-ROW_KEYS = ("table", "method", "train_sigma_m", "test_sigma_m", "vc_fraction", "pixel_accuracy", "miou",
-            "precision", "sensitivity")
-METHOD_NAMES = {"alhat_baseline": "Baseline (replicated ALHAT)", "base_net": "Base Net.",
-                "uncertainty_aware": "Uncertainty-Aware"}
+ROW_KEYS = (
+    "table",
+    "method",
+    "train_sigma_m",
+    "test_sigma_m",
+    "vc_fraction",
+    "pixel_accuracy",
+    "miou",
+    "precision",
+    "sensitivity",
+)
+METHOD_NAMES = {
+    "alhat_baseline": "Baseline (replicated ALHAT)",
+    "base_net": "Base Net.",
+    "uncertainty_aware": "Uncertainty-Aware",
+}
 TABLE_TITLES = {"noise": "Table 1: noise levels", "dead_pixels": "Table 2: dead pixels"}
 
 
@@ -67,8 +79,15 @@ def json_plain(obj: Any) -> Any:
 def report_dict(result: EvaluationResult) -> dict[str, Any]:
     """The content of ``report.json``."""
     rows = [{k: asdict(r)[k] for k in ROW_KEYS} for r in result.rows]
-    return json_plain({"rows": rows, "threshold": result.threshold, "sweep": result.sweep,
-                   "calibration": result.calibration, "run": result.run})
+    return json_plain(
+        {
+            "rows": rows,
+            "threshold": result.threshold,
+            "sweep": result.sweep,
+            "calibration": result.calibration,
+            "run": result.run,
+        }
+    )
 
 
 def _cm(sigma_m: float | None) -> str:
@@ -83,17 +102,22 @@ def _pct(x: float | None) -> str:
     return "--" if x is None or not math.isfinite(x) else f"{100 * x:.0f} %"
 
 
-HEADER = ("| Method | Train noise 1σ | Test noise 1σ | V/C Pix. % | Pix. Acc. | mIoU | Precision | Sensitivity |\n"
-          "|---|---|---|---|---|---|---|---|")
+HEADER = (
+    "| Method | Train noise 1σ | Test noise 1σ | V/C Pix. % | Pix. Acc. | mIoU | Precision | Sensitivity |\n"
+    "|---|---|---|---|---|---|---|---|"
+)
 
 
 def _table(rows: list[ReportRow]) -> list[str]:
-    lines = [HEADER]
-    for r in rows:
-        lines.append(f"| {METHOD_NAMES.get(r.method, r.method)} | {_cm(r.train_sigma_m)} | {_cm(r.test_sigma_m)} | "
-                     f"{_pct(r.vc_fraction)} | {_num(r.pixel_accuracy)} | {_num(r.miou)} | {_num(r.precision)} | "
-                     f"{_num(r.sensitivity)} |")
-    return lines
+    return [
+        HEADER,
+        *(
+            f"| {METHOD_NAMES.get(r.method, r.method)} | {_cm(r.train_sigma_m)} | {_cm(r.test_sigma_m)} | "
+            f"{_pct(r.vc_fraction)} | {_num(r.pixel_accuracy)} | {_num(r.miou)} | {_num(r.precision)} | "
+            f"{_num(r.sensitivity)} |"
+            for r in rows
+        ),
+    ]
 
 
 def _paper_table(rows: list[ReportRow]) -> list[str]:
@@ -102,9 +126,11 @@ def _paper_table(rows: list[ReportRow]) -> list[str]:
         p = paper_row(r.table, r.method, r.test_sigma_m)
         if p is not None:
             train = "--" if r.method == "alhat_baseline" else "1.67 cm"
-            lines.append(f"| {METHOD_NAMES.get(p.method, p.method)} | {train} | {_cm(p.test_sigma_m)} | "
-                         f"{_pct(p.vc_fraction)} | {_num(p.pixel_accuracy)} | {_num(p.miou)} | {_num(p.precision)} | "
-                         f"{_num(p.sensitivity)} |")
+            lines.append(
+                f"| {METHOD_NAMES.get(p.method, p.method)} | {train} | {_cm(p.test_sigma_m)} | "
+                f"{_pct(p.vc_fraction)} | {_num(p.pixel_accuracy)} | {_num(p.miou)} | {_num(p.precision)} | "
+                f"{_num(p.sensitivity)} |"
+            )
     return [HEADER, *lines] if lines else []
 
 
@@ -112,18 +138,19 @@ def report_markdown(result: EvaluationResult, figures: list[str] | None = None) 
     """The content of ``report.md``."""
     run, th = result.run, result.threshold
     out = ["# hd evaluation report", ""]
-    if th["value_nats"] is None:
-        h_t = "unbounded (every pixel certain)"
-    else:
-        h_t = f"{_num(th['value_nats'])} nats"
+    h_t = "unbounded (every pixel certain)" if th["value_nats"] is None else f"{_num(th['value_nats'])} nats"
     out += [
         f"- checkpoint: `{run.get('checkpoint')}` (epoch {run.get('epoch')}, profile `{run.get('profile')}`)",
-        (f"- dataset: `{run.get('dataset')}`, labelling `{run.get('labels')}`, "
-         f"{run.get('test_scans')} test / {run.get('val_scans')} validation scans"),
+        (
+            f"- dataset: `{run.get('dataset')}`, labelling `{run.get('labels')}`, "
+            f"{run.get('test_scans')} test / {run.get('val_scans')} validation scans"
+        ),
         f"- trained at {_cm(run.get('train_sigma_m'))}; MC samples M = {run.get('mc_samples')}; seed {run.get('seed')}",
-        (f"- threshold `{th['spec']}`: H_t = {h_t}, calibrated on the {th['calibration_split']} split at "
-         f"{_cm(th['calibration_sigma_m'])} (mean entropy {_num(th['mean_nats'])} nats = validation quantile "
-         f"{_num(th['mean_quantile'], 3)})"),
+        (
+            f"- threshold `{th['spec']}`: H_t = {h_t}, calibrated on the {th['calibration_split']} split at "
+            f"{_cm(th['calibration_sigma_m'])} (mean entropy {_num(th['mean_nats'])} nats = validation quantile "
+            f"{_num(th['mean_quantile'], 3)})"
+        ),
         "",
     ]
     for table in ("noise", "dead_pixels"):
@@ -132,24 +159,52 @@ def report_markdown(result: EvaluationResult, figures: list[str] | None = None) 
             continue
         out += [f"## {TABLE_TITLES[table]}", ""]
         if table == "dead_pixels":
-            out += [(f"{run.get('drop_pixels')} random pixels of every test DEM dropped and refilled bilinearly; every "
-                     "pixel whose lander footprint contains a dropped pixel is ignored for all methods."), ""]
-        out += _table(rows) + [""]
+            out += [
+                (
+                    f"{run.get('drop_pixels')} random pixels of every test DEM dropped and refilled bilinearly; every "
+                    "pixel whose lander footprint contains a dropped pixel is ignored for all methods."
+                ),
+                "",
+            ]
+        out += [*_table(rows), ""]
         paper = _paper_table(rows)
         if paper:
             which = "Table 1" if table == "noise" else "Table 2"
             out += [f"The paper's values for the same rows (Tomita et al., {which}):", "", *paper, ""]
     if th.get("achieved_risk"):
-        out += ["## Risk control", "", (f"Target: expected false-safe rate <= {th['alpha']} per image "
-                                        "(certain truly-unsafe pixels predicted safe / valid pixels)."), "",
-                "| Table | Test noise 1σ | Achieved false-safe rate |", "|---|---|---|"]
-        out += [f"| {a['table']} | {_cm(a['test_sigma_m'])} | {_num(a['false_safe_rate'])} |" for a in th["achieved_risk"]]
+        out += [
+            "## Risk control",
+            "",
+            (
+                f"Target: expected false-safe rate <= {th['alpha']} per image "
+                "(certain truly-unsafe pixels predicted safe / valid pixels)."
+            ),
+            "",
+            "| Table | Test noise 1σ | Achieved false-safe rate |",
+            "|---|---|---|",
+        ]
+        out += [
+            f"| {a['table']} | {_cm(a['test_sigma_m'])} | {_num(a['false_safe_rate'])} |" for a in th["achieved_risk"]
+        ]
         out.append("")
-    out += ["## Threshold sweep (uncertainty-aware)", "",
-            "| Test noise 1σ | Quantile | H_t (nats) | V/C Pix. % | Precision | Sensitivity |", "|---|---|---|---|---|---|"]
-    out += [f"| {_cm(s['test_sigma_m'])} | {s['quantile']:.1f} | {_num(s['threshold_nats'])} | {_pct(s['vc_fraction'])} | "
-            f"{_num(s['precision'])} | {_num(s['sensitivity'])} |" for s in result.sweep]
-    out += ["", f"## Calibration of P(safe) ({result.calibration['bins']} bins)", "", "| Test noise 1σ | ECE |", "|---|---|"]
+    out += [
+        "## Threshold sweep (uncertainty-aware)",
+        "",
+        "| Test noise 1σ | Quantile | H_t (nats) | V/C Pix. % | Precision | Sensitivity |",
+        "|---|---|---|---|---|---|",
+    ]
+    out += [
+        f"| {_cm(s['test_sigma_m'])} | {s['quantile']:.1f} | {_num(s['threshold_nats'])} | {_pct(s['vc_fraction'])} | "
+        f"{_num(s['precision'])} | {_num(s['sensitivity'])} |"
+        for s in result.sweep
+    ]
+    out += [
+        "",
+        f"## Calibration of P(safe) ({result.calibration['bins']} bins)",
+        "",
+        "| Test noise 1σ | ECE |",
+        "|---|---|",
+    ]
     out += [f"| {_cm(c['test_sigma_m'])} | {_num(c['ece'])} |" for c in result.calibration["per_sigma"]]
     if figures:
         out += ["", "## Figures", ""] + [f"![{Path(f).stem}]({Path(f).name})" for f in figures]
@@ -160,8 +215,11 @@ REPORT_FILES = ("report.json", "report.md")
 
 
 def _is_report_file(name: str) -> bool:
-    return name in REPORT_FILES or name in ("reliability.png", "threshold_sweep.png") or (
-        name.startswith("qualitative_") and name.endswith(".png"))
+    return (
+        name in REPORT_FILES
+        or name in ("reliability.png", "threshold_sweep.png")
+        or (name.startswith("qualitative_") and name.endswith(".png"))
+    )
 
 
 def check_report_dir(out_dir: str | os.PathLike, overwrite: bool = False) -> Path:
@@ -181,8 +239,10 @@ def check_report_dir(out_dir: str | os.PathLike, overwrite: bool = False) -> Pat
     if any(name in REPORT_FILES for name in content):
         raise HdNetError(f"{path} already holds a report; pass --overwrite to replace it, or choose another --out.")
     if content:
-        raise HdNetError(f"{path} is not empty and is not an hd report; choose another --out, or pass --overwrite "
-                         "to write the report there (files of the same names are replaced).")
+        raise HdNetError(
+            f"{path} is not empty and is not an hd report; choose another --out, or pass --overwrite "
+            "to write the report there (files of the same names are replaced)."
+        )
     return path
 
 
@@ -215,7 +275,9 @@ def write_report(result: EvaluationResult, out_dir: Path, figures: bool = True, 
             final.append(out_dir / p.name)
         return [out_dir / "report.json", out_dir / "report.md", *[p for p in final if p.suffix == ".png"]]
     except OSError as exc:
-        raise HdNetError(describe_os_error(exc, out_dir / Path(exc.filename).name if exc.filename else out_dir)) from None
+        raise HdNetError(
+            describe_os_error(exc, out_dir / Path(exc.filename).name if exc.filename else out_dir)
+        ) from None
     except StorageError as exc:
         raise HdNetError(str(exc)) from None
     finally:

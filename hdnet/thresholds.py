@@ -76,7 +76,7 @@ def parse_threshold_spec(spec: str) -> ThresholdSpec:
         raise HdNetError(f"threshold spec {spec!r}: the quantile Q must be in [0, 1].")
     if kind == "risk" and not 0.0 < value < 1.0:
         raise HdNetError(f"threshold spec {spec!r}: the risk level alpha must be in (0, 1).")
-    return ThresholdSpec(kind, value)  # type: ignore[arg-type]
+    return ThresholdSpec(kind, value)  # type: ignore[arg-type]  # kind: one of KINDS, checked above
 
 
 class EntropyCalibration:
@@ -176,8 +176,8 @@ def select_threshold(spec: ThresholdSpec | str, calibration: EntropyCalibration)
     if spec.kind == "mean":
         return calibration.mean()
     if spec.kind == "quantile":
-        return calibration.quantile(float(spec.value))  # type: ignore[arg-type]
-    return calibration.risk_control_threshold(float(spec.value))  # type: ignore[arg-type]
+        return calibration.quantile(float(spec.value))  # type: ignore[arg-type]  # quantile specs carry a value
+    return calibration.risk_control_threshold(float(spec.value))  # type: ignore[arg-type]  # risk specs carry one
 
 
 def uncertain_mask(entropy_nats: torch.Tensor, threshold_nats: float) -> torch.Tensor:

@@ -14,6 +14,7 @@ walked one row of tiles (a *strip*) at a time, so a caller holds one strip of ou
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -42,7 +43,7 @@ def axis_tiles(n: int, tile: int, overlap: int) -> AxisTiles:
         return AxisTiles(n, tile, (0,), ((0, n),))
     k = math.ceil((n - tile) / (tile - overlap)) + 1
     starts = tuple(int(round(i * (n - tile) / (k - 1))) for i in range(k))
-    cuts = [(a + b + tile) // 2 for a, b in zip(starts[:-1], starts[1:])]
+    cuts = [(a + b + tile) // 2 for a, b in itertools.pairwise(starts)]
     bounds = [0, *cuts, n]
     return AxisTiles(n, tile, starts, tuple((bounds[i], bounds[i + 1]) for i in range(k)))
 
@@ -90,12 +91,18 @@ class TilePlan:
 
     def strips(self) -> Iterator[tuple[tuple[int, int], list[Tile]]]:
         """Per row of tiles: the grid rows it owns ([lo, hi)) and its tiles, west to east."""
-        for r0, own_r in zip(self.rows.starts, self.rows.owned):
-            tiles = [Tile(r0, c0, self.rows.tile, self.cols.tile, own_r, own_c)
-                     for c0, own_c in zip(self.cols.starts, self.cols.owned)]
+        for r0, own_r in zip(self.rows.starts, self.rows.owned, strict=True):
+            tiles = [
+                Tile(r0, c0, self.rows.tile, self.cols.tile, own_r, own_c)
+                for c0, own_c in zip(self.cols.starts, self.cols.owned, strict=True)
+            ]
             yield own_r, tiles
 
     def to_dict(self) -> dict[str, object]:
         """Plain summary for reports: tile size, overlap, tile counts."""
-        return {"tile_px": list(self.tile_shape), "min_overlap_px": self.overlap,
-                "tiles": [len(self.rows.starts), len(self.cols.starts)], "n_tiles": self.n_tiles}
+        return {
+            "tile_px": list(self.tile_shape),
+            "min_overlap_px": self.overlap,
+            "tiles": [len(self.rows.starts), len(self.cols.starts)],
+            "n_tiles": self.n_tiles,
+        }

@@ -44,6 +44,7 @@ import math
 import os
 import random
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -89,13 +90,18 @@ def _init_distributed() -> tuple[int, int, torch.device]:
 
 # --- RNG state as plain types ------------------------------------------------------------------
 def _rng_state() -> dict[str, Any]:
-    np_state = np.random.get_state()
+    np_state: Any = np.random.get_state()  # noqa: NPY002 - the global state, which a resumed run must restore
     py_version, py_state, py_gauss = random.getstate()
     return {
         "torch": torch.get_rng_state(),
         "cuda": torch.cuda.get_rng_state() if torch.cuda.is_available() else None,
-        "numpy": {"name": np_state[0], "key": torch.from_numpy(np_state[1].astype(np.int64)),
-                  "pos": int(np_state[2]), "has_gauss": int(np_state[3]), "cached_gaussian": float(np_state[4])},
+        "numpy": {
+            "name": np_state[0],
+            "key": torch.from_numpy(np_state[1].astype(np.int64)),
+            "pos": int(np_state[2]),
+            "has_gauss": int(np_state[3]),
+            "cached_gaussian": float(np_state[4]),
+        },
         "python": {"version": py_version, "state": torch.tensor(py_state, dtype=torch.int64), "gauss_next": py_gauss},
     }
 
@@ -105,14 +111,15 @@ def _set_rng_state(state: dict[str, Any]) -> None:
     if state.get("cuda") is not None and torch.cuda.is_available():
         torch.cuda.set_rng_state(state["cuda"])
     n = state["numpy"]
-    np.random.set_state((n["name"], n["key"].numpy().astype(np.uint32), n["pos"], n["has_gauss"], n["cached_gaussian"]))
+    legacy = (n["name"], n["key"].numpy().astype(np.uint32), n["pos"], n["has_gauss"], n["cached_gaussian"])
+    np.random.set_state(legacy)  # noqa: NPY002 - the global state, which a resumed run must restore
     p = state["python"]
     random.setstate((p["version"], tuple(int(v) for v in p["state"].tolist()), p["gauss_next"]))
 
 
 def _seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
-    np.random.seed(seed % 2**32)
+    np.random.seed(seed % 2**32)  # noqa: NPY002 - the global state, for code that draws from it
     random.seed(seed)
 
 
@@ -169,14 +176,16 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
         raise HdNetError(f"checkpoint {path} does not exist.")
     try:
         ckpt = torch.load(path, map_location=map_location, weights_only=True)
-    except Exception as exc:  # unpickling errors of every kind: the file is not ours
+    except Exception as exc:  # noqa: BLE001 - unpickling errors of every kind: the file is not ours
         raise HdNetError(f"{path} is not a readable hdnet checkpoint ({type(exc).__name__}).") from None
     if not isinstance(ckpt, dict) or ckpt.get("schema") != CHECKPOINT_SCHEMA:
         raise HdNetError(f"{path} is not an hdnet checkpoint (schema {CHECKPOINT_SCHEMA!r} missing).")
     if ckpt.get("schema_version") not in READABLE_CHECKPOINT_VERSIONS:
-        raise HdNetError(f"{path} has checkpoint schema version {ckpt.get('schema_version')}, this hdnet reads "
-                         f"{', '.join(map(str, READABLE_CHECKPOINT_VERSIONS))}.")
-    if ckpt.get("schema_version") >= 2:
+        raise HdNetError(
+            f"{path} has checkpoint schema version {ckpt.get('schema_version')}, this hdnet reads "
+            f"{', '.join(map(str, READABLE_CHECKPOINT_VERSIONS))}."
+        )
+    if int(ckpt["schema_version"]) >= 2:
         recorded = ckpt.get(DIGEST_KEY)
         if not isinstance(recorded, str):
             raise HdNetError(f"{path} lacks its {DIGEST_KEY}; the checkpoint is damaged.")
@@ -185,14 +194,18 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
         except Exception:  # noqa: BLE001 - a structure the digest cannot walk is damage too
             actual = ""
         if actual != recorded:
-            raise HdNetError(f"{path}: checksum mismatch (content sha256 {actual[:12]}..., recorded "
-                             f"{recorded[:12]}...); the checkpoint is damaged.")
+            raise HdNetError(
+                f"{path}: checksum mismatch (content sha256 {actual[:12]}..., recorded "
+                f"{recorded[:12]}...); the checkpoint is damaged."
+            )
     if ckpt.get("model_name") != MODEL_NAME:
         raise HdNetError(f"{path} holds a {ckpt.get('model_name')!r} model, not {MODEL_NAME!r}.")
     return ckpt
 
 
-def load_trained_model(path: str | Path, map_location: str | torch.device = "cpu") -> tuple[BayesianSegNet, dict[str, Any]]:
+def load_trained_model(
+    path: str | Path, map_location: str | torch.device = "cpu"
+) -> tuple[BayesianSegNet, dict[str, Any]]:
     """The model of a checkpoint (in eval mode) and the checkpoint dictionary (``extra_config`` etc.)."""
     ckpt = load_checkpoint(path, map_location)
     model = BayesianSegNet(ModelConfig(**ckpt["model_config"]))
@@ -275,7 +288,9 @@ def _val_counts(logits: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     valid = mask != defaults.IGNORE_INDEX
     pred = logits.argmax(1)[valid]
     truth = mask[valid]
-    confusion = torch.bincount(truth * defaults.N_CLASSES + pred, minlength=defaults.N_CLASSES**2)[: defaults.N_CLASSES**2]
+    confusion = torch.bincount(truth * defaults.N_CLASSES + pred, minlength=defaults.N_CLASSES**2)[
+        : defaults.N_CLASSES**2
+    ]
     return torch.cat([torch.stack([loss.double(), n_valid.double()]), confusion.double()])
 
 
@@ -285,7 +300,7 @@ def _accuracy_and_miou(confusion: torch.Tensor) -> tuple[float, float]:
     total = float(cm.sum())
     tp = cm.diag()
     union = cm.sum(0) + cm.sum(1) - tp
-    ious = [float(t / u) for t, u in zip(tp, union) if u > 0]
+    ious = [float(t / u) for t, u in zip(tp, union, strict=True) if u > 0]
     return (float(tp.sum()) / total if total else math.nan), (sum(ious) / len(ious) if ious else math.nan)
 
 
@@ -299,9 +314,11 @@ def class_weights_from_counts(counts: list[int] | tuple[int, ...]) -> list[float
 def dataset_class_counts(ds: Dataset) -> list[int]:
     """Pixels of each class (0 unsafe, 1 safe) over the masks of a dataset (255 not counted)."""
     counts = torch.zeros(defaults.N_CLASSES, dtype=torch.int64)
-    for i in range(len(ds)):  # type: ignore[arg-type]
+    for i in range(len(ds)):  # type: ignore[arg-type]  # map-style datasets have a length
         mask = ds[i]["mask"]
-        counts += torch.bincount(mask[mask != defaults.IGNORE_INDEX].flatten(), minlength=defaults.N_CLASSES)[: defaults.N_CLASSES]
+        counts += torch.bincount(mask[mask != defaults.IGNORE_INDEX].flatten(), minlength=defaults.N_CLASSES)[
+            : defaults.N_CLASSES
+        ]
     return [int(c) for c in counts]
 
 
@@ -314,13 +331,16 @@ def _all_reduce(values: torch.Tensor) -> torch.Tensor:
 def _check_sample(ds: Dataset, name: str) -> int:
     try:
         sample = ds[0]
-    except Exception as exc:
+    except Exception as exc:  # noqa: BLE001 - a user's dataset may fail in any way; named in the message
         raise HdNetError(f"the {name} dataset cannot give its first sample ({exc}).") from None
     if not isinstance(sample, dict) or "image" not in sample or "mask" not in sample:
         raise HdNetError(f"the {name} dataset must yield dicts with 'image' and 'mask'.")
     image, mask = sample["image"], sample["mask"]
     if image.dim() != 3 or mask.dim() != 2 or image.shape[-2:] != mask.shape:
-        raise HdNetError(f"the {name} dataset must yield image (C, H, W) and mask (H, W), got {tuple(image.shape)} and {tuple(mask.shape)}.")
+        raise HdNetError(
+            f"the {name} dataset must yield image (C, H, W) and mask (H, W), "
+            f"got {tuple(image.shape)} and {tuple(mask.shape)}."
+        )
     return int(image.shape[0])
 
 
@@ -357,69 +377,35 @@ def train(
     still spans ``epochs`` (a run split over several calls; ``resume=True`` continues it exactly).
     """
     total_epochs = profile.epochs if epochs is None else int(epochs)
-    if total_epochs < 1:
-        raise HdNetError(f"epochs must be >= 1, got {total_epochs}.")
-    if isinstance(num_workers, bool) or not isinstance(num_workers, int) or num_workers < 0:
-        raise HdNetError(f"the number of DataLoader workers must be an integer >= 0, got {num_workers!r}.")
-    if len(train_ds) == 0 or len(val_ds) == 0:  # type: ignore[arg-type]
-        raise HdNetError("the training and validation datasets must not be empty.")
-    extra = _json_plain(dict(extra_config or {}), "extra_config")
-    in_channels = _check_sample(train_ds, "training")
-    _check_sample(val_ds, "validation")
+    extra, in_channels = _check_inputs(train_ds, val_ds, total_epochs, num_workers, extra_config)
     run_dir = Path(run_dir)
     rank, world, device = _init_distributed()
-    model_config = ModelConfig(in_channels=in_channels, width=profile.width, depth=profile.depth, dropout_p=profile.dropout_p)
-    weight = None
-    if profile.class_weighting == "balanced":
-        if class_weights is None:
-            class_weights = class_weights_from_counts(dataset_class_counts(train_ds))
-        if len(class_weights) != model_config.n_classes or not all(w >= 0 for w in class_weights):
-            raise HdNetError(f"class weights must be {model_config.n_classes} numbers >= 0, got {class_weights!r}.")
-
+    model_config = ModelConfig(
+        in_channels=in_channels, width=profile.width, depth=profile.depth, dropout_p=profile.dropout_p
+    )
+    class_weights = _class_weights(profile, class_weights, train_ds, model_config.n_classes)
     last = run_dir / LAST
-    ckpt = None
-    if last.exists():
-        if not resume:
-            raise HdNetError(f"{run_dir} already holds a checkpoint; resume it or choose another run directory.")
-        ckpt = load_checkpoint(last)
-        if ModelConfig(**ckpt["model_config"]) != model_config or profile_from_dict(ckpt["profile"]) != profile:
-            raise HdNetError(f"checkpoint {last} was trained with another model or profile ({ckpt['profile']['name']!r}).")
-        if rank == 0:
-            _reconcile_run(run_dir, ckpt)
-
-    _seed_everything(seed + rank)
-    model = BayesianSegNet(model_config).to(device)
-    memory_format = torch.channels_last if profile.channels_last else torch.contiguous_format
-    model = model.to(memory_format=memory_format)
-    if class_weights is not None and profile.class_weighting == "balanced":
-        weight = torch.tensor(class_weights, dtype=torch.float32, device=device)
-    optimizer = _make_optimizer(model, profile)
-    start_epoch, history, best_loss = 0, [], math.inf
-    timing: list[dict[str, float]] = []  # wall-clock figures, kept apart from the (reproducible) history
-    if ckpt is not None:
-        model.load_state_dict(ckpt["model"])
-        optimizer.load_state_dict(ckpt["optimizer"])
-        start_epoch, history = int(ckpt["epoch"]), list(ckpt["history"])
-        timing = list(ckpt.get("timing", []))
-        best_loss = min((h["val_loss"] for h in history), default=math.inf)
-        states = ckpt["rng"]
-        _set_rng_state(states[rank] if rank < len(states) else states[0])
-    net: nn.Module = model
+    ckpt = _checkpoint_to_resume(run_dir, resume, model_config, profile, rank)
+    state = _start(profile, model_config, ckpt, class_weights, seed, rank, device)
+    net: nn.Module = state.model
     if world > 1:
-        net = nn.parallel.DistributedDataParallel(model, device_ids=[device.index] if device.type == "cuda" else None)
-
-    per_rank_batch = max(1, profile.batch_size // world)
-    train_sampler = DistributedSampler(train_ds, num_replicas=world, rank=rank, shuffle=True, seed=seed)
-    val_sampler = DistributedSampler(val_ds, num_replicas=world, rank=rank, shuffle=False)
-    pin = device.type == "cuda"
-    train_loader = DataLoader(train_ds, batch_size=per_rank_batch, sampler=train_sampler, num_workers=num_workers, pin_memory=pin)
-    val_loader = DataLoader(val_ds, batch_size=per_rank_batch, sampler=val_sampler, num_workers=num_workers, pin_memory=pin)
-
+        net = nn.parallel.DistributedDataParallel(
+            state.model, device_ids=[device.index] if device.type == "cuda" else None
+        )
+    train_loader, val_loader = _loaders(train_ds, val_ds, profile, world, rank, seed, num_workers, device)
     config = {
-        "schema": "hdnet.run", "schema_version": 1, "model_name": MODEL_NAME, "model_config": model_config.to_dict(),
-        "profile": profile.to_dict(), "epochs": total_epochs, "seed": seed, "world_size": world,
-        "hd_version": __version__, "torch_version": torch.__version__, "extra_config": extra,
-        "class_weights": None if weight is None else [float(w) for w in class_weights],  # type: ignore[union-attr]
+        "schema": "hdnet.run",
+        "schema_version": 1,
+        "model_name": MODEL_NAME,
+        "model_config": model_config.to_dict(),
+        "profile": profile.to_dict(),
+        "epochs": total_epochs,
+        "seed": seed,
+        "world_size": world,
+        "hd_version": __version__,
+        "torch_version": torch.__version__,
+        "extra_config": extra,
+        "class_weights": None if state.weight is None or class_weights is None else [float(w) for w in class_weights],
     }
     if rank == 0:
         run_dir.mkdir(parents=True, exist_ok=True)
@@ -429,74 +415,248 @@ def train(
     if progress and rank == 0:
         from tqdm.auto import tqdm
 
-        bar = tqdm(total=total_epochs, initial=start_epoch, desc=f"train {profile.name}", unit="epoch")
-    n_batches = max(1, len(train_loader))
-    end_epoch = total_epochs if stop_after is None else max(start_epoch, min(total_epochs, int(stop_after)))
-    for epoch in range(start_epoch, end_epoch):
-        train_sampler.set_epoch(epoch)
-        net.train()
-        sums = torch.zeros(2, dtype=torch.float64, device=device)  # objective sum, its normaliser
-        t0, seen = time.perf_counter(), 0
-        for b, batch in enumerate(train_loader):
-            for group in optimizer.param_groups:
-                group["lr"] = profile.learning_rate(epoch + b / n_batches, total_epochs)
-            x = batch["image"].to(device, non_blocking=True).contiguous(memory_format=memory_format)
-            y = batch["mask"].to(device, non_blocking=True).long()
-            loss_sum, norm = _sum_loss(net(x), y, weight)
-            optimizer.zero_grad(set_to_none=True)
-            (loss_sum / norm.clamp(min=1e-12)).backward()
-            optimizer.step()
-            sums[0] += loss_sum.detach().double()
-            sums[1] += norm.double()
-            seen += int(x.shape[0])
-        if device.type == "cuda":
-            torch.cuda.synchronize(device)
-        seconds = time.perf_counter() - t0
-        train_sums = _all_reduce(sums)
-        rate = _all_reduce(torch.tensor([seen / max(seconds, 1e-9)], dtype=torch.float64, device=device))
-        net.eval()
-        vsums = torch.zeros(2 + defaults.N_CLASSES**2, dtype=torch.float64, device=device)
-        with torch.no_grad():
-            for batch in val_loader:
-                x = batch["image"].to(device).contiguous(memory_format=memory_format)
-                vsums += _val_counts(net(x), batch["mask"].to(device).long())
-        vsums = _all_reduce(vsums)
-        accuracy, miou = _accuracy_and_miou(vsums[2:].cpu())
+        bar = tqdm(total=total_epochs, initial=state.start_epoch, desc=f"train {profile.name}", unit="epoch")
+    end_epoch = total_epochs if stop_after is None else max(state.start_epoch, min(total_epochs, int(stop_after)))
+    for epoch in range(state.start_epoch, end_epoch):
+        train_loss, seconds, rate = _train_epoch(net, train_loader, state, profile, epoch, total_epochs, device)
+        val_loss, accuracy, miou = _validate(net, val_loader, state.memory_format, device)
         row = {
             "epoch": epoch + 1,
-            "train_loss": float(train_sums[0] / train_sums[1].clamp(min=1e-12)),
-            "val_loss": float(vsums[0] / vsums[1].clamp(min=1)),
+            "train_loss": train_loss,
+            "val_loss": val_loss,
             "val_pixel_accuracy": accuracy,
             "val_miou": miou,
             "lr": profile.learning_rate(epoch, total_epochs),
         }
-        timing.append({"epoch": epoch + 1, "train_seconds": seconds, "train_images_per_s": float(rate[0])})
-        history.append(row)
-        states = [_rng_state()]
-        if world > 1:
-            gathered: list[Any] = [None] * world
-            dist.all_gather_object(gathered, states[0])
-            states = gathered
-        if rank == 0:
-            ckpt_out = {
-                "schema": CHECKPOINT_SCHEMA, "schema_version": CHECKPOINT_VERSION, "model_name": MODEL_NAME,
-                "model_config": model_config.to_dict(), "profile": profile.to_dict(), "epoch": epoch + 1,
-                "seed": seed, "model": {k: v.detach().cpu() for k, v in model.state_dict().items()},
-                "optimizer": optimizer.state_dict(), "rng": states, "history": history, "timing": timing, "extra_config": extra,
-                "hd_version": __version__,
-            }
-            save_checkpoint(last, ckpt_out)
-            if row["val_loss"] < best_loss:
-                best_loss = row["val_loss"]
-                save_checkpoint(run_dir / BEST, ckpt_out)
-            _write_metrics_csv(run_dir / METRICS, history, timing)
+        state.timing.append({"epoch": epoch + 1, "train_seconds": seconds, "train_images_per_s": rate})
+        state.history.append(row)
+        _save_epoch(run_dir, state, model_config, profile, epoch, seed, extra, world, rank)
         if bar is not None:
             bar.update(1)
-            bar.set_postfix(train_loss=f"{row['train_loss']:.4f}", val_loss=f"{row['val_loss']:.4f}",
-                            val_acc=f"{row['val_pixel_accuracy']:.3f}", val_miou=f"{row['val_miou']:.3f}",
-                            img_s=f"{timing[-1]['train_images_per_s']:.1f}")
+            bar.set_postfix(
+                train_loss=f"{row['train_loss']:.4f}",
+                val_loss=f"{row['val_loss']:.4f}",
+                val_acc=f"{row['val_pixel_accuracy']:.3f}",
+                val_miou=f"{row['val_miou']:.3f}",
+                img_s=f"{state.timing[-1]['train_images_per_s']:.1f}",
+            )
         if world > 1:
             dist.barrier()
     if bar is not None:
         bar.close()
     return last
+
+
+def _check_inputs(
+    train_ds: Dataset, val_ds: Dataset, total_epochs: int, num_workers: int, extra_config: dict[str, Any] | None
+) -> tuple[dict[str, Any], int]:
+    """Step 1: the arguments and the datasets' first samples; returns the plain ``extra_config`` and
+    the number of input channels."""
+    if total_epochs < 1:
+        raise HdNetError(f"epochs must be >= 1, got {total_epochs}.")
+    if isinstance(num_workers, bool) or not isinstance(num_workers, int) or num_workers < 0:
+        raise HdNetError(f"the number of DataLoader workers must be an integer >= 0, got {num_workers!r}.")
+    if len(train_ds) == 0 or len(val_ds) == 0:  # type: ignore[arg-type]  # map-style datasets have a length
+        raise HdNetError("the training and validation datasets must not be empty.")
+    extra = _json_plain(dict(extra_config or {}), "extra_config")
+    in_channels = _check_sample(train_ds, "training")
+    _check_sample(val_ds, "validation")
+    return extra, in_channels
+
+
+def _class_weights(
+    profile: TrainingProfile, class_weights: list[float] | None, train_ds: Dataset, n_classes: int
+) -> list[float] | None:
+    """Step 2: the loss's class weights with ``balanced`` weighting (given, or counted from ``train_ds``)."""
+    if profile.class_weighting != "balanced":
+        return class_weights
+    if class_weights is None:
+        class_weights = class_weights_from_counts(dataset_class_counts(train_ds))
+    if len(class_weights) != n_classes or not all(w >= 0 for w in class_weights):
+        raise HdNetError(f"class weights must be {n_classes} numbers >= 0, got {class_weights!r}.")
+    return class_weights
+
+
+def _checkpoint_to_resume(
+    run_dir: Path, resume: bool, model_config: ModelConfig, profile: TrainingProfile, rank: int
+) -> dict[str, Any] | None:
+    """Step 3: the run's ``last.pt`` when resuming (None when there is none); refused without ``resume``
+    or when it was trained with another model or profile."""
+    last = run_dir / LAST
+    if not last.exists():
+        return None
+    if not resume:
+        raise HdNetError(f"{run_dir} already holds a checkpoint; resume it or choose another run directory.")
+    ckpt = load_checkpoint(last)
+    if ModelConfig(**ckpt["model_config"]) != model_config or profile_from_dict(ckpt["profile"]) != profile:
+        raise HdNetError(f"checkpoint {last} was trained with another model or profile ({ckpt['profile']['name']!r}).")
+    if rank == 0:
+        _reconcile_run(run_dir, ckpt)
+    return ckpt
+
+
+@dataclass
+class _TrainState:
+    """What the epochs change: the model, its optimizer, the history and the best validation loss so far."""
+
+    model: BayesianSegNet
+    optimizer: torch.optim.Optimizer
+    weight: torch.Tensor | None
+    memory_format: torch.memory_format
+    start_epoch: int = 0
+    history: list[dict[str, Any]] = field(default_factory=list)
+    timing: list[dict[str, float]] = field(default_factory=list)  # wall-clock figures, apart from the history
+    best_loss: float = math.inf
+
+
+def _start(
+    profile: TrainingProfile,
+    model_config: ModelConfig,
+    ckpt: dict[str, Any] | None,
+    class_weights: list[float] | None,
+    seed: int,
+    rank: int,
+    device: torch.device,
+) -> _TrainState:
+    """Step 4: seeded initialisation, or the state of ``ckpt`` (model, optimizer, history, RNG states)."""
+    _seed_everything(seed + rank)
+    model = BayesianSegNet(model_config).to(device)
+    memory_format = torch.channels_last if profile.channels_last else torch.contiguous_format
+    model = model.to(memory_format=memory_format)  # type: ignore[call-overload]  # the stubs omit memory_format
+    weight = None
+    if class_weights is not None and profile.class_weighting == "balanced":
+        weight = torch.tensor(class_weights, dtype=torch.float32, device=device)
+    state = _TrainState(model, _make_optimizer(model, profile), weight, memory_format)
+    if ckpt is not None:
+        model.load_state_dict(ckpt["model"])
+        state.optimizer.load_state_dict(ckpt["optimizer"])
+        state.start_epoch, state.history = int(ckpt["epoch"]), list(ckpt["history"])
+        state.timing = list(ckpt.get("timing", []))
+        state.best_loss = min((h["val_loss"] for h in state.history), default=math.inf)
+        states = ckpt["rng"]
+        _set_rng_state(states[rank] if rank < len(states) else states[0])
+    return state
+
+
+def _loaders(
+    train_ds: Dataset,
+    val_ds: Dataset,
+    profile: TrainingProfile,
+    world: int,
+    rank: int,
+    seed: int,
+    num_workers: int,
+    device: torch.device,
+) -> tuple[DataLoader, DataLoader]:
+    """Step 5: the training loader (shuffled per epoch from ``seed``) and the validation loader, one share per rank."""
+    per_rank_batch = max(1, profile.batch_size // world)
+    train_sampler: DistributedSampler[Any] = DistributedSampler(
+        train_ds, num_replicas=world, rank=rank, shuffle=True, seed=seed
+    )
+    val_sampler: DistributedSampler[Any] = DistributedSampler(val_ds, num_replicas=world, rank=rank, shuffle=False)
+    pin = device.type == "cuda"
+    train_loader = DataLoader(
+        train_ds, batch_size=per_rank_batch, sampler=train_sampler, num_workers=num_workers, pin_memory=pin
+    )
+    val_loader = DataLoader(
+        val_ds, batch_size=per_rank_batch, sampler=val_sampler, num_workers=num_workers, pin_memory=pin
+    )
+    return train_loader, val_loader
+
+
+def _train_epoch(
+    net: nn.Module,
+    loader: DataLoader,
+    state: _TrainState,
+    profile: TrainingProfile,
+    epoch: int,
+    total_epochs: int,
+    device: torch.device,
+) -> tuple[float, float, float]:
+    """Step 6: one epoch of optimisation, the learning rate set per batch; returns the mean training
+    loss, the seconds taken and the images per second (summed over ranks)."""
+    sampler = loader.sampler
+    if isinstance(sampler, DistributedSampler):
+        sampler.set_epoch(epoch)
+    net.train()
+    optimizer, memory_format = state.optimizer, state.memory_format
+    n_batches = max(1, len(loader))
+    sums = torch.zeros(2, dtype=torch.float64, device=device)  # objective sum, its normaliser
+    t0, seen = time.perf_counter(), 0
+    for b, batch in enumerate(loader):
+        for group in optimizer.param_groups:
+            group["lr"] = profile.learning_rate(epoch + b / n_batches, total_epochs)
+        x = batch["image"].to(device, non_blocking=True).contiguous(memory_format=memory_format)
+        y = batch["mask"].to(device, non_blocking=True).long()
+        loss_sum, norm = _sum_loss(net(x), y, state.weight)
+        optimizer.zero_grad(set_to_none=True)
+        (loss_sum / norm.clamp(min=1e-12)).backward()
+        optimizer.step()
+        sums[0] += loss_sum.detach().double()
+        sums[1] += norm.double()
+        seen += int(x.shape[0])
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+    seconds = time.perf_counter() - t0
+    train_sums = _all_reduce(sums)
+    rate = _all_reduce(torch.tensor([seen / max(seconds, 1e-9)], dtype=torch.float64, device=device))
+    return float(train_sums[0] / train_sums[1].clamp(min=1e-12)), seconds, float(rate[0])
+
+
+def _validate(
+    net: nn.Module, loader: DataLoader, memory_format: torch.memory_format, device: torch.device
+) -> tuple[float, float, float]:
+    """Step 7: the validation loss, pixel accuracy and mIoU (one confusion matrix over the split)."""
+    net.eval()
+    vsums = torch.zeros(2 + defaults.N_CLASSES**2, dtype=torch.float64, device=device)
+    with torch.no_grad():
+        for batch in loader:
+            x = batch["image"].to(device).contiguous(memory_format=memory_format)
+            vsums += _val_counts(net(x), batch["mask"].to(device).long())
+    vsums = _all_reduce(vsums)
+    accuracy, miou = _accuracy_and_miou(vsums[2:].cpu())
+    return float(vsums[0] / vsums[1].clamp(min=1)), accuracy, miou
+
+
+def _save_epoch(
+    run_dir: Path,
+    state: _TrainState,
+    model_config: ModelConfig,
+    profile: TrainingProfile,
+    epoch: int,
+    seed: int,
+    extra: dict[str, Any],
+    world: int,
+    rank: int,
+) -> None:
+    """Step 8: ``last.pt`` (and ``best.pt`` when the validation loss improved) with every rank's RNG
+    state, and ``metrics.csv``; written by rank 0."""
+    states = [_rng_state()]
+    if world > 1:
+        gathered: list[Any] = [None] * world
+        dist.all_gather_object(gathered, states[0])
+        states = gathered
+    if rank != 0:
+        return
+    ckpt_out = {
+        "schema": CHECKPOINT_SCHEMA,
+        "schema_version": CHECKPOINT_VERSION,
+        "model_name": MODEL_NAME,
+        "model_config": model_config.to_dict(),
+        "profile": profile.to_dict(),
+        "epoch": epoch + 1,
+        "seed": seed,
+        "model": {k: v.detach().cpu() for k, v in state.model.state_dict().items()},
+        "optimizer": state.optimizer.state_dict(),
+        "rng": states,
+        "history": state.history,
+        "timing": state.timing,
+        "extra_config": extra,
+        "hd_version": __version__,
+    }
+    save_checkpoint(run_dir / LAST, ckpt_out)
+    val_loss = state.history[-1]["val_loss"]
+    if val_loss < state.best_loss:
+        state.best_loss = val_loss
+        save_checkpoint(run_dir / BEST, ckpt_out)
+    _write_metrics_csv(run_dir / METRICS, state.history, state.timing)

@@ -214,7 +214,9 @@ def split_block_size(n_scans: int) -> int:
     return max(1, min(50, n_scans // 20))
 
 
-def assign_splits(n_scans: int, seed: int, fractions: tuple[float, float, float] = defaults.SPLIT_FRACTIONS) -> np.ndarray:
+def assign_splits(
+    n_scans: int, seed: int, fractions: tuple[float, float, float] = defaults.SPLIT_FRACTIONS
+) -> np.ndarray:
     """Split of every scan: 0 train, 1 val, 2 test.
 
     Consecutive scans along the trajectory form blocks (``split_block_size``); blocks, not scans,
@@ -261,9 +263,12 @@ def run_shard(task: ShardTask) -> ShardRecord:
                     scan_geometry(scene, task.nadir_xy[m], task.first_scan + m, cfg.trajectory, footprint_hw, cfg.seed)
                     for m in batch
                 ]
-                for m, scan_index, result in zip(batch, indices, simulate_scans(
-                    scene, geoms, indices, cfg.sensor, cfg.sigmas_m, cfg.seed, n_threads=task.n_threads
-                ), strict=True):
+                for m, scan_index, result in zip(
+                    batch,
+                    indices,
+                    simulate_scans(scene, geoms, indices, cfg.sensor, cfg.sigmas_m, cfg.seed, n_threads=task.n_threads),
+                    strict=True,
+                ):
                     check_returns(result.status, scan_index, task.dtm_path)
                     g = result.geometry
                     writer.write_scan(
@@ -295,7 +300,8 @@ def check_returns(status: np.ndarray, scan_index: int, dtm_name: str) -> None:
     hits = int(((status == STATUS_RETURN) | (status == STATUS_DAMAGED)).sum())
     if working and hits < limits.MIN_RETURN_FRACTION * working:
         raise LidarsimError(
-            f"scan {scan_index}: only {100.0 * hits / working:.1f}% of the rays hit the terrain of {Path(dtm_name).name} "
+            f"scan {scan_index}: only {100.0 * hits / working:.1f}% of the rays hit the terrain of "
+            f"{Path(dtm_name).name} "
             "although its footprint lies on valid cells; the DTM's heights look invalid (check its nodata value "
             "and height range)"
         )
@@ -438,8 +444,14 @@ def _procedural_terrain_bytes(config: BuildConfig, path: Path) -> bytes:
     """The procedural terrain of ``config`` as GeoTIFF bytes (built in memory; nothing is written)."""
     params = config.terrain
     heights = generate_mars_terrain(params, seed=config.seed)
-    return geotiff_bytes(heights, params.spacing_m, origin_xy=(0.0, 0.0), crs_wkt="",
-                         tags=terrain_tags(params, config.seed), name=str(path))
+    return geotiff_bytes(
+        heights,
+        params.spacing_m,
+        origin_xy=(0.0, 0.0),
+        crs_wkt="",
+        tags=terrain_tags(params, config.seed),
+        name=str(path),
+    )
 
 
 def check_workers(workers: int | None, flag: str = "--workers") -> None:
@@ -492,21 +504,7 @@ def build_dataset(
     if scheduler is not None:
         probe_scheduler(scheduler)
     prepare_output(out_dir, config, overwrite)
-    terrain_bytes: bytes | None = None
-    if config.dtm_path is None:  # generated in memory, also on resume (a damaged terrain file is rewritten)
-        dtm_path = out_dir / TERRAIN_DIR / procedural_terrain_name(config.seed)
-        terrain_bytes = _procedural_terrain_bytes(config, dtm_path)
-    else:
-        dtm_path = Path(config.dtm_path).resolve()
-    opened = DTM.from_bytes(terrain_bytes, dtm_path, scale=config.dtm_scale) if terrain_bytes is not None \
-        else DTM.open(dtm_path, scale=config.dtm_scale)
-    with opened as dtm:
-        cell = max(OVERVIEW_CELL_M, *dtm.info.spacing_m)
-        valid, overview_transform = dtm.validity_overview(cell)
-        plan = plan_scans(valid, overview_transform, config.sensor, config.trajectory, dtm.info.name)
-        dtm_attrs = {f"dtm_{k}": v for k, v in dtm.info.to_attrs().items()}
-        dtm_attrs["dtm_sha256"] = dtm.sha256()
-        dtm_provenance = {**dtm.info.to_attrs(), "sha256": dtm_attrs["dtm_sha256"]}
+    terrain = _open_terrain(out_dir, config)
     # Input is valid: from here on the output directory is written, by this process alone.
     top = first_missing(out_dir)
     created = top is not None
@@ -520,19 +518,23 @@ def build_dataset(
     try:
         resume = prepare_output(out_dir, config, overwrite)  # again, now that no other writer can run
         # The build's settings first: from here on, a kill leaves a build the same command resumes.
-        write_json_atomic(out_dir / BUILD_STATE_NAME, {"config_sha256": config.fingerprint(),
-                                                        "dtm_sha256": dtm_attrs["dtm_sha256"],
-                                                        "config": config.to_dict()})
+        write_json_atomic(
+            out_dir / BUILD_STATE_NAME,
+            {
+                "config_sha256": config.fingerprint(),
+                "dtm_sha256": terrain.attrs["dtm_sha256"],
+                "config": config.to_dict(),
+            },
+        )
         if overwrite:
             clear_output(out_dir, keep_state=True)
-        if terrain_bytes is not None:
+        if terrain.data is not None:
             make_subdir(out_dir, TERRAIN_DIR)
-            if not (dtm_path.is_file() and sha256_file(dtm_path) == dtm_attrs["dtm_sha256"]):
-                write_bytes_atomic(dtm_path, terrain_bytes)
-            del terrain_bytes
+            if not (terrain.path.is_file() and sha256_file(terrain.path) == terrain.attrs["dtm_sha256"]):
+                write_bytes_atomic(terrain.path, terrain.data)
+            terrain.data = None
         make_subdir(out_dir, SHARD_DIR)
-        summary = _build_locked(out_dir, config, resume, dtm_path, dtm_attrs, dtm_provenance, plan, workers,
-                                scheduler, progress, t_start)
+        summary = _build_locked(out_dir, config, resume, terrain, workers, scheduler, progress, t_start)
         finished = True
         return summary
     finally:
@@ -543,14 +545,47 @@ def build_dataset(
             remove_empty_dirs(out_dir, top)
 
 
+@dataclass
+class _BuildTerrain:
+    """The terrain of a build: its path, the procedural terrain's GeoTIFF bytes (None for a user's
+    DTM), the scan plan over it, the shards' ``dtm_*`` attributes and the manifest's provenance."""
+
+    path: Path
+    data: bytes | None
+    plan: ScanPlan
+    attrs: dict[str, Any]
+    provenance: dict[str, Any]
+
+
+def _open_terrain(out_dir: Path, config: BuildConfig) -> _BuildTerrain:
+    """Step 1: the terrain read (a user's DTM) or generated in memory (the procedural terrain, also
+    on resume: a damaged terrain file is rewritten), checked and planned; nothing is written."""
+    terrain_bytes: bytes | None = None
+    if config.dtm_path is None:
+        dtm_path = out_dir / TERRAIN_DIR / procedural_terrain_name(config.seed)
+        terrain_bytes = _procedural_terrain_bytes(config, dtm_path)
+    else:
+        dtm_path = Path(config.dtm_path).resolve()
+    opened = (
+        DTM.from_bytes(terrain_bytes, dtm_path, scale=config.dtm_scale)
+        if terrain_bytes is not None
+        else DTM.open(dtm_path, scale=config.dtm_scale)
+    )
+    with opened as dtm:
+        cell = max(OVERVIEW_CELL_M, *dtm.info.spacing_m)
+        valid, overview_transform = dtm.validity_overview(cell)
+        plan = plan_scans(valid, overview_transform, config.sensor, config.trajectory, dtm.info.name)
+        dtm_attrs = {f"dtm_{k}": v for k, v in dtm.info.to_attrs().items()}
+        dtm_attrs["dtm_sha256"] = dtm.sha256()
+        dtm_provenance = {**dtm.info.to_attrs(), "sha256": dtm_attrs["dtm_sha256"]}
+    return _BuildTerrain(dtm_path, terrain_bytes, plan, dtm_attrs, dtm_provenance)
+
+
 def _build_locked(
     out_dir: Path,
     config: BuildConfig,
     resume: bool,
-    dtm_path: Path,
-    dtm_attrs: dict[str, Any],
-    dtm_provenance: dict[str, Any],
-    plan: ScanPlan,
+    terrain: _BuildTerrain,
     workers: int | None,
     scheduler: str | None,
     progress: Callable[[int, int], None] | None,
@@ -560,63 +595,22 @@ def _build_locked(
     fingerprint = config.fingerprint()
     remove_partials(out_dir / SHARD_DIR)
     splits = assign_splits(config.trajectory.n_scans, config.seed)
-    file_attrs = {
-        "seed": config.seed,
-        "config_json": json.dumps(config.to_dict(), sort_keys=True),
-        "config_sha256": fingerprint,
-        "frame": "scan frame: origin at the nadir point on the reference height (origin_map); x east, y north, z up; metres",
-        **config.sensor.to_attrs(),
-        **config.trajectory.to_attrs(),
-        **dtm_attrs,
-        "dtm_path": dtm_path.name,
-    }
     n_workers = max(1, workers if workers is not None else (os.cpu_count() or 1))
-    tasks = _make_tasks(out_dir, plan, splits, str(dtm_path), config, file_attrs, n_workers)
-    records: dict[int, ShardRecord] = {}
-    pending: list[ShardTask] = []
-    for task in tasks:
-        existing_record = _check_existing_shard(task, fingerprint) if resume else None
-        if existing_record is not None:
-            records[task.shard_index] = existing_record
-        else:
-            pending.append(task)
-    total = config.trajectory.n_scans
-    done = sum(r.n_scans for r in records.values())
-    if progress:
-        progress(done, total)
+    tasks = _make_tasks(
+        out_dir, terrain.plan, splits, str(terrain.path), config, _file_attrs(config, terrain), n_workers
+    )
+    records, pending = _finished_shards(tasks, fingerprint, resume)
     t_work = time.perf_counter()
-    with contextlib.closing(run_tasks(run_shard, pending, n_workers, scheduler)) as results:
-        for position, record in results:
-            records[pending[position].shard_index] = record
-            done += record.n_scans
-            if progress:
-                progress(done, total)
+    _run_shards(pending, records, config.trajectory.n_scans, n_workers, scheduler, progress)
     t_end = time.perf_counter()
-    manifest = {
-        "schema": MANIFEST_SCHEMA,
-        "schema_version": MANIFEST_SCHEMA_VERSION,
-        "kind": "lidar-scans",
-        "software": "hd",
-        "software_version": __version__,
-        "n_scans": total,
-        "sigmas_m": list(config.sigmas_m),
-        "seed": config.seed,
-        "config_sha256": fingerprint,
-        "config": config.to_dict(),
-        "dtm": dtm_provenance | {"path": os.path.relpath(dtm_path, out_dir) if dtm_path.is_relative_to(out_dir) else str(dtm_path)},
-        "trajectory": {"step_m": plan.step_m, "footprint_half_width_m": plan.half_width_m},
-        "splits": {name: int((splits == i).sum()) for i, name in enumerate(SPLIT_NAMES)},
-        "shards": [records[i].to_dict() for i in sorted(records)],
-        "labelings": [],
-    }
-    write_json_atomic(out_dir / MANIFEST_NAME, manifest)
+    manifest = _write_manifest(out_dir, config, terrain, splits, records)
     (out_dir / BUILD_STATE_NAME).unlink(missing_ok=True)
     new_scans = sum(t.nadir_xy.shape[0] for t in pending)
     rays = new_scans * config.sensor.rows * config.sensor.cols
     size = sum((out_dir / r.path).stat().st_size for r in records.values())
     return BuildSummary(
         out_dir=out_dir,
-        n_scans=total,
+        n_scans=config.trajectory.n_scans,
         n_shards=len(records),
         sigmas_m=config.sigmas_m,
         split_counts=manifest["splits"],
@@ -625,6 +619,84 @@ def _build_locked(
         bytes_written=size,
         rays_per_second=rays / max(t_end - t_work, 1e-9),
     )
+
+
+def _file_attrs(config: BuildConfig, terrain: _BuildTerrain) -> dict[str, Any]:
+    """Step 2: the root attributes of every scan shard (settings, sensor, trajectory, terrain)."""
+    return {
+        "seed": config.seed,
+        "config_json": json.dumps(config.to_dict(), sort_keys=True),
+        "config_sha256": config.fingerprint(),
+        "frame": (
+            "scan frame: origin at the nadir point on the reference height (origin_map); x east, y north, z up; metres"
+        ),
+        **config.sensor.to_attrs(),
+        **config.trajectory.to_attrs(),
+        **terrain.attrs,
+        "dtm_path": terrain.path.name,
+    }
+
+
+def _finished_shards(
+    tasks: list[ShardTask], fingerprint: str, resume: bool
+) -> tuple[dict[int, ShardRecord], list[ShardTask]]:
+    """Step 3: the shards a resumed build already holds intact (by shard index), and the tasks left."""
+    records: dict[int, ShardRecord] = {}
+    pending: list[ShardTask] = []
+    for task in tasks:
+        existing_record = _check_existing_shard(task, fingerprint) if resume else None
+        if existing_record is not None:
+            records[task.shard_index] = existing_record
+        else:
+            pending.append(task)
+    return records, pending
+
+
+def _run_shards(
+    pending: list[ShardTask],
+    records: dict[int, ShardRecord],
+    total: int,
+    n_workers: int,
+    scheduler: str | None,
+    progress: Callable[[int, int], None] | None,
+) -> None:
+    """Step 4: the pending shards simulated and written by the workers; ``records`` completed as they finish."""
+    done = sum(r.n_scans for r in records.values())
+    if progress:
+        progress(done, total)
+    with contextlib.closing(run_tasks(run_shard, pending, n_workers, scheduler)) as results:
+        for position, record in results:
+            records[pending[position].shard_index] = record
+            done += record.n_scans
+            if progress:
+                progress(done, total)
+
+
+def _write_manifest(
+    out_dir: Path, config: BuildConfig, terrain: _BuildTerrain, splits: np.ndarray, records: dict[int, ShardRecord]
+) -> dict[str, Any]:
+    """Step 5: ``manifest.json``, written last: the dataset is complete once it exists."""
+    dtm_path = terrain.path
+    manifest: dict[str, Any] = {
+        "schema": MANIFEST_SCHEMA,
+        "schema_version": MANIFEST_SCHEMA_VERSION,
+        "kind": "lidar-scans",
+        "software": "hd",
+        "software_version": __version__,
+        "n_scans": config.trajectory.n_scans,
+        "sigmas_m": list(config.sigmas_m),
+        "seed": config.seed,
+        "config_sha256": config.fingerprint(),
+        "config": config.to_dict(),
+        "dtm": terrain.provenance
+        | {"path": os.path.relpath(dtm_path, out_dir) if dtm_path.is_relative_to(out_dir) else str(dtm_path)},
+        "trajectory": {"step_m": terrain.plan.step_m, "footprint_half_width_m": terrain.plan.half_width_m},
+        "splits": {name: int((splits == i).sum()) for i, name in enumerate(SPLIT_NAMES)},
+        "shards": [records[i].to_dict() for i in sorted(records)],
+        "labelings": [],
+    }
+    write_json_atomic(out_dir / MANIFEST_NAME, manifest)
+    return manifest
 
 
 def _make_tasks(
@@ -641,19 +713,21 @@ def _make_tasks(
     tasks = []
     for shard_index, first in enumerate(range(0, n, config.shard_size)):
         last = min(n, first + config.shard_size)
-        tasks.append(ShardTask(
-            out_dir=str(out_dir),
-            shard_index=shard_index,
-            first_scan=first,
-            nadir_xy=plan.nadir_xy[first:last],
-            tile_ij=plan.tile_ij[first:last],
-            splits=splits[first:last],
-            dtm_path=dtm_path,
-            config=config,
-            plan_half_width_m=plan.half_width_m,
-            tile_anchor_xy=plan.tile_anchor_xy,
-            tile_m=plan.tile_m,
-            file_attrs=file_attrs,
-            n_threads=threads,
-        ))
+        tasks.append(
+            ShardTask(
+                out_dir=str(out_dir),
+                shard_index=shard_index,
+                first_scan=first,
+                nadir_xy=plan.nadir_xy[first:last],
+                tile_ij=plan.tile_ij[first:last],
+                splits=splits[first:last],
+                dtm_path=dtm_path,
+                config=config,
+                plan_half_width_m=plan.half_width_m,
+                tile_anchor_xy=plan.tile_anchor_xy,
+                tile_m=plan.tile_m,
+                file_attrs=file_attrs,
+                n_threads=threads,
+            )
+        )
     return tasks

@@ -38,7 +38,10 @@ def describe_dataset(directory: str | os.PathLike) -> str:
     size = _size(directory, shards)
     lines = [
         f"dataset   {directory}",
-        f"schema    {manifest['schema']} {manifest['schema_version']} (software {manifest.get('software_version', '?')})",
+        (
+            f"schema    {manifest['schema']} {manifest['schema_version']} "
+            f"(software {manifest.get('software_version', '?')})"
+        ),
         f"scans     {manifest['n_scans']} in {len(shards)} shards, {size / 1e6:.1f} MB",
         "splits    " + ", ".join(f"{manifest['splits'].get(k, 0)} {k}" for k in SPLIT_NAMES),
         "sigma     " + ", ".join(f"{s:g} m" for s in manifest["sigmas_m"]),
@@ -65,7 +68,8 @@ def describe_dataset(directory: str | os.PathLike) -> str:
                     valid = float(np.mean(scan.valid))
                     z = scan.points_clean[..., 2]
                     lines.append(
-                        f"scan 0    {valid * 100:.1f}% returns, height range {np.nanmin(z):.2f} .. {np.nanmax(z):.2f} m "
+                        f"scan 0    {valid * 100:.1f}% returns, "
+                        f"height range {np.nanmin(z):.2f} .. {np.nanmax(z):.2f} m "
                         f"(scan frame), origin E {scan.origin_map[0]:.1f} N {scan.origin_map[1]:.1f} m"
                     )
         except (FormatError, StorageError) as exc:
@@ -83,8 +87,10 @@ def describe_dataset(directory: str | os.PathLike) -> str:
         for d in sorted(labels_dir.iterdir()):
             if d.is_dir() and d.name not in listed:
                 n = len(list(d.glob("labels-*.h5")))
-                lines.append(f"labels    {d.name}: unfinished ({n} label shards written); re-run the same `hd label` "
-                             "command to finish it")
+                lines.append(
+                    f"labels    {d.name}: unfinished ({n} label shards written); re-run the same `hd label` "
+                    "command to finish it"
+                )
     holder = lock_holder(directory)
     if holder is not None:
         lines.append(f"writing   another hd process (PID {holder}) is writing this dataset now")
@@ -114,5 +120,7 @@ def damaged_status(problems: list[str]) -> list[str]:
 
 def damaged_message(directory: str | os.PathLike, problems: list[str]) -> str:
     """The one-line error of a damaged dataset."""
-    return (f"{directory} is damaged ({len(problems)} problem(s)); `hd verify {directory}` lists them; rebuild or "
-            "restore the damaged files")
+    return (
+        f"{directory} is damaged ({len(problems)} problem(s)); `hd verify {directory}` lists them; rebuild or "
+        "restore the damaged files"
+    )

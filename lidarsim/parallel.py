@@ -26,10 +26,10 @@ import sys
 import threading
 import time
 import traceback
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Generator, Iterator, Sequence
 from multiprocessing import get_context
 from multiprocessing.connection import Connection, wait
-from typing import Any, TypeVar
+from typing import Any, TypeVar, cast
 
 from lidarsim.errors import LidarsimError, WorkerError
 
@@ -127,7 +127,7 @@ def _worker_main(func: Callable[[Any], Any], indexed: list[tuple[int, Any]], con
 # ------------------------------------------------------------------------------------ parent side
 def run_tasks(
     func: Callable[[T], R], tasks: Sequence[T], workers: int = 1, scheduler: str | None = None
-) -> Iterator[tuple[int, R]]:
+) -> Generator[tuple[int, R], None, None]:
     """Run ``func`` on every task; yields ``(position in tasks, result)`` as each task finishes.
 
     Use it with ``contextlib.closing`` when the loop body may raise, so that the workers are
@@ -183,8 +183,12 @@ def _run_pool(func: Callable[[T], R], tasks: Sequence[T], workers: int) -> Itera
     try:
         for group in balanced_groups(len(tasks), workers):
             reader, writer = ctx.Pipe(duplex=False)
-            p = ctx.Process(target=_worker_main, args=(func, [(i, tasks[i]) for i in group], writer, os.getpid()),
-                            name="hd-worker", daemon=True)
+            p = ctx.Process(
+                target=_worker_main,
+                args=(func, [(i, tasks[i]) for i in group], writer, os.getpid()),
+                name="hd-worker",
+                daemon=True,
+            )
             p.start()
             writer.close()
             processes.append(p)
@@ -192,7 +196,7 @@ def _run_pool(func: Callable[[T], R], tasks: Sequence[T], workers: int) -> Itera
         remaining = len(tasks)
         open_readers = set(readers)
         while remaining:
-            for conn in wait(list(open_readers), timeout=1.0):
+            for conn in cast("list[Connection]", wait(list(open_readers), timeout=1.0)):
                 try:
                     kind, index, payload, tb = conn.recv()
                 except (EOFError, OSError):

@@ -192,8 +192,7 @@ def crater_profile(r_m: np.ndarray, diameter_m: float, params: MarsTerrainParams
     inside = rim - depth + depth * rho**2
     with np.errstate(divide="ignore"):
         outside = rim * (np.maximum(rho, 1.0) ** (-n) - tail) / (1.0 - tail)
-    out = np.where(rho <= 1.0, inside, np.maximum(outside, 0.0))
-    return out
+    return np.where(rho <= 1.0, inside, np.maximum(outside, 0.0))
 
 
 def stamp_crater(
@@ -219,9 +218,7 @@ def stamp_crater(
     heights[r0:r1, c0:c1] += crater_profile(r, diameter_m, params).astype(heights.dtype)
 
 
-def sample_craters(
-    params: MarsTerrainParams, rng: np.random.Generator
-) -> tuple[np.ndarray, np.ndarray]:
+def sample_craters(params: MarsTerrainParams, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """Crater centres (k, 2) as (east_m, south_m) and diameters (k,) in metres.
 
     Count ~ Poisson(area * [N(>D_min) - N(>D_max)]) over the tile grown by the largest ejecta reach

@@ -53,8 +53,20 @@ from lidarsim.trajectory import TrajectoryConfig
 RECIPE_FILE = "recipe.toml"
 CHECKSUMS_FILE = "checksums.json"
 
-_LABEL_KEYS = {"lander", "lander_diameter_m", "pad_diameter_m", "max_slope_deg", "max_roughness_m", "yaws",
-               "count_holes", "dem_size", "dem_spacing_m", "convention", "baseline_combine", "gridding"}
+_LABEL_KEYS = {
+    "lander",
+    "lander_diameter_m",
+    "pad_diameter_m",
+    "max_slope_deg",
+    "max_roughness_m",
+    "yaws",
+    "count_holes",
+    "dem_size",
+    "dem_spacing_m",
+    "convention",
+    "baseline_combine",
+    "gridding",
+}
 
 
 @dataclass(frozen=True)
@@ -104,11 +116,20 @@ class BuildSettings:
         return BuildConfig(
             sigmas_m=tuple(float(s) for s in self.sigmas_m),
             seed=int(self.seed),
-            sensor=SensorConfig(rows=int(self.resolution), cols=int(self.resolution), fov_x_deg=float(self.fov_deg),
-                                fov_y_deg=float(self.fov_deg), dead_elements=int(self.dead_elements),
-                                damaged_elements=int(self.damaged_elements)),
-            trajectory=TrajectoryConfig(n_scans=int(self.scans), altitude_m=float(self.altitude_m),
-                                        tilt_deg=float(self.tilt_deg), jitter_deg=float(self.jitter_deg)),
+            sensor=SensorConfig(
+                rows=int(self.resolution),
+                cols=int(self.resolution),
+                fov_x_deg=float(self.fov_deg),
+                fov_y_deg=float(self.fov_deg),
+                dead_elements=int(self.dead_elements),
+                damaged_elements=int(self.damaged_elements),
+            ),
+            trajectory=TrajectoryConfig(
+                n_scans=int(self.scans),
+                altitude_m=float(self.altitude_m),
+                tilt_deg=float(self.tilt_deg),
+                jitter_deg=float(self.jitter_deg),
+            ),
             dtm_path=self.dtm_path,
             dtm_scale=float(self.dtm_scale),
             shard_size=int(self.shard_size),
@@ -119,7 +140,8 @@ class BuildSettings:
 # Recipe [build] keys that differ from the BuildSettings field they fill.
 _BUILD_KEY_FIELDS = {"dtm": "dtm_path"}
 _BUILD_KEYS = {k for k in (f.name for f in fields(BuildSettings)) if k not in _BUILD_KEY_FIELDS.values()} | set(
-    _BUILD_KEY_FIELDS)
+    _BUILD_KEY_FIELDS
+)
 
 
 @dataclass(frozen=True)
@@ -188,8 +210,14 @@ def load_recipe(path: str | os.PathLike) -> Recipe:
     version = meta.get("version", 1)
     if isinstance(version, bool) or not isinstance(version, int) or version < 1:
         raise RecipeError(f"{path}: [dataset] version must be a positive integer, got {version!r}")
-    return Recipe(name=str(meta.get("name", path.parent.name)), path=path.resolve(), build=config, label=dict(label),
-                  description=str(meta.get("description", "")), version=version)
+    return Recipe(
+        name=str(meta.get("name", path.parent.name)),
+        path=path.resolve(),
+        build=config,
+        label=dict(label),
+        description=str(meta.get("description", "")),
+        version=version,
+    )
 
 
 def check_against_checksums(manifest: dict[str, Any], recorded: dict[str, Any]) -> list[str]:

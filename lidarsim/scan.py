@@ -111,15 +111,20 @@ class TileScene:
 
     def __init__(self, dtm: DTM, centre_xy: tuple[float, float], half_extent_m: float) -> None:
         cx, cy = centre_xy
-        r_a, c_a = dtm.rowcol_of_xy(np.array([cx - half_extent_m, cx + half_extent_m]),
-                                    np.array([cy + half_extent_m, cy - half_extent_m]))
+        r_a, c_a = dtm.rowcol_of_xy(
+            np.array([cx - half_extent_m, cx + half_extent_m]), np.array([cy + half_extent_m, cy - half_extent_m])
+        )
         row0 = int(np.floor(min(r_a))) - 1
         col0 = int(np.floor(min(c_a))) - 1
         nrows = int(np.ceil(max(r_a))) + 2 - row0
         ncols = int(np.ceil(max(c_a))) + 2 - col0
         heights = dtm.read(row0, col0, nrows, ncols)
-        xs, _ = dtm.cell_center_xy(np.full(ncols, row0, dtype=np.float64), np.arange(col0, col0 + ncols, dtype=np.float64))
-        _, ys = dtm.cell_center_xy(np.arange(row0, row0 + nrows, dtype=np.float64), np.full(nrows, col0, dtype=np.float64))
+        xs, _ = dtm.cell_center_xy(
+            np.full(ncols, row0, dtype=np.float64), np.arange(col0, col0 + ncols, dtype=np.float64)
+        )
+        _, ys = dtm.cell_center_xy(
+            np.arange(row0, row0 + nrows, dtype=np.float64), np.full(nrows, col0, dtype=np.float64)
+        )
         finite = heights[np.isfinite(heights)]
         z_ref = float(np.round(finite.mean())) if finite.size else 0.0
         self.origin = np.array([cx, cy, z_ref], dtype=np.float64)
@@ -130,7 +135,7 @@ class TileScene:
         self.n_triangles = int(triangles.shape[0])
         self.scene = o3d.t.geometry.RaycastingScene()
         if self.n_triangles:
-            self.scene.add_triangles(o3d.core.Tensor(vertices), o3d.core.Tensor(triangles))
+            self.scene.add_triangles(o3d.core.Tensor(vertices), o3d.core.Tensor(triangles))  # type: ignore[call-overload]  # stubs omit ndarray
 
     def mean_height(self, x: float, y: float, half_width_m: float) -> float:
         """Mean valid terrain height in the square of half-width ``half_width_m`` around (x, y), metres."""
@@ -156,7 +161,8 @@ class TileScene:
         rays[..., 3:] = directions
         if self.n_triangles == 0:
             return np.full((s, rows, cols), np.nan, dtype=np.float32)
-        hit = self.scene.cast_rays(o3d.core.Tensor(rays.reshape(-1, 6)), nthreads=n_threads)
+        rays_o3d = o3d.core.Tensor(rays.reshape(-1, 6))  # type: ignore[call-overload]  # stubs omit ndarray
+        hit = self.scene.cast_rays(rays_o3d, nthreads=n_threads)
         t = hit["t_hit"].numpy().reshape(s, rows, cols)
         return np.where(np.isfinite(t), t, np.float32(np.nan)).astype(np.float32, copy=False)
 
@@ -174,7 +180,9 @@ def scan_geometry(
     z_ref = scene.mean_height(x, y, footprint_half_width_m)
     jitter = (0.0, 0.0, 0.0)
     if trajectory.jitter_deg > 0.0:
-        jitter = tuple(np.radians(trajectory.jitter_deg) * stream(seed, Purpose.ATTITUDE_JITTER, scan_index).standard_normal(3))
+        jitter = tuple(
+            np.radians(trajectory.jitter_deg) * stream(seed, Purpose.ATTITUDE_JITTER, scan_index).standard_normal(3)
+        )
     return ScanGeometry(
         origin_map=np.array([x, y, z_ref]),
         sensor_position=np.array([0.0, 0.0, trajectory.altitude_m]),
@@ -207,7 +215,7 @@ def simulate_scans(
         status[dead] = STATUS_DEAD
         d = directions[k]
         clean = (g.sensor_position + r[..., None] * d).astype(np.float32)
-        noisy = np.empty((len(sigmas_m),) + clean.shape, dtype=np.float32)
+        noisy = np.empty((len(sigmas_m), *clean.shape), dtype=np.float32)
         for s_i, sigma in enumerate(sigmas_m):
             key = sigma_key(sigma)
             r_noisy = r + sigma * stream(seed, Purpose.RANGE_NOISE, scan, key).standard_normal(r.shape)

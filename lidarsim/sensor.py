@@ -22,9 +22,7 @@ from lidarsim.errors import LidarsimError
 
 # Rotation taking sensor-frame vectors to the scan frame at nadir attitude (columns are the
 # sensor axes in the scan frame): x_s -> east, y_s -> south, z_s -> down.
-NADIR_ATTITUDE: np.ndarray = np.array(
-    [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]], dtype=np.float64
-)
+NADIR_ATTITUDE: np.ndarray = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]], dtype=np.float64)
 
 
 @dataclass(frozen=True)
@@ -125,9 +123,7 @@ def rotation_z(angle_rad: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
-def sensor_attitude(
-    tilt_deg: float = 0.0, jitter_rad: tuple[float, float, float] = (0.0, 0.0, 0.0)
-) -> np.ndarray:
+def sensor_attitude(tilt_deg: float = 0.0, jitter_rad: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> np.ndarray:
     """Rotation from the sensor frame to the scan frame.
 
     Args:
@@ -139,13 +135,7 @@ def sensor_attitude(
         float64 (3, 3) matrix ``R`` with ``d_scan = R @ d_sensor``.
     """
     jx, jy, jz = jitter_rad
-    return (
-        NADIR_ATTITUDE
-        @ rotation_x(math.radians(tilt_deg))
-        @ rotation_x(jx)
-        @ rotation_y(jy)
-        @ rotation_z(jz)
-    )
+    return NADIR_ATTITUDE @ rotation_x(math.radians(tilt_deg)) @ rotation_x(jx) @ rotation_y(jy) @ rotation_z(jz)
 
 
 def footprint_half_width_m(

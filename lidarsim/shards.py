@@ -14,6 +14,7 @@ import os
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from types import TracebackType
 from typing import Any
 
 import h5py
@@ -46,11 +47,32 @@ from lidarsim.storage import (
 )
 
 __all__ = [
-    "SCAN_SCHEMA", "SCAN_SCHEMA_VERSION", "MANIFEST_SCHEMA", "MANIFEST_SCHEMA_VERSION", "MANIFEST_NAME",
-    "BUILD_STATE_NAME", "SPLIT_NAMES", "ShardFormatError", "ScanShardWriter", "ScanShardReader", "Scan",
-    "read_manifest", "iter_scans", "verify_dataset", "compression_kwargs", "write_attrs", "sha256_file",
-    "check_schema", "partial_path", "remove_partials", "commit_file", "write_json_atomic", "open_scan_shard",
-    "validate_manifest", "DamagedFileError", "StorageError",
+    "BUILD_STATE_NAME",
+    "MANIFEST_NAME",
+    "MANIFEST_SCHEMA",
+    "MANIFEST_SCHEMA_VERSION",
+    "SCAN_SCHEMA",
+    "SCAN_SCHEMA_VERSION",
+    "SPLIT_NAMES",
+    "DamagedFileError",
+    "Scan",
+    "ScanShardReader",
+    "ScanShardWriter",
+    "ShardFormatError",
+    "StorageError",
+    "check_schema",
+    "commit_file",
+    "compression_kwargs",
+    "iter_scans",
+    "open_scan_shard",
+    "partial_path",
+    "read_manifest",
+    "remove_partials",
+    "sha256_file",
+    "validate_manifest",
+    "verify_dataset",
+    "write_attrs",
+    "write_json_atomic",
 ]
 
 SCAN_SCHEMA = "hd.lidar-scans"
@@ -65,6 +87,7 @@ SPLIT_NAMES: tuple[str, str, str] = ("train", "val", "test")
 
 # Not a format this version reads, or a damaged file (the storage layer's FormatError).
 ShardFormatError = FormatError
+
 
 def _attr_value(value: Any) -> Any:
     if value is None:
@@ -109,15 +132,18 @@ class ScanShardWriter:
         kw = compression_kwargs(self.compression)
         self._image = H5Image(self.path)
         f = self._f = self._image.file
-        write_attrs(f, {
-            "schema": SCAN_SCHEMA,
-            "schema_version": SCAN_SCHEMA_VERSION,
-            "software": "hd",
-            "software_version": __version__,
-            "n_scans": self.n_scans,
-            "sigmas_m": np.asarray(self.sigmas_m, dtype=np.float64),
-            **self.attrs,
-        })
+        write_attrs(
+            f,
+            {
+                "schema": SCAN_SCHEMA,
+                "schema_version": SCAN_SCHEMA_VERSION,
+                "software": "hd",
+                "software_version": __version__,
+                "n_scans": self.n_scans,
+                "sigmas_m": np.asarray(self.sigmas_m, dtype=np.float64),
+                **self.attrs,
+            },
+        )
         n, r, c, s = self.n_scans, self.rows, self.cols, len(self.sigmas_m)
         small = compression_kwargs("none")
 
@@ -173,7 +199,9 @@ class ScanShardWriter:
         """
         return self._image.commit()
 
-    def __exit__(self, exc_type, exc, tb) -> None:
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
         if exc_type is not None:
             self._image.discard()
 
@@ -221,8 +249,13 @@ class ScanShardReader:
         self._f: CheckedH5File = open_h5(self.path, self.what)
         try:
             attrs = self._f.attrs
-            check_schema(_py(attrs.get("schema", "")), _py(attrs.get("schema_version", "")),
-                         SCAN_SCHEMA, SCAN_SCHEMA_VERSION, self.what)
+            check_schema(
+                _py(attrs.get("schema", "")),
+                _py(attrs.get("schema_version", "")),
+                SCAN_SCHEMA,
+                SCAN_SCHEMA_VERSION,
+                self.what,
+            )
             self.attrs: dict[str, Any] = {k: _py(v) for k, v in attrs.items()}
             self.sigmas_m: tuple[float, ...] = tuple(float(s) for s in np.atleast_1d(attrs["sigmas_m"]))
             self._n = int(self._f["scan_index"].shape[0])
@@ -312,8 +345,13 @@ def validate_manifest(data: Any, where: str) -> dict[str, Any]:
     """
     if not isinstance(data, dict):
         raise FormatError(f"{where}: not a JSON object")
-    check_schema(str(data.get("schema", "")), str(data.get("schema_version", "")),
-                 MANIFEST_SCHEMA, MANIFEST_SCHEMA_VERSION, where)
+    check_schema(
+        str(data.get("schema", "")),
+        str(data.get("schema_version", "")),
+        MANIFEST_SCHEMA,
+        MANIFEST_SCHEMA_VERSION,
+        where,
+    )
     n_scans = require(data, "n_scans", int, where)
     shards = require(data, "shards", list, where)
     _check_entries(shards, f"{where}: shards")
@@ -321,8 +359,9 @@ def validate_manifest(data: Any, where: str) -> dict[str, Any]:
     if held != n_scans:
         raise FormatError(f"{where}: lists {n_scans} scans but its shards hold {held}")
     sigmas = require(data, "sigmas_m", list, where)
-    if not sigmas or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x) and x > 0
-                             for x in sigmas):
+    if not sigmas or not all(
+        isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x) and x > 0 for x in sigmas
+    ):
         raise FormatError(f"{where}: 'sigmas_m' must be a non-empty list of positive numbers")
     labelings = data.get("labelings", [])
     if not isinstance(labelings, list):
@@ -367,8 +406,10 @@ def read_manifest(directory: str | os.PathLike) -> dict[str, Any]:
             holder = lock_holder(directory)
             if holder is not None:
                 raise FormatError(f"{directory}: a build is in progress (PID {holder}); wait for it to finish")
-            raise FormatError(f"{directory}: unfinished build{_build_progress(directory)} - re-run the same "
-                              "`hd build-dataset` command to finish it")
+            raise FormatError(
+                f"{directory}: unfinished build{_build_progress(directory)} - re-run the same "
+                "`hd build-dataset` command to finish it"
+            )
         if not directory.exists():
             raise FormatError(f"{directory}: no such dataset directory")
         if not directory.is_dir():
@@ -396,9 +437,7 @@ def iter_scans(directory: str | os.PathLike, split: str | None = None) -> Iterat
                     yield scan
 
 
-def verify_dataset(
-    directory: str | os.PathLike, known_schemas: dict[str, str] | None = None
-) -> list[str]:
+def verify_dataset(directory: str | os.PathLike, known_schemas: dict[str, str] | None = None) -> list[str]:
     """Check every file listed in the manifest: confinement, presence, sha256, schema and scan count.
 
     Args:
@@ -448,7 +487,9 @@ def verify_dataset(
                     continue
                 check_schema(name, version, name, known[name], rel)
                 if int(_py(f.attrs.get("n_scans", -1))) != int(entry["n_scans"]):
-                    problems.append(f"{rel}: holds {_py(f.attrs.get('n_scans'))} scans, manifest says {entry['n_scans']}")
+                    problems.append(
+                        f"{rel}: holds {_py(f.attrs.get('n_scans'))} scans, manifest says {entry['n_scans']}"
+                    )
         except (FormatError, StorageError) as exc:
             problems.append(str(exc))
         except (OSError, TypeError, ValueError):
@@ -474,7 +515,7 @@ def _terrain_problems(directory: Path, manifest: dict[str, Any]) -> list[str]:
     except StorageError as exc:
         return [str(exc)]
     if is_sha256(recorded) and digest != recorded:
-        return [f"{rel}: checksum mismatch (sha256 {digest[:12]}..., manifest says {recorded[:12]}...)"]
+        return [f"{rel}: checksum mismatch (sha256 {digest[:12]}..., manifest says {str(recorded)[:12]}...)"]
     return []
 
 
@@ -493,4 +534,3 @@ def check_dataset_files(directory: str | os.PathLike, manifest: dict[str, Any]) 
         if not path.is_file():
             problems.append(f"{entry['path']}: missing")
     return problems
-

@@ -216,7 +216,7 @@ def remove_stale_partials(final: Path) -> None:
     prefix = f".{final.name}{PARTIAL_MARK}"
     with contextlib.suppress(OSError):
         for p in final.parent.glob(f"{glob_escape(prefix)}*"):
-            pid = p.name[len(prefix):]
+            pid = p.name[len(prefix) :]
             if pid.isdigit() and int(pid) != os.getpid() and not _pid_alive(int(pid)):
                 with contextlib.suppress(OSError):
                     p.unlink()
@@ -311,8 +311,7 @@ class H5Image:
 
     def __init__(self, path: str | os.PathLike) -> None:
         self.path = Path(path)
-        self.file = h5py.File(f"{self.path}.{os.getpid()}.{id(self)}.inmemory", "w", driver="core",
-                              backing_store=False)
+        self.file = h5py.File(f"{self.path}.{os.getpid()}.{id(self)}.inmemory", "w", driver="core", backing_store=False)
 
     def commit(self) -> str:
         """Write the file to ``path`` (temporary name, fsync, rename); returns its sha256."""
@@ -425,6 +424,10 @@ class CheckedH5File:
     def __contains__(self, name: str) -> bool:
         return name in self._f
 
+    def __iter__(self) -> Iterator[str]:
+        """The names of the file's members, as ``h5py.File`` iterates them."""
+        return iter(self._f)
+
     def __getattr__(self, name: str) -> Any:
         return getattr(self._f, name)
 
@@ -461,7 +464,9 @@ def open_h5(path: str | os.PathLike, what: str | None = None) -> CheckedH5File:
     except OSError as exc:
         if isinstance(exc, PermissionError):
             raise StorageError(describe_os_error(exc, p)) from None
-        raise DamagedFileError(f"{name}: cannot open as HDF5 ({_short(exc)}); the file is damaged or not an hd file") from None
+        raise DamagedFileError(
+            f"{name}: cannot open as HDF5 ({_short(exc)}); the file is damaged or not an hd file"
+        ) from None
     return CheckedH5File(f, name)
 
 
@@ -532,7 +537,9 @@ def require(mapping: Any, key: str, kind: type | tuple[type, ...], where: str) -
     if isinstance(value, bool) and bool not in kinds:
         raise FormatError(f"{where}: {key!r} must be {' or '.join(k.__name__ for k in kinds)}, got {value!r}")
     if not isinstance(value, kinds):
-        raise FormatError(f"{where}: {key!r} must be {' or '.join(k.__name__ for k in kinds)}, got {type(value).__name__}")
+        raise FormatError(
+            f"{where}: {key!r} must be {' or '.join(k.__name__ for k in kinds)}, got {type(value).__name__}"
+        )
     if isinstance(value, float) and not math.isfinite(value):
         raise FormatError(f"{where}: {key!r} must be finite, got {value!r}")
     return value
@@ -760,11 +767,15 @@ class WriterLock:
             try:
                 fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o644)
             except OSError as exc:
-                raise StorageError(f"cannot lock {self.directory} for writing: {describe_os_error(exc, self.path)}") from None
+                raise StorageError(
+                    f"cannot lock {self.directory} for writing: {describe_os_error(exc, self.path)}"
+                ) from None
             st = os.fstat(fd)
             if not stat.S_ISREG(st.st_mode) or st.st_nlink != 1:  # never truncate another file through a link
                 os.close(fd)
-                raise StorageError(f"cannot lock {self.directory} for writing: {self.path} is not a plain file; remove it")
+                raise StorageError(
+                    f"cannot lock {self.directory} for writing: {self.path} is not a plain file; remove it"
+                )
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:
@@ -778,7 +789,9 @@ class WriterLock:
                 ) from None
             except OSError as exc:
                 os.close(fd)
-                raise StorageError(f"cannot lock {self.directory} for writing: {describe_os_error(exc, self.path)}") from None
+                raise StorageError(
+                    f"cannot lock {self.directory} for writing: {describe_os_error(exc, self.path)}"
+                ) from None
             try:  # the file may have been removed by the previous holder between open and flock
                 same = os.stat(self.path).st_ino == os.fstat(fd).st_ino
             except FileNotFoundError:

@@ -245,9 +245,7 @@ class DTM:
         if not all(math.isfinite(v) for v in (a, b, c, d, e, f)) or a == 0.0 or e == 0.0:
             raise TerrainError(f"{apath}: has a degenerate geotransform {(a, b, c, d, e, f)}")
         if abs(b) > _ROTATION_TOLERANCE * pixel or abs(d) > _ROTATION_TOLERANCE * pixel:
-            raise TerrainError(
-                f"{apath}: has a rotated or sheared grid; warp it north-up first, e.g. with gdalwarp"
-            )
+            raise TerrainError(f"{apath}: has a rotated or sheared grid; warp it north-up first, e.g. with gdalwarp")
         rows = max(1, int(round(src.height * scale)))
         cols = max(1, int(round(src.width * scale)))
         fx = src.width / cols

@@ -119,9 +119,9 @@ def plan_scans(
         + trajectory.margin_m
     )
     reach = int(math.ceil(half_width / cell + 0.5))
-    admissible = ndimage.minimum_filter(
-        valid.astype(np.uint8), size=2 * reach + 1, mode="constant", cval=0
-    ).astype(bool)
+    admissible = ndimage.minimum_filter(valid.astype(np.uint8), size=2 * reach + 1, mode="constant", cval=0).astype(
+        bool
+    )
     if not admissible.any():
         need = 2.0 * half_width
         extent_x = valid.shape[1] * cell
@@ -173,9 +173,7 @@ def _largest_step(admissible: np.ndarray, n: int) -> int:
     return lo
 
 
-def _tile_boustrophedon_order(
-    tile_i: np.ndarray, tile_j: np.ndarray, rows: np.ndarray, cols: np.ndarray
-) -> np.ndarray:
+def _tile_boustrophedon_order(tile_i: np.ndarray, tile_j: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
     """Order positions tile by tile (row-major), boustrophedon (serpentine) inside each tile."""
     serpentine_col = np.where(rows % 2 == 0, cols, -cols)
     return np.lexsort((serpentine_col, rows, tile_j, tile_i))

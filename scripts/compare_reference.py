@@ -26,8 +26,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from hdlabels.defaults import LABEL_INVALID, LABEL_SAFE, SAFE_PROBABILITY_THRESHOLD  # noqa: E402
-from hdlabels.store import LabelShardReader, find_labeling, label_shard_paths  # noqa: E402
+from hdlabels.defaults import LABEL_INVALID, LABEL_SAFE, SAFE_PROBABILITY_THRESHOLD
+from hdlabels.store import LabelShardReader, find_labeling, label_shard_paths
 
 RUNNER = Path(__file__).resolve().parents[1] / "benchmarks" / "reference_pydem.py"
 
@@ -62,28 +62,38 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         inputs, outputs = Path(tmp) / "in.npz", Path(tmp) / "out.npz"
         np.savez(inputs, dems=ours["dem_clean"], noisy=ours["dem_noisy"], sigmas=ours["sigmas"])
-        subprocess.run([args.reference_python, str(RUNNER), str(inputs), str(outputs), "--src", args.reference_src],
-                       check=True, stdout=subprocess.DEVNULL)
+        subprocess.run(
+            [args.reference_python, str(RUNNER), str(inputs), str(outputs), "--src", args.reference_src],
+            check=True,
+            stdout=subprocess.DEVNULL,
+        )
         ref = dict(np.load(outputs))
     valid = ours["label"] != LABEL_INVALID
     both = valid & ref["valid"]
     n = ours["label"].shape[0]
     print(f"{args.dataset}: {n} scans, {both.sum():,} pixels valid in both of {valid.size:,}")
-    print(f"valid masks agree on {np.mean(valid == ref['valid']) * 100:.3f}% of all pixels "
-          f"({(valid != ref['valid']).sum()} differ) "
-          f"(hd valid {valid.mean() * 100:.2f}%, reference valid {ref['valid'].mean() * 100:.2f}%)")
+    print(
+        f"valid masks agree on {np.mean(valid == ref['valid']) * 100:.3f}% of all pixels "
+        f"({(valid != ref['valid']).sum()} differ) "
+        f"(hd valid {valid.mean() * 100:.2f}%, reference valid {ref['valid'].mean() * 100:.2f}%)"
+    )
     same = (ours["label"] == LABEL_SAFE) == (ref["label"] == 1)
-    print(f"deterministic labels agree on {same[both].mean() * 100:.3f}% of pixels valid in both "
-          f"({(~same[both]).sum()} differ) "
-          f"(safe: hd {np.mean(ours['label'][both] == LABEL_SAFE) * 100:.2f}%, "
-          f"reference {np.mean(ref['label'][both] == 1) * 100:.2f}%)")
+    print(
+        f"deterministic labels agree on {same[both].mean() * 100:.3f}% of pixels valid in both "
+        f"({(~same[both]).sum()} differ) "
+        f"(safe: hd {np.mean(ours['label'][both] == LABEL_SAFE) * 100:.2f}%, "
+        f"reference {np.mean(ref['label'][both] == 1) * 100:.2f}%)"
+    )
     for s, sigma in enumerate(ours["sigmas"]):
         p, pr = ours["p_safe"][:, s], ref["p"][:, s]
         ok = both & np.isfinite(p) & np.isfinite(pr)
         agree = (p >= SAFE_PROBABILITY_THRESHOLD) == (pr >= SAFE_PROBABILITY_THRESHOLD)
-        print(f"baseline sigma {sigma * 100:g} cm: P >= 0.5 agrees on {agree[ok].mean() * 100:.3f}% of pixels valid "
-              f"in both ({(~agree[ok]).sum()} differ; safe: hd {np.mean(p[ok] >= 0.5) * 100:.2f}%, reference {np.mean(pr[ok] >= 0.5) * 100:.2f}%); "
-              f"max |P - P_ref| = {np.abs(p - pr)[ok].max():.2e}")
+        print(
+            f"baseline sigma {sigma * 100:g} cm: P >= 0.5 agrees on {agree[ok].mean() * 100:.3f}% of pixels valid "
+            f"in both ({(~agree[ok]).sum()} differ; safe: hd {np.mean(p[ok] >= 0.5) * 100:.2f}%, "
+            f"reference {np.mean(pr[ok] >= 0.5) * 100:.2f}%); "
+            f"max |P - P_ref| = {np.abs(p - pr)[ok].max():.2e}"
+        )
 
 
 if __name__ == "__main__":

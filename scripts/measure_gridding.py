@@ -29,20 +29,28 @@ from rasterio.transform import from_origin
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from hdlabels import defaults as label_defaults  # noqa: E402
-from hdlabels.grid import grid_points  # noqa: E402
-from hdnet.paper_results import PAPER_ROWS  # noqa: E402
-from lidarsim import defaults as lidar_defaults  # noqa: E402
-from lidarsim.build import BuildConfig, build_dataset  # noqa: E402
-from lidarsim.shards import ScanShardReader, read_manifest  # noqa: E402
-from lidarsim.trajectory import TrajectoryConfig  # noqa: E402
+from hdlabels import defaults as label_defaults
+from hdlabels.grid import grid_points
+from hdnet.paper_results import PAPER_ROWS
+from lidarsim import defaults as lidar_defaults
+from lidarsim.build import BuildConfig, build_dataset
+from lidarsim.shards import ScanShardReader, read_manifest
+from lidarsim.trajectory import TrajectoryConfig
 
 
 def flat_terrain(path: Path, side_m: float = 400.0, spacing_m: float = 0.5) -> Path:
     """A level plane (height 0 m) as a GeoTIFF."""
     n = int(side_m / spacing_m)
-    with rasterio.open(path, "w", driver="GTiff", width=n, height=n, count=1, dtype="float32",
-                       transform=from_origin(0.0, side_m, spacing_m, spacing_m)) as dst:
+    with rasterio.open(
+        path,
+        "w",
+        driver="GTiff",
+        width=n,
+        height=n,
+        count=1,
+        dtype="float32",
+        transform=from_origin(0.0, side_m, spacing_m, spacing_m),
+    ) as dst:
         dst.write(np.zeros((n, n), dtype=np.float32), 1)
     return path
 
@@ -52,8 +60,11 @@ def residual_noise(n_scans: int) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         dtm = flat_terrain(Path(tmp) / "flat.tif")
         out = Path(tmp) / "flat"
-        build_dataset(out, BuildConfig(sigmas_m=sigmas, seed=5, trajectory=TrajectoryConfig(n_scans=n_scans),
-                                       dtm_path=str(dtm)), workers=1)
+        build_dataset(
+            out,
+            BuildConfig(sigmas_m=sigmas, seed=5, trajectory=TrajectoryConfig(n_scans=n_scans), dtm_path=str(dtm)),
+            workers=1,
+        )
         res: dict[str, list[list[np.ndarray]]] = {g: [[] for _ in sigmas] for g in label_defaults.GRIDDINGS}
         for entry in read_manifest(out)["shards"]:
             with ScanShardReader(out / entry["path"]) as reader:
@@ -93,17 +104,25 @@ def baseline_scores(dataset: Path) -> None:
             valid, truth = y != label_defaults.LABEL_INVALID, y == label_defaults.LABEL_SAFE
             for s in range(len(sigmas)):
                 b = p[:, s] >= label_defaults.SAFE_PROBABILITY_THRESHOLD
-                counts[s] += [(b & truth & valid).sum(), (b & ~truth & valid).sum(),
-                              (~b & truth & valid).sum(), (~b & ~truth & valid).sum()]
+                counts[s] += [
+                    (b & truth & valid).sum(),
+                    (b & ~truth & valid).sum(),
+                    (~b & truth & valid).sum(),
+                    (~b & ~truth & valid).sum(),
+                ]
         for s, sigma in enumerate(sigmas):
             tp, fp, fn, tn = counts[s]
             miou = (tp / (tp + fp + fn) + tn / (tn + fp + fn)) / 2
-            print(f"| {lab['dem'].get('gridding', 'linear')} | {sigma * 100:g} cm | {(tp + tn) / counts[s].sum():.4f} | "
-                  f"{miou:.4f} | {tp / (tp + fp):.4f} | {tp / (tp + fn):.4f} |")
+            print(
+                f"| {lab['dem'].get('gridding', 'linear')} | {sigma * 100:g} cm | {(tp + tn) / counts[s].sum():.4f} | "
+                f"{miou:.4f} | {tp / (tp + fp):.4f} | {tp / (tp + fn):.4f} |"
+            )
     for row in PAPER_ROWS:
         if row.table == "noise" and row.method == "alhat_baseline":
-            print(f"| paper | {row.test_sigma_m * 100:g} cm | {row.pixel_accuracy:.4f} | {row.miou:.4f} | "
-                  f"{row.precision:.4f} | {row.sensitivity:.4f} |")
+            print(
+                f"| paper | {row.test_sigma_m * 100:g} cm | {row.pixel_accuracy:.4f} | {row.miou:.4f} | "
+                f"{row.precision:.4f} | {row.sensitivity:.4f} |"
+            )
 
 
 def main() -> None:

@@ -15,12 +15,12 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from hdlabels.lander import Lander, geometry, pad_sample_points  # noqa: E402
+from hdlabels.lander import Lander, geometry, pad_sample_points
 
 OUT = Path(__file__).with_suffix(".png")
 OUT_PAPER = Path(__file__).with_name("label_geometry_paper.png")
@@ -40,7 +40,7 @@ def paper_figure() -> None:
         ax.plot(square[:, 0], square[:, 1], "-o", ms=4, color=colours[m], lw=1)
     ax.set_title("the 7 distinct pad squares of 36 orientations")
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.16), fontsize=8)
-    for ax, m in zip(axes[1:], (0, 3)):
+    for ax, m in zip(axes[1:], (0, 3), strict=True):
         di, dj = geo.nodes(m)
         square = np.vstack([geo.pad_xy_px[m], geo.pad_xy_px[m][:1]])
         ax.scatter(fp_j - b, -(fp_i - b), s=14, c="0.85")
@@ -100,10 +100,20 @@ def main() -> None:
     side.plot([-4.5, 4.5], [0.0, 0.5], "o", color="tab:red")
     side.annotate("pad 0 on a 0.5 m rock", (4.4, 0.62), ha="right", fontsize=8)
     side.annotate("pad 2", (-4.5, 0.08), ha="center", fontsize=8)
-    side.annotate("hole: below the plane, not roughness\n(Lander(count_holes=True) counts it)",
-                  (-1.5, -0.55), ha="center", fontsize=8, color="tab:blue")
-    side.text(-5.3, 0.85, "slope = angle of the plane's normal to vertical\n"
-              "roughness = max height of body nodes above it x cos(slope)", fontsize=8, va="top")
+    side.annotate(
+        "hole: below the plane, not roughness\n(Lander(count_holes=True) counts it)",
+        (-1.5, -0.55),
+        ha="center",
+        fontsize=8,
+        color="tab:blue",
+    )
+    side.text(
+        -5.3,
+        0.85,
+        "slope = angle of the plane's normal to vertical\nroughness = max height of body nodes above it x cos(slope)",
+        fontsize=8,
+        va="top",
+    )
     side.set_xlim(-5.5, 5.5)
     side.set_ylim(-0.8, 1.0)
     side.set_xlabel("distance along the pad 2 - pad 0 diagonal (m)")

@@ -52,7 +52,11 @@ def test_the_scan_shard_reads_with_plain_h5py_as_the_format_document_shows(manif
         assert np.allclose(origin, [0.0, 0.0, f.attrs["trajectory_altitude_m"]])
         rot = f["sensor_attitude"][0]
         assert np.allclose(rot @ rot.T, np.eye(3), atol=1e-12)
-        assert [x.decode() if isinstance(x, bytes) else x for x in f["split"].attrs["names"]] == ["train", "val", "test"]
+        assert [x.decode() if isinstance(x, bytes) else x for x in f["split"].attrs["names"]] == [
+            "train",
+            "val",
+            "test",
+        ]
         assert sorted(f["split"][:].tolist()) == [0, 1, 2]  # one scan per split
         assert f["points_clean"].fletcher32 and f["points_clean"].chunks == (1, 24, 24, 3)
 
@@ -95,8 +99,9 @@ def test_every_listed_file_matches_the_manifest_and_hd_reads_it(manifest, tmp_pa
     assert verify_dataset(copy, known_schemas={LABEL_SCHEMA: LABEL_SCHEMA_VERSION}) == []
     with open_scan_shard(copy, manifest["shards"][0]) as reader:
         assert len(reader) == 3 and reader.sigmas_m == (0.0167, 0.07)
-        assert [reader[k].split for k in range(3)] == [["train", "val", "test"][int(c)] for c in
-                                                       h5py.File(GOLDEN / SCAN_SHARD, "r")["split"][:]]
+        assert [reader[k].split for k in range(3)] == [
+            ["train", "val", "test"][int(c)] for c in h5py.File(GOLDEN / SCAN_SHARD, "r")["split"][:]
+        ]
     with LabelShardReader(copy / manifest["labelings"][0]["shards"][0]["path"]) as reader:
         assert len(reader) == 3
 
@@ -112,9 +117,16 @@ def _layout(path: Path) -> dict[str, Any]:
     with h5py.File(path, "r") as f:
         out["/"] = attrs(f)
         for name, d in f.items():
-            out[name] = {"dtype": str(d.dtype), "shape": d.shape, "chunks": d.chunks, "compression": d.compression,
-                         "compression_opts": d.compression_opts, "shuffle": d.shuffle, "fletcher32": d.fletcher32,
-                         "attrs": attrs(d)}
+            out[name] = {
+                "dtype": str(d.dtype),
+                "shape": d.shape,
+                "chunks": d.chunks,
+                "compression": d.compression,
+                "compression_opts": d.compression_opts,
+                "shuffle": d.shuffle,
+                "fletcher32": d.fletcher32,
+                "attrs": attrs(d),
+            }
     return out
 
 

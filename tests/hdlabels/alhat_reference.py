@@ -68,7 +68,9 @@ def reference_maps(dem: np.ndarray, spacing_m: float, lander: Lander) -> tuple[n
     yaws = [m * (2 * math.pi / n) / lander.n_yaws for m in range(lander.n_yaws)]
     band = math.ceil(r_body - 1e-9)
     reach = math.floor(r_body + 1e-9)
-    body = [(a, b) for a in range(-reach, reach + 1) for b in range(-reach, reach + 1) if a * a + b * b <= r_body**2 + 1e-9]
+    body = [
+        (a, b) for a in range(-reach, reach + 1) for b in range(-reach, reach + 1) if a * a + b * b <= r_body**2 + 1e-9
+    ]
     for i in range(band, h - band):
         for j in range(band, w - band):
             worst_tan, worst_rough = 0.0, 0.0

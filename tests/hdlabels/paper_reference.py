@@ -19,18 +19,29 @@ def pads_of(layout: str, r: int, theta: float) -> list[tuple[int, int]]:
     if layout == "square":
         c, s = int(r * math.cos(theta)), int(r * math.sin(theta))
         return [(s, -c), (c, s), (-s, c), (-c, -s)]
-    return [(int(r * math.sin(theta)), int(r * math.cos(theta + math.pi))),
-            (int(r * math.sin(theta + 2 * math.pi / 3)), int(r * math.cos(theta - math.pi / 3))),
-            (int(r * math.sin(theta - 2 * math.pi / 3)), int(r * math.cos(theta + math.pi / 3)))]
+    return [
+        (int(r * math.sin(theta)), int(r * math.cos(theta + math.pi))),
+        (int(r * math.sin(theta + 2 * math.pi / 3)), int(r * math.cos(theta - math.pi / 3))),
+        (int(r * math.sin(theta - 2 * math.pi / 3)), int(r * math.cos(theta + math.pi / 3))),
+    ]
 
 
 def left_of(p: tuple[float, float], a: tuple[float, float], b: tuple[float, float]) -> bool:
     return (b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0]) > 0
 
 
-def reference(dem: np.ndarray, spacing: float, layout: str = "square", sigma: float = 0.0, combine: str = "product",
-              holes: bool = False, diameter: float = 10.0, pad: float = 1.0, max_slope_deg: float = 10.0,
-              max_rough: float = 0.2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def reference(
+    dem: np.ndarray,
+    spacing: float,
+    layout: str = "square",
+    sigma: float = 0.0,
+    combine: str = "product",
+    holes: bool = False,
+    diameter: float = 10.0,
+    pad: float = 1.0,
+    max_slope_deg: float = 10.0,
+    max_rough: float = 0.2,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(label uint8 with 255 invalid, P(safe) float with NaN invalid, slope rad) of every site."""
     h, w = dem.shape
     n_pad, n_body = int(pad / 2 / spacing), int(diameter / 2 / spacing)
@@ -45,9 +56,16 @@ def reference(dem: np.ndarray, spacing: float, layout: str = "square", sigma: fl
             worst_slope, worst_rough, p_min = -1.0, 0.0, 1.0
             for theta in thetas:
                 pads = pads_of(layout, r, theta)
-                z = [max(dem[i + a + u, j + b + v] for u in range(-n_pad, n_pad + 1) for v in range(-n_pad, n_pad + 1)
-                         if u * u + v * v <= n_pad * n_pad) for a, b in pads]
-                p3 = [(a * spacing, b * spacing, zz) for (a, b), zz in zip(pads, z)]
+                z = [
+                    max(
+                        dem[i + a + u, j + b + v]
+                        for u in range(-n_pad, n_pad + 1)
+                        for v in range(-n_pad, n_pad + 1)
+                        if u * u + v * v <= n_pad * n_pad
+                    )
+                    for a, b in pads
+                ]
+                p3 = [(a * spacing, b * spacing, zz) for (a, b), zz in zip(pads, z, strict=True)]
                 v1 = np.subtract(p3[1], p3[0])
                 v2 = np.subtract(p3[2], p3[0])
                 normal = np.cross(v1, v2)

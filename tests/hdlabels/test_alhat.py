@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from hdlabels.alhat import HazardMaps, hazard_maps, probability_from_maps, safety_probability, valid_sites
+from hdlabels.alhat import Backend, HazardMaps, hazard_maps, probability_from_maps, safety_probability, valid_sites
 from hdlabels.defaults import LABEL_INVALID, LABEL_SAFE, LABEL_UNSAFE
 from hdlabels.errors import HdLabelsError
 from hdlabels.lander import Lander
@@ -31,7 +31,7 @@ def offsets_from(centre: tuple[int, int], n: int = N) -> tuple[np.ndarray, np.nd
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
-def test_flat_plane_every_valid_site_safe(backend: str) -> None:
+def test_flat_plane_every_valid_site_safe(backend: Backend) -> None:
     maps = hazard_maps(np.full((N, N), -1234.5), 1.0, backend=backend)
     assert maps.slope_rad.dtype == np.float32 and maps.roughness_m.dtype == np.float32
     assert maps.label.dtype == np.uint8
@@ -44,7 +44,7 @@ def test_flat_plane_every_valid_site_safe(backend: str) -> None:
 @pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize(("slope_deg", "expected"), [(5.0, LABEL_SAFE), (15.0, LABEL_UNSAFE)])
 @pytest.mark.parametrize("azimuth_deg", [0.0, 30.0, 77.0])
-def test_tilted_plane_slope_recovered(backend: str, slope_deg: float, expected: int, azimuth_deg: float) -> None:
+def test_tilted_plane_slope_recovered(backend: Backend, slope_deg: float, expected: int, azimuth_deg: float) -> None:
     maps = hazard_maps(plane(slope_deg, azimuth_deg), 1.0, HD, backend=backend)
     valid = maps.label != LABEL_INVALID
     # Every pad is lifted by the same r |grad z| cos(angle to the nearest rim sample), so the
@@ -65,7 +65,7 @@ def test_border_band_is_invalid() -> None:
 
 @pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("base_tilt_deg", [0.0, 3.0])
-def test_single_boulder_unsafe_exactly_within_body_reach(backend: str, base_tilt_deg: float) -> None:
+def test_single_boulder_unsafe_exactly_within_body_reach(backend: Backend, base_tilt_deg: float) -> None:
     dem = plane(base_tilt_deg)
     dem[20, 20] += 0.5  # a 0.5 m boulder on one node
     maps = hazard_maps(dem, 1.0, HD, backend=backend)
@@ -81,11 +81,13 @@ def test_single_boulder_unsafe_exactly_within_body_reach(backend: str, base_tilt
     assert np.all(maps.label[within] == LABEL_UNSAFE)
     assert np.all(maps.label[valid & ~within] == LABEL_SAFE)
     assert np.all(maps.roughness_m[within] > 0.45 * math.cos(math.radians(base_tilt_deg)))
-    assert np.nanmax(np.degrees(maps.slope_rad)) < base_tilt_deg + math.degrees(math.atan(0.5 * math.sqrt(2) / 9)) + 0.01
+    assert (
+        np.nanmax(np.degrees(maps.slope_rad)) < base_tilt_deg + math.degrees(math.atan(0.5 * math.sqrt(2) / 9)) + 0.01
+    )
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
-def test_pit_under_one_pad_tips_the_lander(backend: str) -> None:
+def test_pit_under_one_pad_tips_the_lander(backend: Backend) -> None:
     # One yaw (0): pad 0 at 4.5 m east of the site, pads 1, 3 north/south, pad 2 west.
     lander = Lander(convention="hd", n_yaws=1)
     dem = np.zeros((N, N))
@@ -102,7 +104,7 @@ def test_pit_under_one_pad_tips_the_lander(backend: str) -> None:
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
-def test_pit_between_the_pads_counts_only_with_count_holes(backend: str) -> None:
+def test_pit_between_the_pads_counts_only_with_count_holes(backend: Backend) -> None:
     dem = np.zeros((N, N))
     di, dj = offsets_from((20, 20))
     dem[di**2 + dj**2 <= 4] = -0.5  # pit of radius 2 m, 0.5 m deep, centred on the site
@@ -116,7 +118,7 @@ def test_pit_between_the_pads_counts_only_with_count_holes(backend: str) -> None
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
-def test_single_node_hole_unsafe_within_reach_only_when_holes_count(backend: str) -> None:
+def test_single_node_hole_unsafe_within_reach_only_when_holes_count(backend: Backend) -> None:
     dem = plane(0.0)
     dem[20, 20] -= 0.5
     di, dj = offsets_from((20, 20))
@@ -132,7 +134,7 @@ def test_single_node_hole_unsafe_within_reach_only_when_holes_count(backend: str
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
-def test_nan_cell_invalidates_its_footprint_reach(backend: str) -> None:
+def test_nan_cell_invalidates_its_footprint_reach(backend: Backend) -> None:
     dem = plane(2.0)
     dem[20, 20] = np.nan
     maps = hazard_maps(dem, 1.0, HD, backend=backend)
@@ -164,7 +166,7 @@ def test_triangle_lander_on_tilted_plane() -> None:
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
-def test_safety_probability_limits(backend: str) -> None:
+def test_safety_probability_limits(backend: Backend) -> None:
     p_flat = safety_probability(plane(0.0), 1.0, 1e-3, HD, backend=backend)
     valid = ~np.isnan(p_flat)
     assert valid.sum() == 30 * 30 and p_flat.dtype == np.float32
@@ -217,11 +219,11 @@ def test_bad_sigma_and_backend() -> None:
     with pytest.raises(HdLabelsError, match="sigma"):
         safety_probability(plane(0.0), 1.0, -0.1, HD)
     with pytest.raises(HdLabelsError, match="back end"):
-        hazard_maps(plane(0.0), 1.0, HD, backend="fortran")  # type: ignore[arg-type]
+        hazard_maps(plane(0.0), 1.0, HD, backend="fortran")  # type: ignore[arg-type]  # the point: refused
 
 
 def test_hazard_maps_is_a_frozen_record() -> None:
     maps = hazard_maps(plane(0.0), 1.0, HD)
     assert isinstance(maps, HazardMaps)
     with pytest.raises(AttributeError):
-        maps.label = None  # type: ignore[misc]
+        maps.label = None  # type: ignore[misc, assignment]  # the point: a frozen record refuses it

@@ -2,14 +2,14 @@
 
 from __future__ import annotations
 
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 import pytest
 from alhat_reference import reference_maps
 from scipy.ndimage import gaussian_filter
 
-from hdlabels.alhat import hazard_maps
+from hdlabels.alhat import Backend, hazard_maps
 from hdlabels.defaults import LABEL_INVALID
 from hdlabels.lander import Lander
 
@@ -22,7 +22,7 @@ def rough_terrain(seed: int, n: int = 30) -> np.ndarray:
     return hills + rocks + rng.normal(0.0, 0.01, (n, n))
 
 
-@lru_cache(maxsize=None)
+@cache
 def reference_for(lander: Lander) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Loop-reference maps of ``rough_terrain(3)``, computed once per lander for both back ends."""
     return reference_maps(rough_terrain(3), 1.0, lander)
@@ -31,10 +31,15 @@ def reference_for(lander: Lander) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 @pytest.mark.parametrize("backend", ["numpy", "numba"])
 @pytest.mark.parametrize(
     "lander",
-    [Lander(convention="hd"), Lander(convention="hd", count_holes=True), Lander(convention="hd", layout="triangle", n_yaws=5), Lander(convention="hd", max_roughness_m=0.1, n_yaws=3)],
+    [
+        Lander(convention="hd"),
+        Lander(convention="hd", count_holes=True),
+        Lander(convention="hd", layout="triangle", n_yaws=5),
+        Lander(convention="hd", max_roughness_m=0.1, n_yaws=3),
+    ],
     ids=["default", "holes", "triangle", "strict"],
 )
-def test_fast_equals_loop_reference(backend: str, lander: Lander) -> None:
+def test_fast_equals_loop_reference(backend: Backend, lander: Lander) -> None:
     slope, rough, label = reference_for(lander)
     maps = hazard_maps(rough_terrain(3), 1.0, lander, backend=backend)
     assert np.array_equal(maps.label, label)
@@ -49,7 +54,7 @@ def test_fast_equals_reference_with_nan_and_other_spacing() -> None:
     dem = rough_terrain(5, n=36)
     dem[17, 12] = np.nan
     lander = Lander(convention="hd", diameter_m=8.0, pad_diameter_m=0.8)
-    slope, rough, label = reference_maps(np.nan_to_num(dem), 0.8, lander)
+    _slope, rough, label = reference_maps(np.nan_to_num(dem), 0.8, lander)
     maps = hazard_maps(dem, 0.8, lander)
     ok = maps.label != LABEL_INVALID
     assert ok.sum() > 100 and not ok[17, 12]

@@ -59,7 +59,8 @@ def test_paper_mask_is_the_paper_footprint_around_each_dropped_pixel() -> None:
     # (0, +-5), the others within Chebyshev 4 and |di| + |dj| <= 6 ((4, 2), (3, 3), ...), and the
     # nodes strictly inside those squares, which lie in the same region.
     expected = ((np.maximum(abs(di), abs(dj)) <= 4) & (abs(di) + abs(dj) <= 6)) | (
-        (abs(di) + abs(dj) == 5) & (di * dj == 0))
+        (abs(di) + abs(dj) == 5) & (di * dj == 0)
+    )
     assert np.array_equal(mask, expected)
 
 

@@ -103,8 +103,12 @@ def test_backends_agree_on_rough_scan_with_missing_returns() -> None:
 
 @pytest.mark.parametrize(
     ("points", "shape", "spacing"),
-    [(np.zeros((10, 10)), (5, 5), 1.0), (np.zeros((1, 10, 3)), (5, 5), 1.0), (np.zeros((4, 4, 3)), (0, 5), 1.0),
-     (np.zeros((4, 4, 3)), (5, 5), 0.0)],
+    [
+        (np.zeros((10, 10)), (5, 5), 1.0),
+        (np.zeros((1, 10, 3)), (5, 5), 1.0),
+        (np.zeros((4, 4, 3)), (0, 5), 1.0),
+        (np.zeros((4, 4, 3)), (5, 5), 0.0),
+    ],
 )
 def test_bad_input_is_one_line_error(points: np.ndarray, shape: tuple[int, int], spacing: float) -> None:
     with pytest.raises(HdLabelsError) as info:

@@ -6,15 +6,14 @@ import math
 
 import numpy as np
 import pytest
+from paper_reference import reference
 from scipy.special import ndtr
 
-from hdlabels.alhat import hazard_and_probability, hazard_maps, safety_probability, valid_sites
+from hdlabels.alhat import Backend, hazard_and_probability, hazard_maps, safety_probability, valid_sites
 from hdlabels.defaults import LABEL_INVALID, LABEL_SAFE, LABEL_UNSAFE
 from hdlabels.errors import HdLabelsError
 from hdlabels.lander import Lander, geometry
 from hdlabels.paper_geometry import distinct_polygons, orientations_rad, pad_offsets, strictly_inside
-
-from paper_reference import reference
 
 BACKENDS = ["numpy", "numba"]
 PAPER = Lander()  # the default lander is the paper convention with the product baseline
@@ -35,19 +34,31 @@ def test_default_lander_is_the_paper_convention() -> None:
     assert attrs["convention"] == "paper" and attrs["orientation_step_deg"] == 10.0 and "n_yaws" not in attrs
     assert Lander.from_attrs(attrs) == PAPER
     # records from before conventions existed are the hd convention with the worst-node baseline
-    old = {"diameter_m": 10.0, "pad_diameter_m": 1.0, "max_slope_deg": 10.0, "max_roughness_m": 0.2,
-           "layout": "square", "n_yaws": 8, "count_holes": False, "n_pads": 4, "yaw_step_deg": 11.25}
+    old = {
+        "diameter_m": 10.0,
+        "pad_diameter_m": 1.0,
+        "max_slope_deg": 10.0,
+        "max_roughness_m": 0.2,
+        "layout": "square",
+        "n_yaws": 8,
+        "count_holes": False,
+        "n_pads": 4,
+        "yaw_step_deg": 11.25,
+    }
     assert Lander.from_attrs(old) == Lander(convention="hd")
 
 
 def test_the_36_orientations_give_7_squares_of_pixel_pads() -> None:
     assert len(orientations_rad()) == 36
-    # hand: c = trunc(5 cos t), s = trunc(5 sin t) for t = 0..80 deg: (5,0) (4,0) (4,1) (4,2) (3,3) (3,3) (2,4) (1,4) (0,4)
+    # hand: c = trunc(5 cos t), s = trunc(5 sin t) for t = 0..80 deg:
+    # (5,0) (4,0) (4,1) (4,2) (3,3) (3,3) (2,4) (1,4) (0,4)
     assert pad_offsets("square", 5, math.radians(20)) == ((1, -4), (4, 1), (-1, 4), (-4, -1))
     squares = distinct_polygons("square", 5)
     assert len(squares) == 7  # (3,3) twice; (0,4) is (4,0) turned by 90 degrees
-    assert {frozenset(p) for p in squares} >= {frozenset({(0, -5), (5, 0), (0, 5), (-5, 0)}),
-                                               frozenset({(3, -3), (3, 3), (-3, 3), (-3, -3)})}
+    assert {frozenset(p) for p in squares} >= {
+        frozenset({(0, -5), (5, 0), (0, 5), (-5, 0)}),
+        frozenset({(3, -3), (3, 3), (-3, 3), (-3, -3)}),
+    }
     geo = geometry(PAPER, 1.0)
     counts = [geo.nodes(m)[0].size for m in range(geo.n_yaws)]
     # strictly inside |di| + |dj| < 5: 41 nodes; inside the axis-aligned 6 m square: 5 x 5 = 25.
@@ -71,7 +82,7 @@ def test_lander_too_small_for_the_grid_is_refused() -> None:
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
-def test_flat_plane_all_safe_and_probability_by_hand(backend: str) -> None:
+def test_flat_plane_all_safe_and_probability_by_hand(backend: Backend) -> None:
     dem = np.full((N, N), 12.5)
     maps, p = hazard_and_probability(dem, 1.0, 0.07, PAPER, backend=backend)
     valid = maps.valid
@@ -82,7 +93,7 @@ def test_flat_plane_all_safe_and_probability_by_hand(backend: str) -> None:
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
-def test_product_and_min_disagree_on_a_flat_noisy_plane(backend: str) -> None:
+def test_product_and_min_disagree_on_a_flat_noisy_plane(backend: Backend) -> None:
     dem = np.zeros((N, N))
     sigma = 0.1  # u = 2 at every node: Phi(2) = 0.97725 per node
     product = safety_probability(dem, 1.0, sigma, PAPER, backend=backend)
@@ -96,7 +107,7 @@ def test_product_and_min_disagree_on_a_flat_noisy_plane(backend: str) -> None:
 @pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize(("slope_deg", "expected"), [(5.0, LABEL_SAFE), (15.0, LABEL_UNSAFE)])
 @pytest.mark.parametrize("azimuth_deg", [0.0, 30.0, 77.0])
-def test_tilted_plane_slope_exact(backend: str, slope_deg: float, expected: int, azimuth_deg: float) -> None:
+def test_tilted_plane_slope_exact(backend: Backend, slope_deg: float, expected: int, azimuth_deg: float) -> None:
     maps = hazard_maps(plane(slope_deg, azimuth_deg), 1.0, PAPER, backend=backend)
     valid = maps.valid
     # Pads sit on nodes of the plane: every resting plane is the terrain plane itself.
@@ -104,11 +115,13 @@ def test_tilted_plane_slope_exact(backend: str, slope_deg: float, expected: int,
     assert np.all(maps.roughness_m[valid] < 1e-4)
     assert np.all(maps.label[valid] == expected)
     p = safety_probability(plane(slope_deg, azimuth_deg), 1.0, 0.03, PAPER, backend=backend)
-    assert np.all((p[valid] > 0.99) == (expected == LABEL_SAFE)) and np.all((p[valid] == 0) == (expected == LABEL_UNSAFE))
+    assert np.all((p[valid] > 0.99) == (expected == LABEL_SAFE)) and np.all(
+        (p[valid] == 0) == (expected == LABEL_UNSAFE)
+    )
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
-def test_a_rock_counts_only_strictly_inside_the_pad_polygon(backend: str) -> None:
+def test_a_rock_counts_only_strictly_inside_the_pad_polygon(backend: Backend) -> None:
     dem = np.zeros((N, N))
     dem[15, 15] = 0.3  # a 0.3 m rock on one node
     paper = hazard_maps(dem, 1.0, PAPER, backend=backend)
@@ -128,7 +141,7 @@ def test_a_rock_counts_only_strictly_inside_the_pad_polygon(backend: str) -> Non
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
-def test_border_band_and_nan_cells_are_invalid(backend: str) -> None:
+def test_border_band_and_nan_cells_are_invalid(backend: Backend) -> None:
     dem = plane(2.0)
     dem[15, 15] = np.nan
     maps = hazard_maps(dem, 1.0, PAPER, backend=backend)
@@ -143,15 +156,15 @@ def test_border_band_and_nan_cells_are_invalid(backend: str) -> None:
 
 
 CASES = [
-    dict(layout="square", combine="product", holes=False, sigma=0.05),
-    dict(layout="square", combine="min", holes=True, sigma=0.03),
-    dict(layout="triangle", combine="product", holes=False, sigma=0.07),
+    {"layout": "square", "combine": "product", "holes": False, "sigma": 0.05},
+    {"layout": "square", "combine": "min", "holes": True, "sigma": 0.03},
+    {"layout": "triangle", "combine": "product", "holes": False, "sigma": 0.07},
 ]
 
 
 @pytest.mark.parametrize("case", CASES, ids=lambda c: f"{c['layout']}-{c['combine']}")
 @pytest.mark.parametrize("backend", BACKENDS)
-def test_matches_the_literal_36_orientation_replica(case: dict, backend: str) -> None:
+def test_matches_the_literal_36_orientation_replica(case: dict, backend: Backend) -> None:
     rng = np.random.default_rng(21)
     n = 22
     dem = rng.normal(0.0, 0.06, (n, n)) + 0.02 * np.arange(n)[None, :]
@@ -171,7 +184,7 @@ def test_matches_the_literal_36_orientation_replica(case: dict, backend: str) ->
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
-def test_half_metre_grid_uses_pixel_disk_pads(backend: str) -> None:
+def test_half_metre_grid_uses_pixel_disk_pads(backend: Backend) -> None:
     rng = np.random.default_rng(3)
     n = 26  # 0.5 m: lander radius 10 px, pad radius 1 px (5-node pad disks), pad circle 9 px
     dem = rng.normal(0.0, 0.04, (n, n))

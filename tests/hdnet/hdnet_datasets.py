@@ -15,9 +15,9 @@ from rasterio.transform import from_origin
 from scipy import ndimage
 
 from hdlabels.labeling import label_dataset
-from lidarsim.shards import read_manifest, sha256_file, write_json_atomic
 from lidarsim.build import BuildConfig, build_dataset
 from lidarsim.sensor import SensorConfig
+from lidarsim.shards import read_manifest, sha256_file, write_json_atomic
 from lidarsim.trajectory import TrajectoryConfig
 
 SIGMAS_M = (0.0167, 0.07)
@@ -32,8 +32,16 @@ def hills_dtm(path: Path, n: int = 400, relief_m: float = 2.0, seed: int = 3) ->
     idx = rng.integers(0, n, (60, 2))
     rocks[idx[:, 0], idx[:, 1]] = 1.0
     z += ndimage.gaussian_filter(rocks, 1.5) * 8.0
-    with rasterio.open(path, "w", driver="GTiff", width=n, height=n, count=1, dtype="float32",
-                       transform=from_origin(1000.0, 2000.0, 1.0, 1.0)) as dst:
+    with rasterio.open(
+        path,
+        "w",
+        driver="GTiff",
+        width=n,
+        height=n,
+        count=1,
+        dtype="float32",
+        transform=from_origin(1000.0, 2000.0, 1.0, 1.0),
+    ) as dst:
         dst.write(z.astype(np.float32), 1)
     return path
 
@@ -43,8 +51,13 @@ def build_labelled(root: Path, n_scans: int = 20, sigmas_m: tuple[float, ...] = 
     root.mkdir(parents=True, exist_ok=True)
     dtm = hills_dtm(root / "hills.tif")
     out = root / "dataset"
-    config = BuildConfig(sigmas_m=sigmas_m, sensor=SensorConfig(rows=48, cols=48),
-                         trajectory=TrajectoryConfig(n_scans=n_scans, altitude_m=500.0), dtm_path=str(dtm), shard_size=10)
+    config = BuildConfig(
+        sigmas_m=sigmas_m,
+        sensor=SensorConfig(rows=48, cols=48),
+        trajectory=TrajectoryConfig(n_scans=n_scans, altitude_m=500.0),
+        dtm_path=str(dtm),
+        shard_size=10,
+    )
     build_dataset(out, config, workers=1)
     if label:
         label_dataset(out, workers=1)

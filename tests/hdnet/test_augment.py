@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import pytest
@@ -45,9 +45,9 @@ def test_the_eight_elements_are_distinct_and_invertible() -> None:
         d4(a, 8)
 
 
-@pytest.mark.parametrize("convention,n_yaws", [("paper", 8), ("hd", 8), ("hd", 3)])
-def test_square_lander_labels_are_invariant_under_d4(convention: str, n_yaws: int) -> None:
-    lander = Lander(diameter_m=6.0, pad_diameter_m=1.0, layout="square", n_yaws=n_yaws, convention=convention)  # type: ignore[arg-type]
+@pytest.mark.parametrize(("convention", "n_yaws"), [("paper", 8), ("hd", 8), ("hd", 3)])
+def test_square_lander_labels_are_invariant_under_d4(convention: Literal["paper", "hd"], n_yaws: int) -> None:
+    lander = Lander(diameter_m=6.0, pad_diameter_m=1.0, layout="square", n_yaws=n_yaws, convention=convention)
     dem = _terrain()
     label = hazard_maps(dem, 1.0, lander, backend="numpy").label
     assert {0, 1} <= set(np.unique(label).tolist())  # both classes present: the check can fail
@@ -58,13 +58,21 @@ def test_square_lander_labels_are_invariant_under_d4(convention: str, n_yaws: in
 
 
 @pytest.mark.parametrize("convention", ["paper", "hd"])
-def test_a_triangle_lander_is_not_invariant_and_is_refused(convention: str) -> None:
-    lander = Lander(diameter_m=6.0, pad_diameter_m=1.0, layout="triangle", convention=convention,  # type: ignore[arg-type]
-                    n_yaws=1 if convention == "hd" else 8)
+def test_a_triangle_lander_is_not_invariant_and_is_refused(convention: Literal["paper", "hd"]) -> None:
+    lander = Lander(
+        diameter_m=6.0,
+        pad_diameter_m=1.0,
+        layout="triangle",
+        convention=convention,
+        n_yaws=1 if convention == "hd" else 8,
+    )
     dem = _terrain()
     label = hazard_maps(dem, 1.0, lander, backend="numpy").label
-    changed = [k for k in range(D4_ORDER)
-               if (hazard_maps(np.ascontiguousarray(d4(dem, k)), 1.0, lander, backend="numpy").label != d4(label, k)).any()]
+    changed = [
+        k
+        for k in range(D4_ORDER)
+        if (hazard_maps(np.ascontiguousarray(d4(dem, k)), 1.0, lander, backend="numpy").label != d4(label, k)).any()
+    ]
     if convention == "hd":
         assert changed  # three pads at 0/120/240 deg turned by 90 deg are other pads
     assert not label_is_d4_invariant(lander)

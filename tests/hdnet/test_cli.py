@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
+from hdnet_datasets import build_labelled
 
 from cli import main
-from hdnet_datasets import build_labelled
 
 
 @pytest.fixture(scope="module")
@@ -25,8 +25,10 @@ def test_train_then_eval_writes_the_report(dataset, tmp_path):
     assert (run / "last.pt").is_file() and (run / "metrics.csv").is_file()
     again = runner.invoke(main, ["train", str(dataset), "--out", str(run), "--profile", "tiny", "--epochs", "1"])
     assert again.exit_code != 0 and "resume" in again.output  # an existing run is never overwritten
-    result = runner.invoke(main, ["eval", str(run), "--data", str(dataset), "--out", str(report),
-                                  "--mc-samples", "2", "--drop-pixels", "3"])
+    result = runner.invoke(
+        main,
+        ["eval", str(run), "--data", str(dataset), "--out", str(report), "--mc-samples", "2", "--drop-pixels", "3"],
+    )
     assert result.exit_code == 0, result.output
     assert "uncertainty_aware" in result.output
     rows = json.loads((report / "report.json").read_text())["rows"]
@@ -34,15 +36,21 @@ def test_train_then_eval_writes_the_report(dataset, tmp_path):
     assert (report / "report.md").is_file()
 
 
-@pytest.mark.parametrize("args,needle", [
-    (["--mc-samples", "0"], "M"),
-    (["--drop-pixels", "-1"], "drop"),
-    (["--threshold", "risk:1.5"], "alpha"),
-])
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["--mc-samples", "0"], "M"),
+        (["--drop-pixels", "-1"], "drop"),
+        (["--threshold", "risk:1.5"], "alpha"),
+    ],
+)
 def test_eval_bad_options_are_one_line_errors(dataset, tmp_path, args, needle):
     runner = CliRunner()
     run = tmp_path / "run"
-    assert runner.invoke(main, ["train", str(dataset), "--out", str(run), "--profile", "tiny", "--epochs", "1"]).exit_code == 0
+    assert (
+        runner.invoke(main, ["train", str(dataset), "--out", str(run), "--profile", "tiny", "--epochs", "1"]).exit_code
+        == 0
+    )
     result = runner.invoke(main, ["eval", str(run), "--data", str(dataset), "--out", str(tmp_path / "r"), *args])
     assert result.exit_code != 0 and "Traceback" not in result.output
     assert result.output.strip().splitlines()[-1].startswith("Error: ")

@@ -75,6 +75,7 @@ def test_padded_sample_matches_the_label_shard(dataset):
     assert s["index"] == raw["scan"][0]
     assert (s["mask"][100:] == 255).all() and (s["mask"][:, 100:] == 255).all()
     np.testing.assert_array_equal(s["mask"][:100, :100].numpy(), raw["label"][0])  # no holes in this terrain
+    assert ds.normalisation is not None
     expected = ds.normalisation.apply(raw["noisy"][0])
     np.testing.assert_allclose(s["image"][0, :100, :100].numpy(), expected, rtol=0, atol=1e-6)
     # edge replication in the padding
@@ -96,9 +97,13 @@ def test_resized_sample_round_trips_to_the_dem_grid(dataset):
     np.testing.assert_allclose(ds.to_dem_grid(probs).sum(1).numpy(), 1.0, atol=1e-6)
     np.testing.assert_allclose(to_dem_grid(torch.full((1, 2, 512, 512), 0.5), (100, 100), 512).numpy(), 0.5)
     # padding is undone by cropping
-    pad_img, (pad_mask,) = to_network_grid(torch.arange(1e4).view(1, 100, 100), [torch.zeros(100, 100, dtype=torch.int64)], None, [255])
+    pad_img, (pad_mask,) = to_network_grid(
+        torch.arange(1e4).view(1, 100, 100), [torch.zeros(100, 100, dtype=torch.int64)], None, [255]
+    )
     assert pad_img.shape == (1, 128, 128) and int(pad_mask.sum()) == 255 * (128 * 128 - 100 * 100)
-    np.testing.assert_array_equal(to_dem_grid(pad_img[None], (100, 100), None)[0, 0].numpy(), np.arange(1e4).reshape(100, 100))
+    np.testing.assert_array_equal(
+        to_dem_grid(pad_img[None], (100, 100), None)[0, 0].numpy(), np.arange(1e4).reshape(100, 100)
+    )
 
 
 def test_fill_holes_takes_the_nearest_finite_value():
@@ -135,7 +140,9 @@ def test_dead_pixels_repair_the_dem_and_give_an_ignore_mask(dataset):
     s = dead_hi[0]
     assert s["ignore"].shape == (160, 160) and s["ignore"].dtype == torch.bool and s["ignore"].any()
     assert "ignore" not in plain[0]
-    assert not np.array_equal(HazardDataset(dataset, "test", 0.0167, dead_pixels=10, seed=5).dem_sample(0).dead_pixels, b.dead_pixels)
+    assert not np.array_equal(
+        HazardDataset(dataset, "test", 0.0167, dead_pixels=10, seed=5).dem_sample(0).dead_pixels, b.dead_pixels
+    )
 
 
 def test_pickles_without_open_files_and_works_with_worker_processes(dataset):

@@ -46,8 +46,8 @@ from hdnet.detect import (
     select_sites,
 )
 from hdnet.errors import HdNetError
-from hdnet.evaluate import evaluate
-from hdnet.fit import fit
+from hdnet.evaluate import EvalConfig, evaluate
+from hdnet.fit import FitConfig, fit
 from hdnet.infer import mc_dropout_predict
 from hdnet.train import save_checkpoint
 from lidarsim.errors import TerrainError
@@ -64,7 +64,7 @@ def trained(tmp_path_factory):
     root = tmp_path_factory.mktemp("detect")
     dataset = build_labelled(root / "data")
     run = root / "run"
-    fit(dataset, run, profile_name="tiny", epochs=1, progress=False)
+    fit(dataset, run, FitConfig(profile="tiny", epochs=1, progress=False))
     ckpt = torch.load(run / "last.pt", weights_only=True)
     ckpt["model"]["classifier.weight"].zero_()
     ckpt["model"]["classifier.bias"] = torch.tensor([-3.0, 3.0])  # P(safe) = sigmoid(6) everywhere
@@ -74,8 +74,15 @@ def trained(tmp_path_factory):
 
 
 def write_dtm(path: Path, z: np.ndarray, spacing: float, origin=(1000.0, 2000.0), crs=None, nodata=None) -> Path:
-    profile = {"driver": "GTiff", "width": z.shape[1], "height": z.shape[0], "count": 1, "dtype": "float32",
-               "transform": from_origin(origin[0], origin[1], spacing, spacing), "nodata": nodata}
+    profile = {
+        "driver": "GTiff",
+        "width": z.shape[1],
+        "height": z.shape[0],
+        "count": 1,
+        "dtype": "float32",
+        "transform": from_origin(origin[0], origin[1], spacing, spacing),
+        "nodata": nodata,
+    }
     if crs is not None:
         profile["crs"] = crs
     with rasterio.open(path, "w", **profile) as dst:
@@ -98,8 +105,14 @@ def read(path: Path) -> tuple[np.ndarray, rasterio.DatasetReader]:
 def profile_of(path: Path) -> dict:
     with rasterio.open(path) as src:
         t, (h, w) = src.transform, src.shape
-        return {"crs": src.crs, "transform": t, "shape": (h, w), "bounds": (t.c, t.f + t.e * h, t.c + t.a * w, t.f),
-                "dtype": src.dtypes[0], "nodata": src.nodata}
+        return {
+            "crs": src.crs,
+            "transform": t,
+            "shape": (h, w),
+            "bounds": (t.c, t.f + t.e * h, t.c + t.a * w, t.f),
+            "dtype": src.dtypes[0],
+            "nodata": src.nodata,
+        }
 
 
 def check_consistent_maps(out: Path, threshold_nats: float) -> dict[str, np.ndarray]:
@@ -123,7 +136,11 @@ def check_sites(out: Path, lander: Lander) -> list[dict]:
     rows = list(csv.DictReader((out / "sites.csv").open()))
     gj = json.loads((out / "sites.geojson").read_text())
     assert gj["type"] == "FeatureCollection" and len(gj["features"]) == len(rows)
-    assert list(rows[0].keys()) == list(SITE_COLUMNS) if rows else (out / "sites.csv").read_text().strip() == ",".join(SITE_COLUMNS)
+    assert (
+        list(rows[0].keys()) == list(SITE_COLUMNS)
+        if rows
+        else (out / "sites.csv").read_text().strip() == ",".join(SITE_COLUMNS)
+    )
     safety, src = read(out / "safety.tif")
     transform = src.transform
     dx, dy = transform.a, -transform.e
@@ -131,7 +148,7 @@ def check_sites(out: Path, lander: Lander) -> list[dict]:
     r = disk.shape[0] // 2
     bad_r, bad_c = np.nonzero(safety != SAFETY_SAFE)
     pos = []
-    for k, (row, feat) in enumerate(zip(rows, gj["features"])):
+    for k, (row, feat) in enumerate(zip(rows, gj["features"], strict=True)):
         assert int(row["rank"]) == k + 1 == feat["properties"]["rank"]
         x, y = float(row["x"]), float(row["y"])
         assert feat["geometry"] == {"type": "Point", "coordinates": [pytest.approx(x), pytest.approx(y)]}
@@ -152,11 +169,19 @@ def check_sites(out: Path, lander: Lander) -> list[dict]:
 
 
 # --- the contract with training and evaluation ------------------------------------------------------
-@pytest.mark.parametrize("change", [
-    {},  # the tiny profile: the paper's min-max heights, padding to 32
-    {"input_size": 64},  # the paper profile's bilinear resize
-    {"heights": "median", "normalisation": None, "extra_channels": ("slope", "highpass"), "size_multiple": 4},  # cpu
-])
+@pytest.mark.parametrize(
+    "change",
+    [
+        {},  # the tiny profile: the paper's min-max heights, padding to 32
+        {"input_size": 64},  # the paper profile's bilinear resize
+        {
+            "heights": "median",
+            "normalisation": None,
+            "extra_channels": ("slope", "highpass"),
+            "size_multiple": 4,
+        },  # cpu
+    ],
+)
 def test_network_input_is_exactly_the_training_input(trained, change):
     dataset, run_dir, _ = trained
     run = load_run(run_dir, CPU)
@@ -199,11 +224,16 @@ def test_scan_mode_is_the_evaluation_path(trained, tmp_path):
     result = detect(run_dir, out, dataset=dataset, scan=scan, sigma_m=0.07, threshold="nats:0.5", mc_samples=4, seed=3)
     assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUT_FILES)
     run = load_run(run_dir, CPU)
-    ds = next(d for d in (HazardDataset(dataset, s, 0.07, input_spec=run.input_spec) for s in ("train", "val", "test"))
-              if scan in d.scan_indices)
+    ds = next(
+        d
+        for d in (HazardDataset(dataset, s, 0.07, input_spec=run.input_spec) for s in ("train", "val", "test"))
+        if scan in d.scan_indices
+    )
     sample = ds.dem_sample(ds.scan_indices.index(scan))
     torch.manual_seed(3)
-    probs = to_dem_grid(mc_dropout_predict(run.model, ds.prepare(sample)["image"][None], n_samples=4).mean_probs, (100, 100), None)
+    probs = to_dem_grid(
+        mc_dropout_predict(run.model, ds.prepare(sample)["image"][None], n_samples=4).mean_probs, (100, 100), None
+    )
     maps = check_consistent_maps(out, 0.5)
     valid = maps["safety.tif"] != SAFETY_INVALID
     np.testing.assert_allclose(maps["p_safe.tif"][valid], probs[0, 1].numpy()[valid], rtol=0, atol=1e-6)
@@ -219,20 +249,26 @@ def test_scan_mode_is_the_evaluation_path(trained, tmp_path):
 
 def test_threshold_is_calibrated_as_hd_eval_does(trained, tmp_path):
     dataset, run_dir, _ = trained
-    report = evaluate(run_dir, dataset, tmp_path / "report", mc_samples=3, threshold="quantile:0.3", seed=5,
-                      batch_size=8, figures=False)
+    report = evaluate(run_dir, dataset, EvalConfig(mc_samples=3, threshold="quantile:0.3", seed=5, batch_size=8))
     dtm = write_dtm(tmp_path / "hill.tif", tilted_plane(40, 1.0, 3.0), 1.0)
     result = detect(run_dir, tmp_path / "out", dtm=dtm, mc_samples=3, threshold="quantile:0.3", seed=5)
     info = json.loads((tmp_path / "out" / "detect.json").read_text())["threshold"]
     assert result.threshold_nats == pytest.approx(report.threshold["value_nats"], rel=0, abs=0)
-    for key in ("spec", "mean_nats", "calibration_split", "calibration_sigma_m", "calibration_images", "calibration_pixels"):
+    for key in (
+        "spec",
+        "mean_nats",
+        "calibration_split",
+        "calibration_sigma_m",
+        "calibration_images",
+        "calibration_pixels",
+    ):
         assert info[key] == report.threshold[key]
     check_consistent_maps(tmp_path / "out", result.threshold_nats)
 
 
 # --- DTMs ---------------------------------------------------------------------------------------------
 @needs_real
-@pytest.mark.parametrize("name,crs", [("autzen-ground-1m.tif", None), ("ames-0.5m.tif", CRS.from_epsg(32610))])
+@pytest.mark.parametrize(("name", "crs"), [("autzen-ground-1m.tif", None), ("ames-0.5m.tif", CRS.from_epsg(32610))])
 def test_real_terrain_maps_cover_the_input_with_its_crs(trained, tmp_path, name, crs):
     _, run_dir, _ = trained
     out = tmp_path / "out"
@@ -246,7 +282,7 @@ def test_real_terrain_maps_cover_the_input_with_its_crs(trained, tmp_path, name,
     for f in MAP_FILES:
         prof = profile_of(out / f)
         assert prof["crs"] == crs and prof["dtype"] == ("uint8" if f == "safety.tif" else "float32")
-        for a, b in zip(prof["bounds"], src["bounds"]):
+        for a, b in zip(prof["bounds"], src["bounds"], strict=True):
             assert a == pytest.approx(b, abs=1e-6)  # the input's extent, exactly
         assert abs(prof["transform"].a - 1.0) <= 0.02 and abs(-prof["transform"].e - 1.0) <= 0.02  # run spacing
     maps = check_consistent_maps(out, result.threshold_nats)
@@ -261,9 +297,13 @@ def test_real_terrain_maps_cover_the_input_with_its_crs(trained, tmp_path, name,
         np.testing.assert_array_equal(safety == SAFETY_INVALID, expected)
     info = json.loads((out / "detect.json").read_text())
     assert calls[-1][0] == calls[-1][1] == info["tiling"]["n_tiles"]
-    assert info["counts"] == {"safe": int((safety == SAFETY_SAFE).sum()), "unsafe": int((safety == SAFETY_UNSAFE).sum()),
-                              "uncertain": int((safety == SAFETY_UNCERTAIN).sum()), "invalid": int((safety == SAFETY_INVALID).sum()),
-                              "baseline_safe": int((np.nan_to_num(maps["baseline_p_safe.tif"]) >= 0.5).sum())}
+    assert info["counts"] == {
+        "safe": int((safety == SAFETY_SAFE).sum()),
+        "unsafe": int((safety == SAFETY_UNSAFE).sum()),
+        "uncertain": int((safety == SAFETY_UNCERTAIN).sum()),
+        "invalid": int((safety == SAFETY_INVALID).sum()),
+        "baseline_safe": int((np.nan_to_num(maps["baseline_p_safe.tif"]) >= 0.5).sum()),
+    }
     assert info["input"]["sha256"] == sha256_file(REAL / name)
     assert info["input"]["scale"] == (1.0 if name.startswith("autzen") else 0.5)
     assert set(info["timings_s"]) >= {"calibration", "network", "baseline", "sites", "total"}
@@ -294,7 +334,7 @@ def test_procedural_terrain_constant_run_sites_by_hand(trained, tmp_path):
     assert profile_of(out / "safety.tif")["crs"] is None
 
 
-@pytest.mark.parametrize("slope_deg,safe", [(0.0, True), (5.0, True), (9.0, True), (11.0, False), (15.0, False)])
+@pytest.mark.parametrize(("slope_deg", "safe"), [(0.0, True), (5.0, True), (9.0, True), (11.0, False), (15.0, False)])
 def test_tilted_plane_baseline_is_all_safe_below_10_degrees_and_all_unsafe_above(trained, tmp_path, slope_deg, safe):
     _, _, constant = trained
     n = 150  # two tiles per axis
@@ -335,7 +375,10 @@ def test_hirise_pds3_at_1_01_m_keeps_its_mars_crs(trained, tmp_path):
     """A HiRISE-like PDS3 DTM (1.01 m, equirectangular Mars, NULL cells) is read as is, within the 2 % tolerance."""
     import importlib.util
 
-    spec = importlib.util.spec_from_file_location("terrain_files", Path(__file__).parents[1] / "lidarsim" / "terrain_files.py")
+    spec = importlib.util.spec_from_file_location(
+        "terrain_files", Path(__file__).parents[1] / "lidarsim" / "terrain_files.py"
+    )
+    assert spec is not None and spec.loader is not None
     terrain_files = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(terrain_files)
     z = tilted_plane(60, 1.01, 2.0).astype(np.float32) - 2000.0
@@ -422,7 +465,7 @@ def reference_sites(safety, p, lander, n):
                 mean = float(np.mean(p[i - r : i + r + 1, j - r : j + r + 1].astype(np.float64)[disk]))
                 clearance = float(np.sqrt(((bad - (i, j)) ** 2).sum(axis=1)).min())
                 scored.append((-round(mean, 3), -clearance, i, j, mean, clearance))
-    chosen = []
+    chosen: list[tuple[float, float, int, int, float, float]] = []
     for item in sorted(scored):
         if all(math.dist(item[2:4], c[2:4]) >= lander.diameter_m for c in chosen):
             chosen.append(item)
@@ -438,14 +481,19 @@ def test_select_sites_equals_the_plain_reference_on_random_maps(seed):
     smooth = ndimage.gaussian_filter(rng.normal(size=shape), 6)
     safety = np.where(smooth > np.quantile(smooth, 0.3), SAFETY_SAFE, SAFETY_UNSAFE).astype(np.uint8)
     safety[rng.random(shape) < 0.002] = SAFETY_UNCERTAIN
-    safety[:5], safety[-5:], safety[:, :5], safety[:, -5:] = SAFETY_INVALID, SAFETY_INVALID, SAFETY_INVALID, SAFETY_INVALID
+    safety[:5], safety[-5:], safety[:, :5], safety[:, -5:] = (
+        SAFETY_INVALID,
+        SAFETY_INVALID,
+        SAFETY_INVALID,
+        SAFETY_INVALID,
+    )
     p = (0.5 + 0.5 * ndimage.gaussian_filter(rng.random(shape), 3)).astype(np.float32)
     p[:, 45:] = np.round(p[:, 45:], 2)  # plateaus of equal P(safe): clearance decides there
     h = rng.random(shape).astype(np.float32)
     sites = select_sites(safety, p, h, p, from_origin(0, 70, 1, 1), (1.0, 1.0), Lander(), 12)
     expected = reference_sites(safety, p, Lander(), 12)
     assert len(sites) == len(expected) > 3
-    for s, (i, j, mean, clearance) in zip(sites, expected):
+    for s, (i, j, mean, clearance) in zip(sites, expected, strict=True):
         assert (s.row, s.col) == (i, j)
         assert s.p_safe == pytest.approx(mean, abs=1e-9) and s.clearance_m == pytest.approx(clearance, abs=1e-5)
         assert s.entropy_max == h[i - 5 : i + 6, j - 5 : j + 6][body_disk(Lander(), 1.0)].max()
@@ -506,7 +554,7 @@ BAD = [
 ]
 
 
-@pytest.mark.parametrize("args,needle", BAD)
+@pytest.mark.parametrize(("args", "needle"), BAD)
 def test_bad_input_is_one_line_and_writes_nothing(trained, terrains, tmp_path, args, needle):
     dataset, run_dir, _ = trained
     names = {**{k: str(v) for k, v in terrains.items()}, "dataset": str(dataset), "missing": str(tmp_path / "nope.tif")}
@@ -521,7 +569,9 @@ def test_bad_input_is_one_line_and_writes_nothing(trained, terrains, tmp_path, a
 def test_missing_run_and_occupied_out_are_refused(trained, terrains, tmp_path):
     _, run_dir, _ = trained
     runner = CliRunner()
-    result = runner.invoke(main, ["detect", str(tmp_path / "no-run"), "--dtm", str(terrains["ok"]), "--out", str(tmp_path / "o")])
+    result = runner.invoke(
+        main, ["detect", str(tmp_path / "no-run"), "--dtm", str(terrains["ok"]), "--out", str(tmp_path / "o")]
+    )
     assert result.exit_code == 1 and "does not exist" in result.output and not (tmp_path / "o").exists()
     occupied = tmp_path / "occupied"
     occupied.mkdir()
@@ -574,8 +624,10 @@ def test_a_run_without_its_dataset_needs_a_fixed_threshold(trained, terrains, tm
 def test_cli_detect_prints_a_summary(trained, terrains, tmp_path):
     _, run_dir, _ = trained
     out = tmp_path / "cli"
-    result = CliRunner().invoke(main, ["detect", str(run_dir), "--dtm", str(terrains["ok"]), "--out", str(out),
-                                       "--mc-samples", "2", "--sites", "3"])
+    result = CliRunner().invoke(
+        main,
+        ["detect", str(run_dir), "--dtm", str(terrains["ok"]), "--out", str(out), "--mc-samples", "2", "--sites", "3"],
+    )
     assert result.exit_code == 0, result.output
     assert "valid cells" in result.output and "detect.json" in result.output
     info = json.loads((out / "detect.json").read_text())

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import json
 import math
+import subprocess
+import sys
+from typing import Any
 
 import h5py
 import numpy as np
@@ -14,9 +17,10 @@ from hdnet_datasets import SIGMAS_M, build_labelled
 from hdlabels.store import find_labeling, label_shard_paths
 from hdnet.data import HazardDataset
 from hdnet.errors import HdNetError
-from hdnet.evaluate import METHODS, evaluate, reliability
-from hdnet.fit import fit
-from hdnet.report import ROW_KEYS
+from hdnet.evaluate import METHODS, EvalConfig, evaluate, reliability
+from hdnet.fit import FitConfig, fit
+from hdnet.pipeline import evaluate_to_report
+from hdnet.report import ROW_KEYS, report_dict
 
 
 @pytest.fixture(scope="module")
@@ -24,9 +28,9 @@ def setup(tmp_path_factory):
     root = tmp_path_factory.mktemp("hdnet-eval")
     dataset = build_labelled(root / "data")
     run = root / "run"
-    fit(dataset, run, profile_name="tiny", epochs=1, progress=False)
+    fit(dataset, run, FitConfig(profile="tiny", epochs=1, progress=False))
     out = root / "report"
-    result = evaluate(run, dataset, out, mc_samples=4, drop_pixels=10, seed=0)
+    result = evaluate_to_report(run, dataset, out, EvalConfig(mc_samples=4, drop_pixels=10, seed=0))
     return dataset, run, out, result
 
 
@@ -72,7 +76,9 @@ def test_baseline_rows_equal_a_hand_count_from_the_label_shards(setup):
                 pred.append(np.nan_to_num(f["p_safe"][:, s][rows]) >= 0.5)
         t, p = np.concatenate(truth), np.concatenate(pred)
         expected = hand_metrics(t, p, t != 255)
-        row = next(r for r in result.rows if r.table == "noise" and r.method == "alhat_baseline" and r.test_sigma_m == sigma)
+        row = next(
+            r for r in result.rows if r.table == "noise" and r.method == "alhat_baseline" and r.test_sigma_m == sigma
+        )
         np.testing.assert_allclose((row.pixel_accuracy, row.miou, row.precision, row.sensitivity), expected, rtol=1e-12)
 
 
@@ -82,9 +88,14 @@ def test_network_rows_follow_from_the_stored_inference(setup):
     for sigma, inf in result.test.items():
         valid = inf.label != 255
         base = next(r for r in result.rows if r.table == "noise" and r.method == "base_net" and r.test_sigma_m == sigma)
-        np.testing.assert_allclose((base.pixel_accuracy, base.miou, base.precision, base.sensitivity),
-                                   hand_metrics(inf.label, inf.prediction == 1, valid), rtol=1e-12)
-        ua = next(r for r in result.rows if r.table == "noise" and r.method == "uncertainty_aware" and r.test_sigma_m == sigma)
+        np.testing.assert_allclose(
+            (base.pixel_accuracy, base.miou, base.precision, base.sensitivity),
+            hand_metrics(inf.label, inf.prediction == 1, valid),
+            rtol=1e-12,
+        )
+        ua = next(
+            r for r in result.rows if r.table == "noise" and r.method == "uncertainty_aware" and r.test_sigma_m == sigma
+        )
         certain = inf.entropy_nats < h_t
         assert ua.vc_fraction == pytest.approx((valid & certain).sum() / valid.sum())
         # sensitivity: uncertain truly safe pixels count as false unsafe
@@ -105,7 +116,9 @@ def test_dead_pixel_rows_ignore_the_lander_neighbourhoods(setup):
     assert (valid & ~ignore).sum() < valid.sum()
     # Outside the ignored neighbourhoods the repaired DEM gives the same baseline as the shard's.
     expected = hand_metrics(inf.label, inf.baseline_safe, valid & ~ignore)
-    row = next(r for r in result.rows if r.table == "dead_pixels" and r.method == "alhat_baseline" and r.test_sigma_m == 0.0167)
+    row = next(
+        r for r in result.rows if r.table == "dead_pixels" and r.method == "alhat_baseline" and r.test_sigma_m == 0.0167
+    )
     np.testing.assert_allclose((row.pixel_accuracy, row.miou, row.precision, row.sensitivity), expected, rtol=1e-12)
 
 
@@ -120,7 +133,7 @@ def test_reliability_of_a_hand_case():
 
 def test_risk_threshold_reports_the_achieved_false_safe_rate(setup, tmp_path):
     dataset, run, _, _ = setup
-    result = evaluate(run, dataset, tmp_path, mc_samples=2, threshold="risk:0.3", figures=False)
+    result = evaluate_to_report(run, dataset, tmp_path, EvalConfig(mc_samples=2, threshold="risk:0.3"), figures=False)
     th = json.loads((tmp_path / "report.json").read_text())["threshold"]
     assert th["kind"] == "risk" and th["alpha"] == 0.3
     assert [a["test_sigma_m"] for a in th["achieved_risk"]] == list(SIGMAS_M)
@@ -128,15 +141,16 @@ def test_risk_threshold_reports_the_achieved_false_safe_rate(setup, tmp_path):
         inf = result.test[a["test_sigma_m"]]
         t = math.inf if th["value_nats"] is None else th["value_nats"]
         valid = inf.label != 255
-        per_image = ((valid & (inf.label == 0) & (inf.prediction == 1) & (inf.entropy_nats < t)).sum((1, 2))
-                     / valid.sum((1, 2)))
+        per_image = (valid & (inf.label == 0) & (inf.prediction == 1) & (inf.entropy_nats < t)).sum((1, 2)) / valid.sum(
+            (1, 2)
+        )
         assert a["false_safe_rate"] == pytest.approx(per_image.mean())
     assert not list(tmp_path.glob("*.png"))
 
 
 def test_bad_input_fails_with_one_clear_sentence(setup, tmp_path):
     dataset, run, _, _ = setup
-    cases = [
+    cases: list[tuple[dict[str, Any], str]] = [
         ({"mc_samples": 0}, "MC samples"),
         ({"drop_pixels": -1}, "drop-pixels"),
         ({"drop_pixels": 10_000}, "drop-pixels"),
@@ -145,17 +159,50 @@ def test_bad_input_fails_with_one_clear_sentence(setup, tmp_path):
     ]
     for kwargs, message in cases:
         with pytest.raises(HdNetError, match=message):
-            evaluate(run, dataset, tmp_path / "x", **kwargs)
+            evaluate_to_report(run, dataset, tmp_path / "x", EvalConfig(**kwargs))
     torch.save({"schema": "someone.else", "weights": torch.zeros(1)}, tmp_path / "other.pt")
     with pytest.raises(HdNetError, match="not an hdnet checkpoint"):
-        evaluate(tmp_path / "other.pt", dataset, tmp_path / "x")
+        evaluate(tmp_path / "other.pt", dataset)
     unlabelled = build_labelled(tmp_path / "u", n_scans=4, label=False)
     with pytest.raises(HdNetError, match="no labels"):
-        evaluate(run, unlabelled, tmp_path / "x")
+        evaluate(run, unlabelled)
     other_sigmas = build_labelled(tmp_path / "s", n_scans=4, sigmas_m=(0.03, 0.07))
-    with pytest.raises(HdNetError, match="sigma 0.0167 m is not in the dataset; it has 0.03, 0.07 m"):
-        evaluate(run, other_sigmas, tmp_path / "x")
+    with pytest.raises(HdNetError, match=r"sigma 0\.0167 m is not in the dataset; it has 0\.03, 0\.07 m"):
+        evaluate(run, other_sigmas)
     assert not (tmp_path / "x").exists()
+
+
+def test_evaluate_returns_the_result_and_the_caller_writes_the_report(setup, tmp_path, monkeypatch):
+    dataset, run, out, first = setup
+    config = EvalConfig(mc_samples=4, drop_pixels=10, seed=0)
+    monkeypatch.chdir(tmp_path)
+    result = evaluate(run, dataset, config)
+    assert list(tmp_path.iterdir()) == []  # evaluate wrote nothing
+    assert json.dumps(report_dict(result)) == json.dumps(report_dict(first))
+    evaluate_to_report(run, dataset, tmp_path / "again", config, figures=False)
+    assert (tmp_path / "again" / "report.json").read_text() == (out / "report.json").read_text()
+
+
+def test_a_bad_report_directory_fails_before_the_evaluation(setup, tmp_path, monkeypatch):
+    import hdnet.evaluate
+
+    def no_work(*args: object, **kwargs: object) -> None:
+        raise AssertionError("the evaluation ran")
+
+    dataset, run, _, _ = setup
+    monkeypatch.setattr(hdnet.evaluate, "load_trained_model", no_work)
+    occupied = tmp_path / "occupied"
+    occupied.mkdir()
+    (occupied / "notes.txt").write_text("mine")
+    with pytest.raises(HdNetError, match="not empty and is not an hd report"):
+        evaluate_to_report(run, dataset, occupied, EvalConfig(mc_samples=2))
+    assert [p.name for p in occupied.iterdir()] == ["notes.txt"]
+
+
+def test_report_and_figures_do_not_import_the_evaluation() -> None:
+    code = "import sys, hdnet.report, hdnet.figures; print('hdnet.evaluate' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
 
 
 def test_a_run_saved_before_input_specs_evaluates_like_before(setup, tmp_path):
@@ -168,10 +215,12 @@ def test_a_run_saved_before_input_specs_evaluates_like_before(setup, tmp_path):
     old_model = {k: v for k, v in ckpt["model_config"].items() if k != "depth"}
     old = {**ckpt, "extra_config": old_extra, "model_config": old_model}
     old.pop("timing")
-    old["history"] = [{k: h[k] for k in ("epoch", "train_loss", "val_loss", "val_pixel_accuracy")} for h in ckpt["history"]]
+    old["history"] = [
+        {k: h[k] for k in ("epoch", "train_loss", "val_loss", "val_pixel_accuracy")} for h in ckpt["history"]
+    ]
     save_checkpoint(tmp_path / "old.pt", old)
-    before = evaluate(run, dataset, tmp_path / "new-report", mc_samples=2, figures=False)
-    after = evaluate(tmp_path / "old.pt", dataset, tmp_path / "old-report", mc_samples=2, figures=False)
+    before = evaluate(run, dataset, EvalConfig(mc_samples=2))
+    after = evaluate(tmp_path / "old.pt", dataset, EvalConfig(mc_samples=2))
     assert after.rows == before.rows
     assert after.run["input"] == before.run["input"] and after.run["input"]["heights"] == "minmax"
 
@@ -188,12 +237,15 @@ def test_validation_summary_matches_the_validation_inference(setup):
     inf = infer_split(model, HazardDataset(dataset, "val", 0.0167, input_spec=spec), 3, 8, 1, torch.device("cpu"))
     valid = inf.label != 255
     base = hand_metrics(inf.label, inf.prediction == 1, valid)
-    np.testing.assert_allclose([summary[k] for k in ("base_pa", "base_miou", "base_precision", "base_sensitivity")], base,
-                               rtol=1e-12)
+    np.testing.assert_allclose(
+        [summary[k] for k in ("base_pa", "base_miou", "base_precision", "base_sensitivity")], base, rtol=1e-12
+    )
     h = float(inf.entropy_nats[valid].astype(np.float64).mean())
     assert summary["threshold_nats"] == pytest.approx(h)
     ua = score(inf.label, inf.prediction, inf.ignore, inf.entropy_nats >= h)
-    assert summary["ua_vc"] == pytest.approx(ua.vc_fraction) and summary["ua_precision"] == pytest.approx(ua.precision_safe, nan_ok=True)
+    assert summary["ua_vc"] == pytest.approx(ua.vc_fraction) and summary["ua_precision"] == pytest.approx(
+        ua.precision_safe, nan_ok=True
+    )
     assert summary["q_vc"] == pytest.approx(0.5, abs=0.02)
     assert summary["risk_false_safe"] <= 0.3  # conformal risk control on the same images: in-sample bound
     other = infer_split(model, HazardDataset(dataset, "val", 0.07, input_spec=spec), 3, 8, 1, torch.device("cpu"))

@@ -10,7 +10,7 @@ from hdnet_datasets import build_labelled
 
 from hdnet.data import compute_normalisation, lander_of
 from hdnet.errors import HdNetError
-from hdnet.fit import RUN_DATA_KEYS, fit
+from hdnet.fit import RUN_DATA_KEYS, FitConfig, fit
 from hdnet.train import load_checkpoint
 from lidarsim.shards import sha256_file
 
@@ -21,7 +21,7 @@ def dataset(tmp_path_factory) -> Path:
 
 
 def test_tiny_fit_records_the_data_it_was_trained_on(dataset, tmp_path):
-    last = fit(dataset, tmp_path / "run", profile_name="tiny", epochs=1, progress=False)
+    last = fit(dataset, tmp_path / "run", FitConfig(profile="tiny", epochs=1, progress=False))
     assert last == tmp_path / "run" / "last.pt" and last.is_file()
     extra = json.loads((tmp_path / "run" / "config.json").read_text())["extra_config"]
     assert set(extra) == set(RUN_DATA_KEYS)
@@ -39,36 +39,46 @@ def test_tiny_fit_records_the_data_it_was_trained_on(dataset, tmp_path):
 
 
 def test_fit_refuses_bad_datasets(dataset, tmp_path):
-    with pytest.raises(HdNetError, match="sigma 0.03 m is not in the dataset"):
-        fit(dataset, tmp_path / "a", profile_name="tiny", epochs=1, train_sigma_m=0.03, progress=False)
+    with pytest.raises(HdNetError, match=r"sigma 0\.03 m is not in the dataset"):
+        fit(dataset, tmp_path / "a", FitConfig(profile="tiny", epochs=1, train_sigma_m=0.03, progress=False))
     with pytest.raises(HdNetError, match="unknown training profile"):
-        fit(dataset, tmp_path / "b", profile_name="huge", epochs=1, progress=False)
+        fit(dataset, tmp_path / "b", FitConfig(profile="huge", epochs=1, progress=False))
     unlabelled = build_labelled(tmp_path / "u", n_scans=4, label=False)
     with pytest.raises(HdNetError, match="no labels"):
-        fit(unlabelled, tmp_path / "c", profile_name="tiny", epochs=1, progress=False)
+        fit(unlabelled, tmp_path / "c", FitConfig(profile="tiny", epochs=1, progress=False))
     two_scans = build_labelled(tmp_path / "t", n_scans=2)  # too few split blocks: every scan is training
     with pytest.raises(HdNetError, match="the val split is empty"):
-        fit(two_scans, tmp_path / "d", profile_name="tiny", epochs=1, progress=False)
+        fit(two_scans, tmp_path / "d", FitConfig(profile="tiny", epochs=1, progress=False))
     assert not (tmp_path / "d" / "last.pt").exists()
 
 
 def test_fit_with_the_cpu_levers_records_its_input_spec_and_resumes_exactly(dataset, tmp_path):
-    import torch
     from dataclasses import replace
+
+    import torch
 
     from hdnet.inputs import InputSpec
     from hdnet.profiles import TINY
 
-    profile = replace(TINY, heights="median", height_scale_m=0.5, extra_channels=("slope", "highpass"), depth=3,
-                      augment="d4", lr_schedule="onecycle", class_weighting="balanced")
-    straight = fit(dataset, tmp_path / "a", profile_name=profile, epochs=2, progress=False)
-    fit(dataset, tmp_path / "b", profile_name=profile, epochs=2, progress=False, stop_after=1)
-    resumed = fit(dataset, tmp_path / "b", profile_name=profile, epochs=2, progress=False, resume=True)
+    profile = replace(
+        TINY,
+        heights="median",
+        height_scale_m=0.5,
+        extra_channels=("slope", "highpass"),
+        depth=3,
+        augment="d4",
+        lr_schedule="onecycle",
+        class_weighting="balanced",
+    )
+    straight = fit(dataset, tmp_path / "a", FitConfig(profile=profile, epochs=2, progress=False))
+    fit(dataset, tmp_path / "b", FitConfig(profile=profile, epochs=2, progress=False, stop_after=1))
+    resumed = fit(dataset, tmp_path / "b", FitConfig(profile=profile, epochs=2, progress=False, resume=True))
     a, b = load_checkpoint(straight), load_checkpoint(resumed)
     assert all(torch.equal(a["model"][k], b["model"][k]) for k in a["model"])  # D4 draws replay exactly
     spec = InputSpec.from_dict(a["extra_config"]["input"])
-    assert spec == InputSpec(heights="median", height_scale_m=0.5, extra_channels=("slope", "highpass"),
-                             spacing_m=1.0, size_multiple=8)
+    assert spec == InputSpec(
+        heights="median", height_scale_m=0.5, extra_channels=("slope", "highpass"), spacing_m=1.0, size_multiple=8
+    )
     assert a["extra_config"]["normalisation"] is None and a["extra_config"]["input_rule"] == "pad:8"
     assert a["model_config"]["in_channels"] == 3 and a["model_config"]["depth"] == 3
 
@@ -76,13 +86,14 @@ def test_fit_with_the_cpu_levers_records_its_input_spec_and_resumes_exactly(data
 def test_d4_is_refused_for_a_triangle_lander(tmp_path):
     from dataclasses import replace
 
+    from hdnet_datasets import build_labelled as build
+
     from hdlabels.labeling import label_dataset
     from hdlabels.lander import Lander
     from hdnet.profiles import TINY
-    from hdnet_datasets import build_labelled as build
 
     data = build(tmp_path / "tri", n_scans=20, label=False)
     label_dataset(data, Lander(layout="triangle"), workers=1)
     with pytest.raises(HdNetError, match="triangle"):
-        fit(data, tmp_path / "run", profile_name=replace(TINY, augment="d4"), epochs=1, progress=False)
+        fit(data, tmp_path / "run", FitConfig(profile=replace(TINY, augment="d4"), epochs=1, progress=False))
     assert not (tmp_path / "run").exists()

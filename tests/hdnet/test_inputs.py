@@ -68,7 +68,9 @@ def test_highpass_channel_removes_planes_and_keeps_a_rock() -> None:
     assert highpass_window_px(spec) == 5  # 2 m at 0.5 m/px, odd
     assert highpass_window_px(InputSpec(heights="median", highpass_window_m=10.0)) == 11  # 10 px -> 11
     z = _plane((15, 15), 2.0, 0.1, 0.05)
-    np.testing.assert_allclose(highpass(z, 5)[2:-2, 2:-2], 0.0, atol=1e-12)  # a linear function's box mean is its centre
+    np.testing.assert_allclose(
+        highpass(z, 5)[2:-2, 2:-2], 0.0, atol=1e-12
+    )  # a linear function's box mean is its centre
     rock = np.zeros((15, 15))
     rock[7, 7] = 0.5
     np.testing.assert_allclose(highpass(z + rock, 5)[7, 7], 0.5 * (1 - 1 / 25), atol=1e-12)
@@ -81,7 +83,9 @@ def test_network_input_fills_holes_and_pads_to_the_depths_multiple() -> None:
     dem = rng.normal(0.0, 1.0, (100, 100)).astype(np.float32)
     dem[10:12, 20] = np.nan
     for multiple, size in ((32, 128), (8, 104), (16, 112)):
-        x = network_input(dem, InputSpec(heights="median", extra_channels=("slope", "highpass"), size_multiple=multiple))
+        x = network_input(
+            dem, InputSpec(heights="median", extra_channels=("slope", "highpass"), size_multiple=multiple)
+        )
         assert x.shape == (3, size, size) and x.dtype == torch.float32 and torch.isfinite(x).all()
         torch.testing.assert_close(x[:, 100:, :100], x[:, 99:100, :100].expand(-1, size - 100, -1))  # edge replication
     resized = network_input(dem, InputSpec(heights="minmax", normalisation=Normalisation(-4.0, 4.0), input_size=64))
@@ -96,12 +100,15 @@ def test_every_channel_commutes_with_rotations_and_flips() -> None:
     spec = InputSpec(heights="plane", extra_channels=("slope", "highpass"), size_multiple=8, highpass_window_m=5.0)
     base = network_input(dem, spec).numpy()
     for k in range(8):
-        np.testing.assert_allclose(network_input(np.ascontiguousarray(d4(dem, k)), spec).numpy(), d4(base, k), atol=1e-5)
+        np.testing.assert_allclose(
+            network_input(np.ascontiguousarray(d4(dem, k)), spec).numpy(), d4(base, k), atol=1e-5
+        )
 
 
 def test_spec_round_trips_through_json_and_checks_its_fields() -> None:
-    spec = InputSpec(heights="median", height_scale_m=0.5, extra_channels=("highpass", "slope"), spacing_m=1.0,
-                     size_multiple=8)
+    spec = InputSpec(
+        heights="median", height_scale_m=0.5, extra_channels=("highpass", "slope"), spacing_m=1.0, size_multiple=8
+    )
     back = InputSpec.from_dict(json.loads(json.dumps(spec.to_dict())))
     assert back == spec and back.n_channels == 3 and back.rule == "pad:8"
     paper = InputSpec(heights="minmax", normalisation=Normalisation(-3.5, 40.25), input_size=512)
@@ -111,7 +118,7 @@ def test_spec_round_trips_through_json_and_checks_its_fields() -> None:
     with pytest.raises(HdNetError, match="extra channels"):
         InputSpec(heights="median", extra_channels=("curvature",))
     with pytest.raises(HdNetError, match="heights"):
-        InputSpec(heights="zscore")  # type: ignore[arg-type]
+        InputSpec(heights="zscore")  # type: ignore[arg-type]  # the point: refused
     with pytest.raises(HdNetError, match="height_scale_m"):
         InputSpec(heights="median", height_scale_m=0.0)
     with pytest.raises(HdNetError, match="schema version 2"):
@@ -121,11 +128,18 @@ def test_spec_round_trips_through_json_and_checks_its_fields() -> None:
 
 
 def test_runs_saved_before_input_specs_read_as_the_papers_min_max() -> None:
-    old_extra = {"train_sigma_m": 0.0167, "normalisation": {"min_m": -2.0, "max_m": 30.0}, "input_size": None,
-                 "input_rule": "pad:32", "dem_shape": [100, 100]}
+    old_extra = {
+        "train_sigma_m": 0.0167,
+        "normalisation": {"min_m": -2.0, "max_m": 30.0},
+        "input_size": None,
+        "input_rule": "pad:32",
+        "dem_shape": [100, 100],
+    }
     old_model = {"in_channels": 1, "n_classes": 2, "width": 0.25, "dropout_p": 0.5}  # no depth: five blocks
     spec = InputSpec.from_run_config(old_extra, old_model)
-    assert spec == InputSpec(heights="minmax", normalisation=Normalisation(-2.0, 30.0), input_size=None, size_multiple=32)
+    assert spec == InputSpec(
+        heights="minmax", normalisation=Normalisation(-2.0, 30.0), input_size=None, size_multiple=32
+    )
     dem = np.full((100, 100), 14.0, np.float32)
     x = network_input(dem, spec)
     assert x.shape == (1, 128, 128)
@@ -133,5 +147,5 @@ def test_runs_saved_before_input_specs_read_as_the_papers_min_max() -> None:
     assert InputSpec.from_run_config({**old_extra, "input_size": 512}).input_size == 512
     new = InputSpec(heights="median", size_multiple=8)
     assert InputSpec.from_run_config({**old_extra, "input": new.to_dict()}) == new
-    with pytest.raises(HdNetError, match="not trained by hdnet.fit"):
+    with pytest.raises(HdNetError, match=r"not trained by hdnet\.fit"):
         InputSpec.from_run_config({"train_sigma_m": 0.0167})

@@ -92,9 +92,11 @@ def test_against_torchmetrics_on_random_inputs() -> None:
     acc.update(truth, pred)
     m = acc.compute()
     assert torch.equal(acc.confusion, tm.multiclass_confusion_matrix(pred, truth, 2, ignore_index=255))
-    kw = dict(num_classes=2, ignore_index=255, average="micro")
+    kw = {"num_classes": 2, "ignore_index": 255, "average": "micro"}
     assert m.pixel_accuracy == pytest.approx(tm.multiclass_accuracy(pred, truth, **kw).item())
-    assert m.miou == pytest.approx(tm.multiclass_jaccard_index(pred, truth, 2, ignore_index=255, average="macro").item())
+    assert m.miou == pytest.approx(
+        tm.multiclass_jaccard_index(pred, truth, 2, ignore_index=255, average="macro").item()
+    )
     keep = truth != 255
     assert m.precision_safe == pytest.approx(tm.binary_precision(pred[keep], truth[keep]).item())
     assert m.sensitivity_safe == pytest.approx(tm.binary_recall(pred[keep], truth[keep]).item())

@@ -1,6 +1,7 @@
 """Bayesian SegNet: parameter count, layout, forward/backward, odd sizes, prefix/suffix split."""
 
 import math
+from typing import Any
 
 import pytest
 import torch
@@ -25,7 +26,7 @@ def test_layout_13_encoder_layers_and_six_named_dropouts() -> None:
     assert all(type(m).__name__ == "MCDropout" and m.p == 0.5 for m in model.dropout_modules())
 
 
-@pytest.mark.parametrize("in_channels,n_classes", [(1, 2), (3, 5)])
+@pytest.mark.parametrize(("in_channels", "n_classes"), [(1, 2), (3, 5)])
 def test_forward_backward_tiny(in_channels: int, n_classes: int) -> None:
     torch.manual_seed(0)
     model = BayesianSegNet(in_channels=in_channels, n_classes=n_classes, width=1 / 16)
@@ -75,7 +76,7 @@ def test_state_dict_round_trip(tmp_path) -> None:
     torch.testing.assert_close(model(x), other(x))
 
 
-@pytest.mark.parametrize("depth,multiple", [(3, 8), (4, 16), (1, 2)])
+@pytest.mark.parametrize(("depth", "multiple"), [(3, 8), (4, 16), (1, 2)])
 def test_shallower_networks_keep_the_first_blocks_and_central_dropout(depth: int, multiple: int) -> None:
     model = BayesianSegNet(ModelConfig(width=1 / 16, depth=depth)).eval()
     assert model.size_multiple == multiple
@@ -94,7 +95,7 @@ def test_shallower_networks_keep_the_first_blocks_and_central_dropout(depth: int
 
 
 def test_configs_saved_before_depth_existed_load_five_blocks() -> None:
-    old = {"in_channels": 1, "n_classes": 2, "width": 1 / 16, "dropout_p": 0.5}
+    old: dict[str, Any] = {"in_channels": 1, "n_classes": 2, "width": 1 / 16, "dropout_p": 0.5}
     config = ModelConfig(**old)
     assert config.depth == 5 and config == ModelConfig(width=1 / 16)
     torch.manual_seed(0)

@@ -42,7 +42,9 @@ def test_reproduce_runs_the_paper_recipe(tmp_path):
     lander, dem = pipe.label.to_lander(), pipe.label.to_dem_spec()
     assert labeling_name(lander, dem) == labeling_name(LabelSettings().to_lander(), LabelSettings().to_dem_spec())
     assert [(e.directory, e.threshold, e.drop_pixels) for e in pipe.evaluations] == [
-        ("report", "mean", 10), ("report-risk", "risk:0.05", 0)]
+        ("report", "mean", 10),
+        ("report-risk", "risk:0.05", 0),
+    ]
     other = reproduce_pipeline(tmp_path / "r", PAPER_RECIPE, "paper", 5, dtm_path=Path("site.tif"))
     assert other.build.dtm_path == str(Path("site.tif").resolve()) and other.profile == "paper" and other.epochs == 5
     assert other.build.sigmas_m == recipe.build.sigmas_m and other.build.seed == recipe.build.seed
@@ -55,14 +57,20 @@ def test_demo_is_the_paper_dataset_at_demo_scale(tmp_path):
     assert [(e.threshold, e.drop_pixels) for e in pipe.evaluations] == [("mean", 10)]
 
 
-@pytest.mark.parametrize("change,needle", [
-    ({"scans": 2}, "leaves a split empty"),
-    ({"dtm": "missing.tif"}, "missing.tif"),
-    ({"lander_diameter_m": 150.0}, "larger than the DEM"),
-])
+@pytest.mark.parametrize(
+    ("change", "needle"),
+    [
+        ({"scans": 2}, "leaves a split empty"),
+        ({"dtm": "missing.tif"}, "missing.tif"),
+        ({"lander_diameter_m": 150.0}, "larger than the DEM"),
+    ],
+)
 def test_every_stage_is_checked_before_anything_is_written(tmp_path, change, needle):
-    build = BuildSettings(scans=change.get("scans", 20), resolution=16,
-                          dtm_path=str(tmp_path / change["dtm"]) if "dtm" in change else None).to_config()
+    build = BuildSettings(
+        scans=change.get("scans", 20),
+        resolution=16,
+        dtm_path=str(tmp_path / change["dtm"]) if "dtm" in change else None,
+    ).to_config()
     label = LabelSettings(lander_diameter_m=change.get("lander_diameter_m", defaults.ALTITUDE_M / 50))
     pipe = Pipeline(tmp_path / "out", build, label, "tiny", 1, ())
     with pytest.raises(HdError, match=needle):
@@ -73,15 +81,31 @@ def test_every_stage_is_checked_before_anything_is_written(tmp_path, change, nee
 def test_a_tiny_pipeline_runs_every_stage_then_skips_them(tmp_path):
     dtm = hills_dtm(tmp_path / "hills.tif")
     build = BuildSettings(sigmas_m=(0.0167, 0.07), scans=20, resolution=48, shard_size=10, dtm_path=str(dtm))
-    pipe = Pipeline(out_dir=tmp_path / "out", build=build.to_config(), label=LabelSettings(), profile="tiny", epochs=1,
-                    evaluations=(Evaluation("eval", "report", "mean", 3, "tiny evaluation"),), inspect=True,
-                    mc_samples=2, train_what="tiny training")
+    pipe = Pipeline(
+        out_dir=tmp_path / "out",
+        build=build.to_config(),
+        label=LabelSettings(),
+        profile="tiny",
+        epochs=1,
+        evaluations=(Evaluation("eval", "report", "mean", 3, "tiny evaluation"),),
+        inspect=True,
+        mc_samples=2,
+        train_what="tiny training",
+    )
     lines: list[str] = []
     times = run_pipeline(pipe, 1, echo=lines.append, progress=lambda desc, unit: _NoBar())
     assert list(times) == ["build", "label", "train", "eval"]
     text = "\n".join(lines)
-    for line in ("== build: 20 scans x (1.67, 7) cm on hills.tif", "== label: DEMs", "status    intact",
-                 "== train: tiny training", "training done:", "images/s (median over 1 epochs", "== eval: tiny evaluation", "report: "):
+    for line in (
+        "== build: 20 scans x (1.67, 7) cm on hills.tif",
+        "== label: DEMs",
+        "status    intact",
+        "== train: tiny training",
+        "training done:",
+        "images/s (median over 1 epochs",
+        "== eval: tiny evaluation",
+        "report: ",
+    ):
         assert line in text, line
     report = json.loads((tmp_path / "out" / "report" / "report.json").read_text())
     assert {r["table"] for r in report["rows"]} == {"noise", "dead_pixels"}

@@ -1,5 +1,7 @@
 """Training profiles: the paper's numbers, lookup and round trip."""
 
+from typing import Any
+
 import pytest
 
 from hdnet.errors import HdNetError
@@ -27,12 +29,34 @@ def test_lookup_and_round_trip() -> None:
 
 
 def test_new_fields_default_to_the_papers_choices_and_old_profiles_load() -> None:
-    old_cpu = {"name": "cpu", "input_size": None, "width": 0.25, "batch_size": 8, "lr": 1e-3, "momentum": 0.9,
-               "epochs": 80, "optimizer": "adam", "lr_schedule": "cosine"}  # as saved by hd 0.1.0
+    old_cpu = {
+        "name": "cpu",
+        "input_size": None,
+        "width": 0.25,
+        "batch_size": 8,
+        "lr": 1e-3,
+        "momentum": 0.9,
+        "epochs": 80,
+        "optimizer": "adam",
+        "lr_schedule": "cosine",
+    }  # as saved by hd 0.1.0
     p = profile_from_dict(old_cpu)
     assert (p.depth, p.dropout_p, p.heights, p.extra_channels, p.augment, p.class_weighting, p.channels_last) == (
-        5, 0.5, "minmax", (), "none", "none", False)
-    assert (PAPER.depth, PAPER.heights, PAPER.augment, PAPER.lr_schedule, PAPER.dropout_p) == (5, "minmax", "none", "constant", 0.5)
+        5,
+        0.5,
+        "minmax",
+        (),
+        "none",
+        "none",
+        False,
+    )
+    assert (PAPER.depth, PAPER.heights, PAPER.augment, PAPER.lr_schedule, PAPER.dropout_p) == (
+        5,
+        "minmax",
+        "none",
+        "constant",
+        0.5,
+    )
 
 
 def test_every_profile_round_trips_through_json() -> None:
@@ -46,10 +70,17 @@ def test_every_profile_round_trips_through_json() -> None:
 def test_invalid_fields_are_refused() -> None:
     from dataclasses import replace
 
-    for field, value in (("lr_schedule", "step"), ("augment", "mixup"), ("class_weighting", "focal"),
-                         ("heights", "zscore"), ("extra_channels", ("curvature",)), ("batch_size", 0)):
+    for field, value in (
+        ("lr_schedule", "step"),
+        ("augment", "mixup"),
+        ("class_weighting", "focal"),
+        ("heights", "zscore"),
+        ("extra_channels", ("curvature",)),
+        ("batch_size", 0),
+    ):
+        changed: dict[str, Any] = {field: value}
         with pytest.raises(HdNetError, match=field):
-            replace(CPU, **{field: value})
+            replace(CPU, **changed)
 
 
 def test_learning_rate_schedules_by_hand() -> None:

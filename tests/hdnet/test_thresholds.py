@@ -11,16 +11,22 @@ from hdnet.thresholds import EntropyCalibration, ThresholdSpec, parse_threshold_
 
 
 @pytest.mark.parametrize(
-    "text,expected",
-    [("mean", ThresholdSpec("mean")), ("quantile:0.4", ThresholdSpec("quantile", 0.4)),
-     ("risk:0.05", ThresholdSpec("risk", 0.05)), (" Quantile:1 ", ThresholdSpec("quantile", 1.0))],
+    ("text", "expected"),
+    [
+        ("mean", ThresholdSpec("mean")),
+        ("quantile:0.4", ThresholdSpec("quantile", 0.4)),
+        ("risk:0.05", ThresholdSpec("risk", 0.05)),
+        (" Quantile:1 ", ThresholdSpec("quantile", 1.0)),
+    ],
 )
 def test_parse_good_specs(text: str, expected: ThresholdSpec) -> None:
     assert parse_threshold_spec(text) == expected
 
 
-@pytest.mark.parametrize("text", ["", "median", "mean:1", "quantile", "quantile:1.5", "quantile:-0.1",
-                                  "risk:0", "risk:1", "risk:abc", "risk:"])
+@pytest.mark.parametrize(
+    "text",
+    ["", "median", "mean:1", "quantile", "quantile:1.5", "quantile:-0.1", "risk:0", "risk:1", "risk:abc", "risk:"],
+)
 def test_parse_bad_specs_raise(text: str) -> None:
     with pytest.raises(HdNetError):
         parse_threshold_spec(text)

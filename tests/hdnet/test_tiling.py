@@ -9,8 +9,19 @@ from hdnet.errors import HdNetError
 from hdnet.tiling import TilePlan, axis_tiles
 
 
-@pytest.mark.parametrize("n,tile,overlap", [(100, 100, 20), (101, 100, 20), (180, 100, 20), (181, 100, 20),
-                                            (359, 100, 20), (1000, 100, 20), (37, 16, 6), (64, 16, 0)])
+@pytest.mark.parametrize(
+    ("n", "tile", "overlap"),
+    [
+        (100, 100, 20),
+        (101, 100, 20),
+        (180, 100, 20),
+        (181, 100, 20),
+        (359, 100, 20),
+        (1000, 100, 20),
+        (37, 16, 6),
+        (64, 16, 0),
+    ],
+)
 def test_tiles_cover_the_axis_and_own_each_cell_once(n, tile, overlap):
     ax = axis_tiles(n, tile, overlap)
     assert ax.starts[0] == 0 and ax.starts[-1] + tile == n  # first at 0, last ends at the grid's end
@@ -20,7 +31,7 @@ def test_tiles_cover_the_axis_and_own_each_cell_once(n, tile, overlap):
         assert steps.max() - steps.min() <= 1  # spread evenly
         assert len(ax.starts) == int(np.ceil((n - tile) / (tile - overlap))) + 1  # no spare tile
     owned = np.zeros(n, int)
-    for s, (lo, hi) in zip(ax.starts, ax.owned):
+    for s, (lo, hi) in zip(ax.starts, ax.owned, strict=True):
         assert s <= lo < hi <= s + tile
         owned[lo:hi] += 1
         if lo > 0:
@@ -57,7 +68,7 @@ def test_centre_crops_stitch_a_position_function_exactly():
             window = np.full((t.rows, t.cols), -2)
             r1, c1 = min(t.row0 + t.rows, shape[0]), min(t.col0 + t.cols, shape[1])
             window[: r1 - t.row0, : c1 - t.col0] = truth[t.row0 : r1, t.col0 : c1]
-            assert (t.own_rows == (r_lo, r_hi))
+            assert t.own_rows == (r_lo, r_hi)
             out[r_lo:r_hi, t.own_cols[0] : t.own_cols[1]] = window[t.crop]
     np.testing.assert_array_equal(out, truth)
     assert seen_rows[0][0] == 0 and seen_rows[-1][1] == shape[0]
@@ -65,8 +76,10 @@ def test_centre_crops_stitch_a_position_function_exactly():
     assert plan.to_dict()["tiles"] == [len(plan.rows.starts), len(plan.cols.starts)]
 
 
-@pytest.mark.parametrize("args,needle", [((0, 100, 20), "grid size"), ((50, 0, 0), "tile size"),
-                                         ((500, 100, 100), "overlap"), ((500, 100, -1), "overlap")])
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [((0, 100, 20), "grid size"), ((50, 0, 0), "tile size"), ((500, 100, 100), "overlap"), ((500, 100, -1), "overlap")],
+)
 def test_bad_tilings_are_refused(args, needle):
     with pytest.raises(HdNetError, match=needle):
         axis_tiles(*args)

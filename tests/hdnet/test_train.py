@@ -13,12 +13,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from hdnet_fakes import FakeHazardDataset
 
 from hdnet.errors import HdNetError
 from hdnet.model import BayesianSegNet
 from hdnet.profiles import TINY
 from hdnet.train import load_checkpoint, load_trained_model, save_checkpoint, train
-from hdnet_fakes import FakeHazardDataset
 
 PROFILE = replace(TINY, batch_size=4)
 
@@ -33,16 +33,35 @@ def _weights(path: Path) -> dict[str, torch.Tensor]:
 
 def test_train_writes_checkpoint_config_and_metrics(tmp_path: Path) -> None:
     tr, va = _datasets()
-    last = train(tmp_path / "run", tr, va, PROFILE, epochs=2, progress=False, extra_config={"norm_min_m": -1.5, "norm_max_m": 2.0})
+    last = train(
+        tmp_path / "run",
+        tr,
+        va,
+        PROFILE,
+        epochs=2,
+        progress=False,
+        extra_config={"norm_min_m": -1.5, "norm_max_m": 2.0},
+    )
     run = tmp_path / "run"
     assert last == run / "last.pt" and (run / "best.pt").exists()
     config = json.loads((run / "config.json").read_text())
     assert config["extra_config"] == {"norm_min_m": -1.5, "norm_max_m": 2.0} and config["profile"]["name"] == "tiny"
     rows = list(csv.DictReader((run / "metrics.csv").open()))
     assert [int(r["epoch"]) for r in rows] == [1, 2]
-    assert list(rows[0]) == ["epoch", "train_loss", "val_loss", "val_pixel_accuracy", "val_miou", "lr", "train_images_per_s"]
+    assert list(rows[0]) == [
+        "epoch",
+        "train_loss",
+        "val_loss",
+        "val_pixel_accuracy",
+        "val_miou",
+        "lr",
+        "train_images_per_s",
+    ]
     assert all(0.0 <= float(r["val_pixel_accuracy"]) <= 1.0 and float(r["train_loss"]) > 0 for r in rows)
-    assert all(0.0 <= float(r["val_miou"]) <= float(r["val_pixel_accuracy"]) and float(r["train_images_per_s"]) > 0 for r in rows)
+    assert all(
+        0.0 <= float(r["val_miou"]) <= float(r["val_pixel_accuracy"]) and float(r["train_images_per_s"]) > 0
+        for r in rows
+    )
     model, ckpt = load_trained_model(last)
     assert isinstance(model, BayesianSegNet) and not model.training and ckpt["epoch"] == 2
     assert ckpt["extra_config"]["norm_max_m"] == 2.0
@@ -54,7 +73,7 @@ def test_resume_after_kill_reproduces_uninterrupted_run(tmp_path: Path) -> None:
     straight = train(tmp_path / "a", tr, va, PROFILE, epochs=2, seed=3, progress=False)
     train(tmp_path / "b", tr, va, PROFILE, epochs=1, seed=3, progress=False)
     # A new process would start from other RNG states: scramble them before resuming.
-    torch.manual_seed(12345), np.random.seed(12345), random.seed(12345)
+    torch.manual_seed(12345), np.random.seed(12345), random.seed(12345)  # noqa: NPY002 - the global state on purpose
     resumed = train(tmp_path / "b", tr, va, PROFILE, epochs=2, seed=3, resume=True, progress=False)
     a, b = _weights(straight), _weights(resumed)
     assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
@@ -123,7 +142,15 @@ def test_torchrun_two_gloo_processes(tmp_path: Path) -> None:
         f"train({str(tmp_path / 'run')!r}, FakeHazardDataset(8, 32, 0), FakeHazardDataset(4, 32, 1),\n"
         "      replace(TINY, batch_size=4), epochs=2, progress=False)\n"
     )
-    cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc-per-node=2", "--master-port", str(_free_port()), str(script)]
+    cmd = [
+        sys.executable,
+        "-m",
+        "torch.distributed.run",
+        "--nproc-per-node=2",
+        "--master-port",
+        str(_free_port()),
+        str(script),
+    ]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env={**os.environ, "OMP_NUM_THREADS": "1"})
     assert proc.returncode == 0, proc.stderr[-3000:]
     ckpt = load_checkpoint(tmp_path / "run" / "last.pt")
@@ -141,7 +168,9 @@ def test_validation_counts_and_class_weights_by_hand() -> None:
     from hdnet.train import _accuracy_and_miou, _sum_loss, _val_counts, class_weights_from_counts
 
     # truth 0,0,1,1,1 and 255; prediction 0,1,1,1,0 (argmax of the logits)
-    logits = torch.tensor([[2.0, 0.0], [0.0, 1.0], [0.0, 3.0], [0.0, 1.0], [1.0, 0.0], [0.0, 5.0]]).T.reshape(1, 2, 1, 6)
+    logits = torch.tensor([[2.0, 0.0], [0.0, 1.0], [0.0, 3.0], [0.0, 1.0], [1.0, 0.0], [0.0, 5.0]]).T.reshape(
+        1, 2, 1, 6
+    )
     mask = torch.tensor([[[0, 0, 1, 1, 1, 255]]])
     counts = _val_counts(logits, mask)
     assert counts[1] == 5 and counts[2:].tolist() == [1, 1, 1, 2]  # [tu, fs, fu, ts] truth-major
@@ -158,7 +187,9 @@ def test_validation_counts_and_class_weights_by_hand() -> None:
 
 def test_cpu_levers_train_and_resume_exactly(tmp_path: Path) -> None:
     tr, va = _datasets()
-    profile = replace(PROFILE, depth=3, channels_last=True, class_weighting="balanced", lr_schedule="onecycle", dropout_p=0.2)
+    profile = replace(
+        PROFILE, depth=3, channels_last=True, class_weighting="balanced", lr_schedule="onecycle", dropout_p=0.2
+    )
     straight = train(tmp_path / "a", tr, va, profile, epochs=2, seed=1, progress=False)
     train(tmp_path / "b", tr, va, profile, epochs=2, seed=1, progress=False, stop_after=1)  # "killed" after epoch 1
     assert load_checkpoint(tmp_path / "b" / "last.pt")["epoch"] == 1
@@ -171,5 +202,8 @@ def test_cpu_levers_train_and_resume_exactly(tmp_path: Path) -> None:
     n0, n1 = int((masks == 0).sum()), int((masks == 1).sum())
     assert config["class_weights"] == pytest.approx([(n0 + n1) / (2 * n0), (n0 + n1) / (2 * n1)])
     model, ckpt = load_trained_model(straight)
-    assert model.config.depth == 3 and len(ckpt["timing"]) == 2 and ckpt["history"][1]["lr"] == pytest.approx(
-        profile.learning_rate(1, 2))
+    assert (
+        model.config.depth == 3
+        and len(ckpt["timing"]) == 2
+        and ckpt["history"][1]["lr"] == pytest.approx(profile.learning_rate(1, 2))
+    )

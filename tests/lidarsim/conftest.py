@@ -28,7 +28,7 @@ from terrain_files import (
     write_tif,
 )
 
-__all__ = ["plane", "write_pds3", "write_tif", "UTM_EPSG"]
+__all__ = ["UTM_EPSG", "plane", "write_pds3", "write_tif"]
 
 
 @pytest.fixture

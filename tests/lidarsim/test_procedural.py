@@ -117,7 +117,7 @@ def test_crater_profile_closed_form() -> None:
 
 def test_crater_count_follows_the_sfd() -> None:
     p = replace(SMALL, size_m=1000.0, crater_n_gt_10m_per_km2=300.0, crater_d_min_m=5.0, crater_d_max_m=50.0)
-    centers, diameters = procedural.sample_craters(p, np.random.default_rng(0))
+    _centers, diameters = procedural.sample_craters(p, np.random.default_rng(0))
     side = 1000.0 + 2 * 0.5 * 50.0 * 3.0
     expected = 300.0 * ((5 / 10) ** -2 - (50 / 10) ** -2) * side**2 / 1e6
     assert abs(len(diameters) - expected) < 4 * math.sqrt(expected)
@@ -246,7 +246,7 @@ def test_write_geotiff_is_atomic(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
         raise OSError(errno.ENOSPC, "No space left on device")
 
     monkeypatch.setattr(storage, "_write_all", disk_full)
-    with pytest.raises(storage.StorageError, match="keep.tif: no space left on device"):
+    with pytest.raises(storage.StorageError, match=r"keep\.tif: no space left on device"):
         write_geotiff(path, np.zeros((8, 8), dtype=np.float32), 0.5)
     assert path.read_bytes() == b"previous content"
     assert [p.name for p in tmp_path.iterdir()] == ["keep.tif"]

@@ -17,15 +17,32 @@ from lidarsim.terrain import DTM
 from lidarsim.trajectory import TrajectoryConfig, plan_scans
 
 
-def write_plane(path: Path, n: int, spacing: float, origin: tuple[float, float], slope_x: float, slope_y: float,
-                z0: float, crs: str | None) -> Path:
+def write_plane(
+    path: Path,
+    n: int,
+    spacing: float,
+    origin: tuple[float, float],
+    slope_x: float,
+    slope_y: float,
+    z0: float,
+    crs: str | None,
+) -> Path:
     """A GeoTIFF of z = z0 + slope_x * (x - x0) + slope_y * (y - y0) sampled at cell centres."""
     x0, y0 = origin
     x = x0 + (np.arange(n) + 0.5) * spacing
     y = y0 - (np.arange(n) + 0.5) * spacing
     z = z0 + slope_x * (x[None, :] - x0) + slope_y * (y[:, None] - y0)
-    with rasterio.open(path, "w", driver="GTiff", width=n, height=n, count=1, dtype="float64", crs=crs,
-                       transform=from_origin(x0, y0, spacing, spacing)) as dst:
+    with rasterio.open(
+        path,
+        "w",
+        driver="GTiff",
+        width=n,
+        height=n,
+        count=1,
+        dtype="float64",
+        crs=crs,
+        transform=from_origin(x0, y0, spacing, spacing),
+    ) as dst:
         dst.write(z, 1)
     return path
 
@@ -73,8 +90,9 @@ def test_bad_sensor_is_refused():
         SensorConfig(rows=4, cols=4, dead_elements=10, damaged_elements=10)
 
 
-def _scan_plane(tmp_path: Path, origin: tuple[float, float], crs: str | None, sigmas=(0.0167,), sensor=None,
-                n_scans: int = 3):
+def _scan_plane(
+    tmp_path: Path, origin: tuple[float, float], crs: str | None, sigmas=(0.0167,), sensor=None, n_scans: int = 3
+):
     slope_x, slope_y, z0 = math.tan(math.radians(5.0)), -0.03, 1234.5
     path = write_plane(tmp_path / "plane.tif", 300, 0.5, origin, slope_x, slope_y, z0, crs)
     sensor = sensor or SensorConfig()
@@ -92,7 +110,7 @@ def _scan_plane(tmp_path: Path, origin: tuple[float, float], crs: str | None, si
     return results, plane
 
 
-@pytest.mark.parametrize("origin,crs", [((0.0, 150.0), None), ((582600.0, 4141950.0), "EPSG:32610")])
+@pytest.mark.parametrize(("origin", "crs"), [((0.0, 150.0), None), ((582600.0, 4141950.0), "EPSG:32610")])
 def test_clean_points_lie_on_a_tilted_plane(tmp_path, origin, crs):
     results, plane = _scan_plane(tmp_path, origin, crs)
     for res in results:

@@ -64,4 +64,3 @@ def data_copy(tmp_path, labelled) -> Path:
     out = tmp_path / "copy"
     shutil.copytree(labelled, out)
     return out
-

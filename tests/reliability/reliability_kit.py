@@ -8,7 +8,7 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -41,13 +41,21 @@ def hills(path: Path, n: int = 300, seed: int = 3, fill_rows: int = 0, fill: flo
     z += ndimage.gaussian_filter(rocks, 1.5) * 8.0
     z = z.astype(np.float32)
     z[:fill_rows] = fill
-    with rasterio.open(path, "w", driver="GTiff", width=n, height=n, count=1, dtype="float32",
-                       transform=from_origin(1000.0, 2000.0, 1.0, 1.0)) as dst:
+    with rasterio.open(
+        path,
+        "w",
+        driver="GTiff",
+        width=n,
+        height=n,
+        count=1,
+        dtype="float32",
+        transform=from_origin(1000.0, 2000.0, 1.0, 1.0),
+    ) as dst:
         dst.write(z, 1)
     return path
 
 
-def invoke(*args: str) -> Result:
+def invoke(*args: str | os.PathLike[str]) -> Result:
     """Run ``hd ARGS`` in this process."""
     return CliRunner().invoke(main, [str(a) for a in args])
 
@@ -78,13 +86,26 @@ def partials(root: Path) -> list[Path]:
 
 
 # ---------------------------------------------------------------------------------------- processes
-def hd_process(args: list[str], env: dict[str, str] | None = None, cwd: Path | None = None) -> subprocess.Popen:
+def hd_process(
+    args: Sequence[str | os.PathLike[str]], env: dict[str, str] | None = None, cwd: Path | None = None
+) -> subprocess.Popen:
     """Start ``hd ARGS`` as a separate process (own session) with the fault injector loaded."""
-    full_env = {**os.environ, "PYTHONPATH": f"{FAULTS}{os.pathsep}{REPO}", "HD_TEST_FAULTS": "1",
-                "OMP_NUM_THREADS": "1", **(env or {})}
-    return subprocess.Popen([sys.executable, str(REPO / "cli.py"), *[str(a) for a in args]], env=full_env,
-                            cwd=cwd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True)
+    full_env = {
+        **os.environ,
+        "PYTHONPATH": f"{FAULTS}{os.pathsep}{REPO}",
+        "HD_TEST_FAULTS": "1",
+        "OMP_NUM_THREADS": "1",
+        **(env or {}),
+    }
+    return subprocess.Popen(
+        [sys.executable, str(REPO / "cli.py"), *[str(a) for a in args]],
+        env=full_env,
+        cwd=cwd,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
 
 
 def _stat(pid: int) -> tuple[int, str, int] | None:
@@ -126,8 +147,12 @@ def alive(tracked: dict[int, int]) -> list[int]:
     return out
 
 
-def wait_for(condition: Callable[[], object], timeout: float = 60.0, what: str = "condition",
-             proc: subprocess.Popen | None = None) -> object:
+def wait_for(
+    condition: Callable[[], object],
+    timeout: float = 60.0,
+    what: str = "condition",
+    proc: subprocess.Popen | None = None,
+) -> object:
     """Poll ``condition`` every 10 ms until it is truthy; fails after ``timeout`` seconds."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:

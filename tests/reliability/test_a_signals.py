@@ -84,8 +84,10 @@ def test_build_killed_while_generating_the_terrain_leaves_nothing(tmp_path):
     out.parent.mkdir()
     marks = tmp_path / "marks"
     marks.mkdir()
-    proc = hd_process(["build-dataset", "--out", out, "--workers", "2", *BUILD_ARGS],
-                      env={"HD_TEST_SLEEP": "lidarsim.build._procedural_terrain_bytes:60", "HD_TEST_MARK_DIR": str(marks)})
+    proc = hd_process(
+        ["build-dataset", "--out", out, "--workers", "2", *BUILD_ARGS],
+        env={"HD_TEST_SLEEP": "lidarsim.build._procedural_terrain_bytes:60", "HD_TEST_MARK_DIR": str(marks)},
+    )
     wait_for(lambda: (marks / "_procedural_terrain_bytes").exists(), what="terrain generation", proc=proc)
     code, _ = kill_and_check_no_orphans(proc, signal.SIGKILL)
     assert code == -signal.SIGKILL
@@ -96,9 +98,14 @@ def test_build_killed_while_generating_the_terrain_leaves_nothing(tmp_path):
 def test_label_stopped_while_a_worker_writes_a_label_shard(tmp_path, reference, labelled, sig):
     data = tmp_path / "data"
     shutil.copytree(reference, data)
-    proc = hd_process(["label", data, "--workers", "2", *LABEL_ARGS], env={"HD_TEST_WRITE_PAUSE": "labels-0000[13].h5:60"})
-    wait_for(lambda: all(list(data.glob(f"labels/*/.labels-0000{k}.h5.partial-*")) for k in (1, 3)),
-             what="two half-written label shards", proc=proc)
+    proc = hd_process(
+        ["label", data, "--workers", "2", *LABEL_ARGS], env={"HD_TEST_WRITE_PAUSE": "labels-0000[13].h5:60"}
+    )
+    wait_for(
+        lambda: all(list(data.glob(f"labels/*/.labels-0000{k}.h5.partial-*")) for k in (1, 3)),
+        what="two half-written label shards",
+        proc=proc,
+    )
     code, err = kill_and_check_no_orphans(proc, sig, workers=2)
     assert code == EXIT[sig], err
     if sig != signal.SIGKILL:
@@ -161,8 +168,11 @@ def test_eval_stopped_while_writing_the_report(tmp_path, labelled, trained, sig)
     report = tmp_path / "report"
     args = ["eval", trained, "--data", labelled, "--out", report, "--mc-samples", "2"]
     proc = hd_process(args, env={"HD_TEST_WRITE_PAUSE": "report.json:60"})
-    wait_for(lambda: list(report.glob(".report.partial-*/.report.json.partial-*")), what="report.json being written",
-             proc=proc)
+    wait_for(
+        lambda: list(report.glob(".report.partial-*/.report.json.partial-*")),
+        what="report.json being written",
+        proc=proc,
+    )
     code, err = kill_and_check_no_orphans(proc, sig)
     assert code == EXIT[sig]
     assert not (report / "report.json").exists() and not (report / "report.md").exists()
@@ -178,11 +188,19 @@ def test_train_killed_while_dataloader_workers_read(tmp_path, labelled):
     marks = tmp_path / "marks"
     marks.mkdir()
     run = tmp_path / "run"
-    proc = hd_process(["train", labelled, "--out", run, "--profile", "tiny", "--epochs", "1", "--num-workers", "2"],
-                      env={"HD_TEST_SLEEP": "hdnet.data.HazardDataset.dem_sample:60", "HD_TEST_MARK_DIR": str(marks),
-                           "HD_TEST_SLEEP_FORKED_ONLY": "1"})
-    wait_for(lambda: (marks / "dem_sample").exists() and len(descendants(proc.pid)) >= 2,
-             what="DataLoader workers reading", proc=proc)
+    proc = hd_process(
+        ["train", labelled, "--out", run, "--profile", "tiny", "--epochs", "1", "--num-workers", "2"],
+        env={
+            "HD_TEST_SLEEP": "hdnet.data.HazardDataset.dem_sample:60",
+            "HD_TEST_MARK_DIR": str(marks),
+            "HD_TEST_SLEEP_FORKED_ONLY": "1",
+        },
+    )
+    wait_for(
+        lambda: (marks / "dem_sample").exists() and len(descendants(proc.pid)) >= 2,
+        what="DataLoader workers reading",
+        proc=proc,
+    )
     code, _ = kill_and_check_no_orphans(proc, signal.SIGKILL, workers=2)
     assert code == -signal.SIGKILL
 

@@ -32,10 +32,15 @@ from lidarsim.storage import LOCK_NAME, WriterLock, lock_holder
 def test_two_builds_on_one_directory(tmp_path, dtm, reference):
     out = tmp_path / "data"
     release = tmp_path / "release"
-    first = hd_process(["build-dataset", "--out", out, "--dtm", dtm, "--workers", "2", *BUILD_ARGS],
-                       env={"HD_TEST_WRITE_PAUSE": "scans-00001.h5:60", "HD_TEST_RELEASE": str(release)})
-    wait_for(lambda: list((out / "shards").glob(".scans-00001.h5.partial-*")), what="the first build's partial shard",
-             proc=first)
+    first = hd_process(
+        ["build-dataset", "--out", out, "--dtm", dtm, "--workers", "2", *BUILD_ARGS],
+        env={"HD_TEST_WRITE_PAUSE": "scans-00001.h5:60", "HD_TEST_RELEASE": str(release)},
+    )
+    wait_for(
+        lambda: list((out / "shards").glob(".scans-00001.h5.partial-*")),
+        what="the first build's partial shard",
+        proc=first,
+    )
     held = sorted(p.name for p in (out / "shards").iterdir() if p.name.startswith((".scans-00001", "scans-")))
     for extra in ([], ["--overwrite"]):
         second = invoke("build-dataset", "--out", out, "--dtm", dtm, "--workers", "1", *BUILD_ARGS, *extra)
@@ -96,11 +101,14 @@ def test_the_lock_dies_with_its_holder(tmp_path):
     """SIGKILL of the holder frees the lock at once; a stale lock file with a dead PID blocks nobody."""
     d = tmp_path / "d"
     d.mkdir()
-    code = ("import sys, time; from lidarsim.storage import WriterLock; "
-            f"WriterLock({str(d)!r}).acquire(); print('held', flush=True); time.sleep(60)")
-    holder = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True,
-                              env={**os.environ, "PYTHONPATH": str(REPO)})
-    assert holder.stdout.readline().strip() == "held"
+    code = (
+        "import sys, time; from lidarsim.storage import WriterLock; "
+        f"WriterLock({str(d)!r}).acquire(); print('held', flush=True); time.sleep(60)"
+    )
+    holder = subprocess.Popen(
+        [sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(REPO)}
+    )
+    assert holder.stdout is not None and holder.stdout.readline().strip() == "held"
     with pytest.raises(Exception, match=f"PID {holder.pid}"):
         WriterLock(d).acquire()
     holder.send_signal(signal.SIGKILL)

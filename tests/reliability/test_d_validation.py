@@ -85,7 +85,7 @@ def _snapshot(tmp):
     return sorted(str(p) for p in Path(tmp).rglob("*"))
 
 
-@pytest.mark.parametrize("case,args,needle", BUILD, ids=[c[0] for c in BUILD])
+@pytest.mark.parametrize(("case", "args", "needle"), BUILD, ids=[c[0] for c in BUILD])
 def test_build_dataset_refuses(case, args, needle, places, dtm, monkeypatch):
     _no_work(monkeypatch, ("lidarsim.build", "plan_scans"), ("lidarsim.build", "_procedural_terrain_bytes"))
     argv = _fill(args, places)
@@ -120,7 +120,7 @@ LABEL = [
 ]
 
 
-@pytest.mark.parametrize("case,args,needle", LABEL, ids=[c[0] for c in LABEL])
+@pytest.mark.parametrize(("case", "args", "needle"), LABEL, ids=[c[0] for c in LABEL])
 def test_label_refuses(case, args, needle, data_copy, monkeypatch):
     _no_work(monkeypatch, ("hdlabels.labeling", "run_label_task"))
     before = _snapshot(data_copy)
@@ -128,10 +128,16 @@ def test_label_refuses(case, args, needle, data_copy, monkeypatch):
     assert _snapshot(data_copy) == before
 
 
-@pytest.mark.parametrize("target,needle", [
-    ("/proc", "not an hd dataset"), ("{file}", "not a directory|is a file"), ("{tmp}/missing", "no such"),
-    ("{tmp}", "not an hd dataset"),
-], ids=["proc", "a-file", "missing", "empty-dir"])
+@pytest.mark.parametrize(
+    ("target", "needle"),
+    [
+        ("/proc", "not an hd dataset"),
+        ("{file}", "not a directory|is a file"),
+        ("{tmp}/missing", "no such"),
+        ("{tmp}", "not an hd dataset"),
+    ],
+    ids=["proc", "a-file", "missing", "empty-dir"],
+)
 def test_label_refuses_what_is_not_a_dataset(target, needle, places):
     before = _snapshot(places["tmp"])
     assert_one_line_error(invoke("label", target.format(**places)), needle)
@@ -153,7 +159,7 @@ MAKE_DTM = [
 ]
 
 
-@pytest.mark.parametrize("case,args,needle", MAKE_DTM, ids=[c[0] for c in MAKE_DTM])
+@pytest.mark.parametrize(("case", "args", "needle"), MAKE_DTM, ids=[c[0] for c in MAKE_DTM])
 def test_make_dtm_refuses(case, args, needle, places, monkeypatch):
     _no_work(monkeypatch, ("lidarsim.procedural", "generate_mars_terrain"))
     before = _snapshot(places["tmp"])
@@ -177,7 +183,7 @@ TRAIN = [
 ]
 
 
-@pytest.mark.parametrize("case,args,needle", TRAIN, ids=[c[0] for c in TRAIN])
+@pytest.mark.parametrize(("case", "args", "needle"), TRAIN, ids=[c[0] for c in TRAIN])
 def test_train_refuses(case, args, needle, places, labelled, monkeypatch):
     _no_work(monkeypatch, ("hdnet.fit", "compute_normalisation"))
     argv = _fill(args, places)
@@ -206,7 +212,7 @@ EVAL = [
 ]
 
 
-@pytest.mark.parametrize("case,args,needle", EVAL, ids=[c[0] for c in EVAL])
+@pytest.mark.parametrize(("case", "args", "needle"), EVAL, ids=[c[0] for c in EVAL])
 def test_eval_refuses(case, args, needle, places, labelled, trained, monkeypatch):
     if case.startswith(("out-", "mc-", "batch-", "seed-", "threshold-")):
         _no_work(monkeypatch, ("hdnet.evaluate", "load_trained_model"))  # checked before the model is loaded
@@ -220,18 +226,31 @@ def test_eval_refuses(case, args, needle, places, labelled, trained, monkeypatch
     assert _snapshot(places["tmp"]) == before
 
 
-@pytest.mark.parametrize("command,args,needle", [
-    ("demo", ["--epochs", "0"], "--epochs"),
-    ("demo", ["--scans", "0"], "--scans"),
-    ("demo", ["--scans", "2"], "--scans"),
-    ("demo", ["--workers", "0"], "--workers"),
-    ("demo", ["--out", "/proc/hd-demo"], "/proc"),
-    ("demo", ["--out", "{file}/demo"], "not a directory"),
-    ("reproduce", ["--epochs", "0"], "--epochs"),
-    ("reproduce", ["--out", "/proc/hd-repro"], "/proc"),
-    ("reproduce", ["--dtm", "{tmp}/missing.tif"], "missing.tif"),
-], ids=["demo-epochs-0", "demo-scans-0", "demo-scans-2", "demo-workers-0", "demo-proc", "demo-under-file",
-        "reproduce-epochs-0", "reproduce-proc", "reproduce-dtm-missing"])
+@pytest.mark.parametrize(
+    ("command", "args", "needle"),
+    [
+        ("demo", ["--epochs", "0"], "--epochs"),
+        ("demo", ["--scans", "0"], "--scans"),
+        ("demo", ["--scans", "2"], "--scans"),
+        ("demo", ["--workers", "0"], "--workers"),
+        ("demo", ["--out", "/proc/hd-demo"], "/proc"),
+        ("demo", ["--out", "{file}/demo"], "not a directory"),
+        ("reproduce", ["--epochs", "0"], "--epochs"),
+        ("reproduce", ["--out", "/proc/hd-repro"], "/proc"),
+        ("reproduce", ["--dtm", "{tmp}/missing.tif"], "missing.tif"),
+    ],
+    ids=[
+        "demo-epochs-0",
+        "demo-scans-0",
+        "demo-scans-2",
+        "demo-workers-0",
+        "demo-proc",
+        "demo-under-file",
+        "reproduce-epochs-0",
+        "reproduce-proc",
+        "reproduce-dtm-missing",
+    ],
+)
 def test_multi_stage_commands_check_every_stage_first(command, args, needle, places, monkeypatch):
     _no_work(monkeypatch, ("hdnet.pipeline", "_build_unless_done"))
     argv = _fill(args, places)
@@ -258,8 +277,13 @@ def test_every_float_option_rejects_nan_and_inf():
     from cli import main
 
     covered = {a for rows in (BUILD, LABEL, MAKE_DTM, TRAIN) for _, args, _ in rows for a in args if a.startswith("--")}
-    floats = {f"{c}:{o}" for c, cmd in main.commands.items() for p in cmd.params
-              if isinstance(p.type, FloatParamType) for o in p.opts}
+    floats = {
+        f"{c}:{o}"
+        for c, cmd in main.commands.items()
+        for p in cmd.params
+        if isinstance(p.type, FloatParamType)
+        for o in p.opts
+    }
     assert len(floats) >= 15  # every float option of every command, FloatRange ones included
     missing = sorted(f for f in floats if f.split(":")[1] not in covered)
     assert missing == [], f"float options without a non-finite case: {missing}"

@@ -60,8 +60,9 @@ def evaluate(run: Path, data: Path, out: Path):
 def test_a_flipped_byte_in_a_scan_shard_is_caught_by_label_and_verify(data_copy, tmp_path):
     shard = data_copy / "shards" / "scans-00001.h5"
     flip_chunk_byte(shard, "points_noisy", 1)
-    line = assert_one_line_error(invoke("label", data_copy, "--max-slope-deg", "8", "--workers", "1"),
-                                 "scans-00001.h5", "checksum mismatch")
+    line = assert_one_line_error(
+        invoke("label", data_copy, "--max-slope-deg", "8", "--workers", "1"), "scans-00001.h5", "checksum mismatch"
+    )
     assert "hd verify" in line
     verify = invoke("verify", data_copy)
     assert verify.exit_code == 1 and "shards/scans-00001.h5: checksum mismatch" in verify.output
@@ -76,8 +77,9 @@ def test_a_flipped_byte_is_caught_at_read_time_naming_file_and_scan(data_copy):
         with pytest.raises(DamagedFileError, match=r"scans-00001\.h5: cannot read points_noisy of scan 3 \(row 1\)"):
             reader[1]
     reseal(data_copy)
-    line = assert_one_line_error(invoke("label", data_copy, "--max-slope-deg", "8", "--workers", "1"),
-                                 "scans-00001.h5", "scan 3")
+    line = assert_one_line_error(
+        invoke("label", data_copy, "--max-slope-deg", "8", "--workers", "1"), "scans-00001.h5", "scan 3"
+    )
     assert "damaged" in line
 
 
@@ -98,11 +100,16 @@ def test_a_flipped_byte_in_a_label_shard_is_caught_by_train_and_eval(data_copy, 
     dataset = "label" if workers else "dem_noisy"
     flip_chunk_byte(path, dataset, row)
     more = ["--num-workers", "2"] if workers else []
-    result = train(data_copy, tmp_path / "run", *more) if command != "eval" else evaluate(trained, data_copy, tmp_path / "r")
+    result = (
+        train(data_copy, tmp_path / "run", *more) if command != "eval" else evaluate(trained, data_copy, tmp_path / "r")
+    )
     assert_one_line_error(result, path.name, "checksum mismatch")
     reseal(data_copy)
-    result = (train(data_copy, tmp_path / "run2", *more) if command != "eval"
-              else evaluate(trained, data_copy, tmp_path / "r2"))
+    result = (
+        train(data_copy, tmp_path / "run2", *more)
+        if command != "eval"
+        else evaluate(trained, data_copy, tmp_path / "r2")
+    )
     assert_one_line_error(result, path.name, f"scan {scan} (row {row})", "damaged")
     assert not (tmp_path / "r").exists() and not (tmp_path / "r2").exists()
 
@@ -180,16 +187,42 @@ def _edit(m: dict, damage: str) -> object:
     return m
 
 
-MANIFEST_DAMAGE = ["no-shards-key", "shards-not-a-list", "entry-without-sha256", "sha256-not-hex",
-                   "scan-count-mismatch", "path-escapes", "absolute-path", "label-path-escapes",
-                   "labelling-name-escapes", "major-version", "n-scans-not-int", "not-an-object",
-                   "truncated-json", "binary", "empty", "is-a-directory"]
-NEEDLE = {"no-shards-key": "'shards'", "shards-not-a-list": "shards", "entry-without-sha256": "'sha256'",
-          "sha256-not-hex": "sha256", "scan-count-mismatch": "9 scans", "path-escapes": "leaves the dataset",
-          "absolute-path": "leaves the dataset", "label-path-escapes": "leaves the dataset",
-          "labelling-name-escapes": "labelling name", "major-version": "version 2.0", "n-scans-not-int": "n_scans",
-          "not-an-object": "not a JSON object", "truncated-json": "unreadable manifest",
-          "binary": "unreadable manifest", "empty": "unreadable manifest", "is-a-directory": "manifest.json"}
+MANIFEST_DAMAGE = [
+    "no-shards-key",
+    "shards-not-a-list",
+    "entry-without-sha256",
+    "sha256-not-hex",
+    "scan-count-mismatch",
+    "path-escapes",
+    "absolute-path",
+    "label-path-escapes",
+    "labelling-name-escapes",
+    "major-version",
+    "n-scans-not-int",
+    "not-an-object",
+    "truncated-json",
+    "binary",
+    "empty",
+    "is-a-directory",
+]
+NEEDLE = {
+    "no-shards-key": "'shards'",
+    "shards-not-a-list": "shards",
+    "entry-without-sha256": "'sha256'",
+    "sha256-not-hex": "sha256",
+    "scan-count-mismatch": "9 scans",
+    "path-escapes": "leaves the dataset",
+    "absolute-path": "leaves the dataset",
+    "label-path-escapes": "leaves the dataset",
+    "labelling-name-escapes": "labelling name",
+    "major-version": "version 2.0",
+    "n-scans-not-int": "n_scans",
+    "not-an-object": "not a JSON object",
+    "truncated-json": "unreadable manifest",
+    "binary": "unreadable manifest",
+    "empty": "unreadable manifest",
+    "is-a-directory": "manifest.json",
+}
 
 
 @pytest.mark.parametrize("command", ["verify", "inspect", "label", "train", "eval"])
@@ -208,10 +241,13 @@ def test_damaged_or_hostile_manifests(data_copy, trained, tmp_path, damage, comm
         path.mkdir()
     else:
         path.write_text(json.dumps(_edit(json.loads(text), damage)))
-    args = {"verify": ["verify", data_copy], "inspect": ["inspect", data_copy],
-            "label": ["label", data_copy, "--workers", "1"],
-            "train": ["train", data_copy, "--out", tmp_path / "run", "--profile", "tiny", "--epochs", "1"],
-            "eval": ["eval", trained, "--data", data_copy, "--out", tmp_path / "r"]}[command]
+    args = {
+        "verify": ["verify", data_copy],
+        "inspect": ["inspect", data_copy],
+        "label": ["label", data_copy, "--workers", "1"],
+        "train": ["train", data_copy, "--out", tmp_path / "run", "--profile", "tiny", "--epochs", "1"],
+        "eval": ["eval", trained, "--data", data_copy, "--out", tmp_path / "r"],
+    }[command]
     assert_one_line_error(invoke(*args), NEEDLE[damage])
     assert not (tmp_path / "run").exists() and not (tmp_path / "r").exists()
 
@@ -257,8 +293,12 @@ def test_damaged_checkpoints_are_refused(trained, labelled, tmp_path, damage):
         ckpt = torch.load(last, weights_only=True)
         del ckpt["content_sha256"]
         torch.save(ckpt, last)
-    needle = {"flipped-weights": "checksum mismatch", "truncated": "not a readable", "garbage": "not a readable",
-              "digest-removed": "lacks"}[damage]
+    needle = {
+        "flipped-weights": "checksum mismatch",
+        "truncated": "not a readable",
+        "garbage": "not a readable",
+        "digest-removed": "lacks",
+    }[damage]
     assert_one_line_error(evaluate(run, labelled, tmp_path / "r"), "last.pt", needle)
     assert_one_line_error(train(labelled, run, "--resume"), "last.pt", needle)
     assert not (tmp_path / "r").exists()
@@ -273,8 +313,16 @@ def _rewrite_old_way(path: Path) -> None:
             dst.attrs[k] = v
         dst.attrs["schema_version"] = "1.0"
         for name, ds in src.items():
-            kw = {"chunks": ds.chunks, "compression": ds.compression, "compression_opts": ds.compression_opts,
-                  "shuffle": ds.shuffle} if ds.compression else {}
+            kw = (
+                {
+                    "chunks": ds.chunks,
+                    "compression": ds.compression,
+                    "compression_opts": ds.compression_opts,
+                    "shuffle": ds.shuffle,
+                }
+                if ds.compression
+                else {}
+            )
             if ds.compression is None and ds.ndim < 3:
                 kw = {}
             out = dst.create_dataset(name, data=ds[()], track_times=False, **kw)
@@ -303,8 +351,12 @@ def test_shards_written_the_old_way_stay_readable(data_copy, tmp_path):
 # ------------------------------------------------------------------------------------- hostile file types
 @pytest.mark.parametrize("what", ["scan-shard", "label-shard", "manifest", "dtm"])
 def test_a_pipe_in_place_of_a_file_never_hangs(data_copy, tmp_path, what):
-    path = {"scan-shard": data_copy / "shards" / "scans-00001.h5", "label-shard": label_shard(data_copy),
-            "manifest": data_copy / "manifest.json", "dtm": tmp_path / "pipe.tif"}[what]
+    path = {
+        "scan-shard": data_copy / "shards" / "scans-00001.h5",
+        "label-shard": label_shard(data_copy),
+        "manifest": data_copy / "manifest.json",
+        "dtm": tmp_path / "pipe.tif",
+    }[what]
     path.unlink(missing_ok=True)
     os.mkfifo(path)
     if what == "dtm":
@@ -314,7 +366,9 @@ def test_a_pipe_in_place_of_a_file_never_hangs(data_copy, tmp_path, what):
     result = invoke("verify", data_copy)
     assert result.exit_code == 1 and "not a regular file" in result.output
     if what == "scan-shard":
-        assert_one_line_error(invoke("label", data_copy, "--max-slope-deg", "8", "--workers", "1"), "not a regular file")
+        assert_one_line_error(
+            invoke("label", data_copy, "--max-slope-deg", "8", "--workers", "1"), "not a regular file"
+        )
     if what == "label-shard":
         assert_one_line_error(train(data_copy, tmp_path / "run"), "not a regular file")
 
@@ -346,7 +400,8 @@ def test_a_dtm_changed_during_an_interrupted_build_is_not_mixed_in(tmp_path, mon
 
     dtm = hills(tmp_path / "dtm.tif")
     out = tmp_path / "data"
-    real, calls = build.run_shard, []
+    real = build.run_shard
+    calls: list[object] = []
 
     def stop_after_two(task):
         if len(calls) == 2:

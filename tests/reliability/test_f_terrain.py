@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import rasterio
-from reliability_kit import BUILD_ARGS, assert_one_line_error, hills, invoke
 from rasterio.transform import from_origin
+from reliability_kit import BUILD_ARGS, assert_one_line_error, hills, invoke
 
 from lidarsim import limits
 from lidarsim.build import check_returns
@@ -45,8 +45,16 @@ def test_absurd_integer_heights_are_nodata(tmp_path):
     z = np.full((300, 300), 100, dtype=np.int32)
     z[:100] = 2_000_000_000
     path = tmp_path / "int.tif"
-    with rasterio.open(path, "w", driver="GTiff", width=300, height=300, count=1, dtype="int32",
-                       transform=from_origin(0.0, 300.0, 1.0, 1.0)) as dst:
+    with rasterio.open(
+        path,
+        "w",
+        driver="GTiff",
+        width=300,
+        height=300,
+        count=1,
+        dtype="int32",
+        transform=from_origin(0.0, 300.0, 1.0, 1.0),
+    ) as dst:
         dst.write(z, 1)
     out = tmp_path / "data"
     result = invoke("build-dataset", "--out", out, "--dtm", path, "--workers", "1", *BUILD_ARGS)
@@ -62,12 +70,16 @@ def test_a_build_whose_rays_miss_fails_and_leaves_nothing(tmp_path, dtm, monkeyp
 
     monkeypatch.setattr(TileScene, "cast", no_returns)
     out = tmp_path / "data"
-    assert_one_line_error(invoke("build-dataset", "--out", out, "--dtm", dtm, "--workers", "1", *BUILD_ARGS),
-                          "scan 0", "only 0.0% of the rays hit the terrain", "hills.tif")
+    assert_one_line_error(
+        invoke("build-dataset", "--out", out, "--dtm", dtm, "--workers", "1", *BUILD_ARGS),
+        "scan 0",
+        "only 0.0% of the rays hit the terrain",
+        "hills.tif",
+    )
     assert not out.exists()
 
 
-@pytest.mark.parametrize("hits,ok", [(0.0, False), (0.49, False), (0.5, True), (1.0, True)])
+@pytest.mark.parametrize(("hits", "ok"), [(0.0, False), (0.49, False), (0.5, True), (1.0, True)])
 def test_the_return_threshold(hits, ok):
     status = np.full((10, 10), STATUS_MISS, np.uint8)
     status[0, :] = STATUS_DEAD  # dead elements are not counted

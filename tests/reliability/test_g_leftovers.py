@@ -91,8 +91,10 @@ def test_a_failed_labelling_leaves_no_empty_directory(tmp_path, reference, monke
 @pytest.mark.slow
 def test_an_unreachable_scheduler_leaves_nothing(tmp_path, dtm):
     out = tmp_path / "data"
-    assert_one_line_error(invoke("build-dataset", "--out", out, "--dtm", dtm, "--scheduler", "tcp://127.0.0.1:1",
-                                 *BUILD_ARGS), "cannot reach the Dask scheduler")
+    assert_one_line_error(
+        invoke("build-dataset", "--out", out, "--dtm", dtm, "--scheduler", "tcp://127.0.0.1:1", *BUILD_ARGS),
+        "cannot reach the Dask scheduler",
+    )
     assert list(tmp_path.iterdir()) == []
 
 
@@ -102,8 +104,9 @@ def test_a_build_failing_before_any_shard_removes_its_directory(tmp_path, dtm, m
 
     monkeypatch.setattr("lidarsim.build.run_shard", fails)
     out = tmp_path / "new" / "deep" / "data"  # three directories created, all removed again
-    assert_one_line_error(invoke("build-dataset", "--out", out, "--dtm", dtm, "--workers", "1", *BUILD_ARGS),
-                          "out of memory")
+    assert_one_line_error(
+        invoke("build-dataset", "--out", out, "--dtm", dtm, "--workers", "1", *BUILD_ARGS), "out of memory"
+    )
     assert list(tmp_path.iterdir()) == []
 
 
@@ -113,8 +116,10 @@ def test_failed_train_and_eval_remove_the_directories_they_created(tmp_path, lab
     inject_enospc(monkeypatch, "config.json")
     assert_one_line_error(_train(labelled, tmp_path / "a" / "b" / "run"), "no space left")
     inject_enospc(monkeypatch, "report.json")
-    assert_one_line_error(invoke("eval", trained, "--data", labelled, "--out", tmp_path / "c" / "report",
-                                 "--mc-samples", "2"), "no space left")
+    assert_one_line_error(
+        invoke("eval", trained, "--data", labelled, "--out", tmp_path / "c" / "report", "--mc-samples", "2"),
+        "no space left",
+    )
     assert list(tmp_path.iterdir()) == []
 
 

@@ -18,8 +18,9 @@ def test_an_intact_dataset_is_summarised_as_intact(labelled):
     assert "8 in 4 shards" in result.output and "status    intact" in result.output
 
 
-@pytest.mark.parametrize("damage", ["scan-shard-deleted", "scan-shard-flipped", "label-shard-deleted",
-                                    "label-shard-truncated"])
+@pytest.mark.parametrize(
+    "damage", ["scan-shard-deleted", "scan-shard-flipped", "label-shard-deleted", "label-shard-truncated"]
+)
 def test_a_damaged_dataset_is_not_summarised_as_normal(data_copy, damage):
     kind, _, what = damage.rpartition("-")
     path = next(data_copy.glob("shards/scans-00002.h5" if kind.startswith("scan") else "labels/*/labels-00001.h5"))
@@ -38,7 +39,7 @@ def test_a_damaged_dataset_is_not_summarised_as_normal(data_copy, damage):
 
 def test_an_unfinished_build_is_named_as_such(tmp_path, dtm, monkeypatch):
     out = tmp_path / "data"
-    calls = []
+    calls: list[object] = []
     import lidarsim.build as build
 
     real = build.run_shard
@@ -54,8 +55,9 @@ def test_an_unfinished_build_is_named_as_such(tmp_path, dtm, monkeypatch):
     assert result.exit_code == 130
     monkeypatch.undo()
     for command in (["inspect", out], ["verify", out], ["label", out], ["train", out, "--out", tmp_path / "run"]):
-        assert_one_line_error(invoke(*command), "unfinished build (2 of 4 shards complete)",
-                              "re-run the same `hd build-dataset` command")
+        assert_one_line_error(
+            invoke(*command), "unfinished build (2 of 4 shards complete)", "re-run the same `hd build-dataset` command"
+        )
     with WriterLock(out):  # a build at work in it
         assert_one_line_error(invoke("inspect", out), f"a build is in progress (PID {os.getpid()})")
 

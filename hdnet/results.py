@@ -1,0 +1,123 @@
+"""Result types of an evaluation and of a detection: plain records, no behaviour beyond formatting.
+
+``hdnet.evaluate`` and ``hdnet.detect`` produce them; ``hdnet.report`` and ``hdnet.figures`` read
+them. This module imports nothing of hdnet but its defaults, so that the writers of reports and
+figures never depend on the code that computes what they show.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from hdnet import defaults
+
+SITE_COLUMNS = ("rank", "x", "y", "p_safe", "entropy_max", "clearance_m", "baseline_p_safe")
+
+
+@dataclass(frozen=True)
+class SplitInference:
+    """MC-dropout output and ground truth of one split at one noise level, on the DEM grid.
+
+    Arrays are (N, H, W): ``label`` int64 (0 unsafe, 1 safe, 255 ignored: invalid cells and DEM
+    holes); ``ignore`` bool (dead-pixel neighbourhoods); ``prob_safe`` float32 mean softmax of
+    "safe"; ``prediction`` int64 (argmax); ``entropy_nats`` float32; ``baseline_safe`` bool
+    (P(safe) >= 0.5); ``dem_clean_m`` / ``dem_noisy_m`` float32 heights (metres) for figures.
+    """
+
+    sigma_m: float
+    scan_index: np.ndarray
+    label: np.ndarray
+    ignore: np.ndarray
+    prob_safe: np.ndarray
+    prediction: np.ndarray
+    entropy_nats: np.ndarray
+    baseline_safe: np.ndarray
+    dem_clean_m: np.ndarray
+    dem_noisy_m: np.ndarray
+
+    @property
+    def valid(self) -> np.ndarray:
+        """Pixels that count in metrics: labelled and not ignored."""
+        return (self.label != defaults.IGNORE_INDEX) & ~self.ignore
+
+
+@dataclass(frozen=True)
+class ReportRow:
+    """One row of Table 1 / Table 2; fractions in [0, 1] (NaN when undefined); sigmas in metres."""
+
+    table: str  # "noise" or "dead_pixels"
+    method: str
+    train_sigma_m: float | None  # None for the baseline (not trained)
+    test_sigma_m: float
+    vc_fraction: float | None  # None for methods without thresholding
+    pixel_accuracy: float
+    miou: float
+    precision: float
+    sensitivity: float
+
+
+@dataclass(frozen=True)
+class ReliabilityBins:
+    """Reliability of the safe probability in equal-width bins of [0, 1]."""
+
+    edges: np.ndarray  # (B + 1,)
+    count: np.ndarray  # (B,) pixels per bin
+    mean_prob: np.ndarray  # (B,) mean predicted P(safe) (NaN for an empty bin)
+    safe_fraction: np.ndarray  # (B,) observed fraction of truly safe pixels (NaN for an empty bin)
+    ece: float  # sum_b n_b / N * |safe_fraction_b - mean_prob_b|
+
+
+@dataclass
+class EvaluationResult:
+    """Everything ``evaluate`` measured; ``report.json`` is ``to_json()``."""
+
+    rows: list[ReportRow]
+    threshold: dict[str, Any]
+    sweep: list[dict[str, Any]]
+    calibration: dict[str, Any]
+    run: dict[str, Any] = field(default_factory=dict)
+    test: dict[float, SplitInference] = field(default_factory=dict, repr=False)
+    validation_entropy_nats: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32), repr=False)
+
+    def summary(self) -> str:
+        """A compact text table of the rows (for the terminal)."""
+        lines = [
+            (
+                f"{'table':11s} {'method':18s} {'test sigma':>10s} {'V/C%':>5s} {'PA':>6s} {'mIoU':>6s} "
+                f"{'prec.':>6s} {'sens.':>6s}"
+            )
+        ]
+        for r in self.rows:
+            vc = "-" if r.vc_fraction is None else f"{r.vc_fraction * 100:.0f}"
+            lines.append(
+                f"{r.table:11s} {r.method:18s} {r.test_sigma_m * 100:8.2f}cm {vc:>5s} "
+                f"{r.pixel_accuracy:6.4f} {r.miou:6.4f} {r.precision:6.4f} {r.sensitivity:6.4f}"
+            )
+        value = self.threshold.get("value_nats")
+        lines.append(
+            f"threshold {self.threshold.get('spec', '')}: {'unbounded' if value is None else f'{value:.4f} nats'}"
+        )
+        return "\n".join(lines)
+
+
+@dataclass(frozen=True)
+class Site:
+    """A proposed landing site: rank (1 = best), map position of its cell centre (metres, input CRS),
+    footprint-mean P(safe), footprint-max entropy (nats), clearance (metres) and baseline P(safe)."""
+
+    rank: int
+    x: float
+    y: float
+    p_safe: float
+    entropy_max: float
+    clearance_m: float
+    baseline_p_safe: float
+    row: int
+    col: int
+
+    def columns(self) -> dict[str, float | int]:
+        """The ``SITE_COLUMNS`` values of the site, by name."""
+        return {k: getattr(self, k) for k in SITE_COLUMNS}
