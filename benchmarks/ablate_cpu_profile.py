@@ -174,8 +174,10 @@ def throughput(dataset: Path, names: list[str], rounds: int, steps: int, labels:
         if r:
             print(f"round {r}: " + ", ".join(f"{n} {rates[n][-1]:.1f}" for n in names), flush=True)
     for n in names:
-        print(f"{n}: median {statistics.median(rates[n]):.1f} images/s, reading and preparing the samples "
-              f"{100 * statistics.median(data_share[n]):.0f} % of a step")
+        print(
+            f"{n}: median {statistics.median(rates[n]):.1f} images/s, reading and preparing the samples "
+            f"{100 * statistics.median(data_share[n]):.0f} % of a step"
+        )
     return {n: statistics.median(v) for n, v in rates.items()}
 
 

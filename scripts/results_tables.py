@@ -22,13 +22,14 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from hdnet.paper_results import paper_row  # noqa: E402
+from hdnet.paper_results import paper_row
 
+DASH = "\u2013"  # an en dash: the tables' "no value"
 METHODS = {"alhat_baseline": "ALHAT baseline", "base_net": "base net", "uncertainty_aware": "uncertainty-aware"}
 
 
 def _num(x: float | None, digits: int = 4) -> str:
-    return "–" if x is None or not math.isfinite(x) else f"{x:.{digits}f}"
+    return DASH if x is None or not math.isfinite(x) else f"{x:.{digits}f}"
 
 
 def _cm(sigma_m: float) -> str:
@@ -37,23 +38,28 @@ def _cm(sigma_m: float) -> str:
 
 def _vc(row: dict[str, Any], paper: Any) -> str:
     if row["vc_fraction"] is None:
-        return "–"
+        return DASH
     ours = f"{100 * row['vc_fraction']:.0f}"
     return ours if paper is None or paper.vc_fraction is None else f"{ours} (paper {100 * paper.vc_fraction:.0f})"
 
 
 def table(report: dict[str, Any], which: str) -> list[str]:
     """Rows of ``which`` (``noise`` = Table 1, ``dead_pixels`` = Table 2) beside the paper's."""
-    lines = ["| method | test σ | V/C % | PA | mIoU | precision | sensitivity | paper PA | paper mIoU | paper prec. | paper sens. |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    columns = ["method", "test σ", "V/C %", "PA", "mIoU", "precision", "sensitivity"]
+    columns += ["paper PA", "paper mIoU", "paper prec.", "paper sens."]
+    lines = ["| " + " | ".join(columns) + " |", "|---" * len(columns) + "|"]
     for r in report["rows"]:
         if r["table"] != which:
             continue
         p = paper_row(which, r["method"], r["test_sigma_m"])
-        theirs = ["–"] * 4 if p is None else [_num(p.pixel_accuracy), _num(p.miou), _num(p.precision), _num(p.sensitivity)]
-        lines.append(f"| {METHODS.get(r['method'], r['method'])} | {_cm(r['test_sigma_m'])} | {_vc(r, p)} | "
-                     f"{_num(r['pixel_accuracy'])} | {_num(r['miou'])} | {_num(r['precision'])} | "
-                     f"{_num(r['sensitivity'])} | " + " | ".join(theirs) + " |")
+        theirs = (
+            [DASH] * 4 if p is None else [_num(p.pixel_accuracy), _num(p.miou), _num(p.precision), _num(p.sensitivity)]
+        )
+        lines.append(
+            f"| {METHODS.get(r['method'], r['method'])} | {_cm(r['test_sigma_m'])} | {_vc(r, p)} | "
+            f"{_num(r['pixel_accuracy'])} | {_num(r['miou'])} | {_num(r['precision'])} | "
+            f"{_num(r['sensitivity'])} | " + " | ".join(theirs) + " |"
+        )
     return lines
 
 
@@ -63,14 +69,20 @@ def sweep(report: dict[str, Any]) -> list[str]:
     sigmas = sorted({p["test_sigma_m"] for p in points})
     quantiles = sorted({p["quantile"] for p in points})
     by = {(p["quantile"], p["test_sigma_m"]): p for p in points}
-    lines = ["| quantile | " + " | ".join(f"{_cm(s)} V/C % / prec. / sens." for s in sigmas) + " |",
-             "|---" * (len(sigmas) + 1) + "|"]
+    lines = [
+        "| quantile | " + " | ".join(f"{_cm(s)} V/C % / prec. / sens." for s in sigmas) + " |",
+        "|---" * (len(sigmas) + 1) + "|",
+    ]
     for q in quantiles:
         cells = []
         for s in sigmas:
             p = by.get((q, s))
-            cells.append("–" if p is None else f"{100 * (p.get('vc_fraction') or 0):.0f} / {_num(p['precision'], 3)} / "
-                                                 f"{_num(p['sensitivity'], 3)}")
+            cells.append(
+                DASH
+                if p is None
+                else f"{100 * (p.get('vc_fraction') or 0):.0f} / {_num(p['precision'], 3)} / "
+                f"{_num(p['sensitivity'], 3)}"
+            )
         lines.append(f"| {q:g} | " + " | ".join(cells) + " |")
     return lines
 
@@ -81,14 +93,20 @@ def risk(report: dict[str, Any]) -> list[str]:
     The false-safe rate is ``hdnet.thresholds``' loss: certain pixels predicted safe that are unsafe,
     over the valid pixels of a DEM, averaged over the test DEMs.
     """
-    achieved = {(a["table"], a["test_sigma_m"]): a["false_safe_rate"] for a in report["threshold"].get("achieved_risk", [])}
-    lines = ["| test σ | V/C % | PA | mIoU | precision | sensitivity | false-safe rate |",
-             "|---|---|---|---|---|---|---|"]
+    achieved = {
+        (a["table"], a["test_sigma_m"]): a["false_safe_rate"] for a in report["threshold"].get("achieved_risk", [])
+    }
+    lines = [
+        "| test σ | V/C % | PA | mIoU | precision | sensitivity | false-safe rate |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for r in report["rows"]:
         if r["table"] == "noise" and r["method"] == "uncertainty_aware":
             fs = achieved.get(("noise", r["test_sigma_m"]))
-            lines.append(f"| {_cm(r['test_sigma_m'])} | {100 * r['vc_fraction']:.0f} | {_num(r['pixel_accuracy'])} | "
-                         f"{_num(r['miou'])} | {_num(r['precision'])} | {_num(r['sensitivity'])} | {_num(fs, 3)} |")
+            lines.append(
+                f"| {_cm(r['test_sigma_m'])} | {100 * r['vc_fraction']:.0f} | {_num(r['pixel_accuracy'])} | "
+                f"{_num(r['miou'])} | {_num(r['precision'])} | {_num(r['sensitivity'])} | {_num(fs, 3)} |"
+            )
     return lines
 
 
