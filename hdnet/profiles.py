@@ -158,6 +158,7 @@ CPU = TrainingProfile(
     heights="median",
     extra_channels=("slope", "highpass"),
     augment="d4",
+    channels_last=True,
 )
 TINY = TrainingProfile(
     name="tiny", input_size=None, width=1 / 16, batch_size=4, lr=1e-3, momentum=0.9, epochs=2, optimizer="adam"
