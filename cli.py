@@ -660,9 +660,9 @@ def label_cmd(
     click.option(
         "--train-sigma",
         type=_Finite(),
-        default=lidar_defaults.DEFAULT_SIGMA_M,
-        show_default=True,
-        help="Noise level of the training inputs, metres.",
+        default=None,
+        help="Noise level of the training inputs, metres (default: the dataset's noise level when it has only one, "
+        "else 1.67 cm, the paper's).",
     ),
     seed_option("initialisation and shuffling"),
     click.option("--resume", is_flag=True, help="Continue an interrupted run from its last checkpoint."),
@@ -682,7 +682,7 @@ def train_cmd(
     run_dir: Path,
     profile: str,
     epochs: int | None,
-    train_sigma: float,
+    train_sigma: float | None,
     seed: int,
     resume: bool,
     labeling: str | None,

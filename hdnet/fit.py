@@ -26,6 +26,7 @@ from hdnet.augment import check_augment
 from hdnet.data import (
     HazardDataset,
     compute_normalisation,
+    dataset_sigmas,
     dem_spacing_m,
     lander_of,
     open_labeling,
@@ -177,7 +178,8 @@ class FitConfig:
 
     ``profile``: a profile's name or a ``TrainingProfile`` (e.g. a variant in an ablation);
     ``epochs``: the schedule's length (None: the profile's); ``train_sigma_m``: the noise level of
-    the training inputs, metres; ``seed``: initialisation and shuffling; ``resume``: continue the
+    the training inputs, metres (None: the dataset's noise level when it has only one, else the
+    paper's 1.67 cm, ``training_sigma``); ``seed``: initialisation and shuffling; ``resume``: continue the
     run's ``last.pt``; ``labels``: the labelling to train on (None: the dataset's only or newest);
     ``progress``: progress bars; ``num_workers``: DataLoader worker processes; ``overwrite``: write
     into a non-empty directory that is not an hd run, or start an existing run again (its
@@ -190,7 +192,7 @@ class FitConfig:
 
     profile: str | TrainingProfile = "cpu"
     epochs: int | None = None
-    train_sigma_m: float = defaults.TRAIN_SIGMA_M
+    train_sigma_m: float | None = None
     seed: int = 0
     resume: bool = False
     labels: str | None = None
@@ -211,6 +213,14 @@ class FitConfig:
         return self.profile if isinstance(self.profile, TrainingProfile) else get_profile(self.profile)
 
 
+def training_sigma(requested_m: float | None, dataset_sigmas_m: tuple[float, ...]) -> float:
+    """The training noise level, metres: ``requested_m``, or by default the dataset's only noise level
+    (a dataset built with one ``--sigma``), or the paper's 1.67 cm for a dataset with several."""
+    if requested_m is not None:
+        return float(requested_m)
+    return float(dataset_sigmas_m[0]) if len(dataset_sigmas_m) == 1 else defaults.TRAIN_SIGMA_M
+
+
 def fit(dataset_dir: str | os.PathLike, run_dir: str | os.PathLike, config: FitConfig | None = None) -> Path:
     """Train a model on ``dataset_dir`` as ``config`` says (default: ``FitConfig()``); returns ``last.pt``.
 
@@ -220,10 +230,11 @@ def fit(dataset_dir: str | os.PathLike, run_dir: str | os.PathLike, config: FitC
             anything ``hdnet.train.train`` refuses.
     """
     cfg = config if config is not None else FitConfig()
-    resume, overwrite, labels, train_sigma_m = cfg.resume, cfg.overwrite, cfg.labels, cfg.train_sigma_m
+    resume, overwrite, labels = cfg.resume, cfg.overwrite, cfg.labels
     run_path, _ = prepare_run_dir(run_dir, resume, overwrite)
     profile = cfg.training_profile()
-    entry, _ = open_labeling(dataset_dir, labels)  # the clear "no labels" error first
+    entry, paths = open_labeling(dataset_dir, labels)  # the clear "no labels" error first
+    train_sigma_m = training_sigma(cfg.train_sigma_m, dataset_sigmas(paths))
     check_augment(profile.augment, lander_of(entry))
     normalisation = compute_normalisation(dataset_dir, train_sigma_m, labels) if profile.heights == "minmax" else None
     spec = input_spec_for(profile, dem_spacing_m(entry), normalisation)

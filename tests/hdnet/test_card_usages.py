@@ -74,9 +74,11 @@ def test_the_cards_usages_run_verbatim(tmp_path: Path, monkeypatch: pytest.Monke
     (labeling,) = manifest["labelings"]
     assert labeling["lander"]["convention"] == label_defaults.CONVENTION
 
-    hd("train", "sabrina", "--out", "run", "--train-sigma", "0.07")
+    trained = hd("train", "sabrina", "--out", "run")  # the dataset's only noise level, 7 cm
     (fit_config,) = tiny_work["fit"]
-    assert fit_config.profile == "cpu" and fit_config.train_sigma_m == 0.07
+    assert fit_config.profile == "cpu" and fit_config.train_sigma_m is None
+    assert json.loads((tmp_path / "run" / "config.json").read_text())["extra_config"]["train_sigma_m"] == 0.07
+    assert "training done" in trained.output
     assert (tmp_path / "run" / "last.pt").is_file()
 
     evaluated = hd("eval", "run", "--data", "sabrina", "--out", "report", "--drop-pixels", "10")

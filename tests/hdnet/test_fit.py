@@ -97,3 +97,11 @@ def test_d4_is_refused_for_a_triangle_lander(tmp_path):
     with pytest.raises(HdNetError, match="triangle"):
         fit(data, tmp_path / "run", FitConfig(profile=replace(TINY, augment="d4"), epochs=1, progress=False))
     assert not (tmp_path / "run").exists()
+
+
+def test_the_default_training_sigma_is_the_datasets_only_one_else_the_papers() -> None:
+    from hdnet.fit import training_sigma
+
+    assert training_sigma(None, (0.07,)) == 0.07  # hd build-dataset --sigma 0.07, then hd train
+    assert training_sigma(None, (0.0167, 0.03, 0.07)) == 0.0167  # the paper trains at S-167
+    assert training_sigma(0.03, (0.0167, 0.03, 0.07)) == 0.03
