@@ -9,7 +9,7 @@ lander-scale rule needs a receptive field of ~20 px, not 200, and the shallow ne
 DEMs at full resolution without padding); heights relative to each DEM's median in metres plus a
 slope and a 10 m high-pass channel (+0.03); dropout 0.2 instead of the paper's 0.5 (+0.015); width
 1/2 instead of 1/4 (+0.013); D4 augmentation over a longer run (+0.01). The chosen profile reaches
-validation PA 0.935 and mIoU 0.878 in 40 epochs (~19 min of training on this machine); width 3/4
+validation PA 0.935 and mIoU 0.878 in 40 epochs (10.3 min of training on this machine, quiet); width 3/4
 reaches the same in 18 epochs at about the same time, width 1/4 reaches 0.929 in 88 epochs.
 Class-balanced loss, one-cycle lr and batch 16 did not help. The channels-last memory format gives
 1.13x images/s for this network (docs/benchmarks.md). Adam (lr 1e-3, cosine-annealed to 0)
