@@ -44,7 +44,7 @@ from hdnet.data import HazardDataset, dem_spacing_m, open_labeling
 from hdnet.evaluate import validation_summary
 from hdnet.fit import FitConfig, fit, input_spec_for
 from hdnet.inputs import Normalisation
-from hdnet.model import BayesianSegNet, ModelConfig
+from hdnet.model import BayesianSegNet
 from hdnet.profiles import CPU, TrainingProfile
 from hdnet.train import load_checkpoint, median_images_per_s
 
@@ -146,9 +146,7 @@ def throughput(dataset: Path, names: list[str], rounds: int, steps: int, labels:
         p = profile_of(n, 1)
         spec = input_spec_for(p, dem_spacing_m(entry), Normalisation(-10.0, 10.0) if p.heights == "minmax" else None)
         ds = HazardDataset(dataset, "train", defaults.TRAIN_SIGMA_M, labels=labels, input_spec=spec, augment=p.augment)
-        model = BayesianSegNet(
-            ModelConfig(in_channels=spec.n_channels, width=p.width, depth=p.depth, dropout_p=p.dropout_p)
-        )
+        model = BayesianSegNet(p.model_config(spec.n_channels))
         fmt = torch.channels_last if p.channels_last else torch.contiguous_format
         model = model.to(memory_format=fmt).train()  # type: ignore[call-overload]  # the stubs omit memory_format
         opt = torch.optim.Adam(model.parameters(), lr=p.lr)

@@ -31,6 +31,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -52,7 +53,7 @@ from hdnet.detect import (
 from hdnet.fit import input_spec_for
 from hdnet.infer import mc_dropout_predict, predictive_entropy
 from hdnet.inputs import Normalisation, network_shape
-from hdnet.model import BayesianSegNet, ModelConfig, count_parameters
+from hdnet.model import BayesianSegNet, count_parameters
 from hdnet.profiles import CPU, PAPER, TrainingProfile
 from hdnet.train import CHECKPOINT_SCHEMA, CHECKPOINT_VERSION, save_checkpoint
 from lidarsim.procedural import MarsTerrainParams, generate_mars_terrain, write_geotiff
@@ -83,9 +84,7 @@ def _run(profile: TrainingProfile, width: float, dem: np.ndarray) -> DetectRun:
         Normalisation(float(np.nanmin(dem)) - 5.0, float(np.nanmax(dem)) + 5.0) if profile.heights == "minmax" else None
     )
     spec = input_spec_for(profile, 1.0, norm)
-    model = BayesianSegNet(
-        ModelConfig(in_channels=spec.n_channels, width=width, depth=profile.depth, dropout_p=profile.dropout_p)
-    ).eval()
+    model = BayesianSegNet(replace(profile, width=width).model_config(spec.n_channels)).eval()
     return DetectRun(Path("-"), model, {}, 0.0167, spec, LABELING["name"], LABELING, Lander(), (100, 100), 1.0, None)
 
 

@@ -27,6 +27,7 @@ from hdnet import defaults
 from hdnet.augment import AUGMENTATIONS
 from hdnet.errors import HdNetError
 from hdnet.inputs import EXTRA_CHANNELS, HEIGHTS
+from hdnet.model import ModelConfig
 
 LR_SCHEDULES: tuple[str, ...] = ("constant", "cosine", "onecycle")
 CLASS_WEIGHTINGS: tuple[str, ...] = ("none", "balanced")
@@ -121,6 +122,10 @@ class TrainingProfile:
         if t < ONECYCLE_PCT_START:
             return _cosine_between(start, self.lr, t / ONECYCLE_PCT_START)
         return _cosine_between(self.lr, end, (t - ONECYCLE_PCT_START) / (1.0 - ONECYCLE_PCT_START))
+
+    def model_config(self, in_channels: int) -> ModelConfig:
+        """The SegNet this profile trains on inputs of ``in_channels`` channels (width, depth, dropout)."""
+        return ModelConfig(in_channels=in_channels, width=self.width, depth=self.depth, dropout_p=self.dropout_p)
 
     def to_dict(self) -> dict[str, object]:
         """Plain-type dictionary (config.json, checkpoints)."""

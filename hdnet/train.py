@@ -380,9 +380,7 @@ def train(
     extra, in_channels = _check_inputs(train_ds, val_ds, total_epochs, num_workers, extra_config)
     run_dir = Path(run_dir)
     rank, world, device = _init_distributed()
-    model_config = ModelConfig(
-        in_channels=in_channels, width=profile.width, depth=profile.depth, dropout_p=profile.dropout_p
-    )
+    model_config = profile.model_config(in_channels)
     class_weights = _class_weights(profile, class_weights, train_ds, model_config.n_classes)
     last = run_dir / LAST
     ckpt = _checkpoint_to_resume(run_dir, resume, model_config, profile, rank)

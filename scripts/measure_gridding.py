@@ -24,8 +24,6 @@ from pathlib import Path
 
 import h5py
 import numpy as np
-import rasterio
-from rasterio.transform import from_origin
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -34,6 +32,7 @@ from hdlabels.grid import grid_points
 from hdnet.paper_results import PAPER_ROWS
 from lidarsim import defaults as lidar_defaults
 from lidarsim.build import BuildConfig, build_dataset
+from lidarsim.procedural import write_geotiff
 from lidarsim.shards import ScanShardReader, read_manifest
 from lidarsim.trajectory import TrajectoryConfig
 
@@ -41,17 +40,7 @@ from lidarsim.trajectory import TrajectoryConfig
 def flat_terrain(path: Path, side_m: float = 400.0, spacing_m: float = 0.5) -> Path:
     """A level plane (height 0 m) as a GeoTIFF."""
     n = int(side_m / spacing_m)
-    with rasterio.open(
-        path,
-        "w",
-        driver="GTiff",
-        width=n,
-        height=n,
-        count=1,
-        dtype="float32",
-        transform=from_origin(0.0, side_m, spacing_m, spacing_m),
-    ) as dst:
-        dst.write(np.zeros((n, n), dtype=np.float32), 1)
+    write_geotiff(path, np.zeros((n, n), dtype=np.float32), spacing_m, origin_xy=(0.0, side_m))
     return path
 
 
