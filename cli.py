@@ -784,7 +784,7 @@ def eval_cmd(
         "the noise level of the scan's DEM.",
     ),
     click.option("--sites", "n_sites", type=int, default=10, show_default=True, help="Most landing sites to propose."),
-    overwrite_option("Replace a non-empty --out."),
+    overwrite_option("Replace an earlier hd detect output in --out (never other files, never an input)."),
     labels_option("With --data: the labelling (when the dataset has several)."),
     seed_option("MC dropout"),
     batch_size_option("Tiles per inference batch."),

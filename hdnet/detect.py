@@ -2,8 +2,10 @@
 
 Input: a DTM file (any size; read window by window through ``lidarsim.terrain.DTM``, resampled to
 the run's DEM spacing) or one scan's noisy DEM of a labelled dataset (scan frame). Output, into a
-directory that appears complete or not at all (written beside it under a temporary name, renamed
-at the end):
+new or empty directory or over an earlier ``hd detect`` output (``lidarsim.storage.OutputDir``:
+never an input or a directory holding one, under a writer lock, staged inside the directory and
+moved into place file by file with ``detect.json`` last, so the output is complete when
+``detect.json`` is there):
 
 * ``p_safe.tif`` (float32, MC-dropout mean P(safe)), ``entropy.tif`` (float32, predictive entropy,
   nats), ``safety.tif`` (uint8: 0 unsafe, 1 safe, 2 uncertain = entropy >= H_t, 255 invalid) and
@@ -36,10 +38,7 @@ import json
 import math
 import os
 import re
-import shutil
-import tempfile
 import time
-import uuid
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
@@ -87,7 +86,7 @@ from hdnet.train import load_trained_model
 from lidarsim.errors import TerrainError
 from lidarsim.procedural import geotiff_profile
 from lidarsim.shards import MANIFEST_NAME, read_manifest, sha256_file
-from lidarsim.storage import check_output_dir
+from lidarsim.storage import OutputDir
 from lidarsim.terrain import DTM
 
 SAFETY_UNSAFE, SAFETY_SAFE, SAFETY_UNCERTAIN, SAFETY_INVALID = 0, 1, 2, 255
@@ -410,44 +409,14 @@ def _fixed_threshold(spec: str) -> float | None:
     return value
 
 
-def _check_out_dir(out: Path, overwrite: bool) -> None:
-    check_output_dir(out, "--out")  # a usable path: not under /proc or a file, writable parent
-    if out.exists() and not out.is_dir():
-        raise HdNetError(f"{out} exists and is not a directory.")
-    if out.is_dir() and any(out.iterdir()) and not overwrite:
-        raise HdNetError(f"{out} is not empty; pass --overwrite to replace it.")
+def is_detect_file(name: str) -> bool:
+    """True for the names of the files ``hd detect`` writes (its output's own files)."""
+    return name in OUTPUT_FILES
 
 
-@contextmanager
-def _staging(out: Path) -> Iterator[Path]:
-    """A temporary directory beside ``out``, renamed to ``out`` when the block succeeds, removed otherwise."""
-    created: list[Path] = []
-    parent = out.parent
-    while not parent.exists():
-        created.append(parent)
-        parent = parent.parent
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.detect-", dir=out.parent))
-    try:
-        yield tmp
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o777 & ~umask)
-        if out.exists():
-            old = out.parent / f".{out.name}.old-{uuid.uuid4().hex}"
-            os.replace(out, old)
-            os.replace(tmp, out)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        for d in created:  # innermost first; only directories this call made, and only if still empty
-            try:
-                d.rmdir()
-            except OSError:
-                break
-        raise
+def output_dir(out: str | os.PathLike, inputs: dict[str, str | os.PathLike | None]) -> OutputDir:
+    """The output transaction of ``hd detect`` (``detect.json`` marks its output)."""
+    return OutputDir(out, what="detect", marker="detect.json", owns=is_detect_file, inputs=inputs)
 
 
 # --- sites -----------------------------------------------------------------------------------------
@@ -645,16 +614,21 @@ def detect(
     Raises:
         HdNetError / TerrainError: bad options, a missing or foreign run, an unusable DTM (geographic
         CRS, coarser than the run's spacing, smaller than one lander footprint, all nodata), a scan
-        not in the dataset, or a non-empty ``out_dir`` without ``overwrite``. Nothing is written then.
+        not in the dataset. Nothing is written then.
+        StorageError / OutputExistsError: an ``out_dir`` that is, holds or lies inside an input (the
+        run, its checkpoint or dataset, the DTM, the dataset), that holds an earlier output without
+        ``overwrite`` or anything else, or that another process is writing.
     """
     t_start = time.perf_counter()
-    out = Path(out_dir)
     fixed = _fixed_threshold(threshold)
     spec = parse_threshold_spec(threshold) if fixed is None else None
     _check_detect_options(mc_samples, n_sites, batch_size, sigma_m, dtm, dataset, scan)
-    _check_out_dir(out, overwrite)
+    output = output_dir(out_dir, {"the run": run_dir, "the DTM": dtm, "the dataset": dataset})
+    output.check_place()  # a usable path that is no input, before the run is even loaded
     dev = torch.device(device) if device else torch.device("cuda" if torch.cuda.is_available() else "cpu")
     run = load_run(run_dir, dev)
+    output.add_inputs({"the checkpoint": run.checkpoint, "the run's dataset": run.dataset})
+    out = output.check(overwrite)
     baseline_sigma = run.train_sigma_m if sigma_m is None else float(sigma_m)
     terrain, calib_dir, calib_labels = _open_terrain(run, dtm, dataset, scan, labels, baseline_sigma)
     if isinstance(terrain, _ScanTerrain):
@@ -667,7 +641,7 @@ def detect(
                 "a fixed threshold, e.g. --threshold nats:0.3."
             )
         plan = TilePlan.make(terrain.shape, run.dem_shape, overlap_px(run.lander, run.spacing_m))
-        with _staging(out) as tmp:
+        with output.open(overwrite) as tmp:
             timings: dict[str, float] = {}
             t0 = time.perf_counter()
             if spec is not None and calib_dir is not None:
@@ -692,6 +666,7 @@ def detect(
             timings["total"] = time.perf_counter() - t_start
             info = _info(run, terrain, plan, threshold_info, baseline_sigma, mc_samples, seed, counts, sites, timings)
             (tmp / "detect.json").write_text(json.dumps(json_plain(info), indent=2) + "\n")
+            output.commit()
     finally:
         terrain.close()
     return DetectResult(out, sites, h_t, counts, {k: round(v, 3) for k, v in timings.items()}, info)

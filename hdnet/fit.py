@@ -7,9 +7,9 @@ asks for it), and hands them to ``hdnet.train.train``. What evaluation and infer
 prepare new inputs exactly like the training inputs is stored in the run's ``config.json`` and in
 every checkpoint under ``extra_config`` (see ``RUN_DATA_KEYS``; ``input`` is the ``InputSpec``).
 
-The run directory is checked before any work (``prepare_run_dir``: a writable place; a non-empty
-directory that is not an hd run is refused without ``overwrite``) and written under its writer
-lock, so two trainings never share a run directory.
+The run directory is checked before any work (``prepare_run_dir``: a writable place, not the
+dataset nor inside it; a non-empty directory that is not an hd run is refused, ``overwrite`` or
+not) and written under its writer lock, so two trainings never share a run directory.
 """
 
 from __future__ import annotations
@@ -41,6 +41,7 @@ from lidarsim.storage import (
     PARTIAL_MARK,
     StorageError,
     WriterLock,
+    check_not_input,
     check_output_dir,
     first_missing,
     make_dirs,
@@ -122,15 +123,19 @@ def _is_run(run_dir: Path) -> bool:
         return False
 
 
-def prepare_run_dir(run_dir: str | os.PathLike, resume: bool, overwrite: bool) -> tuple[Path, bool]:
+def prepare_run_dir(
+    run_dir: str | os.PathLike, resume: bool, overwrite: bool, dataset: str | os.PathLike | None = None
+) -> tuple[Path, bool]:
     """Check a run directory before any work; returns (absolute path, whether an old run is replaced).
 
     Raises:
-        HdNetError: an unwritable place; a non-empty directory that is not an hd run (without
-            ``overwrite``); a run with a checkpoint and neither ``resume`` nor ``overwrite``.
+        HdNetError: an unwritable place; a directory that is, holds or lies inside ``dataset``; a
+            non-empty directory that is not an hd run (``overwrite`` or not: it replaces runs only);
+            a run with a checkpoint and neither ``resume`` nor ``overwrite``.
     """
     try:
         path = check_output_dir(run_dir, "--out")
+        check_not_input(run_dir, {"the dataset": dataset})
     except StorageError as exc:
         raise HdNetError(str(exc).rstrip(".") + ".") from None
     if not path.exists():
@@ -139,11 +144,9 @@ def prepare_run_dir(run_dir: str | os.PathLike, resume: bool, overwrite: bool) -
     if not content:
         return path, False
     if not _is_run(path):
-        if overwrite:
-            return path, False
         raise HdNetError(
-            f"{path} is not empty and is not an hd run; choose another --out, or pass --overwrite to "
-            "write the run there anyway (files of the same names are replaced)."
+            f"{path} is not empty and is not an hd run; choose another --out (--overwrite replaces an hd run, "
+            "never other files)."
         )
     if overwrite:
         return path, True
@@ -231,7 +234,7 @@ def fit(dataset_dir: str | os.PathLike, run_dir: str | os.PathLike, config: FitC
     """
     cfg = config if config is not None else FitConfig()
     resume, overwrite, labels = cfg.resume, cfg.overwrite, cfg.labels
-    run_path, _ = prepare_run_dir(run_dir, resume, overwrite)
+    run_path, _ = prepare_run_dir(run_dir, resume, overwrite, dataset_dir)
     profile = cfg.training_profile()
     entry, paths = open_labeling(dataset_dir, labels)  # the clear "no labels" error first
     train_sigma_m = training_sigma(cfg.train_sigma_m, dataset_sigmas(paths))
@@ -250,7 +253,7 @@ def fit(dataset_dir: str | os.PathLike, run_dir: str | os.PathLike, config: FitC
     top = first_missing(run_path)
     try:
         with run_dir_lock(run_path):
-            _, replace = prepare_run_dir(run_path, resume, overwrite)  # again, under the lock
+            _, replace = prepare_run_dir(run_path, resume, overwrite, dataset_dir)  # again, under the lock
             remove_partials(run_path)  # of a killed run
             if replace:
                 for name in RUN_FILES:

@@ -120,7 +120,7 @@ class Pipeline:
                 does not fit the DEM, an output path that cannot be written).
         """
         from lidarsim.build import assign_splits
-        from lidarsim.storage import check_output_dir
+        from lidarsim.storage import check_not_input, check_output_dir
         from lidarsim.terrain import DTM
 
         n_scans = self.build.trajectory.n_scans
@@ -131,6 +131,7 @@ class Pipeline:
 
         check_lander_fits(self.label.to_lander(), self.label.to_dem_spec())
         check_output_dir(self.out_dir, "--out")
+        check_not_input(self.out_dir, {"the DTM": self.build.dtm_path})
         if self.build.dtm_path is not None:
             with DTM.open(self.build.dtm_path, scale=self.build.dtm_scale):
                 pass
@@ -358,9 +359,10 @@ def evaluate_to_report(
     from hdnet.evaluate import evaluate
     from hdnet.report import check_report_dir, write_report
 
-    check_report_dir(out_dir, overwrite)  # before the evaluation runs
+    inputs: dict[str, str | os.PathLike | None] = {"the run": run_dir, "the dataset": dataset_dir}
+    check_report_dir(out_dir, overwrite, inputs)  # before the evaluation runs
     result = evaluate(run_dir, dataset_dir, config)
-    write_report(result, Path(out_dir), figures=figures, overwrite=overwrite)
+    write_report(result, Path(out_dir), figures=figures, overwrite=overwrite, inputs=inputs)
     return result
 
 

@@ -10,8 +10,9 @@ Writing (``write_report``): every file is first written into a hidden staging di
 ``out_dir`` and moved into place only when all are complete, ``report.json`` last; a failure (a
 full disk included) removes the staging directory, so a report directory never holds half a
 report. The directory's writer lock keeps two evaluations from writing the same report. An
-existing report, or a non-empty directory that is not a report, is replaced only with
-``overwrite`` (``check_report_dir``, also called before an evaluation starts).
+existing report is replaced only with ``overwrite``; a non-empty directory that is not a report,
+and a directory that is, holds or lies inside the run or the dataset, are never written
+(``lidarsim.storage.OutputDir``; ``check_report_dir`` is also called before an evaluation starts).
 """
 
 from __future__ import annotations
@@ -19,25 +20,15 @@ from __future__ import annotations
 import json
 import math
 import os
-import shutil
 from dataclasses import asdict
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from hdnet.errors import HdNetError
 from hdnet.paper_results import paper_row
+from lidarsim.errors import LidarsimError
 from lidarsim.storage import (
-    LOCK_NAME,
-    PARTIAL_MARK,
-    StorageError,
-    WriterLock,
-    check_output_dir,
-    commit_file,
-    describe_os_error,
-    first_missing,
-    make_dirs,
-    remove_empty_dirs,
-    remove_partials,
+    OutputDir,
     write_text_atomic,
 )
 
@@ -222,73 +213,53 @@ def _is_report_file(name: str) -> bool:
     )
 
 
-def check_report_dir(out_dir: str | os.PathLike, overwrite: bool = False) -> Path:
+def report_output(out_dir: str | os.PathLike, inputs: dict[str, str | os.PathLike | None] | None = None) -> OutputDir:
+    """The output transaction of a report (``report.json`` marks it); ``inputs``: the run, the dataset."""
+    return OutputDir(out_dir, what="report", marker="report.json", owns=_is_report_file, inputs=inputs)
+
+
+def check_report_dir(
+    out_dir: str | os.PathLike, overwrite: bool = False, inputs: dict[str, str | os.PathLike | None] | None = None
+) -> Path:
     """Check a report directory before an evaluation runs; returns its absolute path.
 
     Raises:
-        HdNetError: an unwritable place (``/proc``, under a regular file, read-only...), an existing
-            report, or a non-empty directory that is not a report, without ``overwrite``.
+        HdNetError: an unwritable place (``/proc``, under a regular file, read-only...), a directory
+            that is, holds or lies inside one of ``inputs``, an existing report without
+            ``overwrite``, or a non-empty directory that is not a report.
     """
     try:
-        path = check_output_dir(out_dir, "--out")
-    except StorageError as exc:
+        return report_output(out_dir, inputs).check(overwrite)
+    except LidarsimError as exc:  # StorageError, OutputExistsError
         raise HdNetError(str(exc).rstrip(".") + ".") from None
-    if not path.exists() or overwrite:
-        return path
-    content = [p.name for p in path.iterdir() if p.name != LOCK_NAME and PARTIAL_MARK not in p.name]
-    if any(name in REPORT_FILES for name in content):
-        raise HdNetError(f"{path} already holds a report; pass --overwrite to replace it, or choose another --out.")
-    if content:
-        raise HdNetError(
-            f"{path} is not empty and is not an hd report; choose another --out, or pass --overwrite "
-            "to write the report there (files of the same names are replaced)."
-        )
-    return path
 
 
-def write_report(result: EvaluationResult, out_dir: Path, figures: bool = True, overwrite: bool = False) -> list[Path]:
+def write_report(
+    result: EvaluationResult,
+    out_dir: Path,
+    figures: bool = True,
+    overwrite: bool = False,
+    inputs: dict[str, str | os.PathLike | None] | None = None,
+) -> list[Path]:
     """Write ``report.json``, ``report.md`` and (``figures=True``) the PNGs; returns the paths written.
 
     Raises:
         HdNetError: see ``check_report_dir``; a full disk or another OS error (nothing is left
             half-written), or another evaluation writing the same directory.
     """
-    out_dir = check_report_dir(out_dir, overwrite)
-    top = first_missing(out_dir)
+    output = report_output(out_dir, inputs)
     try:
-        make_dirs(out_dir)
-        lock = WriterLock(out_dir, "report").acquire()
-    except StorageError as exc:
+        with output.open(overwrite) as staging:
+            _stage(result, staging, figures)
+            final = output.commit()
+    except LidarsimError as exc:  # StorageError, OutputExistsError, LockedError
         raise HdNetError(str(exc).rstrip(".") + ".") from None
-    staging = out_dir / f".report{PARTIAL_MARK}{os.getpid()}"
-    try:
-        check_report_dir(out_dir, overwrite)  # again, under the lock
-        remove_partials(out_dir)
-        staged = _stage(result, staging, figures)
-        if overwrite:
-            for p in out_dir.iterdir():
-                if _is_report_file(p.name) and p.is_file():
-                    p.unlink()
-        final = []
-        for p in sorted(staged, key=lambda q: q.name == "report.json"):  # report.json last: the report is complete
-            commit_file(p, out_dir / p.name)
-            final.append(out_dir / p.name)
-        return [out_dir / "report.json", out_dir / "report.md", *[p for p in final if p.suffix == ".png"]]
-    except OSError as exc:
-        raise HdNetError(
-            describe_os_error(exc, out_dir / Path(exc.filename).name if exc.filename else out_dir)
-        ) from None
-    except StorageError as exc:
-        raise HdNetError(str(exc)) from None
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
-        lock.release()
-        remove_empty_dirs(out_dir, top)
+    out = output.path
+    return [out / "report.json", out / "report.md", *[p for p in final if p.suffix == ".png"]]
 
 
 def _stage(result: EvaluationResult, staging: Path, figures: bool) -> list[Path]:
     """Every report file, complete, in ``staging``; returns their paths."""
-    make_dirs(staging)
     pngs: list[Path] = []
     if figures:
         from hdnet.figures import write_figures

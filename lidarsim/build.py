@@ -54,6 +54,7 @@ from lidarsim.storage import (
     StorageError,
     WriterLock,
     check_h5_data,
+    check_not_input,
     check_output_dir,
     first_missing,
     make_dirs,
@@ -375,7 +376,10 @@ def prepare_output(out_dir: Path, config: BuildConfig, overwrite: bool) -> bool:
     Raises:
         OutputExistsError: a complete dataset without ``overwrite``, an unfinished build with other
             settings, or a non-empty directory that is not an hd build.
+        StorageError: ``out_dir`` is, holds or lies inside the DTM (``--overwrite`` would delete it).
     """
+    if config.dtm_path is not None and Path(config.dtm_path).is_file():  # a bad --dtm gets its own error later
+        check_not_input(out_dir, {"the DTM": config.dtm_path})
     if not out_dir.exists():
         return False
     if not out_dir.is_dir():

@@ -41,6 +41,7 @@ import json
 import math
 import os
 import re
+import shutil
 import stat
 import tempfile
 from collections.abc import Iterator
@@ -50,7 +51,7 @@ from typing import Any
 import h5py
 import numpy as np
 
-from lidarsim.errors import DamagedFileError, FormatError, LockedError, StorageError
+from lidarsim.errors import DamagedFileError, FormatError, LockedError, OutputExistsError, StorageError
 
 LOCK_NAME = ".hd-lock"
 PARTIAL_MARK = ".partial-"
@@ -158,8 +159,6 @@ def remove_partials(directory: Path) -> int:
         for p in directory.glob(f".*{PARTIAL_MARK}*"):
             try:
                 if p.is_dir() and not p.is_symlink():
-                    import shutil
-
                     shutil.rmtree(p, ignore_errors=True)
                 else:
                     p.unlink(missing_ok=True)
@@ -633,6 +632,180 @@ def check_output_dir(path: str | os.PathLike, flag: str = "--out") -> Path:
         raise StorageError(f"{flag} {p}: {anc} is not a directory")
     _probe_writable(anc, flag, p)
     return p
+
+
+def check_not_input(out: str | os.PathLike, inputs: dict[str, str | os.PathLike | None], flag: str = "--out") -> None:
+    """Refuse an output location that is, contains or lies inside one of a command's inputs.
+
+    ``inputs`` maps a description ("the run", "the DTM", "the dataset") to a path (file or
+    directory; None entries are skipped). Paths are compared after resolving symbolic links, so a
+    link to an input is the input. Call it before any work and again under the writer lock.
+
+    Raises:
+        StorageError: one line naming both paths.
+    """
+    target = Path(os.path.realpath(os.path.abspath(out)))
+    for what, value in inputs.items():
+        if value is None:
+            continue
+        source = Path(os.path.realpath(os.path.abspath(value)))
+        if target == source:
+            relation = "is"
+        elif source.is_relative_to(target):
+            relation = "contains"
+        elif target.is_relative_to(source):
+            relation = "lies inside"
+        else:
+            continue
+        raise StorageError(
+            f"{flag} {out} {relation} {what} ({source}): an output never replaces or mixes with an input; "
+            f"choose another {flag}"
+        )
+
+
+class OutputDir:
+    """One command's output directory as a transaction: checked, locked, staged, committed.
+
+    The rules every command follows for its ``--out`` (docs/reliability.md):
+
+    * the directory is not, does not contain and does not lie inside one of the command's inputs
+      (:func:`check_not_input`), checked before any work, under the lock and again at commit;
+    * it is missing, empty, or holds an output of the same command, recognised by ``marker`` (or, for
+      an output whose commit was interrupted, by every entry being one of the command's files); an
+      existing output is replaced only with ``overwrite``, and a directory holding anything else is
+      never written, ``overwrite`` or not;
+    * while the block runs the directory's :class:`WriterLock` is held and files are written into
+      :attr:`staging` (a hidden ``.WHAT.partial-PID`` directory inside it, removed by the next
+      writer if this one is killed); :meth:`commit` moves them into place one by one, ``marker``
+      last, after removing the previous output's files that the new output does not replace. Other
+      files in the directory are never touched; a directory this block created is removed again
+      when the block fails.
+
+    Usage::
+
+        out = OutputDir(path, what="detect", marker="detect.json", owns=is_detect_file, inputs={...})
+        out.check(overwrite)                 # before any work
+        with out.open(overwrite) as staging: # locked; staging is empty
+            ...write files into staging...
+            out.commit()
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        *,
+        what: str,
+        marker: str,
+        owns: Any,
+        inputs: dict[str, str | os.PathLike | None] | None = None,
+        flag: str = "--out",
+    ) -> None:
+        self.raw = path
+        self.what = what
+        self.marker = marker
+        self.owns = owns
+        self.inputs: dict[str, str | os.PathLike | None] = dict(inputs or {})
+        self.flag = flag
+        self.path = Path(os.path.abspath(path))
+        self.staging = self.path / f".{what}{PARTIAL_MARK}{os.getpid()}"
+        self._lock: WriterLock | None = None
+        self._top: Path | None = None
+
+    def add_inputs(self, inputs: dict[str, str | os.PathLike | None]) -> None:
+        """Inputs known only after work started (a run's dataset); checked at once and at commit."""
+        self.inputs.update(inputs)
+        check_not_input(self.raw, self.inputs, self.flag)
+
+    def _content(self) -> list[str]:
+        return [
+            p.name
+            for p in self.path.iterdir()
+            if p.name != LOCK_NAME and not (p.name.startswith(".") and PARTIAL_MARK in p.name)
+        ]
+
+    def holds_output(self) -> bool:
+        """True when the directory holds an output of this command."""
+        if not self.path.is_dir():
+            return False
+        names = self._content()
+        return self.marker in names or (bool(names) and all(self.owns(n) for n in names))
+
+    def check_place(self) -> Path:
+        """The path alone: usable (:func:`check_output_dir`) and no input; returns the absolute path."""
+        path = check_output_dir(self.raw, self.flag)
+        check_not_input(self.raw, self.inputs, self.flag)
+        return path
+
+    def check(self, overwrite: bool) -> Path:
+        """Every rule that can be checked before work starts; returns the absolute path.
+
+        Raises:
+            StorageError / OutputExistsError: the path is unusable, is or holds an input, holds an
+                output of this command (without ``overwrite``) or anything else.
+        """
+        path = self.check_place()
+        if not path.exists():
+            return path
+        names = self._content()
+        if not names:
+            return path
+        if self.holds_output():
+            if not overwrite:
+                raise OutputExistsError(
+                    f"{path} already holds an hd {self.what} output ({self.marker}); pass --overwrite to replace "
+                    f"it, or choose another {self.flag}"
+                )
+            return path
+        raise OutputExistsError(
+            f"{path} is not empty and holds no hd {self.what} output ({self.marker}); hd writes only into a new "
+            f"or empty directory or over its own output (--overwrite never replaces other files): choose another "
+            f"{self.flag}"
+        )
+
+    @contextlib.contextmanager
+    def open(self, overwrite: bool) -> Iterator[Path]:
+        """Lock the directory (created if missing) and yield an empty staging directory inside it."""
+        self.check(overwrite)
+        self._top = first_missing(self.path)
+        make_dirs(self.path)
+        committed = False
+        try:
+            self._lock = WriterLock(self.path, self.what).acquire()
+            self.check(overwrite)  # again, now that no other writer can run
+            remove_partials(self.path)  # of a killed writer
+            self.staging.mkdir()
+            self._overwrite = overwrite
+            self._committed = False
+            yield self.staging
+            committed = self._committed
+        except OSError as exc:
+            raise StorageError(describe_os_error(exc, Path(exc.filename) if exc.filename else self.path)) from None
+        finally:
+            shutil.rmtree(self.staging, ignore_errors=True)
+            if self._lock is not None:
+                self._lock.release()
+                self._lock = None
+            if not committed:
+                remove_empty_dirs(self.path, self._top)
+
+    def commit(self) -> list[Path]:
+        """Move every staged file into place (``marker`` last); returns the final paths."""
+        self.check(self._overwrite)  # inputs and ownership once more, at commit
+        staged = sorted(
+            (p for p in self.staging.iterdir() if p.is_file()), key=lambda p: (p.name == self.marker, p.name)
+        )
+        new = {p.name for p in staged}
+        if self.marker in new:
+            (self.path / self.marker).unlink(missing_ok=True)  # from here on the old output is incomplete
+        for p in self.path.iterdir():
+            if self.owns(p.name) and p.name not in new and p.is_file() and not p.is_symlink():
+                p.unlink()
+        final = []
+        for p in staged:
+            commit_file(p, self.path / p.name)
+            final.append(self.path / p.name)
+        self._committed = True
+        return final
 
 
 def check_output_file(path: str | os.PathLike, flag: str = "output") -> Path:

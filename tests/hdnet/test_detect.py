@@ -50,9 +50,10 @@ from hdnet.evaluate import EvalConfig, evaluate
 from hdnet.fit import FitConfig, fit
 from hdnet.infer import mc_dropout_predict
 from hdnet.train import save_checkpoint
-from lidarsim.errors import TerrainError
+from lidarsim.errors import LockedError, OutputExistsError, TerrainError
 from lidarsim.procedural import MarsTerrainParams, generate_mars_terrain, write_geotiff
 from lidarsim.shards import sha256_file
+from lidarsim.storage import PARTIAL_MARK, WriterLock
 
 REAL = Path("/work/shared/data/real-terrain")
 needs_real = pytest.mark.skipif(not REAL.is_dir(), reason=f"{REAL} (the shared real terrains) is not present")
@@ -585,28 +586,110 @@ def test_missing_run_and_occupied_out_are_refused(trained, terrains, tmp_path):
     assert result.exit_code == 1 and "not a directory" in result.output and a_file.read_text() == "x"
 
 
-def test_overwrite_replaces_and_a_failure_leaves_the_old_output_whole(trained, terrains, tmp_path, monkeypatch):
+def test_overwrite_replaces_only_a_detect_output_and_a_failure_leaves_it_whole(
+    trained, terrains, tmp_path, monkeypatch
+):
     _, _, constant = trained
     out = tmp_path / "out"
-    out.mkdir()
-    (out / "old.txt").write_text("old")
+    detect(constant, out, dtm=terrains["ok"], threshold="nats:0.5", mc_samples=1)
+    (out / "notes.txt").write_text("mine")  # a user's file beside an output stays
+    before = {name: (out / name).read_bytes() for name in OUTPUT_FILES}
 
     def boom(*args, **kwargs):
         raise RuntimeError("disk full")
 
     monkeypatch.setattr(detect_module, "select_sites", boom)
     with pytest.raises(RuntimeError, match="disk full"):
-        detect(constant, out, dtm=terrains["ok"], threshold="nats:0.5", mc_samples=1, overwrite=True)
-    assert [p.name for p in out.iterdir()] == ["old.txt"]  # untouched
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["out", "terrains"]  # no temporary directory left
+        detect(constant, out, dtm=terrains["ok"], threshold="nats:0.7", mc_samples=1, overwrite=True)
+    assert {name: (out / name).read_bytes() for name in OUTPUT_FILES} == before  # untouched
+    assert sorted(p.name for p in out.iterdir()) == sorted([*OUTPUT_FILES, "notes.txt"])  # no staging left
     monkeypatch.undo()
     empty = tmp_path / "empty"
     empty.mkdir()  # an empty directory needs no --overwrite
     detect(constant, empty, dtm=terrains["ok"], threshold="nats:0.5", mc_samples=1)
     assert sorted(p.name for p in empty.iterdir()) == sorted(OUTPUT_FILES)
-    detect(constant, out, dtm=terrains["ok"], threshold="nats:0.5", mc_samples=1, overwrite=True)
-    assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUT_FILES)
+    detect(constant, out, dtm=terrains["ok"], threshold="nats:0.7", mc_samples=1, overwrite=True)
+    assert sorted(p.name for p in out.iterdir()) == sorted([*OUTPUT_FILES, "notes.txt"])
+    assert json.loads((out / "detect.json").read_text())["threshold"]["value_nats"] == 0.7
+    assert (out / "notes.txt").read_text() == "mine"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["empty", "out", "terrains"]
+
+
+def _tree(path: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(path)): p.read_bytes() for p in sorted(path.rglob("*")) if p.is_file()}
+
+
+def test_an_output_never_is_holds_or_lies_inside_an_input(trained, terrains, tmp_path, monkeypatch):
+    """``--out RUN --overwrite`` and ``--dtm site/site.tif --out site --overwrite`` deleted their inputs."""
+    dataset, run_dir, _ = trained
+    runner = CliRunner()
+    site = tmp_path / "site"
+    site.mkdir()
+    dtm = site / "site.tif"
+    dtm.write_bytes(Path(terrains["ok"]).read_bytes())
+    run_before, site_before, data_before = _tree(run_dir), _tree(site), _tree(dataset)
+    cases = [
+        ([str(run_dir), "--dtm", str(dtm), "--out", str(run_dir)], "is the run"),
+        ([str(run_dir / "last.pt"), "--dtm", str(dtm), "--out", str(run_dir)], "contains the run"),
+        ([str(run_dir), "--dtm", str(dtm), "--out", str(run_dir / "maps")], "lies inside the run"),
+        ([str(run_dir), "--dtm", str(dtm), "--out", str(site)], "contains the DTM"),
+        ([str(run_dir), "--dtm", str(dtm), "--out", str(tmp_path)], "contains the"),
+        ([str(run_dir), "--data", str(dataset), "--scan", "0", "--out", str(dataset / "maps")], "dataset"),
+        ([str(run_dir), "--dtm", str(dtm), "--out", str(dataset)], "the run's dataset"),
+    ]
+    for args, needle in cases:
+        for extra in ([], ["--overwrite"]):
+            result = runner.invoke(main, ["detect", *args, *extra, "--threshold", "nats:0.3", "--mc-samples", "1"])
+            assert result.exit_code == 1 and "Traceback" not in result.output, result.output
+            assert needle in result.output and "an output never replaces" in result.output, result.output
+    assert (_tree(run_dir), _tree(site), _tree(dataset)) == (run_before, site_before, data_before)
+    assert not (run_dir / "maps").exists() and not (dataset / "maps").exists()
+    # A symbolic link to the run is the run.
+    link = tmp_path / "link"
+    link.symlink_to(run_dir)
+    result = runner.invoke(main, ["detect", str(run_dir), "--dtm", str(dtm), "--out", str(link), "--overwrite"])
+    assert result.exit_code == 1 and "is the run" in result.output and _tree(run_dir) == run_before
+    # The working directory: usable when it is empty, refused when it holds the DTM.
+    monkeypatch.chdir(site)
+    result = runner.invoke(main, ["detect", str(run_dir), "--dtm", "site.tif", "--out", ".", "--overwrite"])
+    assert result.exit_code == 1 and "contains the DTM" in result.output and _tree(site) == site_before
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    args = ["detect", str(run_dir), "--dtm", str(dtm), "--out", ".", "--threshold", "nats:0.3", "--mc-samples", "1"]
+    assert runner.invoke(main, args).exit_code == 0
+    assert runner.invoke(main, [*args, "--overwrite"]).exit_code == 0
+    assert sorted(p.name for p in work.iterdir()) == sorted(OUTPUT_FILES)
+
+
+def test_overwrite_never_replaces_a_directory_that_is_not_a_detect_output(trained, terrains, tmp_path):
+    _, run_dir, _ = trained
+    foreign = tmp_path / "foreign"
+    foreign.mkdir()
+    (foreign / "p_safe.tif").write_text("a user's own file of the same name")
+    (foreign / "thesis.tex").write_text("keep me")
+    result = CliRunner().invoke(
+        main, ["detect", str(run_dir), "--dtm", str(terrains["ok"]), "--out", str(foreign), "--overwrite"]
+    )
+    assert result.exit_code == 1 and "holds no hd detect output" in result.output, result.output
+    assert _tree(foreign) == {"p_safe.tif": b"a user's own file of the same name", "thesis.tex": b"keep me"}
+
+
+def test_a_second_writer_is_refused_and_a_killed_ones_staging_is_removed(trained, terrains, tmp_path):
+    """Two detects into one --out: the second waited for nothing and replaced the first's output."""
+    _, _, constant = trained
+    out = tmp_path / "out"
+    out.mkdir()
+    with WriterLock(out, "detect"), pytest.raises(LockedError, match="another hd process"):  # another writer
+        detect(constant, out, dtm=terrains["ok"], threshold="nats:0.5", mc_samples=1)
+    assert list(out.iterdir()) == []
+    killed = out / f".detect{PARTIAL_MARK}999999"  # the staging directory of a detect killed by SIGKILL
+    killed.mkdir()
+    (killed / "p_safe.tif").write_bytes(b"half")
+    detect(constant, out, dtm=terrains["ok"], threshold="nats:0.5", mc_samples=1)
+    assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUT_FILES)
+    with pytest.raises(OutputExistsError, match="--overwrite"):  # a finished output is not replaced silently
+        detect(constant, out, dtm=terrains["ok"], threshold="nats:0.5", mc_samples=1)
 
 
 def test_a_run_without_its_dataset_needs_a_fixed_threshold(trained, terrains, tmp_path):

@@ -194,7 +194,7 @@ def test_a_bad_report_directory_fails_before_the_evaluation(setup, tmp_path, mon
     occupied = tmp_path / "occupied"
     occupied.mkdir()
     (occupied / "notes.txt").write_text("mine")
-    with pytest.raises(HdNetError, match="not empty and is not an hd report"):
+    with pytest.raises(HdNetError, match="not empty and holds no hd report output"):
         evaluate_to_report(run, dataset, occupied, EvalConfig(mc_samples=2))
     assert [p.name for p in occupied.iterdir()] == ["notes.txt"]
 

@@ -28,18 +28,17 @@ def _files(d):
 
 
 # ------------------------------------------------------------------------------------- train --out
-def test_train_refuses_a_foreign_directory_unless_overwrite(tmp_path, labelled):
+def test_train_refuses_a_foreign_directory_even_with_overwrite(tmp_path, labelled):
     mine = tmp_path / "mine"
     mine.mkdir()
     (mine / "config.json").write_text('{"my": "settings"}')
     (mine / "metrics.csv").write_text("my,metrics\n")
     (mine / "notes.txt").write_text("keep me")
     before = _files(mine)
-    assert_one_line_error(_train(labelled, mine), "not an hd run", "--overwrite")
+    assert_one_line_error(_train(labelled, mine), "not an hd run", "--out")
     assert _files(mine) == before
-    result = _train(labelled, mine, "--overwrite")
-    assert result.exit_code == 0, result.output
-    assert (mine / "notes.txt").read_text() == "keep me" and (mine / "last.pt").is_file()
+    assert_one_line_error(_train(labelled, mine, "--overwrite"), "not an hd run", "never other files")
+    assert _files(mine) == before  # --overwrite replaces runs only, never a user's config.json
 
 
 def test_train_refuses_an_existing_run_without_resume_or_overwrite(tmp_path, labelled, trained):
@@ -59,7 +58,7 @@ def test_eval_refuses_an_existing_report_and_a_foreign_directory(tmp_path, label
     args = ["eval", trained, "--data", labelled, "--out", report, "--mc-samples", "2"]
     assert invoke(*args).exit_code == 0
     before = _files(report)
-    assert_one_line_error(invoke(*args), "already holds a report", "--overwrite")
+    assert_one_line_error(invoke(*args), "already holds an hd report", "--overwrite")
     assert _files(report) == before
     result = invoke(*args, "--overwrite", "--seed", "5")
     assert result.exit_code == 0, result.output
@@ -67,10 +66,42 @@ def test_eval_refuses_an_existing_report_and_a_foreign_directory(tmp_path, label
     foreign = tmp_path / "foreign"
     foreign.mkdir()
     (foreign / "report.md").write_text("my own report")
-    assert_one_line_error(invoke("eval", trained, "--data", labelled, "--out", foreign), "already holds a report")
+    assert_one_line_error(invoke("eval", trained, "--data", labelled, "--out", foreign), "already holds an hd report")
     (foreign / "report.md").rename(foreign / "thesis.md")
-    assert_one_line_error(invoke("eval", trained, "--data", labelled, "--out", foreign), "not an hd report")
+    for more in ([], ["--overwrite"]):
+        result = invoke("eval", trained, "--data", labelled, "--out", foreign, *more)
+        assert_one_line_error(result, "holds no hd report")
     assert (foreign / "thesis.md").read_text() == "my own report"
+
+
+# ------------------------------------------------------------------------------------- outputs never hold inputs
+def _tree(path):
+    return {str(p.relative_to(path)): p.read_bytes() for p in sorted(path.rglob("*")) if p.is_file()}
+
+
+def test_train_eval_and_build_refuse_an_output_that_is_holds_or_lies_inside_an_input(tmp_path, labelled, trained, dtm):
+    data_before, run_before = _tree(labelled), _tree(trained)
+    for out, needle in ((labelled, "is the dataset"), (labelled / "run", "lies inside the dataset")):
+        for more in ([], ["--overwrite"]):
+            assert_one_line_error(_train(labelled, out, *more), needle, "an output never replaces")
+    for out, needle in (
+        (trained, "is the run"),
+        (trained / "report", "lies inside the run"),
+        (labelled, "is the dataset"),
+        (labelled.parent, "contains the dataset"),
+    ):
+        for more in ([], ["--overwrite"]):
+            result = invoke("eval", trained, "--data", labelled, "--out", out, "--mc-samples", "1", *more)
+            assert_one_line_error(result, needle, "an output never replaces")
+    site = tmp_path / "site"
+    site.mkdir()
+    shutil.copy(dtm, site / "site.tif")
+    site_before = _tree(site)
+    for more in ([], ["--overwrite"]):
+        result = invoke("build-dataset", "--dtm", site / "site.tif", "--out", site, *BUILD_ARGS, *more)
+        assert_one_line_error(result, "contains the DTM", "an output never replaces")
+    assert (_tree(labelled), _tree(trained), _tree(site)) == (data_before, run_before, site_before)
+    assert not (labelled / "run").exists() and not (trained / "report").exists()
 
 
 # ------------------------------------------------------------------------------------- failed commands leave nothing
