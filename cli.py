@@ -660,11 +660,19 @@ def label_cmd(
     click.option(
         "--train-sigma",
         type=_Finite(),
-        default=None,
-        help="Noise level of the training inputs, metres (default: the dataset's noise level when it has only one, "
-        "else 1.67 cm, the paper's).",
+        multiple=True,
+        help="Noise level of the training inputs, metres; repeat it to train on several (one drawn per sample "
+        "and epoch; levels the dataset does not store are made from its clean points). Default: the profile's "
+        "range, else the dataset's noise level when it has only one, else 1.67 cm, the paper's.",
     ),
-    seed_option("initialisation and shuffling"),
+    click.option(
+        "--train-sigma-range",
+        default=None,
+        metavar="LOW:HIGH",
+        help="Train across noise levels from LOW to HIGH metres (e.g. 0:0.10), drawn uniformly per sample "
+        "and epoch, the noisy DEMs made from the dataset's clean points.",
+    ),
+    seed_option("initialisation, shuffling and noise draws"),
     click.option("--resume", is_flag=True, help="Continue an interrupted run from its last checkpoint."),
     labels_option("Labelling to train on (when the dataset has several)."),
     click.option(
@@ -682,7 +690,8 @@ def train_cmd(
     run_dir: Path,
     profile: str,
     epochs: int | None,
-    train_sigma: float | None,
+    train_sigma: tuple[float, ...],
+    train_sigma_range: str | None,
     seed: int,
     resume: bool,
     labeling: str | None,
@@ -692,14 +701,23 @@ def train_cmd(
     """Train the Bayesian SegNet on the noisy DEMs of a labelled dataset."""
     from hdnet.errors import HdNetError
     from hdnet.fit import FitConfig, fit
+    from hdnet.noise_levels import TrainingNoise, parse_sigma_range
     from hdnet.pipeline import training_done_message
 
     if resume and overwrite:
         raise HdNetError("--resume and --overwrite exclude each other")
+    if train_sigma and train_sigma_range is not None:
+        raise HdNetError("--train-sigma and --train-sigma-range exclude each other")
+    noise = None
+    if train_sigma_range is not None:
+        noise = TrainingNoise(range_m=parse_sigma_range(train_sigma_range))
+    elif len(train_sigma) > 1:
+        noise = TrainingNoise(levels_m=tuple(train_sigma))
     config = FitConfig(
         profile=profile,
         epochs=epochs,
-        train_sigma_m=train_sigma,
+        train_sigma_m=train_sigma[0] if len(train_sigma) == 1 else None,
+        train_noise=noise,
         seed=seed,
         resume=resume,
         labels=labeling,
@@ -730,7 +748,22 @@ def train_cmd(
     labels_option("Labelling to evaluate against (when the dataset has several)."),
     seed_option("MC dropout and dropped pixels"),
     batch_size_option("DEMs per inference batch."),
-    overwrite_option("Replace an existing report, or write into a non-empty directory that is not a report."),
+    click.option(
+        "--sigma-sweep",
+        default=None,
+        metavar="START:STOP:STEP",
+        help="Also score the test split at these noise levels, metres (e.g. 0:0.12:0.01); levels the dataset "
+        "does not store are made from its clean points. Adds a table and noise_sweep.png.",
+    ),
+    click.option(
+        "--calibrate",
+        type=click.Choice(["reference", "each"]),
+        default="reference",
+        show_default=True,
+        help="Where the threshold is calibrated: once on the validation split at the run's reference noise "
+        "level (the paper), or at each test noise level (the sensor's, which a flash LiDAR knows).",
+    ),
+    overwrite_option("Replace an existing report (never other files, never an input)."),
 )
 @friendly_errors
 def eval_cmd(
@@ -743,10 +776,13 @@ def eval_cmd(
     labeling: str | None,
     seed: int,
     batch_size: int = net_defaults.BATCH_SIZE,
+    sigma_sweep: str | None = None,
+    calibrate: str = "reference",
     overwrite: bool = False,
 ) -> None:
-    """Evaluate a trained run: the paper's tables, threshold sweep, calibration and figures."""
+    """Evaluate a trained run: the paper's tables, threshold sweep, calibration, noise sweep and figures."""
     from hdnet.evaluate import EvalConfig
+    from hdnet.noise_levels import parse_sigma_sweep
     from hdnet.pipeline import evaluate_to_report, report_written_message
 
     config = EvalConfig(
@@ -756,6 +792,8 @@ def eval_cmd(
         labels=labeling,
         seed=seed,
         batch_size=batch_size,
+        sigma_sweep=parse_sigma_sweep(sigma_sweep) if sigma_sweep is not None else (),
+        calibrate=calibrate,
     )
     result = evaluate_to_report(run_dir, dataset, out_dir, config, overwrite=overwrite)
     click.echo(result.summary())

@@ -75,6 +75,7 @@ def transform_sample(sample: DemSample, k: int) -> DemSample:
     grids: dict[str, Any] = {
         name: np.ascontiguousarray(d4(getattr(sample, name), k))
         for name in ("dem_clean_m", "dem_noisy_m", "dem_filled_m", "label", "p_safe", "ignore")
+        if getattr(sample, name) is not None  # p_safe of a DEM made on the fly
     }
     dead = sample.dead_pixels
     if dead.size:

@@ -2,8 +2,18 @@
 
 One sample is one scan: the noisy DEM at one noise level ``sigma_m`` (metres), prepared for the
 network, and its label (0 unsafe, 1 safe, 255 ignored), as a dict
-``{"image": (C, H, W) float32, "mask": (H, W) int64, "index": int}`` (plus ``"ignore"``, bool (H, W),
-with dead pixels). Preparation, in order:
+``{"image": (C, H, W) float32, "mask": (H, W) int64, "index": int, "sigma_m": float}`` (plus
+``"ignore"``, bool (H, W), with dead pixels).
+
+The noisy DEM is the labelling's stored one when the dataset stores that noise level; otherwise it
+is made from the scan's clean points with the factory's noise model and the labelling's gridding
+(``hdlabels.noisy``; equal to the stored DEM at a stored level), and its ALHAT baseline P(safe) is
+computed when asked for (``baseline_p_safe``). With ``noise`` (a ``TrainingNoise`` of several
+levels or a range), every sample draws its level, and its D4 transform, from the stream
+``(seed, TRAINING_DRAW, epoch, scan index)`` and its noise from an independent realisation per
+epoch (``set_epoch``): the same samples whatever the number of DataLoader workers.
+
+Preparation, in order:
 
 1. dead pixels (``dead_pixels=K`` only): K pixels of the noisy DEM, drawn per scan index with
    ``hdlabels.deadpixels.random_dead_pixels`` (the same pixels for every noise level, seeded by
@@ -16,7 +26,8 @@ with dead pixels). Preparation, in order:
    (``hdnet.augment``; allowed only for labellings whose rule is invariant under them);
 4. the input channels of ``hdnet.inputs.network_input`` with the run's ``InputSpec``: the paper's
    min-max normalisation with the *training* split's min and max at the same noise level
-   (``compute_normalisation``) by default, or per-DEM relative heights and extra channels;
+   (``compute_normalisation``) by default, or per-DEM relative heights and extra channels (the
+   ``sigma`` channel takes the sample's noise level);
 5. grid: with ``input_size`` (the ``paper`` profile: 512) the image is resized bilinearly
    (``align_corners=False``) to ``input_size x input_size`` and the label and ignore mask by
    nearest neighbour (``nearest-exact``); without it the image is padded on the bottom and right to
@@ -44,9 +55,13 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
+from hdlabels.alhat import safety_probability
 from hdlabels.deadpixels import drop_and_repair, random_dead_pixels
+from hdlabels.errors import HdLabelsError
 from hdlabels.lander import Lander
+from hdlabels.noisy import CleanScan, NoisyDems
 from hdlabels.store import (
+    DemSpec,
     LabelShardReader,
     LabelStoreError,
     find_labeling,
@@ -66,7 +81,10 @@ from hdnet.inputs import (  # noqa: F401  (re-exported: the grid helpers belong 
     to_dem_grid,
     to_network_grid,
 )
+from hdnet.noise_levels import TrainingNoise, check_levels
+from lidarsim.errors import LidarsimError
 from lidarsim.storage import CheckedH5File, FormatError, open_h5
+from lidarsim.streams import Purpose, stream
 
 SPLITS: tuple[str, str, str] = ("train", "val", "test")  # split codes 0, 1, 2 of the label shards
 SIGMA_EXACT_TOLERANCE_M = 1e-9  # hd choice: two noise levels closer than this are the same level
@@ -81,8 +99,10 @@ class DemSample:
     """One scan on the DEM grid after dead-pixel repair, before normalisation (metres, north-up).
 
     ``dem_noisy_m``: the (repaired) noisy DEM with NaN holes; ``dem_filled_m``: the same with holes
-    filled; ``label``: int64 with 255 on invalid cells and holes; ``ignore``: dead-pixel
-    neighbourhoods (all False without dead pixels); ``dead_pixels``: (K, 2) (row, col).
+    filled; ``label``: int64 with 255 on invalid cells and holes; ``p_safe``: the stored ALHAT
+    baseline P(safe), or None for a DEM made on the fly (see ``HazardDataset.baseline_p_safe``);
+    ``ignore``: dead-pixel neighbourhoods (all False without dead pixels); ``dead_pixels``: (K, 2)
+    (row, col); ``sigma_m``: the DEM's noise level, metres.
     """
 
     scan_index: int
@@ -90,9 +110,10 @@ class DemSample:
     dem_noisy_m: np.ndarray
     dem_filled_m: np.ndarray
     label: np.ndarray
-    p_safe: np.ndarray
+    p_safe: np.ndarray | None
     ignore: np.ndarray
     dead_pixels: np.ndarray
+    sigma_m: float = math.nan
 
 
 # --- labelling and noise levels ----------------------------------------------------------------
@@ -176,28 +197,32 @@ def compute_normalisation(dataset_dir: str | os.PathLike, sigma_m: float, labels
 
 # --- the dataset -------------------------------------------------------------------------------
 class HazardDataset(Dataset):
-    """Samples of one split of a labelled dataset at one noise level (see the module docstring).
+    """Samples of one split of a labelled dataset at one noise level, or drawn from several (see the
+    module docstring).
 
     Args:
         dataset_dir: the dataset directory (``manifest.json`` with a labelling).
         split: ``train``, ``val`` or ``test``.
-        sigma_m: noise level of the input DEM, metres.
+        sigma_m: noise level of the input DEM, metres (stored in the dataset, or made on the fly);
+            with ``noise`` of several levels or a range: None.
         input_size: network input size in pixels (square, bilinear), or None to pad to a multiple of 32.
         labels: the labelling's name (needed only when the dataset has several).
         normalisation: min/max heights; default: ``compute_normalisation`` on the training split.
         dead_pixels: K pixels dropped and repaired per noisy DEM (0: none).
-        seed: seed of the dead-pixel draws.
+        seed: seed of the dead-pixel draws and of the noise-level draws.
         input_spec: how DEMs become network inputs (``hdnet.inputs``); when given it replaces
             ``input_size`` and ``normalisation`` (default: the paper's min-max heights with them).
         augment: ``"none"`` or ``"d4"`` (a random rotation/flip per sample; refused for a labelling
             whose lander rule is not invariant under them).
+        noise: training noise levels (``hdnet.noise_levels.TrainingNoise``); one level is the
+            same as ``sigma_m``.
     """
 
     def __init__(
         self,
         dataset_dir: str | os.PathLike,
         split: str,
-        sigma_m: float,
+        sigma_m: float | None,
         input_size: int | None = None,
         labels: str | None = None,
         normalisation: Normalisation | None = None,
@@ -205,16 +230,27 @@ class HazardDataset(Dataset):
         seed: int = 0,
         input_spec: InputSpec | None = None,
         augment: str = "none",
+        noise: TrainingNoise | None = None,
     ) -> None:
         if split not in SPLITS:
             raise HdNetError(f"split must be one of {', '.join(SPLITS)}, got {split!r}.")
+        if noise is not None and noise.is_single:
+            sigma_m, noise = noise.levels_m[0], None
+        if (sigma_m is None) == (noise is None):
+            raise HdNetError("give either one noise level (sigma_m) or training noise levels, not both.")
         self.dataset_dir = Path(dataset_dir)
         self.split = split
         self.entry, self.paths = open_labeling(dataset_dir, labels)
         self.labels = str(self.entry["name"])
         self.sigmas_m = dataset_sigmas(self.paths)
-        self.sigma_index = sigma_index(self.sigmas_m, sigma_m)
-        self.sigma_m = self.sigmas_m[self.sigma_index]
+        self.noise = noise
+        self.sigma_index: int | None = None
+        if sigma_m is not None:
+            self.sigma_index = stored_sigma_index(self.sigmas_m, sigma_m)
+            self.sigma_m = self.sigmas_m[self.sigma_index] if self.sigma_index is not None else float(sigma_m)
+        else:
+            assert noise is not None
+            self.sigma_m = math.nan  # drawn per sample
         self.lander = lander_of(self.entry)
         self.spacing_m = dem_spacing_m(self.entry)
         dem = self.entry.get("dem", {})
@@ -230,6 +266,7 @@ class HazardDataset(Dataset):
             )
         self.dead_pixels = int(dead_pixels)
         self.seed = int(seed)
+        self.epoch = 0
         code = SPLITS.index(split)
         items: list[tuple[int, int, int]] = []  # (shard number, row in shard, scan index)
         for k, (path, shard) in enumerate(zip(self.paths, self.entry["shards"], strict=True)):
@@ -247,7 +284,9 @@ class HazardDataset(Dataset):
         self.items = items
         if input_spec is None:
             norm = (
-                normalisation if normalisation is not None else compute_normalisation(dataset_dir, self.sigma_m, labels)
+                normalisation
+                if normalisation is not None
+                else compute_normalisation(dataset_dir, self.nearest_stored_sigma_m, labels)
             )
             input_spec = InputSpec(
                 heights="minmax", normalisation=norm, input_size=input_size, spacing_m=self.spacing_m
@@ -258,6 +297,25 @@ class HazardDataset(Dataset):
         self.augment = check_augment(augment, self.lander)
         self._files: dict[int, CheckedH5File] = {}
         self._pid = -1
+        self._clean: list[CleanScan] | None = None
+        self._maker: NoisyDems | None = None
+        if self.made_on_the_fly:  # read once here: DataLoader workers share them
+            self.clean_scans()
+
+    @property
+    def made_on_the_fly(self) -> bool:
+        """True when the noisy DEMs are made from the clean points (a level the dataset does not store, or drawn)."""
+        return self.sigma_index is None
+
+    @property
+    def nearest_stored_sigma_m(self) -> float:
+        """The stored noise level nearest this dataset's level (the middle of drawn levels), metres."""
+        target = self.sigma_m if self.noise is None else 0.5 * (self.noise.low_m + self.noise.high_m)
+        return min(self.sigmas_m, key=lambda s: abs(s - target))
+
+    def set_epoch(self, epoch: int) -> None:
+        """The training epoch (0-based): with drawn noise, it keys the draws and the noise realisation."""
+        self.epoch = int(epoch)
 
     # Pickling: never the open files.
     def __getstate__(self) -> dict[str, Any]:
@@ -291,14 +349,69 @@ class HazardDataset(Dataset):
         """Global scan index of every sample, in order."""
         return [scan for _, _, scan in self.items]
 
-    def dem_sample(self, i: int) -> DemSample:
-        """Sample ``i`` on the DEM grid, metres (steps 1-2 of the module docstring)."""
+    # --- noisy DEMs made on the fly ---
+    def noisy_dems(self) -> NoisyDems:
+        """The maker of this dataset's noisy DEMs at any level (``hdlabels.noisy``)."""
+        if self._maker is None:
+            try:
+                self._maker = NoisyDems.of_dataset(self.dataset_dir, DemSpec.from_entry(self.entry.get("dem", {})))
+            except (HdLabelsError, LidarsimError) as exc:
+                raise HdNetError(f"{self.dataset_dir}: {str(exc).rstrip('.')}.") from None
+        return self._maker
+
+    def clean_scans(self) -> list[CleanScan]:
+        """Every sample's clean scan (ranges recovered from the clean points), read once per dataset."""
+        if self._clean is None:
+            maker = self.noisy_dems()
+            by_shard: dict[int, list[int]] = {}
+            for n, (k, _row, _scan) in enumerate(self.items):
+                by_shard.setdefault(k, []).append(n)
+            clean: list[CleanScan | None] = [None] * len(self.items)
+            for k, members in by_shard.items():
+                shard = self.entry["shards"][k]
+                try:
+                    scans = maker.read_scans(self.dataset_dir, shard, [self.items[n][1] for n in members])
+                except (HdLabelsError, LidarsimError, KeyError) as exc:
+                    raise HdNetError(
+                        f"{self.dataset_dir}: cannot make noisy DEMs from the clean points of "
+                        f"{shard.get('source_path', '?')}: {str(exc).rstrip('.')}."
+                    ) from None
+                for n, c in zip(members, scans, strict=True):
+                    if c.scan_index != self.items[n][2]:
+                        raise HdNetError(
+                            f"{shard.get('source_path')}: row {self.items[n][1]} holds scan {c.scan_index}, its "
+                            f"label shard scan {self.items[n][2]}; relabel the dataset."
+                        )
+                    clean[n] = c
+            self._clean = [c for c in clean if c is not None]
+        return self._clean
+
+    def baseline_p_safe(self, sample: DemSample) -> np.ndarray:
+        """The ALHAT baseline P(safe) of a sample: stored, or computed on its noisy DEM at its level."""
+        if sample.p_safe is not None:
+            return sample.p_safe
+        return safety_probability(sample.dem_noisy_m, self.spacing_m, sample.sigma_m, self.lander)
+
+    # --- samples ---
+    def dem_sample(self, i: int, sigma_m: float | None = None, realisation: int | None = None) -> DemSample:
+        """Sample ``i`` on the DEM grid, metres (steps 1-2 of the module docstring).
+
+        ``sigma_m``: another noise level than the dataset's (made on the fly), with the noise
+        ``realisation`` (None: the dataset's own draw at that level).
+        """
         if not 0 <= i < len(self.items):
             raise IndexError(f"sample {i} out of range for {len(self.items)} samples")
         k, row, scan = self.items[i]
         f = self._file(k)
-        s = self.sigma_index
-        noisy = f["dem_noisy"][row, s].astype(np.float32)
+        if sigma_m is None and self.noise is not None:
+            raise HdNetError("a dataset of drawn noise levels needs the sample's sigma.")
+        level = self.sigma_m if sigma_m is None else float(sigma_m)
+        p_safe: np.ndarray | None = None
+        if sigma_m is None and realisation is None and self.sigma_index is not None:
+            noisy = f["dem_noisy"][row, self.sigma_index].astype(np.float32)
+            p_safe = f["p_safe"][row, self.sigma_index]
+        else:
+            noisy = self.noisy_dems().dem(self.clean_scans()[i], level, realisation)
         label = f["label"][row].astype(np.int64)
         ignore = np.zeros(noisy.shape, dtype=bool)
         dead = np.zeros((0, 2), dtype=np.int64)
@@ -306,6 +419,7 @@ class HazardDataset(Dataset):
             rng = np.random.default_rng(np.random.SeedSequence([self.seed, scan, DEAD_PIXEL_STREAM]))
             dead = random_dead_pixels(noisy.shape, self.dead_pixels, rng)
             noisy, ignore = drop_and_repair(noisy, dead, self.lander, self.spacing_m)
+            p_safe = None  # the baseline of the repaired DEM is computed on it
         holes = ~np.isfinite(noisy)
         label[holes] = defaults.IGNORE_INDEX
         return DemSample(
@@ -314,25 +428,39 @@ class HazardDataset(Dataset):
             dem_noisy_m=noisy,
             dem_filled_m=fill_holes(noisy),
             label=label,
-            p_safe=f["p_safe"][row, s],
+            p_safe=p_safe,
             ignore=ignore,
             dead_pixels=dead,
+            sigma_m=level,
         )
 
     def prepare(self, sample: DemSample) -> dict[str, Any]:
         """Steps 4-5: the network-ready dict of a DEM-grid sample (``network_input`` for the image)."""
         spec = self.input_spec
-        image = network_input(sample.dem_filled_m, spec)
+        image = network_input(sample.dem_filled_m, spec, sample.sigma_m)
         masks = [torch.from_numpy(np.ascontiguousarray(sample.label))]
         if self.dead_pixels:
             masks.append(torch.from_numpy(np.ascontiguousarray(sample.ignore)))
         masks = masks_to_network_grid(masks, spec.input_size, [defaults.IGNORE_INDEX, True], spec.size_multiple)
-        out: dict[str, Any] = {"image": image, "mask": masks[0].contiguous(), "index": sample.scan_index}
+        out: dict[str, Any] = {
+            "image": image,
+            "mask": masks[0].contiguous(),
+            "index": sample.scan_index,
+            "sigma_m": sample.sigma_m,
+        }
         if self.dead_pixels:
             out["ignore"] = masks[1].contiguous()
         return out
 
     def __getitem__(self, i: int) -> dict[str, Any]:
+        if self.noise is not None:  # drawn: level, transform and noise keyed by (seed, epoch, scan)
+            rng = stream(self.seed, Purpose.TRAINING_DRAW, self.epoch, self.items[i][2])
+            sigma = self.noise.draw(rng)
+            transform = int(rng.integers(D4_ORDER))
+            sample = self.dem_sample(i, sigma, realisation=self.epoch)
+            if self.augment == "d4":
+                sample = transform_sample(sample, transform)
+            return self.prepare(sample)
         sample = self.dem_sample(i)
         if self.augment == "d4":
             sample = transform_sample(sample, int(torch.randint(D4_ORDER, ())))
@@ -341,3 +469,13 @@ class HazardDataset(Dataset):
     def to_dem_grid(self, probs: torch.Tensor) -> torch.Tensor:
         """Network-grid probabilities (N, C, H, W) of this dataset's samples back to the DEM grid."""
         return to_dem_grid(probs, self.dem_shape, self.input_spec.input_size)
+
+
+def stored_sigma_index(sigmas_m: tuple[float, ...], sigma_m: float) -> int | None:
+    """Index of ``sigma_m`` among the stored levels (as ``sigma_index``), or None when it is not stored
+    (a level in [0, ``MAX_SIGMA_M``] made on the fly)."""
+    try:
+        return sigma_index(sigmas_m, sigma_m)
+    except HdNetError:
+        check_levels([sigma_m], "sigma")
+        return None

@@ -37,13 +37,14 @@ from hdnet.data import (
     HazardDataset,
     dataset_sigmas,
     open_labeling,
-    sigma_index,
+    stored_sigma_index,
 )
 from hdnet.errors import HdNetError
 from hdnet.infer import mc_dropout_predict, predictive_entropy
 from hdnet.inputs import InputSpec
 from hdnet.metrics import ConfusionAccumulator, SegmentationMetrics
 from hdnet.model import BayesianSegNet
+from hdnet.noise_levels import TrainingNoise, check_levels
 from hdnet.results import EvaluationResult, ReliabilityBins, ReportRow, SplitInference
 from hdnet.thresholds import (
     EntropyCalibration,
@@ -57,6 +58,8 @@ from lidarsim.shards import MANIFEST_NAME, read_manifest, sha256_file
 METHODS: tuple[str, str, str] = ("alhat_baseline", "base_net", "uncertainty_aware")
 MAX_MC_SAMPLES = 1024  # hd choice: the tiled suffix of one batch holds M copies in memory (paper: M = 8)
 MAX_BATCH_SIZE = 1024  # hd choice: DEMs per inference batch
+# Where H_t is calibrated: once at the run's reference noise level (the paper), or at each test level.
+CALIBRATIONS: tuple[str, ...] = ("reference", "each")
 ECE_BINS = 15  # hd choice: bins of the reliability diagram (the common choice since Guo et al. 2017)
 # The ALHAT baseline is safe where P(safe) >= this (paper, "Label generation"; one source: hdlabels.defaults).
 BASELINE_THRESHOLD = label_defaults.SAFE_PROBABILITY_THRESHOLD
@@ -177,7 +180,7 @@ def infer_split(
             p_safe = (
                 safety_probability(s.dem_noisy_m, ds.spacing_m, ds.sigma_m, ds.lander)
                 if recompute_baseline
-                else s.p_safe
+                else ds.baseline_p_safe(s)
             )
             base[j] = np.nan_to_num(p_safe, nan=0.0) >= BASELINE_THRESHOLD
     return SplitInference(
@@ -307,7 +310,11 @@ class EvalConfig:
     ``risk:ALPHA``; ``labels``: the labelling to score against (None: the one the run was trained
     on when the dataset has it, else the dataset's newest); ``seed``: dropout masks and dead pixels;
     ``batch_size``: DEMs per inference batch (1..``MAX_BATCH_SIZE``); ``device``: a torch device
-    (None: CUDA when available, else the CPU).
+    (None: CUDA when available, else the CPU); ``sigma_sweep``: noise levels (metres) the test
+    split is also scored at, made from the clean points where the dataset does not store them;
+    ``calibrate``: ``reference`` (H_t calibrated once, on the validation split at the run's
+    reference noise level, as the paper does) or ``each`` (H_t calibrated on the validation split
+    at each test noise level: the sensor's, which a flash LiDAR knows).
 
     Raises:
         HdNetError: a bad threshold spec or seed (checked here, before any file is looked at); the
@@ -321,9 +328,14 @@ class EvalConfig:
     seed: int = 0
     batch_size: int = defaults.BATCH_SIZE
     device: str | None = None
+    sigma_sweep: tuple[float, ...] = ()
+    calibrate: str = "reference"
 
     def __post_init__(self) -> None:
         parse_threshold_spec(self.threshold)
+        object.__setattr__(self, "sigma_sweep", check_levels(tuple(self.sigma_sweep), "a sweep sigma"))
+        if self.calibrate not in CALIBRATIONS:
+            raise HdNetError(f"calibrate must be one of {', '.join(CALIBRATIONS)}, got {self.calibrate!r}.")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise HdNetError(f"the seed must be an integer >= 0, got {self.seed!r}.")
 
@@ -373,24 +385,25 @@ def evaluate(
     spec = cfg.threshold_spec
     setup = _open_evaluation(run_dir, dataset_dir, cfg)
 
-    # 1. threshold from the validation split at the training sigma
-    th = validation_threshold(
-        setup.model,
-        setup.dataset(dataset_dir, "val", setup.train_sigma_m, cfg.seed),
-        spec,
-        mc_samples=cfg.mc_samples,
-        batch_size=cfg.batch_size,
-        seed=cfg.seed,
-        device=setup.device,
-    )
+    # 1. threshold from the validation split at the reference sigma (and, with calibrate=each, at every test sigma)
+    thresholds = _Thresholds(setup, dataset_dir, cfg)
+    th = thresholds.reference
     # 2-3. every sigma: the three methods, the sweep, calibration
-    tests, rows, sweep, cal_rows, achieved = _noise_table(setup, dataset_dir, cfg, th)
+    tests, rows, sweep, cal_rows, achieved = _noise_table(setup, dataset_dir, cfg, thresholds)
     # 4. dead pixels
     if cfg.drop_pixels:
-        dead_rows, dead_achieved = _dead_pixel_table(setup, dataset_dir, cfg, th)
+        dead_rows, dead_achieved = _dead_pixel_table(setup, dataset_dir, cfg, thresholds)
         rows += dead_rows
         achieved += dead_achieved
+    # 5. the noise sweep
+    if cfg.sigma_sweep:
+        sweep_rows, sweep_achieved = _sigma_sweep(setup, dataset_dir, cfg, thresholds)
+        rows += sweep_rows
+        achieved += sweep_achieved
     threshold_info = th.info
+    threshold_info["calibrate"] = cfg.calibrate
+    if cfg.calibrate == "each":
+        threshold_info["per_sigma"] = thresholds.per_sigma_info()
     if spec.kind == "risk":
         threshold_info["alpha"] = spec.value
         threshold_info["achieved_risk"] = achieved
@@ -404,6 +417,42 @@ def evaluate(
         tests,
         val.entropy_nats[val.valid],
     )
+
+
+class _Thresholds:
+    """H_t for every test noise level: the reference calibration (validation split at the run's
+    reference sigma), or with ``calibrate="each"`` one calibration per test sigma (cached)."""
+
+    def __init__(self, setup: _Setup, dataset_dir: str | os.PathLike, cfg: EvalConfig) -> None:
+        self.setup, self.dataset_dir, self.cfg = setup, dataset_dir, cfg
+        self._by_sigma: dict[float, ValidationThreshold] = {}
+        self.reference = self._calibrate(setup.train_sigma_m)
+
+    def _calibrate(self, sigma_m: float) -> ValidationThreshold:
+        key = round(float(sigma_m), 12)
+        th = self._by_sigma.get(key)
+        if th is None:
+            cfg = self.cfg
+            th = self._by_sigma[key] = validation_threshold(
+                self.setup.model,
+                self.setup.dataset(self.dataset_dir, "val", sigma_m, cfg.seed),
+                cfg.threshold_spec,
+                mc_samples=cfg.mc_samples,
+                batch_size=cfg.batch_size,
+                seed=cfg.seed,
+                device=self.setup.device,
+            )
+        return th
+
+    def at(self, test_sigma_m: float) -> ValidationThreshold:
+        """The calibration that scores the test split at ``test_sigma_m`` metres."""
+        return self.reference if self.cfg.calibrate == "reference" else self._calibrate(test_sigma_m)
+
+    def per_sigma_info(self) -> list[dict[str, Any]]:
+        return [
+            {"calibration_sigma_m": s, "value_nats": th.info["value_nats"], "mean_nats": th.info["mean_nats"]}
+            for s, th in sorted(self._by_sigma.items())
+        ]
 
 
 def _open_evaluation(run_dir: str | os.PathLike, dataset_dir: str | os.PathLike, cfg: EvalConfig) -> _Setup:
@@ -421,25 +470,26 @@ def _open_evaluation(run_dir: str | os.PathLike, dataset_dir: str | os.PathLike,
     n_pixels = int(dem.get("rows", defaults.DEM_SIZE_PX)) * int(dem.get("cols", defaults.DEM_SIZE_PX))
     _check_counts(cfg.mc_samples, cfg.drop_pixels, n_pixels, cfg.batch_size)
     sigmas = dataset_sigmas(paths)
-    sigma_index(sigmas, train_sigma)  # the training sigma must be in the dataset
+    stored_sigma_index(sigmas, train_sigma)  # stored, or a level the noisy DEMs are made at from the clean points
     return _Setup(model, ckpt, ckpt_path, dev, train_sigma, input_spec, str(entry["name"]), tuple(sigmas))
 
 
 def _noise_table(
-    setup: _Setup, dataset_dir: str | os.PathLike, cfg: EvalConfig, th: ValidationThreshold
+    setup: _Setup, dataset_dir: str | os.PathLike, cfg: EvalConfig, thresholds: _Thresholds
 ) -> tuple[
     dict[float, SplitInference], list[ReportRow], list[dict[str, Any]], list[dict[str, Any]], list[dict[str, Any]]
 ]:
     """Steps 2-3: the test split at every noise level: the three methods (Table 1), the sweep over
     threshold quantiles, the calibration of P(safe) and, for ``risk:ALPHA``, the false-safe rate."""
-    h_t, val_sigma = th.value_nats, th.inference.sigma_m
     rows: list[ReportRow] = []
     sweep: list[dict[str, Any]] = []
     cal_rows: list[dict[str, Any]] = []
     tests: dict[float, SplitInference] = {}
     achieved: list[dict[str, Any]] = []
-    quantile_thresholds = [(q, th.calibration.quantile(q)) for q in defaults.QUANTILE_SWEEP]
     for sigma in setup.sigmas_m:
+        th = thresholds.at(sigma)
+        h_t, val_sigma = th.value_nats, setup.train_sigma_m
+        quantile_thresholds = [(q, th.calibration.quantile(q)) for q in defaults.QUANTILE_SWEEP]
         inf = infer_split(
             setup.model,
             setup.dataset(dataset_dir, "test", sigma, cfg.seed),
@@ -482,14 +532,15 @@ def _noise_table(
 
 
 def _dead_pixel_table(
-    setup: _Setup, dataset_dir: str | os.PathLike, cfg: EvalConfig, th: ValidationThreshold
+    setup: _Setup, dataset_dir: str | os.PathLike, cfg: EvalConfig, thresholds: _Thresholds
 ) -> tuple[list[ReportRow], list[dict[str, Any]]]:
     """Step 4: the test split again with ``drop_pixels`` dead pixels per DEM, repaired, the baseline
     recomputed on the repaired DEM (Table 2); the false-safe rate for ``risk:ALPHA``."""
-    h_t, val_sigma = th.value_nats, th.inference.sigma_m
     rows: list[ReportRow] = []
     achieved: list[dict[str, Any]] = []
+    val_sigma = setup.train_sigma_m
     for sigma in setup.sigmas_m:
+        h_t = thresholds.at(sigma).value_nats
         inf = infer_split(
             setup.model,
             setup.dataset(dataset_dir, "test", sigma, cfg.seed, cfg.drop_pixels),
@@ -503,6 +554,31 @@ def _dead_pixel_table(
         if cfg.threshold_spec.kind == "risk":
             achieved.append(
                 {"test_sigma_m": sigma, "table": "dead_pixels", "false_safe_rate": false_safe_rate(inf, h_t)}
+            )
+    return rows, achieved
+
+
+def _sigma_sweep(
+    setup: _Setup, dataset_dir: str | os.PathLike, cfg: EvalConfig, thresholds: _Thresholds
+) -> tuple[list[ReportRow], list[dict[str, Any]]]:
+    """Step 5: the test split at every level of ``cfg.sigma_sweep`` (stored, or made from the clean
+    points), the three methods (table ``sigma_sweep``); the false-safe rate for ``risk:ALPHA``."""
+    rows: list[ReportRow] = []
+    achieved: list[dict[str, Any]] = []
+    for sigma in cfg.sigma_sweep:
+        h_t = thresholds.at(sigma).value_nats
+        inf = infer_split(
+            setup.model,
+            setup.dataset(dataset_dir, "test", sigma, cfg.seed),
+            cfg.mc_samples,
+            cfg.batch_size,
+            cfg.seed,
+            setup.device,
+        )
+        rows += method_rows(inf, "sigma_sweep", setup.train_sigma_m, h_t)
+        if cfg.threshold_spec.kind == "risk":
+            achieved.append(
+                {"test_sigma_m": inf.sigma_m, "table": "sigma_sweep", "false_safe_rate": false_safe_rate(inf, h_t)}
             )
     return rows, achieved
 
@@ -524,6 +600,8 @@ def _run_info(
         "profile": ckpt.get("profile", {}).get("name"),
         "model_config": ckpt.get("model_config"),
         "train_sigma_m": setup.train_sigma_m,
+        "train_noise": extra.get("train_noise") or TrainingNoise.single(setup.train_sigma_m).to_dict(),
+        "sigma_sweep_m": list(cfg.sigma_sweep),
         "input_size": setup.input_spec.input_size,
         "input": setup.input_spec.to_dict(),
         "dataset": str(root),

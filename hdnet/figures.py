@@ -92,6 +92,44 @@ def threshold_sweep(result: EvaluationResult, path: Path) -> None:
     plt.close(fig)
 
 
+def noise_sweep(result: EvaluationResult, path: Path) -> None:
+    """PA, precision, sensitivity and V/C % against the test noise level (``sigma_sweep`` rows) for
+    the ALHAT baseline, the base net and the uncertainty-aware map; the training noise range shaded
+    (or its levels marked)."""
+    rows = [r for r in result.rows if r.table == "sigma_sweep"]
+    methods = [
+        ("alhat_baseline", "ALHAT baseline", "tab:gray"),
+        ("base_net", "base net", "tab:blue"),
+        ("uncertainty_aware", "uncertainty-aware", "tab:red"),
+    ]
+    panels = [
+        ("pixel_accuracy", "pixel accuracy"),
+        ("precision", "precision (safe)"),
+        ("sensitivity", "sensitivity (safe)"),
+        ("vc_fraction", "V/C pixels"),
+    ]
+    fig, axes = plt.subplots(1, 4, figsize=(16, 3.8))
+    noise = result.run.get("train_noise") or {}
+    for ax, (key, title) in zip(axes, panels, strict=True):
+        if noise.get("range_m"):
+            lo, hi = noise["range_m"]
+            ax.axvspan(lo * 100, hi * 100, color="tab:green", alpha=0.12, label="training range")
+        for level in noise.get("levels_m") or []:
+            ax.axvline(level * 100, color="tab:green", lw=1, ls="--", label="training level")
+        for method, label, colour in methods:
+            pts = sorted((r.test_sigma_m, getattr(r, key)) for r in rows if r.method == method)
+            pts = [(s, v) for s, v in pts if v is not None and math.isfinite(v)]
+            if pts:
+                ax.plot([s * 100 for s, _ in pts], [v for _, v in pts], "o-", ms=3, color=colour, label=label)
+        ax.set(xlabel="test noise 1σ (cm)", title=title, ylim=(0, 1.02))
+    handles, labels = axes[0].get_legend_handles_labels()
+    unique = dict(zip(labels, handles, strict=True))
+    axes[-1].legend(unique.values(), unique.keys(), fontsize=7, loc="lower left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=DPI)
+    plt.close(fig)
+
+
 def _safety_codes(safe: np.ndarray, label: np.ndarray, uncertain: np.ndarray | None = None) -> np.ndarray:
     codes = safe.astype(np.int64)
     if uncertain is not None:
@@ -154,6 +192,9 @@ def write_figures(result: EvaluationResult, out_dir: Path) -> list[Path]:
     paths = [out_dir / "reliability.png", out_dir / "threshold_sweep.png"]
     reliability_diagram(result, paths[0])
     threshold_sweep(result, paths[1])
+    if any(r.table == "sigma_sweep" for r in result.rows):
+        paths.append(out_dir / "noise_sweep.png")
+        noise_sweep(result, paths[-1])
     if result.test:
         first = next(iter(result.test.values()))
         row = representative_scan(first)

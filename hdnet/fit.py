@@ -21,6 +21,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from torch.utils.data import ConcatDataset, Dataset
+
 from hdnet import defaults
 from hdnet.augment import check_augment
 from hdnet.data import (
@@ -33,6 +35,7 @@ from hdnet.data import (
 )
 from hdnet.errors import HdNetError
 from hdnet.inputs import InputSpec, Normalisation
+from hdnet.noise_levels import TrainingNoise
 from hdnet.profiles import TrainingProfile, get_profile
 from hdnet.train import BEST, CONFIG, LAST, METRICS, train
 from lidarsim.shards import MANIFEST_NAME, sha256_file
@@ -57,6 +60,7 @@ RUN_DATA_KEYS = (
     "labels",
     "labeling",
     "train_sigma_m",
+    "train_noise",
     "normalisation",
     "input_size",
     "input_rule",
@@ -90,6 +94,7 @@ def run_data_config(
     spec: InputSpec,
     dem_shape: tuple[int, int],
     labeling: dict[str, Any] | None = None,
+    noise: TrainingNoise | None = None,
 ) -> dict[str, Any]:
     """The ``extra_config`` of a run: the data a model was trained on and how inputs were prepared.
 
@@ -97,6 +102,8 @@ def run_data_config(
     parts of it for readers of older runs (``normalisation`` is None unless the heights are min-max).
     ``labeling`` is the dataset manifest's entry of the labelling trained on (lander, DEM grid, label
     convention); it is kept without its shard list, so a run can be used without its dataset.
+    ``train_noise`` records the training noise levels (``TrainingNoise.to_dict``); ``train_sigma_m``
+    is the reference level (``reference_sigma``).
     """
     root = Path(dataset_dir).resolve()
     return {
@@ -105,6 +112,7 @@ def run_data_config(
         "labels": labels,
         "labeling": {k: v for k, v in (labeling or {}).items() if k != "shards"},
         "train_sigma_m": float(sigma_m),
+        "train_noise": (noise if noise is not None else TrainingNoise.single(sigma_m)).to_dict(),
         "normalisation": None if spec.normalisation is None else spec.normalisation.to_dict(),
         "input_size": spec.input_size,
         "input_rule": spec.rule,
@@ -182,7 +190,9 @@ class FitConfig:
     ``profile``: a profile's name or a ``TrainingProfile`` (e.g. a variant in an ablation);
     ``epochs``: the schedule's length (None: the profile's); ``train_sigma_m``: the noise level of
     the training inputs, metres (None: the dataset's noise level when it has only one, else the
-    paper's 1.67 cm, ``training_sigma``); ``seed``: initialisation and shuffling; ``resume``: continue the
+    paper's 1.67 cm, ``training_sigma``); ``train_noise``: several levels or a range instead
+    (``hdnet.noise_levels``; noisy DEMs made on the fly); ``seed``: initialisation, shuffling and
+    noise draws; ``resume``: continue the
     run's ``last.pt``; ``labels``: the labelling to train on (None: the dataset's only or newest);
     ``progress``: progress bars; ``num_workers``: DataLoader worker processes; ``overwrite``: write
     into a non-empty directory that is not an hd run, or start an existing run again (its
@@ -196,6 +206,7 @@ class FitConfig:
     profile: str | TrainingProfile = "cpu"
     epochs: int | None = None
     train_sigma_m: float | None = None
+    train_noise: TrainingNoise | None = None
     seed: int = 0
     resume: bool = False
     labels: str | None = None
@@ -214,6 +225,41 @@ class FitConfig:
     def training_profile(self) -> TrainingProfile:
         """The profile itself (a name is looked up in ``hdnet.profiles``)."""
         return self.profile if isinstance(self.profile, TrainingProfile) else get_profile(self.profile)
+
+
+def training_noise(
+    requested: TrainingNoise | None,
+    requested_sigma_m: float | None,
+    profile: TrainingProfile,
+    dataset_sigmas_m: tuple[float, ...],
+) -> TrainingNoise:
+    """The noise levels of training: ``requested`` (several levels or a range), else one level
+    ``requested_sigma_m``, else the profile's range (``TrainingProfile.train_sigma_range_m``), else the
+    default level of ``training_sigma``."""
+    if requested is not None and requested_sigma_m is not None:
+        raise HdNetError("give one training sigma or training noise levels, not both.")
+    if requested is not None:
+        return requested
+    if requested_sigma_m is None and profile.train_sigma_range_m is not None:
+        return TrainingNoise(range_m=profile.train_sigma_range_m)
+    return TrainingNoise.single(training_sigma(requested_sigma_m, dataset_sigmas_m))
+
+
+def reference_sigma(noise: TrainingNoise, dataset_sigmas_m: tuple[float, ...]) -> float:
+    """The run's reference noise level, metres (``train_sigma_m`` of its config): its only level, or
+    for several levels or a range the level the uncertainty threshold is calibrated at by default
+    (``hdnet.thresholds``, "Runs trained across noise levels"): the paper's 1.67 cm when the
+    training levels cover it, else the lowest training level."""
+    if noise.is_single:
+        return noise.levels_m[0]
+    paper = defaults.TRAIN_SIGMA_M
+    return paper if noise.contains(paper) else noise.low_m
+
+
+def nearest_stored(noise: TrainingNoise, dataset_sigmas_m: tuple[float, ...]) -> float:
+    """The stored level nearest the middle of the training levels (min-max heights are taken there)."""
+    mid = 0.5 * (noise.low_m + noise.high_m)
+    return min(dataset_sigmas_m, key=lambda s: abs(s - mid)) if not noise.is_single else noise.levels_m[0]
 
 
 def training_sigma(requested_m: float | None, dataset_sigmas_m: tuple[float, ...]) -> float:
@@ -237,18 +283,28 @@ def fit(dataset_dir: str | os.PathLike, run_dir: str | os.PathLike, config: FitC
     run_path, _ = prepare_run_dir(run_dir, resume, overwrite, dataset_dir)
     profile = cfg.training_profile()
     entry, paths = open_labeling(dataset_dir, labels)  # the clear "no labels" error first
-    train_sigma_m = training_sigma(cfg.train_sigma_m, dataset_sigmas(paths))
+    noise = training_noise(cfg.train_noise, cfg.train_sigma_m, profile, dataset_sigmas(paths))
+    train_sigma_m = reference_sigma(noise, dataset_sigmas(paths))
     check_augment(profile.augment, lander_of(entry))
-    normalisation = compute_normalisation(dataset_dir, train_sigma_m, labels) if profile.heights == "minmax" else None
+    normalisation = (
+        compute_normalisation(dataset_dir, nearest_stored(noise, dataset_sigmas(paths)), labels)
+        if profile.heights == "minmax"
+        else None
+    )
     spec = input_spec_for(profile, dem_spacing_m(entry), normalisation)
-    common: dict[str, Any] = {"sigma_m": train_sigma_m, "labels": labels, "input_spec": spec}
-    train_ds = HazardDataset(dataset_dir, "train", augment=profile.augment, **common)
-    val_ds = HazardDataset(dataset_dir, "val", **common)
+    common: dict[str, Any] = {"labels": labels, "input_spec": spec, "seed": cfg.seed}
+    if noise.is_single:
+        train_ds = HazardDataset(dataset_dir, "train", train_sigma_m, augment=profile.augment, **common)
+        val_ds: Dataset = HazardDataset(dataset_dir, "val", train_sigma_m, **common)
+        train_sigma_m = train_ds.sigma_m
+    else:
+        train_ds = HazardDataset(dataset_dir, "train", None, augment=profile.augment, noise=noise, **common)
+        val_ds = ConcatDataset([HazardDataset(dataset_dir, "val", s, **common) for s in noise.validation_levels()])
     for name, ds in (("train", train_ds), ("val", val_ds)):
-        if len(ds) == 0:
+        if len(ds) == 0:  # type: ignore[arg-type]  # map-style datasets have a length
             raise HdNetError(f"{dataset_dir}: the {name} split is empty; build a dataset with more scans.")
     extra = run_data_config(
-        dataset_dir, train_ds.labels, train_ds.sigma_m, spec, train_ds.dem_shape, labeling=train_ds.entry
+        dataset_dir, train_ds.labels, train_sigma_m, spec, train_ds.dem_shape, labeling=train_ds.entry, noise=noise
     )
     top = first_missing(run_path)
     try:

@@ -21,6 +21,10 @@ and checkpoints (``extra_config["input"]``), so inference prepares inputs exactl
      spacing (unitless; one-sided at the border);
    * ``highpass``: ``z`` minus its mean over a ``highpass_window_m`` box (edges replicated), in
      units of ``height_scale_m`` metres: rocks and pits at lander scale, without the hills;
+   * ``sigma``: the sensor's range-noise level, constant over the grid, in units of
+     ``SIGMA_CHANNEL_SCALE_M`` (a flash LiDAR knows its noise specification): the DEM's noise
+     level told to the network (training: the sample's sigma; evaluation and ``hd detect``: the
+     sensor's);
 
 4. grid: with ``input_size`` the channels are resized bilinearly to ``input_size`` squared (the
    paper's 512); without it they are padded on the bottom and right to a multiple of
@@ -28,8 +32,8 @@ and checkpoints (``extra_config["input"]``), so inference prepares inputs exactl
    same to label masks (nearest neighbour, or padding with a given value) and ``to_dem_grid``
    brings network outputs back to the DEM grid.
 
-Every channel is a function of the DEM alone and commutes with the eight rotations and flips of the
-grid (D4), so augmenting the DEM or its channels is the same.
+Every channel is a function of the DEM (and the constant noise level) alone and commutes with the
+eight rotations and flips of the grid (D4), so augmenting the DEM or its channels is the same.
 """
 
 from __future__ import annotations
@@ -48,7 +52,9 @@ from hdnet.errors import HdNetError
 
 Heights = Literal["minmax", "median", "plane"]
 HEIGHTS: tuple[str, ...] = ("minmax", "median", "plane")
-EXTRA_CHANNELS: tuple[str, ...] = ("slope", "highpass")
+EXTRA_CHANNELS: tuple[str, ...] = ("slope", "highpass", "sigma")
+# hd choice: the sigma channel holds sigma / 5 cm (about 0.3 at the paper's 1.67 cm, 1.4 at 7 cm).
+SIGMA_CHANNEL_SCALE_M = 0.05
 HIGHPASS_WINDOW_M = 10.0  # hd choice: the lander diameter (DESIGN.md), the scale of the hazard rule
 INPUT_SCHEMA_VERSION = 1
 
@@ -246,8 +252,9 @@ def highpass_window_px(spec: InputSpec) -> int:
     return n if n % 2 else n + 1
 
 
-def input_channels(dem_filled_m: np.ndarray, spec: InputSpec) -> np.ndarray:
-    """Steps 2-3 on a hole-free DEM: (C, H, W) float32 on the DEM grid."""
+def input_channels(dem_filled_m: np.ndarray, spec: InputSpec, sigma_m: float | None = None) -> np.ndarray:
+    """Steps 2-3 on a hole-free DEM: (C, H, W) float32 on the DEM grid; ``sigma_m`` (metres) for the
+    ``sigma`` channel."""
     z = np.asarray(dem_filled_m, np.float64)
     if spec.heights == "minmax":
         assert spec.normalisation is not None  # checked by InputSpec
@@ -260,9 +267,24 @@ def input_channels(dem_filled_m: np.ndarray, spec: InputSpec) -> np.ndarray:
     for name in spec.extra_channels:
         if name == "slope":
             channels.append(slope_tangent(z, spec.spacing_m))
+        elif name == "sigma":
+            channels.append(np.full(z.shape, _sigma_channel(sigma_m)))
         else:
             channels.append(highpass(z, highpass_window_px(spec)) / spec.height_scale_m)
     return np.stack(channels).astype(np.float32)
+
+
+def _sigma_channel(sigma_m: float | None) -> float:
+    if sigma_m is None:
+        raise HdNetError("this run takes the sensor's noise level as an input: give the DEM's sigma in metres.")
+    if isinstance(sigma_m, bool) or not isinstance(sigma_m, (int, float)) or not math.isfinite(sigma_m) or sigma_m < 0:
+        raise HdNetError(f"the DEM's sigma must be a finite number of metres >= 0, got {sigma_m!r}.")
+    return float(sigma_m) / SIGMA_CHANNEL_SCALE_M
+
+
+def takes_sigma(spec: InputSpec) -> bool:
+    """True when the network of ``spec`` receives the sensor's noise level as an input channel."""
+    return "sigma" in spec.extra_channels
 
 
 # --- step 4: grids ------------------------------------------------------------------------------
@@ -328,8 +350,10 @@ def to_dem_grid(probs: torch.Tensor, dem_shape: tuple[int, int], input_size: int
 
 
 # --- the whole preparation ----------------------------------------------------------------------
-def network_input(dem_m: np.ndarray, spec: InputSpec) -> torch.Tensor:
+def network_input(dem_m: np.ndarray, spec: InputSpec, sigma_m: float | None = None) -> torch.Tensor:
     """The network input (C, H, W) float32 of one DEM (metres, NaN = no data): steps 1-4.
+
+    ``sigma_m``: the DEM's range-noise level, metres; needed when ``spec`` has the ``sigma`` channel.
 
     This is the only place a DEM becomes a network input; ``HazardDataset`` (training and
     evaluation) and inference on new DEMs all call it with the run's ``InputSpec``.
@@ -337,11 +361,13 @@ def network_input(dem_m: np.ndarray, spec: InputSpec) -> torch.Tensor:
     dem = np.asarray(dem_m)
     if dem.ndim != 2 or min(dem.shape) < 1:
         raise HdNetError(f"a DEM must be a non-empty 2-D array of heights, got shape {dem.shape}.")
-    channels = torch.from_numpy(input_channels(fill_holes(dem.astype(np.float32, copy=False)), spec))
+    channels = torch.from_numpy(input_channels(fill_holes(dem.astype(np.float32, copy=False)), spec, sigma_m))
     image, _ = to_network_grid(channels, [], spec.input_size, [], spec.size_multiple)
     return image.contiguous()
 
 
-def network_inputs(dems_m: np.ndarray | list[np.ndarray], spec: InputSpec) -> torch.Tensor:
-    """A batch (N, C, H, W) from N DEMs of one shape (``network_input`` of each)."""
-    return torch.stack([network_input(d, spec) for d in dems_m])
+def network_inputs(
+    dems_m: np.ndarray | list[np.ndarray], spec: InputSpec, sigma_m: float | None = None
+) -> torch.Tensor:
+    """A batch (N, C, H, W) from N DEMs of one shape and noise level (``network_input`` of each)."""
+    return torch.stack([network_input(d, spec, sigma_m) for d in dems_m])

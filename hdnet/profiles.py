@@ -65,7 +65,9 @@ class TrainingProfile:
     * ``class_weighting``: ``none`` or ``balanced`` (cross-entropy weighted by N / (2 N_c) with the
       training split's pixel counts N_c of each class);
     * ``channels_last``: run the network in the channels-last memory format (same numbers, faster
-      convolutions on CPUs).
+      convolutions on CPUs);
+    * ``train_sigma_range_m``: (low, high) metres: by default the profile trains across this range
+      of noise levels, drawn per sample (``hdnet.noise_levels``); None: at one level.
     """
 
     name: str
@@ -85,6 +87,7 @@ class TrainingProfile:
     augment: Literal["none", "d4"] = "none"
     class_weighting: Literal["none", "balanced"] = "none"
     channels_last: bool = False
+    train_sigma_range_m: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         if self.lr_schedule not in LR_SCHEDULES:
@@ -99,6 +102,11 @@ class TrainingProfile:
             raise HdNetError(f"heights must be one of {', '.join(HEIGHTS)}, got {self.heights!r}.")
         if isinstance(self.extra_channels, list):
             object.__setattr__(self, "extra_channels", tuple(self.extra_channels))
+        if self.train_sigma_range_m is not None:
+            lo, hi = self.train_sigma_range_m
+            object.__setattr__(self, "train_sigma_range_m", (float(lo), float(hi)))
+            if not 0.0 <= lo < hi:
+                raise HdNetError(f"train_sigma_range_m must be (low, high) with 0 <= low < high, got ({lo}, {hi}).")
         if any(c not in EXTRA_CHANNELS for c in self.extra_channels):
             raise HdNetError(
                 f"extra_channels must be names from {', '.join(EXTRA_CHANNELS)}, got {list(self.extra_channels)}."
@@ -131,6 +139,10 @@ class TrainingProfile:
         """Plain-type dictionary (config.json, checkpoints)."""
         out = asdict(self)
         out["extra_channels"] = list(self.extra_channels)
+        if self.train_sigma_range_m is None:
+            del out["train_sigma_range_m"]  # so the profiles saved before it read back equal
+        else:
+            out["train_sigma_range_m"] = list(self.train_sigma_range_m)
         return out
 
 

@@ -576,6 +576,9 @@ def _train_epoch(
     sampler = loader.sampler
     if isinstance(sampler, DistributedSampler):
         sampler.set_epoch(epoch)
+    set_epoch = getattr(loader.dataset, "set_epoch", None)
+    if callable(set_epoch):  # datasets that draw per epoch (noise levels, realisations) key their draws on it
+        set_epoch(epoch)
     net.train()
     optimizer, memory_format = state.optimizer, state.memory_format
     n_batches = max(1, len(loader))

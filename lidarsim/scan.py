@@ -7,7 +7,8 @@ touching a nodata cell is left out, so rays through holes miss), recentred at th
 
 Each ray has a unit direction, so the ray parameter returned by Open3D is the true range ``r``.
 A noisy range is ``r + N(0, sigma^2)``, drawn from the stream ``(seed, RANGE_NOISE, scan,
-sigma)``; the noisy point is ``o + r_noisy * d``. Points are returned in the scan frame (origin
+sigma)``; the noisy point is ``o + r_noisy * d`` (``lidarsim.noise``, the one noise model, also
+used on the fly by training and evaluation). Points are returned in the scan frame (origin
 at the nadir point on the reference height, x east, y north, z up), computed in float64 and
 stored as float32.
 """
@@ -19,8 +20,9 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
-from lidarsim.sensor import SensorConfig, ray_directions, sensor_attitude
-from lidarsim.streams import Purpose, sigma_key, stream
+from lidarsim.noise import noisy_points, points_at_ranges, scan_directions
+from lidarsim.sensor import SensorConfig, sensor_attitude
+from lidarsim.streams import Purpose, stream
 from lidarsim.terrain import DTM
 from lidarsim.trajectory import TrajectoryConfig
 
@@ -200,8 +202,7 @@ def simulate_scans(
     n_threads: int = 0,
 ) -> list[ScanResult]:
     """Cast the rays of several scans in one call and derive clean and noisy points."""
-    d_sensor = ray_directions(sensor)
-    directions = np.stack([d_sensor @ g.attitude.T for g in geometries])
+    directions = np.stack([scan_directions(sensor, g.attitude) for g in geometries])
     origins = np.stack([g.origin_map + g.sensor_position for g in geometries])
     ranges = scene.cast(origins, directions, n_threads=n_threads)
     defects = element_defects(sensor, seed)
@@ -214,14 +215,9 @@ def simulate_scans(
         status = np.where(np.isnan(ranges[k]), STATUS_MISS, defects).astype(np.uint8)
         status[dead] = STATUS_DEAD
         d = directions[k]
-        clean = (g.sensor_position + r[..., None] * d).astype(np.float32)
+        clean = points_at_ranges(g.sensor_position, r, d)
         noisy = np.empty((len(sigmas_m), *clean.shape), dtype=np.float32)
         for s_i, sigma in enumerate(sigmas_m):
-            key = sigma_key(sigma)
-            r_noisy = r + sigma * stream(seed, Purpose.RANGE_NOISE, scan, key).standard_normal(r.shape)
-            if damaged.any():
-                extra = stream(seed, Purpose.DAMAGED_ERROR, scan, key).standard_normal(int(damaged.sum()))
-                r_noisy[damaged] += sensor.damaged_error_m * extra
-            noisy[s_i] = g.sensor_position + r_noisy[..., None] * d
+            noisy[s_i] = noisy_points(r, d, g.sensor_position, sigma, seed, scan, damaged, sensor.damaged_error_m)
         results.append(ScanResult(geometry=g, points_clean=clean, points_noisy=noisy, status=status))
     return results

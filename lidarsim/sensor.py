@@ -13,7 +13,9 @@ and its boresight is down, so detector row 0 looks at the northern edge: images 
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, fields
+from typing import Any
 
 import numpy as np
 
@@ -82,6 +84,25 @@ class SensorConfig:
     def to_attrs(self) -> dict[str, int | float]:
         """Flat attribute dictionary (HDF5/JSON friendly)."""
         return {f"sensor_{k}": v for k, v in asdict(self).items()}
+
+    @classmethod
+    def from_attrs(cls, attrs: Mapping[str, Any]) -> SensorConfig:
+        """The sensor a scan shard was made with, from its ``sensor_*`` attributes (``to_attrs``).
+
+        Raises:
+            LidarsimError: a missing or non-numeric attribute, or values ``SensorConfig`` refuses.
+        """
+        values: dict[str, Any] = {}
+        for f in fields(cls):
+            key = f"sensor_{f.name}"
+            if key not in attrs:
+                raise LidarsimError(f"the scan shard's attributes lack {key}")
+            raw = attrs[key]
+            try:
+                values[f.name] = int(raw) if f.type in (int, "int") else float(raw)
+            except (TypeError, ValueError):
+                raise LidarsimError(f"the scan shard's attribute {key} is not a number: {raw!r}") from None
+        return cls(**values)
 
 
 def ray_directions(sensor: SensorConfig) -> np.ndarray:

@@ -14,12 +14,13 @@ import numpy as np
 class Purpose(IntEnum):
     """What a random stream is used for (part of the stream key; never renumber)."""
 
-    RANGE_NOISE = 1  # keys: scan index, sigma in nanometres
+    RANGE_NOISE = 1  # keys: scan index, sigma in nanometres[, realisation k of an on-the-fly draw]
     ATTITUDE_JITTER = 2  # keys: scan index
     DEAD_ELEMENTS = 3  # keys: none (a property of the detector, shared by all scans)
     DAMAGED_ELEMENTS = 4  # keys: none
-    DAMAGED_ERROR = 5  # keys: scan index, sigma in nanometres
+    DAMAGED_ERROR = 5  # keys: scan index, sigma in nanometres[, realisation k]
     SPLIT = 6  # keys: none
+    TRAINING_DRAW = 7  # keys: epoch, scan index (hdnet: the noise level and D4 draw of a training sample)
 
 
 def stream(seed: int, purpose: Purpose, *keys: int) -> np.random.Generator:

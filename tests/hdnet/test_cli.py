@@ -58,11 +58,11 @@ def test_eval_bad_options_are_one_line_errors(dataset, tmp_path, args, needle):
     assert not (tmp_path / "r" / "report.json").exists()
 
 
-def test_train_on_an_unlabelled_dataset_or_missing_sigma_fails_clearly(tmp_path):
+def test_train_on_an_unlabelled_dataset_or_an_impossible_sigma_fails_clearly(tmp_path):
     bare = build_labelled(tmp_path / "bare", label=False)
     runner = CliRunner()
     result = runner.invoke(main, ["train", str(bare), "--out", str(tmp_path / "run")])
     assert result.exit_code != 0 and "hd label" in result.output
     labelled = build_labelled(tmp_path / "lab")
-    result = runner.invoke(main, ["train", str(labelled), "--out", str(tmp_path / "run2"), "--train-sigma", "0.5"])
-    assert result.exit_code != 0 and "not in the dataset" in result.output
+    result = runner.invoke(main, ["train", str(labelled), "--out", str(tmp_path / "run2"), "--train-sigma", "0.9"])
+    assert result.exit_code != 0 and "must be in [0, 0.7] metres" in result.output

@@ -69,7 +69,7 @@ def test_padded_sample_matches_the_label_shard(dataset):
     raw = shard_arrays(dataset, 1, 0)
     assert len(ds) == len(raw["label"]) == 2 and ds.scan_indices == raw["scan"].tolist()
     s = ds[0]
-    assert set(s) == {"image", "mask", "index"}
+    assert set(s) == {"image", "mask", "index", "sigma_m"} and s["sigma_m"] == 0.0167
     assert s["image"].shape == (1, 128, 128) and s["image"].dtype == torch.float32
     assert s["mask"].shape == (128, 128) and s["mask"].dtype == torch.int64
     assert s["index"] == raw["scan"][0]
@@ -162,8 +162,9 @@ def test_pickles_without_open_files_and_works_with_worker_processes(dataset):
 def test_sigma_matching_and_errors(dataset, tmp_path):
     assert sigma_index((0.05 / 3, 0.03, 0.07), 0.0167) == 0  # 0.0167 is S-167 as printed
     assert sigma_index((0.0167, 0.07), 0.0167 + 1e-10) == 0
-    with pytest.raises(HdNetError, match=r"sigma 0.03 m is not in the dataset; it has 0.0167, 0.07 m"):
-        HazardDataset(dataset, "train", 0.03)
+    assert HazardDataset(dataset, "train", 0.03).made_on_the_fly  # a level not stored: made from the clean points
+    with pytest.raises(HdNetError, match=r"sigma must be in \[0, 0\.7\] metres, got 0\.8"):
+        HazardDataset(dataset, "train", 0.8)
     with pytest.raises(HdNetError, match="split"):
         HazardDataset(dataset, "validation", 0.0167)
     with pytest.raises(HdNetError, match="dead pixels"):

@@ -166,10 +166,16 @@ def test_bad_input_fails_with_one_clear_sentence(setup, tmp_path):
     unlabelled = build_labelled(tmp_path / "u", n_scans=4, label=False)
     with pytest.raises(HdNetError, match="no labels"):
         evaluate(run, unlabelled)
-    other_sigmas = build_labelled(tmp_path / "s", n_scans=4, sigmas_m=(0.03, 0.07))
-    with pytest.raises(HdNetError, match=r"sigma 0\.0167 m is not in the dataset; it has 0\.03, 0\.07 m"):
-        evaluate(run, other_sigmas)
     assert not (tmp_path / "x").exists()
+
+
+def test_a_dataset_without_the_training_sigma_is_calibrated_on_dems_made_at_it(setup, tmp_path):
+    """A run trained at 1.67 cm on a user's dataset of 3 and 7 cm: H_t from validation DEMs made at 1.67 cm."""
+    _, run, _, _ = setup
+    other_sigmas = build_labelled(tmp_path / "s", sigmas_m=(0.03, 0.07))
+    result = evaluate(run, other_sigmas, EvalConfig(mc_samples=1))
+    assert result.threshold["calibration_sigma_m"] == 0.0167 and result.threshold["value_nats"] is not None
+    assert sorted({r.test_sigma_m for r in result.rows}) == [0.03, 0.07]
 
 
 def test_evaluate_returns_the_result_and_the_caller_writes_the_report(setup, tmp_path, monkeypatch):

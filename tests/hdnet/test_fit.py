@@ -39,8 +39,8 @@ def test_tiny_fit_records_the_data_it_was_trained_on(dataset, tmp_path):
 
 
 def test_fit_refuses_bad_datasets(dataset, tmp_path):
-    with pytest.raises(HdNetError, match=r"sigma 0\.03 m is not in the dataset"):
-        fit(dataset, tmp_path / "a", FitConfig(profile="tiny", epochs=1, train_sigma_m=0.03, progress=False))
+    with pytest.raises(HdNetError, match=r"must be in \[0, 0\.7\] metres"):
+        fit(dataset, tmp_path / "a", FitConfig(profile="tiny", epochs=1, train_sigma_m=0.9, progress=False))
     with pytest.raises(HdNetError, match="unknown training profile"):
         fit(dataset, tmp_path / "b", FitConfig(profile="huge", epochs=1, progress=False))
     unlabelled = build_labelled(tmp_path / "u", n_scans=4, label=False)

@@ -1,0 +1,125 @@
+"""The range-noise model of the flash LiDAR: one code path for the factory and every on-the-fly use.
+
+A noisy range is ``r + sigma * n`` with ``n`` standard normal, drawn from the stream ``(seed,
+RANGE_NOISE, scan, sigma in nm)`` (``lidarsim.streams``); damaged detector elements add
+``damaged_error_m * m`` with ``m`` from ``(seed, DAMAGED_ERROR, scan, sigma in nm)``. A noisy point
+is ``sensor position + noisy range * ray direction`` (scan frame, float64, stored as float32).
+
+``hd build-dataset`` draws the noise of its stored levels with :func:`noisy_points`. Training at
+noise levels a dataset does not store (``hd train --train-sigma-range``) and the noise sweep of
+``hd eval`` make noisy points of any sigma from the stored *clean* points: :func:`recover_ranges`
+finds the exact float32 range the ray caster returned (the one whose clean point rounds to the
+stored float32 point), and :func:`noisy_points` then gives, at a stored sigma with the dataset's
+seed, the stored noisy points bit for bit.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from lidarsim.errors import LidarsimError
+from lidarsim.sensor import SensorConfig, ray_directions
+from lidarsim.streams import Purpose, sigma_key, stream
+
+# How many float32 steps (ulps) around the first estimate recover_ranges searches for the exact range.
+_RECOVERY_ULPS = 3
+
+
+def scan_directions(sensor: SensorConfig, attitude: np.ndarray) -> np.ndarray:
+    """Unit ray directions of one scan in the scan frame, float64 (rows, cols, 3), as the factory computes them."""
+    return ray_directions(sensor) @ np.asarray(attitude, dtype=np.float64).T
+
+
+def noisy_ranges(
+    ranges_m: np.ndarray,
+    sigma_m: float,
+    seed: int,
+    scan_index: int,
+    damaged: np.ndarray | None = None,
+    damaged_error_m: float = 0.0,
+    realisation: int | None = None,
+) -> np.ndarray:
+    """Noisy ranges (float64, metres) of one scan at noise level ``sigma_m`` (metres).
+
+    Args:
+        ranges_m: (rows, cols) clean ranges, metres, float64 holding float32 values; NaN where none.
+        sigma_m: 1-sigma of the Gaussian range noise, metres.
+        seed: the dataset's master seed.
+        scan_index: the scan's global index.
+        damaged: (rows, cols) bool, the damaged detector elements (None: none).
+        damaged_error_m: 1-sigma of their extra range error, metres.
+        realisation: None for the dataset's own draw at this sigma (what ``hd build-dataset`` stores);
+            k >= 0 for the k-th independent other draw (stream keys extended by k), e.g. one per
+            training epoch.
+    """
+    keys = (scan_index, sigma_key(sigma_m)) if realisation is None else (scan_index, sigma_key(sigma_m), realisation)
+    r = np.asarray(ranges_m, dtype=np.float64)
+    r_noisy = r + sigma_m * stream(seed, Purpose.RANGE_NOISE, *keys).standard_normal(r.shape)
+    if damaged is not None and damaged.any():
+        extra = stream(seed, Purpose.DAMAGED_ERROR, *keys).standard_normal(int(damaged.sum()))
+        r_noisy[damaged] += damaged_error_m * extra
+    return r_noisy
+
+
+def points_at_ranges(sensor_position: np.ndarray, ranges_m: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """Points ``sensor position + range * direction`` (scan frame, metres) as float32 (rows, cols, 3)."""
+    return (np.asarray(sensor_position, dtype=np.float64) + ranges_m[..., None] * directions).astype(np.float32)
+
+
+def noisy_points(
+    ranges_m: np.ndarray,
+    directions: np.ndarray,
+    sensor_position: np.ndarray,
+    sigma_m: float,
+    seed: int,
+    scan_index: int,
+    damaged: np.ndarray | None = None,
+    damaged_error_m: float = 0.0,
+    realisation: int | None = None,
+) -> np.ndarray:
+    """Noisy points (float32 (rows, cols, 3), scan frame, metres) of one scan at ``sigma_m`` metres
+    (arguments as :func:`noisy_ranges`)."""
+    r_noisy = noisy_ranges(ranges_m, sigma_m, seed, scan_index, damaged, damaged_error_m, realisation)
+    return points_at_ranges(sensor_position, r_noisy, directions)
+
+
+def recover_ranges(points_clean: np.ndarray, sensor_position: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """The ray caster's float32 ranges (as float64, metres) behind stored float32 clean points.
+
+    The range of each return is estimated along its ray in float64, rounded to float32, and the
+    float32 values within ``_RECOVERY_ULPS`` steps of it are tried: the one whose point rounds to
+    the stored point is the range the factory used (unique: near the sensor's 500 m range a float32
+    step of the range moves the point by more than a float32 step of its coordinates). NaN where
+    the stored point is NaN.
+
+    Raises:
+        LidarsimError: a finite point that no nearby float32 range reproduces (the points were not
+            made by this sensor geometry, or were altered).
+    """
+    pts = np.asarray(points_clean, dtype=np.float32)
+    sp = np.asarray(sensor_position, dtype=np.float64)
+    finite = np.isfinite(pts).all(axis=-1)
+    estimate = np.einsum("...k,...k->...", pts.astype(np.float64) - sp, directions)
+    estimate = np.where(finite, estimate, 0.0).astype(np.float32)
+    best = np.full(pts.shape[:-1], np.nan, dtype=np.float64)
+    todo = finite.copy()
+    offsets = sorted(range(-_RECOVERY_ULPS, _RECOVERY_ULPS + 1), key=abs)
+    up, down = np.float32(np.inf), np.float32(-np.inf)
+    for k in offsets:
+        if not todo.any():
+            break
+        cand = estimate.copy()
+        toward = up if k > 0 else down
+        for _ in range(abs(k)):
+            cand = np.nextafter(cand, toward)
+        r = cand.astype(np.float64)
+        match = todo & (points_at_ranges(sp, r, directions) == pts).all(axis=-1)
+        best[match] = r[match]
+        todo &= ~match
+    if todo.any():
+        i, j = np.argwhere(todo)[0]
+        raise LidarsimError(
+            f"the clean point of detector element ({i}, {j}) is not the return of this sensor's ray: "
+            f"{int(todo.sum())} point(s) match no float32 range (altered points, or another sensor geometry)"
+        )
+    return best
