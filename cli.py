@@ -650,10 +650,11 @@ def label_cmd(
     out_option("run_dir", "Run directory (checkpoints, metrics.csv, config.json)."),
     click.option(
         "--profile",
-        type=click.Choice(["paper", "cpu", "tiny"]),
+        type=click.Choice(["paper", "cpu", "robust", "tiny"]),
         default="cpu",
         show_default=True,
-        help="Training profile: paper (GPU, 512x512, full width), cpu (2-core machine), tiny (tests, demos); "
+        help="Training profile: paper (GPU, 512x512, full width), cpu (2-core machine, at one noise level), "
+        "robust (2-core machine, across 0 to 10 cm of noise, the noise level as an input), tiny (tests, demos); "
         "docs/hdnet.md lists their settings.",
     ),
     epochs_option("Epochs (default: the profile's)."),
@@ -818,8 +819,17 @@ def eval_cmd(
         "sigma_m",
         type=_Finite(),
         default=None,
-        help="DEM noise of the ALHAT baseline, metres (default: the run's training sigma); with --data also "
-        "the noise level of the scan's DEM.",
+        help="The sensor's range noise, metres (default: the run's reference training sigma): the ALHAT "
+        "baseline's sigma, the network's noise input where it takes one, the calibration level with "
+        "--calibrate each; with --data also the noise level of the scan's DEM.",
+    ),
+    click.option(
+        "--calibrate",
+        type=click.Choice(["reference", "each"]),
+        default="reference",
+        show_default=True,
+        help="Calibrate the threshold on the validation split at the run's reference noise level, or at the "
+        "sensor's --sigma (guarded above the run's training levels), as hd eval --calibrate.",
     ),
     click.option("--sites", "n_sites", type=int, default=10, show_default=True, help="Most landing sites to propose."),
     overwrite_option("Replace an earlier hd detect output in --out (never other files, never an input)."),
@@ -877,10 +887,11 @@ def demo_cmd(out_dir: Path, scans: int, epochs: int, workers: int | None) -> Non
 @_options(
     click.option(
         "--profile",
-        type=click.Choice(["cpu", "paper"]),
+        type=click.Choice(["cpu", "robust", "paper"]),
         default="cpu",
         show_default=True,
-        help="Training profile: cpu (this machine, <= 1 h) or paper (GPU).",
+        help="Training profile: cpu (this machine, <= 1 h, trained at 1.67 cm as the paper), robust (this machine, "
+        "trained across 0 to 10 cm, scored with the robust rule and a noise sweep) or paper (GPU).",
     ),
     dtm_option("Use this DTM instead of the recipe's terrain."),
     out_option("out_dir", "Directory of the reproduction.", required=False, default=Path("reproduction")),

@@ -68,7 +68,9 @@ from hdnet.data import (
 )
 from hdnet.errors import HdNetError
 from hdnet.evaluate import (
+    CALIBRATIONS,
     checkpoint_path,
+    guard_above_training,
     preferred_labeling,
     run_data,
     split_dataset,
@@ -78,6 +80,7 @@ from hdnet.infer import mc_dropout_predict, predictive_entropy
 from hdnet.inputs import InputSpec, to_dem_grid
 from hdnet.inputs import network_input as prepare_input
 from hdnet.model import BayesianSegNet
+from hdnet.noise_levels import TrainingNoise
 from hdnet.report import json_plain
 from hdnet.results import SITE_COLUMNS, Site
 from hdnet.thresholds import ThresholdSpec, parse_threshold_spec, uncertain_mask
@@ -131,6 +134,12 @@ class DetectRun:
         """Network input size in pixels (square), None when DEMs are padded instead of resized."""
         return self.input_spec.input_size
 
+    @property
+    def train_noise(self) -> TrainingNoise:
+        """The run's training noise levels (one level for runs that do not record them)."""
+        record = (self.ckpt.get("extra_config") or {}).get("train_noise")
+        return TrainingNoise.from_dict(record) if record else TrainingNoise.single(self.train_sigma_m)
+
 
 def load_run(run_dir: str | os.PathLike, device: torch.device) -> DetectRun:
     """The run at ``run_dir`` (a run directory or a checkpoint file), ready for detection.
@@ -172,12 +181,15 @@ def load_run(run_dir: str | os.PathLike, device: torch.device) -> DetectRun:
     )
 
 
-def network_input(dem_m: np.ndarray, run: DetectRun) -> torch.Tensor:
+def network_input(dem_m: np.ndarray, run: DetectRun, sigma_m: float | None = None) -> torch.Tensor:
     """(1, C, H, W) network input of one DEM (metres, scan frame, NaN holes), prepared exactly as in training.
 
-    ``hdnet.inputs.network_input`` with the run's ``InputSpec``: the call ``HazardDataset`` makes.
+    ``hdnet.inputs.network_input`` with the run's ``InputSpec``: the call ``HazardDataset`` makes;
+    ``sigma_m`` (metres) is the DEM's noise level, for runs that take it as an input (default: the
+    run's reference level).
     """
-    return prepare_input(np.asarray(dem_m, np.float32), run.input_spec)[None].contiguous()
+    level = run.train_sigma_m if sigma_m is None else sigma_m
+    return prepare_input(np.asarray(dem_m, np.float32), run.input_spec, level)[None].contiguous()
 
 
 def network_output(mean_probs: torch.Tensor, run: DetectRun) -> torch.Tensor:
@@ -602,14 +614,17 @@ def detect(
     labels: str | None = None,
     device: str | None = None,
     progress: Callable[[int, int], None] | None = None,
+    calibrate: str = "reference",
 ) -> DetectResult:
     """Hazard maps and ranked landing sites of a DTM (``dtm``) or of one scan (``dataset`` + ``scan``).
 
     ``sigma_m`` (metres): the baseline's DEM noise (default: the run's training sigma); with a scan,
     also the noise level of the DEM taken. ``threshold``: ``mean``, ``quantile:Q``, ``risk:ALPHA``
     (calibrated on the validation split at the training sigma of the run's dataset, or of
-    ``dataset`` with a scan, as ``hd eval`` does) or ``nats:H`` (fixed). ``progress`` is called with
-    (tiles done, tiles total).
+    ``dataset`` with a scan, as ``hd eval`` does) or ``nats:H`` (fixed); ``calibrate``: ``reference``
+    (at the run's reference noise level) or ``each`` (at the sensor's ``sigma_m``, guarded above the
+    run's training levels; ``hd eval --calibrate``). ``progress`` is called with (tiles done, tiles
+    total). Runs that take the noise level as an input receive ``sigma_m``.
 
     Raises:
         HdNetError / TerrainError: bad options, a missing or foreign run, an unusable DTM (geographic
@@ -623,6 +638,8 @@ def detect(
     fixed = _fixed_threshold(threshold)
     spec = parse_threshold_spec(threshold) if fixed is None else None
     _check_detect_options(mc_samples, n_sites, batch_size, sigma_m, dtm, dataset, scan)
+    if calibrate not in CALIBRATIONS:
+        raise HdNetError(f"calibrate must be one of {', '.join(CALIBRATIONS)}, got {calibrate!r}.")
     output = output_dir(out_dir, {"the run": run_dir, "the DTM": dtm, "the dataset": dataset})
     output.check_place()  # a usable path that is no input, before the run is even loaded
     dev = torch.device(device) if device else torch.device("cuda" if torch.cuda.is_available() else "cpu")
@@ -646,7 +663,7 @@ def detect(
             t0 = time.perf_counter()
             if spec is not None and calib_dir is not None:
                 h_t, threshold_info = _calibrated_threshold(
-                    run, spec, calib_dir, calib_labels, mc_samples, batch_size, seed, dev
+                    run, spec, calib_dir, calib_labels, mc_samples, batch_size, seed, dev, calibrate, baseline_sigma
                 )
             else:
                 assert fixed is not None  # exactly one of fixed and spec is set
@@ -723,15 +740,25 @@ def _calibrated_threshold(
     batch_size: int,
     seed: int,
     dev: torch.device,
+    calibrate: str = "reference",
+    sensor_sigma_m: float | None = None,
 ) -> tuple[float, dict[str, Any]]:
-    """Step 3: the entropy threshold (nats) calibrated on the validation split of ``calib_dir``, as ``hd eval`` does."""
-    val_ds = split_dataset(
-        calib_dir, "val", run.train_sigma_m, labels=calib_labels, input_spec=run.input_spec, seed=seed
-    )
+    """Step 3: the entropy threshold (nats) calibrated on the validation split of ``calib_dir``, as ``hd eval``
+    does: at the run's reference noise level, or (``calibrate="each"``) at the sensor's ``sensor_sigma_m``
+    with the precision guard above the training levels."""
+    sigma = run.train_sigma_m if calibrate == "reference" or sensor_sigma_m is None else sensor_sigma_m
+    val_ds = split_dataset(calib_dir, "val", sigma, labels=calib_labels, input_spec=run.input_spec, seed=seed)
     th = validation_threshold(
         run.model, val_ds, spec, mc_samples=mc_samples, batch_size=batch_size, seed=seed, device=dev
     )
-    info = dict(th.info, calibration_dataset=str(Path(calib_dir).resolve()), calibration_labels=calib_labels)
+    if calibrate == "each":
+        th = guard_above_training(th, sigma, run.train_noise)
+    info = dict(
+        th.info,
+        calibrate=calibrate,
+        calibration_dataset=str(Path(calib_dir).resolve()),
+        calibration_labels=calib_labels,
+    )
     return th.value_nats, info
 
 
@@ -809,7 +836,7 @@ def _write_maps(
                 live = [k for k, d in enumerate(dems) if np.isfinite(d).any()]
                 if live:
                     t0 = time.perf_counter()
-                    x = torch.cat([network_input(_scan_frame(dems[k], terrain), run) for k in live]).to(dev)
+                    x = torch.cat([network_input(_scan_frame(dems[k], terrain), run, sigma_m) for k in live]).to(dev)
                     probs = network_output(
                         mc_dropout_predict(run.model, x, n_samples=mc_samples).mean_probs.float(), run
                     ).cpu()
@@ -909,6 +936,7 @@ def _info(
             "profile": run.ckpt.get("profile", {}).get("name"),
             "model_config": run.ckpt.get("model_config"),
             "train_sigma_m": run.train_sigma_m,
+            "train_noise": run.train_noise.to_dict(),
             "input_size": run.input_size,
             "dataset": extra.get("dataset"),
             "labels": run.labels,
@@ -926,6 +954,7 @@ def _info(
         "lander": asdict(run.lander),
         "threshold": threshold_info,
         "baseline": {"sigma_m": sigma_m, "safe_if_p_safe_at_least": BASELINE_THRESHOLD},
+        "sensor_sigma_m": sigma_m,
         "mc_samples": mc_samples,
         "seed": seed,
         "tiling": plan.to_dict(),

@@ -50,6 +50,7 @@ from hdnet.thresholds import (
     EntropyCalibration,
     ThresholdSpec,
     parse_threshold_spec,
+    precision_threshold,
     select_threshold,
 )
 from hdnet.train import LAST, load_trained_model
@@ -60,6 +61,10 @@ MAX_MC_SAMPLES = 1024  # hd choice: the tiled suffix of one batch holds M copies
 MAX_BATCH_SIZE = 1024  # hd choice: DEMs per inference batch
 # Where H_t is calibrated: once at the run's reference noise level (the paper), or at each test level.
 CALIBRATIONS: tuple[str, ...] = ("reference", "each")
+# hd choice: above a run's training noise levels, `--calibrate each` calls a pixel certain-safe only
+# where the validation split at that noise level shows at least this precision (the "above the
+# training range" target of docs/results.md, "One network for all noise levels").
+PRECISION_GUARD = 0.95
 ECE_BINS = 15  # hd choice: bins of the reliability diagram (the common choice since Guo et al. 2017)
 # The ALHAT baseline is safe where P(safe) >= this (paper, "Label generation"; one source: hdlabels.defaults).
 BASELINE_THRESHOLD = label_defaults.SAFE_PROBABILITY_THRESHOLD
@@ -358,6 +363,12 @@ class _Setup:
     labels: str
     sigmas_m: tuple[float, ...]
 
+    @property
+    def train_noise(self) -> TrainingNoise:
+        """The run's training noise levels (one level for runs that do not record them)."""
+        record = (self.ckpt.get("extra_config") or {}).get("train_noise")
+        return TrainingNoise.from_dict(record) if record else TrainingNoise.single(self.train_sigma_m)
+
     def dataset(
         self, dataset_dir: str | os.PathLike, split: str, sigma: float, seed: int, dead: int = 0
     ) -> HazardDataset:
@@ -419,6 +430,19 @@ def evaluate(
     )
 
 
+def guard_above_training(th: ValidationThreshold, sigma_m: float, noise: TrainingNoise) -> ValidationThreshold:
+    """``th`` (calibrated at ``sigma_m`` metres), capped by the precision guard when ``sigma_m`` lies
+    above the training noise levels ``noise``: H_t = min(H_t, the loosest threshold whose validation
+    precision is >= ``PRECISION_GUARD``). Unchanged inside the training levels, or when already guarded."""
+    if sigma_m <= noise.high_m + 1e-9 or th.info.get("guarded"):
+        return th
+    guard = precision_threshold(th.calibration, PRECISION_GUARD)
+    value = min(th.value_nats, guard)
+    info = dict(th.info, guarded=True, guard_precision=PRECISION_GUARD, guard_nats=_finite_or_none(guard))
+    info["value_nats"] = _finite_or_none(value)
+    return ValidationThreshold(value, info, th.calibration, th.inference)
+
+
 class _Thresholds:
     """H_t for every test noise level: the reference calibration (validation split at the run's
     reference sigma), or with ``calibrate="each"`` one calibration per test sigma (cached)."""
@@ -445,12 +469,25 @@ class _Thresholds:
         return th
 
     def at(self, test_sigma_m: float) -> ValidationThreshold:
-        """The calibration that scores the test split at ``test_sigma_m`` metres."""
-        return self.reference if self.cfg.calibrate == "reference" else self._calibrate(test_sigma_m)
+        """The calibration that scores the test split at ``test_sigma_m`` metres.
+
+        With ``calibrate="each"``, above the run's training noise levels the threshold is also capped
+        by the precision guard (``PRECISION_GUARD``, ``hdnet.thresholds.precision_threshold``).
+        """
+        if self.cfg.calibrate == "reference":
+            return self.reference
+        th = guard_above_training(self._calibrate(test_sigma_m), test_sigma_m, self.setup.train_noise)
+        self._by_sigma[round(float(test_sigma_m), 12)] = th
+        return th
 
     def per_sigma_info(self) -> list[dict[str, Any]]:
         return [
-            {"calibration_sigma_m": s, "value_nats": th.info["value_nats"], "mean_nats": th.info["mean_nats"]}
+            {
+                "calibration_sigma_m": s,
+                "value_nats": th.info["value_nats"],
+                "mean_nats": th.info["mean_nats"],
+                "guarded": bool(th.info.get("guarded", False)),
+            }
             for s, th in sorted(self._by_sigma.items())
         ]
 

@@ -29,6 +29,8 @@ from typing import TYPE_CHECKING, Any, Protocol
 from hdlabels import defaults as label_defaults
 from hdlabels.settings import LabelSettings
 from hdnet import defaults as net_defaults
+from hdnet.noise_levels import parse_sigma_sweep
+from hdnet.profiles import ROBUST_THRESHOLD_SPEC, get_profile
 from lidarsim import defaults as lidar_defaults
 from lidarsim.build import BuildConfig
 from lidarsim.errors import LidarsimError
@@ -40,6 +42,8 @@ if TYPE_CHECKING:
 # hd choice: the risk level of the risk-controlled threshold `hd reproduce` adds to the paper's
 # mean-entropy threshold (docs/evaluation.md, "risk:ALPHA").
 REPRODUCE_RISK_ALPHA = 0.05
+# hd choice: the noise sweep of a robust reproduction steps by 1 cm.
+ROBUST_SWEEP_STEP_M = 0.01
 # The fewest scans a pipeline accepts: one per split.
 MIN_SCANS = 3
 STAGES_FILE = "stages.json"
@@ -59,13 +63,16 @@ ProgressFactory = Callable[[str, str], ProgressBar]  # (description, unit) -> ba
 
 @dataclass(frozen=True)
 class Evaluation:
-    """One evaluation stage: ``hd eval`` with ``threshold`` and ``drop_pixels`` into ``OUT/<directory>``."""
+    """One evaluation stage: ``hd eval`` with ``threshold``, ``drop_pixels``, ``calibrate`` and
+    ``sigma_sweep`` (metres) into ``OUT/<directory>``."""
 
     stage: str
     directory: str
     threshold: str
     drop_pixels: int
     what: str
+    calibrate: str = "reference"
+    sigma_sweep: tuple[float, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -80,7 +87,8 @@ class Pipeline:
         epochs: training epochs; None takes the profile's.
         evaluations: the evaluation stages, in order.
         inspect: print the dataset's summary and check every file after labelling.
-        train_sigma_m: noise level of the training inputs, metres.
+        train_sigma_m: noise level of the training inputs, metres; None: the profile's training noise
+            range (``TrainingProfile.train_sigma_range_m``).
         seed: seed of the training and of the evaluations.
         mc_samples: MC-dropout samples of the evaluations.
         train_what: the training stage's one-line description.
@@ -93,7 +101,7 @@ class Pipeline:
     epochs: int | None
     evaluations: tuple[Evaluation, ...]
     inspect: bool = False
-    train_sigma_m: float = lidar_defaults.DEFAULT_SIGMA_M
+    train_sigma_m: float | None = lidar_defaults.DEFAULT_SIGMA_M
     seed: int = 0
     mc_samples: int = net_defaults.MC_SAMPLES
     train_what: str = ""
@@ -183,10 +191,14 @@ def reproduce_pipeline(
         build = dataclasses.replace(build, dtm_path=str(Path(dtm_path).resolve()))
     n_dead = label_defaults.N_DEAD_PIXELS
     sigma = lidar_defaults.DEFAULT_SIGMA_M
+    label = LabelSettings.from_recipe(recipe.label, str(recipe.path))
+    noise_range = get_profile(profile).train_sigma_range_m
+    if noise_range is not None:
+        return _robust_pipeline(out_dir, build, label, profile, epochs, noise_range)
     return Pipeline(
         out_dir=out_dir,
         build=build,
-        label=LabelSettings.from_recipe(recipe.label, str(recipe.path)),
+        label=label,
         profile=profile,
         epochs=epochs,
         evaluations=(
@@ -206,6 +218,55 @@ def reproduce_pipeline(
             ),
         ),
         train_what=f"Bayesian SegNet, {profile} profile, trained at sigma = {sigma} m",
+    )
+
+
+def _robust_pipeline(
+    out_dir: Path,
+    build: BuildConfig,
+    label: LabelSettings,
+    profile: str,
+    epochs: int | None,
+    noise_range: tuple[float, float],
+) -> Pipeline:
+    """``hd reproduce`` with a profile trained across noise levels: the robust rule (``quantile:Q``
+    calibrated at each test level, guarded above the range) and ``risk:ALPHA`` likewise, both with
+    the noise sweep up to 1.5 times the range's top (``ROBUST_SWEEP_STEP_M`` steps)."""
+    lo, hi = noise_range
+    sweep = parse_sigma_sweep(f"0:{1.5 * hi:.6g}:{ROBUST_SWEEP_STEP_M:g}")
+    n_dead = label_defaults.N_DEAD_PIXELS
+    rule = ROBUST_THRESHOLD_SPEC
+    return Pipeline(
+        out_dir=out_dir,
+        build=build,
+        label=label,
+        profile=profile,
+        epochs=epochs,
+        train_sigma_m=None,
+        evaluations=(
+            Evaluation(
+                "eval",
+                "report",
+                rule,
+                n_dead,
+                f"Table 1, Table 2, noise sweep to {1.5 * hi * 100:g} cm ({rule}, calibrated at each noise level)",
+                calibrate="each",
+                sigma_sweep=sweep,
+            ),
+            Evaluation(
+                "eval-risk",
+                "report-risk",
+                f"risk:{REPRODUCE_RISK_ALPHA:g}",
+                0,
+                f"risk-controlled threshold, alpha = {REPRODUCE_RISK_ALPHA:g}, calibrated at each noise level",
+                calibrate="each",
+                sigma_sweep=sweep,
+            ),
+        ),
+        train_what=(
+            f"Bayesian SegNet, {profile} profile, trained across {lo * 100:g} to {hi * 100:g} cm "
+            "(noisy DEMs made on the fly)"
+        ),
     )
 
 
@@ -331,6 +392,8 @@ def _evaluate_unless_done(pipeline: Pipeline, evaluation: Evaluation, echo: Echo
         drop_pixels=evaluation.drop_pixels,
         threshold=evaluation.threshold,
         seed=pipeline.seed,
+        calibrate=evaluation.calibrate,
+        sigma_sweep=evaluation.sigma_sweep,
     )
     result = evaluate_to_report(pipeline.run_dir, pipeline.dataset_dir, report, config)
     echo(result.summary())

@@ -92,6 +92,8 @@ class EntropyCalibration:
         self._entropies: list[np.ndarray] = []
         self._fs_entropies: list[np.ndarray] = []
         self._fs_weights: list[np.ndarray] = []
+        self._ps_entropies: list[np.ndarray] = []  # pixels predicted safe: entropy, and whether truly safe
+        self._ps_correct: list[np.ndarray] = []
         self.n_images = 0
 
     def update(
@@ -124,6 +126,9 @@ class EntropyCalibration:
             e = h[i][fs].numpy()
             self._fs_entropies.append(e)
             self._fs_weights.append(np.full(e.shape, 1.0 / n_valid))
+            ps = v & (p[i] == defaults.CLASS_SAFE)
+            self._ps_entropies.append(h[i][ps].numpy())
+            self._ps_correct.append((t[i][ps] == defaults.CLASS_SAFE).numpy())
 
     def _all(self) -> np.ndarray:
         if not self._entropies:
@@ -167,6 +172,34 @@ class EntropyCalibration:
         # Number of leading false-safe pixels that can be certain: first infeasible index.
         k = int(np.argmin(feasible)) if not feasible.all() else len(e)
         return math.inf if k == len(e) else float(e[k])
+
+
+def precision_threshold(calibration: EntropyCalibration, precision: float) -> float:
+    """The loosest H_t (nats) at which the certain predicted-safe pixels of the calibration set are
+    truly safe in at least a fraction ``precision`` of cases; 0 (nothing certain) when no threshold
+    reaches it, +inf when every threshold does.
+
+    Used as the guard of ``hd eval --calibrate each`` above a run's training noise range
+    (``hdnet.evaluate``): there the network's own ranking is not trusted, only what the validation
+    split at that noise level shows.
+    """
+    if not 0.0 < precision <= 1.0:
+        raise HdNetError(f"the precision guard must be in (0, 1], got {precision}.")
+    e = np.concatenate(calibration._ps_entropies) if calibration._ps_entropies else np.zeros(0, np.float32)
+    ok = np.concatenate(calibration._ps_correct) if calibration._ps_correct else np.zeros(0, bool)
+    if e.size == 0:
+        return math.inf
+    order = np.argsort(e, kind="stable")
+    e, ok = e[order], ok[order]
+    tp = np.cumsum(ok)
+    reached = tp >= precision * np.arange(1, e.size + 1)  # precision of the k+1 most certain >= target
+    if reached.all():
+        return math.inf
+    hits = np.flatnonzero(reached)
+    if hits.size == 0:
+        return 0.0
+    k = int(hits[-1])  # the k+1 most certain pixels are certain: H_t just above e[k]
+    return float(e[k + 1]) if e[k + 1] > e[k] else float(e[k])  # a tie at e[k]: leave the tied pixels out
 
 
 def select_threshold(spec: ThresholdSpec | str, calibration: EntropyCalibration) -> float:

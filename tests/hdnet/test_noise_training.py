@@ -171,9 +171,25 @@ def test_the_sweep_scores_every_level_and_the_report_shows_it(dataset, range_run
     md = (tmp_path / "report" / "report.md").read_text()
     assert "## Noise sweep" in md and "| 12.00 cm | above |" in md and "| 4.00 cm | in range |" in md
     assert tmp_path / "report" / "noise_sweep.png" in paths
-    each = evaluate(range_run, dataset, replace(cfg, calibrate="each", sigma_sweep=(0.04,)))
-    per = {round(p["calibration_sigma_m"], 6) for p in each.threshold["per_sigma"]}
-    assert per == {0.0167, 0.07, 0.04}
+    each = evaluate(range_run, dataset, replace(cfg, calibrate="each", sigma_sweep=(0.04, 0.12)))
+    per = {round(p["calibration_sigma_m"], 6): p for p in each.threshold["per_sigma"]}
+    assert set(per) == {0.0167, 0.07, 0.04, 0.12}
+    assert [s for s, p in per.items() if p["guarded"]] == [0.12]  # above the 0-8 cm training range only
+    assert each.threshold["calibrate"] == "each"
+
+
+def test_detect_gives_the_sensor_sigma_to_the_network_and_calibrates_there(dataset, range_run, tmp_path):
+    from hdnet.detect import detect
+
+    info = {}
+    for sigma in SIGMAS_M:
+        out = tmp_path / f"d{sigma}"
+        detect(range_run, out, dataset=dataset, scan=0, sigma_m=sigma, mc_samples=2, calibrate="each")
+        info[sigma] = json.loads((out / "detect.json").read_text())
+    for sigma in SIGMAS_M:
+        assert info[sigma]["sensor_sigma_m"] == sigma and info[sigma]["threshold"]["calibration_sigma_m"] == sigma
+        assert info[sigma]["run"]["train_noise"]["range_m"] == [0.0, 0.08]
+    assert info[SIGMAS_M[0]]["threshold"]["value_nats"] != info[SIGMAS_M[1]]["threshold"]["value_nats"]
 
 
 def test_cli_train_and_eval_take_the_noise_options(dataset, tmp_path):

@@ -50,6 +50,20 @@ def test_reproduce_runs_the_paper_recipe(tmp_path):
     assert other.build.sigmas_m == recipe.build.sigmas_m and other.build.seed == recipe.build.seed
 
 
+def test_reproduce_with_the_robust_profile_trains_across_noise_and_sweeps(tmp_path):
+    from hdnet.profiles import ROBUST, ROBUST_THRESHOLD_SPEC
+
+    pipe = reproduce_pipeline(tmp_path / "r", PAPER_RECIPE, "robust", None)
+    assert pipe.profile == "robust" and pipe.train_sigma_m is None  # the profile's range, 0 to 10 cm
+    assert ROBUST.train_sigma_range_m == (0.0, 0.10) and "sigma" in ROBUST.extra_channels
+    sweep = tuple(round(0.01 * k, 12) for k in range(16))  # 0 to 15 cm: 1.5 times the range's top
+    assert [(e.directory, e.threshold, e.calibrate, e.sigma_sweep) for e in pipe.evaluations] == [
+        ("report", ROBUST_THRESHOLD_SPEC, "each", sweep),
+        ("report-risk", "risk:0.05", "each", sweep),
+    ]
+    assert "0 to 10 cm" in pipe.train_what
+
+
 def test_demo_is_the_paper_dataset_at_demo_scale(tmp_path):
     pipe = demo_pipeline(tmp_path / "d", scans=200, epochs=3)
     assert pipe.build.trajectory.n_scans == 200 and pipe.build.sigmas_m == defaults.PAPER_SIGMAS_M

@@ -7,7 +7,14 @@ import pytest
 import torch
 
 from hdnet.errors import HdNetError
-from hdnet.thresholds import EntropyCalibration, ThresholdSpec, parse_threshold_spec, select_threshold, uncertain_mask
+from hdnet.thresholds import (
+    EntropyCalibration,
+    ThresholdSpec,
+    parse_threshold_spec,
+    precision_threshold,
+    select_threshold,
+    uncertain_mask,
+)
 
 
 @pytest.mark.parametrize(
@@ -100,3 +107,24 @@ def test_empty_calibration_raises() -> None:
         EntropyCalibration().mean()
     with pytest.raises(HdNetError):
         EntropyCalibration().update(torch.zeros(2, 3), torch.zeros(2, 3), torch.zeros(2, 3))
+
+
+def test_precision_guard_by_hand() -> None:
+    """Predicted-safe pixels sorted by entropy: right, right, wrong, right, wrong (plus unsafe predictions)."""
+    cal = EntropyCalibration()
+    h = torch.tensor([[[0.1, 0.2, 0.3, 0.4, 0.5, 0.05]]])
+    pred = torch.tensor([[[1, 1, 1, 1, 1, 0]]])
+    truth = torch.tensor([[[1, 1, 0, 1, 0, 0]]])
+    cal.update(h, pred, truth)
+    # Precision of the k most certain predicted-safe pixels: 1, 1, 2/3, 3/4, 3/5.
+    assert precision_threshold(cal, 1.0) == pytest.approx(0.3)  # the two most certain: H < 0.3
+    assert precision_threshold(cal, 0.75) == pytest.approx(0.5)  # four: precision 3/4
+    assert precision_threshold(cal, 0.6) == math.inf  # all five reach it
+    empty = EntropyCalibration()
+    empty.update(h, torch.zeros_like(pred), truth)
+    assert precision_threshold(empty, 0.95) == math.inf  # nothing predicted safe: nothing to guard
+    wrong = EntropyCalibration()
+    wrong.update(h, pred, torch.zeros_like(truth))
+    assert precision_threshold(wrong, 0.5) == 0.0  # never right: nothing certain
+    with pytest.raises(HdNetError, match="precision guard"):
+        precision_threshold(cal, 0.0)
