@@ -231,7 +231,7 @@ def split_dataset(
     split: str,
     sigma_m: float,
     *,
-    labels: str,
+    labels: str | None,
     input_spec: InputSpec,
     dead_pixels: int = 0,
     seed: int = 0,
