@@ -221,7 +221,11 @@ def labels_option(what: str) -> Decorator:
 
 def mc_samples_option() -> Decorator:
     return click.option(
-        "--mc-samples", type=int, default=net_defaults.MC_SAMPLES, show_default=True, help="MC-dropout samples M."
+        "--mc-samples",
+        type=int,
+        default=net_defaults.MC_SAMPLES,
+        show_default=True,
+        help="MC-dropout samples M (1..1024).",
     )
 
 

@@ -69,6 +69,8 @@ from hdnet.data import (
 from hdnet.errors import HdNetError
 from hdnet.evaluate import (
     CALIBRATIONS,
+    MAX_BATCH_SIZE,
+    MAX_MC_SAMPLES,
     checkpoint_path,
     guard_above_training,
     preferred_labeling,
@@ -401,9 +403,10 @@ def _origin_map(dataset: Path, manifest: dict[str, Any], scan: int) -> list[floa
 
 
 # --- options -----------------------------------------------------------------------------------------
-def _check_int(name: str, value: Any, low: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < low:
-        raise HdNetError(f"{name} must be an integer >= {low}, got {value!r}.")
+def _check_int(name: str, value: Any, low: int, high: int | None = None) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < low or (high is not None and value > high):
+        bound = f">= {low}" if high is None else f"in {low}..{high}"
+        raise HdNetError(f"{name} must be an integer {bound}, got {value!r}.")
     return value
 
 
@@ -699,9 +702,9 @@ def _check_detect_options(
     scan: int | None,
 ) -> None:
     """Step 1: the options alone (before the run is loaded or anything is written)."""
-    _check_int("the number of MC samples", mc_samples, 1)
+    _check_int("the number of MC samples", mc_samples, 1, MAX_MC_SAMPLES)
     _check_int("the number of sites", n_sites, 1)
-    _check_int("the batch size", batch_size, 1)
+    _check_int("the batch size", batch_size, 1, MAX_BATCH_SIZE)
     if sigma_m is not None and not (isinstance(sigma_m, (int, float)) and math.isfinite(sigma_m) and sigma_m >= 0):
         raise HdNetError(f"sigma must be a finite number of metres >= 0, got {sigma_m!r}.")
     if (dtm is None) == (dataset is None):

@@ -544,6 +544,8 @@ BAD = [
     (["--dtm", "{ok}", "--threshold", "risk:1.5"], "alpha"),
     (["--dtm", "{ok}", "--threshold", "nats:-1"], ">= 0 nats"),
     (["--dtm", "{ok}", "--mc-samples", "0"], "MC samples"),
+    (["--dtm", "{ok}", "--mc-samples", "100000"], "in 1..1024"),  # was unbounded: 104 GB asked for
+    (["--dtm", "{ok}", "--batch-size", "100000"], "in 1..1024"),
     (["--dtm", "{ok}", "--sites", "0"], "number of sites"),
     (["--dtm", "{ok}", "--sigma", "-0.1"], "sigma"),
     (["--dtm", "{ok}", "--scan", "1"], "--scan goes with --data"),
