@@ -119,9 +119,12 @@ def plan_scans(
         + trajectory.margin_m
     )
     reach = int(math.ceil(half_width / cell + 0.5))
-    admissible = ndimage.minimum_filter(valid.astype(np.uint8), size=2 * reach + 1, mode="constant", cval=0).astype(
-        bool
-    )
+    if 2 * reach + 1 > min(valid.shape):  # no footprint fits: say so before filtering with a huge window
+        admissible = np.zeros(valid.shape, dtype=bool)
+    else:
+        admissible = ndimage.minimum_filter(valid.astype(np.uint8), size=2 * reach + 1, mode="constant", cval=0).astype(
+            bool
+        )
     if not admissible.any():
         need = 2.0 * half_width
         extent_x = valid.shape[1] * cell

@@ -373,3 +373,27 @@ def test_build_from_a_recipe_and_verify_against_its_checksums(tmp_path, dtm):
     assert bad.exit_code != 0 and "differs from the recipe's published build" in bad.output
     bad = runner.invoke(main, ["build-dataset", "--recipe", str(tmp_path / "nope"), "--out", str(tmp_path / "x")])
     assert bad.exit_code != 0 and "no such recipe" in bad.output
+
+
+@pytest.mark.parametrize("altitude_m", [1e6, 1e9])
+def test_an_absurd_altitude_is_refused_at_once(altitude_m):
+    """--altitude 1e9 never answered: a 2e8-cell minimum filter ran before the footprint met the terrain."""
+    from lidarsim.errors import LidarsimError
+    from lidarsim.trajectory import plan_scans
+
+    def too_slow(signum, frame):
+        raise TimeoutError("planning took more than 10 s")
+
+    previous = signal.signal(signal.SIGALRM, too_slow)
+    signal.alarm(10)
+    try:
+        with pytest.raises(LidarsimError, match="too small for the sensor footprint"):
+            plan_scans(
+                np.ones((256, 256), bool),
+                (4.0, 0.0, 0.0, 0.0, -4.0, 1024.0),
+                SensorConfig(),
+                TrajectoryConfig(n_scans=3, altitude_m=altitude_m),
+            )
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, previous)
