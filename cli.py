@@ -29,7 +29,7 @@ from hdnet import defaults as net_defaults
 from lidarsim import defaults as lidar_defaults
 from lidarsim import limits
 from lidarsim._version import __version__
-from lidarsim.errors import HdError, LidarsimError
+from lidarsim.errors import HdError, HdWarning, LidarsimError
 
 # The paper's dataset recipe, which `hd reproduce` runs (beside this file in a source checkout).
 PAPER_RECIPE = Path(__file__).resolve().parent / "datasets" / "mars-paper"
@@ -67,6 +67,21 @@ def _install_signal_handlers(ctx: click.Context) -> None:
         return
     previous = {sig: signal.signal(sig, _raise_terminated) for sig in _STOP_SIGNALS}
     ctx.call_on_close(lambda: [signal.signal(sig, handler) for sig, handler in previous.items()])
+
+
+def _install_warning_format() -> None:
+    """hd's own warnings (``HdWarning``) as one ``Warning: ...`` line on standard error; others as usual."""
+    import warnings
+
+    default = warnings.showwarning
+
+    def show(message: Any, category: Any, filename: str, lineno: int, file: Any = None, line: Any = None) -> None:
+        if isinstance(category, type) and issubclass(category, HdWarning):
+            click.echo(f"Warning: {_one_line(Exception(str(message)))}", err=True)
+        else:
+            default(message, category, filename, lineno, file, line)
+
+    warnings.showwarning = show
 
 
 def _one_line(exc: BaseException) -> str:
@@ -297,6 +312,7 @@ def main(ctx: click.Context) -> None:
     from lidarsim.parallel import forked_children_die_with_parent
 
     _install_signal_handlers(ctx)
+    _install_warning_format()
     forked_children_die_with_parent()
 
 

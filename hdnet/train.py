@@ -44,6 +44,7 @@ import math
 import os
 import random
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -60,6 +61,7 @@ from hdnet._version import __version__
 from hdnet.errors import HdNetError
 from hdnet.model import MODEL_NAME, BayesianSegNet, ModelConfig
 from hdnet.profiles import TrainingProfile, profile_from_dict
+from lidarsim.errors import HdWarning
 from lidarsim.storage import StorageError, write_bytes_atomic
 
 CHECKPOINT_SCHEMA = "hdnet.checkpoint"
@@ -185,7 +187,15 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
             f"{path} has checkpoint schema version {ckpt.get('schema_version')}, this hdnet reads "
             f"{', '.join(map(str, READABLE_CHECKPOINT_VERSIONS))}."
         )
-    if int(ckpt["schema_version"]) >= 2:
+    if int(ckpt["schema_version"]) < 2:
+        warnings.warn(
+            HdWarning(
+                f"{path} is a schema-1 checkpoint without {DIGEST_KEY}: damage to its weights cannot be "
+                "detected (checkpoints written by this hd carry the checksum)."
+            ),
+            stacklevel=2,
+        )
+    else:
         recorded = ckpt.get(DIGEST_KEY)
         if not isinstance(recorded, str):
             raise HdNetError(f"{path} lacks its {DIGEST_KEY}; the checkpoint is damaged.")
@@ -208,9 +218,47 @@ def load_trained_model(
 ) -> tuple[BayesianSegNet, dict[str, Any]]:
     """The model of a checkpoint (in eval mode) and the checkpoint dictionary (``extra_config`` etc.)."""
     ckpt = load_checkpoint(path, map_location)
-    model = BayesianSegNet(ModelConfig(**ckpt["model_config"]))
+    config = checked_model_config(ckpt, path)
+    model = BayesianSegNet(config)
     model.load_state_dict(ckpt["model"])
     return model.to(map_location).eval(), ckpt
+
+
+def checked_model_config(ckpt: dict[str, Any], path: str | Path) -> ModelConfig:
+    """The checkpoint's ``ModelConfig``, checked against its own tensors before any model is built.
+
+    The architecture is laid out on PyTorch's ``meta`` device (shapes only, no memory), so an absurd
+    configuration costs nothing; every parameter and buffer of it must be in the checkpoint with the
+    same shape, and the checkpoint must hold nothing else.
+
+    Raises:
+        HdNetError: an unreadable model config, a missing, unexpected or mis-shaped tensor (named).
+    """
+    raw = ckpt.get("model_config")
+    if not isinstance(raw, dict):
+        raise HdNetError(f"{path}: its model_config is not a dictionary.")
+    try:
+        config = ModelConfig(**raw)
+    except TypeError as exc:
+        raise HdNetError(f"{path}: its model_config does not describe a SegNet ({exc}).") from None
+    state = ckpt.get("model")
+    if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
+        raise HdNetError(f"{path}: its model weights are not a dictionary of tensors.")
+    with torch.device("meta"):
+        expected = {k: tuple(v.shape) for k, v in BayesianSegNet(config).state_dict().items()}
+    missing = [k for k in expected if k not in state]
+    if missing:
+        raise HdNetError(f"{path}: the weights lack {missing[0]!r} ({len(missing)} tensor(s) missing).")
+    unexpected = [k for k in state if k not in expected]
+    if unexpected:
+        raise HdNetError(f"{path}: the weights hold {unexpected[0]!r}, which the model config does not have.")
+    for key, shape in expected.items():
+        if tuple(state[key].shape) != shape:
+            raise HdNetError(
+                f"{path}: {key!r} has shape {tuple(state[key].shape)}, the model config {config.to_dict()} "
+                f"needs {shape}."
+            )
+    return config
 
 
 # --- helpers ----------------------------------------------------------------------------------

@@ -63,5 +63,10 @@ class LockedError(StorageError):
     """Another hd process is writing the directory."""
 
 
+class HdWarning(UserWarning):
+    """Something the user should know that does not stop the command (one-line message); the ``hd``
+    command prints it as one ``Warning: ...`` line on standard error."""
+
+
 class WorkerError(RuntimeError):
     """A task failed in a worker with an exception that is not one of hd's input errors."""

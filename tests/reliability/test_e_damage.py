@@ -17,7 +17,7 @@ import h5py
 import numpy as np
 import pytest
 import torch
-from reliability_kit import assert_one_line_error, invoke
+from reliability_kit import assert_one_line_error, hills, invoke
 
 from lidarsim.shards import ScanShardReader, read_manifest, sha256_file
 from lidarsim.storage import DamagedFileError
@@ -302,6 +302,54 @@ def test_damaged_checkpoints_are_refused(trained, labelled, tmp_path, damage):
     assert_one_line_error(evaluate(run, labelled, tmp_path / "r"), "last.pt", needle)
     assert_one_line_error(train(labelled, run, "--resume"), "last.pt", needle)
     assert not (tmp_path / "r").exists()
+
+
+@pytest.mark.parametrize("change", ["key-missing", "key-extra", "shape", "absurd-width", "config-unknown-field"])
+def test_checkpoints_from_elsewhere_are_checked_against_their_tensors_first(trained, tmp_path, change):
+    """A state_dict lacking a key gave a traceback; an absurd width built a 4.8 GB model before any check."""
+    from hdnet.train import checkpoint_digest
+
+    ckpt = torch.load(trained / "last.pt", weights_only=True)
+    model = ckpt["model"]
+    if change == "key-missing":
+        del model[next(iter(model))]
+    elif change == "key-extra":
+        model["decoder.extra.weight"] = torch.zeros(3)
+    elif change == "shape":
+        name = next(k for k, v in model.items() if v.dim() == 4)
+        model[name] = torch.zeros(*model[name].shape[:-1], model[name].shape[-1] + 1)
+    elif change == "absurd-width":
+        ckpt["model_config"]["width"] = 10_000.0
+    else:
+        ckpt["model_config"]["heads"] = 3
+    ckpt["content_sha256"] = checkpoint_digest({k: v for k, v in ckpt.items() if k != "content_sha256"})
+    path = tmp_path / "other.pt"
+    torch.save(ckpt, path)
+    needle = {
+        "key-missing": "lack",
+        "key-extra": "does not have",
+        "shape": "has shape",
+        "absurd-width": "has shape",
+        "config-unknown-field": "does not describe a SegNet",
+    }[change]
+    assert_one_line_error(
+        invoke("detect", path, "--dtm", hills(tmp_path / "t.tif", n=120), "--out", tmp_path / "d"), needle
+    )
+    assert not (tmp_path / "d").exists()
+
+
+def test_a_schema_1_checkpoint_loads_with_a_warning(trained, tmp_path):
+    """docs/reliability.md: version 1 checkpoints (no content_sha256) still load; now never silently."""
+    ckpt = torch.load(trained / "last.pt", weights_only=True)
+    del ckpt["content_sha256"]
+    ckpt["schema_version"] = 1
+    path = tmp_path / "old.pt"
+    torch.save(ckpt, path)
+    out = tmp_path / "d"
+    result = invoke("detect", path, "--dtm", hills(tmp_path / "t.tif", n=120), "--out", out, "--threshold", "nats:0.3")
+    assert result.exit_code == 0, result.output
+    warnings = [line for line in result.output.splitlines() if line.startswith("Warning: ")]
+    assert len(warnings) == 1 and "schema-1 checkpoint" in warnings[0] and "cannot be detected" in warnings[0]
 
 
 # ------------------------------------------------------------------------------------- old shards
