@@ -240,6 +240,11 @@ class DTM:
                 )
             crs_wkt = crs.to_wkt()
         t = src.transform
+        if crs is None and t.is_identity and np.dtype(src.dtypes[0]).itemsize == 1:
+            raise TerrainError(
+                f"{apath}: has no georeferencing and 8-bit values (0-255): an image, not a DTM of heights in "
+                "metres; give a GeoTIFF (or HiRISE .IMG) of heights in metres with its cell size"
+            )
         a, b, c, d, e, f = (float(v) for v in (t.a, t.b, t.c, t.d, t.e, t.f))
         pixel = max(abs(a), abs(e))
         if not all(math.isfinite(v) for v in (a, b, c, d, e, f)) or a == 0.0 or e == 0.0:

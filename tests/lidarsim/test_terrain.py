@@ -367,3 +367,26 @@ def test_real_autzen(real_terrain_dir: Path) -> None:
         coarse = half.read(0, 0, half.info.rows, half.info.cols)
         assert np.nanmin(coarse) >= 123.8 - 0.05 and np.nanmax(coarse) <= 132.3 + 0.05
         assert np.isnan(coarse).mean() >= 0.155
+
+
+@pytest.mark.parametrize(("dtype", "refused"), [("uint8", True), ("int8", True), ("float32", False)])
+def test_an_image_without_georeferencing_is_not_taken_for_heights(tmp_path: Path, dtype: str, refused: bool) -> None:
+    """An 8-bit PNG without georeferencing was built and mapped as heights in metres without a word."""
+    import warnings
+
+    import rasterio
+    from rasterio.errors import NotGeoreferencedWarning
+
+    path = tmp_path / "picture.png" if dtype != "float32" else tmp_path / "local.tif"
+    z = (np.arange(64 * 64).reshape(64, 64) % 100).astype(dtype)
+    driver = "PNG" if dtype == "uint8" else "GTiff"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)  # the point of the file
+        with rasterio.open(path, "w", driver=driver, width=64, height=64, count=1, dtype=dtype) as dst:
+            dst.write(z, 1)
+    if refused:
+        with pytest.raises(TerrainError, match="no georeferencing and 8-bit values"):
+            DTM.open(path)
+    else:
+        with DTM.open(path) as dtm:  # a float DTM in local metres: 1 m cells, as GDAL says
+            assert dtm.info.rows == 64 and dtm.info.spacing_m == (1.0, 1.0)
