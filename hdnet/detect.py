@@ -45,7 +45,6 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-import h5py
 import numpy as np
 import rasterio
 import torch
@@ -56,7 +55,7 @@ from scipy import ndimage
 from hdlabels import defaults as label_defaults
 from hdlabels.alhat import safety_probability
 from hdlabels.lander import Lander, geometry
-from hdlabels.store import find_labeling
+from hdlabels.store import LabelStoreError, find_labeling, open_label_shard
 from hdnet import defaults
 from hdnet._version import __version__
 from hdnet.data import (
@@ -88,9 +87,9 @@ from hdnet.results import SITE_COLUMNS, Site
 from hdnet.thresholds import ThresholdSpec, parse_threshold_spec, uncertain_mask
 from hdnet.tiling import TilePlan
 from hdnet.train import load_trained_model
-from lidarsim.errors import TerrainError
+from lidarsim.errors import LidarsimError, TerrainError
 from lidarsim.procedural import geotiff_profile
-from lidarsim.shards import MANIFEST_NAME, read_manifest, sha256_file
+from lidarsim.shards import MANIFEST_NAME, open_scan_shard, read_manifest, sha256_file
 from lidarsim.storage import OutputDir
 from lidarsim.terrain import DTM
 
@@ -339,14 +338,18 @@ class _ScanTerrain(_Terrain):
             raise HdNetError(f"the scan index must be an integer, got {scan!r}.")
         found = None
         all_scans: list[int] = []
-        for path in paths:
-            with h5py.File(path, "r") as f:
-                scans = f["scan_index"][:]
-                all_scans += scans.tolist()
-                rows = np.flatnonzero(scans == scan)
-                if rows.size:
-                    r = int(rows[0])
-                    found = (path, f["dem_noisy"][r, k].astype(np.float32), int(f["split"][r]))
+        for path, shard in zip(paths, entry["shards"], strict=True):
+            try:  # through the storage layer: checksum first, damaged chunks named with the scan
+                with open_label_shard(dataset, shard) as reader:
+                    f = reader.h5
+                    scans = f["scan_index"][:]
+                    all_scans += scans.tolist()
+                    rows = np.flatnonzero(scans == scan)
+                    if rows.size:
+                        r = int(rows[0])
+                        found = (path, f["dem_noisy"][r, k].astype(np.float32), int(f["split"][r]), shard)
+            except (LabelStoreError, LidarsimError) as exc:
+                raise HdNetError(f"{str(exc).rstrip('.')}.") from None
         if found is None:
             span = f"scans {min(all_scans)}..{max(all_scans)}" if all_scans else "no scans"
             raise HdNetError(f"scan {scan} is not in {dataset} ({span}).")
@@ -358,7 +361,7 @@ class _ScanTerrain(_Terrain):
         self.spacing_xy_m = (spacing, spacing)
         self.scan_frame = True
         manifest = read_manifest(dataset)
-        origin = _origin_map(dataset, manifest, scan)
+        origin = _origin_map(dataset, found[3], scan)
         self.provenance = {
             "kind": "scan",
             "dataset": str(Path(dataset).resolve()),
@@ -389,17 +392,18 @@ class _ScanTerrain(_Terrain):
         return self.dem.astype(np.float64), self.spacing_xy_m[0]
 
 
-def _origin_map(dataset: Path, manifest: dict[str, Any], scan: int) -> list[float] | None:
-    """Map coordinates (metres) of a scan's frame origin, from its scan shard (None if not found)."""
-    for shard in manifest.get("shards", []):
-        first, n = int(shard.get("first_scan", -1)), int(shard.get("n_scans", 0))
-        if first <= scan < first + n:
-            try:
-                with h5py.File(Path(dataset) / shard["path"], "r") as f:
-                    return [float(v) for v in f["origin_map"][scan - first]]
-            except (OSError, KeyError):
-                return None
-    return None
+def _origin_map(dataset: Path, label_shard: dict[str, Any], scan: int) -> list[float]:
+    """Map coordinates (metres) of a scan's frame origin, from the scan shard behind its label shard
+    (through the storage layer: checksum first; damage is an error naming the file and the scan)."""
+    source = {"path": label_shard["source_path"], "sha256": label_shard["source_sha256"]}
+    try:
+        with open_scan_shard(dataset, source) as reader:
+            rows = np.flatnonzero(reader.h5["scan_index"][:] == scan)
+            if not rows.size:
+                raise HdNetError(f"{source['path']}: holds no scan {scan}, which its label shard lists.")
+            return [float(v) for v in reader.h5["origin_map"][int(rows[0])]]
+    except LidarsimError as exc:
+        raise HdNetError(f"{str(exc).rstrip('.')}.") from None
 
 
 # --- options -----------------------------------------------------------------------------------------

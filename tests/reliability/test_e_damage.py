@@ -338,6 +338,30 @@ def test_checkpoints_from_elsewhere_are_checked_against_their_tensors_first(trai
     assert not (tmp_path / "d").exists()
 
 
+@pytest.mark.parametrize("damage", ["label-chunk", "label-bytes", "scan-origin"])
+def test_detect_on_a_scan_reads_through_the_storage_layer(trained, data_copy, tmp_path, damage):
+    """detect --data printed raw HDF5 messages, and read the scan origin with raw h5py (exit 0, origin null)."""
+    label = next(data_copy.glob(LABEL_GLOB))
+    with h5py.File(label, "r") as f:
+        scan = int(f["scan_index"][0])
+        source = data_copy / str(f.attrs["source_shard"])
+    if damage == "label-chunk":
+        flip_chunk_byte(label, "dem_noisy")
+        reseal(data_copy)  # only the read-time check is left
+        needle = "cannot read dem_noisy"
+    elif damage == "label-bytes":
+        flip_chunk_byte(label, "dem_noisy")  # the manifest's sha256 no longer matches
+        needle = "checksum"
+    else:
+        with h5py.File(source, "r+") as f:
+            f["origin_map"][0] = [1.0, 2.0, 3.0]
+        needle = "checksum"
+    out = tmp_path / "d"
+    result = invoke("detect", trained, "--data", data_copy, "--scan", scan, "--out", out, "--threshold", "nats:0.3")
+    last = assert_one_line_error(result, needle)
+    assert ("labels-00000.h5" in last) != (damage == "scan-origin") and not out.exists()
+
+
 def test_a_schema_1_checkpoint_loads_with_a_warning(trained, tmp_path):
     """docs/reliability.md: version 1 checkpoints (no content_sha256) still load; now never silently."""
     ckpt = torch.load(trained / "last.pt", weights_only=True)
