@@ -93,8 +93,8 @@ class LabelSummary:
 
 def check_lander_fits(lander: Lander, dem: DemSpec) -> None:
     """Refuse a lander the convention cannot place on the grid, or whose border band leaves no pixel to label."""
-    band = geometry(lander, dem.spacing_m).band_px
-    if lander.diameter_m >= min(dem.rows, dem.cols) * dem.spacing_m or 2 * band >= min(dem.rows, dem.cols):
+    too_large = lander.diameter_m >= min(dem.rows, dem.cols) * dem.spacing_m  # before any geometry is laid out
+    if too_large or 2 * geometry(lander, dem.spacing_m).band_px >= min(dem.rows, dem.cols):
         raise LabelStoreError(
             f"the lander ({lander.diameter_m:g} m) is larger than the DEM ({dem.rows} x {dem.cols} cells of "
             f"{dem.spacing_m:g} m): no pixel could be labelled"

@@ -110,6 +110,7 @@ LABEL = [
     ("lander-inf", ["--lander-diameter", "inf"], "--lander-diameter"),
     ("lander-negative", ["--lander-diameter", "-10"], "diameter"),
     ("lander-larger-than-dem", ["--lander-diameter", "150"], "larger than the DEM"),
+    ("lander-far-larger-than-dem", ["--lander-diameter", "1000"], "larger than the DEM"),  # was "internal: ..."
     ("pad-nan", ["--pad-diameter", "nan"], "--pad-diameter"),
     ("slope-nan", ["--max-slope-deg", "nan"], "--max-slope-deg"),
     ("slope-ninety", ["--max-slope-deg", "90"], "slope"),
