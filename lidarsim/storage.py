@@ -28,7 +28,7 @@ Reading:
 One writer per directory: :class:`WriterLock` holds an exclusive ``flock`` on ``DIR/.hd-lock``
 (the holder's PID written in it) for as long as a command writes there; the kernel releases it
 when the holder dies, even by SIGKILL. A second writer fails at once with the holder's PID;
-readers never take the lock (:func:`lock_holder` only reads the PID).
+readers never take the lock (:func:`lock_holder` probes it with a shared lock released at once).
 """
 
 from __future__ import annotations
@@ -908,11 +908,32 @@ def _pid_alive(pid: int) -> bool:
 
 
 def lock_holder(directory: str | os.PathLike) -> int | None:
-    """PID of the live process that holds ``directory``'s writer lock, or None (never takes the lock)."""
+    """PID of the live process that holds ``directory``'s writer lock, or None.
+
+    The lock counts as held only while some process holds the ``flock`` (probed with a shared,
+    non-blocking lock that is released at once, so a writer is never kept waiting): a stale lock
+    file naming a PID that now belongs to an unrelated live process is not a writer at work.
+    """
     try:
-        text = (Path(directory) / LOCK_NAME).read_text().strip()
+        fd = os.open(Path(directory) / LOCK_NAME, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
+    except OSError:
+        return None
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except BlockingIOError:
+            pass  # held: read the holder's PID below
+        except OSError:
+            return None
+        else:
+            fcntl.flock(fd, fcntl.LOCK_UN)
+            return None  # nobody holds it: a stale file
+        text = os.pread(fd, 32, 0).decode(errors="replace").strip()
+    finally:
+        os.close(fd)
+    try:
         pid = int(text.split()[0])
-    except (OSError, ValueError, IndexError):
+    except (ValueError, IndexError):
         return None
     return pid if pid > 0 and _pid_alive(pid) else None
 

@@ -118,6 +118,18 @@ def test_the_lock_dies_with_its_holder(tmp_path):
         assert lock_holder(d) == os.getpid()
 
 
+def test_a_stale_lock_naming_a_live_unrelated_pid_is_not_a_writer(data_copy):
+    """A lock file left by a killed writer whose PID now belongs to another live process (here PID 1)."""
+    from lidarsim.inspect import describe_dataset
+
+    (data_copy / LOCK_NAME).write_text("1\n")
+    assert lock_holder(data_copy) is None
+    assert "is writing this dataset" not in describe_dataset(data_copy)
+    with WriterLock(data_copy):  # and a real writer still shows
+        assert lock_holder(data_copy) == os.getpid()
+        assert f"PID {os.getpid()}) is writing this dataset" in describe_dataset(data_copy)
+
+
 def test_a_forked_child_does_not_keep_the_lock(tmp_path):
     """DataLoader workers are forked: they must not hold the lock after their parent dies."""
     d = tmp_path / "d"
