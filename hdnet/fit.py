@@ -314,18 +314,23 @@ def fit(dataset_dir: str | os.PathLike, run_dir: str | os.PathLike, config: FitC
             if replace:
                 for name in RUN_FILES:
                     (run_path / name).unlink(missing_ok=True)
-            return train(
-                run_path,
-                train_ds,
-                val_ds,
-                profile,
-                epochs=cfg.epochs,
-                seed=cfg.seed,
-                resume=resume and not replace,
-                progress=cfg.progress,
-                extra_config=extra,
-                num_workers=cfg.num_workers,
-                stop_after=cfg.stop_after,
-            )
+            try:
+                return train(
+                    run_path,
+                    train_ds,
+                    val_ds,
+                    profile,
+                    epochs=cfg.epochs,
+                    seed=cfg.seed,
+                    resume=resume and not replace,
+                    progress=cfg.progress,
+                    extra_config=extra,
+                    num_workers=cfg.num_workers,
+                    stop_after=cfg.stop_after,
+                )
+            except BaseException:
+                if not (run_path / LAST).exists():  # no epoch finished: a config.json alone is no run
+                    (run_path / CONFIG).unlink(missing_ok=True)
+                raise
     finally:
         remove_empty_dirs(run_path, top)
