@@ -20,7 +20,7 @@ from typing import Any
 import h5py
 import numpy as np
 
-from lidarsim import defaults
+from lidarsim import defaults, limits
 from lidarsim._version import __version__
 from lidarsim.errors import LidarsimError
 from lidarsim.storage import (
@@ -333,8 +333,16 @@ def _check_entries(entries: Any, where: str) -> None:
         seen.add(path)
         if not is_sha256(require(entry, "sha256", str, at)):
             raise FormatError(f"{at}: 'sha256' is not a 64-digit hex checksum")
-        if require(entry, "n_scans", int, at) < 0:
-            raise FormatError(f"{at}: 'n_scans' must be >= 0")
+        n = require(entry, "n_scans", int, at)
+        if not 0 <= n <= limits.MAX_SCANS:
+            raise FormatError(f"{at}: 'n_scans' must be in 0..{limits.MAX_SCANS}, got {n}")
+        counts = entry.get("split_counts")
+        if counts is not None:
+            if not isinstance(counts, dict) or set(counts) != set(SPLIT_NAMES):
+                raise FormatError(f"{at}: 'split_counts' must give {', '.join(SPLIT_NAMES)}")
+            values = [counts[k] for k in SPLIT_NAMES]
+            if any(isinstance(v, bool) or not isinstance(v, int) or v < 0 for v in values) or sum(values) != n:
+                raise FormatError(f"{at}: 'split_counts' {counts} do not add up to its {n} scans")
 
 
 def validate_manifest(data: Any, where: str) -> dict[str, Any]:
@@ -358,6 +366,11 @@ def validate_manifest(data: Any, where: str) -> dict[str, Any]:
     held = sum(int(e["n_scans"]) for e in shards)
     if held != n_scans:
         raise FormatError(f"{where}: lists {n_scans} scans but its shards hold {held}")
+    splits = data.get("splits")
+    if splits is not None and shards and all("split_counts" in e for e in shards):
+        summed = {k: sum(int(e["split_counts"][k]) for e in shards) for k in SPLIT_NAMES}
+        if not isinstance(splits, dict) or {k: splits.get(k) for k in SPLIT_NAMES} != summed:
+            raise FormatError(f"{where}: 'splits' {splits} differ from its shards' split counts {summed}")
     sigmas = require(data, "sigmas_m", list, where)
     if not sigmas or not all(
         isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x) and x > 0 for x in sigmas
@@ -419,9 +432,15 @@ def read_manifest(directory: str | os.PathLike) -> dict[str, Any]:
 
 
 def open_scan_shard(directory: str | os.PathLike, entry: dict[str, Any]) -> ScanShardReader:
-    """Open the scan shard of a manifest entry: path confined to the dataset, sha256 checked first."""
+    """Open the scan shard of a manifest entry: path confined to the dataset, sha256 checked first,
+    and its scan count compared with the entry's ``n_scans`` when the entry gives one."""
     path = confine(directory, entry["path"])
-    return ScanShardReader(path, sha256=entry["sha256"], what=f"{Path(directory) / entry['path']}")
+    reader = ScanShardReader(path, sha256=entry["sha256"], what=f"{Path(directory) / entry['path']}")
+    claimed = entry.get("n_scans")
+    if isinstance(claimed, int) and not isinstance(claimed, bool) and claimed != len(reader):
+        reader.close()
+        raise DamagedFileError(f"{reader.what}: holds {len(reader)} scans, its manifest entry claims {claimed}")
+    return reader
 
 
 def iter_scans(directory: str | os.PathLike, split: str | None = None) -> Iterator[Scan]:

@@ -182,6 +182,19 @@ def _edit(m: dict, damage: str) -> object:
         m["schema_version"] = "2.0"
     elif damage == "n-scans-not-int":
         m["n_scans"] = "eight"
+    elif damage == "split-counts-do-not-add-up":
+        m["shards"][0]["split_counts"]["train"] += 1
+    elif damage == "splits-differ-from-shards":
+        m["shards"][0]["split_counts"]["train"] -= 1
+        m["shards"][0]["split_counts"]["test"] += 1
+    elif damage == "shard-scan-count-wrong":
+        m["shards"][0]["n_scans"] += 1
+        m["shards"][0]["split_counts"]["train"] += 1
+        m["shards"][1]["n_scans"] -= 1
+        m["shards"][1]["split_counts"]["train"] -= 1
+    elif damage == "absurd-scan-count":
+        m["shards"][0]["n_scans"] = 10**12 - sum(e["n_scans"] for e in m["shards"][1:])
+        m["n_scans"] = 10**12
     elif damage == "not-an-object":
         return [m]
     return m
@@ -199,6 +212,9 @@ MANIFEST_DAMAGE = [
     "labelling-name-escapes",
     "major-version",
     "n-scans-not-int",
+    "split-counts-do-not-add-up",
+    "splits-differ-from-shards",
+    "absurd-scan-count",
     "not-an-object",
     "truncated-json",
     "binary",
@@ -217,6 +233,9 @@ NEEDLE = {
     "labelling-name-escapes": "labelling name",
     "major-version": "version 2.0",
     "n-scans-not-int": "n_scans",
+    "split-counts-do-not-add-up": "do not add up",
+    "splits-differ-from-shards": "differ from its shards' split counts",
+    "absurd-scan-count": "'n_scans' must be in 0..1000000",
     "not-an-object": "not a JSON object",
     "truncated-json": "unreadable manifest",
     "binary": "unreadable manifest",
@@ -250,6 +269,19 @@ def test_damaged_or_hostile_manifests(data_copy, trained, tmp_path, damage, comm
     }[command]
     assert_one_line_error(invoke(*args), NEEDLE[damage])
     assert not (tmp_path / "run").exists() and not (tmp_path / "r").exists()
+
+
+def test_a_shard_holding_other_than_its_entry_claims_is_damaged(data_copy):
+    """Two entries' scan counts moved by one: totals still add up, the shards do not match."""
+    from lidarsim.shards import open_scan_shard
+
+    path = data_copy / "manifest.json"
+    m = _edit(json.loads(path.read_text()), "shard-scan-count-wrong")
+    path.write_text(json.dumps(m))
+    with pytest.raises(DamagedFileError, match="claims 3"):
+        open_scan_shard(data_copy, m["shards"][0])
+    result = invoke("verify", data_copy)
+    assert result.exit_code == 1 and "holds 2 scans, manifest says 3" in result.output
 
 
 def test_verify_never_follows_a_link_out_of_the_dataset(data_copy, tmp_path):
