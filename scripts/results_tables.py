@@ -3,8 +3,8 @@
 Reads ``report.json`` files written by ``hd eval`` (``hd reproduce`` writes ``report/`` with the mean
 threshold and 10 dropped pixels, and ``report-risk/`` with ``risk:0.05``) and prints, next to the
 paper's numbers (``hdnet.paper_results``): Table 1 (noise), Table 2 (dead pixels), the threshold
-sweep and the risk-controlled rows. Nothing is typed by hand: regenerate the tables whenever the
-science changes.
+sweep, the risk-controlled rows and, for reports with ``--sigma-sweep``, the noise sweep. Nothing
+is typed by hand: regenerate the tables whenever the science changes.
 
 Usage::
 
@@ -110,6 +110,57 @@ def risk(report: dict[str, Any]) -> list[str]:
     return lines
 
 
+def noise_sweep(report: dict[str, Any], risk_report: dict[str, Any] | None = None) -> list[str]:
+    """The noise sweep (``sigma_sweep`` rows): per test sigma, the baseline, the base net, the
+    uncertainty-aware map at the report's threshold and, with ``risk_report``, at ``risk:ALPHA``
+    with the false-safe rate achieved."""
+    noise = report["run"].get("train_noise") or {}
+    lo, hi = (noise.get("range_m") or [None, None])[:2]
+    rows: dict[float, dict[str, dict[str, Any]]] = {}
+    for r in report["rows"]:
+        if r["table"] == "sigma_sweep":
+            rows.setdefault(r["test_sigma_m"], {})[r["method"]] = r
+    risk_rows: dict[float, dict[str, Any]] = {}
+    achieved: dict[float, float] = {}
+    if risk_report is not None:
+        risk_rows = {
+            r["test_sigma_m"]: r
+            for r in risk_report["rows"]
+            if r["table"] == "sigma_sweep" and r["method"] == "uncertainty_aware"
+        }
+        achieved = {
+            a["test_sigma_m"]: a["false_safe_rate"]
+            for a in risk_report["threshold"].get("achieved_risk", [])
+            if a["table"] == "sigma_sweep"
+        }
+    header = ["test σ", "training", "ALHAT PA / prec. / sens.", "base net PA / prec. / sens."]
+    header += [f"{report['threshold']['spec']}: V/C % / prec. / sens."]
+    if risk_report is not None:
+        header += [f"{risk_report['threshold']['spec']}: V/C % / prec. / sens. / false-safe"]
+    lines = ["| " + " | ".join(header) + " |", "|---" * len(header) + "|"]
+
+    def three(r: dict[str, Any] | None) -> str:
+        if r is None:
+            return DASH
+        return f"{_num(r['pixel_accuracy'], 3)} / {_num(r['precision'], 3)} / {_num(r['sensitivity'], 3)}"
+
+    def vc(r: dict[str, Any] | None) -> str:
+        if r is None:
+            return DASH
+        return f"{100 * (r['vc_fraction'] or 0):.0f} / {_num(r['precision'], 3)} / {_num(r['sensitivity'], 3)}"
+
+    for sigma in sorted(rows):
+        m = rows[sigma]
+        where = DASH if lo is None else ("in range" if lo - 1e-9 <= sigma <= hi + 1e-9 else "**above**")
+        cells = [_cm(sigma), where, three(m.get("alhat_baseline")), three(m.get("base_net"))]
+        cells.append(vc(m.get("uncertainty_aware")))
+        if risk_report is not None:
+            fs = achieved.get(sigma)
+            cells.append(f"{vc(risk_rows.get(sigma))} / {_num(fs, 3) if fs is not None else DASH}")
+        lines.append("| " + " | ".join(cells) + " |")
+    return lines
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("report", type=Path, help="report directory of the mean threshold (hd reproduce: report/)")
@@ -128,6 +179,10 @@ def main() -> None:
     cal = rep.get("calibration", {}).get("per_sigma") or []
     if cal:
         print("ECE: " + ", ".join(f"{c.get('ece', float('nan')):.3f} ({_cm(c['test_sigma_m'])})" for c in cal) + "\n")
+    if any(r["table"] == "sigma_sweep" for r in rep["rows"]):
+        rr_sweep = json.loads((args.risk / "report.json").read_text()) if args.risk is not None else None
+        print(f"### Noise sweep{suffix}\n")
+        print("\n".join(noise_sweep(rep, rr_sweep)) + "\n")
     if args.risk is not None:
         rr = json.loads((args.risk / "report.json").read_text())
         t = rr["threshold"]
