@@ -477,6 +477,7 @@ def verify_dataset(directory: str | os.PathLike, known_schemas: dict[str, str] |
     entries = list(manifest.get("shards", []))
     for labelling in manifest.get("labelings", []):
         entries.extend(labelling.get("shards", []))
+        problems += _entry_schema_problems(labelling, known)
     for entry in entries:
         rel = entry["path"]
         try:
@@ -514,6 +515,29 @@ def verify_dataset(directory: str | os.PathLike, known_schemas: dict[str, str] |
         except (OSError, TypeError, ValueError):
             problems.append(f"{rel}: not a readable HDF5 file")
     problems += _terrain_problems(directory, manifest)
+    return problems
+
+
+def _entry_schema_problems(labelling: dict[str, Any], known: dict[str, str]) -> list[str]:
+    """The schema a labelling entry (and each of its shard entries) claims in the manifest, checked as
+    its readers check it (a labelling whose entry says 2.0 is refused by train and eval, so by verify too)."""
+    problems = []
+    where = f"labelling {labelling.get('name')}"
+    claimed = [(where, labelling.get("schema"), labelling.get("schema_version"))]
+    claimed += [
+        (f"{where}: {e.get('path')}", e.get("schema", labelling.get("schema")), e.get("schema_version"))
+        for e in labelling.get("shards", [])
+    ]
+    for at, name, version in claimed:
+        if name is None or version is None:
+            continue  # entries written before they recorded a schema: the files' own attributes decide
+        if name not in known:
+            problems.append(f"{at}: unknown schema {name!r}")
+            continue
+        try:
+            check_schema(str(name), str(version), str(name), known[str(name)], at)
+        except FormatError as exc:
+            problems.append(str(exc))
     return problems
 
 

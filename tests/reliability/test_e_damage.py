@@ -127,6 +127,8 @@ def test_an_unknown_label_schema_major_version_is_refused(data_copy, trained, tm
         (data_copy / "manifest.json").write_text(json.dumps(m))
     result = train(data_copy, tmp_path / "run") if command == "train" else evaluate(trained, data_copy, tmp_path / "r")
     assert_one_line_error(result, "labels-00000.h5", "version 2.0", "upgrade hd")
+    verify = invoke("verify", data_copy)  # said OK for the manifest entry that train and eval refuse
+    assert verify.exit_code == 1 and "version 2.0" in verify.output, verify.output
 
 
 @pytest.mark.parametrize("damage", ["truncated", "zeroed", "garbage", "deleted", "directory", "empty"])
