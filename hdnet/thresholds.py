@@ -199,6 +199,8 @@ def precision_threshold(calibration: EntropyCalibration, precision: float) -> fl
     if hits.size == 0:
         return 0.0
     k = int(hits[-1])  # the k+1 most certain pixels are certain: H_t just above e[k]
+    if k == e.size - 1:  # all of them together reach it (some shorter prefix did not)
+        return math.inf
     return float(e[k + 1]) if e[k + 1] > e[k] else float(e[k])  # a tie at e[k]: leave the tied pixels out
 
 

@@ -120,6 +120,11 @@ def test_precision_guard_by_hand() -> None:
     assert precision_threshold(cal, 1.0) == pytest.approx(0.3)  # the two most certain: H < 0.3
     assert precision_threshold(cal, 0.75) == pytest.approx(0.5)  # four: precision 3/4
     assert precision_threshold(cal, 0.6) == math.inf  # all five reach it
+    dip = EntropyCalibration()  # right, wrong, right, right: 1, 1/2, 2/3, 3/4
+    dip.update(
+        torch.tensor([[[0.1, 0.2, 0.3, 0.4]]]), torch.ones(1, 1, 4, dtype=torch.long), torch.tensor([[[1, 0, 1, 1]]])
+    )
+    assert precision_threshold(dip, 0.7) == math.inf  # only all four reach 0.7: every pixel certain
     empty = EntropyCalibration()
     empty.update(h, torch.zeros_like(pred), truth)
     assert precision_threshold(empty, 0.95) == math.inf  # nothing predicted safe: nothing to guard
