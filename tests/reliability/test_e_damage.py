@@ -280,8 +280,11 @@ def test_a_shard_holding_other_than_its_entry_claims_is_damaged(data_copy):
     path = data_copy / "manifest.json"
     m = _edit(json.loads(path.read_text()), "shard-scan-count-wrong")
     path.write_text(json.dumps(m))
+    assert isinstance(m, dict)
+    shards = m["shards"]
+    assert isinstance(shards, list)
     with pytest.raises(DamagedFileError, match="claims 3"):
-        open_scan_shard(data_copy, m["shards"][0])
+        open_scan_shard(data_copy, shards[0])
     result = invoke("verify", data_copy)
     assert result.exit_code == 1 and "holds 2 scans, manifest says 3" in result.output
 
@@ -391,7 +394,9 @@ def test_detect_on_a_scan_reads_through_the_storage_layer(trained, data_copy, tm
             f["origin_map"][0] = [1.0, 2.0, 3.0]
         needle = "checksum"
     out = tmp_path / "d"
-    result = invoke("detect", trained, "--data", data_copy, "--scan", scan, "--out", out, "--threshold", "nats:0.3")
+    result = invoke(
+        "detect", trained, "--data", data_copy, "--scan", str(scan), "--out", out, "--threshold", "nats:0.3"
+    )
     last = assert_one_line_error(result, needle)
     assert ("labels-00000.h5" in last) != (damage == "scan-origin") and not out.exists()
 
