@@ -44,6 +44,8 @@ class Terminated(KeyboardInterrupt):
 
 
 _STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+# The stop signal being handled (0 while none): from then on the process only stops.
+_stopping: list[int] = [0]
 
 
 def _ignore(signum: int, frame: Any) -> None:
@@ -51,22 +53,53 @@ def _ignore(signum: int, frame: Any) -> None:
     pending when the handler changes to SIG_IGN make CPython raise "ignored due to race condition".)"""
 
 
+def _ignore_stop_signals_until_exit() -> None:
+    """At exit after a stop signal: the kernel ignores further ones (SIG_IGN, which the interpreter's
+    shutdown keeps; a Python handler would be reset to SIG_DFL, and a signal then would end the
+    process with -signum instead of 128 + signum). A signal already received but not yet handled
+    by Python is dropped quietly instead of printing "ignored due to race condition"."""
+    previous_hook = sys.unraisablehook
+
+    def hook(unraisable: Any) -> None:
+        value = unraisable.exc_value
+        if isinstance(value, OSError) and "ignored due to race condition" in str(value):
+            return
+        previous_hook(unraisable)
+
+    sys.unraisablehook = hook
+    for sig in _STOP_SIGNALS:
+        signal.signal(sig, signal.SIG_IGN)
+
+
 def _raise_terminated(signum: int, frame: Any) -> None:
     for sig in _STOP_SIGNALS:  # a second signal (Ctrl-C pressed twice) must not interrupt the clean-up
         signal.signal(sig, _ignore)
+    if not _stopping[0]:
+        import atexit
+
+        _stopping[0] = signum
+        atexit.register(_ignore_stop_signals_until_exit)  # runs first: atexit calls in reverse order
     if signum == signal.SIGINT:
         raise KeyboardInterrupt
     raise Terminated(signum)
 
 
 def _install_signal_handlers(ctx: click.Context) -> None:
-    """Ctrl-C, SIGTERM and SIGHUP unwind as KeyboardInterrupt, once (restored when the command ends)."""
+    """Ctrl-C, SIGTERM and SIGHUP unwind as KeyboardInterrupt, once. The previous handlers are
+    restored when the command ends, unless it was stopped: then any number of further signals
+    is ignored until the process exits with 128 + the first one."""
     import threading
 
     if threading.current_thread() is not threading.main_thread():
         return
     previous = {sig: signal.signal(sig, _raise_terminated) for sig in _STOP_SIGNALS}
-    ctx.call_on_close(lambda: [signal.signal(sig, handler) for sig, handler in previous.items()])
+
+    def restore() -> None:
+        if not _stopping[0]:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+
+    ctx.call_on_close(restore)
 
 
 def _install_warning_format() -> None:

@@ -12,6 +12,7 @@ import json
 import os
 import shutil
 import signal
+import time
 
 import pytest
 from reliability_kit import (
@@ -231,3 +232,26 @@ def test_repeated_signals_do_not_interrupt_the_clean_up(tmp_path, dtm, reference
     wait_for(lambda: not alive(tracked), timeout=10, what="the workers to stop")
     assert partials(out) == [] and not (out / ".hd-lock").exists()
     assert invoke(*build(out, dtm, 1)).exit_code == 0 and shard_sums(out) == shard_sums(reference)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=["TERM", "INT"])
+def test_signals_until_the_end_still_give_128_plus_the_signal(tmp_path, dtm, sig):
+    """Five quick signals, then one every 10 ms until the process is gone (it exited -15 when one
+    arrived after the command had returned, its default handler back in place)."""
+    out = tmp_path / "data"
+    proc = hd_process(build(out, dtm, 2), env={"HD_TEST_WRITE_PAUSE": BOTH_SECOND_SHARDS})
+    wait_for(_partials(out / "shards", *SECOND_SHARDS), what="two half-written shards", proc=proc)
+    tracked = descendants(proc.pid)
+    for _ in range(5):  # the process is not reaped before communicate(): its PID cannot be reused
+        os.kill(proc.pid, sig)
+        time.sleep(0.05)
+    deadline = time.monotonic() + 60.0
+    while proc.poll() is None and time.monotonic() < deadline:
+        os.kill(proc.pid, sig)
+        time.sleep(0.01)
+    _, err = proc.communicate(timeout=10)
+    assert proc.returncode == 128 + sig, (proc.returncode, err)
+    assert "Traceback" not in err and "race condition" not in err, err
+    assert err.count("re-run the same command to resume") == 1, err
+    wait_for(lambda: not alive(tracked), timeout=10, what="the workers to stop")
+    assert partials(out) == [] and not (out / ".hd-lock").exists()
