@@ -451,6 +451,11 @@ def main(ctx: click.Context) -> None:
         show_default=True,
         help="HDF5 compression of the point arrays.",
     ),
+    click.option(
+        "--rocks-on-dtm",
+        is_flag=True,
+        help="Scan the --dtm resampled to 0.5 m with the procedural rock population added (as hd make-dtm --base).",
+    ),
     recipe_option("Build exactly the dataset of a recipe (datasets/<name>); the recipe fixes every content setting."),
 )
 @click.pass_context
@@ -510,27 +515,79 @@ def build_dataset_cmd(
     ),
     click.option("--spacing", "spacing_m", type=_Finite(), default=None, help="Grid spacing, metres/pixel (<= 0.5)."),
     click.option("--rock-k", type=_Finite(), default=None, help="Golombek-Rapp rock abundance k (0.05 .. 0.4)."),
+    click.option(
+        "--base",
+        "base_path",
+        type=_Path(exists=True, dir_okay=False, path_type=Path),
+        default=None,
+        help="A real DTM (e.g. HiRISE) whose relief replaces the procedural one: resampled to --spacing, "
+        "with the procedural rocks added (its CRS and corner are kept).",
+    ),
+    click.option(
+        "--craters-below",
+        "craters_below_m",
+        type=_Finite(),
+        default=None,
+        help="With --base: also add fresh craters of 2 m up to this diameter (metres), below the base's resolution.",
+    ),
     overwrite_option("Replace an existing file."),
 )
 @friendly_errors
 def make_dtm_cmd(
-    out_path: Path, seed: int, size_m: float | None, spacing_m: float | None, rock_k: float | None, overwrite: bool
+    out_path: Path,
+    seed: int,
+    size_m: float | None,
+    spacing_m: float | None,
+    rock_k: float | None,
+    base_path: Path | None,
+    craters_below_m: float | None,
+    overwrite: bool,
 ) -> None:
-    """Write the procedural Mars terrain as a GeoTIFF (the default terrain of build-dataset)."""
+    """Write the procedural Mars terrain as a GeoTIFF (the default terrain of build-dataset); with
+    --base, a real DTM's relief with the procedural rocks (and small craters) added."""
     import dataclasses
 
     from lidarsim.procedural import MarsTerrainParams, write_procedural_dtm
-    from lidarsim.storage import check_output_file
+    from lidarsim.storage import check_not_input, check_output_file
 
     check_output_file(out_path, "OUT_PATH")
+    if base_path is not None:
+        check_not_input(out_path, {"the base DTM": base_path}, "OUT_PATH")
     if out_path.exists() and not overwrite:
         raise LidarsimError(f"{out_path} exists; pass --overwrite to replace it")
     changes = {k: v for k, v in (("size_m", size_m), ("spacing_m", spacing_m), ("rock_k", rock_k)) if v is not None}
+    if base_path is None and craters_below_m is not None:
+        raise LidarsimError("--craters-below needs --base (the procedural terrain has its own craters)")
+    if base_path is not None:
+        if size_m is not None:
+            raise LidarsimError("--size and --base exclude each other: the base DTM gives the size")
+        if craters_below_m is not None:
+            changes["crater_d_max_m"] = craters_below_m
+        _make_rocky_dtm(out_path, base_path, dataclasses.replace(MarsTerrainParams(), **changes), seed, craters_below_m)
+        return
     params = dataclasses.replace(MarsTerrainParams(), **changes)
     heights = write_procedural_dtm(out_path, params, seed)
     click.echo(
         f"wrote {out_path}: {heights.shape[0]} x {heights.shape[1]} cells at {params.spacing_m:g} m/px, "
         f"heights {float(heights.min()):.1f} .. {float(heights.max()):.1f} m"
+    )
+
+
+def _make_rocky_dtm(out_path: Path, base_path: Path, params: Any, seed: int, craters_below_m: float | None) -> None:
+    """``hd make-dtm --base``: the base's relief resampled, with rocks (and small craters)."""
+    from lidarsim.base_relief import rocks_on_base, write_rocky_dtm
+
+    terrain = rocks_on_base(base_path, params, seed, params.spacing_m, craters=craters_below_m is not None)
+    write_rocky_dtm(out_path, terrain)
+    rows, cols = terrain.heights.shape
+    click.echo(
+        f"wrote {out_path}: {base_path.name} at {terrain.spacing_m:g} m/px ({rows} x {cols} cells) with "
+        f"{terrain.n_rocks} rocks (k = {params.rock_k:g})"
+        + (
+            f" and {terrain.n_craters} craters of {params.crater_d_min_m:g}-{params.crater_d_max_m:g} m"
+            if craters_below_m
+            else ""
+        )
     )
 
 

@@ -28,6 +28,7 @@ import numpy as np
 
 from lidarsim import defaults, limits
 from lidarsim._version import __version__
+from lidarsim.base_relief import rocks_on_base, rocky_geotiff_bytes
 from lidarsim.errors import LidarsimError, OutputExistsError
 from lidarsim.parallel import probe_scheduler, run_tasks
 from lidarsim.procedural import MarsTerrainParams, generate_mars_terrain, geotiff_bytes, terrain_tags
@@ -86,7 +87,11 @@ class BuildConfig:
         trajectory: scan count, altitude, tilt, jitter.
         dtm_path: DTM file; None builds on the procedural Mars terrain.
         dtm_scale: resampling factor of the DTM (1 = full resolution).
-        terrain: parameters of the procedural terrain (used when ``dtm_path`` is None).
+        terrain: parameters of the procedural terrain (used when ``dtm_path`` is None; with
+            ``rocks_on_dtm``, its rock population).
+        rocks_on_dtm: scan the DTM at ``dtm_path`` resampled to ``terrain.spacing_m`` with the
+            procedural rock population of ``terrain`` and ``seed`` added (``lidarsim.base_relief``);
+            the terrain made is written to ``terrain/``.
         shard_size: scans per shard file.
         compression: HDF5 compression of the point arrays: gzip, lzf or none.
     """
@@ -100,6 +105,7 @@ class BuildConfig:
     terrain: MarsTerrainParams = field(default_factory=MarsTerrainParams)
     shard_size: int = defaults.SHARD_SIZE
     compression: str = defaults.COMPRESSION
+    rocks_on_dtm: bool = False
 
     def __post_init__(self) -> None:
         if not self.sigmas_m:
@@ -113,6 +119,8 @@ class BuildConfig:
             raise LidarsimError(f"--seed must be >= 0, got {self.seed}")
         if self.shard_size <= 0:
             raise LidarsimError(f"shard size must be > 0, got {self.shard_size}")
+        if self.rocks_on_dtm and (self.dtm_path is None or self.dtm_scale != 1.0):
+            raise LidarsimError("rocks on a DTM need a DTM (--dtm) at full resolution (--dtm-scale 1)")
         if not (math.isfinite(self.dtm_scale) and 0.0 < self.dtm_scale <= 1.0):
             raise LidarsimError(f"--dtm-scale must be in (0, 1], got {self.dtm_scale}")
         if self.compression not in defaults.COMPRESSIONS:
@@ -131,8 +139,10 @@ class BuildConfig:
         """JSON-friendly dictionary of the whole configuration."""
         d = asdict(self)
         d["sigmas_m"] = list(self.sigmas_m)
-        if self.dtm_path is not None:
+        if self.dtm_path is not None and not self.rocks_on_dtm:
             d["terrain"] = None
+        if not self.rocks_on_dtm:
+            del d["rocks_on_dtm"]  # absent, as before the option existed: published fingerprints hold
         return d
 
     def fingerprint(self) -> str:
@@ -444,6 +454,11 @@ def default_out_dir(config: BuildConfig, recipe_name: str | None = None) -> Path
     return Path(Path(procedural_terrain_name(config.seed)).stem)
 
 
+def rocky_terrain_name(dtm_path: str, seed: int) -> str:
+    """File name, in ``terrain/``, of a build's DTM with rocks (``BuildConfig.rocks_on_dtm``)."""
+    return f"{Path(dtm_path).stem}-rocks-seed{seed}.tif"
+
+
 def _procedural_terrain_bytes(config: BuildConfig, path: Path) -> bytes:
     """The procedural terrain of ``config`` as GeoTIFF bytes (built in memory; nothing is written)."""
     params = config.terrain
@@ -568,6 +583,11 @@ def _open_terrain(out_dir: Path, config: BuildConfig) -> _BuildTerrain:
     if config.dtm_path is None:
         dtm_path = out_dir / TERRAIN_DIR / procedural_terrain_name(config.seed)
         terrain_bytes = _procedural_terrain_bytes(config, dtm_path)
+    elif config.rocks_on_dtm:
+        dtm_path = out_dir / TERRAIN_DIR / rocky_terrain_name(config.dtm_path, config.seed)
+        rocky = rocks_on_base(config.dtm_path, config.terrain, config.seed, config.terrain.spacing_m)
+        terrain_bytes = rocky_geotiff_bytes(rocky, str(dtm_path))
+        del rocky
     else:
         dtm_path = Path(config.dtm_path).resolve()
     opened = (

@@ -45,6 +45,7 @@ __all__ = [
     "sample_rock_diameters",
     "stamp_crater",
     "stamp_rocks",
+    "terrain_stream",
     "terrain_tags",
     "write_geotiff",
     "write_procedural_dtm",
@@ -140,7 +141,8 @@ class MarsTerrainParams:
         return int(round(self.size_m / self.spacing_m))
 
 
-def _rng(seed: int, purpose: int) -> np.random.Generator:
+def terrain_stream(seed: int, purpose: int) -> np.random.Generator:
+    """The random stream ``purpose`` (``terrain_defaults.PURPOSE_*``) of terrain seed ``seed``."""
     return np.random.default_rng(np.random.SeedSequence([int(seed), int(purpose)]))
 
 
@@ -330,12 +332,17 @@ def generate_mars_terrain(params: MarsTerrainParams = MarsTerrainParams(), seed:
     p = params
     n = p.cells
     heights = fractal_relief(
-        n, p.spacing_m, p.relief_hurst, p.relief_rms_slope_deg, p.relief_baseline_m, _rng(seed, td.PURPOSE_RELIEF)
+        n,
+        p.spacing_m,
+        p.relief_hurst,
+        p.relief_rms_slope_deg,
+        p.relief_baseline_m,
+        terrain_stream(seed, td.PURPOSE_RELIEF),
     )
-    centers, diameters = sample_craters(p, _rng(seed, td.PURPOSE_CRATERS))
+    centers, diameters = sample_craters(p, terrain_stream(seed, td.PURPOSE_CRATERS))
     for center, diameter in zip(centers, diameters, strict=True):
         stamp_crater(heights, p.spacing_m, (float(center[0]), float(center[1])), float(diameter), p)
-    rock_rng = _rng(seed, td.PURPOSE_ROCKS)
+    rock_rng = terrain_stream(seed, td.PURPOSE_ROCKS)
     side = n * p.spacing_m
     rock_d = sample_rock_diameters(p.rock_k, p.rock_d_min_m, p.rock_d_max_m, side * side, rock_rng)
     rock_xy = rock_rng.random((rock_d.size, 2)) * side

@@ -15,6 +15,8 @@ Recipe layout (every key optional; defaults are the paper's)::
     seed = 0
     altitude_m = 500.0
     dtm = ""            # "" = the built-in procedural Mars terrain; or a path (relative to the recipe)
+    dtm_sha256 = ""     # optional: the DTM file's sha256; another file is refused
+    rocks_on_dtm = false  # true: the DTM resampled to 0.5 m with the procedural rocks (lidarsim.base_relief)
     dtm_scale = 1.0
     shard_size = 50
     tilt_deg = 0.0
@@ -90,6 +92,7 @@ class BuildSettings:
         dead_elements: detector elements that never return.
         damaged_elements: detector elements with a large range error.
         compression: HDF5 compression of the point arrays: gzip, lzf or none.
+        rocks_on_dtm: scan the DTM resampled to 0.5 m with the procedural rock population added.
     """
 
     sigmas_m: tuple[float, ...] = (defaults.DEFAULT_SIGMA_M,)
@@ -106,6 +109,7 @@ class BuildSettings:
     dead_elements: int = defaults.DEAD_ELEMENTS
     damaged_elements: int = defaults.DAMAGED_ELEMENTS
     compression: str = defaults.COMPRESSION
+    rocks_on_dtm: bool = False
 
     def to_config(self) -> BuildConfig:
         """The build configuration (a square detector with the same FOV on both axes).
@@ -134,14 +138,23 @@ class BuildSettings:
             dtm_scale=float(self.dtm_scale),
             shard_size=int(self.shard_size),
             compression=str(self.compression),
+            rocks_on_dtm=_flag("rocks_on_dtm", self.rocks_on_dtm),
         )
+
+
+def _flag(name: str, value: object) -> bool:
+    """A true/false setting; anything else (1, "yes") is refused rather than guessed."""
+    if not isinstance(value, bool):
+        raise LidarsimError(f"{name} must be true or false, got {value!r}")
+    return value
 
 
 # Recipe [build] keys that differ from the BuildSettings field they fill.
 _BUILD_KEY_FIELDS = {"dtm": "dtm_path"}
-_BUILD_KEYS = {k for k in (f.name for f in fields(BuildSettings)) if k not in _BUILD_KEY_FIELDS.values()} | set(
-    _BUILD_KEY_FIELDS
-)
+_BUILD_KEYS = {k for k in (f.name for f in fields(BuildSettings)) if k not in _BUILD_KEY_FIELDS.values()} | {
+    *_BUILD_KEY_FIELDS,
+    "dtm_sha256",
+}
 
 
 @dataclass(frozen=True)
@@ -191,15 +204,22 @@ def load_recipe(path: str | os.PathLike) -> Recipe:
         if unknown:
             raise RecipeError(f"{path}: unknown [{section}] key(s) {sorted(unknown)}")
     values = {_BUILD_KEY_FIELDS.get(k, k): v for k, v in build.items()}
+    dtm_sha256 = values.pop("dtm_sha256", "")
     try:
         dtm = values.pop("dtm_path", "")
         if dtm:  # "" is the procedural terrain; a relative path is relative to the recipe
             dtm_path = Path(dtm) if Path(dtm).is_absolute() else (path.parent / dtm)
             values["dtm_path"] = str(dtm_path.resolve())
+            if dtm_sha256:
+                _check_dtm_sha256(path, dtm_path, dtm_sha256)
+        elif dtm_sha256:
+            raise RecipeError(f"{path}: [build] dtm_sha256 is given without a dtm")
         if "sigmas_m" in values:
             values["sigmas_m"] = tuple(values["sigmas_m"])
         config = BuildSettings(**values).to_config()
     except (TypeError, ValueError) as exc:
+        if isinstance(exc, RecipeError):
+            raise
         if isinstance(exc, LidarsimError):
             raise RecipeError(f"{path}: {exc}") from None
         raise RecipeError(f"{path}: invalid value ({exc})") from None
@@ -218,6 +238,39 @@ def load_recipe(path: str | os.PathLike) -> Recipe:
         description=str(meta.get("description", "")),
         version=version,
     )
+
+
+def _check_dtm_sha256(recipe_path: Path, dtm_path: Path, expected: object) -> None:
+    """Refuse a recipe DTM whose bytes are not the ones the recipe names (``dtm_sha256``)."""
+    from lidarsim.storage import sha256_file
+
+    if not isinstance(expected, str) or len(expected) != 64:
+        raise RecipeError(f"{recipe_path}: [build] dtm_sha256 must be 64 hex digits, got {expected!r}")
+    if not dtm_path.is_file():
+        raise RecipeError(f"{recipe_path}: the recipe's DTM {dtm_path} does not exist")
+    actual = sha256_file(dtm_path)
+    if actual != expected.lower():
+        raise RecipeError(
+            f"{recipe_path}: the DTM {dtm_path} has sha256 {actual[:12]}..., the recipe names {expected[:12]}...: "
+            "not the recipe's terrain"
+        )
+
+
+def _check_checksums(recorded: Any, path: Path) -> None:
+    """The layout of a recipe's ``checksums.json``: an object whose ``shards`` (when given) are
+    entries with a ``path`` and a ``sha256`` string each.
+
+    Raises:
+        RecipeError: naming the file and the faulty entry.
+    """
+    if not isinstance(recorded, dict):
+        raise RecipeError(f"{path}: not a JSON object of checksums")
+    shards = recorded.get("shards", [])
+    if not isinstance(shards, list):
+        raise RecipeError(f"{path}: 'shards' must be a list")
+    for i, entry in enumerate(shards):
+        if not isinstance(entry, dict) or not all(isinstance(entry.get(k), str) for k in ("path", "sha256")):
+            raise RecipeError(f"{path}: shards[{i}] must give a 'path' and a 'sha256' as strings")
 
 
 def check_against_checksums(manifest: dict[str, Any], recorded: dict[str, Any]) -> list[str]:

@@ -1,0 +1,220 @@
+"""Real relief plus a procedural rock population: a measured DTM resampled finer, with rocks.
+
+A HiRISE DTM resolves the relief of a landing site (slopes, craters of tens of metres) but not
+its boulders: at 1-4 m posts a 1 m rock is invisible. Landing-site studies take the rock
+abundance from thermal inertia and rock counts instead. :func:`rocks_on_base` combines the two:
+
+1. the base DTM is resampled to ``spacing_m`` (<= 0.5 m, the procedural terrain's limit) by
+   bilinear interpolation between the centres of its cells (cells outside the outermost centres
+   take the edge value; a cell next to an invalid base cell is invalid);
+2. optionally, small fresh craters below the base's resolution (diameters
+   ``crater_d_min_m .. crater_d_max_m``, the procedural size-frequency distribution and profile);
+3. the procedural rock population (Golombek & Rapp, ``rock_k``), each rock resting on the relief
+   under its centre (:func:`lidarsim.procedural.stamp_rocks`).
+
+Random streams are the procedural terrain's (``SeedSequence([seed, purpose])``): the same seed
+gives the same craters and rocks per square metre. The output keeps the base's CRS and its
+top-left corner; its tags record the base's name and sha256 (``hd make-dtm --base``,
+``docs/terrain.md``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from lidarsim import terrain_defaults as td
+from lidarsim.errors import TerrainError
+from lidarsim.procedural import (
+    MarsTerrainParams,
+    geotiff_bytes,
+    sample_craters,
+    sample_rock_diameters,
+    stamp_crater,
+    stamp_rocks,
+    terrain_stream,
+)
+from lidarsim.storage import write_bytes_atomic
+from lidarsim.terrain import DTM
+
+__all__ = ["RockyTerrain", "resample_bilinear", "rocks_on_base", "rocky_geotiff_bytes", "write_rocky_dtm"]
+
+GENERATOR = "lidarsim.base_relief.rocks_on_base"
+# Largest output accepted (cells): 2**28 float32 cells = 1 GiB (16384^2, the procedural limit).
+_MAX_CELLS = 1 << 28
+
+
+@dataclass(frozen=True)
+class RockyTerrain:
+    """A base DTM resampled with rocks (and small craters) added.
+
+    Attributes:
+        heights: float32 metres, row 0 north; NaN where the base is invalid.
+        spacing_m: grid spacing, metres/pixel.
+        origin_xy: map position of the top-left corner (the base's), metres.
+        crs_wkt: the base's CRS ("" = local metres).
+        tags: GeoTIFF tags: generator, base name and sha256, seed, parameters (JSON).
+        n_rocks: rocks placed.
+        n_craters: small craters placed.
+    """
+
+    heights: np.ndarray
+    spacing_m: float
+    origin_xy: tuple[float, float]
+    crs_wkt: str
+    tags: dict[str, str]
+    n_rocks: int
+    n_craters: int
+
+
+def _axis_weights(n_out: int, spacing_m: float, n_src: int, src_spacing_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Lower source index and weight of the upper one for ``n_out`` cell centres along one axis.
+
+    Cell i of the output has its centre at (i + 0.5) * spacing_m from the common corner; source
+    cell j at (j + 0.5) * src_spacing_m. Centres outside the outermost source centres clamp.
+    """
+    pos = ((np.arange(n_out, dtype=np.float64) + 0.5) * spacing_m) / src_spacing_m - 0.5
+    pos = np.clip(pos, 0.0, n_src - 1.0)
+    lo = np.minimum(np.floor(pos).astype(np.int64), max(n_src - 2, 0))
+    return lo, pos - lo
+
+
+def resample_bilinear(
+    values: np.ndarray, src_spacing_m: tuple[float, float], spacing_m: float, shape: tuple[int, int]
+) -> np.ndarray:
+    """Bilinear resampling of a north-up grid onto ``shape`` cells of ``spacing_m`` (metres/pixel).
+
+    ``values`` (rows, cols) are heights at the centres of cells ``src_spacing_m`` = (x, y) metres
+    wide; both grids share their top-left corner. NaN spreads to every output cell that
+    interpolates from it with a non-zero weight. Returns float64 metres.
+    """
+    src = np.asarray(values, dtype=np.float64)
+    rows, cols = src.shape
+    r_lo, r_w = _axis_weights(shape[0], spacing_m, rows, src_spacing_m[1])
+    c_lo, c_w = _axis_weights(shape[1], spacing_m, cols, src_spacing_m[0])
+    c_hi = np.minimum(c_lo + 1, cols - 1)
+    r_hi = np.minimum(r_lo + 1, rows - 1)
+    # Separable: along columns for every source row, then along rows (one output row block at a time).
+    across = _lerp(src[:, c_lo], src[:, c_hi], c_w[None, :])  # (rows, out_cols)
+    out = np.empty(shape, dtype=np.float64)
+    block = max(1, (1 << 22) // max(1, shape[1]))
+    for start in range(0, shape[0], block):
+        sl = slice(start, min(start + block, shape[0]))
+        out[sl] = _lerp(across[r_lo[sl]], across[r_hi[sl]], r_w[sl, None])
+    return out
+
+
+def _lerp(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """a (1 - w) + b w, with a value of weight 0 left out (a NaN there does not spread)."""
+    with np.errstate(invalid="ignore"):
+        mixed = a * (1.0 - w) + b * w
+    return np.where(w == 0.0, a, np.where(w == 1.0, b, mixed))
+
+
+def _checked_spacing(spacing_m: float) -> float:
+    if not (isinstance(spacing_m, (int, float)) and math.isfinite(spacing_m) and 0.0 < spacing_m <= td.MAX_SPACING_M):
+        raise TerrainError(
+            f"--spacing must be in (0, {td.MAX_SPACING_M}] metres so that boulders are represented, got {spacing_m}"
+        )
+    return float(spacing_m)
+
+
+def rocks_on_base(
+    base_path: str | os.PathLike[str],
+    params: MarsTerrainParams | None = None,
+    seed: int = 0,
+    spacing_m: float = td.SPACING_M,
+    craters: bool = False,
+) -> RockyTerrain:
+    """The base DTM at ``base_path`` resampled to ``spacing_m`` with the rocks of ``params`` added.
+
+    ``params`` gives the rock population (rock_k, rock_d_min_m, rock_d_max_m, rock_height_ratio)
+    and, with ``craters``, the small craters (crater_* fields; choose crater_d_max_m below the
+    base's resolution; None = the defaults). Its size and relief fields are not used: the base gives the relief.
+
+    Raises:
+        TerrainError: an unreadable base, a spacing outside (0, 0.5] m, an output of more than
+            2**28 cells, or a negative seed.
+    """
+    params = MarsTerrainParams() if params is None else params
+    spacing_m = _checked_spacing(spacing_m)
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise TerrainError(f"--seed must be an integer >= 0, got {seed!r}")
+    with DTM.open(base_path) as base:
+        info = base.info
+        width_m = info.cols * info.spacing_m[0]
+        height_m = info.rows * info.spacing_m[1]
+        shape = (int(math.floor(height_m / spacing_m + 1e-9)), int(math.floor(width_m / spacing_m + 1e-9)))
+        if shape[0] < 2 or shape[1] < 2:
+            raise TerrainError(f"{info.path}: {width_m:g} x {height_m:g} m is less than two cells of {spacing_m:g} m")
+        if shape[0] * shape[1] > _MAX_CELLS:
+            raise TerrainError(
+                f"{info.path}: {width_m:g} x {height_m:g} m at {spacing_m:g} m/px is {shape[0]} x {shape[1]} cells "
+                f"({shape[0] * shape[1] * 4 / 2**30:.1f} GiB); hd's maximum is {_MAX_CELLS * 4 / 2**30:.0f} GiB: "
+                "cut the base DTM into parts or choose a coarser --spacing"
+            )
+        values = base.read(0, 0, info.rows, info.cols)
+        digest = base.sha256()
+        t = info.transform
+        origin = (float(t[2]), float(t[5]))
+    heights = resample_bilinear(values, info.spacing_m, spacing_m, shape)
+    del values
+    n_craters = 0
+    if craters and params.crater_n_gt_10m_per_km2 > 0.0:
+        side = max(shape) * spacing_m
+        centers, diameters = sample_craters(
+            dataclasses.replace(params, size_m=side), terrain_stream(seed, td.PURPOSE_CRATERS)
+        )
+        for center, diameter in zip(centers, diameters, strict=True):
+            stamp_crater(heights, spacing_m, (float(center[0]), float(center[1])), float(diameter), params)
+        n_craters = int(diameters.size)
+    rock_rng = terrain_stream(seed, td.PURPOSE_ROCKS)
+    area = shape[0] * shape[1] * spacing_m * spacing_m
+    rock_d = sample_rock_diameters(params.rock_k, params.rock_d_min_m, params.rock_d_max_m, area, rock_rng)
+    rock_xy = rock_rng.random((rock_d.size, 2)) * np.array([shape[1] * spacing_m, shape[0] * spacing_m])
+    stamp_rocks(heights, spacing_m, rock_xy, rock_d, params.rock_height_ratio)
+    recorded = {
+        "rock_k": params.rock_k,
+        "rock_d_min_m": params.rock_d_min_m,
+        "rock_d_max_m": params.rock_d_max_m,
+        "rock_height_ratio": params.rock_height_ratio,
+        "spacing_m": spacing_m,
+        "craters": bool(craters),
+    }
+    if craters:
+        recorded |= {f.name: getattr(params, f.name) for f in dataclasses.fields(params) if f.name.startswith("crater")}
+    tags = {
+        "generator": GENERATOR,
+        "base": info.name,
+        "base_sha256": digest,
+        "seed": str(seed),
+        "params": json.dumps(recorded, sort_keys=True),
+    }
+    return RockyTerrain(
+        heights=heights.astype(np.float32),
+        spacing_m=spacing_m,
+        origin_xy=origin,
+        crs_wkt=info.crs_wkt,
+        tags=tags,
+        n_rocks=int(rock_d.size),
+        n_craters=n_craters,
+    )
+
+
+def rocky_geotiff_bytes(terrain: RockyTerrain, name: str) -> bytes:
+    """``terrain`` as the bytes of hd's float32 GeoTIFF (``name`` names the file in errors)."""
+    return geotiff_bytes(terrain.heights, terrain.spacing_m, terrain.origin_xy, terrain.crs_wkt, terrain.tags, name)
+
+
+def write_rocky_dtm(path: str | os.PathLike[str], terrain: RockyTerrain) -> None:
+    """Write ``terrain`` to ``path`` as a GeoTIFF (atomic: temporary name, fsync, rename)."""
+    target = os.path.abspath(os.fspath(path))
+    directory = os.path.dirname(target)
+    if not os.path.isdir(directory):
+        raise TerrainError(f"{target}: directory {directory} does not exist")
+    write_bytes_atomic(target, rocky_geotiff_bytes(terrain, target))
