@@ -90,7 +90,7 @@ from hdnet.train import load_trained_model
 from lidarsim.errors import LidarsimError, TerrainError
 from lidarsim.procedural import geotiff_profile
 from lidarsim.shards import MANIFEST_NAME, open_scan_shard, read_manifest, sha256_file
-from lidarsim.storage import OutputDir
+from lidarsim.storage import GeoTiffWriter, OutputDir, StorageError, describe_os_error, write_text_atomic
 from lidarsim.terrain import DTM
 
 SAFETY_UNSAFE, SAFETY_SAFE, SAFETY_UNCERTAIN, SAFETY_INVALID = 0, 1, 2, 255
@@ -689,7 +689,7 @@ def detect(
             timings["overview"] = time.perf_counter() - t0
             timings["total"] = time.perf_counter() - t_start
             info = _info(run, terrain, plan, threshold_info, baseline_sigma, mc_samples, seed, counts, sites, timings)
-            (tmp / "detect.json").write_text(json.dumps(json_plain(info), indent=2) + "\n")
+            write_text_atomic(tmp / "detect.json", json.dumps(json_plain(info), indent=2) + "\n")
             output.commit()
     finally:
         terrain.close()
@@ -782,8 +782,8 @@ def _write_sites(tmp: Path, terrain: _Terrain, run: DetectRun, n_sites: int) -> 
             run.lander,
             n_sites,
         )
-    (tmp / "sites.csv").write_text(_sites_csv(sites))
-    (tmp / "sites.geojson").write_text(json.dumps(_sites_geojson(sites, terrain.crs_wkt), indent=1) + "\n")
+    write_text_atomic(tmp / "sites.csv", _sites_csv(sites))
+    write_text_atomic(tmp / "sites.geojson", json.dumps(_sites_geojson(sites, terrain.crs_wkt), indent=1) + "\n")
     return sites
 
 
@@ -872,7 +872,7 @@ def _write_maps(
             t0 = time.perf_counter()
             window = Window(0, r_lo, n_cols, n_rows)
             for name, key in zip(MAP_FILES, ("p", "h", "s", "b"), strict=True):
-                dst[name].write(strip[key], 1, window=window)
+                dst[name].write(strip[key], window)
             t_write += time.perf_counter() - t0
             for name, code in (
                 ("unsafe", SAFETY_UNSAFE),
@@ -893,15 +893,19 @@ def _scan_frame(dem_m: np.ndarray, terrain: _Terrain) -> np.ndarray:
 
 
 @contextmanager
-def _writers(tmp: Path, profiles: dict[str, dict[str, Any]]) -> Iterator[dict[str, Any]]:
-    opened: dict[str, Any] = {}
+def _writers(tmp: Path, profiles: dict[str, dict[str, Any]]) -> Iterator[dict[str, GeoTiffWriter]]:
+    """The maps' GeoTIFF writers: a failed write or flush (a full disk) is one StorageError naming
+    the map, GDAL's own messages never printed."""
+    opened: dict[str, GeoTiffWriter] = {}
     try:
         for name, profile in profiles.items():
-            opened[name] = rasterio.open(tmp / name, "w", **profile)
+            opened[name] = GeoTiffWriter(tmp / name, profile)
         yield opened
+        for writer in opened.values():
+            writer.close()  # GDAL flushes its block cache here: most write errors surface now
     finally:
-        for d in opened.values():
-            d.close()
+        for writer in opened.values():
+            writer.abandon()  # after an error: closed without a word (a no-op for closed ones)
 
 
 def _overview(tmp: Path, terrain: _Terrain, sites: list[Site], run: DetectRun, h_t: float) -> None:
@@ -916,9 +920,12 @@ def _overview(tmp: Path, terrain: _Terrain, sites: list[Site], run: DetectRun, h
     name = terrain.provenance.get("name") or f"scan {terrain.provenance.get('scan_index')}"
     t = "unbounded" if not math.isfinite(h_t) else f"{h_t:.3f} nats"
     title = f"{name}: {len(sites)} site(s), lander {run.lander.diameter_m:g} m, H_t {t}"
-    detect_overview(
-        heights, cell_m, safety, (left, right, bottom, top), sites, run.lander.radius_m, title, tmp / "overview.png"
-    )
+    try:
+        detect_overview(
+            heights, cell_m, safety, (left, right, bottom, top), sites, run.lander.radius_m, title, tmp / "overview.png"
+        )
+    except OSError as exc:  # matplotlib's write (a full disk) names no file
+        raise StorageError(describe_os_error(exc, tmp / "overview.png")) from None
 
 
 def _info(

@@ -8,14 +8,18 @@ the path is covered everywhere.
 
 from __future__ import annotations
 
+import errno
 import json
+import os
 import shutil
+from pathlib import Path
 
 import pytest
 from reliability_kit import (
     BUILD_ARGS,
     assert_one_line_error,
     hd_process,
+    hills,
     inject_enospc,
     invoke,
     partials,
@@ -155,3 +159,60 @@ def test_make_dtm_disk_full(tmp_path, monkeypatch):
     result = invoke("make-dtm", tmp_path / "mars.tif", "--size", "64")
     assert_one_line_error(result, "mars.tif", "no space left on device")
     assert list(tmp_path.iterdir()) == []
+
+
+# ------------------------------------------------------------------------------------- hd detect
+def _detect(trained, dtm_path, out):
+    return ["detect", trained, "--dtm", dtm_path, "--out", out, "--threshold", "nats:0.3", "--mc-samples", "2"]
+
+
+def test_detect_on_a_full_tmpfs_names_the_map(tmp_path, trained):
+    """GDAL writes the maps itself: its messages are captured, the error names the map."""
+    site = hills(tmp_path / "site.tif", n=120)
+    with tmpfs(tmp_path / "disk", "60k") as disk:
+        out = disk / "d"
+        proc = hd_process(_detect(trained, site, out))
+        _, err = proc.communicate(timeout=300)
+        assert proc.returncode == 1, err
+        lines = [line for line in err.replace("\r", "\n").splitlines() if line.strip()]
+        raw = [line for line in lines if not line.startswith(("tiles:", "Error: "))]
+        assert raw == [], err  # no "ERROR 1: TIFFAppendToStrip", no "_tiffWriteProc: ..."
+        line = _error_line(err)
+        assert line.startswith(f"Error: {out}/") and ".tif: no space left on device" in line, line
+        assert not out.exists() and partials(disk) == []
+        remount(disk, "4m")
+        result = invoke(*_detect(trained, site, out))
+        assert result.exit_code == 0, result.output
+
+
+@pytest.mark.parametrize("name", ["entropy.tif", "sites.csv", "overview.png", "detect.json"])
+def test_detect_disk_full_at_each_file(tmp_path, trained, monkeypatch, capfd, name):
+    """ENOSPC while each file is written (for the GDAL-written maps: written to /dev/full)."""
+    import rasterio
+
+    site = hills(tmp_path / "site.tif", n=120)
+    out = tmp_path / "d"
+    if name.endswith(".tif"):
+        real_open = rasterio.open
+
+        def open_full(fp, mode="r", *args, **kwargs):
+            if mode == "w" and Path(fp).name == name:
+                fp = "/dev/full"
+            return real_open(fp, mode, *args, **kwargs)
+
+        monkeypatch.setattr(rasterio, "open", open_full)
+    elif name == "overview.png":
+        import matplotlib.figure
+
+        def savefig_full(self, fname, *args, **kwargs):
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+        monkeypatch.setattr(matplotlib.figure.Figure, "savefig", savefig_full)
+    else:
+        inject_enospc(monkeypatch, name)
+    result = invoke(*_detect(trained, site, out))
+    line = assert_one_line_error(result, f"{out / name}: no space left on device")
+    assert ".partial" not in line
+    raw = capfd.readouterr().err
+    assert "ERROR" not in raw and "_tiff" not in raw, raw
+    assert not out.exists() and partials(tmp_path) == []
