@@ -43,15 +43,15 @@ def describe_dataset(directory: str | os.PathLike) -> str:
             f"(software {manifest.get('software_version', '?')})"
         ),
         f"scans     {manifest['n_scans']} in {len(shards)} shards, {size / 1e6:.1f} MB",
-        "splits    " + ", ".join(f"{manifest['splits'].get(k, 0)} {k}" for k in SPLIT_NAMES),
+        "splits    " + ", ".join(f"{_mapping(manifest.get('splits')).get(k, '?')} {k}" for k in SPLIT_NAMES),
         "sigma     " + ", ".join(f"{s:g} m" for s in manifest["sigmas_m"]),
-        f"seed      {manifest['seed']}",
+        f"seed      {manifest.get('seed', '?')}",
     ]
-    dtm = manifest.get("dtm", {})
+    dtm = _mapping(manifest.get("dtm"))
     lines.append(
         f"terrain   {dtm.get('name', '?')} ({dtm.get('rows', '?')} x {dtm.get('cols', '?')} cells, "
         f"{_fmt_spacing(dtm.get('spacing_m'))} m/px, scale {dtm.get('scale', '?')}, "
-        f"CRS {'none (local metres)' if not dtm.get('crs_wkt') else _short_crs(dtm['crs_wkt'])}, "
+        f"CRS {'none (local metres)' if not dtm.get('crs_wkt') else _short_crs(str(dtm['crs_wkt']))}, "
         f"sha256 {str(dtm.get('sha256', ''))[:12]}...)"
     )
     if shards:
@@ -74,10 +74,12 @@ def describe_dataset(directory: str | os.PathLike) -> str:
                     )
         except (FormatError, StorageError) as exc:
             lines.append(f"sensor    unknown: the first shard cannot be read ({exc})")
+        except (IndexError, ValueError, TypeError) as exc:  # arrays of other shapes or types than hd writes
+            lines.append(f"sensor    unknown: the first scan of {shards[0]['path']} is not as hd writes it ({exc})")
     labelings = manifest.get("labelings", [])
     for lab in labelings:
         frac = lab.get("safe_fraction")
-        frac_txt = f", {frac * 100:.1f}% of labelled pixels safe" if isinstance(frac, (int, float)) else ""
+        frac_txt = f", {frac * 100:.1f}% of labelled pixels safe" if isinstance(frac, float) else ""
         lines.append(f"labels    {lab.get('name')}: {len(lab.get('shards', []))} label shards{frac_txt}")
     if not labelings:
         lines.append("labels    none (run `hd label`)")
@@ -97,8 +99,18 @@ def describe_dataset(directory: str | os.PathLike) -> str:
     return "\n".join(lines)
 
 
+def _mapping(value: object) -> dict:
+    """An informative manifest entry (``splits``, ``dtm``) as a dict; one of another type shows as unknown."""
+    return value if isinstance(value, dict) else {}
+
+
 def _fmt_spacing(spacing: object) -> str:
-    if isinstance(spacing, (list, tuple)) and len(spacing) == 2:
+    """``sx x sy`` of a spacing in metres; anything else as written."""
+    if (
+        isinstance(spacing, (list, tuple))
+        and len(spacing) == 2
+        and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in spacing)
+    ):
         return f"{spacing[0]:g} x {spacing[1]:g}"
     return str(spacing)
 

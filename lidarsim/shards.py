@@ -531,7 +531,7 @@ def _entry_schema_problems(labelling: dict[str, Any], known: dict[str, str]) -> 
     for at, name, version in claimed:
         if name is None or version is None:
             continue  # entries written before they recorded a schema: the files' own attributes decide
-        if name not in known:
+        if not isinstance(name, str) or name not in known:
             problems.append(f"{at}: unknown schema {name!r}")
             continue
         try:
