@@ -432,7 +432,7 @@ def train(
     class_weights = _class_weights(profile, class_weights, train_ds, model_config.n_classes)
     last = run_dir / LAST
     ckpt = _checkpoint_to_resume(run_dir, resume, model_config, profile, rank)
-    state = _start(profile, model_config, ckpt, class_weights, seed, rank, device)
+    state = _start(profile, model_config, ckpt, class_weights, seed, rank, device, last)
     net: nn.Module = state.model
     if world > 1:
         net = nn.parallel.DistributedDataParallel(
@@ -534,11 +534,51 @@ def _checkpoint_to_resume(
     if not resume:
         raise HdNetError(f"{run_dir} already holds a checkpoint; resume it or choose another run directory.")
     ckpt = load_checkpoint(last)
-    if ModelConfig(**ckpt["model_config"]) != model_config or profile_from_dict(ckpt["profile"]) != profile:
-        raise HdNetError(f"checkpoint {last} was trained with another model or profile ({ckpt['profile']['name']!r}).")
+    saved = ckpt.get("profile")
+    try:
+        same_profile = isinstance(saved, dict) and profile_from_dict(saved) == profile
+    except HdNetError:
+        same_profile = False
+    if checked_model_config(ckpt, last) != model_config or not same_profile:
+        name = saved.get("name") if isinstance(saved, dict) else None
+        raise HdNetError(f"checkpoint {last} was trained with another model or profile ({name!r}).")
+    _check_training_state(ckpt, last)
     if rank == 0:
         _reconcile_run(run_dir, ckpt)
     return ckpt
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _check_training_state(ckpt: dict[str, Any], path: Path) -> None:
+    """The training state of a checkpoint to resume, as this hd writes it: the epoch, the history and
+    timing rows (numbers), the optimizer state and the RNG states (the weights are checked apart).
+
+    Raises:
+        HdNetError: naming the checkpoint and the first faulty value.
+    """
+    epoch = ckpt.get("epoch")
+    problem = None
+    if isinstance(epoch, bool) or not isinstance(epoch, int) or epoch < 0:
+        problem = f"its epoch {epoch!r} is not a count of epochs"
+    for key in ("history", "timing"):
+        rows = ckpt.get(key, [])
+        if problem is None and not (
+            isinstance(rows, list)
+            and all(isinstance(r, dict) and all(_is_number(v) for v in r.values()) for r in rows)
+            and all(isinstance(r.get("epoch"), int) and not isinstance(r.get("epoch"), bool) for r in rows)
+            and (key != "history" or all(_is_number(r.get("val_loss")) for r in rows))
+        ):
+            problem = f"its {key} is not a list of rows of numbers by epoch"
+    if problem is None and not isinstance(ckpt.get("optimizer"), dict):
+        problem = "its optimizer state is not a dictionary"
+    rng = ckpt.get("rng")
+    if problem is None and not (isinstance(rng, list) and rng and all(isinstance(r, dict) for r in rng)):
+        problem = "its RNG states are not a list of dictionaries"
+    if problem is not None:
+        raise HdNetError(f"{path}: cannot resume from it: {problem}; the checkpoint is damaged.")
 
 
 @dataclass
@@ -563,8 +603,10 @@ def _start(
     seed: int,
     rank: int,
     device: torch.device,
+    source: Path | None = None,
 ) -> _TrainState:
-    """Step 4: seeded initialisation, or the state of ``ckpt`` (model, optimizer, history, RNG states)."""
+    """Step 4: seeded initialisation, or the state of ``ckpt`` (model, optimizer, history, RNG states),
+    read from the checkpoint file ``source``."""
     _seed_everything(seed + rank)
     model = BayesianSegNet(model_config).to(device)
     memory_format = torch.channels_last if profile.channels_last else torch.contiguous_format
@@ -574,14 +616,35 @@ def _start(
         weight = torch.tensor(class_weights, dtype=torch.float32, device=device)
     state = _TrainState(model, _make_optimizer(model, profile), weight, memory_format)
     if ckpt is not None:
-        model.load_state_dict(ckpt["model"])
-        state.optimizer.load_state_dict(ckpt["optimizer"])
+        model.load_state_dict(ckpt["model"])  # keys and shapes checked by _checkpoint_to_resume
         state.start_epoch, state.history = int(ckpt["epoch"]), list(ckpt["history"])
         state.timing = list(ckpt.get("timing", []))
         state.best_loss = min((h["val_loss"] for h in state.history), default=math.inf)
         states = ckpt["rng"]
-        _set_rng_state(states[rank] if rank < len(states) else states[0])
+        try:  # the structures inside the optimizer and RNG states are PyTorch's, NumPy's and Python's own
+            state.optimizer.load_state_dict(ckpt["optimizer"])
+            _check_optimizer_state(state.optimizer)
+            _set_rng_state(states[rank] if rank < len(states) else states[0])
+        except (KeyError, IndexError, TypeError, ValueError, RuntimeError, AttributeError) as exc:
+            raise HdNetError(
+                f"{source}: cannot resume from it: its optimizer or RNG state cannot be restored "
+                f"({type(exc).__name__}: {_first_line(exc)}); the checkpoint is damaged."
+            ) from None
     return state
+
+
+def _check_optimizer_state(optimizer: torch.optim.Optimizer) -> None:
+    """Every restored per-parameter state is a tensor, of its parameter's shape but for the step count
+    (``load_state_dict`` takes any value; a wrong one failed later inside ``step``)."""
+    for param, values in optimizer.state.items():
+        for key, value in values.items():
+            if not isinstance(value, torch.Tensor) or (key != "step" and value.shape != param.shape):
+                raise ValueError(f"the optimizer's {key!r} of a {tuple(param.shape)} parameter is not such a tensor")
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0][:200] if text else ""
 
 
 def _loaders(
