@@ -174,9 +174,11 @@ class Recipe:
         if not path.is_file():
             return None
         try:
-            return json.loads(path.read_text())
-        except (OSError, json.JSONDecodeError) as exc:
+            recorded = json.loads(path.read_bytes().decode("utf-8"))
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
             raise RecipeError(f"{path}: unreadable checksums ({exc})") from None
+        _check_checksums(recorded, path)
+        return recorded
 
 
 def load_recipe(path: str | os.PathLike) -> Recipe:
@@ -191,12 +193,15 @@ def load_recipe(path: str | os.PathLike) -> Recipe:
     if not path.is_file():
         raise RecipeError(f"{path}: no such recipe")
     try:
-        data = tomllib.loads(path.read_text())
-    except (OSError, tomllib.TOMLDecodeError) as exc:
+        data = tomllib.loads(path.read_bytes().decode("utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
         raise RecipeError(f"{path}: not a valid TOML recipe ({exc})") from None
     unknown_sections = set(data) - {"dataset", "build", "label"}
     if unknown_sections:
         raise RecipeError(f"{path}: unknown section(s) {sorted(unknown_sections)}")
+    for section, value in data.items():
+        if not isinstance(value, dict):
+            raise RecipeError(f"{path}: [{section}] must be a table of settings, got {type(value).__name__}")
     build = data.get("build", {})
     label = data.get("label", {})
     for section, keys, known in (("build", build, _BUILD_KEYS), ("label", label, _LABEL_KEYS)):
