@@ -7,11 +7,13 @@ returning, scan origins at finite heights.
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 import rasterio
 from rasterio.transform import from_origin
-from reliability_kit import BUILD_ARGS, assert_one_line_error, hills, invoke
+from reliability_kit import BUILD_ARGS, assert_one_line_error, hd_process, hills, invoke
 
 from lidarsim import limits
 from lidarsim.build import check_returns
@@ -91,3 +93,24 @@ def test_the_return_threshold(hits, ok):
     else:
         with pytest.raises(LidarsimError, match="scan 7: only"):
             check_returns(status, 7, "x.tif")
+
+
+@pytest.mark.parametrize("georeferencing", ["origin-0-1m", "none"])
+def test_detect_on_a_dtm_in_local_metres_prints_no_warning(tmp_path, trained, georeferencing):
+    """No CRS (local metres): 1 m cells with the corner at 0, 0 (the transform GDAL calls "the identity or
+    its flipped counterpart"), or no geotransform at all (cells taken as 1 m). hd maps it without a
+    word: rasterio's NotGeoreferencedWarning was printed raw when the maps were written."""
+    heights = rasterio.open(hills(tmp_path / "hills.tif", n=120)).read(1)
+    dtm = tmp_path / "local.tif"
+    place = {"transform": from_origin(0.0, 0.0, 1.0, 1.0)} if georeferencing != "none" else {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)  # this test's own writing
+        with rasterio.open(dtm, "w", driver="GTiff", width=120, height=120, count=1, dtype="float32", **place) as dst:
+            dst.write(heights, 1)
+    out = tmp_path / "maps"
+    proc = hd_process(["detect", trained, "--dtm", dtm, "--out", out, "--threshold", "nats:0.3", "--mc-samples", "2"])
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 0, err
+    lines = [line for line in err.replace("\r", "\n").splitlines() if line.strip() and not line.startswith("tiles:")]
+    assert lines == [], err
+    assert (out / "detect.json").is_file()
