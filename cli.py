@@ -614,20 +614,29 @@ def inspect_cmd(directory: Path) -> None:
 @recipe_option("Also check the dataset against the checksums published with a recipe.")
 @friendly_errors
 def verify_cmd(directory: Path, recipe: Path | None) -> None:
-    """Check every file of a dataset against the manifest's checksums and the schema versions."""
-    from lidarsim.recipe import check_against_recipe
+    """Check every file of a dataset against the manifest's checksums and the schema versions.
+
+    With --recipe, also every file against the recipe's published build: identical (sha256), or
+    rebuilt and equal to it within the tolerances of its content fingerprints (docs/shard-format.md).
+    """
+    from lidarsim.published import compare_with_recipe
     from lidarsim.shards import read_manifest, verify_dataset
 
     problems = verify_dataset(directory, known_schemas=_known_schemas())
+    published = None
     if recipe is not None:
-        problems += check_against_recipe(read_manifest(directory), recipe)
+        published = compare_with_recipe(directory, recipe, content=not problems)
+        for line in published.verdicts:
+            click.echo(line)
+        problems += published.problems
     if problems:
         for p in problems:
             click.echo(p, err=True)
         raise click.ClickException(f"{directory}: {len(problems)} problem(s) found")
     manifest = read_manifest(directory)
     n_files = len(manifest["shards"]) + sum(len(lab.get("shards", [])) for lab in manifest.get("labelings", []))
-    click.echo(f"{directory}: OK, {n_files} files match the manifest's checksums and schema versions")
+    against = f"; {published.summary()}" if published is not None else ""
+    click.echo(f"{directory}: OK, {n_files} files match the manifest's checksums and schema versions{against}")
 
 
 @main.command("label")

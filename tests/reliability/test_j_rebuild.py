@@ -1,0 +1,205 @@
+"""J. A recipe rebuilt on another machine: `hd verify --recipe` says identical (sha256), or rebuilt and
+equal to the published build within the content fingerprints' tolerances; a damaged or altered
+copy fails, naming the file and the array or attribute."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+import pytest
+from reliability_kit import BUILD_ARGS, invoke
+
+from lidarsim.shards import read_manifest, sha256_file
+
+LABEL_GLOB = "labels/*/labels-00001.h5"
+Edit = Callable[[str, np.ndarray], np.ndarray]
+
+
+@pytest.fixture(scope="module")
+def recipe(tmp_path_factory, labelled, dtm) -> Path:
+    """The recipe of the labelled reference, published from it with `hd card` (checksums and fingerprints)."""
+    values = dict(zip(BUILD_ARGS[::2], BUILD_ARGS[1::2], strict=True))
+    directory = tmp_path_factory.mktemp("recipe") / "reference"
+    directory.mkdir()
+    (directory / "recipe.toml").write_text(
+        f'[dataset]\nname = "reference"\n[build]\nscans = {values["--scans"]}\nshard_size = {values["--shard-size"]}\n'
+        f"resolution = {values['--resolution']}\nsigmas_m = [{values['--sigma']}]\nseed = {values['--seed']}\n"
+        f'dtm = "{dtm}"\n'
+    )
+    result = invoke("card", labelled, "--recipe", directory)
+    assert result.exit_code == 0, result.output
+    return directory
+
+
+def rewrite(path: Path, edit: Edit | None = None, attrs: dict[str, Any] | None = None) -> None:
+    """Write an HDF5 shard again with deflate level 9 instead of 1: other bytes for the same arrays,
+    as another zlib gives (``edit`` changes arrays, ``attrs`` file attributes)."""
+    with h5py.File(path, "r") as src:
+        file_attrs = {**dict(src.attrs), **(attrs or {})}
+        datasets = {
+            name: (ds[()], ds.chunks, ds.compression, ds.shuffle, ds.fletcher32, dict(ds.attrs))
+            for name, ds in src.items()
+        }
+    path.unlink()
+    with h5py.File(path, "w") as dst:
+        dst.attrs.update(file_attrs)
+        for name, (data, chunks, compression, shuffle, fletcher32, ds_attrs) in datasets.items():
+            level = {"compression": "gzip", "compression_opts": 9} if compression == "gzip" else {}
+            new = dst.create_dataset(
+                name,
+                data=edit(name, data) if edit else data,
+                chunks=chunks,
+                shuffle=shuffle,
+                fletcher32=fletcher32,
+                **level,
+            )
+            new.attrs.update(ds_attrs)
+
+
+def reseal(dataset: Path) -> None:
+    """Record every file's sha256 in the manifest (a copy edited consistently)."""
+    m = read_manifest(dataset)
+    for e in m["shards"] + [e for lab in m["labelings"] for e in lab["shards"]]:
+        e["sha256"] = sha256_file(dataset / e["path"])
+    (dataset / "manifest.json").write_text(json.dumps(m))
+
+
+def verify(data: Path, recipe: Path) -> tuple[int, str, str]:
+    result = invoke("verify", data, "--recipe", recipe)
+    return result.exit_code, result.stdout, result.stderr
+
+
+def test_the_published_build_itself_is_identical_file_by_file(labelled, recipe):
+    code, out, _ = verify(labelled, recipe)
+    manifest = read_manifest(labelled)
+    paths = [e["path"] for e in manifest["shards"] + manifest["labelings"][0]["shards"]]
+    assert code == 0
+    for path in paths:
+        assert f"{path}: identical (sha256)\n" in out
+    assert f"{len(paths)} files identical to the recipe's published build (sha256)" in out
+    published = json.loads((recipe / "checksums.json").read_text())
+    assert published["fingerprint_schema"] == "hd.content-fingerprint"
+    assert published["fingerprint_schema_version"] == "1.0"
+    assert all("content" in e for e in published["shards"] + published["labelings"][0]["shards"])
+
+
+def test_a_rebuild_with_other_bytes_and_rounding_is_equal_within_tolerance(data_copy, recipe):
+    """Every shard written with other deflate bytes, the label maps moved by float32 rounding steps."""
+    rng = np.random.default_rng(0)
+
+    def rounding(name: str, data: np.ndarray) -> np.ndarray:
+        if name not in ("slope_rad", "roughness_m", "p_safe") or data.dtype != np.float32:
+            return data
+        toward = np.where(rng.random(data.shape) < 0.5, -np.inf, np.inf).astype(np.float32)
+        moved = np.nextafter(data, toward)
+        return np.where(np.isfinite(data) & (data > 0) & (data < 1), moved, data)
+
+    manifest = read_manifest(data_copy)
+    for e in manifest["shards"]:
+        rewrite(data_copy / e["path"])
+    for e in manifest["labelings"][0]["shards"]:
+        rewrite(data_copy / e["path"], rounding)
+    reseal(data_copy)
+    code, out, err = verify(data_copy, recipe)
+    assert code == 0, err
+    n = len(manifest["shards"]) + len(manifest["labelings"][0]["shards"])
+    assert out.count(": rebuilt: equal to the published build within tolerance (") == n
+    assert (
+        f"0 files identical to the recipe's published build (sha256), {n} rebuilt: equal to it within tolerance" in out
+    )
+
+
+@pytest.mark.parametrize(
+    ("change", "needles"),
+    [
+        ("changed-label", ["label: counts per value", "must be equal"]),
+        ("changed-attribute", ["attribute lander_max_slope_deg is 12.0, the published build's is"]),
+        ("moved-points", ["points_clean: sum", "tolerance 1e-06"]),
+        ("swapped-scans", ["points_noisy: position-weighted sum"]),
+    ],
+)
+def test_an_altered_copy_fails_naming_file_and_array(data_copy, recipe, change, needles):
+    label = next(data_copy.glob(LABEL_GLOB))
+    scans = data_copy / "shards" / "scans-00001.h5"
+    if change == "changed-label":
+
+        def one_label(name: str, data: np.ndarray) -> np.ndarray:
+            if name == "label":
+                data[0, 20, 20] = 1 - data[0, 20, 20] if data[0, 20, 20] < 2 else 0
+            return data
+
+        rewrite(label, one_label)
+        where = label.relative_to(data_copy)
+    elif change == "changed-attribute":
+        rewrite(label, attrs={"lander_max_slope_deg": 12.0})
+        where = label.relative_to(data_copy)
+    elif change == "moved-points":
+        rewrite(scans, lambda name, data: data + np.float32(0.5) if name == "points_clean" else data)
+        where = scans.relative_to(data_copy)
+    else:
+        rewrite(scans, lambda name, data: data[::-1].copy() if name == "points_noisy" else data)
+        where = scans.relative_to(data_copy)
+    reseal(data_copy)
+    code, _, err = verify(data_copy, recipe)
+    assert code != 0
+    lines = err.strip().splitlines()
+    assert lines[-1].startswith("Error: ") and "problem(s) found" in lines[-1]
+    for needle in needles:
+        assert any(line.startswith(f"{where}: ") and needle in line for line in lines), err
+
+
+@pytest.mark.parametrize("resealed", [False, True])
+def test_a_flipped_chunk_byte_fails_with_or_without_a_resealed_manifest(data_copy, recipe, resealed):
+    path = data_copy / "shards" / "scans-00000.h5"
+    with h5py.File(path, "r") as f:
+        info = f["points_noisy"].id.get_chunk_info(1)
+    with open(path, "r+b") as fh:
+        fh.seek(info.byte_offset + info.size // 2)
+        byte = fh.read(1)
+        fh.seek(info.byte_offset + info.size // 2)
+        fh.write(bytes([byte[0] ^ 0xFF]))
+    if resealed:
+        reseal(data_copy)
+    code, _, err = verify(data_copy, recipe)
+    assert code != 0
+    needle = (
+        "shards/scans-00000.h5: cannot read points_noisy" if resealed else "shards/scans-00000.h5: checksum mismatch"
+    )
+    assert needle in err
+
+
+def test_checksums_without_fingerprints_name_what_is_missing(data_copy, recipe, tmp_path):
+    old = tmp_path / "old"
+    shutil.copytree(recipe, old)
+    published = json.loads((old / "checksums.json").read_text())
+    for e in published["shards"]:
+        del e["content"]
+    (old / "checksums.json").write_text(json.dumps(published))
+    assert verify(data_copy, old)[0] == 0  # the same bytes: identical
+    rewrite(data_copy / "shards" / "scans-00000.h5")
+    reseal(data_copy)
+    code, _, err = verify(data_copy, old)
+    assert code != 0 and "shards/scans-00000.h5: sha256 differs from the recipe's published build" in err
+    assert "publishes no content fingerprint" in err
+
+
+def test_a_labelling_the_copy_lacks_is_noted_and_a_newer_fingerprint_schema_refused(data_copy, recipe, tmp_path):
+    other = tmp_path / "other"
+    shutil.copytree(recipe, other)
+    published = json.loads((other / "checksums.json").read_text())
+    published["labelings"][0]["name"] = "another-labelling"
+    (other / "checksums.json").write_text(json.dumps(published))
+    code, out, _ = verify(data_copy, other)
+    assert code == 0
+    assert "labelling another-labelling: not in this dataset, not compared" in out
+    assert "not part of the recipe's published build, not compared" in out
+    published["fingerprint_schema_version"] = "2.0"
+    (other / "checksums.json").write_text(json.dumps(published))
+    result = invoke("verify", data_copy, "--recipe", other)
+    assert result.exit_code != 0 and "version 2.0 is not supported" in result.output
