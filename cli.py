@@ -803,6 +803,14 @@ def label_cmd(
         help="DataLoader worker processes.",
     ),
     overwrite_option("Start an existing run again, or write into a non-empty directory that is not a run."),
+    click.option(
+        "--also",
+        "also",
+        type=_DIRECTORY,
+        multiple=True,
+        help="Another labelled dataset to train on as well (a mix of terrains): its train split joins the "
+        "training data, its validation split the validation. Repeatable; each needs DATASET's labelling.",
+    ),
 )
 @friendly_errors
 def train_cmd(
@@ -817,6 +825,7 @@ def train_cmd(
     labeling: str | None,
     num_workers: int = 0,
     overwrite: bool = False,
+    also: tuple[Path, ...] = (),
 ) -> None:
     """Train the Bayesian SegNet on the noisy DEMs of a labelled dataset."""
     from hdnet.errors import HdNetError
@@ -844,6 +853,7 @@ def train_cmd(
         progress=True,
         num_workers=num_workers,
         overwrite=overwrite,
+        also=tuple(str(d) for d in also),
     )
     checkpoint = fit(dataset, run_dir, config)
     click.echo(training_done_message(checkpoint, run_dir))
@@ -883,6 +893,14 @@ def train_cmd(
         help="Where the threshold is calibrated: once on the validation split at the run's reference noise "
         "level (the paper), or at each test noise level (the sensor's, which a flash LiDAR knows).",
     ),
+    click.option(
+        "--calibrate-on",
+        "calibrate_on",
+        type=_DIRECTORY,
+        multiple=True,
+        help="Calibrate the threshold on this labelled dataset's validation split instead of --data's, e.g. "
+        "the run's training data when --data is another terrain. Repeat it to calibrate on several together.",
+    ),
     overwrite_option("Replace an existing report (never other files, never an input)."),
 )
 @friendly_errors
@@ -898,12 +916,16 @@ def eval_cmd(
     batch_size: int = net_defaults.BATCH_SIZE,
     sigma_sweep: str | None = None,
     calibrate: str = "reference",
+    calibrate_on: tuple[Path, ...] = (),
     overwrite: bool = False,
 ) -> None:
     """Evaluate a trained run: the paper's tables, threshold sweep, calibration, noise sweep and figures."""
     from hdnet.evaluate import EvalConfig
     from hdnet.noise_levels import parse_sigma_sweep
     from hdnet.pipeline import evaluate_to_report, report_written_message
+    from lidarsim.storage import check_not_input
+
+    check_not_input(out_dir, {f"the calibration dataset {d}": d for d in calibrate_on})
 
     config = EvalConfig(
         mc_samples=mc_samples,
@@ -914,6 +936,7 @@ def eval_cmd(
         batch_size=batch_size,
         sigma_sweep=parse_sigma_sweep(sigma_sweep) if sigma_sweep is not None else (),
         calibrate=calibrate,
+        calibrate_on=tuple(str(d) for d in calibrate_on),
     )
     result = evaluate_to_report(run_dir, dataset, out_dir, config, overwrite=overwrite)
     click.echo(result.summary())

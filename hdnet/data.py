@@ -53,7 +53,7 @@ from typing import Any
 
 import numpy as np
 import torch
-from torch.utils.data import Dataset
+from torch.utils.data import ConcatDataset, Dataset
 
 from hdlabels.alhat import safety_probability
 from hdlabels.deadpixels import drop_and_repair, random_dead_pixels
@@ -479,3 +479,15 @@ def stored_sigma_index(sigmas_m: tuple[float, ...], sigma_m: float) -> int | Non
     except HdNetError:
         check_levels([sigma_m], "sigma")
         return None
+
+
+class MixedDataset(ConcatDataset):
+    """Several datasets read as one (a mix of terrains, ``hd train --also``): their samples one
+    after the other; ``set_epoch`` reaches every part that draws per epoch."""
+
+    def set_epoch(self, epoch: int) -> None:
+        """The training epoch (0-based), passed on to every part."""
+        for part in self.datasets:
+            set_part = getattr(part, "set_epoch", None)
+            if callable(set_part):
+                set_part(epoch)

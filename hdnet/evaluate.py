@@ -21,8 +21,10 @@ Inputs are prepared exactly as in training: ``hdnet.inputs.network_input`` with 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -202,6 +204,18 @@ def infer_split(
     )
 
 
+def concat_inference(parts: Sequence[SplitInference]) -> SplitInference:
+    """Inferences of several splits at one noise level as one (images one after the other)."""
+    if len(parts) == 1:
+        return parts[0]
+    arrays = {
+        f.name: np.concatenate([getattr(p, f.name) for p in parts])
+        for f in dataclasses.fields(SplitInference)
+        if f.name != "sigma_m"
+    }
+    return SplitInference(sigma_m=parts[0].sigma_m, **arrays)
+
+
 # --- the run and its threshold ---------------------------------------------------------------------
 def checkpoint_path(run_dir: str | os.PathLike) -> Path:
     """The checkpoint of a run: ``RUN/last.pt`` for a run directory, else the path itself (a checkpoint file)."""
@@ -264,7 +278,7 @@ class ValidationThreshold:
 
 def validation_threshold(
     model: BayesianSegNet,
-    val_ds: HazardDataset,
+    val_ds: HazardDataset | Sequence[HazardDataset],
     spec: ThresholdSpec,
     *,
     mc_samples: int,
@@ -272,8 +286,12 @@ def validation_threshold(
     seed: int,
     device: torch.device,
 ) -> ValidationThreshold:
-    """Step 1 of the protocol: MC dropout over the validation split, entropies collected, H_t selected."""
-    val = infer_split(model, val_ds, mc_samples, batch_size, seed, device)
+    """Step 1 of the protocol: MC dropout over the validation split, entropies collected, H_t selected.
+
+    Several validation splits (one noise level, several datasets) calibrate together.
+    """
+    parts = [val_ds] if isinstance(val_ds, HazardDataset) else list(val_ds)
+    val = concat_inference([infer_split(model, ds, mc_samples, batch_size, seed, device) for ds in parts])
     cal = EntropyCalibration()
     cal.update(torch.from_numpy(val.entropy_nats), torch.from_numpy(val.prediction), torch.from_numpy(val.label))
     h_t = select_threshold(spec, cal)
@@ -319,7 +337,9 @@ class EvalConfig:
     split is also scored at, made from the clean points where the dataset does not store them;
     ``calibrate``: ``reference`` (H_t calibrated once, on the validation split at the run's
     reference noise level, as the paper does) or ``each`` (H_t calibrated on the validation split
-    at each test noise level: the sensor's, which a flash LiDAR knows).
+    at each test noise level: the sensor's, which a flash LiDAR knows); ``calibrate_on``: the
+    datasets whose validation splits (together) calibrate H_t, e.g. the run's own training data
+    when it is scored on another terrain (empty: the evaluated dataset's validation split).
 
     Raises:
         HdNetError: a bad threshold spec or seed (checked here, before any file is looked at); the
@@ -335,6 +355,7 @@ class EvalConfig:
     device: str | None = None
     sigma_sweep: tuple[float, ...] = ()
     calibrate: str = "reference"
+    calibrate_on: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         parse_threshold_spec(self.threshold)
@@ -413,6 +434,7 @@ def evaluate(
         achieved += sweep_achieved
     threshold_info = th.info
     threshold_info["calibrate"] = cfg.calibrate
+    threshold_info["calibration_datasets"] = [str(Path(d).resolve()) for d in cfg.calibrate_on or (dataset_dir,)]
     if cfg.calibrate == "each":
         threshold_info["per_sigma"] = thresholds.per_sigma_info()
     if spec.kind == "risk":
@@ -457,9 +479,10 @@ class _Thresholds:
         th = self._by_sigma.get(key)
         if th is None:
             cfg = self.cfg
+            sources = cfg.calibrate_on or (str(self.dataset_dir),)
             th = self._by_sigma[key] = validation_threshold(
                 self.setup.model,
-                self.setup.dataset(self.dataset_dir, "val", sigma_m, cfg.seed),
+                [self.setup.dataset(d, "val", sigma_m, cfg.seed) for d in sources],
                 cfg.threshold_spec,
                 mc_samples=cfg.mc_samples,
                 batch_size=cfg.batch_size,

@@ -27,6 +27,7 @@ from hdnet import defaults
 from hdnet.augment import check_augment
 from hdnet.data import (
     HazardDataset,
+    MixedDataset,
     compute_normalisation,
     dataset_sigmas,
     dem_spacing_m,
@@ -214,6 +215,7 @@ class FitConfig:
     num_workers: int = 0
     overwrite: bool = False
     stop_after: int | None = None
+    also: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         workers = self.num_workers
@@ -270,6 +272,41 @@ def training_sigma(requested_m: float | None, dataset_sigmas_m: tuple[float, ...
     return float(dataset_sigmas_m[0]) if len(dataset_sigmas_m) == 1 else defaults.TRAIN_SIGMA_M
 
 
+# Seed offset of the k-th dataset of a mix (``FitConfig.also``): its drawn noise levels, noise
+# realisations and augmentations never repeat those of the same scan index in another dataset.
+MIX_SEED_STRIDE = 1_000_003
+
+
+def _mix(
+    cfg: FitConfig,
+    train_ds: HazardDataset,
+    val_ds: Dataset,
+    noise: TrainingNoise,
+    train_sigma_m: float,
+    profile: TrainingProfile,
+    common: dict[str, Any],
+) -> tuple[MixedDataset, MixedDataset]:
+    """The train and validation splits of the first dataset and of every ``cfg.also`` dataset, one
+    after the other; each extra dataset must hold the first one's labelling (same lander and DEM)."""
+    trains: list[Dataset] = [train_ds]
+    vals: list[Dataset] = [val_ds]
+    for k, other in enumerate(cfg.also, start=1):
+        entry, _ = open_labeling(other, train_ds.labels)
+        if dem_spacing_m(entry) != train_ds.spacing_m:
+            raise HdNetError(f"{other}: its DEMs are not on the first dataset's grid; label it with the same settings.")
+        mine = {**common, "labels": train_ds.labels, "seed": cfg.seed + k * MIX_SEED_STRIDE}
+        if noise.is_single:
+            trains.append(HazardDataset(other, "train", train_sigma_m, augment=profile.augment, **mine))
+            vals.append(HazardDataset(other, "val", train_sigma_m, **mine))
+        else:
+            trains.append(HazardDataset(other, "train", None, augment=profile.augment, noise=noise, **mine))
+            vals.extend(HazardDataset(other, "val", s, **mine) for s in noise.validation_levels())
+        for name, ds in (("train", trains[-1]), ("val", vals[-1])):
+            if len(ds) == 0:  # type: ignore[arg-type]  # map-style datasets have a length
+                raise HdNetError(f"{other}: the {name} split is empty; build a dataset with more scans.")
+    return MixedDataset(trains), MixedDataset(vals)
+
+
 def fit(dataset_dir: str | os.PathLike, run_dir: str | os.PathLike, config: FitConfig | None = None) -> Path:
     """Train a model on ``dataset_dir`` as ``config`` says (default: ``FitConfig()``); returns ``last.pt``.
 
@@ -281,6 +318,8 @@ def fit(dataset_dir: str | os.PathLike, run_dir: str | os.PathLike, config: FitC
     cfg = config if config is not None else FitConfig()
     resume, overwrite, labels = cfg.resume, cfg.overwrite, cfg.labels
     run_path, _ = prepare_run_dir(run_dir, resume, overwrite, dataset_dir)
+    for other in cfg.also:
+        prepare_run_dir(run_dir, resume, overwrite, other)
     profile = cfg.training_profile()
     entry, paths = open_labeling(dataset_dir, labels)  # the clear "no labels" error first
     noise = training_noise(cfg.train_noise, cfg.train_sigma_m, profile, dataset_sigmas(paths))
@@ -306,6 +345,13 @@ def fit(dataset_dir: str | os.PathLike, run_dir: str | os.PathLike, config: FitC
     extra = run_data_config(
         dataset_dir, train_ds.labels, train_sigma_m, spec, train_ds.dem_shape, labeling=train_ds.entry, noise=noise
     )
+    if cfg.also:
+        mixed_train, mixed_val = _mix(cfg, train_ds, val_ds, noise, train_sigma_m, profile, common)
+        extra["also"] = [
+            {"dataset": str(Path(d).resolve()), "manifest_sha256": sha256_file(Path(d) / MANIFEST_NAME)}
+            for d in cfg.also
+        ]
+        train_ds, val_ds = mixed_train, mixed_val  # type: ignore[assignment]  # the mix reads like one dataset
     top = first_missing(run_path)
     try:
         with run_dir_lock(run_path):

@@ -1,0 +1,111 @@
+"""Training on a mix of terrains (``hd train --also``) and calibrating on another dataset (``--calibrate-on``)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from click.testing import CliRunner
+from hdnet_datasets import build_labelled
+
+from cli import main
+from hdnet.data import HazardDataset, MixedDataset
+from hdnet.errors import HdNetError
+from hdnet.evaluate import EvalConfig, evaluate
+from hdnet.fit import MIX_SEED_STRIDE, FitConfig, fit
+from hdnet.inputs import InputSpec
+from hdnet.noise_levels import TrainingNoise
+from hdnet.profiles import TINY
+
+
+@pytest.fixture(scope="module")
+def two(tmp_path_factory) -> tuple[Path, Path]:
+    """Two tiny labelled datasets of different scan counts (20 and 30 scans), same labelling."""
+    return build_labelled(tmp_path_factory.mktemp("terrain-a")), build_labelled(
+        tmp_path_factory.mktemp("terrain-b"), n_scans=30
+    )
+
+
+@pytest.fixture(scope="module")
+def mixed_run(two, tmp_path_factory) -> Path:
+    a, b = two
+    run = tmp_path_factory.mktemp("mix") / "run"
+    fit(a, run, FitConfig(profile=TINY, epochs=1, progress=False, also=(str(b),)))
+    return run
+
+
+def test_the_mix_holds_every_dataset_and_its_run_names_them(two, mixed_run):
+    a, b = two
+    spec = InputSpec(heights="median")
+    one = [HazardDataset(d, "train", 0.0167, input_spec=spec) for d in (a, b)]
+    mix = MixedDataset(one)
+    assert len(mix) == len(one[0]) + len(one[1])
+    # Sample k of the second part is sample k - len(first) of the mix, bit for bit.
+    k = len(one[0])
+    assert torch.equal(mix[k]["image"], one[1][0]["image"])
+    extra = json.loads((mixed_run / "config.json").read_text())["extra_config"]
+    assert extra["dataset"] == str(a.resolve())
+    assert [e["dataset"] for e in extra["also"]] == [str(b.resolve())]
+    assert len(extra["also"][0]["manifest_sha256"]) == 64
+
+
+def test_drawn_noise_differs_between_the_parts_of_a_mix(two):
+    a, _ = two
+    spec = InputSpec(heights="median", extra_channels=("sigma",))
+    noise = TrainingNoise(range_m=(0.0, 0.1))
+    first = HazardDataset(a, "train", None, input_spec=spec, noise=noise, seed=0)
+    second = HazardDataset(a, "train", None, input_spec=spec, noise=noise, seed=MIX_SEED_STRIDE)
+    mix = MixedDataset([first, second])
+    mix.set_epoch(3)
+    assert first.epoch == 3 and second.epoch == 3
+    # The same scans, keyed on another seed: other noise levels.
+    sig = [float(first[i]["sigma_m"]) for i in range(4)], [float(second[i]["sigma_m"]) for i in range(4)]
+    assert sig[0] != sig[1]
+
+
+def test_a_dataset_without_the_labelling_is_refused_before_training(two, tmp_path):
+    a, _ = two
+    unlabelled = build_labelled(tmp_path / "bare", n_scans=20, label=False)
+    with pytest.raises(HdNetError, match="label"):
+        fit(a, tmp_path / "run", FitConfig(profile=TINY, epochs=1, progress=False, also=(str(unlabelled),)))
+    assert not (tmp_path / "run").exists()
+
+
+def test_calibrating_on_other_datasets_uses_their_validation_splits(two, mixed_run):
+    a, b = two
+    own = evaluate(mixed_run, b, EvalConfig(mc_samples=2, threshold="quantile:0.5"))
+    other = evaluate(mixed_run, b, EvalConfig(mc_samples=2, threshold="quantile:0.5", calibrate_on=(str(a),)))
+    assert own.threshold["calibration_datasets"] == [str(b.resolve())]
+    assert other.threshold["calibration_datasets"] == [str(a.resolve())]
+    # b has 30 scans, a 20: validation splits of 3 and 2 images (block splits 80/10/10).
+    assert own.threshold["calibration_images"] > other.threshold["calibration_images"] > 0
+    # The test split scored is b's in all three: the baseline rows do not depend on the threshold.
+    for r1, r2 in zip(own.rows, other.rows, strict=True):
+        if r1.method == "alhat_baseline":
+            assert np.array_equal((r1.pixel_accuracy, r1.precision), (r2.pixel_accuracy, r2.precision), equal_nan=True)
+    assert own.threshold["value_nats"] != other.threshold["value_nats"]
+
+
+def test_cli_train_also_and_eval_calibrate_on(two, mixed_run, tmp_path):
+    a, b = two
+    runner = CliRunner()
+    args = ["train", str(a), "--out", str(tmp_path / "run"), "--profile", "tiny", "--epochs", "1", "--also", str(b)]
+    result = runner.invoke(main, args)
+    assert result.exit_code == 0, result.output
+    assert json.loads((tmp_path / "run" / "config.json").read_text())["extra_config"]["also"]
+    report = tmp_path / "r"
+    result = runner.invoke(
+        main,
+        ["eval", str(mixed_run), "--data", str(b), "--out", str(report), "--mc-samples", "2", "--calibrate-on", str(a)],
+    )
+    assert result.exit_code == 0, result.output
+    threshold = json.loads((report / "report.json").read_text())["threshold"]
+    assert threshold["calibration_datasets"] == [str(a.resolve())]
+    # A report never goes into a calibration dataset.
+    bad = runner.invoke(
+        main, ["eval", str(mixed_run), "--data", str(b), "--out", str(a / "r"), "--calibrate-on", str(a)]
+    )
+    assert bad.exit_code != 0 and "calibration dataset" in bad.output and not (a / "r").exists()
