@@ -4,9 +4,9 @@ A shard's sha256 proves that a received copy is the published file, byte for byt
 whether a rebuild elsewhere is the same *dataset*: the bytes of a shard also depend on the zlib the
 operating system provides (HDF5 in the h5py wheel compresses with the system's ``libz.so.1``), and
 the label kernels round differently with another BLAS kernel family or another compiler target
-(``docs/reliability.md``, "Rebuilding a recipe on another CPU", has the measurements). A content
-fingerprint records, per HDF5 file, what the arrays *hold*, so that such a rebuild can be compared
-with the published build, and a damaged or altered copy still fails.
+(``docs/reliability.md``, class J, has the measurements). A content fingerprint records, per file,
+what the arrays *hold*, so that such a rebuild can be compared with the published build, and a
+damaged or altered copy still fails.
 
 Format (schema ``hd.content-fingerprint``, version 1.0; one JSON object per file, published in a
 recipe's ``checksums.json`` beside the file's sha256; ``docs/shard-format.md``)::
@@ -30,7 +30,7 @@ An attribute value is kept as JSON when its canonical JSON text is at most
 :data:`MAX_INLINE_ATTR_CHARS` characters long, else as ``"sha256:"`` and the first 16 hex digits of
 the SHA-256 of that text. Attributes that record the sha256 of another file of the dataset
 (:data:`FILE_DIGEST_ATTRS`) differ wherever that file's bytes differ; their values are kept but
-compared with the dataset's own files (``lidarsim.recipe``), not with the published values.
+compared with the dataset's own files (``lidarsim.published``), not with the published values.
 
 Tolerances (:func:`compare_fingerprints`), per array: dtype, shape, NaN and inf counts, every
 statistic of an integer array (sums, extremes, counts per value: label codes, status codes, splits)
@@ -76,10 +76,11 @@ FINGERPRINT_SCHEMA_VERSION = "1.0"
 # Relative tolerance of the sums of float32 arrays, as a fraction of the sum of absolute values.
 # One rounding moves a float32 value by at most 2**-24 of its magnitude (6.0e-8). Across x86-64
 # machines the label arrays (slope, roughness, P(safe)) differ by up to 7 float32 steps per element
-# (measured with OpenBLAS's SkylakeX kernels against this machine's, docs/reliability.md), which moved
-# their sums by at most 1.6e-11 of the sum of absolute values: differences of random sign average
-# out. 1e-6 bounds even 8 steps of every element in the same direction (4.8e-7 at most), and still
-# catches one element changed by a millionth of the array's total magnitude.
+# (OpenBLAS's SkylakeX kernels against the Haswell kernels of the published build's machine,
+# docs/reliability.md), which moved their sums by at most 1.6e-11 of the sum of absolute values:
+# differences of random sign average out. 1e-6 bounds even 8 steps of every element in the same
+# direction (at most 8 * 2**-23 = 9.5e-7), and still catches one element changed by a millionth of
+# the array's total magnitude.
 FLOAT32_RTOL = 1e-6
 # Relative tolerance of the extremes of float32 arrays, as a fraction of the array's largest
 # magnitude: an extreme is one element, and one element moved by up to 4.2e-7 of the array's largest
