@@ -92,6 +92,10 @@ def checksums_text(record: dict[str, Any]) -> str:
     return text + "\n"
 
 
+# A recipe's account of its terrain (source, credit, licence, conversion), beside recipe.toml.
+SOURCE_FILE = "SOURCE.md"
+
+
 def render_card(directory: str | os.PathLike, recipe: Recipe, machine: str = "") -> str:
     """Markdown card of the dataset at ``directory`` built from ``recipe``."""
     directory = Path(directory)
@@ -123,6 +127,8 @@ def render_card(directory: str | os.PathLike, recipe: Recipe, machine: str = "")
         else f"`{dtm.get('name')}` (sha256 {dtm.get('sha256')})"
     )
     licence = PROCEDURAL_LICENCE if cfg.get("dtm_path") is None else "that of the DTM you supplied (check its source)"
+    if (recipe.path.parent / SOURCE_FILE).is_file():
+        licence = f"see `{SOURCE_FILE}` beside this card (where the DTM comes from, its credit and licence)"
     lines = [
         f"# Dataset card: {recipe.name} (recipe version {recipe.version})",
         "",

@@ -342,6 +342,15 @@ def test_recipes_parse_and_mars_paper_is_what_reproduce_builds():
     for name in ("mars-paper", "mars-s167", "mars-s300", "mars-s700", "user-dtm-paper"):
         r = load_recipe(REPO / "datasets" / name)
         assert r.version == 2 and r.label["convention"] == "paper" and r.label["gridding"] == "nearest"
+    # Real Mars: the Jezero DTM ships beside its recipe, named by sha256; the rocks recipe builds on it.
+    jezero, rocky = (load_recipe(REPO / "datasets" / n) for n in ("mars-jezero", "mars-jezero-rocks"))
+    dtm = REPO / "datasets" / "mars-jezero" / "jezero-hirise-3.69m.tif"
+    assert jezero.build.dtm_path == rocky.build.dtm_path == str(dtm.resolve())
+    assert not jezero.build.rocks_on_dtm and rocky.build.rocks_on_dtm
+    for r in (jezero, rocky):
+        assert r.build.sigmas_m == paper.build.sigmas_m and r.build.trajectory.n_scans == 1000
+        assert r.label == load_recipe(REPO / "datasets" / "mars-paper").label
+    assert "DTEEC_045994_1985_046060_1985_U01" in (REPO / "datasets" / "mars-jezero" / "SOURCE.md").read_text()
 
 
 def test_build_from_a_recipe_and_verify_against_its_checksums(tmp_path, dtm):
