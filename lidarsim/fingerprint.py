@@ -300,11 +300,12 @@ def _compare_array(pub: dict[str, Any], new: dict[str, Any], where: str, out: Co
     _compare_attrs(pub.get("attrs", {}), new.get("attrs", {}), where, out)
     kind = np.dtype(str(pub["dtype"])).kind
     if kind != "f":  # integers, booleans, strings: exact
-        for key in ("sum", "wsum", "min", "max", "counts", "sha256"):
+        for key in ("counts", "sum", "wsum", "min", "max", "sha256"):
             if pub.get(key) != new.get(key):
                 what = {"counts": "counts per value", "wsum": "position-weighted sum"}.get(key, key)
                 got, want = _fmt(new.get(key)), _fmt(pub.get(key))
                 out.problems.append(f"{where}: {what} {got}, the published build's is {want} (must be equal)")
+                return  # one line per array: other counts imply other sums
         return
     for key in ("nan", "inf"):
         if pub.get(key) != new.get(key):
