@@ -25,11 +25,15 @@ import click
 from click.core import ParameterSource
 
 from hdlabels import defaults as label_defaults
+from hdlabels import limits as label_limits
 from hdnet import defaults as net_defaults
+from hdnet import limits as net_limits
 from lidarsim import defaults as lidar_defaults
 from lidarsim import limits
+from lidarsim import terrain_defaults as td
 from lidarsim._version import __version__
 from lidarsim.errors import HdError, HdWarning, LidarsimError
+from lidarsim.limits import Bound
 
 # The paper's dataset recipe, which `hd reproduce` runs (beside this file in a source checkout).
 PAPER_RECIPE = Path(__file__).resolve().parent / "datasets" / "mars-paper"
@@ -200,8 +204,20 @@ class _Finite(click.FloatRange):
         return number
 
 
-_POSITIVE = _Finite(min=0.0, min_open=True)
-_NON_NEGATIVE_INT = click.IntRange(min=0)
+def _bounded(bound: Bound) -> click.ParamType:
+    """The click type of a numeric option within ``bound`` (declared by the package the value belongs
+    to: ``lidarsim.limits``, ``hdlabels.limits``, ``hdnet.limits``). click shows the range in
+    ``--help`` and refuses a value outside it with a usage error, before any work."""
+    if bound.integer:
+        return click.IntRange(
+            None if bound.low is None else int(bound.low),
+            None if bound.high is None else int(bound.high),
+            min_open=bound.low_open,
+            max_open=bound.high_open,
+        )
+    return _Finite(min=bound.low, max=bound.high, min_open=bound.low_open, max_open=bound.high_open)
+
+
 _DIRECTORY = _Path(file_okay=False, path_type=Path)
 _FILE_OR_DIRECTORY = _Path(path_type=Path)
 
@@ -213,7 +229,7 @@ Decorator = Callable[[Callable[..., Any]], Callable[..., Any]]
 def workers_option() -> Decorator:
     return click.option(
         "--workers",
-        type=click.IntRange(1, limits.MAX_WORKERS),
+        type=_bounded(limits.WORKERS),
         default=None,
         help="Local worker processes (default: all cores).",
     )
@@ -227,7 +243,7 @@ def scheduler_option() -> Decorator:
 
 def seed_option(what: str) -> Decorator:
     return click.option(
-        "--seed", type=_NON_NEGATIVE_INT, default=lidar_defaults.SEED, show_default=True, help=f"Seed of {what}."
+        "--seed", type=_bounded(limits.SEED), default=lidar_defaults.SEED, show_default=True, help=f"Seed of {what}."
     )
 
 
@@ -259,7 +275,7 @@ def dtm_option(what: str) -> Decorator:
 
 def epochs_option(what: str, default: int | None = None) -> Decorator:
     return click.option(
-        "--epochs", type=click.IntRange(min=1), default=default, show_default=default is not None, help=what
+        "--epochs", type=_bounded(net_limits.EPOCHS), default=default, show_default=default is not None, help=what
     )
 
 
@@ -270,15 +286,21 @@ def labels_option(what: str) -> Decorator:
 def mc_samples_option() -> Decorator:
     return click.option(
         "--mc-samples",
-        type=int,
+        type=_bounded(net_limits.MC_SAMPLES),
         default=net_defaults.MC_SAMPLES,
         show_default=True,
-        help="MC-dropout samples M (1..1024).",
+        help="MC-dropout samples M.",
     )
 
 
 def batch_size_option(what: str) -> Decorator:
-    return click.option("--batch-size", type=int, default=net_defaults.BATCH_SIZE, show_default=True, help=what)
+    return click.option(
+        "--batch-size",
+        type=_bounded(net_limits.BATCH_SIZE),
+        default=net_defaults.BATCH_SIZE,
+        show_default=True,
+        help=what,
+    )
 
 
 def threshold_option(what: str) -> Decorator:
@@ -361,14 +383,14 @@ def main(ctx: click.Context) -> None:
     click.option(
         "--sigma",
         "sigmas_m",
-        type=_POSITIVE,
+        type=_bounded(limits.SIGMA_M),
         multiple=True,
         default=(lidar_defaults.DEFAULT_SIGMA_M,),
         help=f"Range noise 1-sigma in metres; repeat for several levels (default {lidar_defaults.DEFAULT_SIGMA_M}).",
     ),
     click.option(
         "--scans",
-        type=click.IntRange(1, limits.MAX_SCANS),
+        type=_bounded(limits.SCANS),
         default=lidar_defaults.N_SCANS,
         show_default=True,
         help="Number of scans.",
@@ -378,14 +400,14 @@ def main(ctx: click.Context) -> None:
     click.option(
         "--altitude",
         "altitude_m",
-        type=_POSITIVE,
+        type=_bounded(limits.ALTITUDE_M),
         default=lidar_defaults.ALTITUDE_M,
         show_default=True,
         help="Sensor altitude above the terrain, metres.",
     ),
     click.option(
         "--dtm-scale",
-        type=_Finite(min=0.0, max=1.0, min_open=True),
+        type=_bounded(limits.DTM_SCALE),
         default=lidar_defaults.DTM_SCALE,
         show_default=True,
         help=f"Resample the DTM by this factor (the paper used {lidar_defaults.PAPER_DTM_SCALE}).",
@@ -394,7 +416,7 @@ def main(ctx: click.Context) -> None:
     overwrite_option("Replace an existing dataset in --out."),
     click.option(
         "--shard-size",
-        type=click.IntRange(min=1),
+        type=_bounded(limits.SHARD_SIZE),
         default=lidar_defaults.SHARD_SIZE,
         show_default=True,
         help="Scans per shard file.",
@@ -402,7 +424,7 @@ def main(ctx: click.Context) -> None:
     click.option(
         "--tilt",
         "tilt_deg",
-        type=_Finite(),
+        type=_bounded(limits.TILT_DEG),
         default=lidar_defaults.TILT_DEG,
         show_default=True,
         help="Off-nadir tilt of the boresight, degrees.",
@@ -410,14 +432,14 @@ def main(ctx: click.Context) -> None:
     click.option(
         "--jitter",
         "jitter_deg",
-        type=_Finite(),
+        type=_bounded(limits.JITTER_DEG),
         default=lidar_defaults.JITTER_DEG,
         show_default=True,
         help="1-sigma attitude jitter per axis, degrees.",
     ),
     click.option(
         "--resolution",
-        type=click.IntRange(2, limits.MAX_DETECTOR_PX),
+        type=_bounded(limits.DETECTOR_PX),
         default=lidar_defaults.DETECTOR_ROWS,
         show_default=True,
         help="Detector pixels per side.",
@@ -425,21 +447,21 @@ def main(ctx: click.Context) -> None:
     click.option(
         "--fov",
         "fov_deg",
-        type=_Finite(),
+        type=_bounded(limits.FOV_DEG),
         default=lidar_defaults.FOV_DEG,
         show_default=True,
         help="Field of view per side, degrees.",
     ),
     click.option(
         "--dead-elements",
-        type=_NON_NEGATIVE_INT,
+        type=_bounded(limits.DETECTOR_ELEMENTS),
         default=lidar_defaults.DEAD_ELEMENTS,
         show_default=True,
         help="Dead detector elements (no return).",
     ),
     click.option(
         "--damaged-elements",
-        type=_NON_NEGATIVE_INT,
+        type=_bounded(limits.DETECTOR_ELEMENTS),
         default=lidar_defaults.DAMAGED_ELEMENTS,
         show_default=True,
         help="Damaged detector elements (large range error).",
@@ -509,12 +531,23 @@ def build_dataset_cmd(
     click.option(
         "--size",
         "size_m",
-        type=_Finite(),
+        type=_bounded(limits.TERRAIN_SIZE_M),
         default=None,
         help="Side of the square terrain, metres (default: the built-in size).",
     ),
-    click.option("--spacing", "spacing_m", type=_Finite(), default=None, help="Grid spacing, metres/pixel (<= 0.5)."),
-    click.option("--rock-k", type=_Finite(), default=None, help="Golombek-Rapp rock abundance k (0.05 .. 0.4)."),
+    click.option(
+        "--spacing",
+        "spacing_m",
+        type=_bounded(limits.TERRAIN_SPACING_M),
+        default=None,
+        help="Grid spacing, metres/pixel.",
+    ),
+    click.option(
+        "--rock-k",
+        type=_bounded(limits.ROCK_K),
+        default=None,
+        help=f"Golombek-Rapp rock abundance k: 0 (no rocks) or from {td.ROCK_K_MIN:g}.",
+    ),
     click.option(
         "--base",
         "base_path",
@@ -526,7 +559,7 @@ def build_dataset_cmd(
     click.option(
         "--craters-below",
         "craters_below_m",
-        type=_Finite(),
+        type=_bounded(limits.CRATER_DIAMETER_M),
         default=None,
         help="With --base: also add fresh craters of 2 m up to this diameter (metres), below the base's resolution.",
     ),
@@ -645,7 +678,7 @@ def verify_cmd(directory: Path, recipe: Path | None) -> None:
     click.option(
         "--lander-diameter",
         "lander_diameter_m",
-        type=_Finite(),
+        type=_bounded(label_limits.LANDER_DIAMETER_M),
         default=label_defaults.LANDER_DIAMETER_M,
         show_default=True,
         help="Lander diameter, metres.",
@@ -653,14 +686,14 @@ def verify_cmd(directory: Path, recipe: Path | None) -> None:
     click.option(
         "--pad-diameter",
         "pad_diameter_m",
-        type=_Finite(),
+        type=_bounded(label_limits.PAD_DIAMETER_M),
         default=label_defaults.PAD_DIAMETER_M,
         show_default=True,
         help="Footpad diameter, metres.",
     ),
     click.option(
         "--max-slope-deg",
-        type=_Finite(),
+        type=_bounded(label_limits.MAX_SLOPE_DEG),
         default=label_defaults.MAX_SLOPE_DEG,
         show_default=True,
         help="Critical slope, degrees.",
@@ -668,7 +701,7 @@ def verify_cmd(directory: Path, recipe: Path | None) -> None:
     click.option(
         "--max-roughness",
         "max_roughness_m",
-        type=_Finite(),
+        type=_bounded(label_limits.MAX_ROUGHNESS_M),
         default=label_defaults.MAX_ROUGHNESS_M,
         show_default=True,
         help="Critical roughness, metres.",
@@ -702,14 +735,14 @@ def verify_cmd(directory: Path, recipe: Path | None) -> None:
     ),
     click.option(
         "--yaws",
-        type=click.IntRange(min=1),
+        type=_bounded(label_limits.YAWS),
         default=None,
         help=f"hd convention: yaws per symmetry period of the pad layout (default {label_defaults.N_YAWS}).",
     ),
     click.option("--count-holes", is_flag=True, help="Count terrain below the lander plane as roughness too."),
     click.option(
         "--dem-size",
-        type=click.IntRange(2, label_defaults.MAX_DEM_SIDE_PX),
+        type=_bounded(label_limits.DEM_SIZE_PX),
         default=label_defaults.DEM_ROWS,
         show_default=True,
         help="DEM side, pixels.",
@@ -717,7 +750,7 @@ def verify_cmd(directory: Path, recipe: Path | None) -> None:
     click.option(
         "--dem-spacing",
         "dem_spacing_m",
-        type=_Finite(),
+        type=_bounded(label_limits.DEM_SPACING_M),
         default=label_defaults.DEM_SPACING_M,
         show_default=True,
         help="DEM spacing, metres/pixel.",
@@ -779,7 +812,7 @@ def label_cmd(
     epochs_option("Epochs (default: the profile's)."),
     click.option(
         "--train-sigma",
-        type=_Finite(),
+        type=_bounded(net_limits.NOISE_SIGMA_M),
         multiple=True,
         help="Noise level of the training inputs, metres; repeat it to train on several (one drawn per sample "
         "and epoch; levels the dataset does not store are made from its clean points). Default: the profile's "
@@ -797,7 +830,7 @@ def label_cmd(
     labels_option("Labelling to train on (when the dataset has several)."),
     click.option(
         "--num-workers",
-        type=click.IntRange(0, limits.MAX_LOADER_WORKERS),
+        type=_bounded(limits.LOADER_WORKERS),
         default=0,
         show_default=True,
         help="DataLoader worker processes.",
@@ -869,7 +902,7 @@ def train_cmd(
     mc_samples_option(),
     click.option(
         "--drop-pixels",
-        type=int,
+        type=_bounded(net_limits.DROP_PIXELS),
         default=0,
         show_default=True,
         help=f"Dead-pixel test: pixels dropped from each DEM and refilled (paper: {label_defaults.N_DEAD_PIXELS}).",
@@ -950,7 +983,12 @@ def eval_cmd(
     click.option(
         "--data", "dataset", type=_DIRECTORY, default=None, help="Instead of --dtm: a labelled dataset, with --scan."
     ),
-    click.option("--scan", type=int, default=None, help="With --data: the scan whose noisy DEM to map (scan frame)."),
+    click.option(
+        "--scan",
+        type=_bounded(net_limits.SCAN_INDEX),
+        default=None,
+        help="With --data: the scan whose noisy DEM to map (scan frame).",
+    ),
     out_option("out_dir", "Output directory (maps, sites, overview, detect.json).", directory=False),
     mc_samples_option(),
     threshold_option(
@@ -959,7 +997,7 @@ def eval_cmd(
     click.option(
         "--sigma",
         "sigma_m",
-        type=_Finite(),
+        type=_bounded(net_limits.NOISE_SIGMA_M),
         default=None,
         help="The sensor's range noise, metres (default: the run's reference training sigma): the ALHAT "
         "baseline's sigma, the network's noise input where it takes one, the calibration level with "
@@ -973,7 +1011,14 @@ def eval_cmd(
         help="Calibrate the threshold on the validation split at the run's reference noise level, or at the "
         "sensor's --sigma (guarded above the run's training levels), as hd eval --calibrate.",
     ),
-    click.option("--sites", "n_sites", type=int, default=10, show_default=True, help="Most landing sites to propose."),
+    click.option(
+        "--sites",
+        "n_sites",
+        type=_bounded(net_limits.SITES),
+        default=10,
+        show_default=True,
+        help="Most landing sites to propose.",
+    ),
     overwrite_option("Replace an earlier hd detect output in --out (never other files, never an input)."),
     labels_option("With --data: the labelling (when the dataset has several)."),
     seed_option("MC dropout"),
@@ -1009,7 +1054,7 @@ def detect_cmd(
     out_option("out_dir", "Directory of the demo run.", required=False, default=Path("demo-out")),
     click.option(
         "--scans",
-        type=click.IntRange(1, limits.MAX_SCANS),
+        type=_bounded(limits.SCANS),
         default=200,
         show_default=True,
         help="Scans in the demo dataset.",

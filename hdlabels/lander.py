@@ -16,7 +16,7 @@ from typing import Literal
 
 import numpy as np
 
-from hdlabels import defaults
+from hdlabels import defaults, limits
 from hdlabels.errors import HdLabelsError
 
 # Candidate resting planes, as the three pads each passes through. Square: the first two pads are
@@ -78,12 +78,15 @@ class Lander:
                 f"Lander pad diameter ({self.pad_diameter_m} m) must be smaller than the lander "
                 f"diameter ({self.diameter_m} m)."
             )
-        if self.max_slope_deg >= 90:
-            raise HdLabelsError(f"Lander max_slope_deg must be below 90 degrees, got {self.max_slope_deg!r}.")
+        if not limits.MAX_SLOPE_DEG.contains(self.max_slope_deg):
+            raise HdLabelsError(
+                f"Lander max_slope_deg must be in {limits.MAX_SLOPE_DEG.interval()} degrees, "
+                f"got {self.max_slope_deg!r}."
+            )
         if self.layout not in defaults.LAYOUTS:
             raise HdLabelsError(f"Lander layout must be 'square' or 'triangle', got {self.layout!r}.")
-        if isinstance(self.n_yaws, bool) or not isinstance(self.n_yaws, int) or self.n_yaws < 1:
-            raise HdLabelsError(f"Lander n_yaws must be an integer >= 1, got {self.n_yaws!r}.")
+        if isinstance(self.n_yaws, bool) or not isinstance(self.n_yaws, int) or not limits.YAWS.contains(self.n_yaws):
+            raise HdLabelsError(f"Lander n_yaws must be an integer in {limits.YAWS.interval()}, got {self.n_yaws!r}.")
         if not isinstance(self.count_holes, bool):
             raise HdLabelsError(f"Lander count_holes must be True or False, got {self.count_holes!r}.")
         if self.convention not in defaults.CONVENTIONS:

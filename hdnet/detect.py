@@ -68,8 +68,6 @@ from hdnet.data import (
 from hdnet.errors import HdNetError
 from hdnet.evaluate import (
     CALIBRATIONS,
-    MAX_BATCH_SIZE,
-    MAX_MC_SAMPLES,
     checkpoint_path,
     guard_above_training,
     preferred_labeling,
@@ -80,6 +78,7 @@ from hdnet.evaluate import (
 from hdnet.infer import mc_dropout_predict, predictive_entropy
 from hdnet.inputs import InputSpec, to_dem_grid
 from hdnet.inputs import network_input as prepare_input
+from hdnet.limits import MAX_BATCH_SIZE, MAX_MC_SAMPLES
 from hdnet.model import BayesianSegNet
 from hdnet.noise_levels import TrainingNoise
 from hdnet.report import json_plain

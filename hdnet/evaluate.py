@@ -44,6 +44,7 @@ from hdnet.data import (
 from hdnet.errors import HdNetError
 from hdnet.infer import mc_dropout_predict, predictive_entropy
 from hdnet.inputs import InputSpec
+from hdnet.limits import MAX_BATCH_SIZE, MAX_MC_SAMPLES
 from hdnet.metrics import ConfusionAccumulator, SegmentationMetrics
 from hdnet.model import BayesianSegNet
 from hdnet.noise_levels import TrainingNoise, check_levels
@@ -59,8 +60,6 @@ from hdnet.train import LAST, load_trained_model
 from lidarsim.shards import MANIFEST_NAME, read_manifest, sha256_file
 
 METHODS: tuple[str, str, str] = ("alhat_baseline", "base_net", "uncertainty_aware")
-MAX_MC_SAMPLES = 1024  # hd choice: the tiled suffix of one batch holds M copies in memory (paper: M = 8)
-MAX_BATCH_SIZE = 1024  # hd choice: DEMs per inference batch
 # Where H_t is calibrated: once at the run's reference noise level (the paper), or at each test level.
 CALIBRATIONS: tuple[str, ...] = ("reference", "each")
 # hd choice: above a run's training noise levels, `--calibrate each` calls a pixel certain-safe only

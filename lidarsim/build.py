@@ -111,18 +111,18 @@ class BuildConfig:
         if not self.sigmas_m:
             raise LidarsimError("at least one --sigma is needed")
         for s in self.sigmas_m:
-            if not (isinstance(s, (int, float)) and math.isfinite(s) and s > 0.0):
-                raise LidarsimError(f"--sigma must be a positive number of metres, got {s}")
+            if not (isinstance(s, (int, float)) and limits.SIGMA_M.contains(s)):
+                raise LidarsimError(f"--sigma must be a number of metres in {limits.SIGMA_M.interval()}, got {s}")
         if len(set(self.sigmas_m)) != len(self.sigmas_m):
             raise LidarsimError(f"--sigma values must be distinct, got {list(self.sigmas_m)}")
-        if self.seed < 0:
-            raise LidarsimError(f"--seed must be >= 0, got {self.seed}")
-        if self.shard_size <= 0:
-            raise LidarsimError(f"shard size must be > 0, got {self.shard_size}")
+        if not limits.SEED.contains(self.seed):
+            raise LidarsimError(f"--seed must be in {limits.SEED.interval()}, got {self.seed}")
+        if not limits.SHARD_SIZE.contains(self.shard_size):
+            raise LidarsimError(f"shard size must be in {limits.SHARD_SIZE.interval()}, got {self.shard_size}")
         if self.rocks_on_dtm and (self.dtm_path is None or self.dtm_scale != 1.0):
             raise LidarsimError("rocks on a DTM need a DTM (--dtm) at full resolution (--dtm-scale 1)")
-        if not (math.isfinite(self.dtm_scale) and 0.0 < self.dtm_scale <= 1.0):
-            raise LidarsimError(f"--dtm-scale must be in (0, 1], got {self.dtm_scale}")
+        if not limits.DTM_SCALE.contains(self.dtm_scale):
+            raise LidarsimError(f"--dtm-scale must be in {limits.DTM_SCALE.interval()}, got {self.dtm_scale}")
         if self.compression not in defaults.COMPRESSIONS:
             raise LidarsimError(f"unknown compression {self.compression!r}; use {', '.join(defaults.COMPRESSIONS)}")
         per_scan = self.sensor.rows * self.sensor.cols * (4 * 3 * (1 + len(self.sigmas_m)) + 2)

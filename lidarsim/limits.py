@@ -7,6 +7,11 @@ once instead of a MemoryError after a long wait (docs/reliability.md lists them)
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
+
+from lidarsim import terrain_defaults
+
 # Detector pixels per side: one ray-casting batch (16 scans) of 1024 x 1024 rays needs ~0.4 GB.
 MAX_DETECTOR_PX: int = 1024
 # Scans per dataset (the paper's datasets hold 1000).
@@ -20,3 +25,77 @@ MAX_WORKERS: int = 512
 MIN_RETURN_FRACTION: float = 0.5
 # DataLoader worker processes of `hd train`.
 MAX_LOADER_WORKERS: int = 256
+
+
+# ------------------------------------------------------------------------------------ option ranges
+@dataclass(frozen=True)
+class Bound:
+    """The range of one numeric setting, declared once where the value belongs and used by the
+    package's own checks and by the ``hd`` command line (click ranges: the bound is shown in
+    ``--help`` and a value outside it is a usage error before any work).
+
+    ``low``/``high``: the ends (None: unbounded on that side), in the setting's unit; ``low_open``/
+    ``high_open``: the end itself is excluded. ``integer``: the setting is a count or an index.
+    """
+
+    low: float | None = None
+    high: float | None = None
+    low_open: bool = False
+    high_open: bool = False
+    integer: bool = False
+
+    def contains(self, value: float) -> bool:
+        """True when ``value`` is a finite number within the range."""
+        if not math.isfinite(value):
+            return False
+        if self.low is not None and (value <= self.low if self.low_open else value < self.low):
+            return False
+        return not (self.high is not None and (value >= self.high if self.high_open else value > self.high))
+
+    def interval(self) -> str:
+        """The range in interval notation: ``(0, 170)``, ``[0, 5)``, ``[1, inf)``."""
+
+        def end(v: float | None, default: str) -> str:
+            return default if v is None else (f"{int(v)}" if self.integer else f"{v:g}")
+
+        left = "(" if self.low_open or self.low is None else "["
+        right = ")" if self.high_open or self.high is None else "]"
+        return f"{left}{end(self.low, '-inf')}, {end(self.high, 'inf')}{right}"
+
+
+def _int_bound(low: int, high: int | None = None) -> Bound:
+    return Bound(low, high, integer=True)
+
+
+# Seeds: unsigned 32-bit integers, which every random generator hd seeds (numpy, PyTorch, Dask)
+# and every file that records them (shard attributes, JSON, checkpoints) take as they are.
+MAX_SEED: int = 2**32 - 1
+SEED = _int_bound(0, MAX_SEED)
+SCANS = _int_bound(1, MAX_SCANS)
+SHARD_SIZE = _int_bound(1, MAX_SCANS)
+WORKERS = _int_bound(1, MAX_WORKERS)
+LOADER_WORKERS = _int_bound(0, MAX_LOADER_WORKERS)
+DETECTOR_PX = _int_bound(2, MAX_DETECTOR_PX)
+# Dead or damaged detector elements (together at most the detector's pixels, checked with --resolution).
+DETECTOR_ELEMENTS = _int_bound(0, MAX_DETECTOR_PX * MAX_DETECTOR_PX)
+# Range noise 1-sigma of a dataset's noise level, metres (a noise-free copy is stored beside every level).
+SIGMA_M = Bound(0.0, low_open=True)
+# Sensor altitude, metres (the footprint is then compared with the terrain before any work).
+ALTITUDE_M = Bound(0.0, low_open=True)
+# Off-nadir tilt of the boresight, degrees (beyond 60 degrees the footprint grazes the terrain).
+TILT_DEG = Bound(-60.0, 60.0, low_open=True, high_open=True)
+# 1-sigma attitude jitter per axis, degrees.
+JITTER_DEG = Bound(0.0, 5.0, high_open=True)
+# Field of view per side, degrees (a pinhole detector cannot see 180 degrees).
+FOV_DEG = Bound(0.0, 170.0, low_open=True, high_open=True)
+# Resampling factor of a DTM (1 = full resolution; hd never invents detail by upsampling).
+DTM_SCALE = Bound(0.0, 1.0, low_open=True)
+# Procedural terrain (hd make-dtm): side and grid spacing, metres; the side is also checked against
+# the spacing (two cells at least, 16384 at most).
+TERRAIN_SIZE_M = Bound(0.0, low_open=True)
+TERRAIN_SPACING_M = Bound(0.0, terrain_defaults.MAX_SPACING_M, low_open=True)
+# Golombek-Rapp rock abundance k: 0 (no rocks) or within the model's range (from ROCK_K_MIN).
+ROCK_K = Bound(0.0, terrain_defaults.ROCK_K_MAX)
+# Largest crater added below a base DTM's resolution (hd make-dtm --base), metres: at least the
+# smallest crater the model samples.
+CRATER_DIAMETER_M = Bound(terrain_defaults.CRATER_D_MIN_M)

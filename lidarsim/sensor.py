@@ -61,8 +61,8 @@ class SensorConfig:
             )
         for name in ("fov_x_deg", "fov_y_deg"):
             value = getattr(self, name)
-            if not (0.0 < value < 170.0):
-                raise LidarsimError(f"{name} must be in (0, 170) degrees, got {value}")
+            if not limits.FOV_DEG.contains(value):
+                raise LidarsimError(f"{name} must be in {limits.FOV_DEG.interval()} degrees, got {value}")
         n_pixels = self.rows * self.cols
         if self.dead_elements < 0 or self.damaged_elements < 0:
             raise LidarsimError("dead and damaged element counts must be >= 0")

@@ -55,10 +55,12 @@ class TrajectoryConfig:
             raise LidarsimError(f"the number of scans must be at most {limits.MAX_SCANS}, got {self.n_scans}")
         if not (self.altitude_m > 0.0 and math.isfinite(self.altitude_m)):
             raise LidarsimError(f"altitude must be > 0 metres, got {self.altitude_m}")
-        if not (0.0 <= abs(self.tilt_deg) < 60.0):
-            raise LidarsimError(f"tilt must be within (-60, 60) degrees, got {self.tilt_deg}")
-        if not (0.0 <= self.jitter_deg < 5.0):
-            raise LidarsimError(f"attitude jitter must be in [0, 5) degrees, got {self.jitter_deg}")
+        if not limits.TILT_DEG.contains(self.tilt_deg):
+            raise LidarsimError(f"tilt must be within {limits.TILT_DEG.interval()} degrees, got {self.tilt_deg}")
+        if not limits.JITTER_DEG.contains(self.jitter_deg):
+            raise LidarsimError(
+                f"attitude jitter must be in {limits.JITTER_DEG.interval()} degrees, got {self.jitter_deg}"
+            )
         if self.margin_m < 0.0 or self.tile_m <= 0.0:
             raise LidarsimError("margin_m must be >= 0 and tile_m > 0 metres")
 

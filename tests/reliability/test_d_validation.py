@@ -8,8 +8,11 @@ line ``Error: ...`` naming the problem, nothing created at the output path, and 
 from __future__ import annotations
 
 import math
+import re
 
+import click
 import pytest
+from click.types import FloatParamType, IntParamType, _NumberRangeBase
 from reliability_kit import assert_one_line_error, invoke
 
 BIG = str(10**9)
@@ -156,7 +159,8 @@ MAKE_DTM = [
     ("spacing-nan", ["{tmp}/x.tif", "--spacing", "nan"], "--spacing"),
     ("spacing-too-coarse", ["{tmp}/x.tif", "--spacing", "5"], "spacing"),
     ("size-absurd", ["{tmp}/x.tif", "--size", "1e9"], "cells per side"),
-    ("rock-k-out-of-range", ["{tmp}/x.tif", "--rock-k", "2"], "rock_k"),
+    ("rock-k-out-of-range", ["{tmp}/x.tif", "--rock-k", "2"], "--rock-k"),
+    ("craters-below-nan", ["{tmp}/x.tif", "--craters-below", "nan"], "--craters-below"),
 ]
 
 
@@ -199,10 +203,10 @@ EVAL = [
     ("out-under-proc", ["--out", "/proc/hd-report"], "/proc"),
     ("out-under-a-file", ["--out", "{file}/report"], "not a directory"),
     ("out-is-a-file", ["--out", "{file}"], "not a directory|is a file"),
-    ("mc-samples-zero", ["--mc-samples", "0"], "MC samples"),
-    ("mc-samples-absurd", ["--mc-samples", BIG], "MC samples"),
-    ("batch-size-zero", ["--batch-size", "0"], "batch size"),
-    ("batch-size-absurd", ["--batch-size", BIG], "batch size"),
+    ("mc-samples-zero", ["--mc-samples", "0"], "--mc-samples"),
+    ("mc-samples-absurd", ["--mc-samples", BIG], "--mc-samples"),
+    ("batch-size-zero", ["--batch-size", "0"], "--batch-size"),
+    ("batch-size-absurd", ["--batch-size", BIG], "--batch-size"),
     ("drop-pixels-negative", ["--drop-pixels", "-1"], "drop-pixels"),
     ("drop-pixels-absurd", ["--drop-pixels", BIG], "drop-pixels"),
     ("seed-negative", ["--seed", "-1"], "--seed"),
@@ -289,3 +293,71 @@ def test_every_float_option_rejects_nan_and_inf():
     missing = sorted(f for f in floats if f.split(":")[1] not in covered)
     assert missing == [], f"float options without a non-finite case: {missing}"
     assert math.isnan(float("nan"))
+
+
+def _numeric_options() -> list[tuple[str, click.Command, click.Option]]:
+    """(command name, command, option) for every int or float option of every command."""
+    from cli import main
+
+    return [
+        (c, cmd, p)
+        for c, cmd in sorted(main.commands.items())
+        for p in cmd.params
+        if isinstance(p, click.Option) and not p.is_flag and isinstance(p.type, IntParamType | FloatParamType)
+    ]
+
+
+NUMERIC = _numeric_options()
+
+
+def test_every_numeric_option_has_a_bound_shown_in_its_help():
+    """Guard for new options: every numeric option of every command has a declared range (from the
+    packages' limits modules), shown by --help, and no range written by hand into its help text."""
+    assert len(NUMERIC) >= 40
+    unbounded, hidden, by_hand = [], [], []
+    for c, cmd, p in NUMERIC:
+        name = f"{c} {p.opts[0]}"
+        if not isinstance(p.type, _NumberRangeBase) or (p.type.min is None and p.type.max is None):
+            unbounded.append(name)
+            continue
+        record = p.get_help_record(click.Context(cmd, info_name=c))
+        assert record is not None
+        if p.type._describe_range() not in record[1]:
+            hidden.append(name)
+        if re.search(r"\d\s*\.\.\s*\d|\(\s*[<>]=?\s*\d", p.help or ""):
+            by_hand.append(name)
+    assert unbounded == [], f"numeric options without a range: {unbounded}"
+    assert hidden == [], f"ranges not shown in --help: {hidden}"
+    assert by_hand == [], f"ranges written into the help text instead of declared: {by_hand}"
+
+
+def _outside(t: _NumberRangeBase) -> str:
+    """A value just outside the range of ``t``."""
+    integer = isinstance(t, click.IntRange)
+    if t.min is not None:
+        value = t.min if t.min_open else t.min - (1 if integer else 0.5)
+    elif t.max is not None:
+        value = t.max if t.max_open else t.max + (1 if integer else 0.5)
+    else:
+        pytest.fail(f"no range: {t!r}")
+    return str(int(value)) if integer else repr(float(value))
+
+
+@pytest.mark.parametrize(
+    ("command", "option"), [(c, p) for c, _, p in NUMERIC], ids=[f"{c}{p.opts[0]}" for c, _, p in NUMERIC]
+)
+def test_a_value_outside_its_range_is_a_usage_error_before_work(command, option, tmp_path):
+    """One line naming the option and its range; nothing created (click refuses it before the command runs)."""
+    from cli import main
+
+    cmd = main.commands[command]
+    argv = [command]
+    for p in cmd.params:
+        if p.required and p is not option and p.name != option.name:
+            argv += [str(tmp_path / "x")] if isinstance(p, click.Argument) else [p.opts[0], str(tmp_path / "x")]
+    if not isinstance(option.type, _NumberRangeBase):
+        pytest.fail(f"{command} {option.opts[0]} has no range")
+    result = invoke(*argv, option.opts[0], _outside(option.type))
+    last = assert_one_line_error(result, f"'{option.opts[0]}'")
+    assert result.exit_code == 2 and option.type._describe_range() in last, result.output
+    assert list(tmp_path.iterdir()) == []

@@ -1,0 +1,33 @@
+"""Ranges of hdnet's numeric settings (the options of ``hd train``, ``hd eval`` and ``hd detect``).
+
+Each is declared once here, as a :class:`lidarsim.limits.Bound`, and used by hdnet's own checks
+(``hdnet.evaluate``, ``hdnet.detect``) and by the command line (shown in ``--help``; a value outside
+is a usage error before any work). Sizes that depend on several settings and on the data (dropped
+pixels within a DEM, memory of a batch) are checked where the data is known.
+"""
+
+from __future__ import annotations
+
+from hdlabels.defaults import MAX_DEM_SIDE_PX
+from lidarsim import limits as lidar_limits
+from lidarsim.limits import Bound
+
+# MC-dropout samples per DEM: the tiled suffix of one batch holds M copies in memory (hd choice;
+# the paper's M is 8).
+MAX_MC_SAMPLES: int = 1024
+# DEMs (or detect tiles) per inference batch (hd choice).
+MAX_BATCH_SIZE: int = 1024
+# Training epochs: the paper's SGD needs 10^4 (hdnet.profiles); ten times that bounds a typo.
+MAX_EPOCHS: int = 100_000
+
+MC_SAMPLES = Bound(1, MAX_MC_SAMPLES, integer=True)
+BATCH_SIZE = Bound(1, MAX_BATCH_SIZE, integer=True)
+EPOCHS = Bound(1, MAX_EPOCHS, integer=True)
+# Dead pixels dropped from each DEM (also fewer than the DEM's pixels, checked with the data).
+DROP_PIXELS = Bound(0, MAX_DEM_SIDE_PX * MAX_DEM_SIDE_PX - 1, integer=True)
+# Landing sites hd detect proposes, at most.
+SITES = Bound(1, integer=True)
+# Index of a scan in a dataset.
+SCAN_INDEX = Bound(0, lidar_limits.MAX_SCANS - 1, integer=True)
+# A sensor's or a training input's range noise 1-sigma, metres (0: noise-free).
+NOISE_SIGMA_M = Bound(0.0)
