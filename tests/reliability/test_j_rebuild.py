@@ -5,7 +5,11 @@ copy fails, naming the file and the array or attribute."""
 from __future__ import annotations
 
 import json
+import os
+import platform
 import shutil
+import subprocess
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -13,7 +17,7 @@ from typing import Any
 import h5py
 import numpy as np
 import pytest
-from reliability_kit import BUILD_ARGS, invoke
+from reliability_kit import BUILD_ARGS, LABEL_ARGS, REPO, invoke
 
 from lidarsim.shards import read_manifest, sha256_file
 
@@ -203,3 +207,43 @@ def test_a_labelling_the_copy_lacks_is_noted_and_a_newer_fingerprint_schema_refu
     (other / "checksums.json").write_text(json.dumps(published))
     result = invoke("verify", data_copy, "--recipe", other)
     assert result.exit_code != 0 and "version 2.0 is not supported" in result.output
+
+
+# Switches that make this machine compute as another x86-64 CPU would (docs/reliability.md, class J).
+OTHER_CPUS = {
+    # numpy's loops for CPUs without AVX-512 (float64 power, exp, sin, cos: no SVML)
+    "numpy-avx2": {"NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL AVX512_SPR"},
+    # OpenBLAS's kernels for Intel AVX-512 CPUs (the lander's plane weights in the label kernels)
+    "openblas-skylakex": {"OPENBLAS_CORETYPE": "SkylakeX"},
+}
+
+
+def _has_avx512() -> bool:
+    try:
+        return "avx512f" in Path("/proc/cpuinfo").read_text().split()
+    except OSError:
+        return False
+
+
+@pytest.mark.skipif(platform.machine() not in ("x86_64", "AMD64"), reason="switches of x86-64 code paths")
+@pytest.mark.parametrize("cpu", sorted(OTHER_CPUS))
+def test_a_rebuild_computed_as_on_another_cpu_passes_with_identical_scans(tmp_path, recipe, cpu):
+    if cpu == "openblas-skylakex" and not _has_avx512():
+        pytest.skip("OpenBLAS's SkylakeX kernels need AVX-512")
+    out = tmp_path / "other-cpu"
+    env = {**os.environ, "OMP_NUM_THREADS": "1", **OTHER_CPUS[cpu]}
+    for args in (
+        ["build-dataset", "--recipe", str(recipe), "--out", str(out), "--workers", "1"],
+        ["label", str(out), "--workers", "1", *LABEL_ARGS],
+    ):
+        done = subprocess.run(
+            [sys.executable, str(REPO / "cli.py"), *args], env=env, capture_output=True, text=True, timeout=600
+        )
+        assert done.returncode == 0, done.stderr
+    code, out_text, err = verify(out, recipe)
+    assert code == 0, err
+    manifest = read_manifest(out)
+    for entry in manifest["shards"]:  # ray casting, terrain and noise: the same bits
+        assert f"{entry['path']}: identical (sha256)\n" in out_text
+    for entry in manifest["labelings"][0]["shards"]:  # label maps: the same bits or a few rounding steps
+        assert f"{entry['path']}: identical (sha256)\n" in out_text or f"{entry['path']}: rebuilt: " in out_text
