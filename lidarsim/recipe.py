@@ -181,17 +181,50 @@ class Recipe:
         return recorded
 
 
+# Directories (``os.pathsep``-separated) searched for a recipe given by its bare name.
+RECIPE_PATH_ENV = "HD_RECIPE_PATH"
+# The recipes of a source checkout (an editable install): datasets/ beside the packages.
+SOURCE_RECIPES = Path(__file__).resolve().parents[1] / "datasets"
+
+
+def recipe_search_dirs() -> list[Path]:
+    """Where a recipe given by its bare name is looked for, in order: the current directory,
+    each directory of ``$HD_RECIPE_PATH``, then the source checkout's ``datasets/``."""
+    extra = [Path(d) for d in os.environ.get(RECIPE_PATH_ENV, "").split(os.pathsep) if d]
+    return [Path("."), *extra, SOURCE_RECIPES]
+
+
+def find_recipe(path: str | os.PathLike) -> Path:
+    """The recipe file named by ``path``: a ``recipe.toml`` or its directory (as given), or a bare
+    name (``mars-paper``) looked for in :func:`recipe_search_dirs`.
+
+    Raises:
+        RecipeError: no such recipe, naming the places looked in and the recipes found there.
+    """
+    given = Path(path)
+    candidates = [given]
+    if len(given.parts) == 1 and given.name not in (".", ".."):
+        candidates += [d / given for d in recipe_search_dirs()[1:]]
+    for candidate in candidates:
+        file = candidate / RECIPE_FILE if candidate.is_dir() else candidate
+        if file.is_file():
+            return file
+    known = sorted({p.parent.name for d in recipe_search_dirs() if d.is_dir() for p in d.glob(f"*/{RECIPE_FILE}")})
+    where = ", ".join(str(d) for d in recipe_search_dirs())
+    raise RecipeError(
+        f"{given}: no such recipe (looked in {where}; set {RECIPE_PATH_ENV} to add places)"
+        + (f"; recipes there: {', '.join(known)}" if known else "")
+    )
+
+
 def load_recipe(path: str | os.PathLike) -> Recipe:
-    """Read ``recipe.toml`` (``path`` is the file or its directory).
+    """Read ``recipe.toml`` (``path`` is the file, its directory or a recipe's bare name, see
+    :func:`find_recipe`).
 
     Raises:
         RecipeError: missing or unreadable file, unknown keys, invalid values.
     """
-    path = Path(path)
-    if path.is_dir():
-        path = path / RECIPE_FILE
-    if not path.is_file():
-        raise RecipeError(f"{path}: no such recipe")
+    path = find_recipe(path)
     try:
         data = tomllib.loads(path.read_bytes().decode("utf-8"))
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:

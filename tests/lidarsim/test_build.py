@@ -412,3 +412,24 @@ def test_an_absurd_altitude_is_refused_at_once(altitude_m):
     finally:
         signal.alarm(0)
         signal.signal(signal.SIGALRM, previous)
+
+
+def test_a_recipe_is_found_by_name_from_anywhere(tmp_path, monkeypatch):
+    from lidarsim.errors import RecipeError
+    from lidarsim.recipe import RECIPE_PATH_ENV, load_recipe
+
+    monkeypatch.chdir(tmp_path)
+    assert load_recipe("mars-paper").path == (REPO / "datasets" / "mars-paper" / "recipe.toml").resolve()
+    mine = tmp_path / "shelf" / "mine"
+    mine.mkdir(parents=True)
+    (mine / "recipe.toml").write_text('[dataset]\nname = "mine"\n[build]\nscans = 5\n')
+    with pytest.raises(RecipeError, match="no such recipe") as info:
+        load_recipe("mine")
+    assert "mars-jezero" in str(info.value) and RECIPE_PATH_ENV in str(info.value)
+    monkeypatch.setenv(RECIPE_PATH_ENV, str(tmp_path / "shelf"))
+    assert load_recipe("mine").build.trajectory.n_scans == 5
+    # A path with a directory part is taken as it is, never looked up by name.
+    with pytest.raises(RecipeError, match="no such recipe"):
+        load_recipe("elsewhere/mars-paper")
+    result = CliRunner().invoke(main, ["build-dataset", "--recipe", "nope", "--out", str(tmp_path / "x")])
+    assert result.exit_code != 0 and "no such recipe" in result.output and not (tmp_path / "x").exists()
