@@ -1,0 +1,55 @@
+"""Every `hd` line of the README's code blocks is a valid command line, as pasted."""
+
+from __future__ import annotations
+
+import re
+import shlex
+from pathlib import Path
+
+import click
+import pytest
+
+from cli import main
+
+README = Path(__file__).resolve().parents[2] / "README.md"
+
+
+def readme_commands() -> list[str]:
+    """The lines of the README's bash blocks that call hd (comments removed)."""
+    blocks = re.findall(r"```bash\n(.*?)```", README.read_text(), re.S)
+    lines = [line.split("  #")[0].strip() for block in blocks for line in block.splitlines()]
+    return [line for line in lines if line.startswith("hd ")]
+
+
+def test_the_readme_shows_the_workflow_in_order():
+    commands = [c.split()[1] for c in readme_commands()]
+    order = [commands.index(c) for c in ("build-dataset", "label", "train", "eval", "detect")]
+    assert order == sorted(order)
+    assert "source .venv/bin/activate" in README.read_text()
+
+
+@pytest.mark.parametrize("line", readme_commands())
+def test_each_readme_command_parses(line: str):
+    assert "|" not in line, "one command per line: a pipe would run the commands as a shell pipeline"
+    for part in line.split(" && "):
+        args = shlex.split(part)[1:]
+        name = args[0]
+        command = main.get_command(click.Context(main), name)
+        assert command is not None, f"no command {name!r}"
+        # Parsing checks the options and their values without running anything; inputs need not exist.
+        with click.Context(main, info_name="hd") as parent:
+            try:
+                command.make_context(name, args[1:], parent=parent)
+            except click.BadParameter as exc:
+                if "does not exist" not in str(exc):
+                    raise
+
+
+def test_the_demo_ends_with_commands_that_parse(tmp_path):
+    from cli import _demo_next_steps
+
+    text = _demo_next_steps(tmp_path / "demo-out")
+    lines = [line.strip() for line in text.splitlines()[1:]]
+    assert lines and all("detect" in line for line in lines)
+    for line in lines:
+        test_each_readme_command_parses("hd " + line.split(" ", 1)[1].replace(" && " + line.split()[0], " && hd"))
