@@ -201,11 +201,18 @@ class BuildSummary:
     resumed_shards: int
     bytes_written: int
     rays_per_second: float
+    already_built: bool = False
 
     def paragraph(self) -> str:
         """A one-paragraph human summary."""
         sig = ", ".join(f"{s * 100:.2f} cm" for s in self.sigmas_m)
         splits = ", ".join(f"{self.split_counts.get(k, 0)} {k}" for k in SPLIT_NAMES)
+        if self.already_built:
+            return (
+                f"{self.out_dir} already holds this dataset, built with the same settings ({self.n_scans} scans in "
+                f"{self.n_shards} shards, sigma = {sig}; splits {splits}): nothing to do. Check it with "
+                f"`hd verify {self.out_dir}`; pass --overwrite to build it again."
+            )
         resumed = f" ({self.resumed_shards} shards were already complete and kept)" if self.resumed_shards else ""
         return (
             f"Built {self.n_scans} scans in {self.n_shards} shards at {self.out_dir} in {self.seconds:.1f} s"
@@ -400,22 +407,80 @@ def prepare_output(out_dir: Path, config: BuildConfig, overwrite: bool) -> bool:
         if overwrite:
             return False
         if manifest.exists():
+            previous = _recorded_settings(manifest)
+            if previous.get("config_sha256") == config.fingerprint():
+                raise OutputExistsError(
+                    f"{out_dir} holds a dataset of these settings whose shards or DTM changed (check it with "
+                    "`hd verify`); pass --overwrite to build it again"
+                )
+            difference = settings_difference(previous, config)
             raise OutputExistsError(
-                f"{out_dir} already holds a dataset ({MANIFEST_NAME}); pass --overwrite to replace it"
+                f"{out_dir} already holds a dataset built with other settings ({difference}); "
+                "pass --overwrite to replace it, or choose another --out"
             )
-        try:
-            previous = json.loads(state.read_text()).get("config_sha256")
-        except (OSError, json.JSONDecodeError):
-            previous = None
-        if previous != config.fingerprint():
+        previous = _recorded_settings(state)
+        if previous.get("config_sha256") != config.fingerprint():
+            difference = settings_difference(previous, config)
             raise OutputExistsError(
-                f"{out_dir} holds an unfinished build with other settings; rerun that build's command to "
-                "resume it, or pass --overwrite to start again"
+                f"{out_dir} holds an unfinished build with other settings ({difference}); "
+                "rerun that build's command to resume it, or pass --overwrite to start again"
             )
         return True
     if any(p.name != LOCK_NAME and PARTIAL_MARK not in p.name for p in out_dir.iterdir()):
         raise OutputExistsError(f"{out_dir} exists, is not empty and is not an hd dataset; choose another --out")
     return False
+
+
+def _recorded_settings(path: Path) -> dict[str, Any]:
+    """``config_sha256`` and ``config`` recorded in a manifest or a build state file ({} if unreadable)."""
+    try:
+        record = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError):
+        return {}
+    return record if isinstance(record, dict) else {}
+
+
+def _flatten(value: Any, prefix: str = "") -> dict[str, Any]:
+    if isinstance(value, dict):
+        out: dict[str, Any] = {}
+        for k, v in value.items():
+            out |= _flatten(v, f"{prefix}{k}.")
+        return out
+    return {prefix.rstrip("."): value}
+
+
+def settings_difference(recorded: dict[str, Any], config: BuildConfig, limit: int = 4) -> str:
+    """The settings that differ between a recorded build (manifest or state) and ``config``, for messages:
+    ``sigmas_m [0.0167] -> [0.07], trajectory.n_scans 20 -> 40``."""
+    old = recorded.get("config")
+    if not isinstance(old, dict):
+        return "its settings are not recorded"
+    before, after = _flatten(old), _flatten(config.to_dict())
+    keys = [k for k in sorted(set(before) | set(after)) if before.get(k, "absent") != after.get(k, "absent")]
+    if not keys:
+        return "the same recorded settings, another settings hash (a build of another hd version)"
+    shown = [f"{k} {json.dumps(before.get(k, 'absent'))} -> {json.dumps(after.get(k, 'absent'))}" for k in keys[:limit]]
+    more = f" and {len(keys) - limit} more" if len(keys) > limit else ""
+    return "; ".join(shown) + more
+
+
+def finished_identical(out_dir: Path, config: BuildConfig) -> dict[str, Any] | None:
+    """The manifest of a finished build in ``out_dir`` made with exactly ``config`` (settings hash, and a
+    user DTM of the same bytes), else None. Nothing is verified beyond the shards being present."""
+    record = _recorded_settings(out_dir / MANIFEST_NAME)
+    if not record or record.get("config_sha256") != config.fingerprint():
+        return None
+    shards = record.get("shards")
+    if not isinstance(shards, list) or not all(
+        isinstance(e, dict) and isinstance(e.get("path"), str) and (out_dir / e["path"]).is_file() for e in shards
+    ):
+        return None
+    if config.dtm_path is not None and not config.rocks_on_dtm:
+        dtm = record.get("dtm")
+        recorded_sha = dtm.get("sha256") if isinstance(dtm, dict) else None
+        if not Path(config.dtm_path).is_file() or sha256_file(config.dtm_path) != recorded_sha:
+            return None
+    return record
 
 
 def clear_output(out_dir: Path, keep_state: bool = False) -> None:
@@ -520,6 +585,20 @@ def build_dataset(
     t_start = time.perf_counter()
     out_dir = check_output_dir(out_dir, "--out").resolve()
     check_workers(workers)
+    if not overwrite and (done := finished_identical(out_dir, config)) is not None:
+        splits = done.get("splits")
+        return BuildSummary(
+            out_dir=out_dir,
+            n_scans=int(done.get("n_scans", config.trajectory.n_scans)),
+            n_shards=len(done["shards"]),
+            sigmas_m=config.sigmas_m,
+            split_counts={str(k): int(v) for k, v in splits.items()} if isinstance(splits, dict) else {},
+            seconds=time.perf_counter() - t_start,
+            resumed_shards=len(done["shards"]),
+            bytes_written=0,
+            rays_per_second=0.0,
+            already_built=True,
+        )
     if scheduler is not None:
         probe_scheduler(scheduler)
     prepare_output(out_dir, config, overwrite)

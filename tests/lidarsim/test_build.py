@@ -176,8 +176,21 @@ def test_existing_output_is_never_overwritten_without_the_flag(tmp_path, dtm):
     before = (out / "manifest.json").read_text()
     argv = ["build-dataset", "--out", str(out), "--dtm", str(dtm), "--scans", "12", "--resolution", "32"]
     result = CliRunner().invoke(main, argv)
+    # Other settings (the CLI's default sigma and seed): refused, the differences named.
     assert result.exit_code != 0 and "--overwrite" in result.output
+    assert "sigmas_m [0.0167, 0.07] -> [0.0167]" in result.output and "seed 5 -> 0" in result.output
     assert (out / "manifest.json").read_text() == before
+    # The identical command again: done already, exit 0, nothing touched.
+    same = [*argv, "--sigma", "0.0167", "--sigma", "0.07", "--seed", "5", "--shard-size", "4"]
+    result = CliRunner().invoke(main, same)
+    assert result.exit_code == 0 and "already holds this dataset" in result.output, result.output
+    assert (out / "manifest.json").read_text() == before
+    # Its shards gone: not the same dataset any more, and said so.
+    shard = out / read_manifest(out)["shards"][0]["path"]
+    shard.rename(shard.with_suffix(".moved"))
+    result = CliRunner().invoke(main, same)
+    assert result.exit_code != 0 and "hd verify" in result.output
+    shard.with_suffix(".moved").rename(shard)
     result = CliRunner().invoke(main, [*argv, "--overwrite", "--sigma", "0.05"])
     assert result.exit_code == 0, result.output
     assert read_manifest(out)["sigmas_m"] == [0.05]
