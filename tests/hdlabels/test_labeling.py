@@ -132,8 +132,8 @@ def test_other_lander_makes_a_second_labelling(dataset):
     [
         (["--lander-diameter", "150"], "larger than the DEM"),
         (["--pad-diameter", "12"], "pad diameter"),
-        (["--max-slope-deg", "0"], "max_slope_deg"),
-        (["--max-roughness", "-0.1"], "max_roughness_m"),
+        (["--max-slope-deg", "0"], "--max-slope-deg"),  # out of its range: a usage error
+        (["--max-roughness", "-0.1"], "--max-roughness"),
     ],
 )
 def test_bad_lander_is_refused_and_nothing_is_written(dataset, args, needle):
