@@ -181,10 +181,11 @@ def _rasterise_numpy(tri: np.ndarray, spacing: float, dem: np.ndarray) -> None:
     rows, cols = dem.shape
     x, y = tri[:, :, 0], tri[:, :, 1]
     # Cell index ranges covered by each triangle's bounding box (fractional index of x, y).
-    j_lo = np.ceil(x.min(axis=1) / spacing + (cols - 1) / 2.0 - 1e-9).astype(np.int64)
-    j_hi = np.floor(x.max(axis=1) / spacing + (cols - 1) / 2.0 + 1e-9).astype(np.int64)
-    i_lo = np.ceil((rows - 1) / 2.0 - y.max(axis=1) / spacing - 1e-9).astype(np.int64)
-    i_hi = np.floor((rows - 1) / 2.0 - y.min(axis=1) / spacing + 1e-9).astype(np.int64)
+    # Clipped to one cell beyond the grid while still floats (no integer overflow for far vertices).
+    j_lo = np.clip(np.ceil(x.min(axis=1) / spacing + (cols - 1) / 2.0 - 1e-9), -1, cols).astype(np.int64)
+    j_hi = np.clip(np.floor(x.max(axis=1) / spacing + (cols - 1) / 2.0 + 1e-9), -1, cols).astype(np.int64)
+    i_lo = np.clip(np.ceil((rows - 1) / 2.0 - y.max(axis=1) / spacing - 1e-9), -1, rows).astype(np.int64)
+    i_hi = np.clip(np.floor((rows - 1) / 2.0 - y.min(axis=1) / spacing + 1e-9), -1, rows).astype(np.int64)
     j_lo, i_lo = np.maximum(j_lo, 0), np.maximum(i_lo, 0)
     j_hi, i_hi = np.minimum(j_hi, cols - 1), np.minimum(i_hi, rows - 1)
     keep = (j_hi >= j_lo) & (i_hi >= i_lo)
@@ -229,10 +230,12 @@ def _fill_triangle(a, b, c, spacing, dem):  # pragma: no cover - compiled by num
         return
     xmin, xmax = min(x0, x0 + e1x, x0 + e2x), max(x0, x0 + e1x, x0 + e2x)
     ymin, ymax = min(y0, y0 + e1y, y0 + e2y), max(y0, y0 + e1y, y0 + e2y)
-    j_lo = max(int(math.ceil(xmin / spacing + cj - 1e-9)), 0)
-    j_hi = min(int(math.floor(xmax / spacing + cj + 1e-9)), cols - 1)
-    i_lo = max(int(math.ceil(ci - ymax / spacing - 1e-9)), 0)
-    i_hi = min(int(math.floor(ci - ymin / spacing + 1e-9)), rows - 1)
+    # Fractional cell indices clipped to the grid (one beyond it at most) before ceil and floor make
+    # them integers: a vertex 1e30 m away overflowed int64, undefined in compiled code (an endless loop).
+    j_lo = math.ceil(min(max(xmin / spacing + cj - 1e-9, 0.0), float(cols)))
+    j_hi = math.floor(min(max(xmax / spacing + cj + 1e-9, -1.0), cols - 1.0))
+    i_lo = math.ceil(min(max(ci - ymax / spacing - 1e-9, 0.0), float(rows)))
+    i_hi = math.floor(min(max(ci - ymin / spacing + 1e-9, -1.0), rows - 1.0))
     for i in range(i_lo, i_hi + 1):
         py = (ci - i) * spacing - y0
         for j in range(j_lo, j_hi + 1):
