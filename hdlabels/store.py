@@ -22,7 +22,7 @@ import numpy as np
 
 from hdlabels import defaults
 from hdlabels._version import __version__
-from hdlabels.errors import LabelStoreError
+from hdlabels.errors import HdLabelsError, LabelStoreError
 from hdlabels.lander import Lander
 from lidarsim.shards import (
     MANIFEST_NAME,
@@ -332,11 +332,31 @@ def find_labeling(directory: str | os.PathLike, name: str | None = None) -> dict
         if len(labelings) > 1:
             names = ", ".join(lab["name"] for lab in labelings)
             raise LabelStoreError(f"{directory} has several labellings ({names}); choose one with --labels")
-        return labelings[0]
+        return _checked_entry(labelings[0], f"{directory}/{MANIFEST_NAME}: labelling {labelings[0]['name']}")
     for lab in labelings:
         if lab["name"] == name:
-            return lab
+            return _checked_entry(lab, f"{directory}/{MANIFEST_NAME}: labelling {name}")
     raise LabelStoreError(f"{directory} has no labelling named {name!r}")
+
+
+def _checked_entry(labeling: dict[str, Any], where: str) -> dict[str, Any]:
+    """A labelling entry whose ``dem`` grid and ``lander`` are ones hd can use (its readers take both
+    as they are: a ``rows`` that is a list failed deep inside training).
+
+    Raises:
+        LabelStoreError: naming ``where`` and the faulty entry.
+    """
+    dem, lander = labeling.get("dem", {}), labeling.get("lander", {})
+    if not isinstance(dem, dict) or not isinstance(lander, dict):
+        raise LabelStoreError(f"{where}: its 'dem' and 'lander' entries must be JSON objects")
+    try:
+        DemSpec.from_entry(dem)
+        Lander.from_attrs(lander)
+    except HdLabelsError as exc:
+        raise LabelStoreError(f"{where}: {exc}") from None
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise LabelStoreError(f"{where}: its dem or lander entry is not one hd writes ({exc})") from None
+    return labeling
 
 
 def label_shard_paths(directory: str | os.PathLike, labeling: dict[str, Any]) -> list[Path]:
