@@ -304,8 +304,16 @@ def batch_size_option(what: str) -> Decorator:
     )
 
 
-def threshold_option(what: str) -> Decorator:
-    return click.option("--threshold", default=net_defaults.THRESHOLD_SPEC, show_default=True, help=what)
+# The threshold forms, worded once (hdnet.thresholds.parse_threshold_spec reads them).
+THRESHOLD_FORMS = (
+    "Uncertainty threshold: mean (the validation split's mean entropy, the paper's), quantile:Q, risk:ALPHA "
+    "(false-safe rate at most ALPHA), all calibrated on a validation split, or nats:H (fixed, in nats)."
+)
+
+
+def threshold_option(what: str = "") -> Decorator:
+    help_text = f"{THRESHOLD_FORMS} {what}".strip()
+    return click.option("--threshold", default=net_defaults.THRESHOLD_SPEC, show_default=True, help=help_text)
 
 
 def _options(*decorators: Decorator) -> Decorator:
@@ -908,7 +916,7 @@ def train_cmd(
         show_default=True,
         help=f"Dead-pixel test: pixels dropped from each DEM and refilled (paper: {label_defaults.N_DEAD_PIXELS}).",
     ),
-    threshold_option("Uncertainty threshold: mean, quantile:Q or risk:ALPHA."),
+    threshold_option(),
     labels_option("Labelling to evaluate against (when the dataset has several)."),
     seed_option("MC dropout and dropped pixels"),
     batch_size_option("DEMs per inference batch."),
@@ -992,9 +1000,7 @@ def eval_cmd(
     ),
     out_option("out_dir", "Output directory (maps, sites, overview, detect.json).", directory=False),
     mc_samples_option(),
-    threshold_option(
-        "Uncertainty threshold: mean, quantile:Q, risk:ALPHA (calibrated as hd eval does) or nats:H (fixed)."
-    ),
+    threshold_option("Calibrated as hd eval does."),
     click.option(
         "--sigma",
         "sigma_m",

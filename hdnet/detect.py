@@ -37,7 +37,6 @@ import io
 import json
 import math
 import os
-import re
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -104,7 +103,6 @@ SPACING_TOLERANCE = 0.02
 # Differences below 0.001 are far inside the MC estimate's spread (M = 8), so clearance decides.
 SITE_RANK_DECIMALS = 3
 OVERVIEW_MAX_PX = 1200  # hd choice: longest side of the overview's hillshade, pixels
-_FIXED = re.compile(r"^nats:(.+)$")
 
 
 # --- the run ---------------------------------------------------------------------------------------
@@ -415,16 +413,8 @@ def _check_int(name: str, value: Any, low: int, high: int | None = None) -> int:
 
 def _fixed_threshold(spec: str) -> float | None:
     """H_t of a ``nats:H`` spec (H >= 0 nats, 'inf' allowed), or None for the calibrated specs."""
-    match = _FIXED.match(spec.strip().lower()) if isinstance(spec, str) else None
-    if match is None:
-        return None
-    try:
-        value = float(match.group(1))
-    except ValueError:
-        raise HdNetError(f"threshold spec {spec!r}: {match.group(1)!r} is not a number of nats.") from None
-    if not value >= 0.0:
-        raise HdNetError(f"threshold spec {spec!r}: the entropy threshold must be >= 0 nats.")
-    return value
+    parsed = parse_threshold_spec(spec)
+    return float(parsed.value) if parsed.kind == "nats" and parsed.value is not None else None
 
 
 def is_detect_file(name: str) -> bool:

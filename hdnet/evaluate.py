@@ -498,7 +498,9 @@ class _Thresholds:
         """
         if self.cfg.calibrate == "reference":
             return self.reference
-        th = guard_above_training(self._calibrate(test_sigma_m), test_sigma_m, self.setup.train_noise)
+        th = self._calibrate(test_sigma_m)
+        if self.cfg.threshold_spec.kind != "nats":  # a fixed threshold stays what the user fixed
+            th = guard_above_training(th, test_sigma_m, self.setup.train_noise)
         self._by_sigma[round(float(test_sigma_m), 12)] = th
         return th
 

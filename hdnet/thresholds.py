@@ -44,23 +44,27 @@ LOSS_BOUND = 1.0  # B: the false-safe rate is a fraction of pixels
 
 @dataclass(frozen=True)
 class ThresholdSpec:
-    """How to pick H_t: ``kind`` "mean", "quantile" (value = Q) or "risk" (value = alpha)."""
+    """How to pick H_t: ``kind`` "mean", "quantile" (value = Q), "risk" (value = alpha) or "nats"
+    (value = H_t itself, in nats: fixed, no calibration)."""
 
-    kind: Literal["mean", "quantile", "risk"]
+    kind: Literal["mean", "quantile", "risk", "nats"]
     value: float | None = None
 
     def __str__(self) -> str:
         return self.kind if self.value is None else f"{self.kind}:{self.value:g}"
 
 
-_SPEC = re.compile(r"^(mean|quantile|risk)(?::(.+))?$")
+_SPEC = re.compile(r"^(mean|quantile|risk|nats)(?::(.+))?$")
+# The threshold forms, worded once for every command's errors and help.
+SPEC_FORMS = "'mean', 'quantile:Q', 'risk:ALPHA' or 'nats:H'"
 
 
 def parse_threshold_spec(spec: str) -> ThresholdSpec:
-    """Parse ``mean``, ``quantile:Q`` (Q in [0, 1]) or ``risk:ALPHA`` (alpha in (0, 1))."""
+    """Parse ``mean``, ``quantile:Q`` (Q in [0, 1]), ``risk:ALPHA`` (alpha in (0, 1)) or ``nats:H``
+    (a fixed H_t >= 0 nats; ``inf`` keeps every pixel)."""
     match = _SPEC.match(spec.strip().lower()) if isinstance(spec, str) else None
     if match is None:
-        raise HdNetError(f"threshold spec {spec!r} is not one of 'mean', 'quantile:Q', 'risk:ALPHA'.")
+        raise HdNetError(f"threshold spec {spec!r} is not one of {SPEC_FORMS}.")
     kind, arg = match.group(1), match.group(2)
     if kind == "mean":
         if arg is not None:
@@ -76,6 +80,8 @@ def parse_threshold_spec(spec: str) -> ThresholdSpec:
         raise HdNetError(f"threshold spec {spec!r}: the quantile Q must be in [0, 1].")
     if kind == "risk" and not 0.0 < value < 1.0:
         raise HdNetError(f"threshold spec {spec!r}: the risk level alpha must be in (0, 1).")
+    if kind == "nats" and not value >= 0.0:
+        raise HdNetError(f"threshold spec {spec!r}: the entropy threshold H must be >= 0 nats.")
     return ThresholdSpec(kind, value)  # type: ignore[arg-type]  # kind: one of KINDS, checked above
 
 
@@ -210,6 +216,8 @@ def select_threshold(spec: ThresholdSpec | str, calibration: EntropyCalibration)
         spec = parse_threshold_spec(spec)
     if spec.kind == "mean":
         return calibration.mean()
+    if spec.kind == "nats":
+        return float(spec.value)  # type: ignore[arg-type]  # nats specs carry their value
     if spec.kind == "quantile":
         return calibration.quantile(float(spec.value))  # type: ignore[arg-type]  # quantile specs carry a value
     return calibration.risk_control_threshold(float(spec.value))  # type: ignore[arg-type]  # risk specs carry one

@@ -109,3 +109,10 @@ def test_cli_train_also_and_eval_calibrate_on(two, mixed_run, tmp_path):
         main, ["eval", str(mixed_run), "--data", str(b), "--out", str(a / "r"), "--calibrate-on", str(a)]
     )
     assert bad.exit_code != 0 and "calibration dataset" in bad.output and not (a / "r").exists()
+
+
+def test_eval_takes_a_fixed_threshold_in_nats(two, mixed_run):
+    a, _ = two
+    fixed = evaluate(mixed_run, a, EvalConfig(mc_samples=2, threshold="nats:0.3", calibrate="each"))
+    assert fixed.threshold["value_nats"] == 0.3 and fixed.threshold["kind"] == "nats"
+    assert all(p["value_nats"] == 0.3 for p in fixed.threshold["per_sigma"])  # never moved by a guard

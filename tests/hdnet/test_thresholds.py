@@ -133,3 +133,18 @@ def test_precision_guard_by_hand() -> None:
     assert precision_threshold(wrong, 0.5) == 0.0  # never right: nothing certain
     with pytest.raises(HdNetError, match="precision guard"):
         precision_threshold(cal, 0.0)
+
+
+def test_a_fixed_threshold_in_nats_is_a_spec_like_the_others():
+    from hdnet.thresholds import SPEC_FORMS, EntropyCalibration, parse_threshold_spec, select_threshold
+
+    spec = parse_threshold_spec("nats:0.25")
+    assert (spec.kind, spec.value, str(spec)) == ("nats", 0.25, "nats:0.25")
+    assert select_threshold(spec, EntropyCalibration()) == 0.25  # no calibration needed
+    assert parse_threshold_spec("NATS:inf").value == float("inf")
+    for bad in ("nats:-0.1", "nats:nan", "nats"):
+        with pytest.raises(HdNetError):
+            parse_threshold_spec(bad)
+    with pytest.raises(HdNetError, match="nats:H"):
+        parse_threshold_spec("entropy:0.2")
+    assert "nats:H" in SPEC_FORMS
