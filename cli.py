@@ -1026,6 +1026,12 @@ def eval_cmd(
         show_default=True,
         help="Most landing sites to propose.",
     ),
+    click.option(
+        "--upsample",
+        is_flag=True,
+        help="A DTM coarser than the run's DEM spacing (e.g. HiRISE at 2-4 m) is interpolated bilinearly to it "
+        "(recorded in detect.json) instead of refused; it holds no rocks below its own resolution.",
+    ),
     overwrite_option("Replace an earlier hd detect output in --out (never other files, never an input)."),
     labels_option("With --data: the labelling (when the dataset has several)."),
     seed_option("MC dropout"),

@@ -85,8 +85,9 @@ from hdnet.results import SITE_COLUMNS, Site
 from hdnet.thresholds import ThresholdSpec, parse_threshold_spec, uncertain_mask
 from hdnet.tiling import TilePlan
 from hdnet.train import load_trained_model
+from lidarsim.base_relief import resample_bilinear
 from lidarsim.errors import LidarsimError, TerrainError
-from lidarsim.procedural import geotiff_profile
+from lidarsim.procedural import geotiff_bytes, geotiff_profile
 from lidarsim.shards import MANIFEST_NAME, open_scan_shard, read_manifest, sha256_file
 from lidarsim.storage import GeoTiffWriter, OutputDir, StorageError, describe_os_error, write_text_atomic
 from lidarsim.terrain import DTM
@@ -99,6 +100,8 @@ BASELINE_THRESHOLD = label_defaults.SAFE_PROBABILITY_THRESHOLD
 # hd choice: a DTM may be up to 2 % coarser than the run's DEM spacing (HiRISE "1 m" products are
 # 1.01 m); it is then read at full resolution. Anything coarser would have to invent detail.
 SPACING_TOLERANCE = 0.02
+# hd choice: cells of a DTM upsampled in memory (--upsample): 2**28 float32 = 1 GiB, as lidarsim's limit.
+MAX_UPSAMPLED_CELLS = 1 << 28
 # hd choice: sites are ranked by their footprint-mean P(safe) rounded to 0.001, then by clearance.
 # Differences below 0.001 are far inside the MC estimate's spread (M = 8), so clearance decides.
 SITE_RANK_DECIMALS = 3
@@ -236,7 +239,7 @@ class _Terrain:
 
 
 class _DtmTerrain(_Terrain):
-    def __init__(self, path: Path, run: DetectRun) -> None:
+    def __init__(self, path: Path, run: DetectRun, upsample: bool = False) -> None:
         with DTM.open(path) as probe:
             info = probe.info
         sx, sy = info.spacing_m
@@ -246,20 +249,50 @@ class _DtmTerrain(_Terrain):
                 "first, e.g. with gdalwarp -tr"
             )
         coarse = max(sx, sy)
-        if coarse > run.spacing_m * (1.0 + SPACING_TOLERANCE):
-            raise TerrainError(
-                f"{info.path}: its {coarse:g} m cells are coarser than the run's DEM spacing "
-                f"({run.spacing_m:g} m/px); use a DTM of at most {run.spacing_m:g} m/px "
-                "(hd detect resamples finer DTMs, it does not invent detail)"
-            )
-        self.scale = min(1.0, coarse / run.spacing_m)  # spacing / scale = the run's spacing
         self.path = Path(info.path)
-        self.dtm = DTM.open(path, scale=self.scale)
+        self.upsampled: dict[str, Any] | None = None
+        if coarse > run.spacing_m * (1.0 + SPACING_TOLERANCE):
+            if not upsample:
+                raise TerrainError(
+                    f"{info.path}: its {coarse:g} m cells are coarser than the run's DEM spacing "
+                    f"({run.spacing_m:g} m/px); pass --upsample to interpolate it bilinearly between its cell "
+                    "centres (how a ray caster sees a mesh through its posts; no rocks below its resolution), "
+                    "or map a finer DTM, e.g. one made by `hd make-dtm --base` (with rocks)"
+                )
+            self.scale = 1.0
+            self.dtm = self._upsampled(path, info, run.spacing_m)
+        else:
+            self.scale = min(1.0, coarse / run.spacing_m)  # spacing / scale = the run's spacing
+            self.dtm = DTM.open(path, scale=self.scale)
         try:
             self._describe(info, run)
         except BaseException:
             self.dtm.close()
             raise
+
+    def _upsampled(self, path: Path, info: Any, spacing_m: float) -> DTM:
+        """The DTM at ``path`` interpolated bilinearly to ``spacing_m`` (metres/pixel), held in memory
+        as a GeoTIFF over the same extent (``lidarsim.base_relief.resample_bilinear``)."""
+        sx, sy = info.spacing_m
+        shape = (int(info.rows * sy / spacing_m + 1e-9), int(info.cols * sx / spacing_m + 1e-9))
+        if shape[0] * shape[1] > MAX_UPSAMPLED_CELLS:
+            raise TerrainError(
+                f"{info.path}: upsampled to {spacing_m:g} m/px it would be {shape[0]} x {shape[1]} cells, more than "
+                f"hd's {MAX_UPSAMPLED_CELLS:,} for --upsample; cut it into parts (e.g. gdal_translate -srcwin)"
+            )
+        with DTM.open(path) as src:
+            values = src.read(0, 0, info.rows, info.cols)
+            digest = src.sha256()
+        heights = resample_bilinear(values, (sx, sy), spacing_m, shape)
+        t = info.transform
+        data = geotiff_bytes(heights, spacing_m, (float(t[2]), float(t[5])), info.crs_wkt, name=str(info.path))
+        self.upsampled = {
+            "method": "bilinear between cell centres (lidarsim.base_relief.resample_bilinear)",
+            "source_spacing_m": [sx, sy],
+            "spacing_m": spacing_m,
+            "source_sha256": digest,
+        }
+        return DTM.from_bytes(data, path, sha256=digest)  # provenance names the file read
 
     def _describe(self, info: Any, run: DetectRun) -> None:
         sx, sy = info.spacing_m
@@ -280,6 +313,8 @@ class _DtmTerrain(_Terrain):
             "source_transform": list(info.transform),
             "source_shape": [info.rows, info.cols],
         }
+        if self.upsampled is not None:
+            self.provenance["upsampled"] = self.upsampled
         self._check_fits(run)
 
     def _check_fits(self, run: DetectRun) -> None:
@@ -611,8 +646,12 @@ def detect(
     device: str | None = None,
     progress: Callable[[int, int], None] | None = None,
     calibrate: str = "reference",
+    upsample: bool = False,
 ) -> DetectResult:
     """Hazard maps and ranked landing sites of a DTM (``dtm``) or of one scan (``dataset`` + ``scan``).
+
+    ``upsample``: a DTM coarser than the run's DEM spacing is interpolated bilinearly to it (recorded
+    in ``detect.json`` under ``terrain.upsampled``) instead of being refused.
 
     ``sigma_m`` (metres): the baseline's DEM noise (default: the run's training sigma); with a scan,
     also the noise level of the DEM taken. ``threshold``: ``mean``, ``quantile:Q``, ``risk:ALPHA``
@@ -643,7 +682,7 @@ def detect(
     output.add_inputs({"the checkpoint": run.checkpoint, "the run's dataset": run.dataset})
     out = output.check(overwrite)
     baseline_sigma = run.train_sigma_m if sigma_m is None else float(sigma_m)
-    terrain, calib_dir, calib_labels = _open_terrain(run, dtm, dataset, scan, labels, baseline_sigma)
+    terrain, calib_dir, calib_labels = _open_terrain(run, dtm, dataset, scan, labels, baseline_sigma, upsample)
     if isinstance(terrain, _ScanTerrain):
         baseline_sigma = terrain.sigma_m
     try:
@@ -715,11 +754,12 @@ def _open_terrain(
     scan: int | None,
     labels: str | None,
     sigma_m: float,
+    upsample: bool = False,
 ) -> tuple[_Terrain, Path | None, str]:
     """Step 2: the terrain (a DTM, or one scan's noisy DEM at ``sigma_m`` metres), with the dataset and
     labelling the threshold is calibrated on (the run's for a DTM, the scan's dataset's for a scan)."""
     if dtm is not None:
-        return _DtmTerrain(Path(dtm), run), run.dataset, run.labels
+        return _DtmTerrain(Path(dtm), run, upsample), run.dataset, run.labels
     if dataset is None or scan is None:  # excluded by _check_detect_options
         raise HdNetError("give either a DTM (--dtm) or a dataset and a scan (--data with --scan).")
     lab = labels if labels is not None else preferred_labeling(dataset, run.labels)

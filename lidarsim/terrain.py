@@ -184,10 +184,14 @@ class DTM:
         return cls(src, info, src_transform)
 
     @classmethod
-    def from_bytes(cls, data: bytes, path: str | os.PathLike[str], scale: float = 1.0) -> DTM:
+    def from_bytes(
+        cls, data: bytes, path: str | os.PathLike[str], scale: float = 1.0, sha256: str | None = None
+    ) -> DTM:
         """A DTM over the bytes of a raster file held in memory.
 
         ``path`` is where the file will be written: it names the DTM in messages and provenance.
+        ``sha256``: the digest :meth:`sha256` reports (default: of ``data``), e.g. the file a grid
+        held in memory was made from.
 
         Raises:
             TerrainError: like :meth:`open`.
@@ -212,7 +216,7 @@ class DTM:
             raise
         dtm = cls(src, info, src_transform)
         dtm._memfile = memfile
-        dtm._sha256 = sha256_bytes(data)
+        dtm._sha256 = sha256 if sha256 is not None else sha256_bytes(data)
         return dtm
 
     @staticmethod

@@ -370,6 +370,17 @@ def test_a_run_at_another_spacing_resamples_to_its_own_and_refuses_coarser_dtms(
     with pytest.raises(TerrainError, match=r"coarser than the run's DEM spacing \(0.5 m/px\)"):
         detect(tmp_path / "half.pt", tmp_path / "out2", dtm=coarse, threshold="nats:0.5")
     assert not (tmp_path / "out2").exists()
+    # --upsample: the coarse plane interpolated to 0.5 m is the same plane (a plane is exact under
+    # bilinear interpolation inside the outer cell centres), the source named in detect.json.
+    detect(tmp_path / "half.pt", tmp_path / "out3", dtm=coarse, threshold="nats:0.5", mc_samples=1, upsample=True)
+    prof = profile_of(tmp_path / "out3" / "safety.tif")
+    assert prof["shape"] == (120, 120) and prof["transform"].a == 0.5 and prof["transform"].c == 1000.0
+    info = json.loads((tmp_path / "out3" / "detect.json").read_text())
+    up = info["input"]["upsampled"]
+    assert up["source_spacing_m"] == [1.0, 1.0] and up["spacing_m"] == 0.5 and "bilinear" in up["method"]
+    assert info["input"]["sha256"] == up["source_sha256"] == sha256_file(coarse)
+    safety = read(tmp_path / "out3" / "safety.tif")[0]
+    assert (safety[b:-b, b:-b] == SAFETY_SAFE).all()  # a 3 % tilt: safe wherever the lander fits
 
 
 def test_hirise_pds3_at_1_01_m_keeps_its_mars_crs(trained, tmp_path):
