@@ -28,6 +28,7 @@ from lidarsim.shards import (
     MANIFEST_NAME,
     SPLIT_NAMES,
     ShardFormatError,
+    check_arrays,
     check_schema,
     compression_kwargs,
     read_manifest,
@@ -225,6 +226,19 @@ def _text(value: Any) -> str:
     return str(value)
 
 
+# Every array of a label shard by its axes (named axes agree across the arrays; docs/labels-format.md).
+LABEL_ARRAYS: dict[str, tuple[int | str, ...]] = {
+    "scan_index": ("scan",),
+    "split": ("scan",),
+    "dem_clean": ("scan", "row", "col"),
+    "dem_noisy": ("scan", "sigma", "row", "col"),
+    "label": ("scan", "row", "col"),
+    "slope_rad": ("scan", "row", "col"),
+    "roughness_m": ("scan", "row", "col"),
+    "p_safe": ("scan", "sigma", "row", "col"),
+}
+
+
 class LabelShardReader:
     """Lazy reader of one label shard (one scan at a time; ``h5`` gives h5py access with checked reads).
 
@@ -256,7 +270,12 @@ class LabelShardReader:
                 self.what,
             )
             self.sigmas_m: tuple[float, ...] = tuple(float(s) for s in np.atleast_1d(attrs["sigmas_m"]))
-            self._n = int(self.h5["scan_index"].shape[0])
+            dims = check_arrays(self.h5, LABEL_ARRAYS, self.what)
+            if dims["sigma"] != len(self.sigmas_m):
+                raise ShardFormatError(
+                    f"{self.what}: dem_noisy holds {dims['sigma']} noise levels, sigmas_m lists {len(self.sigmas_m)}"
+                )
+            self._n = dims["scan"]
         except (ShardFormatError, KeyError, TypeError, ValueError, OSError) as exc:
             self.h5.close()
             if isinstance(exc, ShardFormatError):

@@ -60,6 +60,7 @@ __all__ = [
     "ScanShardWriter",
     "ShardFormatError",
     "StorageError",
+    "check_arrays",
     "check_schema",
     "commit_file",
     "compression_kwargs",
@@ -227,6 +228,44 @@ class Scan:
     valid: np.ndarray
 
 
+# Every array of a scan shard by its axes: named axes must agree across the arrays (docs/shard-format.md).
+SCAN_ARRAYS: dict[str, tuple[int | str, ...]] = {
+    "scan_index": ("scan",),
+    "split": ("scan",),
+    "origin_map": ("scan", 3),
+    "sensor_position": ("scan", 3),
+    "sensor_attitude": ("scan", 3, 3),
+    "points_clean": ("scan", "row", "col", 3),
+    "points_noisy": ("scan", "sigma", "row", "col", 3),
+    "status": ("scan", "row", "col"),
+    "valid": ("scan", "row", "col"),
+}
+
+
+def check_arrays(f: CheckedH5File, layout: dict[str, tuple[int | str, ...]], what: str) -> dict[str, int]:
+    """Check that a shard holds every array of ``layout``, numeric, with its axes: an int is that size,
+    a name the same size in every array that has it. Returns the size of each named axis.
+
+    Raises:
+        DamagedFileError: a missing array, or one of another type, rank or size (named), so that a file
+            whose arrays do not fit together is refused when it is opened, not half-way through it.
+    """
+    sizes: dict[str, int] = {}
+    for name, axes in layout.items():
+        ds = f[name]  # a missing array: DamagedFileError naming it
+        shape, kind = tuple(ds.shape or ()), ds.dtype.kind
+        if kind not in "biuf" or len(shape) != len(axes):
+            raise DamagedFileError(f"{what}: {name} is {ds.dtype} of shape {shape}, not an array hd writes")
+        for size, axis in zip(shape, axes, strict=True):
+            expected = axis if isinstance(axis, int) else sizes.setdefault(axis, size)
+            if size != expected:
+                raise DamagedFileError(
+                    f"{what}: {name} has shape {shape}; its {axis if isinstance(axis, str) else 'last'} axis "
+                    f"should be {expected} long, as in the file's other arrays"
+                )
+    return sizes
+
+
 class ScanShardReader:
     """Lazy reader of one scan shard; scans are read one at a time.
 
@@ -258,7 +297,12 @@ class ScanShardReader:
             )
             self.attrs: dict[str, Any] = {k: _py(v) for k, v in attrs.items()}
             self.sigmas_m: tuple[float, ...] = tuple(float(s) for s in np.atleast_1d(attrs["sigmas_m"]))
-            self._n = int(self._f["scan_index"].shape[0])
+            dims = check_arrays(self._f, SCAN_ARRAYS, self.what)
+            if dims["sigma"] != len(self.sigmas_m):
+                raise DamagedFileError(
+                    f"{self.what}: points_noisy holds {dims['sigma']} noise levels, sigmas_m lists {len(self.sigmas_m)}"
+                )
+            self._n = dims["scan"]
         except (KeyError, TypeError, ValueError, OSError) as exc:
             self._f.close()
             if isinstance(exc, LidarsimError):
