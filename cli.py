@@ -980,7 +980,11 @@ def eval_cmd(
         calibrate=calibrate,
         calibrate_on=tuple(str(d) for d in calibrate_on),
     )
-    result = evaluate_to_report(run_dir, dataset, out_dir, config, overwrite=overwrite)
+    progress = _ScanProgress("eval", unit="image")
+    try:
+        result = evaluate_to_report(run_dir, dataset, out_dir, config, overwrite=overwrite, progress=progress)
+    finally:
+        progress.close()
     click.echo(result.summary())
     click.echo(report_written_message(out_dir))
 

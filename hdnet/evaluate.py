@@ -24,7 +24,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -155,11 +155,13 @@ def infer_split(
     seed: int,
     device: torch.device,
     recompute_baseline: bool = False,
+    progress: Callable[[int], None] | None = None,
 ) -> SplitInference:
     """MC dropout over a whole split, brought back to the DEM grid; dropout masks seeded by ``seed``.
 
     ``recompute_baseline``: the ALHAT P(safe) is recomputed on the (repaired) noisy DEM instead of
-    read from the label shard (needed with dead pixels).
+    read from the label shard (needed with dead pixels). ``progress`` is called with the number of
+    images of each batch done.
     """
     torch.manual_seed(seed)
     n = len(ds)
@@ -189,6 +191,8 @@ def infer_split(
                 else ds.baseline_p_safe(s)
             )
             base[j] = np.nan_to_num(p_safe, nan=0.0) >= BASELINE_THRESHOLD
+        if progress is not None:
+            progress(len(idx))
     return SplitInference(
         ds.sigma_m,
         scans,
@@ -284,13 +288,16 @@ def validation_threshold(
     batch_size: int,
     seed: int,
     device: torch.device,
+    progress: Callable[[int], None] | None = None,
 ) -> ValidationThreshold:
     """Step 1 of the protocol: MC dropout over the validation split, entropies collected, H_t selected.
 
     Several validation splits (one noise level, several datasets) calibrate together.
     """
     parts = [val_ds] if isinstance(val_ds, HazardDataset) else list(val_ds)
-    val = concat_inference([infer_split(model, ds, mc_samples, batch_size, seed, device) for ds in parts])
+    val = concat_inference(
+        [infer_split(model, ds, mc_samples, batch_size, seed, device, progress=progress) for ds in parts]
+    )
     cal = EntropyCalibration()
     cal.update(torch.from_numpy(val.entropy_nats), torch.from_numpy(val.prediction), torch.from_numpy(val.label))
     h_t = select_threshold(spec, cal)
@@ -399,9 +406,15 @@ class _Setup:
 
 
 def evaluate(
-    run_dir: str | os.PathLike, dataset_dir: str | os.PathLike, config: EvalConfig | None = None
+    run_dir: str | os.PathLike,
+    dataset_dir: str | os.PathLike,
+    config: EvalConfig | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> EvaluationResult:
     """Evaluate the run at ``run_dir`` (its ``last.pt``, or a checkpoint file) on ``dataset_dir``.
+
+    ``progress`` is called with (images inferred, images to infer) over every pass of the
+    evaluation (validation calibrations, test split per noise level, dead pixels, sweep).
 
     Returns the result; writing it is the caller's (``hdnet.report.write_report``, after checking
     the report directory with ``check_report_dir`` before the evaluation runs, as
@@ -415,9 +428,10 @@ def evaluate(
     cfg = config if config is not None else EvalConfig()
     spec = cfg.threshold_spec
     setup = _open_evaluation(run_dir, dataset_dir, cfg)
+    counter = _ImageCounter(_planned_images(setup, dataset_dir, cfg), progress) if progress is not None else None
 
     # 1. threshold from the validation split at the reference sigma (and, with calibrate=each, at every test sigma)
-    thresholds = _Thresholds(setup, dataset_dir, cfg)
+    thresholds = _Thresholds(setup, dataset_dir, cfg, counter)
     th = thresholds.reference
     # 2-3. every sigma: the three methods, the sweep, calibration
     tests, rows, sweep, cal_rows, achieved = _noise_table(setup, dataset_dir, cfg, thresholds)
@@ -451,6 +465,37 @@ def evaluate(
     )
 
 
+class _ImageCounter:
+    """Images inferred so far against the plan; reports (done, total) to a progress callback."""
+
+    def __init__(self, total: int, report: Callable[[int, int], None]) -> None:
+        self.total, self.done, self.report = total, 0, report
+        report(0, total)
+
+    def __call__(self, n: int) -> None:
+        self.done += n
+        self.total = max(self.total, self.done)  # a plan that fell short never reports past 100 %
+        self.report(self.done, self.total)
+
+
+def _planned_images(setup: _Setup, dataset_dir: str | os.PathLike, cfg: EvalConfig) -> int:
+    """Images an evaluation infers: validation splits once per calibration level, the test split per
+    noise level of Table 1, of Table 2 (with dead pixels) and of the sweep (split sizes from the
+    manifests)."""
+
+    def split_size(d: str | os.PathLike, split: str) -> int:
+        splits = read_manifest(d).get("splits", {})
+        return int(splits.get(split, 0)) if isinstance(splits, dict) else 0
+
+    n_val = sum(split_size(d, "val") for d in cfg.calibrate_on or (dataset_dir,))
+    n_test = split_size(dataset_dir, "test")
+    levels = {round(float(setup.train_sigma_m), 12)}
+    if cfg.calibrate == "each":
+        levels |= {round(float(s), 12) for s in (*setup.sigmas_m, *cfg.sigma_sweep)}
+    passes = len(setup.sigmas_m) * (2 if cfg.drop_pixels else 1) + len(cfg.sigma_sweep)
+    return n_val * len(levels) + n_test * passes
+
+
 def guard_above_training(th: ValidationThreshold, sigma_m: float, noise: TrainingNoise) -> ValidationThreshold:
     """``th`` (calibrated at ``sigma_m`` metres), capped by the precision guard when ``sigma_m`` lies
     above the training noise levels ``noise``: H_t = min(H_t, the loosest threshold whose validation
@@ -468,8 +513,14 @@ class _Thresholds:
     """H_t for every test noise level: the reference calibration (validation split at the run's
     reference sigma), or with ``calibrate="each"`` one calibration per test sigma (cached)."""
 
-    def __init__(self, setup: _Setup, dataset_dir: str | os.PathLike, cfg: EvalConfig) -> None:
-        self.setup, self.dataset_dir, self.cfg = setup, dataset_dir, cfg
+    def __init__(
+        self,
+        setup: _Setup,
+        dataset_dir: str | os.PathLike,
+        cfg: EvalConfig,
+        progress: Callable[[int], None] | None = None,
+    ) -> None:
+        self.setup, self.dataset_dir, self.cfg, self.progress = setup, dataset_dir, cfg, progress
         self._by_sigma: dict[float, ValidationThreshold] = {}
         self.reference = self._calibrate(setup.train_sigma_m)
 
@@ -487,6 +538,7 @@ class _Thresholds:
                 batch_size=cfg.batch_size,
                 seed=cfg.seed,
                 device=self.setup.device,
+                progress=self.progress,
             )
         return th
 
@@ -558,6 +610,7 @@ def _noise_table(
             cfg.batch_size,
             cfg.seed,
             setup.device,
+            progress=thresholds.progress,
         )
         tests[sigma] = inf
         rows += method_rows(inf, "noise", val_sigma, h_t)
@@ -610,6 +663,7 @@ def _dead_pixel_table(
             cfg.seed,
             setup.device,
             recompute_baseline=True,
+            progress=thresholds.progress,
         )
         rows += method_rows(inf, "dead_pixels", val_sigma, h_t)
         if cfg.threshold_spec.kind == "risk":
@@ -635,6 +689,7 @@ def _sigma_sweep(
             cfg.batch_size,
             cfg.seed,
             setup.device,
+            progress=thresholds.progress,
         )
         rows += method_rows(inf, "sigma_sweep", setup.train_sigma_m, h_t)
         if cfg.threshold_spec.kind == "risk":

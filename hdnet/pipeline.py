@@ -294,7 +294,7 @@ def run_pipeline(pipeline: Pipeline, workers: int | None, echo: Echo, progress: 
         _train(pipeline, echo)
     for evaluation in pipeline.evaluations:
         with log.stage(evaluation.stage, evaluation.what):
-            _evaluate_unless_done(pipeline, evaluation, echo)
+            _evaluate_unless_done(pipeline, evaluation, echo, progress)
     return log.finish()
 
 
@@ -380,7 +380,9 @@ def _train(pipeline: Pipeline, echo: Echo) -> None:
     echo(training_done_message(checkpoint, pipeline.run_dir))
 
 
-def _evaluate_unless_done(pipeline: Pipeline, evaluation: Evaluation, echo: Echo) -> None:
+def _evaluate_unless_done(
+    pipeline: Pipeline, evaluation: Evaluation, echo: Echo, progress: ProgressFactory | None = None
+) -> None:
     from hdnet.evaluate import EvalConfig
 
     report = pipeline.out_dir / evaluation.directory
@@ -395,7 +397,11 @@ def _evaluate_unless_done(pipeline: Pipeline, evaluation: Evaluation, echo: Echo
         calibrate=evaluation.calibrate,
         sigma_sweep=evaluation.sigma_sweep,
     )
-    result = evaluate_to_report(pipeline.run_dir, pipeline.dataset_dir, report, config)
+    if progress is None:
+        result = evaluate_to_report(pipeline.run_dir, pipeline.dataset_dir, report, config)
+    else:
+        with _closing(progress("eval", "image")) as bar:
+            result = evaluate_to_report(pipeline.run_dir, pipeline.dataset_dir, report, config, progress=bar)
     echo(result.summary())
     echo(report_written_message(report))
 
@@ -408,8 +414,11 @@ def evaluate_to_report(
     *,
     figures: bool = True,
     overwrite: bool = False,
+    progress: Callable[[int, int], None] | None = None,
 ) -> EvaluationResult:
     """``hd eval``: the report directory checked, the run evaluated, the report written; returns the result.
+
+    ``progress`` is called with (images inferred, images to infer).
 
     ``out_dir`` is checked before the evaluation runs (a bad or occupied directory fails at once);
     an existing report, or a non-empty directory that is not a report, is replaced only with
@@ -424,7 +433,7 @@ def evaluate_to_report(
 
     inputs: dict[str, str | os.PathLike | None] = {"the run": run_dir, "the dataset": dataset_dir}
     check_report_dir(out_dir, overwrite, inputs)  # before the evaluation runs
-    result = evaluate(run_dir, dataset_dir, config)
+    result = evaluate(run_dir, dataset_dir, config, progress=progress)
     write_report(result, Path(out_dir), figures=figures, overwrite=overwrite, inputs=inputs)
     return result
 

@@ -116,3 +116,16 @@ def test_eval_takes_a_fixed_threshold_in_nats(two, mixed_run):
     fixed = evaluate(mixed_run, a, EvalConfig(mc_samples=2, threshold="nats:0.3", calibrate="each"))
     assert fixed.threshold["value_nats"] == 0.3 and fixed.threshold["kind"] == "nats"
     assert all(p["value_nats"] == 0.3 for p in fixed.threshold["per_sigma"])  # never moved by a guard
+
+
+def test_eval_reports_its_progress_in_images_against_an_exact_plan(two, mixed_run):
+    a, _ = two
+    calls: list[tuple[int, int]] = []
+    cfg = EvalConfig(mc_samples=1, drop_pixels=2, sigma_sweep=(0.05,), calibrate="each", threshold="quantile:0.5")
+    evaluate(mixed_run, a, cfg, progress=lambda done, total: calls.append((done, total)))
+    totals = {t for _, t in calls}
+    assert len(totals) == 1, "the plan was exact: the total never moved"
+    done = [d for d, _ in calls]
+    assert done[0] == 0 and done == sorted(done) and done[-1] == calls[-1][1]
+    # 2 val images at each of 3 calibration levels (1.67, 7, 5 cm), 2 test images in 2 + 2 + 1 passes.
+    assert calls[-1][1] == 2 * 3 + 2 * 5
