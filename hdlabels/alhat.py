@@ -26,7 +26,10 @@ units and choices. Everything is in pixels internally (see ``lander.py``); heigh
 
 Two interchangeable back ends compute the same numbers: vectorised numpy (loops over yaws, pads
 and nodes, each an array operation over all sites) and, when numba is installed, the same loops
-compiled (``backend="numba"``, the default via ``"auto"``).
+compiled (``backend="numba"``, the default via ``"auto"``). The compiled product rule sums the
+nodes only of the sites and configurations whose result the cheaper bounds leave open
+(``_worst_case_loops``): the maps and the P >= 0.5 decision are those of the full sums, P(safe)
+is within 1e-7 of them.
 """
 
 from __future__ import annotations
@@ -225,7 +228,7 @@ def _evaluate(
     mode = _P_NONE
     if sigma_m and not legacy_min:
         mode = _P_PRODUCT if lander.baseline_combine == "product" else _P_MIN
-    slope, rough, score = _worst_case(z, geo, lander, spacing_m, backend, mode, sigma_m or 0.0)
+    slope, rough, score = _worst_case(z, valid, geo, lander, spacing_m, backend, mode, sigma_m or 0.0)
     b = geo.band_px
     inner = (slice(b, z.shape[0] - b), slice(b, z.shape[1] - b))
 
@@ -265,9 +268,20 @@ def _score_to_probability(score: np.ndarray, mode: int) -> np.ndarray:
 
 
 def _worst_case(
-    z: np.ndarray, geo: Geometry, lander: Lander, spacing_m: float, backend: str, mode: int, sigma_m: float
+    z: np.ndarray,
+    valid: np.ndarray,
+    geo: Geometry,
+    lander: Lander,
+    spacing_m: float,
+    backend: str,
+    mode: int,
+    sigma_m: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Worst-case slope (rad), roughness (m) and P score over the interior sites (band removed)."""
+    """Worst-case slope (rad), roughness (m) and P score over the interior sites (band removed).
+
+    The score is only meaningful where ``valid`` (the full DEM's mask) holds and the slope passes
+    the baseline's slope test: the compiled product rule does not sum the nodes of other sites.
+    """
     b = geo.band_px
     hv, wv = z.shape[0] - 2 * b, z.shape[1] - 2 * b
     scale_by_c = lander.convention == "paper"
@@ -296,6 +310,8 @@ def _worst_case(
             inv_sigma,
             scale_by_c,
             _LOG_PHI,
+            np.ascontiguousarray(valid[b : b + hv, b : b + wv]),
+            math.tan(math.radians(lander.max_slope_deg)) ** 2 * (1.0 + _TAN2_MARGIN),
             slope,
             rough,
             score,
@@ -372,6 +388,61 @@ def _log_phi_coefficients() -> np.ndarray:
 
 _LOG_PHI = _log_phi_coefficients()
 
+# The product rule's P(safe) is bounded per site before any full sum over its nodes with the table
+# (``_product_bounds``). A site whose bounds fix P to within _P_TOLERANCE, on one side of the
+# P >= 0.5 decision with _DECISION_MARGIN to spare (far above float32's 6e-8 there), takes the
+# middle of its interval (off by at most half the tolerance); elsewhere only the configurations
+# that can hold the minimum are summed with the table, exactly as before.
+_P_TOLERANCE = 1e-7
+_DECISION_THRESHOLD = defaults.SAFE_PROBABILITY_THRESHOLD
+_DECISION_MARGIN = 1e-6
+# The compiled kernel's slope test before the sums: tan^2 of the slope above tan^2(limit) by this
+# relative margin fails the test (P = 0) however the float64 arctan rounds.
+_TAN2_MARGIN = 1e-6
+
+# The bounds come from a polynomial of log Phi, which vectorises where the table's look-ups (most
+# of the previous kernel's time) do not: degree 14 in t = (u - 1.5) / 4 over u in [-2.5, 5.5],
+# interpolated at Chebyshev points (numpy, deterministic) and stored as monomial coefficients in
+# t. Above u = 5.5 a node's log Phi (>= -1.9e-8) counts as 0; a configuration with a node below
+# -2.5 gets no bound from it. _POLY_ERROR (3e-5) and _TAIL_ERROR bound the distance to the table
+# per node, measured on a fine grid below with 25 % to spare.
+_POLY_U = (-2.5, 5.5)
+_POLY_DEGREE = 14
+_POLY_X = tuple((u - _U_LO) / _U_STEP for u in _POLY_U)  # the same interval in table units
+
+
+def _log_phi_polynomial() -> tuple[float, ...]:
+    """Monomial coefficients in t (constant first) of the Chebyshev interpolant of log Phi on ``_POLY_U``."""
+    lo, hi = _POLY_U
+    cheb = np.polynomial.chebyshev.chebinterpolate(
+        lambda t: log_ndtr(0.5 * (hi - lo) * t + 0.5 * (hi + lo)), _POLY_DEGREE
+    )
+    return tuple(float(c) for c in np.polynomial.chebyshev.cheb2poly(cheb))
+
+
+_LOG_PHI_POLY = _log_phi_polynomial()
+_LOG_PHI_POLY_HORNER = _LOG_PHI_POLY[::-1]  # highest degree first
+# t = x * _T_SCALE + _T_SHIFT for a table position x.
+_T_SCALE = 2.0 * _U_STEP / (_POLY_U[1] - _POLY_U[0])
+_T_SHIFT = (2.0 * _U_LO - _POLY_U[0] - _POLY_U[1]) / (_POLY_U[1] - _POLY_U[0])
+
+
+def _approximation_errors() -> tuple[float, float]:
+    """(largest |polynomial - table| on the polynomial's interval, largest |table| above it), each x1.25."""
+    x = np.linspace(_POLY_X[0], _POLY_X[1], 1 << 18)
+    q = np.minimum(x.astype(np.int64), _LOG_PHI.size // 4 - 1)
+    t = x - q
+    c = _LOG_PHI.reshape(-1, 4)[q]
+    table = c[:, 0] + t * (c[:, 1] + t * (c[:, 2] + t * c[:, 3]))
+    tt = x * _T_SCALE + _T_SHIFT
+    poly = np.zeros_like(tt)
+    for coef in reversed(_LOG_PHI_POLY):
+        poly = poly * tt + coef
+    return 1.25 * float(np.abs(poly - table).max()), 1.25 * float(abs(table[-1]))
+
+
+_POLY_ERROR, _TAIL_ERROR = _approximation_errors()
+
 
 def _pad_heights_loops(z, b, tap_di, tap_dj, tap_w, out):  # pragma: no cover - compiled by numba
     """Same as ``_pad_heights_numpy``, as explicit loops (compiled by numba)."""
@@ -393,6 +464,24 @@ def _pad_heights_loops(z, b, tap_di, tap_dj, tap_w, out):  # pragma: no cover - 
                     row[j] = max(row[j], v)
 
 
+def _table_log_phi(log_phi, x):  # pragma: no cover - compiled by numba
+    """log Phi at table position ``x = (u - LO) / STEP`` (clamped to the table), the cubic of ``_LOG_PHI``."""
+    x = min(max(x, 0.0), (_U_HI - _U_LO) / _U_STEP)
+    q = int(x)
+    t = x - q
+    q *= 4
+    return log_phi[q] + t * (log_phi[q + 1] + t * (log_phi[q + 2] + t * log_phi[q + 3]))
+
+
+def _poly_log_phi(x):  # pragma: no cover - compiled by numba
+    """log Phi at table position ``x`` from ``_LOG_PHI_POLY`` (clamped to its interval), Horner's rule."""
+    t = min(max(x, _POLY_X[0]), _POLY_X[1]) * _T_SCALE + _T_SHIFT
+    v = 0.0
+    for c in numba.literal_unroll(_LOG_PHI_POLY_HORNER):
+        v = v * t + c
+    return v
+
+
 def _worst_case_loops(
     z,
     b,
@@ -410,38 +499,56 @@ def _worst_case_loops(
     inv_sigma,
     scale_by_c,
     log_phi,
+    valid,
+    tan2_cut,
     slope,
     rough,
     score,
 ):  # pragma: no cover - compiled by numba
     """Resting planes, slope, roughness and the P score, worst case over configurations (numba).
 
-    Same numbers as ``_worst_case``'s numpy path; rows are processed one at a time so every
-    working array stays in the L1 cache. ``score``: product mode, the smallest sum over a
-    configuration's nodes of log Phi(u); min mode, the smallest u of any node.
+    Same numbers as ``_worst_case``'s numpy path; one row of sites at a time, so every working
+    array stays in the L1 cache. ``score``: min mode, the smallest u of any node; product mode,
+    the smallest sum over a configuration's nodes of log Phi(u), in three steps per row:
+
+    1. every configuration's plane and highest node (which give slope and roughness) and, in the
+       same pass, its sum of the polynomial ``_poly_log_phi`` with the sum's error bound;
+    2. per site, bounds on log P from these (``_product_bounds``): a site outside ``valid`` or whose
+       slope fails (tan^2 above ``tan2_cut``) gets -inf (P = 0 by the slope test); a site whose P
+       the bounds fix to ``_P_TOLERANCE``, away from the 0.5 decision, gets the middle of its
+       interval; otherwise the configurations that can hold the minimum are marked;
+    3. the sum of the table's log Phi over the nodes of the marked configurations only (the
+       others' sums are provably larger), in the previous kernel's order and arithmetic.
     """
     n_yaws = plane_weights.shape[0]
     hv, wv = slope.shape
     n_cfg = 2 if n_pads == 4 else 1
-    gx = np.empty((n_cfg, wv), dtype=z.dtype)
-    gy = np.empty((n_cfg, wv), dtype=z.dtype)
-    c = np.empty((n_cfg, wv), dtype=z.dtype)
-    dmax = np.empty(wv, dtype=z.dtype)
+    n_q = n_yaws * n_cfg
+    gx = np.empty((n_q, wv), dtype=z.dtype)
+    gy = np.empty((n_q, wv), dtype=z.dtype)
+    c = np.empty((n_q, wv), dtype=z.dtype)
+    dmax = np.empty((n_q, wv), dtype=z.dtype)
     dmin = np.empty(wv, dtype=z.dtype)
+    ua = np.empty((n_q, wv))
+    ub = np.empty((n_q, wv))
+    approx = np.zeros((n_q, wv))  # sum of the polynomial over the nodes (product mode)
+    error = np.zeros((n_q, wv))  # its bound: |approx - the table's sum| <= error
+    xr = np.empty(wv)  # one node's table positions along the row
+    need = np.zeros((n_q, wv), dtype=np.bool_)
     acc = np.empty(wv)
-    ua = np.empty(wv)
-    ub = np.empty(wv)
+    sel = np.empty(wv, dtype=np.int64)
     slope[:, :] = 0.0
     rough[:, :] = 0.0
     score[:, :] = np.inf
     inv_s2 = 1.0 / (spacing * spacing)
     for i in range(hv):
+        # 1a. the resting planes of every configuration q = (yaw m, plane k), along the row
         for m in range(n_yaws):
             h0 = heights[m * n_pads]
             h1 = heights[m * n_pads + 1]
-            h2 = heights[m * n_pads + 2]
             for j in range(wv):
                 if n_pads == 4:
+                    h2 = heights[m * n_pads + 2]
                     h3 = heights[m * n_pads + 3]
                     t0 = 0 if h0[i, j] + h2[i, j] >= h1[i, j] + h3[i, j] else 2
                 else:
@@ -452,68 +559,156 @@ def _worst_case_loops(
                     zb = heights[m * n_pads + triples[t, 1], i, j]
                     zc = heights[m * n_pads + triples[t, 2], i, j]
                     w = plane_weights[m, t]
-                    gx[k, j] = w[0, 0] * za + w[0, 1] * zb + w[0, 2] * zc
-                    gy[k, j] = w[1, 0] * za + w[1, 1] * zb + w[1, 2] * zc
-                    c[k, j] = w[2, 0] * za + w[2, 1] * zb + w[2, 2] * zc
-            for k in range(n_cfg):
-                gxk, gyk, ck = gx[k], gy[k], c[k]
-                dmax[:] = -np.inf
-                dmin[:] = np.inf
-                if mode == 1:
-                    # u = ua - ub * h for a node at vertical height h above the plane (metres):
-                    # u = (rc - h cos) / s with s = cos sigma (paper) or sigma (hd).
-                    # In table units: x = (u - LO) / STEP = ua - ub * h, clamped to the table.
+                    q = m * n_cfg + k
+                    gx[q, j] = w[0, 0] * za + w[0, 1] * zb + w[0, 2] * zc
+                    gy[q, j] = w[1, 0] * za + w[1, 1] * zb + w[1, 2] * zc
+                    c[q, j] = w[2, 0] * za + w[2, 1] * zb + w[2, 2] * zc
+        # 1b. the highest (and lowest) node above each plane: slope, roughness, the min-mode score;
+        # product mode: the polynomial's sum over the nodes
+        for q in range(n_q):
+            m = q // n_cfg
+            gxq, gyq, cq, dmq = gx[q], gy[q], c[q], dmax[q]
+            uaq, ubq, apq, erq = ua[q], ub[q], approx[q], error[q]
+            dmq[:] = -np.inf
+            dmin[:] = np.inf
+            if mode == 1:
+                for j in range(wv):
+                    # u = (rc - h cos) / s for a node at vertical height h above the plane (metres),
+                    # s = cos sigma (paper) or sigma (hd); in table units x = (u - LO) / STEP = ua - ub h.
+                    sec = np.sqrt(1.0 + (gxq[j] * gxq[j] + gyq[j] * gyq[j]) * inv_s2)
+                    if scale_by_c:
+                        uaq[j] = (rc * sec * inv_sigma - _U_LO) * (1.0 / _U_STEP)
+                        ubq[j] = inv_sigma * (1.0 / _U_STEP)
+                    else:
+                        uaq[j] = (rc * inv_sigma - _U_LO) * (1.0 / _U_STEP)
+                        ubq[j] = inv_sigma / sec * (1.0 / _U_STEP)
+                    apq[j] = 0.0
+                    erq[j] = 0.0
+            for n in range(node_ptr[m], node_ptr[m + 1]):
+                di = node_di[n]
+                dj = node_dj[n]
+                zr = z[i + b + di, b + dj : b + dj + wv]
+                if count_holes:
                     for j in range(wv):
-                        tan2 = (gxk[j] * gxk[j] + gyk[j] * gyk[j]) * inv_s2
-                        sec = np.sqrt(1.0 + tan2)
-                        if scale_by_c:
-                            ua[j] = (rc * sec * inv_sigma - _U_LO) * (1.0 / _U_STEP)
-                            ub[j] = inv_sigma * (1.0 / _U_STEP)
-                        else:
-                            ua[j] = (rc * inv_sigma - _U_LO) * (1.0 / _U_STEP)
-                            ub[j] = inv_sigma / sec * (1.0 / _U_STEP)
-                        acc[j] = 0.0
+                        dev = zr[j] - cq[j] - gxq[j] * dj + gyq[j] * di
+                        if dev > dmq[j]:
+                            dmq[j] = dev
+                        if dev < dmin[j]:
+                            dmin[j] = dev
+                else:
+                    for j in range(wv):
+                        dev = zr[j] - cq[j] - gxq[j] * dj + gyq[j] * di
+                        if dev > dmq[j]:
+                            dmq[j] = dev
+                if mode == 1:
+                    # two loops, each with few enough arrays that LLVM vectorises it
+                    for j in range(wv):
+                        xr[j] = uaq[j] - ubq[j] * (zr[j] - cq[j] - gxq[j] * dj + gyq[j] * di)
+                    for j in range(wv):  # above the interval a node counts 0 (off by at most _TAIL_ERROR)
+                        v = _poly_log_phi_jit(xr[j])
+                        inside = xr[j] <= _POLY_X[1]
+                        apq[j] += v if inside else 0.0
+                        erq[j] += _POLY_ERROR if inside else _TAIL_ERROR
+            for j in range(wv):
+                tan2 = (gxq[j] * gxq[j] + gyq[j] * gyq[j]) * inv_s2
+                height = max(dmq[j], 0.0)
+                if count_holes:
+                    height = max(height, -dmin[j])
+                r = height / np.sqrt(1.0 + tan2)
+                slope[i, j] = max(slope[i, j], tan2)  # tan^2 for now; arctan at the end
+                rough[i, j] = max(rough[i, j], r)
+                if mode == 2:  # the worst node: the largest signed height above the plane
+                    sec = np.sqrt(1.0 + tan2)
+                    scale = sec * inv_sigma if scale_by_c else inv_sigma
+                    score[i, j] = min(score[i, j], (rc - dmq[j] / sec) * scale)
+        if mode != 1:
+            continue
+        # 2. the sites decided by their slope, validity or bounds; the configurations left to sum
+        for j in range(wv):
+            if not valid[i, j] or slope[i, j] > tan2_cut:
+                score[i, j] = -np.inf
+                for q in range(n_q):
+                    need[q, j] = False
+                continue
+            lo, hi = _product_bounds_jit(log_phi, ua, ub, dmax, approx, error, node_ptr, n_cfg, need, j)
+            p_lo, p_hi = np.exp(lo), np.exp(hi)
+            if p_hi - p_lo <= _P_TOLERANCE and (
+                p_lo >= _DECISION_THRESHOLD + _DECISION_MARGIN or p_hi <= _DECISION_THRESHOLD - _DECISION_MARGIN
+            ):
+                p_mid = 0.5 * (p_lo + p_hi)
+                score[i, j] = np.log(p_mid) if p_mid > 0.0 else -np.inf
+                for q in range(n_q):
+                    need[q, j] = False
+        # 3. the table's sums over the nodes of the marked configurations
+        for q in range(n_q):
+            m = q // n_cfg
+            cnt = 0
+            for j in range(wv):
+                if need[q, j]:
+                    sel[cnt] = j
+                    cnt += 1
+            if cnt == 0:
+                continue
+            gxq, gyq, cq, uaq, ubq = gx[q], gy[q], c[q], ua[q], ub[q]
+            j0, j1 = sel[0], sel[cnt - 1] + 1
+            if 2 * cnt >= j1 - j0:  # dense: the whole span, vectorised
+                acc[j0:j1] = 0.0
                 for n in range(node_ptr[m], node_ptr[m + 1]):
                     di = node_di[n]
                     dj = node_dj[n]
                     zr = z[i + b + di, b + dj : b + dj + wv]
-                    if count_holes:
-                        for j in range(wv):
-                            dev = zr[j] - ck[j] - gxk[j] * dj + gyk[j] * di
-                            if dev > dmax[j]:
-                                dmax[j] = dev
-                            if dev < dmin[j]:
-                                dmin[j] = dev
-                    else:
-                        for j in range(wv):
-                            dev = zr[j] - ck[j] - gxk[j] * dj + gyk[j] * di
-                            if dev > dmax[j]:
-                                dmax[j] = dev
-                    if mode == 1:  # acc += log Phi(u), the piecewise cubic of _LOG_PHI
-                        for j in range(wv):
-                            dev = zr[j] - ck[j] - gxk[j] * dj + gyk[j] * di
-                            x = min(max(ua[j] - ub[j] * dev, 0.0), (_U_HI - _U_LO) / _U_STEP)
-                            q = int(x)
-                            t = x - q
-                            q *= 4
-                            acc[j] += log_phi[q] + t * (log_phi[q + 1] + t * (log_phi[q + 2] + t * log_phi[q + 3]))
-                for j in range(wv):
-                    tan2 = (gxk[j] * gxk[j] + gyk[j] * gyk[j]) * inv_s2
-                    height = max(dmax[j], 0.0)
-                    if count_holes:
-                        height = max(height, -dmin[j])
-                    r = height / np.sqrt(1.0 + tan2)
-                    slope[i, j] = max(slope[i, j], tan2)  # tan^2 for now; arctan at the end
-                    rough[i, j] = max(rough[i, j], r)
-                    if mode == 1:
-                        score[i, j] = min(score[i, j], acc[j])
-                    elif mode == 2:  # the worst node: the largest signed height above the plane
-                        sec = np.sqrt(1.0 + tan2)
-                        scale = sec * inv_sigma if scale_by_c else inv_sigma
-                        score[i, j] = min(score[i, j], (rc - dmax[j] / sec) * scale)
+                    for j in range(j0, j1):
+                        dev = zr[j] - cq[j] - gxq[j] * dj + gyq[j] * di
+                        acc[j] += _table_log_phi_jit(log_phi, uaq[j] - ubq[j] * dev)
+                for s in range(cnt):
+                    j = sel[s]
+                    score[i, j] = min(score[i, j], acc[j])
+            else:  # sparse: site by site
+                for s in range(cnt):
+                    j = sel[s]
+                    total = 0.0
+                    for n in range(node_ptr[m], node_ptr[m + 1]):
+                        di = node_di[n]
+                        dj = node_dj[n]
+                        dev = z[i + b + di, b + dj + j] - cq[j] - gxq[j] * dj + gyq[j] * di
+                        total += _table_log_phi_jit(log_phi, uaq[j] - ubq[j] * dev)
+                    score[i, j] = min(score[i, j], total)
     for i in range(hv):
         for j in range(wv):
             slope[i, j] = np.arctan(np.sqrt(slope[i, j]))
+
+
+def _product_bounds(log_phi, ua, ub, dmax, approx, error, node_ptr, n_cfg, need, j):  # pragma: no cover - numba
+    """Bounds on one site's product-rule score, column ``j`` of the per-configuration arrays (numba).
+
+    With f = log Phi (the table: non-decreasing, <= 0) and x_q the table position of q's highest
+    node (``ua - ub * dmax``; every other node lies above it), q's sum S_q over its N_q nodes lies
+    in [N_q f(x_q), f(x_q)], and in [approx - error, approx + error] when x_q is inside the
+    polynomial's interval or above. ``x_q`` is widened by one table step plus 0.1 mm of height, far
+    beyond the rounding between passes. The site's score, min_q S_q, lies in (lo, hi) =
+    (min_q lo_q, min_q hi_q). Sets ``need[q, j]`` for the configurations whose lower bound does not
+    exceed ``hi``: only these can hold the minimum (the one with the smallest upper bound among
+    them). Returns (lo, hi).
+    """
+    hi = np.inf
+    for q in range(ua.shape[0]):
+        x = ua[q, j] - ub[q, j] * dmax[q, j]
+        slack = 1.0 + ub[q, j] * 1e-4
+        hi_q = _table_log_phi_jit(log_phi, x + slack)
+        if x - slack >= _POLY_X[0]:
+            hi_q = min(hi_q, approx[q, j] + error[q, j])
+        hi = min(hi, hi_q)
+    lo = np.inf
+    for q in range(ua.shape[0]):
+        m = q // n_cfg
+        x = ua[q, j] - ub[q, j] * dmax[q, j]
+        slack = 1.0 + ub[q, j] * 1e-4
+        lo_q = (node_ptr[m + 1] - node_ptr[m]) * _table_log_phi_jit(log_phi, x - slack)
+        if x - slack >= _POLY_X[0]:
+            lo_q = max(lo_q, approx[q, j] - error[q, j])
+        lo = min(lo, lo_q)
+        need[q, j] = lo_q <= hi
+    return lo, hi
 
 
 # Fast-math without the no-NaN / no-inf assumptions (the loops start from -inf).
@@ -521,4 +716,7 @@ _FASTMATH = {"contract", "reassoc", "arcp", "nsz", "afn"}
 
 if numba is not None:
     _pad_heights_jit = numba.njit(cache=True, fastmath=_FASTMATH)(_pad_heights_loops)
+    _table_log_phi_jit = numba.njit(cache=True, fastmath=_FASTMATH)(_table_log_phi)
+    _poly_log_phi_jit = numba.njit(cache=True, fastmath=_FASTMATH, inline="always")(_poly_log_phi)
+    _product_bounds_jit = numba.njit(cache=True, fastmath=_FASTMATH, inline="always")(_product_bounds)
     _worst_case_jit = numba.njit(cache=True, fastmath=_FASTMATH)(_worst_case_loops)
