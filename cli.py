@@ -339,17 +339,65 @@ def _refuse_with_recipe(ctx: click.Context, names: set[str], what: str, error: t
         raise error(f"--recipe fixes {what}; edit the recipe instead of passing {flags}")
 
 
+class _Output:
+    """How the commands write to the terminal (``hd -q``, ``hd --no-progress``; docs/user-guide.md,
+    "Scripting"): ``quiet`` drops the summaries, ``progress`` the progress bars; ``lines`` writes
+    progress as plain lines (at most one per tenth of the work) when stderr is not a terminal, so
+    that log files get no carriage-return updates."""
+
+    quiet = False
+    progress = True
+    lines = False
+
+
+OUTPUT = _Output()
+
+
+def _restore_env(name: str, value: str | None) -> None:
+    import os
+
+    if value is None:
+        os.environ.pop(name, None)
+    else:
+        os.environ[name] = value
+
+
+def _epoch_lines(row: dict[str, Any], total: int) -> None:
+    """One log line per finished training epoch (progress when stderr is not a terminal)."""
+    click.echo(
+        f"train: epoch {int(row['epoch'])}/{total}, train loss {row['train_loss']:.4f}, val loss "
+        f"{row['val_loss']:.4f}, val PA {row['val_pixel_accuracy']:.4f}, {row['train_images_per_s']:.1f} images/s",
+        err=True,
+    )
+
+
+def _say(text: str) -> None:
+    """A command's summary on stdout, unless ``hd -q``."""
+    if not OUTPUT.quiet:
+        click.echo(text)
+
+
 class _ScanProgress:
-    """tqdm progress bar fed with (done, total) counts of scans (or of another ``unit``)."""
+    """Progress fed with (done, total) counts of scans (or of another ``unit``): a tqdm bar on a
+    terminal, plain lines in a log, nothing with ``hd -q`` or ``--no-progress``."""
 
     def __init__(self, desc: str, unit: str = "scan") -> None:
         self.desc = desc
         self.unit = unit
         self.bar: Any = None
+        self.tenth = -1
 
     def __call__(self, done: int, total: int) -> None:
         from tqdm import tqdm
 
+        if not OUTPUT.progress:
+            return
+        if OUTPUT.lines:
+            tenth = 10 * done // total if total > 0 else 10
+            if tenth > self.tenth:
+                self.tenth = tenth
+                click.echo(f"{self.desc}: {done}/{total} {self.unit}s ({100 * done // max(total, 1)}%)", err=True)
+            return
         if self.bar is None:
             self.bar = tqdm(total=total, initial=done, desc=self.desc, unit=self.unit, dynamic_ncols=True)
         else:
@@ -368,12 +416,55 @@ def _known_schemas() -> dict[str, str]:
 
 
 # ------------------------------------------------------------------------------------------ commands
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+class _HdGroup(click.Group):
+    """The ``hd`` group: a usage error is one line (``Error: ... (see 'hd CMD --help')``, exit 2)
+    instead of click's usage block; everything else as click's standalone mode."""
+
+    def main(
+        self,
+        args: Any = None,
+        prog_name: str | None = None,
+        complete_var: str | None = None,
+        standalone_mode: bool = True,
+        **extra: Any,
+    ) -> Any:
+        if not standalone_mode:
+            return super().main(args, prog_name, complete_var, standalone_mode, **extra)
+        try:
+            super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
+        except click.UsageError as exc:
+            hint = f" (see '{exc.ctx.command_path} --help')" if exc.ctx is not None else ""
+            click.echo(f"Error: {exc.format_message()}{hint}", err=True)
+            sys.exit(exc.exit_code)
+        except click.ClickException as exc:
+            exc.show()
+            sys.exit(exc.exit_code)
+        except click.exceptions.Exit as exc:
+            sys.exit(exc.exit_code)
+        except click.exceptions.Abort:
+            click.echo("Aborted!", err=True)
+            sys.exit(1)
+        sys.exit(0)
+
+
+@click.group(cls=_HdGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="hd")
+@click.option("-q", "--quiet", is_flag=True, help="No progress and no summaries: errors and warnings only.")
+@click.option("--no-progress", is_flag=True, help="No progress bars (also: TQDM_DISABLE=1).")
 @click.pass_context
-def main(ctx: click.Context) -> None:
+def main(ctx: click.Context, quiet: bool = False, no_progress: bool = False) -> None:
     """hd — hazard-detection datasets, ALHAT labels and uncertainty-aware networks for planetary landing."""
+    import os
+
     from lidarsim.parallel import forked_children_die_with_parent
+
+    OUTPUT.quiet = quiet
+    OUTPUT.progress = not (quiet or no_progress or os.environ.get("TQDM_DISABLE", "") not in ("", "0"))
+    OUTPUT.lines = not sys.stderr.isatty()
+    if not OUTPUT.progress or OUTPUT.lines:  # the library's own bars (training) too, for this command
+        before = os.environ.get("TQDM_DISABLE")
+        os.environ["TQDM_DISABLE"] = "1"
+        ctx.call_on_close(lambda: _restore_env("TQDM_DISABLE", before))
 
     _install_signal_handlers(ctx)
     _install_warning_format()
@@ -522,7 +613,7 @@ def build_dataset_cmd(
     if out_dir is None:
         out_dir = default_out_dir(config, name)
         check_output_dir(out_dir, "--out")
-        click.echo(f"no --out given: building into {out_dir}")
+        _say(f"no --out given: building into {out_dir}")
     progress = _ScanProgress("scans")
     try:
         summary = build_dataset(
@@ -530,7 +621,7 @@ def build_dataset_cmd(
         )
     finally:
         progress.close()
-    click.echo(summary.paragraph())
+    _say(summary.paragraph())
 
 
 @main.command("make-dtm")
@@ -609,7 +700,7 @@ def make_dtm_cmd(
         return
     params = dataclasses.replace(MarsTerrainParams(), **changes)
     heights = write_procedural_dtm(out_path, params, seed)
-    click.echo(
+    _say(
         f"wrote {out_path}: {heights.shape[0]} x {heights.shape[1]} cells at {params.spacing_m:g} m/px, "
         f"heights {float(heights.min()):.1f} .. {float(heights.max()):.1f} m"
     )
@@ -622,7 +713,7 @@ def _make_rocky_dtm(out_path: Path, base_path: Path, params: Any, seed: int, cra
     terrain = rocks_on_base(base_path, params, seed, params.spacing_m, craters=craters_below_m is not None)
     write_rocky_dtm(out_path, terrain)
     rows, cols = terrain.heights.shape
-    click.echo(
+    _say(
         f"wrote {out_path}: {base_path.name} at {terrain.spacing_m:g} m/px ({rows} x {cols} cells) with "
         f"{terrain.n_rocks} rocks (k = {params.rock_k:g})"
         + (
@@ -635,14 +726,27 @@ def _make_rocky_dtm(out_path: Path, base_path: Path, params: Any, seed: int, cra
 
 @main.command("inspect")
 @click.argument("directory", type=_DIRECTORY)
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as one JSON object (for scripts).")
 @friendly_errors
-def inspect_cmd(directory: Path) -> None:
-    """Summarise a dataset: scans, splits, noise levels, sensor, terrain, labels; and check every file."""
-    from lidarsim.inspect import INTACT_STATUS, damaged_message, damaged_status, describe_dataset
-    from lidarsim.shards import verify_dataset
+def inspect_cmd(directory: Path, as_json: bool) -> None:
+    """Summarise a dataset (scans, splits, noise levels, sensor, terrain, labels; every file checked) or a
+    run (profile, training data and noise, epochs, metrics)."""
+    import json
 
+    from hdnet.run_summary import describe_run, is_run_dir, run_record
+    from lidarsim.inspect import INTACT_STATUS, damaged_message, damaged_status, dataset_record, describe_dataset
+    from lidarsim.shards import MANIFEST_NAME, verify_dataset
+
+    if is_run_dir(directory) and not (directory / MANIFEST_NAME).exists():
+        click.echo(json.dumps(run_record(directory)) if as_json else describe_run(directory))
+        return
     summary = describe_dataset(directory)
     problems = verify_dataset(directory, known_schemas=_known_schemas())
+    if as_json:
+        click.echo(json.dumps({**dataset_record(directory), "intact": not problems, "problems": problems}))
+        if problems:
+            raise click.ClickException(damaged_message(directory, problems))
+        return
     click.echo(summary)
     if problems:
         for line in damaged_status(problems):
@@ -802,7 +906,7 @@ def label_cmd(
         summary = label_dataset(directory, lander, grid, workers=workers, scheduler=scheduler, progress=progress)
     finally:
         progress.close()
-    click.echo(summary.paragraph())
+    _say(summary.paragraph())
 
 
 @main.command("train")
@@ -892,13 +996,13 @@ def train_cmd(
         seed=seed,
         resume=resume,
         labels=labeling,
-        progress=True,
+        progress=(_epoch_lines if OUTPUT.lines else True) if OUTPUT.progress else False,
         num_workers=num_workers,
         overwrite=overwrite,
         also=tuple(str(d) for d in also),
     )
     checkpoint = fit(dataset, run_dir, config)
-    click.echo(training_done_message(checkpoint, run_dir))
+    _say(training_done_message(checkpoint, run_dir))
 
 
 @main.command("eval")
@@ -985,8 +1089,8 @@ def eval_cmd(
         result = evaluate_to_report(run_dir, dataset, out_dir, config, overwrite=overwrite, progress=progress)
     finally:
         progress.close()
-    click.echo(result.summary())
-    click.echo(report_written_message(out_dir))
+    _say(result.summary())
+    _say(report_written_message(out_dir))
 
 
 @main.command("detect")
@@ -1062,8 +1166,8 @@ def detect_cmd(
         )
     finally:
         progress.close()
-    click.echo(result.summary())
-    click.echo(f"maps, sites.csv, sites.geojson, overview.png and detect.json in {out_dir}")
+    _say(result.summary())
+    _say(f"maps, sites.csv, sites.geojson, overview.png and detect.json in {out_dir}")
 
 
 @main.command("demo")
@@ -1085,7 +1189,7 @@ def demo_cmd(out_dir: Path, scans: int, epochs: int, workers: int | None) -> Non
     from hdnet.pipeline import demo_pipeline, run_pipeline
 
     run_pipeline(demo_pipeline(out_dir, scans, epochs), workers, echo=click.echo, progress=_ScanProgress)
-    click.echo(_demo_next_steps(out_dir))
+    _say(_demo_next_steps(out_dir))
 
 
 def _demo_next_steps(out_dir: Path) -> str:
@@ -1144,7 +1248,7 @@ def card_cmd(dataset: Path, recipe: Path, machine: str) -> None:
     from lidarsim.card import publish_card
 
     card = publish_card(dataset, recipe, machine)
-    click.echo(f"wrote {card.card_path} and {card.checksums_path} ({card.n_shards} shards)")
+    _say(f"wrote {card.card_path} and {card.checksums_path} ({card.n_shards} shards)")
 
 
 if __name__ == "__main__":

@@ -221,8 +221,16 @@ def concat_inference(parts: Sequence[SplitInference]) -> SplitInference:
 
 # --- the run and its threshold ---------------------------------------------------------------------
 def checkpoint_path(run_dir: str | os.PathLike) -> Path:
-    """The checkpoint of a run: ``RUN/last.pt`` for a run directory, else the path itself (a checkpoint file)."""
+    """The checkpoint of a run: ``RUN/last.pt`` for a run directory, else the path itself (a checkpoint file).
+
+    Raises:
+        HdNetError: ``run_dir`` is a dataset (it holds ``manifest.json`` and no checkpoint).
+    """
     path = Path(run_dir)
+    if path.is_dir() and (path / MANIFEST_NAME).is_file() and not (path / LAST).exists():
+        raise HdNetError(
+            f"{path} is a dataset, not a run: give the run directory `hd train --out` wrote (it holds {LAST})."
+        )
     return path / LAST if path.is_dir() else path
 
 

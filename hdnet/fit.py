@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -211,7 +212,7 @@ class FitConfig:
     seed: int = 0
     resume: bool = False
     labels: str | None = None
-    progress: bool = True
+    progress: bool | Callable[[dict[str, Any], int], None] = True
     num_workers: int = 0
     overwrite: bool = False
     stop_after: int | None = None

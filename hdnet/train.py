@@ -45,6 +45,7 @@ import os
 import random
 import time
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -408,7 +409,7 @@ def train(
     epochs: int | None = None,
     seed: int = 0,
     resume: bool = False,
-    progress: bool = True,
+    progress: bool | Callable[[dict[str, Any], int], None] = True,
     extra_config: dict[str, Any] | None = None,
     num_workers: int = 0,
     class_weights: list[float] | None = None,
@@ -423,6 +424,8 @@ def train(
     ``profile.class_weighting == "balanced"``; without them they are counted from ``train_ds``.
     ``stop_after`` ends this call after that many completed epochs while the learning-rate schedule
     still spans ``epochs`` (a run split over several calls; ``resume=True`` continues it exactly).
+    ``progress``: a progress bar (True), none (False), or a callable given each finished epoch's
+    metrics row and the total number of epochs (e.g. one log line per epoch).
     """
     total_epochs = profile.epochs if epochs is None else int(epochs)
     extra, in_channels = _check_inputs(train_ds, val_ds, total_epochs, num_workers, extra_config)
@@ -458,7 +461,8 @@ def train(
         _atomic_write_bytes(run_dir / CONFIG, (json.dumps(config, indent=2) + "\n").encode())
 
     bar = None
-    if progress and rank == 0:
+    report = progress if callable(progress) and rank == 0 else None
+    if progress is True and rank == 0:
         from tqdm.auto import tqdm
 
         bar = tqdm(total=total_epochs, initial=state.start_epoch, desc=f"train {profile.name}", unit="epoch")
@@ -486,6 +490,8 @@ def train(
                 val_miou=f"{row['val_miou']:.3f}",
                 img_s=f"{state.timing[-1]['train_images_per_s']:.1f}",
             )
+        if report is not None:
+            report({**row, "train_images_per_s": state.timing[-1]["train_images_per_s"]}, total_epochs)
         if world > 1:
             dist.barrier()
     if bar is not None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -97,6 +98,46 @@ def describe_dataset(directory: str | os.PathLike) -> str:
     if holder is not None:
         lines.append(f"writing   another hd process (PID {holder}) is writing this dataset now")
     return "\n".join(lines)
+
+
+def dataset_record(directory: str | os.PathLike) -> dict[str, Any]:
+    """A JSON-ready summary of a dataset (``hd inspect --json``): what :func:`describe_dataset` prints,
+    from the manifest alone.
+
+    Raises:
+        ShardFormatError: as :func:`describe_dataset`.
+    """
+    directory = Path(directory)
+    manifest = read_manifest(directory)
+    shards = manifest["shards"]
+    dtm = _mapping(manifest.get("dtm"))
+    return {
+        "dataset": str(directory.resolve()),
+        "kind": "hd.dataset",
+        "schema": manifest.get("schema"),
+        "schema_version": manifest.get("schema_version"),
+        "software_version": manifest.get("software_version"),
+        "n_scans": manifest.get("n_scans"),
+        "n_shards": len(shards),
+        "size_bytes": _size(directory, shards),
+        "splits": _mapping(manifest.get("splits")),
+        "sigmas_m": manifest.get("sigmas_m"),
+        "seed": manifest.get("seed"),
+        "terrain": {k: dtm.get(k) for k in ("name", "rows", "cols", "spacing_m", "scale", "sha256", "path")},
+        "labelings": [
+            {
+                "name": lab.get("name"),
+                "convention": lab.get("convention"),
+                "n_shards": len(lab.get("shards", [])),
+                "safe_fraction": lab.get("safe_fraction"),
+                "label_counts": lab.get("label_counts"),
+                "baseline_safe_fraction": lab.get("baseline_safe_fraction"),
+            }
+            for lab in manifest.get("labelings", [])
+            if isinstance(lab, dict)
+        ],
+        "writer_pid": lock_holder(directory),
+    }
 
 
 def _mapping(value: object) -> dict:

@@ -1,0 +1,82 @@
+"""Output made for scripts: -q, --no-progress, plain progress lines in logs, inspect --json, inspect RUN."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+from hdnet_datasets import build_labelled
+
+from cli import main
+from hdnet.fit import FitConfig, fit
+from hdnet.profiles import TINY
+
+HD = [sys.executable, "-c", "import sys; from cli import main; sys.exit(main())"]
+REPO = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def data_and_run(tmp_path_factory) -> tuple[Path, Path]:
+    root = tmp_path_factory.mktemp("scripting")
+    data = build_labelled(root / "d", n_scans=20)
+    run = root / "run"
+    fit(data, run, FitConfig(profile=TINY, epochs=2, progress=False))
+    return data, run
+
+
+def _hd(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([*HD, *args], cwd=cwd, capture_output=True, text=True, timeout=600, env=None)
+
+
+def test_quiet_prints_nothing_and_logs_get_lines_not_carriage_returns(tmp_path):
+    build = ["build-dataset", "--scans", "6", "--shard-size", "3", "--resolution", "32", "--workers", "1"]
+    logged = subprocess.run(
+        [*HD, *build, "--out", str(tmp_path / "a")], cwd=REPO, capture_output=True, text=True, timeout=600
+    )
+    assert logged.returncode == 0, logged.stderr
+    assert "\r" not in logged.stderr and "scans: 6/6 scans (100%)" in logged.stderr
+    assert logged.stdout.startswith("Built 6 scans")
+    quiet = subprocess.run(
+        [*HD, "-q", *build, "--out", str(tmp_path / "b")], cwd=REPO, capture_output=True, text=True, timeout=600
+    )
+    assert quiet.returncode == 0 and quiet.stdout == "" and quiet.stderr == ""
+    again = subprocess.run(
+        [*HD, "--no-progress", *build, "--out", str(tmp_path / "b")], cwd=REPO, capture_output=True, text=True
+    )
+    assert again.returncode == 0 and again.stderr == "" and "already holds this dataset" in again.stdout
+
+
+def test_inspect_describes_datasets_and_runs_in_json_too(data_and_run):
+    data, run = data_and_run
+    runner = CliRunner()
+    record = json.loads(runner.invoke(main, ["inspect", str(data), "--json"]).output)
+    assert record["kind"] == "hd.dataset" and record["n_scans"] == 20 and record["intact"] is True
+    assert record["labelings"][0]["name"].startswith("paper-") and record["sigmas_m"] == [0.0167, 0.07]
+    text = runner.invoke(main, ["inspect", str(run)])
+    assert text.exit_code == 0 and "epochs    2 of 2 done" in text.output and "profile   tiny" in text.output
+    as_json = json.loads(runner.invoke(main, ["inspect", str(run), "--json"]).output)
+    assert as_json["kind"] == "hd.run" and as_json["epochs_done"] == 2 and as_json["finished"] is True
+    assert as_json["dataset"] == str(data.resolve()) and as_json["train_sigma_m"] == 0.0167
+
+
+def test_a_dataset_given_where_a_run_is_expected_is_named_as_such(data_and_run, tmp_path):
+    data, _ = data_and_run
+    result = CliRunner().invoke(main, ["eval", str(data), "--data", str(data), "--out", str(tmp_path / "r")])
+    assert result.exit_code != 0 and "is a dataset, not a run" in result.output
+    assert not (tmp_path / "r").exists()
+
+
+def test_a_usage_error_is_one_line_with_exit_status_2():
+    for args, needle in (
+        (["eval", "run", "--thresold", "mean"], "No such option '--thresold'"),
+        (["nocommand"], "No such command 'nocommand'"),
+        (["train", "data", "--epochs", "0"], "--epochs"),
+    ):
+        result = subprocess.run([*HD, *args], cwd=REPO, capture_output=True, text=True, timeout=120)
+        lines = result.stderr.strip().splitlines()
+        assert result.returncode == 2 and len(lines) == 1, result.stderr
+        assert lines[0].startswith("Error: ") and needle in lines[0] and "--help')" in lines[0]
