@@ -321,6 +321,9 @@ class LabelShardReader:
 def find_labeling(directory: str | os.PathLike, name: str | None = None) -> dict[str, Any]:
     """The manifest entry of a labelling of the dataset (the only one, or the one called ``name``).
 
+    ``name`` may be short: a label convention (``paper``, ``hd``) or the beginning of a name, when
+    exactly one labelling matches it.
+
     Raises:
         LabelStoreError: not a dataset, no labelling, several and no ``name``, or unknown ``name``.
     """
@@ -355,7 +358,17 @@ def find_labeling(directory: str | os.PathLike, name: str | None = None) -> dict
     for lab in labelings:
         if lab["name"] == name:
             return _checked_entry(lab, f"{directory}/{MANIFEST_NAME}: labelling {name}")
-    raise LabelStoreError(f"{directory} has no labelling named {name!r}")
+    # A short name: the convention ("paper", "hd") or a unique beginning of one labelling's name.
+    short = [lab for lab in labelings if lab.get("convention", "hd") == name or str(lab["name"]).startswith(f"{name}")]
+    names = ", ".join(str(lab["name"]) for lab in labelings)
+    if len(short) == 1:
+        return _checked_entry(short[0], f"{directory}/{MANIFEST_NAME}: labelling {short[0]['name']}")
+    if short:
+        raise LabelStoreError(
+            f"{directory}: {name!r} names {len(short)} labellings; give more of the name: "
+            + ", ".join(str(lab["name"]) for lab in short)
+        )
+    raise LabelStoreError(f"{directory} has no labelling named {name!r}; it has: {names}")
 
 
 def _checked_entry(labeling: dict[str, Any], where: str) -> dict[str, Any]:

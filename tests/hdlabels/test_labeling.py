@@ -220,3 +220,25 @@ def test_bad_convention_settings_are_refused_before_any_work(dataset, args, need
     result = CliRunner().invoke(main, ["label", str(dataset), "--workers", "1", *args])
     assert result.exit_code != 0 and needle in result.output and "Traceback" not in result.output
     assert (dataset / "manifest.json").read_text() == before
+
+
+def test_a_labelling_is_found_by_a_short_name_and_the_names_are_listed(dataset):
+    from lidarsim.shards import read_manifest
+
+    labelings = read_manifest(dataset)["labelings"]
+    assert len(labelings) >= 2  # the tests above added several
+    by_convention: dict[str, list[str]] = {}
+    for lab in labelings:
+        by_convention.setdefault(lab.get("convention", "hd"), []).append(lab["name"])
+    for convention, names in by_convention.items():
+        if len(names) == 1:
+            assert find_labeling(dataset, convention)["name"] == names[0]
+        else:
+            with pytest.raises(LabelStoreError, match=f"names {len(names)} labellings") as info:
+                find_labeling(dataset, convention)
+            assert all(n in str(info.value) for n in names)
+    full = labelings[-1]["name"]
+    assert find_labeling(dataset, full)["name"] == full
+    with pytest.raises(LabelStoreError, match="has no labelling named 'nope'; it has: ") as info:
+        find_labeling(dataset, "nope")
+    assert all(lab["name"] in str(info.value) for lab in labelings)
