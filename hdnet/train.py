@@ -640,8 +640,12 @@ def _start(
 
 
 def _check_optimizer_state(optimizer: torch.optim.Optimizer) -> None:
-    """Every restored per-parameter state is a tensor, of its parameter's shape but for the step count
-    (``load_state_dict`` takes any value; a wrong one failed later inside ``step``)."""
+    """Every restored per-parameter state holds the same entries as the others, each a tensor of its
+    parameter's shape but for the step count (``load_state_dict`` takes any value; a wrong or missing
+    one failed later inside ``step``)."""
+    keys = {frozenset(values) for values in optimizer.state.values()}
+    if len(keys) > 1:
+        raise ValueError(f"the optimizer's per-parameter states differ in their entries ({sorted(map(sorted, keys))})")
     for param, values in optimizer.state.items():
         for key, value in values.items():
             if not isinstance(value, torch.Tensor) or (key != "step" and value.shape != param.shape):
