@@ -82,9 +82,10 @@ from hdnet.model import BayesianSegNet
 from hdnet.noise_levels import TrainingNoise
 from hdnet.report import json_plain
 from hdnet.results import SITE_COLUMNS, Site
+from hdnet.threshold_cache import CachedThreshold, cache_key
 from hdnet.thresholds import ThresholdSpec, parse_threshold_spec, uncertain_mask
 from hdnet.tiling import TilePlan
-from hdnet.train import load_trained_model
+from hdnet.train import CONFIG, load_trained_model
 from lidarsim.base_relief import resample_bilinear
 from lidarsim.errors import LidarsimError, TerrainError
 from lidarsim.procedural import geotiff_bytes, geotiff_profile
@@ -783,6 +784,12 @@ def _calibrated_threshold(
     does: at the run's reference noise level, or (``calibrate="each"``) at the sensor's ``sensor_sigma_m``
     with the precision guard above the training levels."""
     sigma = run.train_sigma_m if calibrate == "reference" or sensor_sigma_m is None else sensor_sigma_m
+    # Cached in the run directory (never beside a checkpoint file given on its own).
+    cache = CachedThreshold(run.checkpoint.parent) if (run.checkpoint.parent / CONFIG).is_file() else None
+    key = cache_key(run.checkpoint, calib_dir, calib_labels, sigma, str(spec), calibrate, mc_samples, batch_size, seed)
+    hit = cache.get(key) if cache is not None else None
+    if hit is not None and cache is not None:
+        return hit[0], dict(hit[1], cached=str(cache.path))
     val_ds = split_dataset(calib_dir, "val", sigma, labels=calib_labels, input_spec=run.input_spec, seed=seed)
     th = validation_threshold(
         run.model, val_ds, spec, mc_samples=mc_samples, batch_size=batch_size, seed=seed, device=dev
@@ -795,6 +802,8 @@ def _calibrated_threshold(
         calibration_dataset=str(Path(calib_dir).resolve()),
         calibration_labels=calib_labels,
     )
+    if cache is not None:
+        cache.put(key, th.value_nats, info)
     return th.value_nats, info
 
 

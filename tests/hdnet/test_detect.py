@@ -729,3 +729,26 @@ def test_cli_detect_prints_a_summary(trained, terrains, tmp_path):
     info = json.loads((out / "detect.json").read_text())
     assert info["threshold"]["spec"] == "mean" and info["mc_samples"] == 2 and len(info["sites"]) <= 3
     assert info["baseline"]["sigma_m"] == 0.0167 and info["run"]["train_sigma_m"] == 0.0167
+
+
+def test_the_calibrated_threshold_is_cached_in_the_run_and_keyed_on_what_it_depends_on(trained, tmp_path):
+    _, run, constant = trained
+    dtm = write_dtm(tmp_path / "site.tif", tilted_plane(60, 1.0, 3.0), 1.0)
+    cache = run / "thresholds.json"
+    cache.unlink(missing_ok=True)
+
+    def threshold(out: str, **kw) -> dict:
+        detect(run, tmp_path / out, dtm=dtm, mc_samples=2, **kw)
+        return json.loads((tmp_path / out / "detect.json").read_text())["threshold"]
+
+    first = threshold("a")
+    assert "cached" not in first and cache.is_file()
+    second = threshold("b")
+    assert second["cached"] == str(cache) and second["value_nats"] == first["value_nats"]
+    other = threshold("c", seed=1)  # another MC seed: calibrated again
+    assert "cached" not in other
+    # A damaged cache is ignored and rewritten; a checkpoint given on its own never writes one.
+    cache.write_text("{not json")
+    assert "cached" not in threshold("d") and json.loads(cache.read_text())["schema"] == "hd.threshold-cache"
+    detect(constant, tmp_path / "e", dtm=dtm, mc_samples=2)
+    assert not (constant.parent / "thresholds.json").exists()

@@ -1,0 +1,94 @@
+"""Calibrated thresholds kept with their run (``RUN/thresholds.json``), so ``hd detect`` calibrates once.
+
+Calibrating H_t (MC dropout over a validation split) is most of a small ``hd detect`` call. The
+result depends only on the checkpoint, the validation split (its dataset manifest and labelling),
+the noise level, the threshold spec and rule, and the MC settings; the cache keys an entry on all
+of them (the checkpoint and the manifest by sha256), so a retrained run, a relabelled dataset or
+other settings never meet a stale value. The file is a cache: written atomically, ignored when it
+cannot be read (a damaged file is recomputed and replaced) and skipped when the run directory is
+not writable.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+from lidarsim.shards import MANIFEST_NAME, sha256_file
+from lidarsim.storage import StorageError, write_text_atomic
+
+__all__ = ["CACHE_FILE", "CachedThreshold", "cache_key"]
+
+CACHE_FILE = "thresholds.json"
+CACHE_SCHEMA = "hd.threshold-cache"
+CACHE_SCHEMA_VERSION = 1
+# hd choice: entries kept per run (the oldest go first); each is a few hundred bytes.
+MAX_ENTRIES = 256
+
+
+def cache_key(
+    checkpoint: Path,
+    calib_dir: Path,
+    labels: str,
+    sigma_m: float,
+    spec: str,
+    calibrate: str,
+    mc_samples: int,
+    batch_size: int,
+    seed: int,
+) -> dict[str, Any]:
+    """Everything a calibrated H_t depends on (the checkpoint and the dataset manifest by sha256)."""
+    return {
+        "checkpoint_sha256": sha256_file(checkpoint),
+        "manifest_sha256": sha256_file(Path(calib_dir) / MANIFEST_NAME),
+        "labels": labels,
+        "sigma_m": round(float(sigma_m), 12),
+        "spec": spec,
+        "calibrate": calibrate,
+        "mc_samples": int(mc_samples),
+        "batch_size": int(batch_size),
+        "seed": int(seed),
+    }
+
+
+class CachedThreshold:
+    """The threshold cache of the run directory ``run_dir``."""
+
+    def __init__(self, run_dir: Path) -> None:
+        self.path = Path(run_dir) / CACHE_FILE
+
+    def _entries(self) -> list[dict[str, Any]]:
+        try:
+            record = json.loads(self.path.read_text())
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError):
+            return []
+        if not isinstance(record, dict) or record.get("schema") != CACHE_SCHEMA:
+            return []
+        if record.get("schema_version") != CACHE_SCHEMA_VERSION or not isinstance(record.get("entries"), list):
+            return []
+        return [e for e in record["entries"] if isinstance(e, dict) and isinstance(e.get("key"), dict)]
+
+    def get(self, key: dict[str, Any]) -> tuple[float, dict[str, Any]] | None:
+        """(H_t in nats, its calibration info) stored under ``key``, or None."""
+        for entry in self._entries():
+            value = entry.get("value_nats")
+            if entry["key"] == key and (value is None or isinstance(value, (int, float))):
+                info = entry.get("info")
+                return (float("inf") if value is None else float(value)), info if isinstance(info, dict) else {}
+        return None
+
+    def put(self, key: dict[str, Any], value_nats: float, info: dict[str, Any]) -> bool:
+        """Store an entry (replacing one of the same key); False when the run directory is not writable."""
+        entries = [e for e in self._entries() if e["key"] != key]
+        finite = value_nats if value_nats != float("inf") else None
+        entries.append({"key": key, "value_nats": finite, "info": info})
+        record = {"schema": CACHE_SCHEMA, "schema_version": CACHE_SCHEMA_VERSION, "entries": entries[-MAX_ENTRIES:]}
+        if not os.access(self.path.parent, os.W_OK):
+            return False
+        try:
+            write_text_atomic(self.path, json.dumps(record, indent=1) + "\n")
+        except (StorageError, OSError):
+            return False
+        return True
