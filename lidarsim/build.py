@@ -19,6 +19,7 @@ import math
 import os
 import shutil
 import time
+import warnings
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -29,7 +30,7 @@ import numpy as np
 from lidarsim import defaults, limits
 from lidarsim._version import __version__
 from lidarsim.base_relief import rocks_on_base, rocky_geotiff_bytes
-from lidarsim.errors import LidarsimError, OutputExistsError
+from lidarsim.errors import HdWarning, LidarsimError, OutputExistsError
 from lidarsim.parallel import probe_scheduler, run_tasks
 from lidarsim.procedural import MarsTerrainParams, generate_mars_terrain, geotiff_bytes, terrain_tags
 from lidarsim.scan import STATUS_DAMAGED, STATUS_DEAD, STATUS_RETURN, TileScene, scan_geometry, simulate_scans
@@ -67,6 +68,7 @@ from lidarsim.storage import (
 from lidarsim.streams import Purpose, stream
 from lidarsim.terrain import DTM
 from lidarsim.trajectory import ScanPlan, TrajectoryConfig, plan_scans
+from lidarsim.weak_inputs import coarse_dtm_message, overlap_message, split_overlap
 
 SHARD_DIR = "shards"
 TERRAIN_DIR = "terrain"
@@ -603,6 +605,7 @@ def build_dataset(
         probe_scheduler(scheduler)
     prepare_output(out_dir, config, overwrite)
     terrain = _open_terrain(out_dir, config)
+    _warn_weak_inputs(config, terrain)
     # Input is valid: from here on the output directory is written, by this process alone.
     top = first_missing(out_dir)
     created = top is not None
@@ -641,6 +644,23 @@ def build_dataset(
         lock.release()
         if not finished:
             remove_empty_dirs(out_dir, top)
+
+
+def _warn_weak_inputs(config: BuildConfig, terrain: _BuildTerrain) -> None:
+    """One ``HdWarning`` per input that weakens the dataset (``lidarsim.weak_inputs``)."""
+    spacing = terrain.attrs.get("dtm_spacing_m")
+    if isinstance(spacing, (list, tuple)) and spacing:
+        message = coarse_dtm_message(
+            terrain.path.name, float(max(spacing)), config.sensor, config.trajectory.altitude_m
+        )
+        if message:
+            warnings.warn(message, HdWarning, stacklevel=3)
+    plan = terrain.plan
+    splits = assign_splits(config.trajectory.n_scans, config.seed)
+    footprint = 2.0 * plan.half_width_m
+    message = overlap_message(split_overlap(plan.nadir_xy, splits, footprint), plan.step_m, footprint)
+    if message:
+        warnings.warn(message, HdWarning, stacklevel=3)
 
 
 @dataclass
