@@ -82,13 +82,21 @@ class LabelSummary:
     reused: bool
 
     def paragraph(self) -> str:
-        base = ", ".join(f"{k}: {v * 100:.1f}%" for k, v in self.baseline_safe_fraction.items())
+        base = ", ".join(f"{_cm(k)}: {v * 100:.1f}%" for k, v in self.baseline_safe_fraction.items())
         verb = "already labelled" if self.reused else f"labelled in {self.seconds:.1f} s"
         return (
             f"Labelling {self.name}: {self.n_scans} scans in {self.n_shards} label shards, {verb}. "
             f"{self.safe_fraction * 100:.1f}% of labelled pixels are safe (clean DEMs); the ALHAT baseline "
-            f"(P(safe) >= {defaults.SAFE_PROBABILITY_THRESHOLD:g}) calls safe {base} of them per noise level."
+            f"(P(safe) >= {defaults.SAFE_PROBABILITY_THRESHOLD:g}) calls safe {base} of them (sigma per noise level)."
         )
+
+
+def _cm(sigma_m: str) -> str:
+    """A noise level recorded in metres ("0.0167"), written in centimetres ("1.67 cm")."""
+    try:
+        return f"{float(sigma_m) * 100:.2f} cm"
+    except ValueError:
+        return sigma_m
 
 
 def check_lander_fits(lander: Lander, dem: DemSpec) -> None:

@@ -714,7 +714,7 @@ def detect(
             sites = _write_sites(tmp, terrain, run, n_sites)
             timings["sites"] = time.perf_counter() - t0
             t0 = time.perf_counter()
-            _overview(tmp, terrain, sites, run, h_t)
+            _overview(tmp, terrain, sites, run, h_t, baseline_sigma)
             timings["overview"] = time.perf_counter() - t0
             timings["total"] = time.perf_counter() - t_start
             info = _info(run, terrain, plan, threshold_info, baseline_sigma, mc_samples, seed, counts, sites, timings)
@@ -946,7 +946,7 @@ def _writers(tmp: Path, profiles: dict[str, dict[str, Any]]) -> Iterator[dict[st
             writer.abandon()  # after an error: closed without a word (a no-op for closed ones)
 
 
-def _overview(tmp: Path, terrain: _Terrain, sites: list[Site], run: DetectRun, h_t: float) -> None:
+def _overview(tmp: Path, terrain: _Terrain, sites: list[Site], run: DetectRun, h_t: float, sigma_m: float) -> None:
     from hdnet.figures import detect_overview
 
     heights, cell_m = terrain.hillshade_heights(OVERVIEW_MAX_PX)
@@ -957,7 +957,9 @@ def _overview(tmp: Path, terrain: _Terrain, sites: list[Site], run: DetectRun, h
     left, right, top, bottom = c, c + a * cols, f, f + e * rows
     name = terrain.provenance.get("name") or f"scan {terrain.provenance.get('scan_index')}"
     t = "unbounded" if not math.isfinite(h_t) else f"{h_t:.3f} nats"
-    title = f"{name}: {len(sites)} site(s), lander {run.lander.diameter_m:g} m, H_t {t}"
+    title = (
+        f"{name}: {len(sites)} site(s), lander {run.lander.diameter_m:g} m, sensor σ {sigma_m * 100:.2f} cm, H_t {t}"
+    )
     try:
         detect_overview(
             heights, cell_m, safety, (left, right, bottom, top), sites, run.lander.radius_m, title, tmp / "overview.png"

@@ -738,7 +738,24 @@ def _run_info(
         "seed": cfg.seed,
         "test_scans": len(next(iter(tests.values())).scan_index),
         "val_scans": len(val.scan_index),
+        "paper_dataset": is_paper_dataset(root),
     }
+
+
+def is_paper_dataset(dataset_dir: str | os.PathLike) -> bool:
+    """True when the dataset was built with the settings of the paper's recipe (``datasets/mars-paper``:
+    the paper's three noise levels, 1000 scans, sensor and altitude, on hd's procedural Mars): the
+    only dataset whose scores sit beside the paper's numbers."""
+    from lidarsim import defaults as lidar_defaults
+    from lidarsim.build import BuildConfig
+    from lidarsim.trajectory import TrajectoryConfig
+
+    paper = BuildConfig(
+        sigmas_m=lidar_defaults.PAPER_SIGMAS_M,
+        seed=0,
+        trajectory=TrajectoryConfig(n_scans=lidar_defaults.N_SCANS),
+    )
+    return read_manifest(dataset_dir).get("config_sha256") == paper.fingerprint()
 
 
 def validation_summary(

@@ -2,7 +2,8 @@
 and a detection's overview.
 
 Every evaluation figure takes an ``EvaluationResult`` (``hdnet.results``) and a file path, draws one
-figure and closes it. Colours of safety maps: unsafe red, safe green, uncertain grey, invalid white.
+figure and closes it. Colours of safety maps: unsafe red, safe green, uncertain blue (apart from
+any grey hillshade), invalid white.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from hdnet import defaults
 if TYPE_CHECKING:
     from hdnet.results import EvaluationResult, Site, SplitInference
 
-SAFETY_HEX = ("#c0392b", "#27ae60", "#9e9e9e", "#ffffff")  # unsafe, safe, uncertain, invalid
+SAFETY_HEX = ("#c0392b", "#27ae60", "#2e6fd8", "#ffffff")  # unsafe, safe, uncertain, invalid
 SAFETY_COLOURS = ListedColormap(list(SAFETY_HEX))
 UNCERTAIN_CODE, INVALID_CODE = 2, 3
 DPI = 110
@@ -178,7 +179,7 @@ def qualitative_panel(inf: SplitInference, row: int, threshold_nats: float | Non
             fig.colorbar(im, ax=ax, fraction=0.046, pad=0.02)
     fig.suptitle(
         f"scan {int(inf.scan_index[row])}, test sigma {sigma_label(inf.sigma_m)} "
-        "(red unsafe, green safe, grey uncertain, white invalid)",
+        "(red unsafe, green safe, blue uncertain, white invalid)",
         fontsize=9,
     )
     fig.tight_layout()

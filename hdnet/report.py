@@ -125,6 +125,11 @@ def _paper_table(rows: list[ReportRow]) -> list[str]:
     return [HEADER, *lines] if lines else []
 
 
+# hd choice: below this many test scans the report says that its decimals overstate the precision.
+FEW_TEST_SCANS = 20
+DECIMALS = 4
+
+
 def report_markdown(result: EvaluationResult, figures: list[str] | None = None) -> str:
     """The content of ``report.md``."""
     run, th = result.run, result.threshold
@@ -135,6 +140,11 @@ def report_markdown(result: EvaluationResult, figures: list[str] | None = None) 
         (
             f"- dataset: `{run.get('dataset')}`, labelling `{run.get('labels')}`, "
             f"{run.get('test_scans')} test / {run.get('val_scans')} validation scans"
+            + (
+                f" (few test scans: the metrics below vary by far more than their {DECIMALS} decimals)"
+                if isinstance(run.get("test_scans"), int) and run["test_scans"] < FEW_TEST_SCANS
+                else ""
+            )
         ),
         (
             f"- trained at {_train_noise_words(run.get('train_noise') or {'levels_m': [run.get('train_sigma_m')]})}"
@@ -145,6 +155,11 @@ def report_markdown(result: EvaluationResult, figures: list[str] | None = None) 
             f"- threshold `{th['spec']}`: H_t = {h_t}, calibrated on the {th['calibration_split']} split at "
             f"{_cm(th['calibration_sigma_m'])} (mean entropy {_num(th['mean_nats'])} nats = validation quantile "
             f"{_num(th['mean_quantile'], 3)})"
+            + (
+                f" of {', '.join(f'`{d}`' for d in th['calibration_datasets'])}"
+                if th.get("calibration_datasets") and th["calibration_datasets"] != [run.get("dataset")]
+                else ""
+            )
             + (
                 "; recalibrated on the validation split at each test noise level (--calibrate each)"
                 if th.get("calibrate") == "each"
@@ -167,7 +182,7 @@ def report_markdown(result: EvaluationResult, figures: list[str] | None = None) 
                 "",
             ]
         out += [*_table(rows), ""]
-        paper = _paper_table(rows)
+        paper = _paper_table(rows) if run.get("paper_dataset", True) else []
         if paper:
             which = "Table 1" if table == "noise" else "Table 2"
             out += [f"The paper's values for the same rows (Tomita et al., {which}):", "", *paper, ""]

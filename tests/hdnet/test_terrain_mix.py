@@ -129,3 +129,14 @@ def test_eval_reports_its_progress_in_images_against_an_exact_plan(two, mixed_ru
     assert done[0] == 0 and done == sorted(done) and done[-1] == calls[-1][1]
     # 2 val images at each of 3 calibration levels (1.67, 7, 5 cm), 2 test images in 2 + 2 + 1 passes.
     assert calls[-1][1] == 2 * 3 + 2 * 5
+
+
+def test_a_report_on_another_dataset_sets_no_paper_numbers_beside_it(two, mixed_run, tmp_path):
+    from hdnet.report import write_report
+
+    a, b = two
+    result = evaluate(mixed_run, b, EvalConfig(mc_samples=1, calibrate_on=(str(a),)))
+    assert result.run["paper_dataset"] is False
+    write_report(result, tmp_path / "r", figures=False)
+    md = (tmp_path / "r" / "report.md").read_text()
+    assert "The paper's values" not in md and "few test scans" in md and f"`{a.resolve()}`" in md
