@@ -1,8 +1,8 @@
 """The paper's numbers for the network, its training and its evaluation, each with its source.
 
 "Paper" is Tomita et al., "Bayesian Deep Learning for Segmentation for Autonomous Safe Planetary
-Landing" (seed/bayesian-segnet-hazard-detection.tex); "Kendall 2015" is Kendall, Badrinarayanan and
-Cipolla, "Bayesian SegNet" (arXiv:1511.02680).
+Landing"; "Kendall 2015" is Kendall, Badrinarayanan and Cipolla, "Bayesian SegNet"
+(arXiv:1511.02680); full references in docs/references.md.
 """
 
 # --- classes and labels -------------------------------------------------------------------------
@@ -26,8 +26,8 @@ DROPOUT_P = 0.5  # paper, "Implementation Details" (following Kendall 2015)
 # end of the deepest three decoder units (pools 3-5 and decoders 5-3 of the five-block SegNet).
 DROPOUT_UNITS = 3
 SIZE_MULTIPLE_PX = 32  # 2**5: five 2x2 max-pooling stages (Kendall 2015)
-# Issue 4: parameters at width 1.0, 1 input channel, 2 classes (13 encoder + 12 decoder
-# conv3x3-BN-ReLU layers and a final conv3x3 64 -> 2 with bias, no BN).
+# Counted from the architecture (Kendall 2015): parameters at width 1.0, 1 input channel, 2 classes
+# (13 encoder + 12 decoder conv3x3-BN-ReLU layers and a final conv3x3 64 -> 2 with bias, no BN).
 PARAMETER_COUNT_FULL_WIDTH = 29_443_010
 
 # --- training (paper, "Implementation Details") -------------------------------------------------

@@ -55,7 +55,7 @@ HEIGHTS: tuple[str, ...] = ("minmax", "median", "plane")
 EXTRA_CHANNELS: tuple[str, ...] = ("slope", "highpass", "sigma")
 # hd choice: the sigma channel holds sigma / 5 cm (about 0.3 at the paper's 1.67 cm, 1.4 at 7 cm).
 SIGMA_CHANNEL_SCALE_M = 0.05
-HIGHPASS_WINDOW_M = 10.0  # hd choice: the lander diameter (DESIGN.md), the scale of the hazard rule
+HIGHPASS_WINDOW_M = 10.0  # hd choice: the lander diameter (the paper's 10 m lander), the scale of the hazard rule
 INPUT_SCHEMA_VERSION = 1
 
 
