@@ -28,7 +28,7 @@ Two interchangeable back ends compute the same numbers: vectorised numpy (loops 
 and nodes, each an array operation over all sites) and, when numba is installed, the same loops
 compiled (``backend="numba"``, the default via ``"auto"``). The compiled product rule sums the
 nodes only of the sites and configurations whose result the cheaper bounds leave open
-(``_worst_case_loops``): the maps and the P >= 0.5 decision are those of the full sums, P(safe)
+(``_product_loops``): the maps and the P >= 0.5 decision are those of the full sums, P(safe)
 is within 1e-7 of them.
 """
 
@@ -293,29 +293,37 @@ def _worst_case(
         _pad_heights_jit(z, b, geo.tap_di, geo.tap_dj, geo.tap_w.astype(np.float32), heights)
         slope = np.empty((hv, wv))
         rough = np.empty((hv, wv))
-        _worst_case_jit(
-            z,
-            b,
-            heights,
-            lander.n_pads,
-            geo.plane_weights,
-            geo.triples,
-            geo.node_ptr,
-            geo.node_di,
-            geo.node_dj,
-            lander.count_holes,
-            spacing_m,
-            mode,
-            lander.max_roughness_m,
-            inv_sigma,
-            scale_by_c,
-            _LOG_PHI,
-            np.ascontiguousarray(valid[b : b + hv, b : b + wv]),
-            math.tan(math.radians(lander.max_slope_deg)) ** 2 * (1.0 + _TAN2_MARGIN),
-            slope,
-            rough,
-            score,
-        )
+        args = (z, b, heights, lander.n_pads, geo.plane_weights, geo.triples, geo.node_ptr, geo.node_di, geo.node_dj)
+        if mode == _P_PRODUCT:
+            inner_valid = np.ascontiguousarray(valid[b : b + hv, b : b + wv])
+            tan2_cut = math.tan(math.radians(lander.max_slope_deg)) ** 2 * (1.0 + _TAN2_MARGIN)
+            _product_jit(
+                *args,
+                lander.count_holes,
+                spacing_m,
+                lander.max_roughness_m,
+                inv_sigma,
+                scale_by_c,
+                _LOG_PHI,
+                inner_valid,
+                tan2_cut,
+                slope,
+                rough,
+                score,
+            )
+        else:
+            _maps_jit(
+                *args,
+                lander.count_holes,
+                spacing_m,
+                mode == _P_MIN,
+                lander.max_roughness_m,
+                inv_sigma,
+                scale_by_c,
+                slope,
+                rough,
+                score,
+            )
         return slope, rough, score
     heights = np.empty((geo.tap_w.shape[0], hv, wv))
     _pad_heights_numpy(z, b, geo, heights)
@@ -482,7 +490,7 @@ def _poly_log_phi(x):  # pragma: no cover - compiled by numba
     return v
 
 
-def _worst_case_loops(
+def _maps_loops(
     z,
     b,
     heights,
@@ -494,7 +502,101 @@ def _worst_case_loops(
     node_dj,
     count_holes,
     spacing,
-    mode,
+    min_mode,
+    rc,
+    inv_sigma,
+    scale_by_c,
+    slope,
+    rough,
+    score,
+):  # pragma: no cover - compiled by numba
+    """Resting planes, slope, roughness and, with ``min_mode``, the P score of the worst node (numba).
+
+    Same numbers as ``_worst_case``'s numpy path; rows are processed one at a time so every
+    working array stays in the L1 cache. ``score``: the smallest u of any node over the
+    configurations. The product rule has its own kernel, ``_product_loops``.
+    """
+    n_yaws = plane_weights.shape[0]
+    hv, wv = slope.shape
+    n_cfg = 2 if n_pads == 4 else 1
+    gx = np.empty((n_cfg, wv), dtype=z.dtype)
+    gy = np.empty((n_cfg, wv), dtype=z.dtype)
+    c = np.empty((n_cfg, wv), dtype=z.dtype)
+    dmax = np.empty(wv, dtype=z.dtype)
+    dmin = np.empty(wv, dtype=z.dtype)
+    slope[:, :] = 0.0
+    rough[:, :] = 0.0
+    score[:, :] = np.inf
+    inv_s2 = 1.0 / (spacing * spacing)
+    for i in range(hv):
+        for m in range(n_yaws):
+            h0 = heights[m * n_pads]
+            h1 = heights[m * n_pads + 1]
+            h2 = heights[m * n_pads + 2]
+            for j in range(wv):
+                if n_pads == 4:
+                    h3 = heights[m * n_pads + 3]
+                    t0 = 0 if h0[i, j] + h2[i, j] >= h1[i, j] + h3[i, j] else 2
+                else:
+                    t0 = 0
+                for k in range(n_cfg):
+                    t = t0 + k
+                    za = heights[m * n_pads + triples[t, 0], i, j]
+                    zb = heights[m * n_pads + triples[t, 1], i, j]
+                    zc = heights[m * n_pads + triples[t, 2], i, j]
+                    w = plane_weights[m, t]
+                    gx[k, j] = w[0, 0] * za + w[0, 1] * zb + w[0, 2] * zc
+                    gy[k, j] = w[1, 0] * za + w[1, 1] * zb + w[1, 2] * zc
+                    c[k, j] = w[2, 0] * za + w[2, 1] * zb + w[2, 2] * zc
+            for k in range(n_cfg):
+                gxk, gyk, ck = gx[k], gy[k], c[k]
+                dmax[:] = -np.inf
+                dmin[:] = np.inf
+                for n in range(node_ptr[m], node_ptr[m + 1]):
+                    di = node_di[n]
+                    dj = node_dj[n]
+                    zr = z[i + b + di, b + dj : b + dj + wv]
+                    if count_holes:
+                        for j in range(wv):
+                            dev = zr[j] - ck[j] - gxk[j] * dj + gyk[j] * di
+                            if dev > dmax[j]:
+                                dmax[j] = dev
+                            if dev < dmin[j]:
+                                dmin[j] = dev
+                    else:
+                        for j in range(wv):
+                            dev = zr[j] - ck[j] - gxk[j] * dj + gyk[j] * di
+                            if dev > dmax[j]:
+                                dmax[j] = dev
+                for j in range(wv):
+                    tan2 = (gxk[j] * gxk[j] + gyk[j] * gyk[j]) * inv_s2
+                    height = max(dmax[j], 0.0)
+                    if count_holes:
+                        height = max(height, -dmin[j])
+                    r = height / np.sqrt(1.0 + tan2)
+                    slope[i, j] = max(slope[i, j], tan2)  # tan^2 for now; arctan at the end
+                    rough[i, j] = max(rough[i, j], r)
+                    if min_mode:  # the worst node: the largest signed height above the plane
+                        sec = np.sqrt(1.0 + tan2)
+                        scale = sec * inv_sigma if scale_by_c else inv_sigma
+                        score[i, j] = min(score[i, j], (rc - dmax[j] / sec) * scale)
+    for i in range(hv):
+        for j in range(wv):
+            slope[i, j] = np.arctan(np.sqrt(slope[i, j]))
+
+
+def _product_loops(
+    z,
+    b,
+    heights,
+    n_pads,
+    plane_weights,
+    triples,
+    node_ptr,
+    node_di,
+    node_dj,
+    count_holes,
+    spacing,
     rc,
     inv_sigma,
     scale_by_c,
@@ -505,11 +607,11 @@ def _worst_case_loops(
     rough,
     score,
 ):  # pragma: no cover - compiled by numba
-    """Resting planes, slope, roughness and the P score, worst case over configurations (numba).
+    """Resting planes, slope, roughness and the product rule's P score, worst case over configurations (numba).
 
-    Same numbers as ``_worst_case``'s numpy path; one row of sites at a time, so every working
-    array stays in the L1 cache. ``score``: min mode, the smallest u of any node; product mode,
-    the smallest sum over a configuration's nodes of log Phi(u), in three steps per row:
+    The same slope and roughness as ``_maps_loops`` (and ``_worst_case``'s numpy path); ``score`` is
+    the smallest sum over a configuration's nodes of log Phi(u) (log P), or anything where
+    ``valid`` is False or the slope fails (there -inf). One row of sites at a time, in three steps:
 
     1. every configuration's plane and highest node (which give slope and roughness) and, in the
        same pass, its sum of the polynomial ``_poly_log_phi`` with the sum's error bound;
@@ -563,27 +665,26 @@ def _worst_case_loops(
                     gx[q, j] = w[0, 0] * za + w[0, 1] * zb + w[0, 2] * zc
                     gy[q, j] = w[1, 0] * za + w[1, 1] * zb + w[1, 2] * zc
                     c[q, j] = w[2, 0] * za + w[2, 1] * zb + w[2, 2] * zc
-        # 1b. the highest (and lowest) node above each plane: slope, roughness, the min-mode score;
-        # product mode: the polynomial's sum over the nodes
+        # 1b. the highest (and lowest) node above each plane (slope, roughness) and the polynomial's
+        # sum over the nodes
         for q in range(n_q):
             m = q // n_cfg
             gxq, gyq, cq, dmq = gx[q], gy[q], c[q], dmax[q]
             uaq, ubq, apq, erq = ua[q], ub[q], approx[q], error[q]
             dmq[:] = -np.inf
             dmin[:] = np.inf
-            if mode == 1:
-                for j in range(wv):
-                    # u = (rc - h cos) / s for a node at vertical height h above the plane (metres),
-                    # s = cos sigma (paper) or sigma (hd); in table units x = (u - LO) / STEP = ua - ub h.
-                    sec = np.sqrt(1.0 + (gxq[j] * gxq[j] + gyq[j] * gyq[j]) * inv_s2)
-                    if scale_by_c:
-                        uaq[j] = (rc * sec * inv_sigma - _U_LO) * (1.0 / _U_STEP)
-                        ubq[j] = inv_sigma * (1.0 / _U_STEP)
-                    else:
-                        uaq[j] = (rc * inv_sigma - _U_LO) * (1.0 / _U_STEP)
-                        ubq[j] = inv_sigma / sec * (1.0 / _U_STEP)
-                    apq[j] = 0.0
-                    erq[j] = 0.0
+            for j in range(wv):
+                # u = (rc - h cos) / s for a node at vertical height h above the plane (metres),
+                # s = cos sigma (paper) or sigma (hd); in table units x = (u - LO) / STEP = ua - ub h.
+                sec = np.sqrt(1.0 + (gxq[j] * gxq[j] + gyq[j] * gyq[j]) * inv_s2)
+                if scale_by_c:
+                    uaq[j] = (rc * sec * inv_sigma - _U_LO) * (1.0 / _U_STEP)
+                    ubq[j] = inv_sigma * (1.0 / _U_STEP)
+                else:
+                    uaq[j] = (rc * inv_sigma - _U_LO) * (1.0 / _U_STEP)
+                    ubq[j] = inv_sigma / sec * (1.0 / _U_STEP)
+                apq[j] = 0.0
+                erq[j] = 0.0
             for n in range(node_ptr[m], node_ptr[m + 1]):
                 di = node_di[n]
                 dj = node_dj[n]
@@ -600,15 +701,14 @@ def _worst_case_loops(
                         dev = zr[j] - cq[j] - gxq[j] * dj + gyq[j] * di
                         if dev > dmq[j]:
                             dmq[j] = dev
-                if mode == 1:
-                    # two loops, each with few enough arrays that LLVM vectorises it
-                    for j in range(wv):
-                        xr[j] = uaq[j] - ubq[j] * (zr[j] - cq[j] - gxq[j] * dj + gyq[j] * di)
-                    for j in range(wv):  # above the interval a node counts 0 (off by at most _TAIL_ERROR)
-                        v = _poly_log_phi_jit(xr[j])
-                        inside = xr[j] <= _POLY_X[1]
-                        apq[j] += v if inside else 0.0
-                        erq[j] += _POLY_ERROR if inside else _TAIL_ERROR
+                # two loops, each with few enough arrays that LLVM vectorises it
+                for j in range(wv):
+                    xr[j] = uaq[j] - ubq[j] * (zr[j] - cq[j] - gxq[j] * dj + gyq[j] * di)
+                for j in range(wv):  # above the interval a node counts 0 (off by at most _TAIL_ERROR)
+                    v = _poly_log_phi_jit(xr[j])
+                    inside = xr[j] <= _POLY_X[1]
+                    apq[j] += v if inside else 0.0
+                    erq[j] += _POLY_ERROR if inside else _TAIL_ERROR
             for j in range(wv):
                 tan2 = (gxq[j] * gxq[j] + gyq[j] * gyq[j]) * inv_s2
                 height = max(dmq[j], 0.0)
@@ -617,12 +717,6 @@ def _worst_case_loops(
                 r = height / np.sqrt(1.0 + tan2)
                 slope[i, j] = max(slope[i, j], tan2)  # tan^2 for now; arctan at the end
                 rough[i, j] = max(rough[i, j], r)
-                if mode == 2:  # the worst node: the largest signed height above the plane
-                    sec = np.sqrt(1.0 + tan2)
-                    scale = sec * inv_sigma if scale_by_c else inv_sigma
-                    score[i, j] = min(score[i, j], (rc - dmq[j] / sec) * scale)
-        if mode != 1:
-            continue
         # 2. the sites decided by their slope, validity or bounds; the configurations left to sum
         for j in range(wv):
             if not valid[i, j] or slope[i, j] > tan2_cut:
@@ -719,4 +813,5 @@ if numba is not None:
     _table_log_phi_jit = numba.njit(cache=True, fastmath=_FASTMATH)(_table_log_phi)
     _poly_log_phi_jit = numba.njit(cache=True, fastmath=_FASTMATH, inline="always")(_poly_log_phi)
     _product_bounds_jit = numba.njit(cache=True, fastmath=_FASTMATH, inline="always")(_product_bounds)
-    _worst_case_jit = numba.njit(cache=True, fastmath=_FASTMATH)(_worst_case_loops)
+    _maps_jit = numba.njit(cache=True, fastmath=_FASTMATH)(_maps_loops)
+    _product_jit = numba.njit(cache=True, fastmath=_FASTMATH)(_product_loops)

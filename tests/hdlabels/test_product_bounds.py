@@ -2,7 +2,7 @@
 
 ``hdlabels.alhat`` bounds each site's P(safe) from a polynomial of log Phi and each configuration's
 highest node, and sums the table's log Phi only where the bounds leave the result open
-(``_worst_case_loops``). The previous kernel (``alhat_previous.py``, kept verbatim) is the oracle:
+(``_product_loops``). The previous kernel (``alhat_previous.py``, kept verbatim) is the oracle:
 the maps must be identical, the P >= 0.5 decision identical on every pixel and P(safe) within 1e-6,
 on hand-derivable DEMs (flat, tilted, one rock, a flat plane right at the decision) and on random
 DEMs with NaN holes.
