@@ -975,7 +975,7 @@ def train_cmd(
 ) -> None:
     """Train the Bayesian SegNet on the noisy DEMs of a labelled dataset."""
     from hdnet.errors import HdNetError
-    from hdnet.fit import FitConfig, fit
+    from hdnet.fit import FitConfig, already_trained, fit
     from hdnet.noise_levels import TrainingNoise, parse_sigma_range
     from hdnet.pipeline import training_done_message
 
@@ -1001,6 +1001,13 @@ def train_cmd(
         overwrite=overwrite,
         also=tuple(str(d) for d in also),
     )
+    if already_trained(dataset, run_dir, config):
+        n = config.epochs if config.epochs is not None else config.training_profile().epochs
+        _say(
+            f"{run_dir} already holds this training, finished after {n} epochs with the same data, profile, seed "
+            "and noise: nothing to do (--overwrite trains it again)"
+        )
+        return
     checkpoint = fit(dataset, run_dir, config)
     _say(training_done_message(checkpoint, run_dir))
 
@@ -1066,7 +1073,7 @@ def eval_cmd(
     overwrite: bool = False,
 ) -> None:
     """Evaluate a trained run: the paper's tables, threshold sweep, calibration, noise sweep and figures."""
-    from hdnet.evaluate import EvalConfig
+    from hdnet.evaluate import EvalConfig, report_is_current
     from hdnet.noise_levels import parse_sigma_sweep
     from hdnet.pipeline import evaluate_to_report, report_written_message
     from lidarsim.storage import check_not_input
@@ -1084,6 +1091,9 @@ def eval_cmd(
         calibrate=calibrate,
         calibrate_on=tuple(str(d) for d in calibrate_on),
     )
+    if not overwrite and report_is_current(out_dir, run_dir, dataset, config):
+        _say(f"{out_dir} already holds this evaluation's report (same checkpoint, dataset and settings): nothing to do")
+        return
     progress = _ScanProgress("eval", unit="image")
     try:
         result = evaluate_to_report(run_dir, dataset, out_dir, config, overwrite=overwrite, progress=progress)

@@ -22,6 +22,7 @@ Inputs are prepared exactly as in training: ``hdnet.inputs.network_input`` with 
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import os
 from collections.abc import Callable, Sequence
@@ -720,6 +721,8 @@ def _run_info(
     extra = ckpt.get("extra_config") or {}
     return {
         "checkpoint": str(setup.ckpt_path.resolve()),
+        "checkpoint_sha256": sha256_file(setup.ckpt_path),
+        "batch_size": cfg.batch_size,
         "epoch": int(ckpt.get("epoch", 0)),
         "profile": ckpt.get("profile", {}).get("name"),
         "model_config": ckpt.get("model_config"),
@@ -740,6 +743,37 @@ def _run_info(
         "val_scans": len(val.scan_index),
         "paper_dataset": is_paper_dataset(root),
     }
+
+
+def report_is_current(
+    report_dir: str | os.PathLike, run_dir: str | os.PathLike, dataset_dir: str | os.PathLike, cfg: EvalConfig
+) -> bool:
+    """True when ``report_dir`` holds the report this evaluation would write (``hd eval`` run again):
+    the same checkpoint bytes, dataset manifest, labelling request and evaluation settings."""
+    try:
+        report = json.loads((Path(report_dir) / "report.json").read_text())
+        run, th = report["run"], report["threshold"]
+        ckpt = checkpoint_path(run_dir)
+        same_inputs = (
+            run.get("checkpoint_sha256") == sha256_file(ckpt)
+            and run.get("dataset") == str(Path(dataset_dir).resolve())
+            and run.get("manifest_sha256") == sha256_file(Path(dataset_dir) / MANIFEST_NAME)
+        )
+    except (OSError, ValueError, KeyError, TypeError, HdNetError):
+        return False
+    calibration = [str(Path(d).resolve()) for d in cfg.calibrate_on or (dataset_dir,)]
+    return bool(
+        same_inputs
+        and (cfg.labels is None or run.get("labels") == cfg.labels)
+        and run.get("mc_samples") == cfg.mc_samples
+        and run.get("drop_pixels") == cfg.drop_pixels
+        and run.get("seed") == cfg.seed
+        and run.get("batch_size") == cfg.batch_size
+        and run.get("sigma_sweep_m") == list(cfg.sigma_sweep)
+        and th.get("spec") == str(cfg.threshold_spec)
+        and th.get("calibrate") == cfg.calibrate
+        and th.get("calibration_datasets") == calibration
+    )
 
 
 def is_paper_dataset(dataset_dir: str | os.PathLike) -> bool:

@@ -308,6 +308,41 @@ def _mix(
     return MixedDataset(trains), MixedDataset(vals)
 
 
+def already_trained(dataset_dir: str | os.PathLike, run_dir: str | os.PathLike, config: FitConfig) -> bool:
+    """True when ``run_dir`` holds a finished run of exactly this training (``hd train`` run again):
+    the same profile, epochs, seed, training noise, labelling and datasets (by manifest sha256), every
+    epoch done. ``--overwrite`` trains again; anything unreadable or different is not "the same"."""
+    if config.overwrite:
+        return False
+    run = Path(run_dir)
+    try:
+        recorded = json.loads((run / CONFIG).read_text())
+        epochs_done = sum(1 for _ in (run / METRICS).open()) - 1
+        profile = config.training_profile()
+        entry, paths = open_labeling(dataset_dir, config.labels)
+        noise = training_noise(config.train_noise, config.train_sigma_m, profile, dataset_sigmas(paths))
+    except (OSError, ValueError, HdNetError):
+        return False
+    if not isinstance(recorded, dict) or not (run / LAST).is_file():
+        return False
+    extra = recorded.get("extra_config") or {}
+    epochs = profile.epochs if config.epochs is None else int(config.epochs)
+    also = [
+        {"dataset": str(Path(d).resolve()), "manifest_sha256": sha256_file(Path(d) / MANIFEST_NAME)}
+        for d in config.also
+    ]
+    return (
+        recorded.get("profile") == json.loads(json.dumps(profile.to_dict()))
+        and recorded.get("epochs") == epochs == epochs_done
+        and recorded.get("seed") == config.seed
+        and extra.get("dataset") == str(Path(dataset_dir).resolve())
+        and extra.get("manifest_sha256") == sha256_file(Path(dataset_dir) / MANIFEST_NAME)
+        and extra.get("labels") == entry.get("name")
+        and extra.get("train_noise") == json.loads(json.dumps(noise.to_dict()))
+        and extra.get("also", []) == also
+    )
+
+
 def fit(dataset_dir: str | os.PathLike, run_dir: str | os.PathLike, config: FitConfig | None = None) -> Path:
     """Train a model on ``dataset_dir`` as ``config`` says (default: ``FitConfig()``); returns ``last.pt``.
 
@@ -318,6 +353,8 @@ def fit(dataset_dir: str | os.PathLike, run_dir: str | os.PathLike, config: FitC
     """
     cfg = config if config is not None else FitConfig()
     resume, overwrite, labels = cfg.resume, cfg.overwrite, cfg.labels
+    if already_trained(dataset_dir, run_dir, cfg):
+        return Path(run_dir).resolve() / LAST
     run_path, _ = prepare_run_dir(run_dir, resume, overwrite, dataset_dir)
     for other in cfg.also:
         prepare_run_dir(run_dir, resume, overwrite, other)

@@ -80,3 +80,27 @@ def test_a_usage_error_is_one_line_with_exit_status_2():
         lines = result.stderr.strip().splitlines()
         assert result.returncode == 2 and len(lines) == 1, result.stderr
         assert lines[0].startswith("Error: ") and needle in lines[0] and "--help')" in lines[0]
+
+
+def test_an_identical_finished_training_run_again_is_done_already(data_and_run):
+    data, run = data_and_run
+    before = (run / "last.pt").stat().st_mtime_ns
+    args = ["train", str(data), "--out", str(run), "--profile", "tiny", "--epochs", "2"]
+    result = CliRunner().invoke(main, args)
+    assert result.exit_code == 0 and "already holds this training" in result.output, result.output
+    assert (run / "last.pt").stat().st_mtime_ns == before
+    other = CliRunner().invoke(main, [*args[:-1], "3"])  # more epochs: not the same training
+    assert other.exit_code != 0 and "--resume" in other.output
+
+
+def test_an_identical_evaluation_run_again_is_done_already(data_and_run, tmp_path):
+    data, run = data_and_run
+    args = ["eval", str(run), "--data", str(data), "--out", str(tmp_path / "r"), "--mc-samples", "1"]
+    first = CliRunner().invoke(main, args)
+    assert first.exit_code == 0, first.output
+    stamp = (tmp_path / "r" / "report.json").stat().st_mtime_ns
+    again = CliRunner().invoke(main, args)
+    assert again.exit_code == 0 and "already holds this evaluation's report" in again.output, again.output
+    assert (tmp_path / "r" / "report.json").stat().st_mtime_ns == stamp
+    other = CliRunner().invoke(main, [*args, "--seed", "1"])
+    assert other.exit_code != 0 and "--overwrite" in other.output
