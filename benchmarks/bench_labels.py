@@ -1,15 +1,20 @@
 """Label throughput: hazard maps and P(safe) per DEM in both conventions, beside the paper's own replica.
 
-Run: ``.venv/bin/python benchmarks/bench_labels.py [--dems 20] [--reference-python PY --reference-src DIR]``.
-Prints, side by side in one run: per-DEM time of the deterministic maps, of P(safe), and of both
-from one pass (numba and numpy back ends, 100x100 DEMs at 1 m), for the paper convention
-(product baseline) and the hd convention ("min" baseline); with ``--reference-python`` and
-``--reference-src`` (pydem at commit e7734ae in a throw-away environment, see
-``benchmarks/reference_pydem.py``; also read from HD_PYDEM_PYTHON / HD_PYDEM_SRC) the replica's
-own numba code (``dhd`` + ``alhat``) on the same DEMs and the speed-up; the loop reference of the
-hd convention on small DEMs; the gridding of a 128x128 scan by every method; and the projected
-time to label 1000 scans x 3 sigma. hd's kernels are serial (one core); the replica's are
-numba-parallel and use every core of the machine.
+Run: ``.venv/bin/python benchmarks/bench_labels.py [--dems 20] [--dataset DIR]
+[--reference-python PY [--reference-python PY2]] [--reference-src DIR]``.
+Prints, side by side in one run: the machine (CPU model, load average, numba and numpy versions);
+per-DEM time of the deterministic maps, of P(safe), and of both from one pass (numba and numpy
+back ends, 100x100 DEMs at 1 m), for the paper convention (product baseline) and the hd
+convention ("min" baseline); the paper convention's product rule beside the previous compiled
+kernel, which summed every node of every site (``tests/hdlabels/alhat_previous.py``), on the same
+noisy DEMs, with ``--dataset`` also on the stored noisy DEMs of a labelled dataset; with
+``--reference-python`` (repeatable: one per environment, e.g. pydem's era with numba 0.57 /
+numpy 1.23 and today's) and ``--reference-src`` (pydem at commit e7734ae, see
+``benchmarks/reference_pydem.py``; also read from HD_PYDEM_PYTHON, several joined by ``os.pathsep``,
+and HD_PYDEM_SRC) the replica's own numba code (``dhd`` + ``alhat``) on the same noisy DEM in each
+environment and the speed-up; the loop reference of the hd convention on small DEMs; the gridding
+of a 128x128 scan by every method; and the projected time to label 1000 scans x 3 sigma. hd's
+kernels are serial (one core); the replica's are numba-parallel and use every core of the machine.
 """
 
 from __future__ import annotations
@@ -17,6 +22,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import platform
 import subprocess
 import sys
 import tempfile
@@ -30,6 +36,8 @@ from scipy.ndimage import gaussian_filter
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "hdlabels"))
 
+import numba
+from alhat_previous import previous_hazard_and_probability
 from alhat_reference import reference_maps
 
 from hdlabels.alhat import hazard_and_probability, hazard_maps, safety_probability
@@ -67,20 +75,81 @@ def nadir_scan(dem_fn: Callable[[np.ndarray, np.ndarray], np.ndarray], n: int = 
     return (np.array([0.0, 0.0, 500.0]) + t[..., None] * d).astype(np.float32)
 
 
-def reference_ms(python: str, src: str, dems: list[np.ndarray], sigma: float, repeat: int) -> tuple[float, float]:
-    """Per-DEM milliseconds of the replica's dhd and alhat (median of ``repeat`` calls), in its own environment."""
+def reference_ms(
+    python: str, src: str, dem: np.ndarray, sigma: float, repeat: int, threads: int | None = None
+) -> tuple[float, float]:
+    """Milliseconds of the replica's dhd and alhat on ``dem`` (median of ``repeat`` calls), in its own
+    environment, on every core or on ``threads`` numba threads."""
     runner = Path(__file__).resolve().parent / "reference_pydem.py"
+    env = dict(os.environ)
+    if threads is not None:
+        env["NUMBA_NUM_THREADS"] = str(threads)
     with tempfile.TemporaryDirectory() as tmp:
         inputs, outputs = Path(tmp) / "in.npz", Path(tmp) / "out.npz"
-        np.savez(inputs, dems=np.stack(dems[:1]).astype(np.float32), sigmas=np.array([sigma]))
+        np.savez(inputs, dems=dem[None].astype(np.float32), sigmas=np.array([sigma]))
         subprocess.run(
             [python, str(runner), str(inputs), str(outputs), "--src", src, "--repeat", str(repeat)],
             check=True,
             stdout=subprocess.DEVNULL,
             stderr=subprocess.DEVNULL,
+            env=env,
         )
         out = np.load(outputs)
         return 1e3 * float(out["dhd_s"]), 1e3 * float(out["alhat_s"])
+
+
+def environment(python: str) -> str:
+    """numba and numpy versions of another interpreter's environment."""
+    code = "import numba, numpy; print(f'numba {numba.__version__}, numpy {numpy.__version__}')"
+    return subprocess.run([python, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
+
+
+def machine() -> str:
+    """CPU model (lscpu), core count, load average and this environment's numba and numpy."""
+    try:
+        out = subprocess.run(["lscpu"], capture_output=True, text=True, check=True).stdout
+        model = next(line.split(":", 1)[1].strip() for line in out.splitlines() if line.startswith("Model name"))
+    except (OSError, subprocess.CalledProcessError, StopIteration):
+        model = platform.processor() or "unknown CPU"
+    load = " ".join(f"{x:.1f}" for x in os.getloadavg())
+    return f"{model}, {os.cpu_count()} CPUs, load average {load}; numba {numba.__version__}, numpy {np.__version__}"
+
+
+def stored_noisy_dems(dataset: Path, n: int) -> tuple[list[np.ndarray], tuple[float, ...]]:
+    """The first ``n`` scans' noisy DEMs of a labelled dataset, per noise level, and the levels (m)."""
+    from hdlabels.store import LabelShardReader, find_labeling, label_shard_paths
+
+    entry = find_labeling(dataset, None)
+    with LabelShardReader(label_shard_paths(dataset, entry)[0]) as reader:
+        return [reader.h5["dem_noisy"][:n, s] for s in range(len(reader.sigmas_m))], tuple(reader.sigmas_m)
+
+
+def previous_vs_now(label: str, dems: list[np.ndarray], sigma: float, rounds: int = 3) -> float:
+    """Prints both maps from one pass of the paper convention, previous kernel against now; returns now's ms.
+
+    The two are called alternately on every DEM, ``rounds`` times over, so a change in the machine's
+    load affects both alike; each figure is the median of its calls.
+    """
+    lander = Lander()
+    calls = {
+        "previous": lambda d: previous_hazard_and_probability(d, 1.0, sigma, lander),
+        "now": lambda d: hazard_and_probability(d, 1.0, sigma, lander, backend="numba"),
+    }
+    times: dict[str, list[float]] = {name: [] for name in calls}
+    for fn in calls.values():
+        fn(dems[0])
+    for _ in range(rounds):
+        for d in dems:
+            for name, fn in calls.items():
+                t0 = time.perf_counter()
+                fn(d)
+                times[name].append(time.perf_counter() - t0)
+    before, now = (1e3 * float(np.median(times[name])) for name in calls)
+    print(
+        f"  {label} sigma {sigma * 100:4.2f} cm: previous kernel {before:6.2f} ms, now {now:6.2f} ms: "
+        f"{before / now:4.2f}x (target <= 5 ms)"
+    )
+    return now
 
 
 def main() -> None:
@@ -89,11 +158,18 @@ def main() -> None:
     parser.add_argument("--ref-size", type=int, default=40, help="side of the DEMs the loop reference runs on")
     parser.add_argument("--ref-dems", type=int, default=2, help="DEMs the loop reference runs on")
     parser.add_argument(
-        "--reference-python", default=os.environ.get("HD_PYDEM_PYTHON"), help="python of pydem's throw-away environment"
+        "--reference-python",
+        action="append",
+        default=None,
+        help="python of a throw-away environment holding pydem's requirements (repeat for several environments)",
     )
+    parser.add_argument("--dataset", type=Path, default=None, help="also time a labelled dataset's stored noisy DEMs")
     parser.add_argument("--reference-src", default=os.environ.get("HD_PYDEM_SRC"), help="pydem checkout (e7734ae)")
     args = parser.parse_args()
+    if args.reference_python is None and os.environ.get("HD_PYDEM_PYTHON"):
+        args.reference_python = os.environ["HD_PYDEM_PYTHON"].split(os.pathsep)
     rng = np.random.default_rng(0)
+    print(machine())
 
     dems = [terrain(rng, 100).astype(np.float32) for _ in range(args.dems)]
     both_ms: dict[str, float] = {}
@@ -122,16 +198,34 @@ def main() -> None:
                     both_ms[f"{name} {sigma} det"] = det
                     both_ms[f"{name} {sigma} prob"] = prob
 
+    print("paper convention, P(safe) and maps from one pass, the previous kernel (every node summed) against now:")
+    noisy_by_sigma: dict[float, list[np.ndarray]] = {}
+    for sigma in (0.0167, 0.07):
+        noisy_by_sigma[sigma] = [(d + rng.normal(0.0, sigma, d.shape)).astype(np.float32) for d in dems]
+        previous_vs_now("synthetic", noisy_by_sigma[sigma], sigma)
+    if args.dataset is not None:
+        stored, sigmas = stored_noisy_dems(args.dataset, args.dems)
+        for level, sigma in zip(stored, sigmas, strict=True):
+            previous_vs_now(args.dataset.name, list(level), sigma)
+
     if args.reference_python and args.reference_src:
-        print("the paper's replica (pydem e7734ae, numba, parallel) on the same DEMs, per DEM:")
-        for sigma in (0.0167, 0.07):
-            dhd, alhat = reference_ms(args.reference_python, args.reference_src, dems, sigma, repeat=5)
-            ours = both_ms[f"paper {sigma}"]
-            print(
-                f"  sigma {sigma * 100:4.2f} cm: dhd {dhd:7.1f} ms + alhat {alhat:7.1f} ms = {dhd + alhat:7.1f} ms; "
-                f"hd paper convention, both maps from one pass {ours:6.2f} ms: {(dhd + alhat) / ours:5.0f}x faster "
-                "(target >= 5x)"
-            )
+        print(
+            "the paper's replica (pydem e7734ae, numba, parallel) on the same noisy DEM, per DEM, on every core "
+            "and on one thread (hd: one thread); a loaded machine slows the parallel replica the most:"
+        )
+        for python in args.reference_python:
+            print(f"  {python} ({environment(python)}):")
+            for sigma in (0.0167, 0.07):
+                first = noisy_by_sigma[sigma][0]
+                for threads in (None, 1):
+                    dhd, alhat = reference_ms(python, args.reference_src, first, sigma, 5, threads)
+                    ours = per_call_ms(lambda d, s=sigma: hazard_and_probability(d, 1.0, s, Lander()), [first] * 5)
+                    cores = "1 thread " if threads else "all cores"
+                    print(
+                        f"    sigma {sigma * 100:4.2f} cm, {cores}: dhd {dhd:6.1f} ms "
+                        f"+ alhat {alhat:6.1f} ms = {dhd + alhat:6.1f} ms; hd paper convention, both maps from one "
+                        f"pass {ours:5.2f} ms: {(dhd + alhat) / ours:5.1f}x faster (target >= 15x under today's numba)"
+                    )
     else:
         print("the paper's replica: skipped (give --reference-python and --reference-src)")
 
