@@ -23,8 +23,12 @@ def test_train_then_eval_writes_the_report(dataset, tmp_path):
     result = runner.invoke(main, ["train", str(dataset), "--out", str(run), "--profile", "tiny", "--epochs", "1"])
     assert result.exit_code == 0, result.output
     assert (run / "last.pt").is_file() and (run / "metrics.csv").is_file()
+    stamp = (run / "last.pt").stat().st_mtime_ns
     again = runner.invoke(main, ["train", str(dataset), "--out", str(run), "--profile", "tiny", "--epochs", "1"])
-    assert again.exit_code != 0 and "resume" in again.output  # an existing run is never overwritten
+    assert again.exit_code == 0 and "already holds this training" in again.output  # done: nothing overwritten
+    other = runner.invoke(main, ["train", str(dataset), "--out", str(run), "--profile", "tiny", "--epochs", "2"])
+    assert other.exit_code != 0 and "resume" in other.output  # an existing run is never overwritten
+    assert (run / "last.pt").stat().st_mtime_ns == stamp
     result = runner.invoke(
         main,
         ["eval", str(run), "--data", str(dataset), "--out", str(report), "--mc-samples", "2", "--drop-pixels", "3"],
