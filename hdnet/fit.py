@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,7 +40,8 @@ from hdnet.errors import HdNetError
 from hdnet.inputs import InputSpec, Normalisation
 from hdnet.noise_levels import TrainingNoise
 from hdnet.profiles import TrainingProfile, get_profile
-from hdnet.train import BEST, CONFIG, LAST, METRICS, train
+from hdnet.train import BEST, CONFIG, LAST, METRICS, load_checkpoint, train
+from lidarsim.errors import HdWarning
 from lidarsim.shards import MANIFEST_NAME, sha256_file
 from lidarsim.storage import (
     LOCK_NAME,
@@ -340,7 +342,20 @@ def already_trained(dataset_dir: str | os.PathLike, run_dir: str | os.PathLike, 
         and extra.get("labels") == entry.get("name")
         and extra.get("train_noise") == json.loads(json.dumps(noise.to_dict()))
         and extra.get("also", []) == also
+        and _intact_last_epoch(run / LAST) == epochs
     )
+
+
+def _intact_last_epoch(path: Path) -> int | None:
+    """The epoch of a checkpoint that loads and matches its content checksum, else None (a damaged
+    ``last.pt`` is not a finished training: the command then reads it and names the damage)."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", HdWarning)  # a schema-1 checkpoint warns when it is used
+            epoch = load_checkpoint(path).get("epoch")
+    except HdNetError:
+        return None
+    return epoch if isinstance(epoch, int) and not isinstance(epoch, bool) else None
 
 
 def fit(dataset_dir: str | os.PathLike, run_dir: str | os.PathLike, config: FitConfig | None = None) -> Path:
