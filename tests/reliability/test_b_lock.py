@@ -65,8 +65,8 @@ def test_a_second_writer_of_a_dataset_is_refused(tmp_path, labelled, dtm, comman
     }[command]
     with WriterLock(data):
         result = invoke(*args)
-    if command == "build":  # a complete dataset: refused before the lock is even needed
-        assert_one_line_error(result, "--overwrite")
+    if command == "build":  # the same complete dataset: nothing to do, said before the lock is even needed
+        assert result.exit_code == 0 and "already holds this dataset" in result.output, result.output
     else:
         assert_one_line_error(result, "being written by another hd process", f"PID {os.getpid()}")
     assert {p: p.read_bytes() for p in data.rglob("*") if p.is_file()} == before

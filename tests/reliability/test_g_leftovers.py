@@ -45,7 +45,10 @@ def test_train_refuses_an_existing_run_without_resume_or_overwrite(tmp_path, lab
     run = tmp_path / "run"
     shutil.copytree(trained, run)
     before = _files(run)
-    assert_one_line_error(_train(labelled, run), "already holds a checkpoint", "--resume", "--overwrite")
+    same = _train(labelled, run)  # the same finished training again: nothing to do, nothing touched
+    assert same.exit_code == 0 and "already holds this training" in same.output, same.output
+    assert _files(run) == before
+    assert_one_line_error(_train(labelled, run, "--seed", "1"), "already holds a checkpoint", "--resume", "--overwrite")
     assert _files(run) == before
     result = _train(labelled, run, "--overwrite", "--seed", "1")
     assert result.exit_code == 0, result.output
@@ -58,7 +61,9 @@ def test_eval_refuses_an_existing_report_and_a_foreign_directory(tmp_path, label
     args = ["eval", trained, "--data", labelled, "--out", report, "--mc-samples", "2"]
     assert invoke(*args).exit_code == 0
     before = _files(report)
-    assert_one_line_error(invoke(*args), "already holds an hd report", "--overwrite")
+    same = invoke(*args)  # the same evaluation again: nothing to do, nothing touched
+    assert same.exit_code == 0 and "already holds this evaluation's report" in same.output, same.output
+    assert_one_line_error(invoke(*args, "--seed", "3"), "already holds an hd report", "--overwrite")
     assert _files(report) == before
     result = invoke(*args, "--overwrite", "--seed", "5")
     assert result.exit_code == 0, result.output
