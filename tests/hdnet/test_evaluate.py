@@ -60,7 +60,8 @@ def test_report_files_have_every_row_and_exact_keys(setup):
     assert len(report["sweep"]) == 9 * len(SIGMAS_M)
     assert [c["test_sigma_m"] for c in report["calibration"]["per_sigma"]] == list(SIGMAS_M)
     md = (out / "report.md").read_text()
-    assert "## Table 1: noise levels" in md and "## Table 2: dead pixels" in md and "0.9345" in md  # paper's value
+    assert "## Table 1: noise levels" in md and "## Table 2: dead pixels" in md
+    assert "0.9345" not in md and report["run"]["paper_dataset"] is False  # the paper's values: its dataset only
     for name in ("reliability.png", "threshold_sweep.png", "qualitative_1.67cm.png", "qualitative_7.00cm.png"):
         assert (out / name).read_bytes()[:4] == b"\x89PNG", name
 
@@ -259,3 +260,13 @@ def test_validation_summary_matches_the_validation_inference(setup):
     assert summary["base_pa@7cm"] == pytest.approx(b7[0])
     certain = (other.label != 255) & (other.entropy_nats < h)
     assert summary["ua_vc@7cm"] == pytest.approx(certain.sum() / (other.label != 255).sum())
+
+
+def test_the_paper_values_sit_beside_the_paper_dataset_only(setup):
+    import dataclasses
+
+    from hdnet.report import report_markdown
+
+    *_, result = setup
+    paper = dataclasses.replace(result, run={**result.run, "paper_dataset": True})
+    assert "0.9345" in report_markdown(paper) and "0.9345" not in report_markdown(result)
