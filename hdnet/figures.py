@@ -24,6 +24,8 @@ from hdnet import defaults
 if TYPE_CHECKING:
     from hdnet.results import EvaluationResult, Site, SplitInference
 
+# Offsets (points) of a site's rank label: upper right, lower right, upper left, lower left.
+LABEL_OFFSETS_PT = ((5, 5), (5, -13), (-13, 5), (-13, -13))
 SAFETY_HEX = ("#c0392b", "#27ae60", "#2e6fd8", "#ffffff")  # unsafe, safe, uncertain, invalid
 SAFETY_COLOURS = ListedColormap(list(SAFETY_HEX))
 UNCERTAIN_CODE, INVALID_CODE = 2, 3
@@ -239,13 +241,18 @@ def detect_overview(
     gray = plt.get_cmap("gray").with_extremes(bad="white")
     ax.imshow(shade, cmap=gray, extent=extent, interpolation="nearest", vmin=0, vmax=1)
     ax.imshow(rgba, extent=extent, interpolation="nearest")
+    placed: list[tuple[float, float, int]] = []
     for s in sites:
         ax.add_patch(Circle((s.x, s.y), lander_radius_m, fill=False, ec="black", lw=1.6))
         ax.add_patch(Circle((s.x, s.y), lander_radius_m, fill=False, ec="white", lw=0.7))
+        # Neighbours closer than three lander radii take the label corners their neighbours left free.
+        taken = {k for (x, y, k) in placed if math.hypot(s.x - x, s.y - y) < 3.0 * lander_radius_m}
+        corner = next((k for k in range(len(LABEL_OFFSETS_PT)) if k not in taken), len(placed) % len(LABEL_OFFSETS_PT))
+        placed.append((s.x, s.y, corner))
         ax.annotate(
             str(s.rank),
             (s.x, s.y),
-            xytext=(5, 5),
+            xytext=LABEL_OFFSETS_PT[corner],
             textcoords="offset points",
             fontsize=8,
             fontweight="bold",
