@@ -13,6 +13,7 @@ interrupt the clean-up) with exit status 128 + the signal number: 130, 143, 129
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
 import shutil
 import signal
@@ -348,6 +349,7 @@ class _Output:
     quiet = False
     progress = True
     lines = False
+    json = False
 
 
 OUTPUT = _Output()
@@ -372,9 +374,19 @@ def _epoch_lines(row: dict[str, Any], total: int) -> None:
 
 
 def _say(text: str) -> None:
-    """A command's summary on stdout, unless ``hd -q``."""
-    if not OUTPUT.quiet:
+    """A command's summary on stdout, unless ``hd -q`` or ``hd --json`` (whose record replaces it)."""
+    if not (OUTPUT.quiet or OUTPUT.json):
         click.echo(text)
+
+
+def _record(record: dict[str, Any]) -> None:
+    """A command's summary as one JSON object on stdout, with ``hd --json`` (even with ``-q``)."""
+    if OUTPUT.json:
+        import json
+
+        from hdnet.report import json_plain
+
+        click.echo(json.dumps(json_plain(record), default=str))  # paths as strings
 
 
 class _ScanProgress:
@@ -451,14 +463,18 @@ class _HdGroup(click.Group):
 @click.version_option(__version__, prog_name="hd")
 @click.option("-q", "--quiet", is_flag=True, help="No progress and no summaries: errors and warnings only.")
 @click.option("--no-progress", is_flag=True, help="No progress bars (also: TQDM_DISABLE=1).")
+@click.option(
+    "--json", "as_json", is_flag=True, help="Each command's summary as one JSON object on stdout (for scripts)."
+)
 @click.pass_context
-def main(ctx: click.Context, quiet: bool = False, no_progress: bool = False) -> None:
+def main(ctx: click.Context, quiet: bool = False, no_progress: bool = False, as_json: bool = False) -> None:
     """hd — hazard-detection datasets, ALHAT labels and uncertainty-aware networks for planetary landing."""
     import os
 
     from lidarsim.parallel import forked_children_die_with_parent
 
     OUTPUT.quiet = quiet
+    OUTPUT.json = as_json
     OUTPUT.progress = not (quiet or no_progress or os.environ.get("TQDM_DISABLE", "") not in ("", "0"))
     OUTPUT.lines = not sys.stderr.isatty()
     if not OUTPUT.progress or OUTPUT.lines:  # the library's own bars (training) too, for this command
@@ -622,6 +638,7 @@ def build_dataset_cmd(
     finally:
         progress.close()
     _say(summary.paragraph())
+    _record({"command": "build-dataset", **dataclasses.asdict(summary)})
 
 
 @main.command("make-dtm")
@@ -678,7 +695,6 @@ def make_dtm_cmd(
 ) -> None:
     """Write the procedural Mars terrain as a GeoTIFF (the default terrain of build-dataset); with
     --base, a real DTM's relief with the procedural rocks (and small craters) added."""
-    import dataclasses
 
     from lidarsim.procedural import MarsTerrainParams, write_procedural_dtm
     from lidarsim.storage import check_not_input, check_output_file
@@ -907,6 +923,7 @@ def label_cmd(
     finally:
         progress.close()
     _say(summary.paragraph())
+    _record({"command": "label", **dataclasses.asdict(summary)})
 
 
 @main.command("train")
@@ -978,6 +995,7 @@ def train_cmd(
     from hdnet.fit import FitConfig, already_trained, fit
     from hdnet.noise_levels import TrainingNoise, parse_sigma_range
     from hdnet.pipeline import training_done_message
+    from hdnet.run_summary import run_record
 
     if resume and overwrite:
         raise HdNetError("--resume and --overwrite exclude each other")
@@ -1007,9 +1025,11 @@ def train_cmd(
             f"{run_dir} already holds this training, finished after {n} epochs with the same data, profile, seed "
             "and noise: nothing to do (--overwrite trains it again)"
         )
+        _record({"command": "train", "already_done": True, **run_record(run_dir)})
         return
     checkpoint = fit(dataset, run_dir, config)
     _say(training_done_message(checkpoint, run_dir))
+    _record({"command": "train", "already_done": False, **run_record(run_dir)})
 
 
 @main.command("eval")
@@ -1093,6 +1113,7 @@ def eval_cmd(
     )
     if not overwrite and report_is_current(out_dir, run_dir, dataset, config):
         _say(f"{out_dir} already holds this evaluation's report (same checkpoint, dataset and settings): nothing to do")
+        _record({"command": "eval", "already_done": True, "report": str(out_dir)})
         return
     progress = _ScanProgress("eval", unit="image")
     try:
@@ -1101,6 +1122,15 @@ def eval_cmd(
         progress.close()
     _say(result.summary())
     _say(report_written_message(out_dir))
+    _record(
+        {
+            "command": "eval",
+            "already_done": False,
+            "report": str(out_dir),
+            "threshold": result.threshold,
+            "rows": [dataclasses.asdict(r) for r in result.rows],
+        }
+    )
 
 
 @main.command("detect")
@@ -1178,6 +1208,7 @@ def detect_cmd(
         progress.close()
     _say(result.summary())
     _say(f"maps, sites.csv, sites.geojson, overview.png and detect.json in {out_dir}")
+    _record({"command": "detect", "out": str(out_dir), **result.info})
 
 
 @main.command("demo")

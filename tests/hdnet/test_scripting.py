@@ -104,3 +104,25 @@ def test_an_identical_evaluation_run_again_is_done_already(data_and_run, tmp_pat
     assert (tmp_path / "r" / "report.json").stat().st_mtime_ns == stamp
     other = CliRunner().invoke(main, [*args, "--seed", "1"])
     assert other.exit_code != 0 and "--overwrite" in other.output
+
+
+def test_every_summary_comes_as_json_with_hd_json(data_and_run, tmp_path):
+    data, run = data_and_run
+    runner = CliRunner()
+
+    def record(*args: str) -> dict:
+        result = runner.invoke(main, ["--json", *args])
+        assert result.exit_code == 0, result.output
+        lines = [line for line in result.stdout.splitlines() if line.startswith("{")]
+        assert len(lines) == 1, result.stdout
+        return json.loads(lines[0])
+
+    build = ["build-dataset", "--out", str(tmp_path / "d"), "--scans", "6", "--shard-size", "3"]
+    built = record(*build, "--resolution", "32", "--workers", "1")
+    assert built["command"] == "build-dataset" and built["n_scans"] == 6 and built["already_built"] is False
+    labelled = record("label", str(tmp_path / "d"), "--workers", "1")
+    assert labelled["command"] == "label" and labelled["n_scans"] == 6
+    trained = record("train", str(data), "--out", str(run), "--profile", "tiny", "--epochs", "2")
+    assert trained["already_done"] is True and trained["epochs_done"] == 2
+    evaluated = record("eval", str(run), "--data", str(data), "--out", str(tmp_path / "r"), "--mc-samples", "1")
+    assert evaluated["command"] == "eval" and {r["method"] for r in evaluated["rows"]} >= {"uncertainty_aware"}
