@@ -74,6 +74,7 @@ from hdnet.evaluate import (
     split_dataset,
     validation_threshold,
 )
+from hdnet.fit import is_run_dir
 from hdnet.infer import mc_dropout_predict, predictive_entropy
 from hdnet.inputs import InputSpec, to_dem_grid
 from hdnet.inputs import network_input as prepare_input
@@ -85,7 +86,7 @@ from hdnet.results import SITE_COLUMNS, Site
 from hdnet.threshold_cache import CachedThreshold, cache_key
 from hdnet.thresholds import ThresholdSpec, parse_threshold_spec, uncertain_mask
 from hdnet.tiling import TilePlan
-from hdnet.train import CONFIG, load_trained_model
+from hdnet.train import load_trained_model
 from lidarsim.base_relief import resample_bilinear
 from lidarsim.errors import LidarsimError, TerrainError
 from lidarsim.procedural import geotiff_bytes, geotiff_profile
@@ -785,7 +786,7 @@ def _calibrated_threshold(
     with the precision guard above the training levels."""
     sigma = run.train_sigma_m if calibrate == "reference" or sensor_sigma_m is None else sensor_sigma_m
     # Cached in the run directory (never beside a checkpoint file given on its own).
-    cache = CachedThreshold(run.checkpoint.parent) if (run.checkpoint.parent / CONFIG).is_file() else None
+    cache = CachedThreshold(run.checkpoint.parent) if is_run_dir(run.checkpoint.parent) else None
     key = cache_key(run.checkpoint, calib_dir, calib_labels, sigma, str(spec), calibrate, mc_samples, batch_size, seed)
     hit = cache.get(key) if cache is not None else None
     if hit is not None and cache is not None:

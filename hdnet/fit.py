@@ -125,8 +125,9 @@ def run_data_config(
     }
 
 
-def _is_run(run_dir: Path) -> bool:
+def is_run_dir(run_dir: str | os.PathLike) -> bool:
     """True when ``run_dir`` holds an hd run (a checkpoint, or the config.json ``train`` writes)."""
+    run_dir = Path(run_dir)
     if (run_dir / LAST).is_file():
         return True
     try:
@@ -155,7 +156,7 @@ def prepare_run_dir(
     content = [p for p in path.iterdir() if p.name != LOCK_NAME and PARTIAL_MARK not in p.name]
     if not content:
         return path, False
-    if not _is_run(path):
+    if not is_run_dir(path):
         raise HdNetError(
             f"{path} is not empty and is not an hd run; choose another --out (--overwrite replaces an hd run, "
             "never other files)."

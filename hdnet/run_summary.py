@@ -13,15 +13,10 @@ from pathlib import Path
 from typing import Any
 
 from hdnet.errors import HdNetError
+from hdnet.fit import is_run_dir
 from hdnet.train import BEST, CONFIG, LAST, METRICS
 
 __all__ = ["describe_run", "is_run_dir", "run_record"]
-
-
-def is_run_dir(directory: str | os.PathLike) -> bool:
-    """True when ``directory`` holds an hd run (its ``config.json`` or a checkpoint)."""
-    d = Path(directory)
-    return (d / CONFIG).is_file() or (d / LAST).is_file()
 
 
 def _metrics(path: Path) -> list[dict[str, float]]:
