@@ -21,15 +21,13 @@ along each ray; its statistics do not depend on the grid's orientation either.
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from hdlabels.lander import Lander
 from hdnet.errors import HdNetError
-
-if TYPE_CHECKING:
-    from hdnet.data import DemSample
+from hdnet.sample import DemSample
 
 D4_ORDER = 8  # rotations by 0, 90, 180, 270 degrees, each with and without a flip
 AUGMENTATIONS: tuple[str, ...] = ("none", "d4")

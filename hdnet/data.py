@@ -47,7 +47,6 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -82,6 +81,7 @@ from hdnet.inputs import (  # noqa: F401  (re-exported: the grid helpers belong 
     to_network_grid,
 )
 from hdnet.noise_levels import TrainingNoise, check_levels
+from hdnet.sample import DemSample
 from lidarsim.errors import LidarsimError
 from lidarsim.storage import CheckedH5File, FormatError, open_h5
 from lidarsim.streams import Purpose, stream
@@ -92,28 +92,6 @@ SIGMA_EXACT_TOLERANCE_M = 1e-9  # hd choice: two noise levels closer than this a
 # for S-167 = 0.05/3 m, as written on the command line), when exactly one dataset sigma does.
 SIGMA_PRINTED_TOLERANCE_M = 0.5e-4
 DEAD_PIXEL_STREAM = 0xDEAD  # hd choice: stream key of the dead-pixel draws, (seed, scan index, this)
-
-
-@dataclass(frozen=True)
-class DemSample:
-    """One scan on the DEM grid after dead-pixel repair, before normalisation (metres, north-up).
-
-    ``dem_noisy_m``: the (repaired) noisy DEM with NaN holes; ``dem_filled_m``: the same with holes
-    filled; ``label``: int64 with 255 on invalid cells and holes; ``p_safe``: the stored ALHAT
-    baseline P(safe), or None for a DEM made on the fly (see ``HazardDataset.baseline_p_safe``);
-    ``ignore``: dead-pixel neighbourhoods (all False without dead pixels); ``dead_pixels``: (K, 2)
-    (row, col); ``sigma_m``: the DEM's noise level, metres.
-    """
-
-    scan_index: int
-    dem_clean_m: np.ndarray
-    dem_noisy_m: np.ndarray
-    dem_filled_m: np.ndarray
-    label: np.ndarray
-    p_safe: np.ndarray | None
-    ignore: np.ndarray
-    dead_pixels: np.ndarray
-    sigma_m: float = math.nan
 
 
 # --- labelling and noise levels ----------------------------------------------------------------
