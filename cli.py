@@ -1071,8 +1071,9 @@ def train_cmd(
         "calibrate_on",
         type=_DIRECTORY,
         multiple=True,
-        help="Calibrate the threshold on this labelled dataset's validation split instead of --data's, e.g. "
-        "the run's training data when --data is another terrain. Repeat it to calibrate on several together.",
+        help="Calibrate the threshold on this labelled dataset's validation split (repeat it to calibrate on "
+        "several together). Default: the run's own training data, what a user of the run has; --data's "
+        "validation split when that data is not present (the report says so).",
     ),
     overwrite_option("Replace an existing report (never other files, never an input)."),
 )

@@ -57,7 +57,8 @@ from hdnet.thresholds import (
     precision_threshold,
     select_threshold,
 )
-from hdnet.train import LAST, load_trained_model
+from hdnet.train import LAST, load_checkpoint, load_trained_model
+from lidarsim.errors import HdError
 from lidarsim.shards import MANIFEST_NAME, read_manifest, sha256_file
 
 METHODS: tuple[str, str, str] = ("alhat_baseline", "base_net", "uncertainty_aware")
@@ -353,8 +354,9 @@ class EvalConfig:
     ``calibrate``: ``reference`` (H_t calibrated once, on the validation split at the run's
     reference noise level, as the paper does) or ``each`` (H_t calibrated on the validation split
     at each test noise level: the sensor's, which a flash LiDAR knows); ``calibrate_on``: the
-    datasets whose validation splits (together) calibrate H_t, e.g. the run's own training data
-    when it is scored on another terrain (empty: the evaluated dataset's validation split).
+    datasets whose validation splits (together) calibrate H_t (empty: the run's own training data,
+    what a user of the run has, when every training dataset is present with the run's labelling;
+    else the evaluated dataset's validation split, said in the report).
 
     Raises:
         HdNetError: a bad threshold spec or seed (checked here, before any file is looked at); the
@@ -398,6 +400,7 @@ class _Setup:
     input_spec: InputSpec
     labels: str
     sigmas_m: tuple[float, ...]
+    calibration: Calibration
 
     @property
     def train_noise(self) -> TrainingNoise:
@@ -406,12 +409,66 @@ class _Setup:
         return TrainingNoise.from_dict(record) if record else TrainingNoise.single(self.train_sigma_m)
 
     def dataset(
-        self, dataset_dir: str | os.PathLike, split: str, sigma: float, seed: int, dead: int = 0
+        self,
+        dataset_dir: str | os.PathLike,
+        split: str,
+        sigma: float,
+        seed: int,
+        dead: int = 0,
+        labels: str | None = None,
     ) -> HazardDataset:
-        """One split at one noise level (metres), prepared as the run's inputs; ``dead`` dead pixels per DEM."""
+        """One split at one noise level (metres), prepared as the run's inputs; ``dead`` dead pixels per
+        DEM; ``labels`` the labelling (default: the evaluated one)."""
         return split_dataset(
-            dataset_dir, split, sigma, labels=self.labels, input_spec=self.input_spec, dead_pixels=dead, seed=seed
+            dataset_dir,
+            split,
+            sigma,
+            labels=self.labels if labels is None else labels,
+            input_spec=self.input_spec,
+            dead_pixels=dead,
+            seed=seed,
         )
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Where H_t is calibrated: the validation splits of ``datasets`` (resolved paths) under the
+    labelling ``labels``; ``source`` says why (``calibrate-on``, ``run`` for the run's own training
+    data, ``evaluated`` for the evaluated dataset) and ``note`` why the run's data was not used."""
+
+    datasets: tuple[str, ...]
+    labels: str
+    source: str
+    note: str = ""
+
+
+def calibration_datasets(
+    ckpt: dict[str, Any], dataset_dir: str | os.PathLike, cfg: EvalConfig, labels: str, run_labels: str | None
+) -> Calibration:
+    """The validation splits that calibrate H_t: ``cfg.calibrate_on``; else the run's training
+    datasets (its ``dataset`` and every ``--also`` one) when all are present with the run's labelling
+    ``run_labels``; else the evaluated dataset ``dataset_dir`` (labelling ``labels``), with the reason."""
+    if cfg.calibrate_on:
+        return Calibration(tuple(str(Path(d).resolve()) for d in cfg.calibrate_on), labels, "calibrate-on")
+    extra = ckpt.get("extra_config") or {}
+    also = extra.get("also")
+    also = also if isinstance(also, list) else []
+    recorded = [extra.get("dataset"), *(a.get("dataset") for a in also if isinstance(a, dict))]
+    evaluated = str(Path(dataset_dir).resolve())
+    note = "the run does not record its training data"
+    if recorded[0]:
+        missing = [str(d) for d in recorded if not isinstance(d, str) or not (Path(d) / MANIFEST_NAME).is_file()]
+        note = f"the run's training data {missing[0]} is not present" if missing else ""
+        if not missing:
+            try:
+                for d in recorded:
+                    open_labeling(str(d), run_labels)
+            except HdError:
+                note = f"the run's training data {recorded[0]} lacks the run's labelling"
+        if not note:
+            resolved = tuple(str(Path(str(d)).resolve()) for d in recorded)
+            return Calibration(resolved, run_labels or labels, "run")
+    return Calibration((evaluated,), labels, "evaluated", note)
 
 
 def evaluate(
@@ -456,7 +513,10 @@ def evaluate(
         achieved += sweep_achieved
     threshold_info = th.info
     threshold_info["calibrate"] = cfg.calibrate
-    threshold_info["calibration_datasets"] = [str(Path(d).resolve()) for d in cfg.calibrate_on or (dataset_dir,)]
+    threshold_info["calibration_datasets"] = list(setup.calibration.datasets)
+    threshold_info["calibration_source"] = setup.calibration.source
+    if setup.calibration.note:
+        threshold_info["calibration_note"] = setup.calibration.note
     if cfg.calibrate == "each":
         threshold_info["per_sigma"] = thresholds.per_sigma_info()
     if spec.kind == "risk":
@@ -496,7 +556,7 @@ def _planned_images(setup: _Setup, dataset_dir: str | os.PathLike, cfg: EvalConf
         splits = read_manifest(d).get("splits", {})
         return int(splits.get(split, 0)) if isinstance(splits, dict) else 0
 
-    n_val = sum(split_size(d, "val") for d in cfg.calibrate_on or (dataset_dir,))
+    n_val = sum(split_size(d, "val") for d in setup.calibration.datasets)
     n_test = split_size(dataset_dir, "test")
     levels = {round(float(setup.train_sigma_m), 12)}
     if cfg.calibrate == "each":
@@ -538,10 +598,10 @@ class _Thresholds:
         th = self._by_sigma.get(key)
         if th is None:
             cfg = self.cfg
-            sources = cfg.calibrate_on or (str(self.dataset_dir),)
+            cal = self.setup.calibration
             th = self._by_sigma[key] = validation_threshold(
                 self.setup.model,
-                [self.setup.dataset(d, "val", sigma_m, cfg.seed) for d in sources],
+                [self.setup.dataset(d, "val", sigma_m, cfg.seed, labels=cal.labels) for d in cal.datasets],
                 cfg.threshold_spec,
                 mc_samples=cfg.mc_samples,
                 batch_size=cfg.batch_size,
@@ -593,7 +653,9 @@ def _open_evaluation(run_dir: str | os.PathLike, dataset_dir: str | os.PathLike,
     _check_counts(cfg.mc_samples, cfg.drop_pixels, n_pixels, cfg.batch_size)
     sigmas = dataset_sigmas(paths)
     stored_sigma_index(sigmas, train_sigma)  # stored, or a level the noisy DEMs are made at from the clean points
-    return _Setup(model, ckpt, ckpt_path, dev, train_sigma, input_spec, str(entry["name"]), tuple(sigmas))
+    labels = str(entry["name"])
+    calibration = calibration_datasets(ckpt, dataset_dir, cfg, labels, run_labels)
+    return _Setup(model, ckpt, ckpt_path, dev, train_sigma, input_spec, labels, tuple(sigmas), calibration)
 
 
 def _noise_table(
@@ -759,9 +821,14 @@ def report_is_current(
             and run.get("dataset") == str(Path(dataset_dir).resolve())
             and run.get("manifest_sha256") == sha256_file(Path(dataset_dir) / MANIFEST_NAME)
         )
+        ckpt_data = load_checkpoint(ckpt)
+        calibration = list(
+            calibration_datasets(
+                ckpt_data, dataset_dir, cfg, str(run.get("labels")), run_data(ckpt_data, ckpt)[2]
+            ).datasets
+        )
     except (OSError, ValueError, KeyError, TypeError, HdNetError):
         return False
-    calibration = [str(Path(d).resolve()) for d in cfg.calibrate_on or (dataset_dir,)]
     return bool(
         same_inputs
         and (cfg.labels is None or run.get("labels") == cfg.labels)

@@ -155,11 +155,7 @@ def report_markdown(result: EvaluationResult, figures: list[str] | None = None) 
             f"- threshold `{th['spec']}`: H_t = {h_t}, calibrated on the {th['calibration_split']} split at "
             f"{_cm(th['calibration_sigma_m'])} (mean entropy {_num(th['mean_nats'])} nats = validation quantile "
             f"{_num(th['mean_quantile'], 3)})"
-            + (
-                f" of {', '.join(f'`{d}`' for d in th['calibration_datasets'])}"
-                if th.get("calibration_datasets") and th["calibration_datasets"] != [run.get("dataset")]
-                else ""
-            )
+            + _calibration_words(th, run)
             + (
                 "; recalibrated on the validation split at each test noise level (--calibrate each)"
                 if th.get("calibrate") == "each"
@@ -270,6 +266,19 @@ def _sweep_section(result: EvaluationResult) -> list[str]:
             cells.append(f"{vc}{_num(row.pixel_accuracy, 3)} / {_num(row.precision, 3)} / {_num(row.sensitivity, 3)}")
         out.append(f"| {_cm(sigma)} | {trained(sigma)} | " + " | ".join(cells) + " |")
     return [*out, ""]
+
+
+def _calibration_words(th: dict[str, Any], run: dict[str, Any]) -> str:
+    """Which validation splits calibrated H_t, and why, for the report's threshold line ('' when
+    it was the evaluated dataset's own, as in the paper)."""
+    datasets = th.get("calibration_datasets") or []
+    names = ", ".join(f"`{d}`" for d in datasets)
+    source = th.get("calibration_source")
+    if source == "evaluated" and th.get("calibration_note"):
+        return f" of the evaluated dataset ({th['calibration_note']})"
+    if not datasets or datasets == [run.get("dataset")]:
+        return ""
+    return f" of the run's training data {names}" if source == "run" else f" of {names}"
 
 
 def _train_noise_words(noise: dict[str, Any]) -> str:

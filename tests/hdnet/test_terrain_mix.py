@@ -76,10 +76,11 @@ def test_a_dataset_without_the_labelling_is_refused_before_training(two, tmp_pat
 
 def test_calibrating_on_other_datasets_uses_their_validation_splits(two, mixed_run):
     a, b = two
-    own = evaluate(mixed_run, b, EvalConfig(mc_samples=2, threshold="quantile:0.5"))
+    own = evaluate(mixed_run, b, EvalConfig(mc_samples=2, threshold="quantile:0.5", calibrate_on=(str(b),)))
     other = evaluate(mixed_run, b, EvalConfig(mc_samples=2, threshold="quantile:0.5", calibrate_on=(str(a),)))
     assert own.threshold["calibration_datasets"] == [str(b.resolve())]
     assert other.threshold["calibration_datasets"] == [str(a.resolve())]
+    assert own.threshold["calibration_source"] == other.threshold["calibration_source"] == "calibrate-on"
     # b has 30 scans, a 20: validation splits of 3 and 2 images (block splits 80/10/10).
     assert own.threshold["calibration_images"] > other.threshold["calibration_images"] > 0
     # The test split scored is b's in all three: the baseline rows do not depend on the threshold.
@@ -127,8 +128,42 @@ def test_eval_reports_its_progress_in_images_against_an_exact_plan(two, mixed_ru
     assert len(totals) == 1, "the plan was exact: the total never moved"
     done = [d for d, _ in calls]
     assert done[0] == 0 and done == sorted(done) and done[-1] == calls[-1][1]
-    # 2 val images at each of 3 calibration levels (1.67, 7, 5 cm), 2 test images in 2 + 2 + 1 passes.
-    assert calls[-1][1] == 2 * 3 + 2 * 5
+    # The run's own validation splits (a: 2 images, b: 3) at each of 3 calibration levels (1.67, 7,
+    # 5 cm), 2 test images in 2 + 2 + 1 passes.
+    assert calls[-1][1] == (2 + 3) * 3 + 2 * 5
+
+
+def test_eval_calibrates_on_the_runs_own_training_data_by_default(two, mixed_run, tmp_path):
+    from hdnet.report import write_report
+
+    a, b = two
+    default = evaluate(mixed_run, b, EvalConfig(mc_samples=2, threshold="quantile:0.5"))
+    named = evaluate(mixed_run, b, EvalConfig(mc_samples=2, threshold="quantile:0.5", calibrate_on=(str(a), str(b))))
+    assert default.threshold["calibration_source"] == "run"
+    assert default.threshold["calibration_datasets"] == [str(a.resolve()), str(b.resolve())]
+    assert default.threshold["calibration_images"] == 2 + 3
+    assert default.threshold["value_nats"] == named.threshold["value_nats"]
+    write_report(default, tmp_path / "r", figures=False)
+    assert "of the run's training data" in (tmp_path / "r" / "report.md").read_text()
+
+
+def test_eval_falls_back_to_the_evaluated_dataset_when_the_runs_data_is_gone(two, tmp_path):
+    import shutil
+
+    from hdnet.report import write_report
+
+    a, b = two
+    moved = tmp_path / "train-copy"
+    shutil.copytree(a, moved)
+    run = tmp_path / "run"
+    fit(moved, run, FitConfig(profile=TINY, epochs=1, progress=False))
+    shutil.rmtree(moved)
+    result = evaluate(run, b, EvalConfig(mc_samples=1, threshold="quantile:0.5"))
+    assert result.threshold["calibration_source"] == "evaluated"
+    assert result.threshold["calibration_datasets"] == [str(b.resolve())]
+    assert "is not present" in result.threshold["calibration_note"]
+    write_report(result, tmp_path / "r", figures=False)
+    assert "of the evaluated dataset (the run's training data" in (tmp_path / "r" / "report.md").read_text()
 
 
 def test_a_report_on_another_dataset_sets_no_paper_numbers_beside_it(two, mixed_run, tmp_path):
