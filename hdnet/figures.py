@@ -18,6 +18,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.colors import ListedColormap
+from matplotlib.figure import Figure
+from matplotlib.patches import Patch
 
 from hdnet import defaults
 
@@ -27,6 +29,7 @@ if TYPE_CHECKING:
 # Offsets (points) of a site's rank label: upper right, lower right, upper left, lower left.
 LABEL_OFFSETS_PT = ((5, 5), (5, -13), (-13, 5), (-13, -13))
 SAFETY_HEX = ("#c0392b", "#27ae60", "#2e6fd8", "#ffffff")  # unsafe, safe, uncertain, invalid
+SAFETY_NAMES = ("unsafe", "safe", "uncertain (discarded)", "invalid (no label)")
 SAFETY_COLOURS = ListedColormap(list(SAFETY_HEX))
 UNCERTAIN_CODE, INVALID_CODE = 2, 3
 DPI = 110
@@ -133,6 +136,14 @@ def noise_sweep(result: EvaluationResult, path: Path) -> None:
     plt.close(fig)
 
 
+def safety_legend_handles() -> list[Patch]:
+    """One legend patch per safety-map colour (unsafe, safe, uncertain, invalid), edged so white shows."""
+    return [
+        Patch(facecolor=colour, edgecolor="#555555", linewidth=0.5, label=name)
+        for colour, name in zip(SAFETY_HEX, SAFETY_NAMES, strict=True)
+    ]
+
+
 def _safety_codes(safe: np.ndarray, label: np.ndarray, uncertain: np.ndarray | None = None) -> np.ndarray:
     codes = safe.astype(np.int64)
     if uncertain is not None:
@@ -151,7 +162,15 @@ def representative_scan(inf: SplitInference) -> int:
 
 
 def qualitative_panel(inf: SplitInference, row: int, threshold_nats: float | None, path: Path) -> None:
-    """True DEM, label, noisy DEM, uncertainty, uncertainty-aware prediction, baseline for one scan."""
+    """True DEM, label, noisy DEM, uncertainty, uncertainty-aware prediction, baseline for one scan,
+    saved to ``path`` (PNG)."""
+    fig = qualitative_figure(inf, row, threshold_nats)
+    fig.savefig(path, dpi=DPI)
+    plt.close(fig)
+
+
+def qualitative_figure(inf: SplitInference, row: int, threshold_nats: float | None) -> Figure:
+    """The figure of ``qualitative_panel``: six panels, safety maps explained by a colour legend."""
     label = inf.label[row]
     t = math.inf if threshold_nats is None else threshold_nats
     uncertain = inf.entropy_nats[row] >= t
@@ -179,14 +198,10 @@ def qualitative_panel(inf: SplitInference, row: int, threshold_nats: float | Non
         ax.set_yticks([])
         if title.endswith(")"):
             fig.colorbar(im, ax=ax, fraction=0.046, pad=0.02)
-    fig.suptitle(
-        f"scan {int(inf.scan_index[row])}, test sigma {sigma_label(inf.sigma_m)} "
-        "(red unsafe, green safe, blue uncertain, white invalid)",
-        fontsize=9,
-    )
-    fig.tight_layout()
-    fig.savefig(path, dpi=DPI)
-    plt.close(fig)
+    fig.suptitle(f"scan {int(inf.scan_index[row])}, test sigma {sigma_label(inf.sigma_m)}", fontsize=9)
+    fig.legend(handles=safety_legend_handles(), loc="lower center", ncol=len(SAFETY_NAMES), fontsize=8, frameon=False)
+    fig.tight_layout(rect=(0.0, 0.07, 1.0, 1.0))
+    return fig
 
 
 def write_figures(result: EvaluationResult, out_dir: Path) -> list[Path]:
