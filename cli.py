@@ -1,423 +1,55 @@
-"""The ``hd`` command: options and messages only; lidarsim, hdlabels and hdnet do the work.
+"""The ``hd`` command: options and calls; lidarsim, hdlabels and hdnet do the work.
 
-Each command turns its options into the packages' settings (``lidarsim.recipe.BuildSettings``,
-``hdlabels.settings.LabelSettings``, ``hdnet.pipeline.Pipeline``) and prints what they return.
-Options that several commands share are declared once (the ``*_option`` factories below).
-
-Every command turns bad input into a one-line error and a non-zero exit status. Ctrl-C, SIGTERM
-and SIGHUP stop a command cleanly (partial files removed, resumable; a second signal does not
-interrupt the clean-up) with exit status 128 + the signal number: 130, 143, 129
-(docs/reliability.md).
+Each command's options are generated from the settings it fills (``lidarsim.setting.click_options``
+over ``lidarsim.recipe.BuildSettings``, ``hdlabels.settings.LabelSettings``, ``hdnet.fit.FitConfig``,
+...), shared ones come from ``hdnet.shared_options``, and the terminal (one-line errors, signals,
+summaries, progress) is ``hdnet.terminal`` (docs/reliability.md).
 """
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
-import math
-import shutil
-import signal
-import sys
-from collections.abc import Callable
-from functools import wraps
 from pathlib import Path
 from typing import Any
 
 import click
-from click.core import ParameterSource
 
 from hdlabels import defaults as label_defaults
 from hdlabels import limits as label_limits
 from hdnet import defaults as net_defaults
 from hdnet import limits as net_limits
+from hdnet import terminal
+from hdnet.pipeline import demo_next_steps as _demo_next_steps
+from hdnet.shared_options import (
+    batch_size_option,
+    dtm_option,
+    epochs_option,
+    labels_option,
+    mc_samples_option,
+    options,
+    out_option,
+    overwrite_option,
+    recipe_option,
+    scheduler_option,
+    seed_option,
+    threshold_option,
+    workers_option,
+)
+from hdnet.terminal import OUTPUT, HdGroup, ScanProgress, epoch_lines, friendly_errors, record, refuse_with_recipe, say
 from lidarsim import defaults as lidar_defaults
 from lidarsim import limits
 from lidarsim import terrain_defaults as td
 from lidarsim._version import __version__
-from lidarsim.errors import HdError, HdWarning, LidarsimError
-from lidarsim.limits import Bound
+from lidarsim.errors import LidarsimError
+from lidarsim.setting import DIRECTORY as _DIRECTORY
+from lidarsim.setting import FILE_OR_DIRECTORY as _FILE_OR_DIRECTORY
+from lidarsim.setting import NonEmptyPath as _Path
+from lidarsim.setting import bounded as _bounded
+
+_options = options
 
 # The paper's dataset recipe, which `hd reproduce` runs (beside this file in a source checkout).
 PAPER_RECIPE = Path(__file__).resolve().parent / "datasets" / "mars-paper"
-
-
-class Terminated(KeyboardInterrupt):
-    """SIGTERM or SIGHUP, raised in the main thread so that it unwinds like Ctrl-C."""
-
-    def __init__(self, signum: int) -> None:
-        super().__init__(signum)
-        self.signum = signum
-
-
-_STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-# The stop signal being handled (0 while none): from then on the process only stops.
-_stopping: list[int] = [0]
-
-
-def _ignore(signum: int, frame: Any) -> None:
-    """A signal after the first: the clean-up goes on. (A Python no-op, not SIG_IGN: signals already
-    pending when the handler changes to SIG_IGN make CPython raise "ignored due to race condition".)"""
-
-
-def _ignore_stop_signals_until_exit() -> None:
-    """At exit after a stop signal: the kernel ignores further ones (SIG_IGN, which the interpreter's
-    shutdown keeps; a Python handler would be reset to SIG_DFL, and a signal then would end the
-    process with -signum instead of 128 + signum). A signal already received but not yet handled
-    by Python is dropped quietly instead of printing "ignored due to race condition"."""
-    previous_hook = sys.unraisablehook
-
-    def hook(unraisable: Any) -> None:
-        value = unraisable.exc_value
-        if isinstance(value, OSError) and "ignored due to race condition" in str(value):
-            return
-        previous_hook(unraisable)
-
-    sys.unraisablehook = hook
-    for sig in _STOP_SIGNALS:
-        signal.signal(sig, signal.SIG_IGN)
-
-
-def _raise_terminated(signum: int, frame: Any) -> None:
-    for sig in _STOP_SIGNALS:  # a second signal (Ctrl-C pressed twice) must not interrupt the clean-up
-        signal.signal(sig, _ignore)
-    if not _stopping[0]:
-        import atexit
-
-        _stopping[0] = signum
-        atexit.register(_ignore_stop_signals_until_exit)  # runs first: atexit calls in reverse order
-    if signum == signal.SIGINT:
-        raise KeyboardInterrupt
-    raise Terminated(signum)
-
-
-def _install_signal_handlers(ctx: click.Context) -> None:
-    """Ctrl-C, SIGTERM and SIGHUP unwind as KeyboardInterrupt, once. The previous handlers are
-    restored when the command ends, unless it was stopped: then any number of further signals
-    is ignored until the process exits with 128 + the first one."""
-    import threading
-
-    if threading.current_thread() is not threading.main_thread():
-        return
-    previous = {sig: signal.signal(sig, _raise_terminated) for sig in _STOP_SIGNALS}
-
-    def restore() -> None:
-        if not _stopping[0]:
-            for sig, handler in previous.items():
-                signal.signal(sig, handler)
-
-    ctx.call_on_close(restore)
-
-
-def _install_warning_format() -> None:
-    """hd's own warnings (``HdWarning``) as one ``Warning: ...`` line on standard error; others as usual."""
-    import warnings
-
-    default = warnings.showwarning
-
-    def show(message: Any, category: Any, filename: str, lineno: int, file: Any = None, line: Any = None) -> None:
-        if isinstance(category, type) and issubclass(category, HdWarning):
-            click.echo(f"Warning: {_one_line(Exception(str(message)))}", err=True)
-        else:
-            default(message, category, filename, lineno, file, line)
-
-    warnings.showwarning = show
-
-
-def _one_line(exc: BaseException) -> str:
-    """The message of an error as one line (a DataLoader worker's error carries its traceback)."""
-    text = str(exc).strip()
-    if "Original Traceback" in text:
-        text = text.splitlines()[-1].split(": ", 1)[-1]
-    return " ".join(text.split()) if "\n" in text else text
-
-
-def _close_progress_bars() -> None:
-    """End every open tqdm bar (with its newline), so that an error starts on its own line."""
-    try:
-        from tqdm import tqdm
-    except ImportError:
-        return
-    for bar in list(getattr(tqdm, "_instances", [])):
-        with contextlib.suppress(Exception):  # a bar that cannot close must not hide the error
-            bar.close()
-
-
-def friendly_errors(func: Callable[..., Any]) -> Callable[..., Any]:
-    """Turn the packages' input errors into click errors: one line, exit status 1, no traceback."""
-
-    @wraps(func)
-    def wrapper(*args: Any, **kwargs: Any) -> Any:
-        try:
-            return func(*args, **kwargs)
-        except BaseException:
-            _close_progress_bars()
-            raise
-
-    return _one_line_errors(wrapper)
-
-
-def _one_line_errors(func: Callable[..., Any]) -> Callable[..., Any]:
-    @wraps(func)
-    def wrapper(*args: Any, **kwargs: Any) -> Any:
-        try:
-            return func(*args, **kwargs)
-        except HdError as exc:
-            raise click.ClickException(_one_line(exc)) from None
-        except OSError as exc:
-            from lidarsim.storage import describe_os_error
-
-            raise click.ClickException(describe_os_error(exc)) from None
-        except MemoryError:
-            raise click.ClickException(
-                "out of memory; use smaller settings (fewer scans per shard, a smaller batch or resolution)"
-            ) from None
-        except KeyboardInterrupt as exc:
-            signum = getattr(exc, "signum", signal.SIGINT)
-            what = "interrupted" if signum == signal.SIGINT else f"stopped by {signal.Signals(signum).name}"
-            click.echo(f"\n{what}; re-run the same command to resume", err=True)
-            sys.exit(128 + int(signum))
-
-    return wrapper
-
-
-# ------------------------------------------------------------------------------------ option types
-class _Path(click.Path):
-    """click.Path that refuses an empty string (which click would turn into the current directory)."""
-
-    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
-        if isinstance(value, str) and not value.strip():
-            self.fail("must not be empty", param, ctx)
-        return super().convert(value, param, ctx)
-
-
-class _Finite(click.FloatRange):
-    """A float option that must be a finite number (``nan`` and ``inf`` are refused), within the
-    range when one is given."""
-
-    name = "float"
-
-    def _describe_range(self) -> str:
-        return super()._describe_range() if (self.min is not None or self.max is not None) else "finite"
-
-    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
-        number = super().convert(value, param, ctx)
-        if not math.isfinite(number):
-            self.fail(f"{number} is not a finite number", param, ctx)
-        return number
-
-
-def _bounded(bound: Bound) -> click.ParamType:
-    """The click type of a numeric option within ``bound`` (declared by the package the value belongs
-    to: ``lidarsim.limits``, ``hdlabels.limits``, ``hdnet.limits``). click shows the range in
-    ``--help`` and refuses a value outside it with a usage error, before any work."""
-    if bound.integer:
-        return click.IntRange(
-            None if bound.low is None else int(bound.low),
-            None if bound.high is None else int(bound.high),
-            min_open=bound.low_open,
-            max_open=bound.high_open,
-        )
-    return _Finite(min=bound.low, max=bound.high, min_open=bound.low_open, max_open=bound.high_open)
-
-
-_DIRECTORY = _Path(file_okay=False, path_type=Path)
-_FILE_OR_DIRECTORY = _Path(path_type=Path)
-
-
-# ------------------------------------------------------------------ options shared by several commands
-Decorator = Callable[[Callable[..., Any]], Callable[..., Any]]
-
-
-def workers_option() -> Decorator:
-    return click.option(
-        "--workers",
-        type=_bounded(limits.WORKERS),
-        default=None,
-        help="Local worker processes (default: all cores).",
-    )
-
-
-def scheduler_option() -> Decorator:
-    return click.option(
-        "--scheduler", default=None, help="Dask scheduler address (tcp://host:8786) to run the tasks on a cluster."
-    )
-
-
-def seed_option(what: str) -> Decorator:
-    return click.option(
-        "--seed", type=_bounded(limits.SEED), default=lidar_defaults.SEED, show_default=True, help=f"Seed of {what}."
-    )
-
-
-def overwrite_option(what: str) -> Decorator:
-    return click.option("--overwrite", is_flag=True, help=what)
-
-
-def out_option(
-    dest: str, what: str, required: bool = True, directory: bool = True, default: Path | None = None
-) -> Decorator:
-    return click.option(
-        "--out",
-        dest,
-        required=required,
-        default=default,
-        show_default=default is not None,
-        type=_DIRECTORY if directory else _FILE_OR_DIRECTORY,
-        help=what,
-    )
-
-
-def recipe_option(what: str, required: bool = False) -> Decorator:
-    return click.option("--recipe", type=_FILE_OR_DIRECTORY, required=required, default=None, help=what)
-
-
-def dtm_option(what: str) -> Decorator:
-    return click.option("--dtm", "dtm_path", type=_FILE_OR_DIRECTORY, default=None, help=what)
-
-
-def epochs_option(what: str, default: int | None = None) -> Decorator:
-    return click.option(
-        "--epochs", type=_bounded(net_limits.EPOCHS), default=default, show_default=default is not None, help=what
-    )
-
-
-def labels_option(what: str) -> Decorator:
-    return click.option("--labels", "labeling", default=None, help=what)
-
-
-def mc_samples_option() -> Decorator:
-    return click.option(
-        "--mc-samples",
-        type=_bounded(net_limits.MC_SAMPLES),
-        default=net_defaults.MC_SAMPLES,
-        show_default=True,
-        help="MC-dropout samples M.",
-    )
-
-
-def batch_size_option(what: str) -> Decorator:
-    return click.option(
-        "--batch-size",
-        type=_bounded(net_limits.BATCH_SIZE),
-        default=net_defaults.BATCH_SIZE,
-        show_default=True,
-        help=what,
-    )
-
-
-# The threshold forms, worded once (hdnet.thresholds.parse_threshold_spec reads them).
-THRESHOLD_FORMS = (
-    "Uncertainty threshold: mean (the validation split's mean entropy, the paper's), quantile:Q, risk:ALPHA "
-    "(false-safe rate at most ALPHA), all calibrated on a validation split, or nats:H (fixed, in nats)."
-)
-
-
-def threshold_option(what: str = "") -> Decorator:
-    help_text = f"{THRESHOLD_FORMS} {what}".strip()
-    return click.option("--threshold", default=net_defaults.THRESHOLD_SPEC, show_default=True, help=help_text)
-
-
-def _options(*decorators: Decorator) -> Decorator:
-    """Apply ``decorators`` in the order given (the first is the first option of the help)."""
-
-    def apply(func: Callable[..., Any]) -> Callable[..., Any]:
-        for decorator in reversed(decorators):
-            func = decorator(func)
-        return func
-
-    return apply
-
-
-def _refuse_with_recipe(ctx: click.Context, names: set[str], what: str, error: type[HdError]) -> None:
-    """A recipe fixes the settings ``names``: refuse any of them given on the command line."""
-    given = [
-        p
-        for p in ctx.command.params
-        if p.name in names and ctx.get_parameter_source(p.name) is ParameterSource.COMMANDLINE
-    ]
-    if given:
-        flags = ", ".join(p.opts[0] for p in given)
-        raise error(f"--recipe fixes {what}; edit the recipe instead of passing {flags}")
-
-
-class _Output:
-    """How the commands write to the terminal (``hd -q``, ``hd --no-progress``; docs/user-guide.md,
-    "Scripting"): ``quiet`` drops the summaries, ``progress`` the progress bars; ``lines`` writes
-    progress as plain lines (at most one per tenth of the work) when stderr is not a terminal, so
-    that log files get no carriage-return updates."""
-
-    quiet = False
-    progress = True
-    lines = False
-    json = False
-
-
-OUTPUT = _Output()
-
-
-def _restore_env(name: str, value: str | None) -> None:
-    import os
-
-    if value is None:
-        os.environ.pop(name, None)
-    else:
-        os.environ[name] = value
-
-
-def _epoch_lines(row: dict[str, Any], total: int) -> None:
-    """One log line per finished training epoch (progress when stderr is not a terminal)."""
-    click.echo(
-        f"train: epoch {int(row['epoch'])}/{total}, train loss {row['train_loss']:.4f}, val loss "
-        f"{row['val_loss']:.4f}, val PA {row['val_pixel_accuracy']:.4f}, {row['train_images_per_s']:.1f} images/s",
-        err=True,
-    )
-
-
-def _say(text: str) -> None:
-    """A command's summary on stdout, unless ``hd -q`` or ``hd --json`` (whose record replaces it)."""
-    if not (OUTPUT.quiet or OUTPUT.json):
-        click.echo(text)
-
-
-def _record(record: dict[str, Any]) -> None:
-    """A command's summary as one JSON object on stdout, with ``hd --json`` (even with ``-q``)."""
-    if OUTPUT.json:
-        import json
-
-        from hdnet.report import json_plain
-
-        click.echo(json.dumps(json_plain(record), default=str))  # paths as strings
-
-
-class _ScanProgress:
-    """Progress fed with (done, total) counts of scans (or of another ``unit``): a tqdm bar on a
-    terminal, plain lines in a log, nothing with ``hd -q`` or ``--no-progress``."""
-
-    def __init__(self, desc: str, unit: str = "scan") -> None:
-        self.desc = desc
-        self.unit = unit
-        self.bar: Any = None
-        self.tenth = -1
-
-    def __call__(self, done: int, total: int) -> None:
-        from tqdm import tqdm
-
-        if not OUTPUT.progress:
-            return
-        if OUTPUT.lines:
-            tenth = 10 * done // total if total > 0 else 10
-            if tenth > self.tenth:
-                self.tenth = tenth
-                click.echo(f"{self.desc}: {done}/{total} {self.unit}s ({100 * done // max(total, 1)}%)", err=True)
-            return
-        if self.bar is None:
-            self.bar = tqdm(total=total, initial=done, desc=self.desc, unit=self.unit, dynamic_ncols=True)
-        else:
-            self.bar.update(done - self.bar.n)
-
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
 
 
 def _known_schemas() -> dict[str, str]:
@@ -428,38 +60,7 @@ def _known_schemas() -> dict[str, str]:
 
 
 # ------------------------------------------------------------------------------------------ commands
-class _HdGroup(click.Group):
-    """The ``hd`` group: a usage error is one line (``Error: ... (see 'hd CMD --help')``, exit 2)
-    instead of click's usage block; everything else as click's standalone mode."""
-
-    def main(
-        self,
-        args: Any = None,
-        prog_name: str | None = None,
-        complete_var: str | None = None,
-        standalone_mode: bool = True,
-        **extra: Any,
-    ) -> Any:
-        if not standalone_mode:
-            return super().main(args, prog_name, complete_var, standalone_mode, **extra)
-        try:
-            super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
-        except click.UsageError as exc:
-            hint = f" (see '{exc.ctx.command_path} --help')" if exc.ctx is not None else ""
-            click.echo(f"Error: {exc.format_message()}{hint}", err=True)
-            sys.exit(exc.exit_code)
-        except click.ClickException as exc:
-            exc.show()
-            sys.exit(exc.exit_code)
-        except click.exceptions.Exit as exc:
-            sys.exit(exc.exit_code)
-        except click.exceptions.Abort:
-            click.echo("Aborted!", err=True)
-            sys.exit(1)
-        sys.exit(0)
-
-
-@click.group(cls=_HdGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(cls=HdGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="hd")
 @click.option("-q", "--quiet", is_flag=True, help="No progress and no summaries: errors and warnings only.")
 @click.option("--no-progress", is_flag=True, help="No progress bars (also: TQDM_DISABLE=1).")
@@ -469,22 +70,7 @@ class _HdGroup(click.Group):
 @click.pass_context
 def main(ctx: click.Context, quiet: bool = False, no_progress: bool = False, as_json: bool = False) -> None:
     """hd — hazard-detection datasets, ALHAT labels and uncertainty-aware networks for planetary landing."""
-    import os
-
-    from lidarsim.parallel import forked_children_die_with_parent
-
-    OUTPUT.quiet = quiet
-    OUTPUT.json = as_json
-    OUTPUT.progress = not (quiet or no_progress or os.environ.get("TQDM_DISABLE", "") not in ("", "0"))
-    OUTPUT.lines = not sys.stderr.isatty()
-    if not OUTPUT.progress or OUTPUT.lines:  # the library's own bars (training) too, for this command
-        before = os.environ.get("TQDM_DISABLE")
-        os.environ["TQDM_DISABLE"] = "1"
-        ctx.call_on_close(lambda: _restore_env("TQDM_DISABLE", before))
-
-    _install_signal_handlers(ctx)
-    _install_warning_format()
-    forked_children_die_with_parent()
+    terminal.start(ctx, quiet, no_progress, as_json)
 
 
 @main.command("build-dataset")
@@ -619,7 +205,7 @@ def build_dataset_cmd(
 
         check_scheduler_address(scheduler)
     if recipe is not None:
-        _refuse_with_recipe(ctx, set(settings), "every content setting", LidarsimError)
+        refuse_with_recipe(ctx, set(settings), "every content setting", LidarsimError)
         loaded = load_recipe(recipe)
         config, name = loaded.build, loaded.name
     else:
@@ -629,16 +215,16 @@ def build_dataset_cmd(
     if out_dir is None:
         out_dir = default_out_dir(config, name)
         check_output_dir(out_dir, "--out")
-        _say(f"no --out given: building into {out_dir}")
-    progress = _ScanProgress("scans")
+        say(f"no --out given: building into {out_dir}")
+    progress = ScanProgress("scans")
     try:
         summary = build_dataset(
             out_dir, config, workers=workers, scheduler=scheduler, overwrite=overwrite, progress=progress
         )
     finally:
         progress.close()
-    _say(summary.paragraph())
-    _record({"command": "build-dataset", **dataclasses.asdict(summary)})
+    say(summary.paragraph())
+    record({"command": "build-dataset", **dataclasses.asdict(summary)})
 
 
 @main.command("make-dtm")
@@ -716,7 +302,7 @@ def make_dtm_cmd(
         return
     params = dataclasses.replace(MarsTerrainParams(), **changes)
     heights = write_procedural_dtm(out_path, params, seed)
-    _say(
+    say(
         f"wrote {out_path}: {heights.shape[0]} x {heights.shape[1]} cells at {params.spacing_m:g} m/px, "
         f"heights {float(heights.min()):.1f} .. {float(heights.max()):.1f} m"
     )
@@ -729,7 +315,7 @@ def _make_rocky_dtm(out_path: Path, base_path: Path, params: Any, seed: int, cra
     terrain = rocks_on_base(base_path, params, seed, params.spacing_m, craters=craters_below_m is not None)
     write_rocky_dtm(out_path, terrain)
     rows, cols = terrain.heights.shape
-    _say(
+    say(
         f"wrote {out_path}: {base_path.name} at {terrain.spacing_m:g} m/px ({rows} x {cols} cells) with "
         f"{terrain.n_rocks} rocks (k = {params.rock_k:g})"
         + (
@@ -906,7 +492,7 @@ def label_cmd(
     if recipe is not None:
         from lidarsim.recipe import load_recipe
 
-        _refuse_with_recipe(ctx, set(settings), "the lander and DEM settings", HdLabelsError)
+        refuse_with_recipe(ctx, set(settings), "the lander and DEM settings", HdLabelsError)
         loaded = load_recipe(recipe)
         label = LabelSettings.from_recipe(loaded.label, str(loaded.path))
     else:
@@ -917,13 +503,13 @@ def label_cmd(
 
         probe_scheduler(scheduler)  # a malformed or unreachable address, before anything is written
     grid = label.to_dem_spec()
-    progress = _ScanProgress("labels")
+    progress = ScanProgress("labels")
     try:
         summary = label_dataset(directory, lander, grid, workers=workers, scheduler=scheduler, progress=progress)
     finally:
         progress.close()
-    _say(summary.paragraph())
-    _record({"command": "label", **dataclasses.asdict(summary)})
+    say(summary.paragraph())
+    record({"command": "label", **dataclasses.asdict(summary)})
 
 
 @main.command("train")
@@ -1014,22 +600,22 @@ def train_cmd(
         seed=seed,
         resume=resume,
         labels=labeling,
-        progress=(_epoch_lines if OUTPUT.lines else True) if OUTPUT.progress else False,
+        progress=(epoch_lines if OUTPUT.lines else True) if OUTPUT.progress else False,
         num_workers=num_workers,
         overwrite=overwrite,
         also=tuple(str(d) for d in also),
     )
     if already_trained(dataset, run_dir, config):
         n = config.epochs if config.epochs is not None else config.training_profile().epochs
-        _say(
+        say(
             f"{run_dir} already holds this training, finished after {n} epochs with the same data, profile, seed "
             "and noise: nothing to do (--overwrite trains it again)"
         )
-        _record({"command": "train", "already_done": True, **run_record(run_dir)})
+        record({"command": "train", "already_done": True, **run_record(run_dir)})
         return
     checkpoint = fit(dataset, run_dir, config)
-    _say(training_done_message(checkpoint, run_dir))
-    _record({"command": "train", "already_done": False, **run_record(run_dir)})
+    say(training_done_message(checkpoint, run_dir))
+    record({"command": "train", "already_done": False, **run_record(run_dir)})
 
 
 @main.command("eval")
@@ -1113,17 +699,17 @@ def eval_cmd(
         calibrate_on=tuple(str(d) for d in calibrate_on),
     )
     if not overwrite and report_is_current(out_dir, run_dir, dataset, config):
-        _say(f"{out_dir} already holds this evaluation's report (same checkpoint, dataset and settings): nothing to do")
-        _record({"command": "eval", "already_done": True, "report": str(out_dir)})
+        say(f"{out_dir} already holds this evaluation's report (same checkpoint, dataset and settings): nothing to do")
+        record({"command": "eval", "already_done": True, "report": str(out_dir)})
         return
-    progress = _ScanProgress("eval", unit="image")
+    progress = ScanProgress("eval", unit="image")
     try:
         result = evaluate_to_report(run_dir, dataset, out_dir, config, overwrite=overwrite, progress=progress)
     finally:
         progress.close()
-    _say(result.summary())
-    _say(report_written_message(out_dir))
-    _record(
+    say(result.summary())
+    say(report_written_message(out_dir))
+    record(
         {
             "command": "eval",
             "already_done": False,
@@ -1193,7 +779,7 @@ def detect_cmd(
     """Hazard maps and ranked landing sites of a DTM (or of one scan) from a trained run."""
     from hdnet.detect import detect
 
-    progress = _ScanProgress("tiles", unit="tile")
+    progress = ScanProgress("tiles", unit="tile")
     try:
         result = detect(
             run_dir,
@@ -1207,9 +793,9 @@ def detect_cmd(
         )
     finally:
         progress.close()
-    _say(result.summary())
-    _say(f"maps, sites.csv, sites.geojson, overview.png and detect.json in {out_dir}")
-    _record({"command": "detect", "out": str(out_dir), **result.info})
+    say(result.summary())
+    say(f"maps, sites.csv, sites.geojson, overview.png and detect.json in {out_dir}")
+    record({"command": "detect", "out": str(out_dir), **result.info})
 
 
 @main.command("demo")
@@ -1230,19 +816,8 @@ def demo_cmd(out_dir: Path, scans: int, epochs: int, workers: int | None) -> Non
     """The whole chain at demo scale on the built-in procedural Mars terrain (re-running resumes)."""
     from hdnet.pipeline import demo_pipeline, run_pipeline
 
-    run_pipeline(demo_pipeline(out_dir, scans, epochs), workers, echo=click.echo, progress=_ScanProgress)
-    _say(_demo_next_steps(out_dir))
-
-
-def _demo_next_steps(out_dir: Path) -> str:
-    """What to try after the demo: the hazard map of one scan and of a whole DTM."""
-    hd = "hd" if shutil.which("hd") else f"{Path(sys.executable).parent / 'hd'}"
-    return (
-        "Next: map the hazards of one scan at 7 cm, or of a whole terrain:\n"
-        f"  {hd} detect {out_dir}/run --data {out_dir}/dataset --scan 0 --sigma 0.07 --out {out_dir}/detect-scan0\n"
-        f"  {hd} make-dtm {out_dir}/mars.tif && {hd} detect {out_dir}/run --dtm {out_dir}/mars.tif "
-        f"--out {out_dir}/detect-mars"
-    )
+    run_pipeline(demo_pipeline(out_dir, scans, epochs), workers, echo=click.echo, progress=ScanProgress)
+    say(_demo_next_steps(out_dir))
 
 
 @main.command("reproduce")
@@ -1275,7 +850,7 @@ def reproduce_cmd(
     from hdnet.pipeline import reproduce_pipeline, run_pipeline
 
     pipeline = reproduce_pipeline(out_dir, recipe if recipe is not None else PAPER_RECIPE, profile, epochs, dtm_path)
-    run_pipeline(pipeline, workers, echo=click.echo, progress=_ScanProgress)
+    run_pipeline(pipeline, workers, echo=click.echo, progress=ScanProgress)
 
 
 @main.command("card")
@@ -1290,7 +865,7 @@ def card_cmd(dataset: Path, recipe: Path, machine: str) -> None:
     from lidarsim.card import publish_card
 
     card = publish_card(dataset, recipe, machine)
-    _say(f"wrote {card.card_path} and {card.checksums_path} ({card.n_shards} shards)")
+    say(f"wrote {card.card_path} and {card.checksums_path} ({card.n_shards} shards)")
 
 
 if __name__ == "__main__":

@@ -480,3 +480,17 @@ class StageLog:
         write_json_atomic(path, previous)
         self.echo("stage times (s): " + ", ".join(f"{k} {v:.1f}" for k, v in self.times.items()))
         return self.times
+
+
+def demo_next_steps(out_dir: Path) -> str:
+    """What to try after ``hd demo``: the hazard map of one scan and of a whole DTM."""
+    import shutil
+    import sys
+
+    hd = "hd" if shutil.which("hd") else f"{Path(sys.executable).parent / 'hd'}"
+    return (
+        "Next: map the hazards of one scan at 7 cm, or of a whole terrain:\n"
+        f"  {hd} detect {out_dir}/run --data {out_dir}/dataset --scan 0 --sigma 0.07 --out {out_dir}/detect-scan0\n"
+        f"  {hd} make-dtm {out_dir}/mars.tif && {hd} detect {out_dir}/run --dtm {out_dir}/mars.tif "
+        f"--out {out_dir}/detect-mars"
+    )

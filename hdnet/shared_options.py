@@ -1,0 +1,122 @@
+"""The options that several ``hd`` commands share, declared once (the ``*_option`` factories).
+
+The options of one command's settings are generated from the settings dataclass
+(:func:`lidarsim.setting.click_options`); these are the ones around them: where to write, how many
+workers, the seed, the run's threshold.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import click
+
+from hdnet import defaults as net_defaults
+from hdnet import limits as net_limits
+from lidarsim import defaults as lidar_defaults
+from lidarsim import limits
+from lidarsim.setting import DIRECTORY, FILE_OR_DIRECTORY, bounded
+
+Decorator = Callable[[Callable[..., Any]], Callable[..., Any]]
+
+
+def workers_option() -> Decorator:
+    return click.option(
+        "--workers",
+        type=bounded(limits.WORKERS),
+        default=None,
+        help="Local worker processes (default: all cores).",
+    )
+
+
+def scheduler_option() -> Decorator:
+    return click.option(
+        "--scheduler", default=None, help="Dask scheduler address (tcp://host:8786) to run the tasks on a cluster."
+    )
+
+
+def seed_option(what: str) -> Decorator:
+    return click.option(
+        "--seed", type=bounded(limits.SEED), default=lidar_defaults.SEED, show_default=True, help=f"Seed of {what}."
+    )
+
+
+def overwrite_option(what: str) -> Decorator:
+    return click.option("--overwrite", is_flag=True, help=what)
+
+
+def out_option(
+    dest: str, what: str, required: bool = True, directory: bool = True, default: Path | None = None
+) -> Decorator:
+    return click.option(
+        "--out",
+        dest,
+        required=required,
+        default=default,
+        show_default=default is not None,
+        type=DIRECTORY if directory else FILE_OR_DIRECTORY,
+        help=what,
+    )
+
+
+def recipe_option(what: str, required: bool = False) -> Decorator:
+    return click.option("--recipe", type=FILE_OR_DIRECTORY, required=required, default=None, help=what)
+
+
+def dtm_option(what: str) -> Decorator:
+    return click.option("--dtm", "dtm_path", type=FILE_OR_DIRECTORY, default=None, help=what)
+
+
+def epochs_option(what: str, default: int | None = None) -> Decorator:
+    return click.option(
+        "--epochs", type=bounded(net_limits.EPOCHS), default=default, show_default=default is not None, help=what
+    )
+
+
+def labels_option(what: str) -> Decorator:
+    return click.option("--labels", "labeling", default=None, help=what)
+
+
+def mc_samples_option() -> Decorator:
+    return click.option(
+        "--mc-samples",
+        type=bounded(net_limits.MC_SAMPLES),
+        default=net_defaults.MC_SAMPLES,
+        show_default=True,
+        help="MC-dropout samples M.",
+    )
+
+
+def batch_size_option(what: str) -> Decorator:
+    return click.option(
+        "--batch-size",
+        type=bounded(net_limits.BATCH_SIZE),
+        default=net_defaults.BATCH_SIZE,
+        show_default=True,
+        help=what,
+    )
+
+
+# The threshold forms, worded once (hdnet.thresholds.parse_threshold_spec reads them).
+THRESHOLD_FORMS = (
+    "Uncertainty threshold: mean (the validation split's mean entropy, the paper's), quantile:Q, risk:ALPHA "
+    "(false-safe rate at most ALPHA), all calibrated on a validation split, or nats:H (fixed, in nats)."
+)
+
+
+def threshold_option(what: str = "") -> Decorator:
+    help_text = f"{THRESHOLD_FORMS} {what}".strip()
+    return click.option("--threshold", default=net_defaults.THRESHOLD_SPEC, show_default=True, help=help_text)
+
+
+def options(*decorators: Decorator) -> Decorator:
+    """Apply ``decorators`` in the order given (the first is the first option of the help)."""
+
+    def apply(func: Callable[..., Any]) -> Callable[..., Any]:
+        for decorator in reversed(decorators):
+            func = decorator(func)
+        return func
+
+    return apply

@@ -1,0 +1,278 @@
+"""Each setting described once: a settings dataclass's field carries its help, unit, default and range.
+
+A field made with :func:`setting` holds a :class:`Described` in its metadata. From it come
+
+- :func:`check`: the checks of a settings object (its ``__post_init__`` calls it): the value's kind
+  (``true``/``false``, an integer, a finite number, one of the choices) and its range;
+- :func:`from_mapping`: a settings object from a recipe section (unknown keys refused, a TOML
+  integer taken for a number, a list for a repeated setting), checked as above;
+- :func:`click_options`: the ``hd`` command's options (name, type with its range, default, help
+  with its unit), so that ``--help`` shows the range and click refuses a value outside it before
+  any work.
+
+Ranges are :class:`lidarsim.limits.Bound` values, declared in each package's ``limits`` module.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import numbers
+from collections.abc import Callable, Iterable, Mapping
+from pathlib import Path
+from typing import Any, TypeVar
+
+import click
+
+from lidarsim.errors import HdError
+from lidarsim.limits import Bound
+
+_KEY = "hd.setting"
+T = TypeVar("T")
+Decorator = Callable[[Callable[..., Any]], Callable[..., Any]]
+
+
+@dataclasses.dataclass(frozen=True)
+class Described:
+    """One setting's description.
+
+    ``help``: one sentence for ``--help``; ``unit``: of the value (``metres``, ``degrees``,
+    ``metres/pixel``; empty for counts and names), appended to the help; ``bound``: its range;
+    ``choices``: the values a name may take; ``kind``: ``bool``, ``int``, ``float`` or ``str`` (of
+    each value when ``multiple``); ``multiple``: a tuple of values (a repeatable option, a TOML
+    list); ``optional``: None is allowed (the default is then worked out elsewhere); ``flag``: the
+    option's name when it is not the field's name dashed; ``cli``: whether the command line takes it.
+    """
+
+    help: str
+    unit: str = ""
+    bound: Bound | None = None
+    choices: tuple[str, ...] | None = None
+    kind: type = str
+    multiple: bool = False
+    optional: bool = False
+    flag: str = ""
+    show_default: bool = True
+    metavar: str | None = None
+    cli: bool = True
+
+    def option_name(self, field_name: str) -> str:
+        """The command-line flag of the setting (``--dem-size``)."""
+        return self.flag or "--" + field_name.replace("_", "-")
+
+    def help_text(self) -> str:
+        """The ``--help`` text: the sentence with its unit (the range is added by click)."""
+        text = self.help.rstrip(".")
+        return f"{text}, {self.unit}." if self.unit else f"{text}."
+
+    def problem(self, value: Any) -> str | None:
+        """What is wrong with one value (None: nothing)."""
+        if self.kind is bool:
+            ok = value is True or value is False
+            expected = "true or false"
+        elif self.kind is int:
+            ok = isinstance(value, numbers.Integral) and not isinstance(value, bool)
+            expected = "an integer"
+        elif self.kind is float:
+            ok = isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
+            expected = "a finite number"
+        else:
+            ok = isinstance(value, str)
+            expected = "a string"
+        if ok and self.choices is not None and value not in self.choices:
+            ok, expected = False, "one of " + ", ".join(self.choices)
+        if ok and self.bound is not None and not self.bound.contains(float(value)):
+            ok, expected = False, f"{expected} in {self.bound.interval()}"
+        return None if ok else f"must be {expected}, got {value!r}"
+
+
+def setting(
+    default: Any,
+    help: str,
+    *,
+    unit: str = "",
+    bound: Bound | None = None,
+    choices: Iterable[str] | None = None,
+    kind: type | None = None,
+    optional: bool | None = None,
+    flag: str = "",
+    show_default: bool | None = None,
+    metavar: str | None = None,
+    cli: bool = True,
+) -> Any:
+    """A dataclass field described once (see :class:`Described`). ``kind`` is taken from the range
+    (integer or not), the choices or the default when not given; a tuple default makes a repeated
+    setting; a None default an optional one."""
+    multiple = isinstance(default, tuple)
+    sample = default[0] if multiple and default else default
+    if kind is None:
+        if bound is not None:
+            kind = int if bound.integer else float
+        elif choices is not None:
+            kind = str
+        elif sample is not None:
+            kind = type(sample)
+        else:
+            raise TypeError(f"setting {help!r}: give its kind (no range, choices or default to take it from)")
+    described = Described(
+        help=help,
+        unit=unit,
+        bound=bound,
+        choices=tuple(choices) if choices is not None else None,
+        kind=kind,
+        multiple=multiple,
+        optional=default is None if optional is None else optional,
+        flag=flag,
+        show_default=default is not None if show_default is None else show_default,
+        metavar=metavar,
+        cli=cli,
+    )
+    return dataclasses.field(default=default, metadata={_KEY: described})
+
+
+def described_fields(cls: Any) -> list[tuple[dataclasses.Field[Any], Described]]:
+    """The described fields of a settings dataclass, in their order."""
+    return [(f, f.metadata[_KEY]) for f in dataclasses.fields(cls) if _KEY in f.metadata]
+
+
+def check(settings: Any, error: type[HdError], name: Callable[[str, Described], str] | None = None) -> None:
+    """Check every described field of ``settings`` (its kind, choices and range).
+
+    ``name`` gives the name a message uses for a field (default: its option, ``--dem-size``).
+
+    Raises:
+        error: the first wrong value, naming the setting.
+    """
+    for f, d in described_fields(type(settings)):
+        value = getattr(settings, f.name)
+        if value is None and d.optional:
+            continue
+        label = name(f.name, d) if name is not None else d.option_name(f.name)
+        if d.multiple:
+            if not isinstance(value, tuple) or not value:
+                raise error(f"{label} must be one or more values, got {value!r}")
+            values: tuple[Any, ...] = value
+        else:
+            values = (value,)
+        for v in values:
+            problem = d.problem(v)
+            if problem is not None:
+                raise error(f"{label} {problem}")
+
+
+def from_mapping(cls: type[T], section: Mapping[str, Any], where: str, error: type[HdError], **fixed: Any) -> T:
+    """A settings object from a recipe section (keys are the field names): unknown keys refused,
+    an integer taken for a number, a list for a repeated setting, then checked by the class.
+    ``fixed``: values of fields that the section does not give (defaults of the recipe's own).
+
+    Raises:
+        error: an unknown key or a wrong value, naming ``where`` and the key.
+    """
+    described = {f.name: d for f, d in described_fields(cls)}
+    unknown = sorted(set(section) - set(described))
+    if unknown:
+        raise error(f"{where}: unknown key(s) {unknown}")
+    values: dict[str, Any] = dict(fixed)
+    for key, value in section.items():
+        d = described[key]
+        many = d.multiple and isinstance(value, list | tuple)
+        values[key] = tuple(_number(d, v) for v in value) if many else _number(d, value)
+        for v in values[key] if many else (values[key],):
+            problem = d.problem(v)
+            if problem is not None:
+                raise error(f"{where}: {key} {problem}")
+    return cls(**values)
+
+
+def _number(d: Described, value: Any) -> Any:
+    """A TOML integer where a number is expected is that number."""
+    integral = isinstance(value, int) and not isinstance(value, bool)
+    return float(value) if d.kind is float and integral else value
+
+
+# ------------------------------------------------------------------------------------ click options
+class NonEmptyPath(click.Path):
+    """click.Path that refuses an empty string (which click would turn into the current directory)."""
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        if isinstance(value, str) and not value.strip():
+            self.fail("must not be empty", param, ctx)
+        return super().convert(value, param, ctx)
+
+
+class Finite(click.FloatRange):
+    """A float option that must be a finite number (``nan`` and ``inf`` are refused), within the
+    range when one is given."""
+
+    name = "float"
+
+    def _describe_range(self) -> str:
+        return super()._describe_range() if (self.min is not None or self.max is not None) else "finite"
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        number = super().convert(value, param, ctx)
+        if not math.isfinite(number):
+            self.fail(f"{number} is not a finite number", param, ctx)
+        return number
+
+
+def bounded(bound: Bound) -> click.ParamType:
+    """The click type of a numeric option within ``bound``: click shows the range in ``--help`` and
+    refuses a value outside it with a usage error, before any work."""
+    if bound.integer:
+        return click.IntRange(
+            None if bound.low is None else int(bound.low),
+            None if bound.high is None else int(bound.high),
+            min_open=bound.low_open,
+            max_open=bound.high_open,
+        )
+    return Finite(min=bound.low, max=bound.high, min_open=bound.low_open, max_open=bound.high_open)
+
+
+DIRECTORY = NonEmptyPath(file_okay=False, path_type=Path)
+FILE_OR_DIRECTORY = NonEmptyPath(path_type=Path)
+
+
+def click_option(name: str, d: Described, default: Any, help: str | None = None) -> Decorator:
+    """The click option of one described setting (``help`` replaces the generated text)."""
+    text = help if help is not None else d.help_text()
+    if d.kind is bool:
+        return click.option(d.option_name(name), name, is_flag=True, default=default, help=text)
+    if d.bound is not None:
+        kind: Any = bounded(d.bound)
+    elif d.choices is not None:
+        kind = click.Choice(d.choices)
+    else:
+        kind = d.kind
+    return click.option(
+        d.option_name(name),
+        name,
+        type=kind,
+        multiple=d.multiple,
+        default=default,
+        show_default=d.show_default,
+        metavar=d.metavar,
+        help=text,
+    )
+
+
+def click_options(cls: Any, *, skip: Iterable[str] = (), help: Mapping[str, str] | None = None) -> Decorator:
+    """The options of every described field of ``cls`` that the command line takes (in the fields'
+    order, less ``skip``); ``help`` replaces a field's generated text (e.g. to name another option)."""
+    skipped = set(skip)
+    help = help or {}
+    chosen = [(f, d) for f, d in described_fields(cls) if d.cli and f.name not in skipped]
+
+    def apply(func: Callable[..., Any]) -> Callable[..., Any]:
+        for f, d in reversed(chosen):
+            func = click_option(f.name, d, f.default, help.get(f.name))(func)
+        return func
+
+    return apply
+
+
+def settings_from_options(cls: type[T], options: dict[str, Any], **more: Any) -> T:
+    """The settings object of the command line's values (the described fields are taken out of
+    ``options``, which keeps the rest)."""
+    names = [f.name for f, d in described_fields(cls) if d.cli]
+    return cls(**{n: options.pop(n) for n in names if n in options}, **more)
