@@ -19,7 +19,7 @@ from hdlabels import limits as label_limits
 from hdnet import defaults as net_defaults
 from hdnet import limits as net_limits
 from hdnet import terminal
-from hdnet.pipeline import demo_next_steps as _demo_next_steps
+from hdnet.inspection import Verdict, inspect_directory, verify_directory
 from hdnet.shared_options import (
     batch_size_option,
     dtm_option,
@@ -38,25 +38,18 @@ from hdnet.shared_options import (
 from hdnet.terminal import OUTPUT, HdGroup, ScanProgress, epoch_lines, friendly_errors, record, refuse_with_recipe, say
 from lidarsim import defaults as lidar_defaults
 from lidarsim import limits
-from lidarsim import terrain_defaults as td
 from lidarsim._version import __version__
 from lidarsim.errors import LidarsimError
+from lidarsim.make_dtm import DtmSettings
+from lidarsim.setting import DIRECTORY, NonEmptyPath, click_options
 from lidarsim.setting import DIRECTORY as _DIRECTORY
 from lidarsim.setting import FILE_OR_DIRECTORY as _FILE_OR_DIRECTORY
-from lidarsim.setting import NonEmptyPath as _Path
 from lidarsim.setting import bounded as _bounded
 
 _options = options
 
 # The paper's dataset recipe, which `hd reproduce` runs (beside this file in a source checkout).
 PAPER_RECIPE = Path(__file__).resolve().parent / "datasets" / "mars-paper"
-
-
-def _known_schemas() -> dict[str, str]:
-    """The schemas of the files a dataset may hold beyond scan shards (label shards)."""
-    from hdlabels.store import LABEL_SCHEMA, LABEL_SCHEMA_VERSION
-
-    return {LABEL_SCHEMA: LABEL_SCHEMA_VERSION}
 
 
 # ------------------------------------------------------------------------------------------ commands
@@ -228,137 +221,40 @@ def build_dataset_cmd(
 
 
 @main.command("make-dtm")
-@click.argument("out_path", type=_Path(dir_okay=False, path_type=Path))
-@_options(
-    seed_option("the procedural terrain"),
-    click.option(
-        "--size",
-        "size_m",
-        type=_bounded(limits.TERRAIN_SIZE_M),
-        default=None,
-        help="Side of the square terrain, metres (default: the built-in size).",
-    ),
-    click.option(
-        "--spacing",
-        "spacing_m",
-        type=_bounded(limits.TERRAIN_SPACING_M),
-        default=None,
-        help="Grid spacing, metres/pixel.",
-    ),
-    click.option(
-        "--rock-k",
-        type=_bounded(limits.ROCK_K),
-        default=None,
-        help=f"Golombek-Rapp rock abundance k: 0 (no rocks) or from {td.ROCK_K_MIN:g}.",
-    ),
-    click.option(
-        "--base",
-        "base_path",
-        type=_Path(exists=True, dir_okay=False, path_type=Path),
-        default=None,
-        help="A real DTM (e.g. HiRISE) whose relief replaces the procedural one: resampled to --spacing, "
-        "with the procedural rocks added (its CRS and corner are kept).",
-    ),
-    click.option(
-        "--craters-below",
-        "craters_below_m",
-        type=_bounded(limits.CRATER_DIAMETER_M),
-        default=None,
-        help="With --base: also add fresh craters of 2 m up to this diameter (metres), below the base's resolution.",
-    ),
-    overwrite_option("Replace an existing file."),
-)
+@click.argument("out_path", type=NonEmptyPath(dir_okay=False, path_type=Path))
+@click_options(DtmSettings)
+@overwrite_option("Replace an existing file.")
 @friendly_errors
-def make_dtm_cmd(
-    out_path: Path,
-    seed: int,
-    size_m: float | None,
-    spacing_m: float | None,
-    rock_k: float | None,
-    base_path: Path | None,
-    craters_below_m: float | None,
-    overwrite: bool,
-) -> None:
+def make_dtm_cmd(out_path: Path, overwrite: bool, **settings: Any) -> None:
     """Write the procedural Mars terrain as a GeoTIFF (the default terrain of build-dataset); with
     --base, a real DTM's relief with the procedural rocks (and small craters) added."""
+    from lidarsim.make_dtm import make_dtm
 
-    from lidarsim.procedural import MarsTerrainParams, write_procedural_dtm
-    from lidarsim.storage import check_not_input, check_output_file
-
-    check_output_file(out_path, "OUT_PATH")
-    if base_path is not None:
-        check_not_input(out_path, {"the base DTM": base_path}, "OUT_PATH")
-    if out_path.exists() and not overwrite:
-        raise LidarsimError(f"{out_path} exists; pass --overwrite to replace it")
-    changes = {k: v for k, v in (("size_m", size_m), ("spacing_m", spacing_m), ("rock_k", rock_k)) if v is not None}
-    if base_path is None and craters_below_m is not None:
-        raise LidarsimError("--craters-below needs --base (the procedural terrain has its own craters)")
-    if base_path is not None:
-        if size_m is not None:
-            raise LidarsimError("--size and --base exclude each other: the base DTM gives the size")
-        if craters_below_m is not None:
-            changes["crater_d_max_m"] = craters_below_m
-        _make_rocky_dtm(out_path, base_path, dataclasses.replace(MarsTerrainParams(), **changes), seed, craters_below_m)
-        return
-    params = dataclasses.replace(MarsTerrainParams(), **changes)
-    heights = write_procedural_dtm(out_path, params, seed)
-    say(
-        f"wrote {out_path}: {heights.shape[0]} x {heights.shape[1]} cells at {params.spacing_m:g} m/px, "
-        f"heights {float(heights.min()):.1f} .. {float(heights.max()):.1f} m"
-    )
+    say(make_dtm(out_path, DtmSettings(**settings), overwrite))
 
 
-def _make_rocky_dtm(out_path: Path, base_path: Path, params: Any, seed: int, craters_below_m: float | None) -> None:
-    """``hd make-dtm --base``: the base's relief resampled, with rocks (and small craters)."""
-    from lidarsim.base_relief import rocks_on_base, write_rocky_dtm
-
-    terrain = rocks_on_base(base_path, params, seed, params.spacing_m, craters=craters_below_m is not None)
-    write_rocky_dtm(out_path, terrain)
-    rows, cols = terrain.heights.shape
-    say(
-        f"wrote {out_path}: {base_path.name} at {terrain.spacing_m:g} m/px ({rows} x {cols} cells) with "
-        f"{terrain.n_rocks} rocks (k = {params.rock_k:g})"
-        + (
-            f" and {terrain.n_craters} craters of {params.crater_d_min_m:g}-{params.crater_d_max_m:g} m"
-            if craters_below_m
-            else ""
-        )
-    )
+def _show(verdict: Verdict) -> None:
+    """Print a check's lines (stdout, then stderr); its failure is the command's error."""
+    for line in verdict.out:
+        click.echo(line)
+    for line in verdict.err:
+        click.echo(line, err=True)
+    if verdict.failure is not None:
+        raise click.ClickException(verdict.failure)
 
 
 @main.command("inspect")
-@click.argument("directory", type=_DIRECTORY)
+@click.argument("directory", type=DIRECTORY)
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as one JSON object (for scripts).")
 @friendly_errors
 def inspect_cmd(directory: Path, as_json: bool) -> None:
     """Summarise a dataset (scans, splits, noise levels, sensor, terrain, labels; every file checked) or a
     run (profile, training data and noise, epochs, metrics)."""
-    import json
-
-    from hdnet.run_summary import describe_run, is_run_dir, run_record
-    from lidarsim.inspect import INTACT_STATUS, damaged_message, damaged_status, dataset_record, describe_dataset
-    from lidarsim.shards import MANIFEST_NAME, verify_dataset
-
-    if is_run_dir(directory) and not (directory / MANIFEST_NAME).exists():
-        click.echo(json.dumps(run_record(directory)) if as_json else describe_run(directory))
-        return
-    summary = describe_dataset(directory)
-    problems = verify_dataset(directory, known_schemas=_known_schemas())
-    if as_json:
-        click.echo(json.dumps({**dataset_record(directory), "intact": not problems, "problems": problems}))
-        if problems:
-            raise click.ClickException(damaged_message(directory, problems))
-        return
-    click.echo(summary)
-    if problems:
-        for line in damaged_status(problems):
-            click.echo(line, err=True)
-        raise click.ClickException(damaged_message(directory, problems))
-    click.echo(INTACT_STATUS)
+    _show(inspect_directory(directory, as_json))
 
 
 @main.command("verify")
-@click.argument("directory", type=_DIRECTORY)
+@click.argument("directory", type=DIRECTORY)
 @recipe_option("Also check the dataset against the checksums published with a recipe.")
 @friendly_errors
 def verify_cmd(directory: Path, recipe: Path | None) -> None:
@@ -367,24 +263,7 @@ def verify_cmd(directory: Path, recipe: Path | None) -> None:
     With --recipe, also every file against the recipe's published build: identical (sha256), or
     rebuilt and equal to it within the tolerances of its content fingerprints (docs/shard-format.md).
     """
-    from lidarsim.published import compare_with_recipe
-    from lidarsim.shards import read_manifest, verify_dataset
-
-    problems = verify_dataset(directory, known_schemas=_known_schemas())
-    published = None
-    if recipe is not None:
-        published = compare_with_recipe(directory, recipe, content=not problems)
-        for line in published.verdicts:
-            click.echo(line)
-        problems += published.problems
-    if problems:
-        for p in problems:
-            click.echo(p, err=True)
-        raise click.ClickException(f"{directory}: {len(problems)} problem(s) found")
-    manifest = read_manifest(directory)
-    n_files = len(manifest["shards"]) + sum(len(lab.get("shards", [])) for lab in manifest.get("labelings", []))
-    against = f"; {published.summary()}" if published is not None else ""
-    click.echo(f"{directory}: OK, {n_files} files match the manifest's checksums and schema versions{against}")
+    _show(verify_directory(directory, recipe))
 
 
 @main.command("label")
@@ -814,10 +693,10 @@ def detect_cmd(
 @friendly_errors
 def demo_cmd(out_dir: Path, scans: int, epochs: int, workers: int | None) -> None:
     """The whole chain at demo scale on the built-in procedural Mars terrain (re-running resumes)."""
-    from hdnet.pipeline import demo_pipeline, run_pipeline
+    from hdnet.pipeline import demo_next_steps, demo_pipeline, run_pipeline
 
     run_pipeline(demo_pipeline(out_dir, scans, epochs), workers, echo=click.echo, progress=ScanProgress)
-    say(_demo_next_steps(out_dir))
+    say(demo_next_steps(out_dir))
 
 
 @main.command("reproduce")

@@ -18,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import numbers
+import os
 from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import Any, TypeVar
@@ -41,7 +42,10 @@ class Described:
     ``choices``: the values a name may take; ``kind``: ``bool``, ``int``, ``float`` or ``str`` (of
     each value when ``multiple``); ``multiple``: a tuple of values (a repeatable option, a TOML
     list); ``optional``: None is allowed (the default is then worked out elsewhere); ``flag``: the
-    option's name when it is not the field's name dashed; ``cli``: whether the command line takes it.
+    option's name when it is not the field's name dashed; ``cli``: whether the command line takes it;
+    ``click_type``: the option's type when it is not made from the kind (a path that must exist);
+    ``checked``: whether :func:`check` checks it (not for a value that may also be an object, e.g.
+    a training profile given by name or as itself).
     """
 
     help: str
@@ -55,6 +59,8 @@ class Described:
     show_default: bool = True
     metavar: str | None = None
     cli: bool = True
+    click_type: Any = None
+    checked: bool = True
 
     def option_name(self, field_name: str) -> str:
         """The command-line flag of the setting (``--dem-size``)."""
@@ -76,6 +82,9 @@ class Described:
         elif self.kind is float:
             ok = isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
             expected = "a finite number"
+        elif self.kind is Path:
+            ok = isinstance(value, str | os.PathLike)
+            expected = "a path"
         else:
             ok = isinstance(value, str)
             expected = "a string"
@@ -99,12 +108,14 @@ def setting(
     show_default: bool | None = None,
     metavar: str | None = None,
     cli: bool = True,
+    click_type: Any = None,
+    checked: bool = True,
 ) -> Any:
     """A dataclass field described once (see :class:`Described`). ``kind`` is taken from the range
     (integer or not), the choices or the default when not given; a tuple default makes a repeated
     setting; a None default an optional one."""
     multiple = isinstance(default, tuple)
-    sample = default[0] if multiple and default else default
+    sample = (default[0] if default else None) if multiple else default
     if kind is None:
         if bound is not None:
             kind = int if bound.integer else float
@@ -123,9 +134,11 @@ def setting(
         multiple=multiple,
         optional=default is None if optional is None else optional,
         flag=flag,
-        show_default=default is not None if show_default is None else show_default,
+        show_default=default not in (None, ()) if show_default is None else show_default,
         metavar=metavar,
         cli=cli,
+        click_type=click_type,
+        checked=checked,
     )
     return dataclasses.field(default=default, metadata={_KEY: described})
 
@@ -145,12 +158,12 @@ def check(settings: Any, error: type[HdError], name: Callable[[str, Described], 
     """
     for f, d in described_fields(type(settings)):
         value = getattr(settings, f.name)
-        if value is None and d.optional:
+        if (value is None and d.optional) or not d.checked:
             continue
         label = name(f.name, d) if name is not None else d.option_name(f.name)
         if d.multiple:
-            if not isinstance(value, tuple) or not value:
-                raise error(f"{label} must be one or more values, got {value!r}")
+            if not isinstance(value, tuple):
+                raise error(f"{label} must be a tuple of values, got {value!r}")
             values: tuple[Any, ...] = value
         else:
             values = (value,)
@@ -233,42 +246,89 @@ DIRECTORY = NonEmptyPath(file_okay=False, path_type=Path)
 FILE_OR_DIRECTORY = NonEmptyPath(path_type=Path)
 
 
-def click_option(name: str, d: Described, default: Any, help: str | None = None) -> Decorator:
-    """The click option of one described setting (``help`` replaces the generated text)."""
+def _option(name: str, d: Described, default: Any, help: str | None = None) -> tuple[list[str], dict[str, Any]]:
+    """The declarations and keywords of the click option of one described setting."""
     text = help if help is not None else d.help_text()
     if d.kind is bool:
-        return click.option(d.option_name(name), name, is_flag=True, default=default, help=text)
-    if d.bound is not None:
-        kind: Any = bounded(d.bound)
+        return [d.option_name(name), name], {"is_flag": True, "default": default, "help": text}
+    if d.click_type is not None:
+        kind: Any = d.click_type
+    elif d.bound is not None:
+        kind = bounded(d.bound)
     elif d.choices is not None:
         kind = click.Choice(d.choices)
     else:
         kind = d.kind
-    return click.option(
-        d.option_name(name),
-        name,
-        type=kind,
-        multiple=d.multiple,
-        default=default,
-        show_default=d.show_default,
-        metavar=d.metavar,
-        help=text,
-    )
+    return [d.option_name(name), name], {
+        "type": kind,
+        "multiple": d.multiple,
+        "default": default,
+        "show_default": d.show_default,
+        "metavar": d.metavar,
+        "help": text,
+    }
+
+
+def _chosen(cls: Any, skip: Iterable[str]) -> list[tuple[dataclasses.Field[Any], Described]]:
+    skipped = set(skip)
+    return [(f, d) for f, d in described_fields(cls) if d.cli and f.name not in skipped]
 
 
 def click_options(cls: Any, *, skip: Iterable[str] = (), help: Mapping[str, str] | None = None) -> Decorator:
     """The options of every described field of ``cls`` that the command line takes (in the fields'
     order, less ``skip``); ``help`` replaces a field's generated text (e.g. to name another option)."""
-    skipped = set(skip)
-    help = help or {}
-    chosen = [(f, d) for f, d in described_fields(cls) if d.cli and f.name not in skipped]
+    texts = help or {}
+    chosen = _chosen(cls, skip)
 
     def apply(func: Callable[..., Any]) -> Callable[..., Any]:
         for f, d in reversed(chosen):
-            func = click_option(f.name, d, f.default, help.get(f.name))(func)
+            decls, kwargs = _option(f.name, d, f.default, texts.get(f.name))
+            func = click.option(*decls, **kwargs)(func)
         return func
 
     return apply
+
+
+class SettingsCommand(click.Command):
+    """A command whose options of one settings dataclass (``settings="package.module:Class"``) are
+    made when first needed (``--help``, parsing), so that a module that is slow to import (one that
+    imports PyTorch) is imported only by the command that needs it. They follow the arguments and
+    come before the command's other options; ``skip`` and ``help_texts`` as for :func:`click_options`."""
+
+    def __init__(
+        self,
+        *args: Any,
+        settings: str,
+        skip: Iterable[str] = (),
+        help_texts: Mapping[str, str] | None = None,
+        **kwargs: Any,
+    ) -> None:
+        self._settings = settings
+        self._skip = tuple(skip)
+        self._help_texts = dict(help_texts or {})
+        self._params: list[click.Parameter] | None = None
+        super().__init__(*args, **kwargs)
+
+    @property
+    def params(self) -> list[click.Parameter]:
+        if self._params is None:
+            import importlib
+
+            module, _, name = self._settings.partition(":")
+            cls = getattr(importlib.import_module(module), name)
+            made: list[click.Parameter] = []
+            for f, d in _chosen(cls, self._skip):
+                decls, kwargs = _option(f.name, d, f.default, self._help_texts.get(f.name))
+                made.append(click.Option(decls, **kwargs))
+            given = self._given
+            self._params = [p for p in given if isinstance(p, click.Argument)] + made
+            self._params += [p for p in given if not isinstance(p, click.Argument)]
+        return self._params
+
+    @params.setter
+    def params(self, value: list[click.Parameter]) -> None:
+        self._given = value
+        self._params = None
 
 
 def settings_from_options(cls: type[T], options: dict[str, Any], **more: Any) -> T:

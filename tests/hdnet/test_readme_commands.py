@@ -46,9 +46,9 @@ def test_each_readme_command_parses(line: str):
 
 
 def test_the_demo_ends_with_commands_that_parse(tmp_path):
-    from cli import _demo_next_steps
+    from hdnet.pipeline import demo_next_steps
 
-    text = _demo_next_steps(tmp_path / "demo-out")
+    text = demo_next_steps(tmp_path / "demo-out")
     lines = [line.strip() for line in text.splitlines()[1:]]
     assert lines and all("detect" in line for line in lines)
     for line in lines:
