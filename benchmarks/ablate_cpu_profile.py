@@ -47,8 +47,11 @@ from hdnet.inputs import Normalisation
 from hdnet.model import BayesianSegNet
 from hdnet.profiles import CPU, TrainingProfile
 from hdnet.train import load_checkpoint, median_images_per_s
+from lidarsim.storage import OutputTransaction, atomic_path, write_json_atomic, write_text_atomic
 
 # The cpu profile as shipped before this study (hd 0.1.0): the reference every lever is measured against.
+# Parallel instances share --out: each waits up to this long (seconds) for another's short write.
+LOCK_WAIT_S = 60.0
 REFERENCE = replace(
     CPU,
     name="cpu-v1",
@@ -204,10 +207,11 @@ def write_report(out: Path, n_train: int) -> None:
             f"{v['q_precision']:.4f} | {v['q_sensitivity']:.4f} | {_at7(v)} | {_get(v, 'risk_sensitivity')} | "
             f"{f'{rate:.1f}' if rate else '-'} | {secs} |"
         )
-    (out / "ablation.md").write_text("\n".join(lines) + "\n")
+    with OutputTransaction(out, "ablation", wait_s=LOCK_WAIT_S):
+        write_text_atomic(out / "ablation.md", "\n".join(lines) + "\n")
+        if results:
+            _figure(out, results)
     print("\n".join(lines))
-    if results:
-        _figure(out, results)
 
 
 def _get(v: dict[str, float], key: str) -> str:
@@ -239,7 +243,8 @@ def _figure(out: Path, results: dict[str, Any]) -> None:
         ax.grid(alpha=0.3)
     axes[1].legend(fontsize=7, loc="lower right", ncol=2)
     fig.tight_layout()
-    fig.savefig(out / "learning_curves.png", dpi=120)
+    with atomic_path(out / "learning_curves.png") as tmp:
+        fig.savefig(tmp, dpi=120, format="png")
     plt.close(fig)
 
 
@@ -265,7 +270,6 @@ def main() -> None:
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
-    args.out.mkdir(parents=True, exist_ok=True)
     names = [n for n in args.variants.split(",") if n]
     for n in names:
         _parts(n)
@@ -284,8 +288,9 @@ def main() -> None:
     if args.throughput:
         rates = throughput(args.dataset, names, args.rounds, args.steps, args.labels)
         path = args.out / "throughput.json"
-        previous = json.loads(path.read_text()) if path.exists() else {}
-        path.write_text(json.dumps({**previous, **rates}, indent=2) + "\n")
+        with OutputTransaction(args.out, "ablation", wait_s=LOCK_WAIT_S):
+            previous = json.loads(path.read_text()) if path.exists() else {}
+            write_json_atomic(path, {**previous, **rates})
         write_report(args.out, n_train)
         return
     for name in names:
@@ -298,11 +303,10 @@ def main() -> None:
             )
         else:
             result = train_and_score(args.dataset, args.out, name, args.epochs, args.labels)
-        previous = json.loads(path.read_text()) if path.exists() else {}  # re-read: parallel instances share it
-        previous[name] = result
-        tmp = path.with_suffix(".json.partial")
-        tmp.write_text(json.dumps(previous, indent=1) + "\n")
-        tmp.replace(path)
+        with OutputTransaction(args.out, "ablation", wait_s=LOCK_WAIT_S):  # parallel instances share the file
+            previous = json.loads(path.read_text()) if path.exists() else {}
+            previous[name] = result
+            write_json_atomic(path, previous, indent=1)
         v = result["validation"]
         print(
             f"{name}: {time.perf_counter() - t0:.0f} s; val PA {v['base_pa']:.4f} mIoU {v['base_miou']:.4f} | "

@@ -41,6 +41,7 @@ from hdnet.profiles import CPU, ROBUST_THRESHOLD_SPEC
 from hdnet.results import SplitInference
 from hdnet.thresholds import EntropyCalibration, select_threshold
 from hdnet.train import load_trained_model, median_images_per_s
+from lidarsim.storage import OutputTransaction, write_json_atomic, write_text_atomic
 
 RANGE_M = (0.0, 0.10)
 SIGMAS_M = (0.0167, 0.03, 0.07, 0.10, 0.12)
@@ -119,7 +120,8 @@ def write_report(out: Path) -> None:
             f"{r['rule_sensitivity@7cm']:.3f} | {r['precision_at_sens@10cm']:.3f} / "
             f"{r['precision_at_sens@12cm']:.3f} | {r['images_per_s']:.0f} |"
         )
-    (out / "ablation.md").write_text("\n".join(lines) + "\n")
+    with OutputTransaction(out, "ablation"):
+        write_text_atomic(out / "ablation.md", "\n".join(lines) + "\n")
     print("\n".join(lines))
 
 
@@ -135,7 +137,6 @@ def main() -> None:
         write_report(args.out)
         return
     torch.set_num_threads(args.threads)
-    args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / "results.json"
     results = json.loads(path.read_text()) if path.exists() else {}
     noise = TrainingNoise(range_m=RANGE_M)
@@ -144,7 +145,8 @@ def main() -> None:
         run = args.out / "runs" / name
         fit(args.dataset, run, FitConfig(profile=profile, train_noise=noise, resume=True, progress=False))
         results[name] = summarise(run, args.dataset)
-        path.write_text(json.dumps(results, indent=2) + "\n")
+        with OutputTransaction(args.out, "ablation"):
+            write_json_atomic(path, results)
         print(name, json.dumps({k: round(v, 4) for k, v in results[name].items()}), flush=True)
     write_report(args.out)
 

@@ -45,7 +45,7 @@ from hdlabels.store import (
 )
 from lidarsim.parallel import run_tasks
 from lidarsim.shards import ShardFormatError, open_scan_shard, read_manifest, remove_partials, sha256_file
-from lidarsim.storage import WriterLock, check_h5_data
+from lidarsim.storage import OutputTransaction, check_h5_data
 
 
 @dataclass(frozen=True)
@@ -220,18 +220,18 @@ def _single_writer(func: Callable[..., LabelSummary]) -> Callable[..., LabelSumm
         if labels.is_symlink():
             raise LabelStoreError(f"{labels} is a symbolic link; hd writes label shards only inside the dataset")
         before = {p.name for p in labels.iterdir()} if labels.is_dir() else None
-        with WriterLock(root, "dataset"):
-            try:
-                return func(root, *args, **kwargs)
-            except BaseException:
-                for d in labels.iterdir() if labels.is_dir() else []:
-                    if d.is_dir() and not d.is_symlink():
-                        remove_partials(d)
-                        if (before is None or d.name not in before) and not any(d.iterdir()):
-                            d.rmdir()
-                if before is None and labels.is_dir() and not any(labels.iterdir()):
-                    labels.rmdir()
-                raise
+
+        def rollback() -> None:
+            for d in labels.iterdir() if labels.is_dir() else []:
+                if d.is_dir() and not d.is_symlink():
+                    remove_partials(d)
+                    if (before is None or d.name not in before) and not any(d.iterdir()):
+                        d.rmdir()
+            if before is None and labels.is_dir() and not any(labels.iterdir()):
+                labels.rmdir()
+
+        with OutputTransaction(root, "dataset", rollback=rollback):  # the dataset exists: in place
+            return func(root, *args, **kwargs)
 
     return wrapper
 

@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 import math
 import os
 import time
@@ -91,7 +90,14 @@ from lidarsim.base_relief import resample_bilinear
 from lidarsim.errors import LidarsimError, TerrainError
 from lidarsim.procedural import geotiff_bytes, geotiff_profile
 from lidarsim.shards import MANIFEST_NAME, open_scan_shard, read_manifest, sha256_file
-from lidarsim.storage import GeoTiffWriter, OutputDir, StorageError, describe_os_error, write_text_atomic
+from lidarsim.storage import (
+    GeoTiffWriter,
+    OutputDir,
+    StorageError,
+    describe_os_error,
+    write_json_atomic,
+    write_text_atomic,
+)
 from lidarsim.terrain import DTM
 
 SAFETY_UNSAFE, SAFETY_SAFE, SAFETY_UNCERTAIN, SAFETY_INVALID = 0, 1, 2, 255
@@ -719,7 +725,7 @@ def detect(
             timings["overview"] = time.perf_counter() - t0
             timings["total"] = time.perf_counter() - t_start
             info = _info(run, terrain, plan, threshold_info, baseline_sigma, mc_samples, seed, counts, sites, timings)
-            write_text_atomic(tmp / "detect.json", json.dumps(json_plain(info), indent=2) + "\n")
+            write_json_atomic(tmp / "detect.json", json_plain(info))
             output.commit()
     finally:
         terrain.close()
@@ -822,7 +828,7 @@ def _write_sites(tmp: Path, terrain: _Terrain, run: DetectRun, n_sites: int) -> 
             n_sites,
         )
     write_text_atomic(tmp / "sites.csv", _sites_csv(sites))
-    write_text_atomic(tmp / "sites.geojson", json.dumps(_sites_geojson(sites, terrain.crs_wkt), indent=1) + "\n")
+    write_json_atomic(tmp / "sites.geojson", _sites_geojson(sites, terrain.crs_wkt), indent=1)
     return sites
 
 

@@ -18,7 +18,7 @@ import contextlib
 import json
 import os
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -46,14 +46,10 @@ from lidarsim.shards import MANIFEST_NAME, sha256_file
 from lidarsim.storage import (
     LOCK_NAME,
     PARTIAL_MARK,
+    OutputTransaction,
     StorageError,
-    WriterLock,
     check_not_input,
     check_output_dir,
-    first_missing,
-    make_dirs,
-    remove_empty_dirs,
-    remove_partials,
 )
 
 RUN_FILES = (LAST, BEST, METRICS, CONFIG)
@@ -172,20 +168,22 @@ def prepare_run_dir(
 
 
 @contextlib.contextmanager
-def run_dir_lock(run_dir: Path) -> Any:
-    """Hold the run directory's writer lock (rank 0 only under torchrun); errors as HdNetError."""
+def run_transaction(run_dir: Path, check: Callable[[], Any], rollback: Callable[[], None]) -> Iterator[Any]:
+    """The run directory's output transaction (``lidarsim.storage.OutputTransaction``, in place:
+    checkpoints are written one by one, each atomically, and a later call resumes them); yields
+    ``check()``'s result, checked under the lock. Rank 0 only under torchrun (other ranks write
+    nothing). Storage errors of the transaction itself become HdNetErrors."""
     if int(os.environ.get("RANK", "0")) != 0:
-        yield
+        yield check()
         return
+    tx = OutputTransaction(run_dir, "run", check=check, rollback=rollback)
     try:
-        make_dirs(run_dir)
-        lock = WriterLock(run_dir, "run").acquire()
+        tx.__enter__()
     except StorageError as exc:
-        raise HdNetError(str(exc).rstrip(".") + ".") from None
-    try:
-        yield
-    finally:
-        lock.release()
+        raise HdNetError(str(exc).rstrip(".") + ".") from exc
+    with contextlib.ExitStack() as stack:
+        stack.push(tx)  # its __exit__ commits or rolls back
+        yield tx.checked
 
 
 @dataclass(frozen=True)
@@ -406,31 +404,27 @@ def fit(dataset_dir: str | os.PathLike, run_dir: str | os.PathLike, config: FitC
             for d in cfg.also
         ]
         train_ds, val_ds = mixed_train, mixed_val  # type: ignore[assignment]  # the mix reads like one dataset
-    top = first_missing(run_path)
-    try:
-        with run_dir_lock(run_path):
-            _, replace = prepare_run_dir(run_path, resume, overwrite, dataset_dir)  # again, under the lock
-            remove_partials(run_path)  # of a killed run
-            if replace:
-                for name in RUN_FILES:
-                    (run_path / name).unlink(missing_ok=True)
-            try:
-                return train(
-                    run_path,
-                    train_ds,
-                    val_ds,
-                    profile,
-                    epochs=cfg.epochs,
-                    seed=cfg.seed,
-                    resume=resume and not replace,
-                    progress=cfg.progress,
-                    extra_config=extra,
-                    num_workers=cfg.num_workers,
-                    stop_after=cfg.stop_after,
-                )
-            except BaseException:
-                if not (run_path / LAST).exists():  # no epoch finished: a config.json alone is no run
-                    (run_path / CONFIG).unlink(missing_ok=True)
-                raise
-    finally:
-        remove_empty_dirs(run_path, top)
+
+    def no_run_without_epoch() -> None:  # a config.json alone is no run
+        if not (run_path / LAST).exists():
+            (run_path / CONFIG).unlink(missing_ok=True)
+
+    with run_transaction(
+        run_path, lambda: prepare_run_dir(run_path, resume, overwrite, dataset_dir), no_run_without_epoch
+    ) as (_, replace):
+        if replace:
+            for name in RUN_FILES:
+                (run_path / name).unlink(missing_ok=True)
+        return train(
+            run_path,
+            train_ds,
+            val_ds,
+            profile,
+            epochs=cfg.epochs,
+            seed=cfg.seed,
+            resume=resume and not replace,
+            progress=cfg.progress,
+            extra_config=extra,
+            num_workers=cfg.num_workers,
+            stop_after=cfg.stop_after,
+        )

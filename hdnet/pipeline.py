@@ -465,19 +465,19 @@ class StageLog:
 
     def finish(self) -> dict[str, float]:
         """Append this run's stage times to ``stages.json`` (a damaged file is started again)."""
-        from lidarsim.storage import make_dirs, write_json_atomic
+        from lidarsim.storage import OutputTransaction, write_json_atomic
 
-        make_dirs(self.out_dir)
         path = self.out_dir / STAGES_FILE
         previous: Any
-        try:
-            previous = json.loads(path.read_text()) if path.exists() else {}
-        except (OSError, ValueError):
-            previous = {}
-        if not isinstance(previous, dict) or not isinstance(previous.get("runs", []), list):
-            previous = {}
-        previous.setdefault("runs", []).append(self.times)
-        write_json_atomic(path, previous)
+        with OutputTransaction(self.out_dir, "pipeline"):
+            try:
+                previous = json.loads(path.read_text()) if path.exists() else {}
+            except (OSError, ValueError):
+                previous = {}
+            if not isinstance(previous, dict) or not isinstance(previous.get("runs", []), list):
+                previous = {}
+            previous.setdefault("runs", []).append(self.times)
+            write_json_atomic(path, previous)
         self.echo("stage times (s): " + ", ".join(f"{k} {v:.1f}" for k, v in self.times.items()))
         return self.times
 

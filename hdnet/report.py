@@ -17,7 +17,6 @@ and a directory that is, holds or lies inside the run or the dataset, are never 
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from dataclasses import asdict
@@ -29,6 +28,7 @@ from hdnet.paper_results import paper_row
 from lidarsim.errors import LidarsimError
 from lidarsim.storage import (
     OutputDir,
+    write_json_atomic,
     write_text_atomic,
 )
 
@@ -352,6 +352,6 @@ def _stage(result: EvaluationResult, staging: Path, figures: bool) -> list[Path]
         from hdnet.figures import write_figures
 
         pngs = write_figures(result, staging)
-    write_text_atomic(staging / "report.json", json.dumps(report_dict(result), indent=2) + "\n")
+    write_json_atomic(staging / "report.json", report_dict(result))
     write_text_atomic(staging / "report.md", report_markdown(result, [str(p) for p in pngs]))
     return [*pngs, staging / "report.md", staging / "report.json"]

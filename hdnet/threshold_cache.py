@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from lidarsim.shards import MANIFEST_NAME, sha256_file
-from lidarsim.storage import StorageError, write_text_atomic
+from lidarsim.storage import StorageError, write_json_atomic
 
 __all__ = ["CACHE_FILE", "CachedThreshold", "cache_key"]
 
@@ -88,7 +88,7 @@ class CachedThreshold:
         if not os.access(self.path.parent, os.W_OK):
             return False
         try:
-            write_text_atomic(self.path, json.dumps(record, indent=1) + "\n")
+            write_json_atomic(self.path, record, indent=1)
         except (StorageError, OSError):
             return False
         return True

@@ -53,15 +53,13 @@ from lidarsim.shards import (
 from lidarsim.storage import (
     LOCK_NAME,
     PARTIAL_MARK,
+    OutputTransaction,
     StorageError,
-    WriterLock,
     check_h5_data,
     check_not_input,
     check_output_dir,
     first_missing,
-    make_dirs,
     make_subdir,
-    remove_empty_dirs,
     sha256_bytes,
     write_bytes_atomic,
 )
@@ -607,17 +605,14 @@ def build_dataset(
     terrain = _open_terrain(out_dir, config)
     _warn_weak_inputs(config, terrain)
     # Input is valid: from here on the output directory is written, by this process alone.
-    top = first_missing(out_dir)
-    created = top is not None
-    make_dirs(out_dir)
-    try:
-        lock = WriterLock(out_dir, "dataset").acquire()
-    except BaseException:
-        remove_empty_dirs(out_dir, top)
-        raise
-    finished = False
-    try:
-        resume = prepare_output(out_dir, config, overwrite)  # again, now that no other writer can run
+    created = first_missing(out_dir) is not None
+    with OutputTransaction(
+        out_dir,
+        "dataset",
+        check=lambda: prepare_output(out_dir, config, overwrite),  # again, now that no other writer can run
+        rollback=lambda: _clean_after_failure(out_dir, created),
+    ) as tx:
+        resume = bool(tx.checked)
         # The build's settings first: from here on, a kill leaves a build the same command resumes.
         write_json_atomic(
             out_dir / BUILD_STATE_NAME,
@@ -635,15 +630,7 @@ def build_dataset(
                 write_bytes_atomic(terrain.path, terrain.data)
             terrain.data = None
         make_subdir(out_dir, SHARD_DIR)
-        summary = _build_locked(out_dir, config, resume, terrain, workers, scheduler, progress, t_start)
-        finished = True
-        return summary
-    finally:
-        if not finished:
-            _clean_after_failure(out_dir, created)
-        lock.release()
-        if not finished:
-            remove_empty_dirs(out_dir, top)
+        return _build_locked(out_dir, config, resume, terrain, workers, scheduler, progress, t_start)
 
 
 def _warn_weak_inputs(config: BuildConfig, terrain: _BuildTerrain) -> None:

@@ -32,6 +32,11 @@ One writer per directory: :class:`WriterLock` holds an exclusive ``flock`` on ``
 (the holder's PID written in it) for as long as a command writes there; the kernel releases it
 when the holder dies, even by SIGKILL. A second writer fails at once with the holder's PID;
 readers never take the lock (:func:`lock_holder` probes it with a shared lock released at once).
+
+One output transaction: every command writes its output directory inside an
+:class:`OutputTransaction` (create, lock, check, stage, commit or roll back); :class:`OutputDir`
+adds the rules of a command whose whole output is replaced at once (``hd eval``'s report,
+``hd detect``).
 """
 
 from __future__ import annotations
@@ -47,8 +52,9 @@ import re
 import shutil
 import stat
 import tempfile
+import time
 import warnings
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -271,12 +277,17 @@ def write_text_atomic(path: str | os.PathLike, text: str) -> None:
     write_bytes_atomic(path, text.encode("utf-8"))
 
 
-def write_json_atomic(path: str | os.PathLike, data: Any) -> None:
-    """Write JSON (indent 2, trailing newline) atomically."""
+def write_json_atomic(path: str | os.PathLike, data: Any, indent: int | None = 2) -> None:
+    """Write JSON (``indent`` spaces, 2 by default; a trailing newline) atomically: the one JSON
+    writer of hd (see :func:`write_bytes_atomic`).
+
+    Raises:
+        StorageError: a value JSON cannot hold, or any OS error; no temporary file is left.
+    """
     try:
-        text = json.dumps(data, indent=2, sort_keys=False) + "\n"
+        text = json.dumps(data, indent=indent, sort_keys=False) + "\n"
     except (TypeError, ValueError) as exc:
-        raise StorageError(f"{path}: cannot be written as JSON ({exc})") from None
+        raise StorageError(f"{path}: cannot be written as JSON ({exc})") from exc
     write_text_atomic(path, text)
 
 
@@ -667,6 +678,139 @@ def check_not_input(out: str | os.PathLike, inputs: dict[str, str | os.PathLike 
         )
 
 
+class OutputTransaction:
+    """The one way hd writes an output directory: create, lock, stage, then commit or roll back.
+
+    Entering the block creates the directory when it is missing (``mkdir -p``), takes its
+    :class:`WriterLock`, runs ``check`` (the command's rules for its output - never an input, no
+    foreign files, ``--overwrite`` - checked again now that no other writer can run; its result is
+    :attr:`checked`) and removes the leftovers of killed writers (``.*.partial-*``); with
+    ``staged`` it also makes an empty hidden staging directory (:attr:`staging`,
+    ``.WHAT.partial-PID``) whose files :meth:`commit` moves into place one by one. Writers that
+    build their output in place, file by file and each file atomically (a resumable build, a
+    training's checkpoints, a labelling's shards), leave ``staged`` off: their output is committed
+    when the block ends without an exception.
+
+    On failure - an exception (a full disk, SIGTERM/SIGINT raised as an exception), or a staged
+    block that ends without :meth:`commit` - the transaction rolls back: ``rollback`` (the
+    command's own clean-up of what it wrote, called under the lock), the staging directory
+    removed, the lock released, and the directories the block created removed again while empty.
+    While staged, an ``OSError`` becomes one :class:`StorageError` line and a staged file is named
+    by its final path.
+
+    ``wait_s``: how long to wait for another writer's lock (seconds; 0, the default, fails at once
+    with :class:`LockedError`, as every command does).
+
+    Usage::
+
+        with OutputTransaction(out, "dataset", rollback=clean) as tx:   # in place
+            ...write files into tx.path...
+        with OutputTransaction(out, "report", staged=True) as tx:       # staged
+            ...write files into tx.staging...
+            tx.commit(last="report.json")
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        what: str = "directory",
+        *,
+        staged: bool = False,
+        check: Callable[[], Any] | None = None,
+        rollback: Callable[[], None] | None = None,
+        wait_s: float = 0.0,
+    ) -> None:
+        self.path = Path(os.path.abspath(path))
+        self.what = what
+        self.staged = staged
+        self.rollback = rollback
+        self._check = check
+        self.checked: Any = None
+        self.wait_s = float(wait_s)
+        self.staging = self.path / f".{what}{PARTIAL_MARK}{os.getpid()}"
+        self.created: Path | None = None  # the top-most directory this transaction created
+        self.committed = False
+        self._lock: WriterLock | None = None
+
+    def _acquire(self) -> WriterLock:
+        deadline = time.monotonic() + self.wait_s
+        while True:
+            try:
+                return WriterLock(self.path, self.what).acquire()
+            except LockedError:
+                if time.monotonic() >= deadline:
+                    raise
+                time.sleep(0.1)
+
+    def __enter__(self) -> OutputTransaction:
+        self.created = first_missing(self.path)
+        make_dirs(self.path)
+        try:
+            self._lock = self._acquire()
+            if self._check is not None:
+                self.checked = self._check()
+            remove_partials(self.path)  # of a killed writer
+            if self.staged:
+                make_dirs(self.staging)
+        except BaseException:
+            self._close(ok=False)
+            raise
+        self.committed = False
+        return self
+
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
+        ok = exc_type is None and (self.committed or not self.staged)
+        try:
+            if not ok and self.rollback is not None and self._lock is not None:
+                self.rollback()
+        finally:
+            self._close(ok)
+        if self.staged and isinstance(exc, StorageError):
+            text = self.final_names(str(exc))
+            if text != str(exc):
+                raise type(exc)(text) from exc
+        elif self.staged and isinstance(exc, OSError):
+            where = self.final_names(exc.filename) if isinstance(exc.filename, str) else self.path
+            raise StorageError(describe_os_error(exc, where)) from exc
+
+    def _close(self, ok: bool) -> None:
+        """Remove the staging directory, release the lock, and (after a failure) the directories created."""
+        if self.staged:
+            shutil.rmtree(self.staging, ignore_errors=True)
+        if self._lock is not None:
+            self._lock.release()
+            self._lock = None
+        if not ok:
+            remove_empty_dirs(self.path, self.created)
+
+    def final_names(self, text: str) -> str:
+        """``text`` with the paths of staged files replaced by their final paths."""
+        return text.replace(f"{self.staging}{os.sep}", f"{self.path}{os.sep}")
+
+    def commit(self, last: str | None = None, replaces: Callable[[str], bool] | None = None) -> list[Path]:
+        """Move every staged file into place (``last`` - the output's marker - last); returns the final paths.
+
+        ``replaces``: names of the previous output's files (those the new output does not replace
+        are removed first; other files in the directory are never touched).
+        """
+        if not self.staged or self._lock is None:
+            raise StorageError(f"{self.path}: nothing staged to commit")
+        staged = sorted((p for p in self.staging.iterdir() if p.is_file()), key=lambda p: (p.name == last, p.name))
+        new = {p.name for p in staged}
+        if last is not None and last in new:
+            (self.path / last).unlink(missing_ok=True)  # from here on the old output is incomplete
+        if replaces is not None:
+            for p in self.path.iterdir():
+                if replaces(p.name) and p.name not in new and p.is_file() and not p.is_symlink():
+                    p.unlink()
+        final = []
+        for p in staged:
+            commit_file(p, self.path / p.name)
+            final.append(self.path / p.name)
+        self.committed = True
+        return final
+
+
 class OutputDir:
     """One command's output directory as a transaction: checked, locked, staged, committed.
 
@@ -712,8 +856,8 @@ class OutputDir:
         self.flag = flag
         self.path = Path(os.path.abspath(path))
         self.staging = self.path / f".{what}{PARTIAL_MARK}{os.getpid()}"
-        self._lock: WriterLock | None = None
-        self._top: Path | None = None
+        self._tx: OutputTransaction | None = None
+        self._overwrite = False
 
     def add_inputs(self, inputs: dict[str, str | os.PathLike | None]) -> None:
         """Inputs known only after work started (a run's dataset); checked at once and at commit."""
@@ -768,58 +912,23 @@ class OutputDir:
 
     @contextlib.contextmanager
     def open(self, overwrite: bool) -> Iterator[Path]:
-        """Lock the directory (created if missing) and yield an empty staging directory inside it."""
+        """Lock the directory (created if missing) and yield an empty staging directory inside it
+        (an :class:`OutputTransaction`, staged)."""
         self.check(overwrite)
-        self._top = first_missing(self.path)
-        make_dirs(self.path)
-        committed = False
-        try:
-            self._lock = WriterLock(self.path, self.what).acquire()
-            self.check(overwrite)  # again, now that no other writer can run
-            remove_partials(self.path)  # of a killed writer
-            self.staging.mkdir()
-            self._overwrite = overwrite
-            self._committed = False
-            yield self.staging
-            committed = self._committed
-        except StorageError as exc:  # a staged file is named by its final path
-            text = self._final_names(str(exc))
-            if text == str(exc):
-                raise
-            raise type(exc)(text) from None
-        except OSError as exc:
-            where = self._final_names(exc.filename) if isinstance(exc.filename, str) else self.path
-            raise StorageError(describe_os_error(exc, where)) from None
-        finally:
-            shutil.rmtree(self.staging, ignore_errors=True)
-            if self._lock is not None:
-                self._lock.release()
-                self._lock = None
-            if not committed:
-                remove_empty_dirs(self.path, self._top)
-
-    def _final_names(self, text: str) -> str:
-        """``text`` with the paths of staged files replaced by their final paths."""
-        return text.replace(f"{self.staging}{os.sep}", f"{self.path}{os.sep}")
+        self._overwrite = overwrite
+        with OutputTransaction(self.path, self.what, staged=True, check=lambda: self.check(overwrite)) as tx:
+            self._tx = tx
+            try:
+                yield tx.staging
+            finally:
+                self._tx = None
 
     def commit(self) -> list[Path]:
         """Move every staged file into place (``marker`` last); returns the final paths."""
+        if self._tx is None:
+            raise StorageError(f"{self.path}: commit outside OutputDir.open")
         self.check(self._overwrite)  # inputs and ownership once more, at commit
-        staged = sorted(
-            (p for p in self.staging.iterdir() if p.is_file()), key=lambda p: (p.name == self.marker, p.name)
-        )
-        new = {p.name for p in staged}
-        if self.marker in new:
-            (self.path / self.marker).unlink(missing_ok=True)  # from here on the old output is incomplete
-        for p in self.path.iterdir():
-            if self.owns(p.name) and p.name not in new and p.is_file() and not p.is_symlink():
-                p.unlink()
-        final = []
-        for p in staged:
-            commit_file(p, self.path / p.name)
-            final.append(self.path / p.name)
-        self._committed = True
-        return final
+        return self._tx.commit(last=self.marker, replaces=self.owns)
 
 
 def check_output_file(path: str | os.PathLike, flag: str = "output") -> Path:
