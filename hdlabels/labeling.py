@@ -164,7 +164,7 @@ def run_label_task(task: LabelTask) -> LabelRecord:
                 try:
                     arrays = label_scan(f["points_clean"][k], f["points_noisy"][k], sigmas, task.lander, task.dem)
                 except LabelStoreError as exc:
-                    raise LabelStoreError(f"{task.source_path} scan {int(f['scan_index'][k])}: {exc}") from None
+                    raise LabelStoreError(f"{task.source_path} scan {int(f['scan_index'][k])}: {exc}") from exc
                 writer.write(k, int(f["scan_index"][k]), int(f["split"][k]), **arrays)
                 counts += label_counts(arrays["label"])
             writer.commit()
@@ -212,10 +212,7 @@ def _single_writer(func: Callable[..., LabelSummary]) -> Callable[..., LabelSumm
     @wraps(func)
     def wrapper(directory: str | os.PathLike, *args: Any, **kwargs: Any) -> LabelSummary:
         root = Path(directory).resolve()
-        try:
-            read_manifest(root)
-        except ShardFormatError as exc:
-            raise LabelStoreError(str(exc)) from None
+        read_manifest(root)
         labels = root / LABELS_DIR
         if labels.is_symlink():
             raise LabelStoreError(f"{labels} is a symbolic link; hd writes label shards only inside the dataset")
@@ -254,10 +251,7 @@ def label_dataset(
     """
     t0 = time.perf_counter()
     root = Path(directory).resolve()
-    try:
-        manifest = read_manifest(root)
-    except ShardFormatError as exc:
-        raise LabelStoreError(str(exc)) from None
+    manifest = read_manifest(root)
     if dem is None:
         dem = DemSpec.for_convention(lander.convention)
     check_lander_fits(lander, dem)

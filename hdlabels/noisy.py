@@ -78,7 +78,7 @@ class NoisyDems:
             with open_scan_shard(dataset_dir, shards[0]) as reader:
                 return cls(SensorConfig.from_attrs(reader.attrs), int(reader.attrs["seed"]), dem)
         except (KeyError, TypeError, ValueError) as exc:
-            raise HdLabelsError(f"{dataset_dir}: its scan shards lack the sensor or the seed ({exc}).") from None
+            raise HdLabelsError(f"{dataset_dir}: its scan shards lack the sensor or the seed ({exc}).") from exc
 
     def directions(self, attitude: np.ndarray) -> np.ndarray:
         """Ray directions of an attitude (cached: a fixed-attitude trajectory shares one array)."""
@@ -101,13 +101,14 @@ class NoisyDems:
         """A scan's :class:`CleanScan` from its stored clean points, status and pose.
 
         Raises:
-            HdLabelsError: clean points that are not this sensor's returns (see ``recover_ranges``).
+            LidarsimError: clean points that are not this sensor's returns (see ``recover_ranges``),
+                naming the scan.
         """
         d = self.directions(attitude)
         try:
             ranges = recover_ranges(points_clean, sensor_position, d).astype(np.float32)
         except LidarsimError as exc:
-            raise HdLabelsError(f"scan {scan_index}: {exc}") from None
+            raise type(exc)(f"scan {scan_index}: {exc}") from exc
         damaged = np.asarray(status) == STATUS_DAMAGED
         return CleanScan(
             int(scan_index),

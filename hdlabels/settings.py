@@ -82,8 +82,8 @@ class LabelSettings:
         for key, value in section.items():
             try:
                 values[key] = casts[key](value)
-            except (TypeError, ValueError):
-                raise HdLabelsError(f"{where}: [label] {key} = {value!r} is not a valid value") from None
+            except (TypeError, ValueError) as exc:
+                raise HdLabelsError(f"{where}: [label] {key} = {value!r} is not a valid value") from exc
         return cls(**values)
 
     def to_lander(self) -> Lander:

@@ -248,18 +248,17 @@ class LabelShardReader:
         what: how errors name the file (default: its path).
 
     Raises:
-        LabelStoreError: not a label shard, an unknown major version, a checksum mismatch, damage.
+        FormatError: not a label shard or an unknown major version (``DamagedFileError``: a checksum
+            mismatch or damage), as ``lidarsim.storage`` raises it.
+        LabelStoreError: a file that opens but does not hold a label shard's arrays.
     """
 
     def __init__(self, path: str | os.PathLike, sha256: str | None = None, what: str | None = None) -> None:
         self.path = Path(path)
         self.what = what or str(self.path)
-        try:
-            if sha256 is not None:
-                verify_sha256(self.path, sha256, self.what)
-            self.h5: CheckedH5File = open_h5(self.path, self.what)
-        except ShardFormatError as exc:
-            raise LabelStoreError(str(exc)) from None
+        if sha256 is not None:
+            verify_sha256(self.path, sha256, self.what)
+        self.h5: CheckedH5File = open_h5(self.path, self.what)
         attrs = self.h5.attrs
         try:
             check_schema(
@@ -279,8 +278,8 @@ class LabelShardReader:
         except (ShardFormatError, KeyError, TypeError, ValueError, OSError) as exc:
             self.h5.close()
             if isinstance(exc, ShardFormatError):
-                raise LabelStoreError(str(exc)) from None
-            raise LabelStoreError(f"{self.what}: not a readable label shard ({exc})") from None
+                raise
+            raise LabelStoreError(f"{self.what}: not a readable label shard ({exc})") from exc
 
     def __len__(self) -> int:
         return self._n
@@ -291,8 +290,8 @@ class LabelShardReader:
         f = self.h5
         try:
             split = SPLIT_NAMES[int(f["split"][k])]
-        except IndexError:
-            raise LabelStoreError(f"{self.what}: row {k} has an unknown split code") from None
+        except IndexError as exc:
+            raise LabelStoreError(f"{self.what}: row {k} has an unknown split code") from exc
         return LabeledScan(
             scan_index=int(f["scan_index"][k]),
             split=split,
@@ -325,31 +324,24 @@ def find_labeling(directory: str | os.PathLike, name: str | None = None) -> dict
     exactly one labelling matches it.
 
     Raises:
-        LabelStoreError: not a dataset, no labelling, several and no ``name``, or unknown ``name``.
+        LabelStoreError: no labelling, several and no ``name``, or unknown ``name``.
+        StorageError: not a dataset (no readable manifest; ``FormatError``: an unknown schema).
     """
-    try:
-        manifest = read_manifest(directory)
-    except ShardFormatError as exc:
-        raise LabelStoreError(str(exc)) from None
+    manifest = read_manifest(directory)
     labelings = manifest.get("labelings", [])
     if not labelings:
         raise LabelStoreError(f"{directory}: the dataset has no labels; run `hd label {directory}` first")
     for lab in labelings:
         check = str(lab.get("schema", "")), str(lab.get("schema_version", ""))
-        try:
+        check_schema(check[0], check[1], LABEL_SCHEMA, LABEL_SCHEMA_VERSION, f"{directory} labelling {lab.get('name')}")
+        for entry in lab["shards"]:
             check_schema(
-                check[0], check[1], LABEL_SCHEMA, LABEL_SCHEMA_VERSION, f"{directory} labelling {lab.get('name')}"
+                str(entry.get("schema", LABEL_SCHEMA)),
+                str(entry.get("schema_version", check[1])),
+                LABEL_SCHEMA,
+                LABEL_SCHEMA_VERSION,
+                f"{directory}/{entry['path']}",
             )
-            for entry in lab["shards"]:
-                check_schema(
-                    str(entry.get("schema", LABEL_SCHEMA)),
-                    str(entry.get("schema_version", check[1])),
-                    LABEL_SCHEMA,
-                    LABEL_SCHEMA_VERSION,
-                    f"{directory}/{entry['path']}",
-                )
-        except ShardFormatError as exc:
-            raise LabelStoreError(str(exc)) from None
     if name is None:
         if len(labelings) > 1:
             names = ", ".join(lab["name"] for lab in labelings)
@@ -376,7 +368,8 @@ def _checked_entry(labeling: dict[str, Any], where: str) -> dict[str, Any]:
     as they are: a ``rows`` that is a list failed deep inside training).
 
     Raises:
-        LabelStoreError: naming ``where`` and the faulty entry.
+        HdLabelsError: naming ``where`` and the faulty entry (the lander's or DEM grid's own error,
+            or ``LabelStoreError``).
     """
     dem, lander = labeling.get("dem", {}), labeling.get("lander", {})
     if not isinstance(dem, dict) or not isinstance(lander, dict):
@@ -385,9 +378,9 @@ def _checked_entry(labeling: dict[str, Any], where: str) -> dict[str, Any]:
         DemSpec.from_entry(dem)
         Lander.from_attrs(lander)
     except HdLabelsError as exc:
-        raise LabelStoreError(f"{where}: {exc}") from None
+        raise type(exc)(f"{where}: {exc}") from exc
     except (TypeError, ValueError, OverflowError) as exc:
-        raise LabelStoreError(f"{where}: its dem or lander entry is not one hd writes ({exc})") from None
+        raise LabelStoreError(f"{where}: its dem or lander entry is not one hd writes ({exc})") from exc
     return labeling
 
 
@@ -395,33 +388,25 @@ def label_shard_paths(directory: str | os.PathLike, labeling: dict[str, Any]) ->
     """Paths of a labelling's shards, in scan order (each confined to the dataset).
 
     Raises:
-        LabelStoreError: a path that leaves the dataset.
+        FormatError: a path that leaves the dataset.
     """
-    try:
-        return [confine(directory, entry["path"], f"{directory}/{entry['path']}") for entry in labeling["shards"]]
-    except ShardFormatError as exc:
-        raise LabelStoreError(str(exc)) from None
+    return [confine(directory, entry["path"], f"{directory}/{entry['path']}") for entry in labeling["shards"]]
 
 
 def open_label_shard(directory: str | os.PathLike, entry: dict[str, Any]) -> LabelShardReader:
     """Open the label shard of a manifest entry: confined to the dataset, its sha256 checked first.
 
     Raises:
-        LabelStoreError: path outside the dataset, missing or damaged file, unknown schema.
+        FormatError: path outside the dataset, unknown schema (``DamagedFileError``: a missing or
+            damaged file), as ``lidarsim.storage`` raises it.
     """
     what = f"{Path(directory) / entry['path']}"
-    try:
-        path = confine(directory, entry["path"], what)
-    except ShardFormatError as exc:
-        raise LabelStoreError(str(exc)) from None
+    path = confine(directory, entry["path"], what)
     return LabelShardReader(path, sha256=entry["sha256"], what=what)
 
 
 def add_labeling_to_manifest(directory: Path, entry: dict[str, Any]) -> None:
     """Add (or replace, same name) a labelling entry in the manifest, atomically (writer lock held)."""
-    try:
-        manifest = read_manifest(directory)
-    except ShardFormatError as exc:
-        raise LabelStoreError(str(exc)) from None
+    manifest = read_manifest(directory)
     manifest["labelings"] = [lab for lab in manifest.get("labelings", []) if lab["name"] != entry["name"]] + [entry]
     write_json_atomic(directory / MANIFEST_NAME, manifest)

@@ -62,7 +62,6 @@ from hdlabels.noisy import CleanScan, NoisyDems
 from hdlabels.store import (
     DemSpec,
     LabelShardReader,
-    LabelStoreError,
     find_labeling,
     label_shard_paths,
     open_label_shard,
@@ -83,7 +82,7 @@ from hdnet.inputs import (  # noqa: F401  (re-exported: the grid helpers belong 
 from hdnet.noise_levels import TrainingNoise, check_levels
 from hdnet.sample import DemSample
 from lidarsim.errors import LidarsimError
-from lidarsim.storage import CheckedH5File, FormatError, open_h5
+from lidarsim.storage import CheckedH5File, open_h5
 from lidarsim.streams import Purpose, stream
 
 SPLITS: tuple[str, str, str] = ("train", "val", "test")  # split codes 0, 1, 2 of the label shards
@@ -97,10 +96,7 @@ DEAD_PIXEL_STREAM = 0xDEAD  # hd choice: stream key of the dead-pixel draws, (se
 # --- labelling and noise levels ----------------------------------------------------------------
 def open_labeling(dataset_dir: str | os.PathLike, labels: str | None = None) -> tuple[dict[str, Any], list[Path]]:
     """The labelling entry of a dataset and its label shard paths (HdNetError when there are no labels)."""
-    try:
-        entry = find_labeling(dataset_dir, labels)
-    except LabelStoreError as exc:
-        raise HdNetError(str(exc).rstrip(".") + ".") from None
+    entry = find_labeling(dataset_dir, labels)
     return entry, label_shard_paths(dataset_dir, entry)
 
 
@@ -108,11 +104,8 @@ def dataset_sigmas(paths: list[Path]) -> tuple[float, ...]:
     """Noise levels (metres) of a labelling, read from its first label shard."""
     if not paths:
         raise HdNetError("the labelling lists no label shards.")
-    try:
-        with LabelShardReader(paths[0]) as reader:
-            return reader.sigmas_m
-    except LabelStoreError as exc:
-        raise HdNetError(str(exc).rstrip(".") + ".") from None
+    with LabelShardReader(paths[0]) as reader:
+        return reader.sigmas_m
 
 
 def format_sigmas(sigmas_m: tuple[float, ...]) -> str:
@@ -146,10 +139,7 @@ def dem_spacing_m(entry: dict[str, Any]) -> float:
 
 def _open_verified(dataset_dir: str | os.PathLike, shard: dict[str, Any]) -> LabelShardReader:
     """A label shard of the manifest, checked (sha256, schema) before it is read; errors as HdNetError."""
-    try:
-        return open_label_shard(dataset_dir, shard)
-    except LabelStoreError as exc:
-        raise HdNetError(str(exc).rstrip(".") + ".") from None
+    return open_label_shard(dataset_dir, shard)
 
 
 # --- normalisation -----------------------------------------------------------------------------
@@ -248,12 +238,9 @@ class HazardDataset(Dataset):
         code = SPLITS.index(split)
         items: list[tuple[int, int, int]] = []  # (shard number, row in shard, scan index)
         for k, (path, shard) in enumerate(zip(self.paths, self.entry["shards"], strict=True)):
-            try:
-                with _open_verified(dataset_dir, shard) as reader:
-                    splits, scans = reader.h5["split"][:], reader.h5["scan_index"][:]
-                    shard_sigmas = reader.sigmas_m
-            except FormatError as exc:
-                raise HdNetError(str(exc).rstrip(".") + ".") from None
+            with _open_verified(dataset_dir, shard) as reader:
+                splits, scans = reader.h5["split"][:], reader.h5["scan_index"][:]
+                shard_sigmas = reader.sigmas_m
             if len(shard_sigmas) != len(self.sigmas_m) or any(
                 abs(a - b) > SIGMA_EXACT_TOLERANCE_M for a, b in zip(shard_sigmas, self.sigmas_m, strict=True)
             ):
@@ -306,10 +293,7 @@ class HazardDataset(Dataset):
             self._files, self._pid = {}, os.getpid()
         f = self._files.get(k)
         if f is None:
-            try:
-                f = self._files[k] = open_h5(self.paths[k])
-            except FormatError as exc:
-                raise HdNetError(str(exc).rstrip(".") + ".") from None
+            f = self._files[k] = open_h5(self.paths[k])
         return f
 
     def close(self) -> None:
@@ -334,7 +318,7 @@ class HazardDataset(Dataset):
             try:
                 self._maker = NoisyDems.of_dataset(self.dataset_dir, DemSpec.from_entry(self.entry.get("dem", {})))
             except (HdLabelsError, LidarsimError) as exc:
-                raise HdNetError(f"{self.dataset_dir}: {str(exc).rstrip('.')}.") from None
+                raise type(exc)(f"{self.dataset_dir}: {exc}") from exc
         return self._maker
 
     def clean_scans(self) -> list[CleanScan]:
@@ -350,10 +334,11 @@ class HazardDataset(Dataset):
                 try:
                     scans = maker.read_scans(self.dataset_dir, shard, [self.items[n][1] for n in members])
                 except (HdLabelsError, LidarsimError, KeyError) as exc:
-                    raise HdNetError(
+                    error = HdNetError if isinstance(exc, KeyError) else type(exc)
+                    raise error(
                         f"{self.dataset_dir}: cannot make noisy DEMs from the clean points of "
                         f"{shard.get('source_path', '?')}: {str(exc).rstrip('.')}."
-                    ) from None
+                    ) from exc
                 for n, c in zip(members, scans, strict=True):
                     if c.scan_index != self.items[n][2]:
                         raise HdNetError(

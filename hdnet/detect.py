@@ -53,7 +53,7 @@ from scipy import ndimage
 from hdlabels import defaults as label_defaults
 from hdlabels.alhat import safety_probability
 from hdlabels.lander import Lander, geometry
-from hdlabels.store import LabelStoreError, find_labeling, open_label_shard
+from hdlabels.store import find_labeling, open_label_shard
 from hdnet import defaults
 from hdnet._version import __version__
 from hdnet.data import (
@@ -87,7 +87,7 @@ from hdnet.thresholds import ThresholdSpec, parse_threshold_spec, uncertain_mask
 from hdnet.tiling import TilePlan
 from hdnet.train import load_trained_model
 from lidarsim.base_relief import resample_bilinear
-from lidarsim.errors import LidarsimError, TerrainError
+from lidarsim.errors import TerrainError
 from lidarsim.procedural import geotiff_bytes, geotiff_profile
 from lidarsim.shards import MANIFEST_NAME, open_scan_shard, read_manifest, sha256_file
 from lidarsim.storage import (
@@ -379,17 +379,15 @@ class _ScanTerrain(_Terrain):
         found = None
         all_scans: list[int] = []
         for path, shard in zip(paths, entry["shards"], strict=True):
-            try:  # through the storage layer: checksum first, damaged chunks named with the scan
-                with open_label_shard(dataset, shard) as reader:
-                    f = reader.h5
-                    scans = f["scan_index"][:]
-                    all_scans += scans.tolist()
-                    rows = np.flatnonzero(scans == scan)
-                    if rows.size:
-                        r = int(rows[0])
-                        found = (path, f["dem_noisy"][r, k].astype(np.float32), int(f["split"][r]), shard)
-            except (LabelStoreError, LidarsimError) as exc:
-                raise HdNetError(f"{str(exc).rstrip('.')}.") from None
+            # through the storage layer: checksum first, damaged chunks named with the scan
+            with open_label_shard(dataset, shard) as reader:
+                f = reader.h5
+                scans = f["scan_index"][:]
+                all_scans += scans.tolist()
+                rows = np.flatnonzero(scans == scan)
+                if rows.size:
+                    r = int(rows[0])
+                    found = (path, f["dem_noisy"][r, k].astype(np.float32), int(f["split"][r]), shard)
         if found is None:
             span = f"scans {min(all_scans)}..{max(all_scans)}" if all_scans else "no scans"
             raise HdNetError(f"scan {scan} is not in {dataset} ({span}).")
@@ -436,14 +434,11 @@ def _origin_map(dataset: Path, label_shard: dict[str, Any], scan: int) -> list[f
     """Map coordinates (metres) of a scan's frame origin, from the scan shard behind its label shard
     (through the storage layer: checksum first; damage is an error naming the file and the scan)."""
     source = {"path": label_shard["source_path"], "sha256": label_shard["source_sha256"]}
-    try:
-        with open_scan_shard(dataset, source) as reader:
-            rows = np.flatnonzero(reader.h5["scan_index"][:] == scan)
-            if not rows.size:
-                raise HdNetError(f"{source['path']}: holds no scan {scan}, which its label shard lists.")
-            return [float(v) for v in reader.h5["origin_map"][int(rows[0])]]
-    except LidarsimError as exc:
-        raise HdNetError(f"{str(exc).rstrip('.')}.") from None
+    with open_scan_shard(dataset, source) as reader:
+        rows = np.flatnonzero(reader.h5["scan_index"][:] == scan)
+        if not rows.size:
+            raise HdNetError(f"{source['path']}: holds no scan {scan}, which its label shard lists.")
+        return [float(v) for v in reader.h5["origin_map"][int(rows[0])]]
 
 
 # --- options -----------------------------------------------------------------------------------------
@@ -972,7 +967,7 @@ def _overview(tmp: Path, terrain: _Terrain, sites: list[Site], run: DetectRun, h
             heights, cell_m, safety, (left, right, bottom, top), sites, run.lander.radius_m, title, tmp / "overview.png"
         )
     except OSError as exc:  # matplotlib's write (a full disk) names no file
-        raise StorageError(describe_os_error(exc, tmp / "overview.png")) from None
+        raise StorageError(describe_os_error(exc, tmp / "overview.png")) from exc
 
 
 def _info(

@@ -249,7 +249,7 @@ def run_data(ckpt: dict[str, Any], path: Path) -> tuple[float, InputSpec, str | 
     try:
         spec = InputSpec.from_run_config(extra, ckpt.get("model_config"))
     except HdNetError as exc:
-        raise HdNetError(f"{path}: {str(exc).rstrip('.')}.") from None
+        raise HdNetError(f"{path}: {str(exc).rstrip('.')}.") from exc
     return float(extra["train_sigma_m"]), spec, extra.get("labels")
 
 

@@ -47,7 +47,6 @@ from lidarsim.storage import (
     LOCK_NAME,
     PARTIAL_MARK,
     OutputTransaction,
-    StorageError,
     check_not_input,
     check_output_dir,
 )
@@ -142,11 +141,8 @@ def prepare_run_dir(
             non-empty directory that is not an hd run (``overwrite`` or not: it replaces runs only);
             a run with a checkpoint and neither ``resume`` nor ``overwrite``.
     """
-    try:
-        path = check_output_dir(run_dir, "--out")
-        check_not_input(run_dir, {"the dataset": dataset})
-    except StorageError as exc:
-        raise HdNetError(str(exc).rstrip(".") + ".") from None
+    path = check_output_dir(run_dir, "--out")
+    check_not_input(run_dir, {"the dataset": dataset})
     if not path.exists():
         return path, False
     content = [p for p in path.iterdir() if p.name != LOCK_NAME and PARTIAL_MARK not in p.name]
@@ -177,10 +173,7 @@ def run_transaction(run_dir: Path, check: Callable[[], Any], rollback: Callable[
         yield check()
         return
     tx = OutputTransaction(run_dir, "run", check=check, rollback=rollback)
-    try:
-        tx.__enter__()
-    except StorageError as exc:
-        raise HdNetError(str(exc).rstrip(".") + ".") from exc
+    tx.__enter__()
     with contextlib.ExitStack() as stack:
         stack.push(tx)  # its __exit__ commits or rolls back
         yield tx.checked

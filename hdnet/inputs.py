@@ -78,8 +78,8 @@ class Normalisation:
     def from_dict(cls, data: dict[str, Any]) -> Normalisation:
         try:
             return cls(float(data["min_m"]), float(data["max_m"]))
-        except (KeyError, TypeError, ValueError):
-            raise HdNetError(f"a normalisation needs numeric 'min_m' and 'max_m', got {data!r}.") from None
+        except (KeyError, TypeError, ValueError) as exc:
+            raise HdNetError(f"a normalisation needs numeric 'min_m' and 'max_m', got {data!r}.") from exc
 
 
 @dataclass(frozen=True)

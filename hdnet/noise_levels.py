@@ -130,8 +130,8 @@ class TrainingNoise:
                 levels_m=tuple(float(s) for s in data.get("levels_m") or ()),
                 range_m=None if rng is None else (float(rng[0]), float(rng[1])),
             )
-        except (TypeError, ValueError, IndexError):
-            raise HdNetError(f"a training noise record holds non-numeric levels: {data!r}.") from None
+        except (TypeError, ValueError, IndexError) as exc:
+            raise HdNetError(f"a training noise record holds non-numeric levels: {data!r}.") from exc
 
 
 def parse_sigma_range(text: str) -> tuple[float, float]:
@@ -141,8 +141,8 @@ def parse_sigma_range(text: str) -> tuple[float, float]:
         raise HdNetError(f"a sigma range is LOW:HIGH in metres (e.g. 0:0.10), got {text!r}.")
     try:
         lo, hi = float(parts[0]), float(parts[1])
-    except ValueError:
-        raise HdNetError(f"a sigma range is LOW:HIGH in metres (e.g. 0:0.10), got {text!r}.") from None
+    except ValueError as exc:
+        raise HdNetError(f"a sigma range is LOW:HIGH in metres (e.g. 0:0.10), got {text!r}.") from exc
     TrainingNoise(range_m=(lo, hi))  # the checks
     return lo, hi
 
@@ -155,8 +155,8 @@ def parse_sigma_sweep(text: str) -> tuple[float, ...]:
         raise HdNetError(f"a sigma sweep is START:STOP:STEP in metres (e.g. 0:0.12:0.01), got {text!r}.")
     try:
         start, stop, step = (float(p) for p in parts)
-    except ValueError:
-        raise HdNetError(f"a sigma sweep is START:STOP:STEP in metres (e.g. 0:0.12:0.01), got {text!r}.") from None
+    except ValueError as exc:
+        raise HdNetError(f"a sigma sweep is START:STOP:STEP in metres (e.g. 0:0.12:0.01), got {text!r}.") from exc
     start = _check_sigma(start, "the sweep's START")
     stop = _check_sigma(stop, "the sweep's STOP")
     if not (math.isfinite(step) and step > 0):

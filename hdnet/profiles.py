@@ -200,8 +200,8 @@ def get_profile(name: str) -> TrainingProfile:
     """The profile called ``name`` (paper, cpu, robust, tiny)."""
     try:
         return PROFILES[name]
-    except KeyError:
-        raise HdNetError(f"unknown training profile {name!r}; choose one of {', '.join(PROFILES)}.") from None
+    except KeyError as exc:
+        raise HdNetError(f"unknown training profile {name!r}; choose one of {', '.join(PROFILES)}.") from exc
 
 
 def profile_from_dict(data: Mapping[str, object]) -> TrainingProfile:
@@ -210,4 +210,4 @@ def profile_from_dict(data: Mapping[str, object]) -> TrainingProfile:
     try:
         return TrainingProfile(**data)  # type: ignore[arg-type]  # saved fields, checked by TrainingProfile
     except TypeError as exc:
-        raise HdNetError(f"saved training profile does not match TrainingProfile: {exc}.") from None
+        raise HdNetError(f"saved training profile does not match TrainingProfile: {exc}.") from exc

@@ -23,9 +23,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from hdnet.errors import HdNetError
 from hdnet.paper_results import paper_row
-from lidarsim.errors import LidarsimError
 from lidarsim.storage import (
     OutputDir,
     write_json_atomic,
@@ -315,10 +313,7 @@ def check_report_dir(
             that is, holds or lies inside one of ``inputs``, an existing report without
             ``overwrite``, or a non-empty directory that is not a report.
     """
-    try:
-        return report_output(out_dir, inputs).check(overwrite)
-    except LidarsimError as exc:  # StorageError, OutputExistsError
-        raise HdNetError(str(exc).rstrip(".") + ".") from None
+    return report_output(out_dir, inputs).check(overwrite)
 
 
 def write_report(
@@ -335,12 +330,9 @@ def write_report(
             half-written), or another evaluation writing the same directory.
     """
     output = report_output(out_dir, inputs)
-    try:
-        with output.open(overwrite) as staging:
-            _stage(result, staging, figures)
-            final = output.commit()
-    except LidarsimError as exc:  # StorageError, OutputExistsError, LockedError
-        raise HdNetError(str(exc).rstrip(".") + ".") from None
+    with output.open(overwrite) as staging:
+        _stage(result, staging, figures)
+        final = output.commit()
     out = output.path
     return [out / "report.json", out / "report.md", *[p for p in final if p.suffix == ".png"]]
 

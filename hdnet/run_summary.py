@@ -26,7 +26,7 @@ def _metrics(path: Path) -> list[dict[str, float]]:
         with path.open(newline="") as f:
             return [{k: float(v) for k, v in row.items()} for row in csv.DictReader(f)]
     except (OSError, ValueError, TypeError, csv.Error) as exc:
-        raise HdNetError(f"{path}: unreadable metrics ({exc}).") from None
+        raise HdNetError(f"{path}: unreadable metrics ({exc}).") from exc
 
 
 def run_record(directory: str | os.PathLike) -> dict[str, Any]:
@@ -41,7 +41,7 @@ def run_record(directory: str | os.PathLike) -> dict[str, Any]:
     try:
         config = json.loads((d / CONFIG).read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise HdNetError(f"{d / CONFIG}: unreadable run config ({exc}).") from None
+        raise HdNetError(f"{d / CONFIG}: unreadable run config ({exc}).") from exc
     if not isinstance(config, dict):
         raise HdNetError(f"{d / CONFIG}: not a JSON object.")
     extra = config.get("extra_config") or {}

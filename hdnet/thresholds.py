@@ -74,8 +74,8 @@ def parse_threshold_spec(spec: str) -> ThresholdSpec:
         raise HdNetError(f"threshold spec {spec!r}: '{kind}' needs a value, e.g. '{kind}:0.1'.")
     try:
         value = float(arg)
-    except ValueError:
-        raise HdNetError(f"threshold spec {spec!r}: {arg!r} is not a number.") from None
+    except ValueError as exc:
+        raise HdNetError(f"threshold spec {spec!r}: {arg!r} is not a number.") from exc
     if kind == "quantile" and not 0.0 <= value <= 1.0:
         raise HdNetError(f"threshold spec {spec!r}: the quantile Q must be in [0, 1].")
     if kind == "risk" and not 0.0 < value < 1.0:

@@ -63,7 +63,7 @@ from hdnet.errors import HdNetError
 from hdnet.model import MODEL_NAME, BayesianSegNet, ModelConfig
 from hdnet.profiles import TrainingProfile, profile_from_dict
 from lidarsim.errors import HdWarning
-from lidarsim.storage import StorageError, write_bytes_atomic
+from lidarsim.storage import write_bytes_atomic
 
 CHECKPOINT_SCHEMA = "hdnet.checkpoint"
 CHECKPOINT_VERSION = 2
@@ -129,10 +129,7 @@ def _seed_everything(seed: int) -> None:
 # --- checkpoint I/O ----------------------------------------------------------------------------
 def _atomic_write_bytes(path: Path, data: bytes) -> None:
     """Write a run file atomically through the storage layer (OS errors become one-line HdNetErrors)."""
-    try:
-        write_bytes_atomic(path, data)
-    except StorageError as exc:
-        raise HdNetError(str(exc)) from None
+    write_bytes_atomic(path, data)
 
 
 def _hash_into(h: Any, obj: Any) -> None:
@@ -179,8 +176,8 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
         raise HdNetError(f"checkpoint {path} does not exist.")
     try:
         ckpt = torch.load(path, map_location=map_location, weights_only=True)
-    except Exception as exc:  # noqa: BLE001 - unpickling errors of every kind: the file is not ours
-        raise HdNetError(f"{path} is not a readable hdnet checkpoint ({type(exc).__name__}).") from None
+    except Exception as exc:  # unpickling errors of every kind: the file is not ours
+        raise HdNetError(f"{path} is not a readable hdnet checkpoint ({type(exc).__name__}).") from exc
     if not isinstance(ckpt, dict) or ckpt.get("schema") != CHECKPOINT_SCHEMA:
         raise HdNetError(f"{path} is not an hdnet checkpoint (schema {CHECKPOINT_SCHEMA!r} missing).")
     if ckpt.get("schema_version") not in READABLE_CHECKPOINT_VERSIONS:
@@ -241,7 +238,7 @@ def checked_model_config(ckpt: dict[str, Any], path: str | Path) -> ModelConfig:
     try:
         config = ModelConfig(**raw)
     except TypeError as exc:
-        raise HdNetError(f"{path}: its model_config does not describe a SegNet ({exc}).") from None
+        raise HdNetError(f"{path}: its model_config does not describe a SegNet ({exc}).") from exc
     state = ckpt.get("model")
     if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
         raise HdNetError(f"{path}: its model weights are not a dictionary of tensors.")
@@ -380,8 +377,8 @@ def _all_reduce(values: torch.Tensor) -> torch.Tensor:
 def _check_sample(ds: Dataset, name: str) -> int:
     try:
         sample = ds[0]
-    except Exception as exc:  # noqa: BLE001 - a user's dataset may fail in any way; named in the message
-        raise HdNetError(f"the {name} dataset cannot give its first sample ({exc}).") from None
+    except Exception as exc:  # a user's dataset may fail in any way; named in the message
+        raise HdNetError(f"the {name} dataset cannot give its first sample ({exc}).") from exc
     if not isinstance(sample, dict) or "image" not in sample or "mask" not in sample:
         raise HdNetError(f"the {name} dataset must yield dicts with 'image' and 'mask'.")
     image, mask = sample["image"], sample["mask"]
@@ -396,8 +393,8 @@ def _check_sample(ds: Dataset, name: str) -> int:
 def _json_plain(obj: dict[str, Any], what: str) -> dict[str, Any]:
     try:
         return json.loads(json.dumps(obj))
-    except (TypeError, ValueError):
-        raise HdNetError(f"{what} must hold only JSON types (numbers, strings, lists, dicts).") from None
+    except (TypeError, ValueError) as exc:
+        raise HdNetError(f"{what} must hold only JSON types (numbers, strings, lists, dicts).") from exc
 
 
 # --- the loop ---------------------------------------------------------------------------------
@@ -635,7 +632,7 @@ def _start(
             raise HdNetError(
                 f"{source}: cannot resume from it: its optimizer or RNG state cannot be restored "
                 f"({type(exc).__name__}: {_first_line(exc)}); the checkpoint is damaged."
-            ) from None
+            ) from exc
     return state
 
 

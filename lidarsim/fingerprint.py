@@ -360,5 +360,5 @@ def compare_fingerprints(published: dict[str, Any], rebuilt: dict[str, Any], whe
                 out.n_arrays += 1
                 _compare_array(pub_arrays[name], new_arrays[name], f"{where}: {name}", out)
     except (KeyError, TypeError, ValueError, AttributeError) as exc:
-        raise FormatError(f"{where}: malformed published content fingerprint ({type(exc).__name__}: {exc})") from None
+        raise FormatError(f"{where}: malformed published content fingerprint ({type(exc).__name__}: {exc})") from exc
     return out

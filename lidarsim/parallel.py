@@ -199,7 +199,7 @@ def _run_pool(func: Callable[[T], R], tasks: Sequence[T], workers: int) -> Itera
             for conn in cast("list[Connection]", wait(list(open_readers), timeout=1.0)):
                 try:
                     kind, index, payload, tb = conn.recv()
-                except (EOFError, OSError):
+                except (EOFError, OSError) as exc:
                     open_readers.discard(conn)
                     proc = readers[conn]
                     proc.join(timeout=_JOIN_TIMEOUT_S)
@@ -207,7 +207,7 @@ def _run_pool(func: Callable[[T], R], tasks: Sequence[T], workers: int) -> Itera
                         raise LidarsimError(
                             f"a worker process (PID {proc.pid}) died ({_signal_name(proc.exitcode)}) before finishing "
                             "its tasks; re-run the same command to resume"
-                        ) from None
+                        ) from exc
                     continue
                 if kind == "ok":
                     remaining -= 1
@@ -282,7 +282,7 @@ def connect_scheduler(address: str, timeout_s: float = 20.0) -> Any:
     try:
         return Client(address, timeout=f"{timeout_s}s")
     except (OSError, TimeoutError, ValueError, TypeError) as exc:
-        raise LidarsimError(f"cannot reach the Dask scheduler at {address} ({exc.__class__.__name__})") from None
+        raise LidarsimError(f"cannot reach the Dask scheduler at {address} ({exc.__class__.__name__})") from exc
 
 
 def probe_scheduler(address: str, timeout_s: float = 10.0) -> None:

@@ -107,7 +107,7 @@ def terrain_fingerprint(path: str | os.PathLike, what: str | None = None) -> dic
                 **{f"tag_{k}": str(v) for k, v in sorted(src.tags().items())},
             }
     except (RasterioIOError, OSError) as exc:
-        raise DamagedFileError(f"{name}: cannot read the terrain ({exc}); the file is damaged") from None
+        raise DamagedFileError(f"{name}: cannot read the terrain ({exc}); the file is damaged") from exc
     return {
         "attrs": {k: attr_record(v) for k, v in sorted(attrs.items())},
         "arrays": {"heights": array_fingerprint([heights], heights.dtype, heights.shape)},
@@ -206,10 +206,7 @@ class _Comparer:
         except (DamagedFileError, FormatError, StorageError) as exc:
             self.out.problems.append(str(exc))
             return
-        try:
-            result = compare_fingerprints(content, rebuilt, path)
-        except FormatError as exc:
-            raise RecipeError(str(exc)) from None
+        result = compare_fingerprints(content, rebuilt, path)
         problems = result.problems + self._digest_problems(path, rebuilt.get("attrs", {}))
         if problems:
             self.out.problems += problems
@@ -271,7 +268,7 @@ def compare_with_published(
     try:
         check_fingerprint_schema(recorded, CHECKSUMS_FILE)
     except FormatError as exc:
-        raise RecipeError(f"{exc}; this hd cannot compare the content of a rebuild with them") from None
+        raise RecipeError(f"{exc}; this hd cannot compare the content of a rebuild with them") from exc
     shards = _entries(recorded.get("shards", []), "shards")
     labelings = recorded.get("labelings", [])
     if not isinstance(labelings, list) or not all(

@@ -176,7 +176,7 @@ class Recipe:
         try:
             recorded = json.loads(path.read_bytes().decode("utf-8"))
         except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
-            raise RecipeError(f"{path}: unreadable checksums ({exc})") from None
+            raise RecipeError(f"{path}: unreadable checksums ({exc})") from exc
         _check_checksums(recorded, path)
         return recorded
 
@@ -228,7 +228,7 @@ def load_recipe(path: str | os.PathLike) -> Recipe:
     try:
         data = tomllib.loads(path.read_bytes().decode("utf-8"))
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
-        raise RecipeError(f"{path}: not a valid TOML recipe ({exc})") from None
+        raise RecipeError(f"{path}: not a valid TOML recipe ({exc})") from exc
     unknown_sections = set(data) - {"dataset", "build", "label"}
     if unknown_sections:
         raise RecipeError(f"{path}: unknown section(s) {sorted(unknown_sections)}")
@@ -258,9 +258,9 @@ def load_recipe(path: str | os.PathLike) -> Recipe:
     except (TypeError, ValueError) as exc:
         if isinstance(exc, RecipeError):
             raise
-        if isinstance(exc, LidarsimError):
-            raise RecipeError(f"{path}: {exc}") from None
-        raise RecipeError(f"{path}: invalid value ({exc})") from None
+        if isinstance(exc, LidarsimError):  # a bad value is a RecipeError; a TerrainError etc. stays one
+            raise (RecipeError if type(exc) is LidarsimError else type(exc))(f"{path}: {exc}") from exc
+        raise RecipeError(f"{path}: invalid value ({exc})") from exc
     meta = data.get("dataset", {})
     unknown = set(meta) - {"name", "description", "version"}
     if unknown:

@@ -100,8 +100,8 @@ class SensorConfig:
             raw = attrs[key]
             try:
                 values[f.name] = int(raw) if f.type in (int, "int") else float(raw)
-            except (TypeError, ValueError):
-                raise LidarsimError(f"the scan shard's attribute {key} is not a number: {raw!r}") from None
+            except (TypeError, ValueError) as exc:
+                raise LidarsimError(f"the scan shard's attribute {key} is not a number: {raw!r}") from exc
         return cls(**values)
 
 

@@ -307,7 +307,7 @@ class ScanShardReader:
             self._f.close()
             if isinstance(exc, LidarsimError):
                 raise
-            raise DamagedFileError(f"{self.what}: not a readable hd scan shard ({exc})") from None
+            raise DamagedFileError(f"{self.what}: not a readable hd scan shard ({exc})") from exc
         except BaseException:
             self._f.close()
             raise
@@ -321,8 +321,8 @@ class ScanShardReader:
         f = self._f
         try:
             split = SPLIT_NAMES[int(f["split"][k])]
-        except IndexError:
-            raise DamagedFileError(f"{self.what}: row {k} has an unknown split code") from None
+        except IndexError as exc:
+            raise DamagedFileError(f"{self.what}: row {k} has an unknown split code") from exc
         return Scan(
             scan_index=int(f["scan_index"][k]),
             split=split,

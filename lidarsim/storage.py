@@ -102,7 +102,7 @@ def sha256_file(path: str | os.PathLike, chunk_bytes: int = _HASH_CHUNK_BYTES) -
             while block := fh.read(chunk_bytes):
                 h.update(block)
     except OSError as exc:
-        raise StorageError(describe_os_error(exc, path)) from None
+        raise StorageError(describe_os_error(exc, path)) from exc
     return h.hexdigest()
 
 
@@ -133,10 +133,10 @@ def verify_sha256(path: str | os.PathLike, expected: str, what: str | None = Non
     name = what or str(p)
     try:
         st = p.stat()
-    except FileNotFoundError:
-        raise DamagedFileError(f"{name}: missing (the manifest lists it); run `hd verify`") from None
+    except FileNotFoundError as exc:
+        raise DamagedFileError(f"{name}: missing (the manifest lists it); run `hd verify`") from exc
     except OSError as exc:
-        raise StorageError(describe_os_error(exc, p)) from None
+        raise StorageError(describe_os_error(exc, p)) from exc
     if not stat.S_ISREG(st.st_mode):
         raise FormatError(f"{name}: not a regular file")
     key = (str(p), st.st_size, st.st_mtime_ns, st.st_ino, expected)
@@ -207,7 +207,7 @@ def commit_file(tmp: Path, final: Path) -> None:
         os.replace(tmp, final)
     except OSError as exc:
         Path(tmp).unlink(missing_ok=True)
-        raise StorageError(describe_os_error(exc, final)) from None
+        raise StorageError(describe_os_error(exc, final)) from exc
     fsync_dir(Path(final).parent)
 
 
@@ -265,7 +265,7 @@ def write_bytes_atomic(path: str | os.PathLike, data: bytes | memoryview) -> Non
         os.replace(tmp, final)
     except OSError as exc:
         tmp.unlink(missing_ok=True)
-        raise StorageError(describe_os_error(exc, final)) from None
+        raise StorageError(describe_os_error(exc, final)) from exc
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
@@ -306,7 +306,7 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
         yield tmp
     except OSError as exc:
         tmp.unlink(missing_ok=True)
-        raise StorageError(describe_os_error(exc, final)) from None
+        raise StorageError(describe_os_error(exc, final)) from exc
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
@@ -391,7 +391,7 @@ class CheckedDataset:
             raise DamagedFileError(
                 f"{self._owner.what}: cannot read {self._ds.name.lstrip('/')}{self._owner.scan_text(row)} "
                 f"({_short(exc)}); the file is damaged, run `hd verify`"
-            ) from None
+            ) from exc
 
     def _first_bad_row(self, selection: Any) -> int | None:
         """After a failed read of a range of rows: the first row that cannot be read, if any."""
@@ -432,7 +432,7 @@ class CheckedH5File:
         try:
             obj = self._f[name]
         except (KeyError, OSError, RuntimeError) as exc:
-            raise DamagedFileError(f"{self.what}: no readable dataset {name!r} ({_short(exc)})") from None
+            raise DamagedFileError(f"{self.what}: no readable dataset {name!r} ({_short(exc)})") from exc
         return CheckedDataset(obj, self) if isinstance(obj, h5py.Dataset) else obj
 
     def __contains__(self, name: str) -> bool:
@@ -477,10 +477,10 @@ def open_h5(path: str | os.PathLike, what: str | None = None) -> CheckedH5File:
         f = h5py.File(p, "r")
     except OSError as exc:
         if isinstance(exc, PermissionError):
-            raise StorageError(describe_os_error(exc, p)) from None
+            raise StorageError(describe_os_error(exc, p)) from exc
         raise DamagedFileError(
             f"{name}: cannot open as HDF5 ({_short(exc)}); the file is damaged or not an hd file"
-        ) from None
+        ) from exc
     return CheckedH5File(f, name)
 
 
@@ -529,15 +529,15 @@ def read_json(path: str | os.PathLike, what: str = "file") -> Any:
     try:
         text = p.read_bytes().decode("utf-8")
     except OSError as exc:
-        raise StorageError(describe_os_error(exc, p)) from None
-    except UnicodeDecodeError:
-        raise DamagedFileError(f"{p}: unreadable {what} (not UTF-8 text)") from None
+        raise StorageError(describe_os_error(exc, p)) from exc
+    except UnicodeDecodeError as exc:
+        raise DamagedFileError(f"{p}: unreadable {what} (not UTF-8 text)") from exc
     try:
         return json.loads(text)
     except json.JSONDecodeError as exc:
-        raise DamagedFileError(f"{p}: unreadable {what} ({exc})") from None
-    except RecursionError:
-        raise DamagedFileError(f"{p}: unreadable {what} (nested too deeply)") from None
+        raise DamagedFileError(f"{p}: unreadable {what} ({exc})") from exc
+    except RecursionError as exc:
+        raise DamagedFileError(f"{p}: unreadable {what} (nested too deeply)") from exc
 
 
 def require(mapping: Any, key: str, kind: type | tuple[type, ...], where: str) -> Any:
@@ -586,8 +586,8 @@ def confine(root: str | os.PathLike, relative: Any, where: str | None = None) ->
     full = base / relative
     try:
         resolved = full.resolve()
-    except (OSError, RuntimeError):
-        raise FormatError(f"{label}: the path {relative!r} cannot be resolved (a symbolic link loop?)") from None
+    except (OSError, RuntimeError) as exc:
+        raise FormatError(f"{label}: the path {relative!r} cannot be resolved (a symbolic link loop?)") from exc
     if not resolved.is_relative_to(base):
         raise FormatError(f"{label}: the path {relative!r} leads outside the dataset (to {resolved}); refused")
     return full
@@ -611,7 +611,7 @@ def _probe_writable(directory: Path, flag: str, target: Path) -> None:
     try:
         fd, name = tempfile.mkstemp(prefix=".hd-probe-", dir=directory)
     except OSError as exc:
-        raise StorageError(f"{flag} {target}: cannot create files in {directory} ({exc.strerror or exc})") from None
+        raise StorageError(f"{flag} {target}: cannot create files in {directory} ({exc.strerror or exc})") from exc
     os.close(fd)
     with contextlib.suppress(OSError):
         os.unlink(name)
@@ -995,7 +995,7 @@ def make_dirs(path: Path) -> None:
     try:
         Path(path).mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise StorageError(describe_os_error(exc, path)) from None
+        raise StorageError(describe_os_error(exc, path)) from exc
 
 
 # --------------------------------------------------------------------------------------- GDAL writes
@@ -1228,7 +1228,7 @@ class WriterLock:
             except OSError as exc:
                 raise StorageError(
                     f"cannot lock {self.directory} for writing: {describe_os_error(exc, self.path)}"
-                ) from None
+                ) from exc
             st = os.fstat(fd)
             if not stat.S_ISREG(st.st_mode) or st.st_nlink != 1:  # never truncate another file through a link
                 os.close(fd)
@@ -1237,7 +1237,7 @@ class WriterLock:
                 )
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except BlockingIOError:
+            except BlockingIOError as exc:
                 try:
                     holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
                 finally:
@@ -1245,12 +1245,12 @@ class WriterLock:
                 raise LockedError(
                     f"{self.directory} is being written by another hd process (PID {holder}); "
                     "wait for it to finish or stop it, then re-run"
-                ) from None
+                ) from exc
             except OSError as exc:
                 os.close(fd)
                 raise StorageError(
                     f"cannot lock {self.directory} for writing: {describe_os_error(exc, self.path)}"
-                ) from None
+                ) from exc
             try:  # the file may have been removed by the previous holder between open and flock
                 same = os.stat(self.path).st_ino == os.fstat(fd).st_ino
             except FileNotFoundError:

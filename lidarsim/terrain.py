@@ -127,8 +127,8 @@ class DTMInfo:
 def _check_scale(path: str, scale: float) -> float:
     try:
         value = float(scale)
-    except (TypeError, ValueError):
-        raise TerrainError(f"{path}: scale {scale!r} is not a number; use 0 < scale <= 1") from None
+    except (TypeError, ValueError) as exc:
+        raise TerrainError(f"{path}: scale {scale!r} is not a number; use 0 < scale <= 1") from exc
     if not (math.isfinite(value) and 0.0 < value <= 1.0):
         raise TerrainError(f"{path}: scale {scale!r} is out of range; use 0 < scale <= 1 (1 = full resolution)")
     return value
@@ -174,8 +174,8 @@ class DTM:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", NotGeoreferencedWarning)
                 src = rasterio.open(apath)
-        except (RasterioIOError, RasterioError):
-            raise TerrainError(f"{apath}: is not a raster GDAL can read") from None
+        except (RasterioIOError, RasterioError) as exc:
+            raise TerrainError(f"{apath}: is not a raster GDAL can read") from exc
         try:
             info, src_transform = cls._describe(src, apath, value_scale)
         except BaseException:
@@ -205,9 +205,9 @@ class DTM:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", NotGeoreferencedWarning)
                 src = memfile.open()
-        except (RasterioIOError, RasterioError):
+        except (RasterioIOError, RasterioError) as exc:
             memfile.close()
-            raise TerrainError(f"{apath}: is not a raster GDAL can read") from None
+            raise TerrainError(f"{apath}: is not a raster GDAL can read") from exc
         try:
             info, src_transform = cls._describe(src, apath, value_scale)
         except BaseException:
@@ -304,7 +304,7 @@ class DTM:
             try:
                 self._sha256 = sha256_file(self.info.path)
             except StorageError as exc:
-                raise TerrainError(f"{self.info.path}: cannot be read for hashing ({exc})") from None
+                raise TerrainError(f"{self.info.path}: cannot be read for hashing ({exc})") from exc
         return self._sha256
 
     # ------------------------------------------------------------------ reading
@@ -315,7 +315,7 @@ class DTM:
                 return self._src.read(1, window=window)
             return self._src.read(1, window=window, out_shape=out_shape, resampling=Resampling.bilinear)
         except RasterioError as exc:
-            raise TerrainError(f"{self.info.path}: read failed ({exc})") from None
+            raise TerrainError(f"{self.info.path}: read failed ({exc})") from exc
 
     def read(self, row0: int, col0: int, rows: int, cols: int) -> np.ndarray:
         """Heights (float64 metres) of a window of the grid at the chosen scale.
@@ -406,8 +406,8 @@ class DTM:
         path = self.info.path
         try:
             cell = float(cell_m)
-        except (TypeError, ValueError):
-            raise TerrainError(f"{path}: overview cell size {cell_m!r} is not a number") from None
+        except (TypeError, ValueError) as exc:
+            raise TerrainError(f"{path}: overview cell size {cell_m!r} is not a number") from exc
         if not (math.isfinite(cell) and cell > 0.0):
             raise TerrainError(f"{path}: overview cell size {cell_m!r} must be a positive number of metres")
         a, _, c, _, e, f = self._src_transform

@@ -26,6 +26,7 @@ from hdlabels.store import (
     label_shard_paths,
 )
 from lidarsim.build import BuildConfig, build_dataset
+from lidarsim.errors import FormatError
 from lidarsim.sensor import SensorConfig
 from lidarsim.shards import ScanShardReader, read_manifest, sha256_file, verify_dataset
 from lidarsim.trajectory import TrajectoryConfig
@@ -169,7 +170,7 @@ def test_unknown_label_schema_version_is_refused(dataset, tmp_path):
     copy.write_bytes(label_shard_paths(dataset, entry)[0].read_bytes())
     with h5py.File(copy, "r+") as f:
         f.attrs["schema_version"] = "3.0"
-    with pytest.raises(LabelStoreError, match=r"version 3\.0"):
+    with pytest.raises(FormatError, match=r"version 3\.0"):
         LabelShardReader(copy)
     manifest = json.loads((dataset / "manifest.json").read_text())
     assert all(lab["schema_version"] == LABEL_SCHEMA_VERSION for lab in manifest["labelings"])

@@ -9,11 +9,11 @@ import rasterio
 from rasterio.transform import from_origin
 from scipy import ndimage
 
-from hdlabels.errors import HdLabelsError
 from hdlabels.labeling import label_dataset
 from hdlabels.noisy import NoisyDems
 from hdlabels.store import DemSpec, find_labeling
 from lidarsim.build import BuildConfig, build_dataset
+from lidarsim.errors import LidarsimError
 from lidarsim.scan import STATUS_DAMAGED, STATUS_DEAD
 from lidarsim.sensor import SensorConfig
 from lidarsim.trajectory import TrajectoryConfig
@@ -92,5 +92,5 @@ def test_altered_clean_points_are_refused(dataset, tmp_path):
         pose = src["sensor_position"][0], src["sensor_attitude"][0], src["status"][0]
     finite = np.argwhere(np.isfinite(pts).all(axis=-1))[0]
     pts[tuple(finite)] += np.float32(0.3)
-    with pytest.raises(HdLabelsError, match="scan 0"):
+    with pytest.raises(LidarsimError, match="scan 0"):
         maker.clean_scan(pts, pose[2], pose[0], pose[1], 0)

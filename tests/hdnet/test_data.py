@@ -13,6 +13,7 @@ import torch
 from hdnet_datasets import build_labelled, reseal
 from torch.utils.data import DataLoader
 
+from hdlabels.errors import LabelStoreError
 from hdlabels.store import find_labeling, label_shard_paths
 from hdnet.data import (
     HazardDataset,
@@ -170,5 +171,5 @@ def test_sigma_matching_and_errors(dataset, tmp_path):
     with pytest.raises(HdNetError, match="dead pixels"):
         HazardDataset(dataset, "test", 0.0167, dead_pixels=10_000)
     unlabelled = build_labelled(tmp_path / "u", n_scans=4, label=False)
-    with pytest.raises(HdNetError, match="no labels"):
+    with pytest.raises(LabelStoreError, match="no labels"):
         HazardDataset(unlabelled, "train", 0.0167)

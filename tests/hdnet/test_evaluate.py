@@ -14,6 +14,7 @@ import pytest
 import torch
 from hdnet_datasets import SIGMAS_M, build_labelled
 
+from hdlabels.errors import LabelStoreError
 from hdlabels.store import find_labeling, label_shard_paths
 from hdnet.data import HazardDataset
 from hdnet.errors import HdNetError
@@ -21,6 +22,7 @@ from hdnet.evaluate import METHODS, EvalConfig, evaluate, reliability
 from hdnet.fit import FitConfig, fit
 from hdnet.pipeline import evaluate_to_report
 from hdnet.report import ROW_KEYS, report_dict
+from lidarsim.errors import OutputExistsError
 
 
 @pytest.fixture(scope="module")
@@ -165,7 +167,7 @@ def test_bad_input_fails_with_one_clear_sentence(setup, tmp_path):
     with pytest.raises(HdNetError, match="not an hdnet checkpoint"):
         evaluate(tmp_path / "other.pt", dataset)
     unlabelled = build_labelled(tmp_path / "u", n_scans=4, label=False)
-    with pytest.raises(HdNetError, match="no labels"):
+    with pytest.raises(LabelStoreError, match="no labels"):
         evaluate(run, unlabelled)
     assert not (tmp_path / "x").exists()
 
@@ -201,7 +203,7 @@ def test_a_bad_report_directory_fails_before_the_evaluation(setup, tmp_path, mon
     occupied = tmp_path / "occupied"
     occupied.mkdir()
     (occupied / "notes.txt").write_text("mine")
-    with pytest.raises(HdNetError, match="not empty and holds no hd report output"):
+    with pytest.raises(OutputExistsError, match="not empty and holds no hd report output"):
         evaluate_to_report(run, dataset, occupied, EvalConfig(mc_samples=2))
     assert [p.name for p in occupied.iterdir()] == ["notes.txt"]
 

@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 from hdnet_datasets import build_labelled
 
+from hdlabels.errors import LabelStoreError
 from hdnet.data import compute_normalisation, lander_of
 from hdnet.errors import HdNetError
 from hdnet.fit import RUN_DATA_KEYS, FitConfig, fit
@@ -44,7 +45,7 @@ def test_fit_refuses_bad_datasets(dataset, tmp_path):
     with pytest.raises(HdNetError, match="unknown training profile"):
         fit(dataset, tmp_path / "b", FitConfig(profile="huge", epochs=1, progress=False))
     unlabelled = build_labelled(tmp_path / "u", n_scans=4, label=False)
-    with pytest.raises(HdNetError, match="no labels"):
+    with pytest.raises(LabelStoreError, match="no labels"):
         fit(unlabelled, tmp_path / "c", FitConfig(profile="tiny", epochs=1, progress=False))
     two_scans = build_labelled(tmp_path / "t", n_scans=2)  # too few split blocks: every scan is training
     with pytest.raises(HdNetError, match="the val split is empty"):
