@@ -95,7 +95,7 @@ DEAD_PIXEL_STREAM = 0xDEAD  # hd choice: stream key of the dead-pixel draws, (se
 
 # --- labelling and noise levels ----------------------------------------------------------------
 def open_labeling(dataset_dir: str | os.PathLike, labels: str | None = None) -> tuple[dict[str, Any], list[Path]]:
-    """The labelling entry of a dataset and its label shard paths (HdNetError when there are no labels)."""
+    """The labelling entry of a dataset and its label shard paths (``LabelStoreError`` when there are no labels)."""
     entry = find_labeling(dataset_dir, labels)
     return entry, label_shard_paths(dataset_dir, entry)
 
@@ -138,7 +138,8 @@ def dem_spacing_m(entry: dict[str, Any]) -> float:
 
 
 def _open_verified(dataset_dir: str | os.PathLike, shard: dict[str, Any]) -> LabelShardReader:
-    """A label shard of the manifest, checked (sha256, schema) before it is read; errors as HdNetError."""
+    """A label shard of the manifest, checked (sha256, schema) before it is read (``lidarsim.storage``'s
+    ``FormatError`` and ``DamagedFileError`` as they are)."""
     return open_label_shard(dataset_dir, shard)
 
 
