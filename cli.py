@@ -20,6 +20,7 @@ from hdnet import defaults as net_defaults
 from hdnet import limits as net_limits
 from hdnet import terminal
 from hdnet.inspection import Verdict, inspect_directory, verify_directory
+from hdnet.outcome import Done
 from hdnet.shared_options import (
     batch_size_option,
     dtm_option,
@@ -41,7 +42,7 @@ from lidarsim import limits
 from lidarsim._version import __version__
 from lidarsim.errors import LidarsimError
 from lidarsim.make_dtm import DtmSettings
-from lidarsim.setting import DIRECTORY, NonEmptyPath, click_options
+from lidarsim.setting import DIRECTORY, NonEmptyPath, SettingsCommand, click_options
 from lidarsim.setting import DIRECTORY as _DIRECTORY
 from lidarsim.setting import FILE_OR_DIRECTORY as _FILE_OR_DIRECTORY
 from lidarsim.setting import bounded as _bounded
@@ -391,110 +392,22 @@ def label_cmd(
     record({"command": "label", **dataclasses.asdict(summary)})
 
 
-@main.command("train")
-@click.argument("dataset", type=_DIRECTORY)
-@_options(
-    out_option("run_dir", "Run directory (checkpoints, metrics.csv, config.json)."),
-    click.option(
-        "--profile",
-        type=click.Choice(["paper", "cpu", "robust", "tiny"]),
-        default="cpu",
-        show_default=True,
-        help="Training profile: paper (GPU, 512x512, full width), cpu (2-core machine, at one noise level), "
-        "robust (2-core machine, across 0 to 10 cm of noise, the noise level as an input), tiny (tests, demos); "
-        "docs/hdnet.md lists their settings.",
-    ),
-    epochs_option("Epochs (default: the profile's)."),
-    click.option(
-        "--train-sigma",
-        type=_bounded(net_limits.NOISE_SIGMA_M),
-        multiple=True,
-        help="Noise level of the training inputs, metres; repeat it to train on several (one drawn per sample "
-        "and epoch; levels the dataset does not store are made from its clean points). Default: the profile's "
-        "range, else the dataset's noise level when it has only one, else 1.67 cm, the paper's.",
-    ),
-    click.option(
-        "--train-sigma-range",
-        default=None,
-        metavar="LOW:HIGH",
-        help="Train across noise levels from LOW to HIGH metres (e.g. 0:0.10), drawn uniformly per sample "
-        "and epoch, the noisy DEMs made from the dataset's clean points.",
-    ),
-    seed_option("initialisation, shuffling and noise draws"),
-    click.option("--resume", is_flag=True, help="Continue an interrupted run from its last checkpoint."),
-    labels_option("Labelling to train on (when the dataset has several)."),
-    click.option(
-        "--num-workers",
-        type=_bounded(limits.LOADER_WORKERS),
-        default=0,
-        show_default=True,
-        help="DataLoader worker processes.",
-    ),
-    overwrite_option("Start an existing run again, or write into a non-empty directory that is not a run."),
-    click.option(
-        "--also",
-        "also",
-        type=_DIRECTORY,
-        multiple=True,
-        help="Another labelled dataset to train on as well (a mix of terrains): its train split joins the "
-        "training data, its validation split the validation. Repeatable; each needs DATASET's labelling.",
-    ),
-)
-@friendly_errors
-def train_cmd(
-    dataset: Path,
-    run_dir: Path,
-    profile: str,
-    epochs: int | None,
-    train_sigma: tuple[float, ...],
-    train_sigma_range: str | None,
-    seed: int,
-    resume: bool,
-    labeling: str | None,
-    num_workers: int = 0,
-    overwrite: bool = False,
-    also: tuple[Path, ...] = (),
-) -> None:
-    """Train the Bayesian SegNet on the noisy DEMs of a labelled dataset."""
-    from hdnet.errors import HdNetError
-    from hdnet.fit import FitConfig, already_trained, fit
-    from hdnet.noise_levels import TrainingNoise, parse_sigma_range
-    from hdnet.pipeline import training_done_message
-    from hdnet.run_summary import run_record
+def _done(done: Done) -> None:
+    """Print a job's summary (``say``) and its JSON record (``hd --json``)."""
+    for line in done.lines:
+        say(line)
+    record(done.record)
 
-    if resume and overwrite:
-        raise HdNetError("--resume and --overwrite exclude each other")
-    if train_sigma and train_sigma_range is not None:
-        raise HdNetError("--train-sigma and --train-sigma-range exclude each other")
-    noise = None
-    if train_sigma_range is not None:
-        noise = TrainingNoise(range_m=parse_sigma_range(train_sigma_range))
-    elif len(train_sigma) > 1:
-        noise = TrainingNoise(levels_m=tuple(train_sigma))
-    config = FitConfig(
-        profile=profile,
-        epochs=epochs,
-        train_sigma_m=train_sigma[0] if len(train_sigma) == 1 else None,
-        train_noise=noise,
-        seed=seed,
-        resume=resume,
-        labels=labeling,
-        progress=(epoch_lines if OUTPUT.lines else True) if OUTPUT.progress else False,
-        num_workers=num_workers,
-        overwrite=overwrite,
-        also=tuple(str(d) for d in also),
-    )
-    if already_trained(dataset, run_dir, config):
-        n = config.epochs if config.epochs is not None else config.training_profile().epochs
-        say(
-            f"{run_dir} already holds this training, finished after {n} epochs with the same data, profile, seed "
-            "and noise: nothing to do (--overwrite trains it again)"
-        )
-        record({"command": "train", "already_done": True, **run_record(run_dir)})
-        return
-    checkpoint = fit(dataset, run_dir, config)
-    say(training_done_message(checkpoint, run_dir))
-    record({"command": "train", "already_done": False, **run_record(run_dir)})
+
+@main.command("train", cls=SettingsCommand, settings=("hdnet.fit:FitConfig", "hdnet.train_job:TrainingNoiseOptions"))
+@click.argument("dataset", type=DIRECTORY)
+@out_option("run_dir", "Run directory (checkpoints, metrics.csv, config.json).")
+@friendly_errors
+def train_cmd(dataset: Path, run_dir: Path, **options: Any) -> None:
+    """Train the Bayesian SegNet on the noisy DEMs of a labelled dataset."""
+    from hdnet.train_job import train_job
+
+    _done(train_job(dataset, run_dir, options, (epoch_lines if OUTPUT.lines else True) if OUTPUT.progress else False))
 
 
 @main.command("eval")

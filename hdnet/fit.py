@@ -25,7 +25,7 @@ from typing import Any
 
 from torch.utils.data import ConcatDataset, Dataset
 
-from hdnet import defaults
+from hdnet import defaults, limits
 from hdnet.augment import check_augment
 from hdnet.data import (
     HazardDataset,
@@ -39,9 +39,11 @@ from hdnet.data import (
 from hdnet.errors import HdNetError
 from hdnet.inputs import InputSpec, Normalisation
 from hdnet.noise_levels import TrainingNoise
-from hdnet.profiles import TrainingProfile, get_profile
+from hdnet.profiles import PROFILES, TrainingProfile, get_profile
 from hdnet.train import BEST, CONFIG, LAST, METRICS, load_checkpoint, train
+from lidarsim import limits as lidar_limits
 from lidarsim.errors import HdWarning
+from lidarsim.setting import DIRECTORY, check, setting
 from lidarsim.shards import MANIFEST_NAME, sha256_file
 from lidarsim.storage import (
     LOCK_NAME,
@@ -195,29 +197,46 @@ class FitConfig:
     checkpoints, metrics.csv and config.json are replaced); ``stop_after``: end this call after
     that many epochs of the ``epochs``-long schedule (resume later).
 
+    Each setting's help, unit, default and range is its field's metadata (``lidarsim.setting``),
+    from which ``hd train``'s options and the checks here are made.
+
     Raises:
-        HdNetError: a negative seed or number of workers (checked here, before any file is looked at).
+        HdNetError: a wrong kind or an out-of-range value, e.g. a negative seed or number of workers
+            (checked here, before any file is looked at).
     """
 
-    profile: str | TrainingProfile = "cpu"
-    epochs: int | None = None
-    train_sigma_m: float | None = None
+    profile: str | TrainingProfile = setting(
+        "cpu",
+        "Training profile: paper (GPU, 512x512, full width), cpu (2-core machine, at one noise level), robust "
+        "(2-core machine, across 0 to 10 cm of noise, the noise level as an input), tiny (tests, demos); "
+        "docs/hdnet.md lists their settings",
+        choices=PROFILES,
+        checked=False,  # a name (one of the choices) or a TrainingProfile itself
+    )
+    epochs: int | None = setting(None, "Epochs (default: the profile's)", bound=limits.EPOCHS)
+    train_sigma_m: float | None = setting(
+        None, "Noise level of the training inputs", unit="metres", bound=limits.NOISE_SIGMA_M, cli=False
+    )
     train_noise: TrainingNoise | None = None
-    seed: int = 0
-    resume: bool = False
-    labels: str | None = None
+    seed: int = setting(0, "Seed of initialisation, shuffling and noise draws", bound=lidar_limits.SEED)
+    resume: bool = setting(False, "Continue an interrupted run from its last checkpoint")
+    labels: str | None = setting(None, "Labelling to train on (when the dataset has several)", kind=str)
     progress: bool | Callable[[dict[str, Any], int], None] = True
-    num_workers: int = 0
-    overwrite: bool = False
+    num_workers: int = setting(0, "DataLoader worker processes", bound=lidar_limits.LOADER_WORKERS)
+    overwrite: bool = setting(
+        False, "Start an existing run again, or write into a non-empty directory that is not a run"
+    )
     stop_after: int | None = None
-    also: tuple[str, ...] = ()
+    also: tuple[str, ...] = setting(
+        (),
+        "Another labelled dataset to train on as well (a mix of terrains): its train split joins the training "
+        "data, its validation split the validation. Repeatable; each needs DATASET's labelling",
+        kind=Path,
+        click_type=DIRECTORY,
+    )
 
     def __post_init__(self) -> None:
-        workers = self.num_workers
-        if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
-            raise HdNetError(f"--num-workers must be an integer >= 0, got {workers!r}.")
-        if self.seed < 0:
-            raise HdNetError(f"--seed must be >= 0, got {self.seed}.")
+        check(self, HdNetError)
 
     def training_profile(self) -> TrainingProfile:
         """The profile itself (a name is looked up in ``hdnet.profiles``)."""

@@ -252,6 +252,12 @@ class ScanProgress:
         if self.bar is not None:
             self.bar.close()
 
+    def __enter__(self) -> ScanProgress:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
 
 class HdGroup(click.Group):
     """The ``hd`` group: a usage error is one line (``Error: ... (see 'hd CMD --help')``, exit 2)

@@ -67,7 +67,10 @@ class Described:
         return self.flag or "--" + field_name.replace("_", "-")
 
     def help_text(self) -> str:
-        """The ``--help`` text: the sentence with its unit (the range is added by click)."""
+        """The ``--help`` text: the sentence with its unit, at ``{unit}`` in the help or after it (the
+        range is added by click)."""
+        if "{unit}" in self.help:
+            return self.help.replace("{unit}", self.unit)
         text = self.help.rstrip(".")
         return f"{text}, {self.unit}." if self.unit else f"{text}."
 
@@ -162,8 +165,8 @@ def check(settings: Any, error: type[HdError], name: Callable[[str, Described], 
             continue
         label = name(f.name, d) if name is not None else d.option_name(f.name)
         if d.multiple:
-            if not isinstance(value, tuple):
-                raise error(f"{label} must be a tuple of values, got {value!r}")
+            if not isinstance(value, tuple | list):
+                raise error(f"{label} must be a sequence of values, got {value!r}")
             values: tuple[Any, ...] = value
         else:
             values = (value,)
@@ -290,7 +293,7 @@ def click_options(cls: Any, *, skip: Iterable[str] = (), help: Mapping[str, str]
 
 
 class SettingsCommand(click.Command):
-    """A command whose options of one settings dataclass (``settings="package.module:Class"``) are
+    """A command whose options of settings dataclasses (``settings=("package.module:Class", ...)``) are
     made when first needed (``--help``, parsing), so that a module that is slow to import (one that
     imports PyTorch) is imported only by the command that needs it. They follow the arguments and
     come before the command's other options; ``skip`` and ``help_texts`` as for :func:`click_options`."""
@@ -298,7 +301,7 @@ class SettingsCommand(click.Command):
     def __init__(
         self,
         *args: Any,
-        settings: str,
+        settings: tuple[str, ...],
         skip: Iterable[str] = (),
         help_texts: Mapping[str, str] | None = None,
         **kwargs: Any,
@@ -314,12 +317,12 @@ class SettingsCommand(click.Command):
         if self._params is None:
             import importlib
 
-            module, _, name = self._settings.partition(":")
-            cls = getattr(importlib.import_module(module), name)
             made: list[click.Parameter] = []
-            for f, d in _chosen(cls, self._skip):
-                decls, kwargs = _option(f.name, d, f.default, self._help_texts.get(f.name))
-                made.append(click.Option(decls, **kwargs))
+            for spec in self._settings:
+                module, _, name = spec.partition(":")
+                for f, d in _chosen(getattr(importlib.import_module(module), name), self._skip):
+                    decls, kwargs = _option(f.name, d, f.default, self._help_texts.get(f.name))
+                    made.append(click.Option(decls, **kwargs))
             given = self._given
             self._params = [p for p in given if isinstance(p, click.Argument)] + made
             self._params += [p for p in given if not isinstance(p, click.Argument)]

@@ -1,0 +1,15 @@
+"""What a command's job returns: its summary (lines for the terminal) and its JSON record (``hd --json``)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+
+@dataclass(frozen=True)
+class Done:
+    """A finished job: ``lines`` for standard output (dropped by ``hd -q`` and ``hd --json``) and
+    ``record``, the one JSON object ``hd --json`` prints instead."""
+
+    lines: list[str] = field(default_factory=list)
+    record: dict[str, Any] = field(default_factory=dict)
