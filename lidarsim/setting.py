@@ -167,7 +167,7 @@ def check(settings: Any, error: type[HdError], name: Callable[[str, Described], 
         if d.multiple:
             if not isinstance(value, tuple | list):
                 raise error(f"{label} must be a sequence of values, got {value!r}")
-            values: tuple[Any, ...] = value
+            values: tuple[Any, ...] = tuple(value)
         else:
             values = (value,)
         for v in values:
