@@ -31,9 +31,19 @@ from lidarsim import defaults, limits
 from lidarsim._version import __version__
 from lidarsim.base_relief import rocks_on_base, rocky_geotiff_bytes
 from lidarsim.errors import HdWarning, LidarsimError, OutputExistsError
+from lidarsim.footprint import FootprintConfig
+from lidarsim.noise import NoiseModel
 from lidarsim.parallel import probe_scheduler, run_tasks
 from lidarsim.procedural import MarsTerrainParams, generate_mars_terrain, geotiff_bytes, terrain_tags
-from lidarsim.scan import STATUS_DAMAGED, STATUS_DEAD, STATUS_RETURN, TileScene, scan_geometry, simulate_scans
+from lidarsim.scan import (
+    STATUS_DAMAGED,
+    STATUS_DEAD,
+    STATUS_RETURN,
+    STATUS_WEAK,
+    TileScene,
+    scan_geometry,
+    simulate_scans,
+)
 from lidarsim.sensor import SensorConfig
 from lidarsim.shards import (
     BUILD_STATE_NAME,
@@ -41,12 +51,13 @@ from lidarsim.shards import (
     MANIFEST_SCHEMA,
     MANIFEST_SCHEMA_VERSION,
     SCAN_SCHEMA,
-    SCAN_SCHEMA_VERSION,
+    SCAN_SCHEMA_VERSION_PLAIN,
     SPLIT_NAMES,
     ScanShardReader,
     ScanShardWriter,
     ShardFormatError,
     remove_partials,
+    scan_schema_version,
     sha256_file,
     write_json_atomic,
 )
@@ -94,6 +105,10 @@ class BuildConfig:
             the terrain made is written to ``terrain/``.
         shard_size: scans per shard file.
         compression: HDF5 compression of the point arrays: gzip, lzf or none.
+        footprint: the pixel footprint (sub-rays, spot profile, range estimator); the default is
+            one ray through each pixel centre.
+        noise_model: how the range noise depends on the returned signal; the default is the
+            paper's constant sigma.
     """
 
     sigmas_m: tuple[float, ...] = (defaults.DEFAULT_SIGMA_M,)
@@ -106,6 +121,8 @@ class BuildConfig:
     shard_size: int = defaults.SHARD_SIZE
     compression: str = defaults.COMPRESSION
     rocks_on_dtm: bool = False
+    footprint: FootprintConfig = field(default_factory=FootprintConfig)
+    noise_model: NoiseModel = field(default_factory=NoiseModel)
 
     def __post_init__(self) -> None:
         if not self.sigmas_m:
@@ -143,7 +160,23 @@ class BuildConfig:
             d["terrain"] = None
         if not self.rocks_on_dtm:
             del d["rocks_on_dtm"]  # absent, as before the option existed: published fingerprints hold
+        # Likewise the sensor-realism settings: absent at the paper's sensor.
+        if self.footprint.is_default:
+            del d["footprint"]
+        if self.noise_model.is_default:
+            del d["noise_model"]
+        d["trajectory"] = {k: v for k, v in d["trajectory"].items() if v is not None}
         return d
+
+    @property
+    def realism_attrs(self) -> dict[str, Any]:
+        """The scan shards' attributes of the sensor-realism settings (none at the paper's sensor)."""
+        attrs: dict[str, Any] = {}
+        if not self.footprint.is_default:
+            attrs.update(self.footprint.to_attrs())
+        if not self.noise_model.is_default:
+            attrs.update(self.noise_model.to_attrs())
+        return attrs
 
     def fingerprint(self) -> str:
         """SHA-256 of the canonical JSON of the configuration (the DTM by its path and content)."""
@@ -183,9 +216,12 @@ class ShardRecord:
     first_scan: int
     split: str
     split_counts: dict[str, int]
+    schema_version: str = SCAN_SCHEMA_VERSION_PLAIN
 
     def to_dict(self) -> dict[str, Any]:
-        return {**asdict(self), "schema": SCAN_SCHEMA, "schema_version": SCAN_SCHEMA_VERSION}
+        d = asdict(self)
+        version = d.pop("schema_version")
+        return {**d, "schema": SCAN_SCHEMA, "schema_version": version}
 
 
 @dataclass(frozen=True)
@@ -284,7 +320,17 @@ def run_shard(task: ShardTask) -> ShardRecord:
                 for m, scan_index, result in zip(
                     batch,
                     indices,
-                    simulate_scans(scene, geoms, indices, cfg.sensor, cfg.sigmas_m, cfg.seed, n_threads=task.n_threads),
+                    simulate_scans(
+                        scene,
+                        geoms,
+                        indices,
+                        cfg.sensor,
+                        cfg.sigmas_m,
+                        cfg.seed,
+                        n_threads=task.n_threads,
+                        footprint=cfg.footprint,
+                        noise_model=cfg.noise_model,
+                    ),
                     strict=True,
                 ):
                     check_returns(result.status, scan_index, task.dtm_path)
@@ -309,13 +355,21 @@ def run_shard(task: ShardTask) -> ShardRecord:
 
 def check_returns(status: np.ndarray, scan_index: int, dtm_name: str) -> None:
     """Fail on a (nearly) empty scan: fewer than ``limits.MIN_RETURN_FRACTION`` of its working
-    elements hit the terrain, although the planner put its footprint on valid terrain.
+    elements hit the terrain, although the planner put its footprint on valid terrain, or came back
+    above the noise model's detection threshold.
 
     Raises:
         LidarsimError: naming the scan and the DTM.
     """
     working = int((status != STATUS_DEAD).sum())
     hits = int(((status == STATUS_RETURN) | (status == STATUS_DAMAGED)).sum())
+    weak = int((status == STATUS_WEAK).sum())
+    if working and hits < limits.MIN_RETURN_FRACTION * working and hits + weak >= limits.MIN_RETURN_FRACTION * working:
+        raise LidarsimError(
+            f"scan {scan_index}: only {100.0 * hits / working:.1f}% of the rays came back above the noise model's "
+            f"detection threshold ({100.0 * weak / working:.1f}% too weak); lower --snr-min or the altitude, or "
+            "raise --snr-ref"
+        )
     if working and hits < limits.MIN_RETURN_FRACTION * working:
         raise LidarsimError(
             f"scan {scan_index}: only {100.0 * hits / working:.1f}% of the rays hit the terrain of "
@@ -335,6 +389,7 @@ def _record(task: ShardTask, digest: str) -> ShardRecord:
         first_scan=task.first_scan,
         split=present[0] if len(present) == 1 else "mixed",
         split_counts=counts,
+        schema_version=scan_schema_version(task.file_attrs),
     )
 
 
@@ -716,7 +771,7 @@ def _build_locked(
     manifest = _write_manifest(out_dir, config, terrain, splits, records)
     (out_dir / BUILD_STATE_NAME).unlink(missing_ok=True)
     new_scans = sum(t.nadir_xy.shape[0] for t in pending)
-    rays = new_scans * config.sensor.rows * config.sensor.cols
+    rays = new_scans * config.sensor.rows * config.sensor.cols * config.footprint.samples**2
     size = sum((out_dir / r.path).stat().st_size for r in records.values())
     return BuildSummary(
         out_dir=out_dir,
@@ -742,6 +797,7 @@ def _file_attrs(config: BuildConfig, terrain: _BuildTerrain) -> dict[str, Any]:
         ),
         **config.sensor.to_attrs(),
         **config.trajectory.to_attrs(),
+        **config.realism_attrs,
         **terrain.attrs,
         "dtm_path": terrain.path.name,
     }

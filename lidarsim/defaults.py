@@ -52,3 +52,29 @@ DAMAGED_ELEMENTS: int = 0
 # HDF5 compression of the point arrays (docs/shard-format.md): deflate level 1 + shuffle by default.
 COMPRESSIONS: tuple[str, ...] = ("gzip", "lzf", "none")
 COMPRESSION: str = "gzip"
+
+# --- Sensor realism (hd choices; docs/lidarsim.md, "Pixel footprint" and "Signal-dependent noise") ---
+# Sub-rays per pixel side: 1 casts one ray through each pixel centre (the paper's sensor).
+FOOTPRINT_SAMPLES: int = 1
+# Spot profile over a pixel's field of view: "gaussian" (1/e^2 radius = half the pixel's side) or
+# "uniform" (every sub-ray the same weight).
+SPOT_PROFILES: tuple[str, ...] = ("gaussian", "uniform")
+SPOT_PROFILE: str = "gaussian"
+# How a pixel's range is formed from its returned pulse: the energy-weighted centroid, or the first
+# crossing of a constant fraction of the waveform's peak (a constant-fraction discriminator).
+RANGE_ESTIMATORS: tuple[str, ...] = ("centroid", "first")
+RANGE_ESTIMATOR: str = "centroid"
+# Full width at half maximum of the returned pulse, in range (c * tau / 2), metres: a 5 ns pulse.
+PULSE_WIDTH_M: float = 0.75
+# Fraction of the waveform's peak at which the "first" estimator fires.
+RETURN_FRACTION: float = 0.5
+# Range-noise models: "constant" (one sigma everywhere, the paper's) or "snr" (sigma grows as the
+# returned signal falls: sigma = sigma_ref / sqrt(P), P = cos(incidence) (R_ref / R)^2).
+NOISE_MODELS: tuple[str, ...] = ("constant", "snr")
+NOISE_MODEL: str = "constant"
+# The "snr" model's reference: the --sigma levels are the 1-sigma at this range and normal
+# incidence (the paper's altitude), where the signal-to-noise ratio is SNR_REF.
+SNR_REF_RANGE_M: float = ALTITUDE_M
+SNR_REF: float = 100.0
+# A pixel whose signal-to-noise ratio is below this comes back with no return (status "weak").
+SNR_MIN: float = 5.0

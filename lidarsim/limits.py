@@ -99,3 +99,13 @@ ROCK_K = Bound(0.0, terrain_defaults.ROCK_K_MAX)
 # Largest crater added below a base DTM's resolution (hd make-dtm --base), metres: at least the
 # smallest crater the model samples.
 CRATER_DIAMETER_M = Bound(terrain_defaults.CRATER_D_MIN_M)
+# Sub-rays per pixel side of the footprint model (K x K sub-rays per pixel; 16: 256 rays per pixel).
+FOOTPRINT_SAMPLES = _int_bound(1, 16)
+# Full width at half maximum of the returned pulse in range, metres.
+PULSE_WIDTH_M = Bound(0.0, 30.0, low_open=True)
+# Fraction of the waveform's peak at which the first-return estimator fires.
+RETURN_FRACTION = Bound(0.0, 1.0, low_open=True, high_open=True)
+# Signal-to-noise ratio of a full-pixel return at the reference range and normal incidence.
+SNR_REF = Bound(0.0, low_open=True)
+# Detection threshold on the signal-to-noise ratio (0: every return is kept).
+SNR_MIN = Bound(0.0)

@@ -15,14 +15,77 @@ seed, the stored noisy points bit for bit.
 
 from __future__ import annotations
 
+import math
+from dataclasses import asdict, dataclass
+
 import numpy as np
 
+from lidarsim import defaults, limits
 from lidarsim.errors import LidarsimError
 from lidarsim.sensor import SensorConfig, ray_directions
 from lidarsim.streams import Purpose, sigma_key, stream
 
 # How many float32 steps (ulps) around the first estimate recover_ranges searches for the exact range.
 _RECOVERY_ULPS = 3
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """How the range noise's 1-sigma depends on the returned signal (docs/lidarsim.md, "Signal-dependent noise").
+
+    ``constant`` (the paper's): every return has the dataset's sigma. ``snr``: the sigma of a noise
+    level is its value for a whole pixel's return at ``reference_range_m`` and normal incidence,
+    where the signal-to-noise ratio is ``snr_ref``. A return of relative signal ``P`` (the summed
+    sub-return energies of ``lidarsim.footprint``: ``P = cos(theta) (R_ref / r)^2`` for one ray per
+    pixel) has ``SNR = snr_ref * P`` and ``sigma = sigma_ref * sqrt(snr_ref / SNR) = sigma_ref /
+    sqrt(P)`` (range precision proportional to 1/sqrt(SNR), docs/references.md); a return with
+    ``SNR < snr_min`` is not detected (status ``weak``, no range).
+
+    Attributes:
+        kind: "constant" or "snr".
+        snr_ref: signal-to-noise ratio of a whole pixel's return at the reference range, normal incidence.
+        snr_min: detection threshold on the signal-to-noise ratio (0: every return is detected).
+        reference_range_m: the reference range, metres.
+    """
+
+    kind: str = defaults.NOISE_MODEL
+    snr_ref: float = defaults.SNR_REF
+    snr_min: float = defaults.SNR_MIN
+    reference_range_m: float = defaults.SNR_REF_RANGE_M
+
+    def __post_init__(self) -> None:
+        if self.kind not in defaults.NOISE_MODELS:
+            raise LidarsimError(f"unknown noise model {self.kind!r}; use {', '.join(defaults.NOISE_MODELS)}")
+        if not limits.SNR_REF.contains(self.snr_ref):
+            raise LidarsimError(f"--snr-ref must be in {limits.SNR_REF.interval()}, got {self.snr_ref}")
+        if not limits.SNR_MIN.contains(self.snr_min):
+            raise LidarsimError(f"--snr-min must be in {limits.SNR_MIN.interval()}, got {self.snr_min}")
+        if not (self.reference_range_m > 0.0 and math.isfinite(self.reference_range_m)):
+            raise LidarsimError(f"the noise model's reference range must be > 0 metres, got {self.reference_range_m}")
+
+    @property
+    def is_default(self) -> bool:
+        """True for the paper's constant sigma (whatever the unused SNR settings)."""
+        return self.kind == "constant"
+
+    def to_attrs(self) -> dict[str, float | str]:
+        """Flat attribute dictionary (HDF5/JSON friendly): ``noise_model`` and ``noise_*``."""
+        return {"noise_model": self.kind, **{f"noise_{k}": v for k, v in asdict(self).items() if k != "kind"}}
+
+    def sigma_scale(self, signal: np.ndarray) -> np.ndarray | None:
+        """Factor on the noise level's sigma for returns of relative signal ``signal`` (None: 1 everywhere;
+        1 where there is no signal, which has no range to add noise to)."""
+        if self.kind == "constant":
+            return None
+        signal = np.asarray(signal, dtype=np.float64)
+        return 1.0 / np.sqrt(np.where(signal > 0.0, signal, 1.0))
+
+    def detected(self, signal: np.ndarray) -> np.ndarray:
+        """True where a return of relative signal ``signal`` is detected (SNR >= snr_min)."""
+        signal = np.asarray(signal, dtype=np.float64)
+        if self.kind == "constant":
+            return np.ones(signal.shape, dtype=bool)
+        return self.snr_ref * signal >= self.snr_min
 
 
 def scan_directions(sensor: SensorConfig, attitude: np.ndarray) -> np.ndarray:
@@ -38,6 +101,7 @@ def noisy_ranges(
     damaged: np.ndarray | None = None,
     damaged_error_m: float = 0.0,
     realisation: int | None = None,
+    sigma_scale: np.ndarray | None = None,
 ) -> np.ndarray:
     """Noisy ranges (float64, metres) of one scan at noise level ``sigma_m`` (metres).
 
@@ -51,10 +115,13 @@ def noisy_ranges(
         realisation: None for the dataset's own draw at this sigma (what ``hd build-dataset`` stores);
             k >= 0 for the k-th independent other draw (stream keys extended by k), e.g. one per
             training epoch.
+        sigma_scale: (rows, cols) factor on ``sigma_m`` per element (:meth:`NoiseModel.sigma_scale`);
+            None: the constant sigma.
     """
     keys = (scan_index, sigma_key(sigma_m)) if realisation is None else (scan_index, sigma_key(sigma_m), realisation)
     r = np.asarray(ranges_m, dtype=np.float64)
-    r_noisy = r + sigma_m * stream(seed, Purpose.RANGE_NOISE, *keys).standard_normal(r.shape)
+    draw = sigma_m * stream(seed, Purpose.RANGE_NOISE, *keys).standard_normal(r.shape)
+    r_noisy = r + (draw if sigma_scale is None else draw * sigma_scale)
     if damaged is not None and damaged.any():
         extra = stream(seed, Purpose.DAMAGED_ERROR, *keys).standard_normal(int(damaged.sum()))
         r_noisy[damaged] += damaged_error_m * extra
@@ -76,10 +143,11 @@ def noisy_points(
     damaged: np.ndarray | None = None,
     damaged_error_m: float = 0.0,
     realisation: int | None = None,
+    sigma_scale: np.ndarray | None = None,
 ) -> np.ndarray:
     """Noisy points (float32 (rows, cols, 3), scan frame, metres) of one scan at ``sigma_m`` metres
     (arguments as :func:`noisy_ranges`)."""
-    r_noisy = noisy_ranges(ranges_m, sigma_m, seed, scan_index, damaged, damaged_error_m, realisation)
+    r_noisy = noisy_ranges(ranges_m, sigma_m, seed, scan_index, damaged, damaged_error_m, realisation, sigma_scale)
     return points_at_ranges(sensor_position, r_noisy, directions)
 
 

@@ -13,7 +13,7 @@ Recipe layout (every key optional; defaults are the paper's)::
     scans = 1000
     sigmas_m = [0.0167, 0.03, 0.07]
     seed = 0
-    altitude_m = 500.0
+    altitude_m = 500.0  # or a range drawn per scan: "250:1000" (likewise tilt_deg, jitter_deg)
     dtm = ""            # "" = the built-in procedural Mars terrain; or a path (relative to the recipe)
     dtm_sha256 = ""     # optional: the DTM file's sha256; another file is refused
     rocks_on_dtm = false  # true: the DTM resampled to 0.5 m with the procedural rocks (lidarsim.base_relief)
@@ -26,6 +26,14 @@ Recipe layout (every key optional; defaults are the paper's)::
     dead_elements = 0
     damaged_elements = 0
     compression = "gzip"
+    footprint_samples = 1        # K x K sub-rays per pixel (lidarsim.footprint)
+    spot_profile = "gaussian"
+    range_estimator = "centroid"  # or "first"
+    pulse_width_m = 0.75
+    return_fraction = 0.5
+    noise_model = "constant"     # or "snr" (lidarsim.noise.NoiseModel)
+    snr_ref = 100.0
+    snr_min = 5.0
     [label]
     lander = "square"
     lander_diameter_m = 10.0
@@ -49,7 +57,10 @@ from typing import Any
 from lidarsim import defaults
 from lidarsim.build import BuildConfig
 from lidarsim.errors import LidarsimError, RecipeError
+from lidarsim.footprint import FootprintConfig
+from lidarsim.noise import NoiseModel
 from lidarsim.sensor import SensorConfig
+from lidarsim.span import parse_span
 from lidarsim.trajectory import TrajectoryConfig
 
 RECIPE_FILE = "recipe.toml"
@@ -78,38 +89,57 @@ class BuildSettings:
     :class:`~lidarsim.build.BuildConfig`). Defaults are ``lidarsim.defaults``'.
 
     Attributes:
-        sigmas_m: noise levels (1-sigma along each ray), metres.
+        sigmas_m: noise levels (1-sigma along each ray), metres; with the ``snr`` noise model, at the
+            reference range and normal incidence.
         scans: number of scans.
         seed: master seed of every random stream.
-        altitude_m: sensor altitude above the terrain, metres.
+        altitude_m: sensor altitude above the terrain, metres; or ``(low, high)`` (``"low:high"``),
+            drawn uniformly per scan.
         dtm_path: DTM file; None builds on the procedural Mars terrain.
         dtm_scale: resampling factor of the DTM (1 = full resolution).
         shard_size: scans per shard file.
-        tilt_deg: off-nadir tilt of the boresight, degrees.
-        jitter_deg: 1-sigma attitude jitter per axis, degrees.
+        tilt_deg: off-nadir tilt of the boresight, degrees (or a range, as ``altitude_m``).
+        jitter_deg: 1-sigma attitude jitter per axis, degrees (or a range, as ``altitude_m``).
         resolution: detector pixels per side.
         fov_deg: field of view per side, degrees.
         dead_elements: detector elements that never return.
         damaged_elements: detector elements with a large range error.
         compression: HDF5 compression of the point arrays: gzip, lzf or none.
         rocks_on_dtm: scan the DTM resampled to 0.5 m with the procedural rock population added.
+        footprint_samples: sub-rays per pixel side (K x K per pixel; 1 = through the pixel centre).
+        spot_profile: weights of the sub-rays over the pixel: gaussian or uniform.
+        range_estimator: the pixel's range from its pulse: centroid or first (constant fraction).
+        pulse_width_m: full width at half maximum of the returned pulse in range, metres.
+        return_fraction: fraction of the pulse's peak at which the first-return estimator fires.
+        noise_model: constant (one sigma) or snr (sigma grows with range and incidence; weak
+            returns dropped).
+        snr_ref: signal-to-noise ratio of a whole pixel's return at 500 m, normal incidence (snr model).
+        snr_min: detection threshold on the signal-to-noise ratio (snr model).
     """
 
     sigmas_m: tuple[float, ...] = (defaults.DEFAULT_SIGMA_M,)
     scans: int = defaults.N_SCANS
     seed: int = defaults.SEED
-    altitude_m: float = defaults.ALTITUDE_M
+    altitude_m: float | tuple[float, float] | str = defaults.ALTITUDE_M
     dtm_path: str | None = None
     dtm_scale: float = defaults.DTM_SCALE
     shard_size: int = defaults.SHARD_SIZE
-    tilt_deg: float = defaults.TILT_DEG
-    jitter_deg: float = defaults.JITTER_DEG
+    tilt_deg: float | tuple[float, float] | str = defaults.TILT_DEG
+    jitter_deg: float | tuple[float, float] | str = defaults.JITTER_DEG
     resolution: int = defaults.DETECTOR_ROWS
     fov_deg: float = defaults.FOV_DEG
     dead_elements: int = defaults.DEAD_ELEMENTS
     damaged_elements: int = defaults.DAMAGED_ELEMENTS
     compression: str = defaults.COMPRESSION
     rocks_on_dtm: bool = False
+    footprint_samples: int = defaults.FOOTPRINT_SAMPLES
+    spot_profile: str = defaults.SPOT_PROFILE
+    range_estimator: str = defaults.RANGE_ESTIMATOR
+    pulse_width_m: float = defaults.PULSE_WIDTH_M
+    return_fraction: float = defaults.RETURN_FRACTION
+    noise_model: str = defaults.NOISE_MODEL
+    snr_ref: float = defaults.SNR_REF
+    snr_min: float = defaults.SNR_MIN
 
     def to_config(self) -> BuildConfig:
         """The build configuration (a square detector with the same FOV on both axes).
@@ -117,6 +147,9 @@ class BuildSettings:
         Raises:
             LidarsimError: an invalid value, named by its option.
         """
+        altitude, altitude_max = parse_span("altitude_m", self.altitude_m)
+        tilt, tilt_max = parse_span("tilt_deg", self.tilt_deg)
+        jitter, jitter_max = parse_span("jitter_deg", self.jitter_deg)
         return BuildConfig(
             sigmas_m=tuple(float(s) for s in self.sigmas_m),
             seed=int(self.seed),
@@ -130,15 +163,28 @@ class BuildSettings:
             ),
             trajectory=TrajectoryConfig(
                 n_scans=int(self.scans),
-                altitude_m=float(self.altitude_m),
-                tilt_deg=float(self.tilt_deg),
-                jitter_deg=float(self.jitter_deg),
+                altitude_m=altitude,
+                tilt_deg=tilt,
+                jitter_deg=jitter,
+                altitude_max_m=altitude_max,
+                tilt_max_deg=tilt_max,
+                jitter_max_deg=jitter_max,
             ),
             dtm_path=self.dtm_path,
             dtm_scale=float(self.dtm_scale),
             shard_size=int(self.shard_size),
             compression=str(self.compression),
             rocks_on_dtm=_flag("rocks_on_dtm", self.rocks_on_dtm),
+            footprint=FootprintConfig(
+                samples=int(self.footprint_samples),
+                spot_profile=str(self.spot_profile),
+                range_estimator=str(self.range_estimator),
+                pulse_width_m=float(self.pulse_width_m),
+                return_fraction=float(self.return_fraction),
+            ),
+            noise_model=NoiseModel(
+                kind=str(self.noise_model), snr_ref=float(self.snr_ref), snr_min=float(self.snr_min)
+            ),
         )
 
 

@@ -20,7 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
-from lidarsim.noise import noisy_points, points_at_ranges, scan_directions
+from lidarsim.footprint import FootprintConfig, pixel_ranges, spot_weights, subray_directions, subreturn_energy
+from lidarsim.noise import NoiseModel, noisy_points, points_at_ranges, scan_directions
 from lidarsim.sensor import SensorConfig, sensor_attitude
 from lidarsim.streams import Purpose, stream
 from lidarsim.terrain import DTM
@@ -31,6 +32,7 @@ STATUS_RETURN = 0  # a return from the terrain
 STATUS_MISS = 1  # the ray hit no terrain (nodata hole or beyond the DTM)
 STATUS_DEAD = 2  # a dead detector element: never returns
 STATUS_DAMAGED = 3  # a damaged element: returns, with a large extra range error in the noisy ranges
+STATUS_WEAK = 4  # no return: the signal was below the noise model's detection threshold (NaN points)
 
 
 def terrain_mesh(
@@ -168,6 +170,33 @@ class TileScene:
         t = hit["t_hit"].numpy().reshape(s, rows, cols)
         return np.where(np.isfinite(t), t, np.float32(np.nan)).astype(np.float32, copy=False)
 
+    def cast_with_incidence(
+        self, origin_map: np.ndarray, directions: np.ndarray, n_threads: int = 0
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Ranges and incidence of rays from one origin, in one call (the footprint's sub-rays).
+
+        Args:
+            origin_map: float64 (3,) ray origin (map coordinates).
+            directions: float64 (..., 3) unit directions.
+            n_threads: Embree threads (0 = all cores).
+
+        Returns:
+            ``(ranges, cos_incidence)``: float32 (...) ranges, metres, NaN where the ray hits no
+            terrain, and float64 (...) ``|cos|`` of the angle between the ray and the hit triangle's normal.
+        """
+        shape = directions.shape[:-1]
+        if self.n_triangles == 0:
+            return np.full(shape, np.nan, dtype=np.float32), np.zeros(shape)
+        rays = np.empty((*shape, 6), dtype=np.float32)
+        rays[..., :3] = origin_map - self.origin
+        rays[..., 3:] = directions
+        hit = self.scene.cast_rays(o3d.core.Tensor(rays.reshape(-1, 6)), nthreads=n_threads)  # type: ignore[call-overload]  # stubs omit ndarray
+        t = hit["t_hit"].numpy().reshape(shape)
+        normals = hit["primitive_normals"].numpy().reshape(*shape, 3).astype(np.float64)
+        cos = np.abs((normals * directions).sum(axis=-1))
+        ranges = np.where(np.isfinite(t), t, np.float32(np.nan)).astype(np.float32, copy=False)
+        return ranges, np.where(np.isfinite(t), cos, 0.0)
+
 
 def scan_geometry(
     scene: TileScene,
@@ -177,18 +206,18 @@ def scan_geometry(
     footprint_half_width_m: float,
     seed: int,
 ) -> ScanGeometry:
-    """Pose of scan ``scan_index``: sensor ``altitude_m`` above the mean terrain under its footprint."""
+    """Pose of scan ``scan_index``: the sensor at its altitude (``TrajectoryConfig.scan_pose``) above
+    the mean terrain under its footprint, with its tilt and attitude jitter."""
     x, y = float(nadir_xy[0]), float(nadir_xy[1])
     z_ref = scene.mean_height(x, y, footprint_half_width_m)
+    altitude_m, tilt_deg, jitter_deg = trajectory.scan_pose(seed, scan_index)
     jitter = (0.0, 0.0, 0.0)
-    if trajectory.jitter_deg > 0.0:
-        jitter = tuple(
-            np.radians(trajectory.jitter_deg) * stream(seed, Purpose.ATTITUDE_JITTER, scan_index).standard_normal(3)
-        )
+    if jitter_deg > 0.0:
+        jitter = tuple(np.radians(jitter_deg) * stream(seed, Purpose.ATTITUDE_JITTER, scan_index).standard_normal(3))
     return ScanGeometry(
         origin_map=np.array([x, y, z_ref]),
-        sensor_position=np.array([0.0, 0.0, trajectory.altitude_m]),
-        attitude=sensor_attitude(trajectory.tilt_deg, jitter),
+        sensor_position=np.array([0.0, 0.0, altitude_m]),
+        attitude=sensor_attitude(tilt_deg, jitter),
     )
 
 
@@ -200,24 +229,73 @@ def simulate_scans(
     sigmas_m: tuple[float, ...],
     seed: int,
     n_threads: int = 0,
+    footprint: FootprintConfig | None = None,
+    noise_model: NoiseModel | None = None,
 ) -> list[ScanResult]:
-    """Cast the rays of several scans in one call and derive clean and noisy points."""
+    """Cast the rays of several scans and derive clean and noisy points.
+
+    With the paper's sensor (one ray per pixel, constant sigma) the rays of all the scans go in one
+    call. With a footprint (``footprint.samples > 1``) or the ``snr`` noise model, each scan's K x K
+    sub-rays per pixel go in one call, and the pixel's range, signal and noise come from
+    ``lidarsim.footprint`` and ``lidarsim.noise.NoiseModel``.
+    """
+    footprint = footprint or FootprintConfig()
+    noise_model = noise_model or NoiseModel()
     directions = np.stack([scan_directions(sensor, g.attitude) for g in geometries])
     origins = np.stack([g.origin_map + g.sensor_position for g in geometries])
-    ranges = scene.cast(origins, directions, n_threads=n_threads)
+    realistic = not (footprint.is_default and noise_model.is_default)
+    ranges = None if realistic else scene.cast(origins, directions, n_threads=n_threads)
     defects = element_defects(sensor, seed)
     dead = defects == STATUS_DEAD
     damaged = defects == STATUS_DAMAGED
     results = []
     for k, (g, scan) in enumerate(zip(geometries, scan_indices, strict=True)):
-        r = ranges[k].astype(np.float64)
+        sigma_scale = None
+        if ranges is None:
+            cast, signal = pixel_returns(scene, origins[k], g.attitude, sensor, footprint, noise_model, n_threads)
+            weak = np.isfinite(cast) & ~noise_model.detected(signal)
+            cast[weak] = np.nan
+            sigma_scale = noise_model.sigma_scale(signal)
+        else:
+            cast, weak = ranges[k], None
+        r = cast.astype(np.float64)
         r[dead] = np.nan
-        status = np.where(np.isnan(ranges[k]), STATUS_MISS, defects).astype(np.uint8)
+        status = np.where(np.isnan(cast), STATUS_MISS, defects).astype(np.uint8)
+        if weak is not None:
+            status[weak & ~dead] = STATUS_WEAK
         status[dead] = STATUS_DEAD
         d = directions[k]
         clean = points_at_ranges(g.sensor_position, r, d)
         noisy = np.empty((len(sigmas_m), *clean.shape), dtype=np.float32)
         for s_i, sigma in enumerate(sigmas_m):
-            noisy[s_i] = noisy_points(r, d, g.sensor_position, sigma, seed, scan, damaged, sensor.damaged_error_m)
+            noisy[s_i] = noisy_points(
+                r, d, g.sensor_position, sigma, seed, scan, damaged, sensor.damaged_error_m, sigma_scale=sigma_scale
+            )
         results.append(ScanResult(geometry=g, points_clean=clean, points_noisy=noisy, status=status))
     return results
+
+
+def pixel_returns(
+    scene: TileScene,
+    origin_map: np.ndarray,
+    attitude: np.ndarray,
+    sensor: SensorConfig,
+    footprint: FootprintConfig,
+    noise_model: NoiseModel,
+    n_threads: int = 0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Range and relative signal of every pixel of one scan through its K x K sub-rays (one cast).
+
+    Returns:
+        ``(ranges, signal)``: float32 (rows, cols) ranges, metres (NaN where no sub-ray hit the
+        terrain), and float64 (rows, cols) signal relative to a whole pixel's return at normal
+        incidence from the noise model's reference range (``lidarsim.footprint.subreturn_energy``).
+    """
+    sub = subray_directions(sensor, footprint.samples) @ np.asarray(attitude, dtype=np.float64).T
+    sub_ranges, cos = scene.cast_with_incidence(origin_map, sub, n_threads=n_threads)
+    energy = subreturn_energy(
+        sub_ranges.astype(np.float64), cos, spot_weights(footprint), noise_model.reference_range_m
+    )
+    # float32 like the ray caster's ranges, so that the clean points keep recover_ranges' contract
+    ranges = pixel_ranges(sub_ranges.astype(np.float64), energy, footprint).astype(np.float32)
+    return ranges, energy.sum(axis=-1)

@@ -53,6 +53,7 @@ __all__ = [
     "MANIFEST_SCHEMA_VERSION",
     "SCAN_SCHEMA",
     "SCAN_SCHEMA_VERSION",
+    "SCAN_SCHEMA_VERSION_PLAIN",
     "SPLIT_NAMES",
     "DamagedFileError",
     "Scan",
@@ -69,6 +70,7 @@ __all__ = [
     "partial_path",
     "read_manifest",
     "remove_partials",
+    "scan_schema_version",
     "sha256_file",
     "validate_manifest",
     "verify_dataset",
@@ -78,7 +80,21 @@ __all__ = [
 
 SCAN_SCHEMA = "hd.lidar-scans"
 # 1.1: every dataset chunked with a fletcher32 checksum per chunk (1.0 files stay readable).
-SCAN_SCHEMA_VERSION = "1.1"
+# 1.2: the sensor-realism attributes (footprint_*, noise_model, noise_*, the trajectory's range ends)
+# and status code 4 (weak). Only shards that use them are 1.2: the paper's sensor still writes 1.1
+# files, byte for byte as before (scan_schema_version).
+SCAN_SCHEMA_VERSION = "1.2"
+SCAN_SCHEMA_VERSION_PLAIN = "1.1"
+# File attributes whose presence makes a shard version 1.2.
+REALISM_ATTR_PREFIXES: tuple[str, ...] = (
+    "footprint_",
+    "noise_",
+    "trajectory_altitude_max",
+    "trajectory_tilt_max",
+    "trajectory_jitter_max",
+)
+STATUS_CODES_PLAIN = "0 return, 1 miss, 2 dead element, 3 damaged element"
+STATUS_CODES = STATUS_CODES_PLAIN + ", 4 weak (signal below the detection threshold)"
 MANIFEST_SCHEMA = "hd.dataset-manifest"
 MANIFEST_SCHEMA_VERSION = "1.0"
 MANIFEST_NAME = "manifest.json"
@@ -88,6 +104,13 @@ SPLIT_NAMES: tuple[str, str, str] = ("train", "val", "test")
 
 # Not a format this version reads, or a damaged file (the storage layer's FormatError).
 ShardFormatError = FormatError
+
+
+def scan_schema_version(attrs: dict[str, Any]) -> str:
+    """The schema version of a scan shard with these file attributes: 1.2 when it records any of
+    the sensor-realism settings, else 1.1 (the bytes every earlier hd wrote for the same settings)."""
+    realistic = any(key.startswith(REALISM_ATTR_PREFIXES) for key in attrs)
+    return SCAN_SCHEMA_VERSION if realistic else SCAN_SCHEMA_VERSION_PLAIN
 
 
 def _attr_value(value: Any) -> Any:
@@ -137,7 +160,7 @@ class ScanShardWriter:
             f,
             {
                 "schema": SCAN_SCHEMA,
-                "schema_version": SCAN_SCHEMA_VERSION,
+                "schema_version": scan_schema_version(self.attrs),
                 "software": "hd",
                 "software_version": __version__,
                 "n_scans": self.n_scans,
@@ -164,7 +187,8 @@ class ScanShardWriter:
         }
         self._d["split"].attrs["names"] = np.asarray(SPLIT_NAMES, dtype=h5py.string_dtype())
         self._d["points_noisy"].attrs["sigmas_m"] = np.asarray(self.sigmas_m, dtype=np.float64)
-        self._d["status"].attrs["codes"] = "0 return, 1 miss, 2 dead element, 3 damaged element"
+        realistic = scan_schema_version(self.attrs) != SCAN_SCHEMA_VERSION_PLAIN
+        self._d["status"].attrs["codes"] = STATUS_CODES if realistic else STATUS_CODES_PLAIN
         return self
 
     def write_scan(

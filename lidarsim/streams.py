@@ -21,6 +21,7 @@ class Purpose(IntEnum):
     DAMAGED_ERROR = 5  # keys: scan index, sigma in nanometres[, realisation k]
     SPLIT = 6  # keys: none
     TRAINING_DRAW = 7  # keys: epoch, scan index (hdnet: the noise level and D4 draw of a training sample)
+    SCAN_POSE = 8  # keys: scan index (altitude, tilt and jitter level drawn from their ranges)
 
 
 def stream(seed: int, purpose: Purpose, *keys: int) -> np.random.Generator:

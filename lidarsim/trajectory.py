@@ -26,6 +26,7 @@ from scipy import ndimage
 from lidarsim import defaults, limits
 from lidarsim.errors import LidarsimError
 from lidarsim.sensor import SensorConfig, footprint_half_width_m
+from lidarsim.streams import Purpose, stream
 
 
 @dataclass(frozen=True)
@@ -39,6 +40,10 @@ class TrajectoryConfig:
         jitter_deg: 1-sigma attitude jitter per axis, degrees (0 = perfect pointing).
         margin_m: extra valid terrain required around the footprint, metres.
         tile_m: side of the square tiles that group scans for ray casting, metres.
+        altitude_max_m: with it, each scan's altitude is drawn uniformly from
+            [altitude_m, altitude_max_m] (a descent); None: every scan at ``altitude_m``.
+        tilt_max_deg: likewise for the tilt, from [tilt_deg, tilt_max_deg].
+        jitter_max_deg: likewise for the jitter's 1-sigma, from [jitter_deg, jitter_max_deg].
     """
 
     n_scans: int = defaults.N_SCANS
@@ -47,6 +52,9 @@ class TrajectoryConfig:
     jitter_deg: float = defaults.JITTER_DEG
     margin_m: float = 5.0
     tile_m: float = 256.0
+    altitude_max_m: float | None = None
+    tilt_max_deg: float | None = None
+    jitter_max_deg: float | None = None
 
     def __post_init__(self) -> None:
         if self.n_scans <= 0:
@@ -63,10 +71,59 @@ class TrajectoryConfig:
             )
         if self.margin_m < 0.0 or self.tile_m <= 0.0:
             raise LidarsimError("margin_m must be >= 0 and tile_m > 0 metres")
+        for name, low, high, bound, unit in (
+            ("--altitude", self.altitude_m, self.altitude_max_m, limits.ALTITUDE_M, "metres"),
+            ("--tilt", self.tilt_deg, self.tilt_max_deg, limits.TILT_DEG, "degrees"),
+            ("--jitter", self.jitter_deg, self.jitter_max_deg, limits.JITTER_DEG, "degrees"),
+        ):
+            if high is None:
+                continue
+            if not bound.contains(high):
+                raise LidarsimError(f"{name} range must end within {bound.interval()} {unit}, got {high}")
+            if high < low:
+                raise LidarsimError(f"{name} range {low:g}:{high:g} runs backwards; give LOW:HIGH")
+
+    @property
+    def ranged(self) -> bool:
+        """True when altitude, tilt or jitter is drawn per scan from a range."""
+        return (self.altitude_max_m, self.tilt_max_deg, self.jitter_max_deg) != (None, None, None)
+
+    @property
+    def max_altitude_m(self) -> float:
+        """The highest altitude of any scan, metres."""
+        return self.altitude_m if self.altitude_max_m is None else self.altitude_max_m
+
+    @property
+    def max_abs_tilt_deg(self) -> float:
+        """The largest off-nadir tilt of any scan, degrees."""
+        return abs(self.tilt_deg) if self.tilt_max_deg is None else max(abs(self.tilt_deg), abs(self.tilt_max_deg))
+
+    @property
+    def max_jitter_deg(self) -> float:
+        """The largest jitter 1-sigma of any scan, degrees."""
+        return self.jitter_deg if self.jitter_max_deg is None else self.jitter_max_deg
+
+    def scan_pose(self, seed: int, scan_index: int) -> tuple[float, float, float]:
+        """``(altitude_m, tilt_deg, jitter_deg)`` of scan ``scan_index``: the fixed values, or drawn
+        uniformly from their ranges with the stream ``(seed, SCAN_POSE, scan)`` (three draws, in that
+        order, whichever are ranges)."""
+        if not self.ranged:
+            return self.altitude_m, self.tilt_deg, self.jitter_deg
+        u = stream(seed, Purpose.SCAN_POSE, scan_index).random(3)
+        values = []
+        for k, (low, high) in enumerate(
+            (
+                (self.altitude_m, self.altitude_max_m),
+                (self.tilt_deg, self.tilt_max_deg),
+                (self.jitter_deg, self.jitter_max_deg),
+            )
+        ):
+            values.append(low if high is None else low + (high - low) * float(u[k]))
+        return values[0], values[1], values[2]
 
     def to_attrs(self) -> dict[str, int | float]:
-        """Flat attribute dictionary (HDF5/JSON friendly)."""
-        return {f"trajectory_{k}": v for k, v in asdict(self).items()}
+        """Flat attribute dictionary (HDF5/JSON friendly); the range ends only when set."""
+        return {f"trajectory_{k}": v for k, v in asdict(self).items() if v is not None}
 
 
 @dataclass(frozen=True)
@@ -117,7 +174,9 @@ def plan_scans(
     a, _, c, _, e, f = transform[:6]
     cell = abs(a)
     half_width = (
-        footprint_half_width_m(sensor, trajectory.altitude_m, trajectory.tilt_deg, trajectory.jitter_deg)
+        footprint_half_width_m(
+            sensor, trajectory.max_altitude_m, trajectory.max_abs_tilt_deg, trajectory.max_jitter_deg
+        )
         + trajectory.margin_m
     )
     reach = int(math.ceil(half_width / cell + 0.5))
@@ -132,7 +191,7 @@ def plan_scans(
         extent_x = valid.shape[1] * cell
         extent_y = valid.shape[0] * cell
         raise LidarsimError(
-            f"{dtm_name} is too small for the sensor footprint: a scan from {trajectory.altitude_m:g} m "
+            f"{dtm_name} is too small for the sensor footprint: a scan from {trajectory.max_altitude_m:g} m "
             f"needs {need:.0f} m x {need:.0f} m of valid terrain, the DTM covers {extent_x:.0f} m x "
             f"{extent_y:.0f} m with no such valid square; lower --altitude or use a larger DTM"
         )
@@ -141,7 +200,7 @@ def plan_scans(
     step = _largest_step(admissible[r0:, c0:], trajectory.n_scans)
     if step == 0:
         raise LidarsimError(
-            f"only {int(admissible.sum())} scan positions fit on {dtm_name} at {trajectory.altitude_m:g} m; "
+            f"only {int(admissible.sum())} scan positions fit on {dtm_name} at {trajectory.max_altitude_m:g} m; "
             f"ask for fewer --scans (got {trajectory.n_scans})"
         )
     sub = admissible[r0::step, c0::step]

@@ -1,0 +1,64 @@
+"""Settings that are one number or a range drawn per scan (``--altitude 250:1000``): the parser
+shared by recipes and settings objects, and the click type of the ``hd`` options."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import click
+
+from lidarsim.errors import LidarsimError
+from lidarsim.limits import Bound
+
+
+class SpanType(click.ParamType):
+    """The click type of a setting that is one number or a range ``LOW:HIGH`` drawn per scan
+    (``--altitude 250:1000``), each end within ``bound``: a value outside it is a usage error
+    before any work. Converts to a float or a ``(low, high)`` tuple (:func:`parse_span`)."""
+
+    name = "number or LOW:HIGH"
+
+    def __init__(self, bound: Bound) -> None:
+        self.bound = bound
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        try:
+            low, high = parse_span(param.name if param is not None and param.name else "value", value)
+        except LidarsimError:
+            self.fail(f"{value!r} is not a number or a range LOW:HIGH", param, ctx)
+        for end in (low, high):
+            if end is not None and not self.bound.contains(end):
+                self.fail(f"{end:g} is not in the range {self.bound.interval()}", param, ctx)
+        if high is not None and high < low:
+            self.fail(f"the range {low:g}:{high:g} runs backwards; give LOW:HIGH", param, ctx)
+        return low if high is None else (low, high)
+
+
+def parse_span(name: str, value: object) -> tuple[float, float | None]:
+    """A setting that is one number or a range drawn per scan: ``500``, ``"250:1000"``, ``[250, 1000]``
+    or ``(250.0, 1000.0)``; returns ``(low, high)``, ``high`` None for one number (a range whose
+    ends are equal is that one number).
+
+    Raises:
+        LidarsimError: anything else, naming the setting.
+    """
+    ends: list[object]
+    if isinstance(value, str):
+        ends = list(value.split(":")) if ":" in value else [value]
+    elif isinstance(value, (list, tuple)):
+        ends = list(value)
+    else:
+        ends = [value]
+    try:
+        if len(ends) != (1 if isinstance(value, str) and ":" not in value else 2) and not isinstance(
+            value, (int, float)
+        ):
+            raise ValueError
+        if any(isinstance(e, bool) for e in ends):
+            raise ValueError
+        numbers = [float(e) for e in ends]  # type: ignore[arg-type]  # str, int or float, else ValueError
+    except (TypeError, ValueError) as exc:
+        raise LidarsimError(f"{name} must be a number or a range LOW:HIGH, got {value!r}") from exc
+    if len(numbers) == 1 or numbers[0] == numbers[1]:
+        return numbers[0], None
+    return numbers[0], numbers[1]
