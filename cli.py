@@ -46,6 +46,7 @@ from lidarsim.setting import DIRECTORY, NonEmptyPath, SettingsCommand, click_opt
 from lidarsim.setting import DIRECTORY as _DIRECTORY
 from lidarsim.setting import FILE_OR_DIRECTORY as _FILE_OR_DIRECTORY
 from lidarsim.setting import bounded as _bounded
+from lidarsim.span import SpanType as _Span
 
 _options = options
 
@@ -96,10 +97,12 @@ def main(ctx: click.Context, quiet: bool = False, no_progress: bool = False, as_
     click.option(
         "--altitude",
         "altitude_m",
-        type=_bounded(limits.ALTITUDE_M),
+        type=_Span(limits.ALTITUDE_M),
+        metavar="M|LOW:HIGH",
         default=lidar_defaults.ALTITUDE_M,
         show_default=True,
-        help="Sensor altitude above the terrain, metres.",
+        help=f"Sensor altitude above the terrain, metres, in {limits.ALTITUDE_M.interval()}; LOW:HIGH draws it per "
+        "scan (a descent: 250:1000).",
     ),
     click.option(
         "--dtm-scale",
@@ -120,18 +123,21 @@ def main(ctx: click.Context, quiet: bool = False, no_progress: bool = False, as_
     click.option(
         "--tilt",
         "tilt_deg",
-        type=_bounded(limits.TILT_DEG),
+        type=_Span(limits.TILT_DEG),
+        metavar="DEG|LOW:HIGH",
         default=lidar_defaults.TILT_DEG,
         show_default=True,
-        help="Off-nadir tilt of the boresight, degrees.",
+        help=f"Off-nadir tilt of the boresight, degrees, in {limits.TILT_DEG.interval()}; LOW:HIGH draws it per scan.",
     ),
     click.option(
         "--jitter",
         "jitter_deg",
-        type=_bounded(limits.JITTER_DEG),
+        type=_Span(limits.JITTER_DEG),
+        metavar="DEG|LOW:HIGH",
         default=lidar_defaults.JITTER_DEG,
         show_default=True,
-        help="1-sigma attitude jitter per axis, degrees.",
+        help=f"1-sigma attitude jitter per axis, degrees, in {limits.JITTER_DEG.interval()}; LOW:HIGH draws it per "
+        "scan.",
     ),
     click.option(
         "--resolution",
@@ -173,6 +179,65 @@ def main(ctx: click.Context, quiet: bool = False, no_progress: bool = False, as_
         "--rocks-on-dtm",
         is_flag=True,
         help="Scan the --dtm resampled to 0.5 m with the procedural rock population added (as hd make-dtm --base).",
+    ),
+    click.option(
+        "--footprint-samples",
+        type=_bounded(limits.FOOTPRINT_SAMPLES),
+        default=lidar_defaults.FOOTPRINT_SAMPLES,
+        show_default=True,
+        help="Sub-rays per pixel side: K x K sub-rays over each pixel's field of view (1: one ray through the centre).",
+    ),
+    click.option(
+        "--spot-profile",
+        type=click.Choice(lidar_defaults.SPOT_PROFILES),
+        default=lidar_defaults.SPOT_PROFILE,
+        show_default=True,
+        help="Weights of the sub-rays over the pixel (gaussian: 1/e^2 radius at half the pixel's side).",
+    ),
+    click.option(
+        "--range-estimator",
+        type=click.Choice(lidar_defaults.RANGE_ESTIMATORS),
+        default=lidar_defaults.RANGE_ESTIMATOR,
+        show_default=True,
+        help="A pixel's range from its returned pulse: energy-weighted centroid, or first crossing of "
+        "--return-fraction of the peak.",
+    ),
+    click.option(
+        "--pulse-width",
+        "pulse_width_m",
+        type=_bounded(limits.PULSE_WIDTH_M),
+        default=lidar_defaults.PULSE_WIDTH_M,
+        show_default=True,
+        help="Full width at half maximum of the returned pulse, in range, metres.",
+    ),
+    click.option(
+        "--return-fraction",
+        type=_bounded(limits.RETURN_FRACTION),
+        default=lidar_defaults.RETURN_FRACTION,
+        show_default=True,
+        help="Fraction of the pulse's peak at which the first-return estimator fires.",
+    ),
+    click.option(
+        "--noise-model",
+        type=click.Choice(lidar_defaults.NOISE_MODELS),
+        default=lidar_defaults.NOISE_MODEL,
+        show_default=True,
+        help="constant: one sigma everywhere; snr: --sigma at 500 m and normal incidence, growing as "
+        "range / sqrt(cos incidence), weak returns dropped.",
+    ),
+    click.option(
+        "--snr-ref",
+        type=_bounded(limits.SNR_REF),
+        default=lidar_defaults.SNR_REF,
+        show_default=True,
+        help="snr model: signal-to-noise ratio of a whole pixel's return at 500 m, normal incidence.",
+    ),
+    click.option(
+        "--snr-min",
+        type=_bounded(limits.SNR_MIN),
+        default=lidar_defaults.SNR_MIN,
+        show_default=True,
+        help="snr model: returns below this signal-to-noise ratio come back as no return (status weak).",
     ),
     recipe_option("Build exactly the dataset of a recipe (datasets/<name>); the recipe fixes every content setting."),
 )
