@@ -6,8 +6,15 @@ The dataset pins the public file formats (``docs/shard-format.md``, ``docs/label
 ``manifest.json``, one scan shard (schema ``hd.lidar-scans``), one label shard (schema
 ``hd.labels``) and the procedural terrain they were made on. ``tests/data/test_golden.py`` reads
 the committed files with plain h5py and json, and checks that today's writers still produce the
-same layout. Rewrite the golden files only for a deliberate format change, together with the
-schema version and the format documents.
+same layout and the same values.
+
+Values: the points (clean and noisy) and the DEM heights agree within 0.1 mm, the slope map within
+1e-4 rad, P(safe) within 1e-4, and the labels, returns and splits exactly (the constants at the
+end of ``test_golden.py``). A change of the sensor, the noise model, the gridding, the label rule
+or the baseline therefore fails there. Rewrite the golden files only for a deliberate change: a
+format change together with the schema version and the format documents; a change of values
+together with the reason in the commit message (and, where published datasets change, their
+recipes' versions and checksums).
 
 Everything is seeded; the sizes are the smallest that exercise every field: 3 scans (one per
 split) of a 24 x 24 detector at two noise levels, 80 m above a 48 m procedural terrain, labelled

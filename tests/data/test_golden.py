@@ -27,6 +27,12 @@ def manifest() -> dict[str, Any]:
     return json.loads((GOLDEN / "manifest.json").read_text())
 
 
+@pytest.fixture(scope="module")
+def fresh(tmp_path_factory) -> Path:
+    """The golden dataset as today's writers make it (built once for the layout and the values)."""
+    return make_golden(tmp_path_factory.mktemp("fresh") / "golden")
+
+
 def test_the_scan_shard_reads_with_plain_h5py_as_the_format_document_shows(manifest):
     # docs/shard-format.md, "Reading a shard without hd"
     assert manifest["shards"][0]["path"] == SCAN_SHARD
@@ -139,8 +145,7 @@ def _keys(value: Any) -> Any:
     return type(value).__name__
 
 
-def test_todays_writers_produce_the_golden_layout(manifest, tmp_path):
-    fresh = make_golden(tmp_path / "golden")
+def test_todays_writers_produce_the_golden_layout(manifest, fresh):
     now = json.loads((fresh / "manifest.json").read_text())
     assert _keys(now) == _keys(manifest)
     for key in ("schema", "schema_version", "kind", "n_scans", "sigmas_m", "seed", "config_sha256", "splits"):
@@ -157,3 +162,48 @@ def test_todays_writers_produce_the_golden_layout(manifest, tmp_path):
                 assert new.attrs[name] == old.attrs[name]
     with h5py.File(fresh / SCAN_SHARD, "r") as new, h5py.File(GOLDEN / SCAN_SHARD, "r") as old:
         assert new.attrs["config_json"] == old.attrs["config_json"]
+
+
+# The tolerances of the values (make_golden.py, "Values"): a change of the sensor, the noise model,
+# the gridding or the label rule moves values by far more; float rounding of another CPU or library
+# build moves them by far less.
+POINTS_ATOL_M = 1e-4  # points and DEM heights: 0.1 mm, against a smallest noise level of 16.7 mm
+POSE_ATOL = 1e-9  # sensor positions (metres), attitudes and frame origins: computed in float64
+SLOPE_ATOL_RAD = 1e-4  # the labels' slope map: 0.006 degrees, against a 10-degree threshold
+P_SAFE_ATOL = 1e-4  # the baseline's P(safe), a probability
+
+
+def _same(new: np.ndarray, old: np.ndarray, atol: float) -> bool:
+    """Equal shapes, NaN in the same places, finite values within ``atol``."""
+    return new.shape == old.shape and bool(np.allclose(new, old, rtol=0.0, atol=atol, equal_nan=True))
+
+
+def test_todays_writers_produce_the_golden_values(manifest, fresh):
+    with h5py.File(fresh / SCAN_SHARD, "r") as new, h5py.File(GOLDEN / SCAN_SHARD, "r") as old:
+        for name in ("status", "valid", "split", "scan_index"):
+            assert np.array_equal(new[name][:], old[name][:]), name
+        for name in ("sensor_position", "sensor_attitude", "origin_map"):
+            assert _same(new[name][:], old[name][:], POSE_ATOL), name
+        for name in ("points_clean", "points_noisy"):
+            assert _same(new[name][:], old[name][:], POINTS_ATOL_M), name
+    rel = manifest["labelings"][0]["shards"][0]["path"]
+    with h5py.File(fresh / rel, "r") as new, h5py.File(GOLDEN / rel, "r") as old:
+        assert np.array_equal(new["label"][:], old["label"][:])
+        for name in ("dem_clean", "dem_noisy", "roughness_m"):
+            assert _same(new[name][:], old[name][:], POINTS_ATOL_M), name
+        assert _same(new["slope_rad"][:], old["slope_rad"][:], SLOPE_ATOL_RAD)
+        assert _same(new["p_safe"][:], old["p_safe"][:], P_SAFE_ATOL)
+    now = json.loads((fresh / "manifest.json").read_text())
+    assert now["labelings"][0]["label_counts"] == manifest["labelings"][0]["label_counts"]
+
+
+def test_the_tolerances_lie_far_below_what_a_model_change_moves(manifest):
+    # a noise draw at the smallest level moves a point by ~100 point tolerances; a noise level moves
+    # P(safe) by ~100 P(safe) tolerances: a changed noise model or baseline cannot hide in them
+    with h5py.File(GOLDEN / SCAN_SHARD, "r") as f:
+        returns = f["valid"][:] == 1
+        shift = np.linalg.norm(f["points_noisy"][:, 0] - f["points_clean"][:], axis=-1)[returns]
+    assert float(np.median(shift)) > 50 * POINTS_ATOL_M
+    with h5py.File(GOLDEN / manifest["labelings"][0]["shards"][0]["path"], "r") as f:
+        p = f["p_safe"][:]
+    assert float(np.nanmax(np.abs(p[:, 1] - p[:, 0]))) > 50 * P_SAFE_ATOL
