@@ -16,7 +16,6 @@ import click
 
 from hdlabels import defaults as label_defaults
 from hdlabels import limits as label_limits
-from hdnet import defaults as net_defaults
 from hdnet import limits as net_limits
 from hdnet import terminal
 from hdnet.inspection import Verdict, inspect_directory, verify_directory
@@ -475,106 +474,20 @@ def train_cmd(dataset: Path, run_dir: Path, **options: Any) -> None:
     _done(train_job(dataset, run_dir, options, (epoch_lines if OUTPUT.lines else True) if OUTPUT.progress else False))
 
 
-@main.command("eval")
-@click.argument("run_dir", type=_DIRECTORY)
-@_options(
-    click.option(
-        "--data", "dataset", required=True, type=_DIRECTORY, help="Labelled dataset to evaluate on (its test split)."
-    ),
-    out_option("out_dir", "Report directory (report.md, report.json, figures)."),
-    mc_samples_option(),
-    click.option(
-        "--drop-pixels",
-        type=_bounded(net_limits.DROP_PIXELS),
-        default=0,
-        show_default=True,
-        help=f"Dead-pixel test: pixels dropped from each DEM and refilled (paper: {label_defaults.N_DEAD_PIXELS}).",
-    ),
-    threshold_option(),
-    labels_option("Labelling to evaluate against (when the dataset has several)."),
-    seed_option("MC dropout and dropped pixels"),
-    batch_size_option("DEMs per inference batch."),
-    click.option(
-        "--sigma-sweep",
-        default=None,
-        metavar="START:STOP:STEP",
-        help="Also score the test split at these noise levels, metres (e.g. 0:0.12:0.01); levels the dataset "
-        "does not store are made from its clean points. Adds a table and noise_sweep.png.",
-    ),
-    click.option(
-        "--calibrate",
-        type=click.Choice(["reference", "each"]),
-        default="reference",
-        show_default=True,
-        help="Where the threshold is calibrated: once on the validation split at the run's reference noise "
-        "level (the paper), or at each test noise level (the sensor's, which a flash LiDAR knows).",
-    ),
-    click.option(
-        "--calibrate-on",
-        "calibrate_on",
-        type=_DIRECTORY,
-        multiple=True,
-        help="Calibrate the threshold on this labelled dataset's validation split (repeat it to calibrate on "
-        "several together). Default: the run's own training data, what a user of the run has; --data's "
-        "validation split when that data is not present (the report says so).",
-    ),
-    overwrite_option("Replace an existing report (never other files, never an input)."),
+@main.command("eval", cls=SettingsCommand, settings=("hdnet.evaluate:EvalConfig", "hdnet.eval_job:SweepOption"))
+@click.argument("run_dir", type=DIRECTORY)
+@click.option(
+    "--data", "dataset", required=True, type=DIRECTORY, help="Labelled dataset to evaluate on (its test split)."
 )
+@out_option("out_dir", "Report directory (report.md, report.json, figures).")
+@overwrite_option("Replace an existing report (never other files, never an input).")
 @friendly_errors
-def eval_cmd(
-    run_dir: Path,
-    dataset: Path,
-    out_dir: Path,
-    mc_samples: int,
-    drop_pixels: int,
-    threshold: str,
-    labeling: str | None,
-    seed: int,
-    batch_size: int = net_defaults.BATCH_SIZE,
-    sigma_sweep: str | None = None,
-    calibrate: str = "reference",
-    calibrate_on: tuple[Path, ...] = (),
-    overwrite: bool = False,
-) -> None:
+def eval_cmd(run_dir: Path, dataset: Path, out_dir: Path, overwrite: bool, **options: Any) -> None:
     """Evaluate a trained run: the paper's tables, threshold sweep, calibration, noise sweep and figures."""
-    from hdnet.evaluate import EvalConfig, report_is_current
-    from hdnet.noise_levels import parse_sigma_sweep
-    from hdnet.pipeline import evaluate_to_report, report_written_message
-    from lidarsim.storage import check_not_input
+    from hdnet.eval_job import eval_job
 
-    check_not_input(out_dir, {f"the calibration dataset {d}": d for d in calibrate_on})
-
-    config = EvalConfig(
-        mc_samples=mc_samples,
-        drop_pixels=drop_pixels,
-        threshold=threshold,
-        labels=labeling,
-        seed=seed,
-        batch_size=batch_size,
-        sigma_sweep=parse_sigma_sweep(sigma_sweep) if sigma_sweep is not None else (),
-        calibrate=calibrate,
-        calibrate_on=tuple(str(d) for d in calibrate_on),
-    )
-    if not overwrite and report_is_current(out_dir, run_dir, dataset, config):
-        say(f"{out_dir} already holds this evaluation's report (same checkpoint, dataset and settings): nothing to do")
-        record({"command": "eval", "already_done": True, "report": str(out_dir)})
-        return
-    progress = ScanProgress("eval", unit="image")
-    try:
-        result = evaluate_to_report(run_dir, dataset, out_dir, config, overwrite=overwrite, progress=progress)
-    finally:
-        progress.close()
-    say(result.summary())
-    say(report_written_message(out_dir))
-    record(
-        {
-            "command": "eval",
-            "already_done": False,
-            "report": str(out_dir),
-            "threshold": result.threshold,
-            "rows": [dataclasses.asdict(r) for r in result.rows],
-        }
-    )
+    with ScanProgress("eval", unit="image") as progress:
+        _done(eval_job(run_dir, dataset, out_dir, options, overwrite, progress))
 
 
 @main.command("detect")

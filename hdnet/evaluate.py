@@ -35,7 +35,7 @@ import torch
 
 from hdlabels import defaults as label_defaults
 from hdlabels.alhat import safety_probability
-from hdnet import defaults
+from hdnet import defaults, limits
 from hdnet.data import (
     HazardDataset,
     dataset_sigmas,
@@ -45,11 +45,19 @@ from hdnet.data import (
 from hdnet.errors import HdNetError
 from hdnet.infer import mc_dropout_predict, predictive_entropy
 from hdnet.inputs import InputSpec
-from hdnet.limits import MAX_BATCH_SIZE, MAX_MC_SAMPLES
 from hdnet.metrics import ConfusionAccumulator, SegmentationMetrics
 from hdnet.model import BayesianSegNet
 from hdnet.noise_levels import TrainingNoise, check_levels
 from hdnet.results import EvaluationResult, ReliabilityBins, ReportRow, SplitInference
+from hdnet.shared_options import CALIBRATIONS as CALIBRATIONS  # re-exported: hdnet.detect reads it here
+from hdnet.shared_options import (
+    batch_size_setting,
+    calibrate_setting,
+    labels_setting,
+    mc_samples_setting,
+    seed_setting,
+    threshold_setting,
+)
 from hdnet.thresholds import (
     EntropyCalibration,
     ThresholdSpec,
@@ -59,11 +67,11 @@ from hdnet.thresholds import (
 )
 from hdnet.train import LAST, load_checkpoint, load_trained_model
 from lidarsim.errors import HdError
+from lidarsim.setting import DIRECTORY, check, setting
 from lidarsim.shards import MANIFEST_NAME, read_manifest, sha256_file
 
 METHODS: tuple[str, str, str] = ("alhat_baseline", "base_net", "uncertainty_aware")
 # Where H_t is calibrated: once at the run's reference noise level (the paper), or at each test level.
-CALIBRATIONS: tuple[str, ...] = ("reference", "each")
 # hd choice: above a run's training noise levels, `--calibrate each` calls a pixel certain-safe only
 # where the validation split at that noise level shows at least this precision (the "above the
 # training range" target of docs/results.md, "One network for all noise levels").
@@ -329,26 +337,23 @@ def validation_threshold(
 
 
 # --- the evaluation --------------------------------------------------------------------------------
-def _check_counts(mc_samples: int, drop_pixels: int, n_pixels: int, batch_size: int) -> None:
-    if isinstance(mc_samples, bool) or not isinstance(mc_samples, int) or not 1 <= mc_samples <= MAX_MC_SAMPLES:
-        raise HdNetError(f"the number of MC samples must be an integer in 1..{MAX_MC_SAMPLES}, got {mc_samples!r}.")
-    if isinstance(drop_pixels, bool) or not isinstance(drop_pixels, int) or not 0 <= drop_pixels < n_pixels:
+def _check_drop_pixels(drop_pixels: int, n_pixels: int) -> None:
+    """Fewer dropped pixels than a DEM has (their kind and range are EvalConfig's own checks)."""
+    if drop_pixels >= n_pixels:
         raise HdNetError(
             f"--drop-pixels must be an integer in [0, {n_pixels - 1}] for {n_pixels}-pixel DEMs, got {drop_pixels!r}."
         )
-    if isinstance(batch_size, bool) or not isinstance(batch_size, int) or not 1 <= batch_size <= MAX_BATCH_SIZE:
-        raise HdNetError(f"the batch size must be an integer in 1..{MAX_BATCH_SIZE}, got {batch_size!r}.")
 
 
 @dataclass(frozen=True)
 class EvalConfig:
     """How ``evaluate`` runs (the options of ``hd eval``).
 
-    ``mc_samples``: MC-dropout samples per DEM (1..``MAX_MC_SAMPLES``); ``drop_pixels``: dead pixels
+    ``mc_samples``: MC-dropout samples per DEM; ``drop_pixels``: dead pixels
     per test DEM for Table 2 (0: no dead-pixel table); ``threshold``: ``mean``, ``quantile:Q`` or
     ``risk:ALPHA``; ``labels``: the labelling to score against (None: the one the run was trained
     on when the dataset has it, else the dataset's newest); ``seed``: dropout masks and dead pixels;
-    ``batch_size``: DEMs per inference batch (1..``MAX_BATCH_SIZE``); ``device``: a torch device
+    ``batch_size``: DEMs per inference batch; ``device``: a torch device
     (None: CUDA when available, else the CPU); ``sigma_sweep``: noise levels (metres) the test
     split is also scored at, made from the clean points where the dataset does not store them;
     ``calibrate``: ``reference`` (H_t calibrated once, on the validation split at the run's
@@ -359,28 +364,42 @@ class EvalConfig:
     else the evaluated dataset's validation split, said in the report).
 
     Raises:
-        HdNetError: a bad threshold spec or seed (checked here, before any file is looked at); the
-            counts are checked by ``evaluate`` once the DEM size is known.
+        HdNetError: a value of the wrong kind or outside its range (each field's metadata,
+            ``lidarsim.setting``) or a bad threshold spec, checked here before any file is looked
+            at; the dropped pixels are checked against the DEM size by ``evaluate``.
     """
 
-    mc_samples: int = defaults.MC_SAMPLES
-    drop_pixels: int = 0
-    threshold: str = defaults.THRESHOLD_SPEC
-    labels: str | None = None
-    seed: int = 0
-    batch_size: int = defaults.BATCH_SIZE
-    device: str | None = None
-    sigma_sweep: tuple[float, ...] = ()
-    calibrate: str = "reference"
-    calibrate_on: tuple[str, ...] = ()
+    mc_samples: int = mc_samples_setting()
+    drop_pixels: int = setting(
+        0,
+        f"Dead-pixel test: pixels dropped from each DEM and refilled (paper: {label_defaults.N_DEAD_PIXELS})",
+        bound=limits.DROP_PIXELS,
+    )
+    threshold: str = threshold_setting()
+    labels: str | None = labels_setting("Labelling to evaluate against (when the dataset has several)")
+    seed: int = seed_setting("MC dropout and dropped pixels")
+    batch_size: int = batch_size_setting("DEMs per inference batch")
+    device: str | None = setting(None, "A torch device (default: CUDA when available)", kind=str, cli=False)
+    sigma_sweep: tuple[float, ...] = setting(
+        (), "Noise levels the test split is also scored at", unit="metres", bound=limits.NOISE_SIGMA_M, cli=False
+    )
+    calibrate: str = calibrate_setting(
+        "Where the threshold is calibrated: once on the validation split at the run's reference noise level "
+        "(the paper), or at each test noise level (the sensor's, which a flash LiDAR knows)"
+    )
+    calibrate_on: tuple[str, ...] = setting(
+        (),
+        "Calibrate the threshold on this labelled dataset's validation split (repeat it to calibrate on several "
+        "together). Default: the run's own training data, what a user of the run has; --data's validation split "
+        "when that data is not present (the report says so)",
+        kind=Path,
+        click_type=DIRECTORY,
+    )
 
     def __post_init__(self) -> None:
         parse_threshold_spec(self.threshold)
         object.__setattr__(self, "sigma_sweep", check_levels(tuple(self.sigma_sweep), "a sweep sigma"))
-        if self.calibrate not in CALIBRATIONS:
-            raise HdNetError(f"calibrate must be one of {', '.join(CALIBRATIONS)}, got {self.calibrate!r}.")
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
-            raise HdNetError(f"the seed must be an integer >= 0, got {self.seed!r}.")
+        check(self, HdNetError)
 
     @property
     def threshold_spec(self) -> ThresholdSpec:
@@ -640,7 +659,6 @@ class _Thresholds:
 def _open_evaluation(run_dir: str | os.PathLike, dataset_dir: str | os.PathLike, cfg: EvalConfig) -> _Setup:
     """Step 0: the checks that need the dataset or the run, then the model and the labelling."""
     open_labeling(dataset_dir, cfg.labels)  # the clear "no labels" error before anything else
-    _check_counts(cfg.mc_samples, 0, 1, cfg.batch_size)
     ckpt_path = checkpoint_path(run_dir)
     dev = torch.device(cfg.device) if cfg.device else torch.device("cuda" if torch.cuda.is_available() else "cpu")
     model, ckpt = load_trained_model(ckpt_path, map_location=dev)
@@ -650,7 +668,7 @@ def _open_evaluation(run_dir: str | os.PathLike, dataset_dir: str | os.PathLike,
     )
     dem = entry.get("dem", {})
     n_pixels = int(dem.get("rows", defaults.DEM_SIZE_PX)) * int(dem.get("cols", defaults.DEM_SIZE_PX))
-    _check_counts(cfg.mc_samples, cfg.drop_pixels, n_pixels, cfg.batch_size)
+    _check_drop_pixels(cfg.drop_pixels, n_pixels)
     sigmas = dataset_sigmas(paths)
     stored_sigma_index(sigmas, train_sigma)  # stored, or a level the noisy DEMs are made at from the clean points
     labels = str(entry["name"])

@@ -17,7 +17,7 @@ from hdnet import defaults as net_defaults
 from hdnet import limits as net_limits
 from lidarsim import defaults as lidar_defaults
 from lidarsim import limits
-from lidarsim.setting import DIRECTORY, FILE_OR_DIRECTORY, bounded
+from lidarsim.setting import DIRECTORY, FILE_OR_DIRECTORY, bounded, setting
 
 Decorator = Callable[[Callable[..., Any]], Callable[..., Any]]
 
@@ -120,3 +120,38 @@ def options(*decorators: Decorator) -> Decorator:
         return func
 
     return apply
+
+
+# ----------------------------------------------------- settings that several settings classes share
+def mc_samples_setting() -> Any:
+    """The MC-dropout samples M of an inference (``hd eval``, ``hd detect``)."""
+    return setting(net_defaults.MC_SAMPLES, "MC-dropout samples M", bound=net_limits.MC_SAMPLES)
+
+
+def batch_size_setting(what: str) -> Any:
+    """Inputs per inference batch: ``what`` names them."""
+    return setting(net_defaults.BATCH_SIZE, what, bound=net_limits.BATCH_SIZE)
+
+
+def threshold_setting(what: str = "") -> Any:
+    """The uncertainty threshold's form (``hdnet.thresholds.parse_threshold_spec``)."""
+    return setting(net_defaults.THRESHOLD_SPEC, f"{THRESHOLD_FORMS} {what}".strip(), kind=str)
+
+
+def seed_setting(what: str) -> Any:
+    """A command's seed: ``what`` it seeds."""
+    return setting(lidar_defaults.SEED, f"Seed of {what}", bound=limits.SEED)
+
+
+def labels_setting(what: str) -> Any:
+    """The labelling a command reads (None: the dataset's only or newest)."""
+    return setting(None, what, kind=str)
+
+
+# Where a threshold is calibrated: at the run's reference noise level, or at each noise level.
+CALIBRATIONS: tuple[str, ...] = ("reference", "each")
+
+
+def calibrate_setting(what: str) -> Any:
+    """Where the threshold is calibrated (one of :data:`CALIBRATIONS`)."""
+    return setting(CALIBRATIONS[0], what, choices=CALIBRATIONS)

@@ -154,7 +154,7 @@ def test_risk_threshold_reports_the_achieved_false_safe_rate(setup, tmp_path):
 def test_bad_input_fails_with_one_clear_sentence(setup, tmp_path):
     dataset, run, _, _ = setup
     cases: list[tuple[dict[str, Any], str]] = [
-        ({"mc_samples": 0}, "MC samples"),
+        ({"mc_samples": 0}, "mc-samples"),
         ({"drop_pixels": -1}, "drop-pixels"),
         ({"drop_pixels": 10_000}, "drop-pixels"),
         ({"threshold": "risk:1.5"}, "alpha must be in"),
