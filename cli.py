@@ -414,6 +414,14 @@ def verify_cmd(directory: Path, recipe: Path | None) -> None:
         show_default=True,
         help="DEM spacing, metres/pixel.",
     ),
+    click.option(
+        "--truth",
+        type=click.Choice(label_defaults.TRUTHS),
+        default=label_defaults.TRUTH,
+        show_default=True,
+        help="What the deterministic labels come from: the clean scan's DEM (the paper's) or the terrain itself, "
+        "the DTM the dataset was built on sampled on each scan's DEM grid.",
+    ),
     workers_option(),
     scheduler_option(),
     recipe_option("Take the lander and DEM settings from a recipe's [label] section."),
@@ -449,7 +457,9 @@ def label_cmd(
     grid = label.to_dem_spec()
     progress = ScanProgress("labels")
     try:
-        summary = label_dataset(directory, lander, grid, workers=workers, scheduler=scheduler, progress=progress)
+        summary = label_dataset(
+            directory, lander, grid, workers=workers, scheduler=scheduler, progress=progress, truth=label.truth
+        )
     finally:
         progress.close()
     say(summary.paragraph())

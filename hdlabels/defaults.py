@@ -76,3 +76,15 @@ SAFE_PROBABILITY_THRESHOLD: float = 0.5
 # --- Dead pixels (paper, "Damaged elements", Table 2: ten random pixels dropped from the 100x100 DEM;
 # the dead-pixel test of `hd demo` and `hd reproduce`) ----------------------------------------------
 N_DEAD_PIXELS: int = 10
+
+# --- Truth of the deterministic labels (docs/labels.md, "Truth") ------------------------------------
+# "clean-scan": the labels of the clean scan's DEM, as the paper makes them; "terrain": the labels of
+# the DTM itself sampled on each scan's DEM grid (hd choice: the truth once the sensor blurs).
+TRUTHS: tuple[str, ...] = ("clean-scan", "terrain")
+TRUTH: Literal["clean-scan", "terrain"] = "clean-scan"
+# hd choice: the terrain truth samples the DTM's surface at odd n x n points per DEM cell, at least
+# two per DTM cell along each axis (n = the smallest odd number >= 2 * DEM spacing / DTM spacing,
+# within these bounds), so that the cell centre is one of them and the "mean"/"max" griddings see
+# every DTM cell under the DEM cell.
+TERRAIN_SAMPLES_MIN: int = 3
+TERRAIN_SAMPLES_MAX: int = 15

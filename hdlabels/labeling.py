@@ -4,7 +4,9 @@ One task per scan shard (process pool or Dask, like the factory). For each scan:
 
 * the clean points are gridded into the clean DEM, the noisy points of every sigma into noisy DEMs
   (``hdlabels.grid.grid_points``);
-* the clean DEM gives slope, roughness and the label (``hdlabels.alhat.hazard_maps``);
+* the clean DEM gives slope, roughness and the label (``hdlabels.alhat.hazard_maps``); with the
+  terrain truth (``truth="terrain"``) the DTM sampled on the same grid gives them instead
+  (``hdlabels.truth``);
 * every noisy DEM gives the baseline P(safe) with that sigma (``hdlabels.alhat.safety_probability``).
 
 Label shards are written atomically beside the scan shards; the manifest gets the labelling entry
@@ -19,9 +21,10 @@ from __future__ import annotations
 import os
 import shutil
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
-from functools import wraps
+from functools import partial, wraps
 from pathlib import Path
 from typing import Any
 
@@ -42,10 +45,13 @@ from hdlabels.store import (
     add_labeling_to_manifest,
     label_shard_name,
     labeling_name,
+    labeling_truth,
 )
+from hdlabels.truth import check_build_terrain, open_build_dtm, terrain_dem
 from lidarsim.parallel import run_tasks
 from lidarsim.shards import ShardFormatError, open_scan_shard, read_manifest, remove_partials, sha256_file
 from lidarsim.storage import OutputTransaction, check_h5_data
+from lidarsim.terrain import DTM
 
 
 @dataclass(frozen=True)
@@ -59,6 +65,9 @@ class LabelTask:
     lander: Lander
     dem: DemSpec
     labeling: str
+    truth: str = defaults.TRUTH
+    dtm_path: str | None = None  # the terrain truth's DTM (checked by the parent), None for the clean scan
+    dtm_scale: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -80,15 +89,21 @@ class LabelSummary:
     baseline_safe_fraction: dict[str, float]
     seconds: float
     reused: bool
+    truth: str = defaults.TRUTH
 
     def paragraph(self) -> str:
         base = ", ".join(f"{_cm(k)}: {v * 100:.1f}%" for k, v in self.baseline_safe_fraction.items())
         verb = "already labelled" if self.reused else f"labelled in {self.seconds:.1f} s"
         return (
             f"Labelling {self.name}: {self.n_scans} scans in {self.n_shards} label shards, {verb}. "
-            f"{self.safe_fraction * 100:.1f}% of labelled pixels are safe (clean DEMs); the ALHAT baseline "
+            f"{self.safe_fraction * 100:.1f}% of labelled pixels are safe ({_TRUTH_WORDS[self.truth]}); the ALHAT "
+            f"baseline "
             f"(P(safe) >= {defaults.SAFE_PROBABILITY_THRESHOLD:g}) calls safe {base} of them (sigma per noise level)."
         )
+
+
+# How the summary names the DEMs the deterministic labels come from, per truth.
+_TRUTH_WORDS = {"clean-scan": "clean DEMs", "terrain": "the terrain truth: the DTM on each scan's DEM grid"}
 
 
 def _cm(sigma_m: str) -> str:
@@ -110,13 +125,24 @@ def check_lander_fits(lander: Lander, dem: DemSpec) -> None:
 
 
 def label_scan(
-    points_clean: np.ndarray, points_noisy: np.ndarray, sigmas_m: tuple[float, ...], lander: Lander, dem: DemSpec
+    points_clean: np.ndarray,
+    points_noisy: np.ndarray,
+    sigmas_m: tuple[float, ...],
+    lander: Lander,
+    dem: DemSpec,
+    truth: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> dict[str, np.ndarray]:
-    """DEMs, hazard maps and P(safe) of one scan (arrays as stored in a label shard)."""
+    """DEMs, hazard maps and P(safe) of one scan (arrays as stored in a label shard).
+
+    ``truth`` maps the clean scan's DEM to the DEM the labels come from (the terrain truth,
+    ``hdlabels.truth.terrain_dem``); None labels the clean scan's DEM itself.
+    """
     shape = (dem.rows, dem.cols)
     dem_clean = grid_points(points_clean, shape, dem.spacing_m, method=dem.gridding)
     if not np.isfinite(dem_clean).any():
         raise LabelStoreError("a clean DEM is all NaN: the scan has no returns under the DEM grid")
+    if truth is not None:
+        dem_clean = truth(dem_clean)
     maps = hazard_maps(dem_clean, dem.spacing_m, lander)
     dem_noisy = np.stack(
         [grid_points(points_noisy[s], shape, dem.spacing_m, method=dem.gridding) for s in range(len(sigmas_m))]
@@ -157,21 +183,53 @@ def run_label_task(task: LabelTask) -> LabelRecord:
             "sigmas_m": np.asarray(sigmas, dtype=np.float64),
             **{f"lander_{k}": v for k, v in task.lander.to_attrs().items()},
         }
+        if task.truth != defaults.TRUTH:  # the clean-scan truth's shards keep their bytes: no attribute
+            attrs.update(truth_attrs(task))
         writer = LabelShardWriter(out, len(reader), len(sigmas), task.dem, attrs)
         try:
-            for k in range(len(reader)):
-                f = reader.h5
-                try:
-                    arrays = label_scan(f["points_clean"][k], f["points_noisy"][k], sigmas, task.lander, task.dem)
-                except LabelStoreError as exc:
-                    raise LabelStoreError(f"{task.source_path} scan {int(f['scan_index'][k])}: {exc}") from exc
-                writer.write(k, int(f["scan_index"][k]), int(f["split"][k]), **arrays)
-                counts += label_counts(arrays["label"])
+            with _truth_dtm(task) as dtm:
+                for k in range(len(reader)):
+                    f = reader.h5
+                    truth = None
+                    if dtm is not None:
+                        origin = np.asarray(f["origin_map"][k], dtype=np.float64)
+                        truth = partial(_terrain_truth, origin_map=origin, dem=task.dem, dtm=dtm)
+                    try:
+                        arrays = label_scan(
+                            f["points_clean"][k], f["points_noisy"][k], sigmas, task.lander, task.dem, truth
+                        )
+                    except LabelStoreError as exc:
+                        raise LabelStoreError(f"{task.source_path} scan {int(f['scan_index'][k])}: {exc}") from exc
+                    writer.write(k, int(f["scan_index"][k]), int(f["split"][k]), **arrays)
+                    counts += label_counts(arrays["label"])
             writer.commit()
         except BaseException:
             writer.abort()
             raise
     return _record(task, out, n_scans, counts)
+
+
+def _terrain_truth(dem_clean: np.ndarray, *, origin_map: np.ndarray, dem: DemSpec, dtm: DTM) -> np.ndarray:
+    return terrain_dem(origin_map, dem_clean, dem, dtm)
+
+
+@contextmanager
+def _truth_dtm(task: LabelTask) -> Iterator[DTM | None]:
+    """The DTM of the terrain truth, open while a shard is labelled (None for the clean-scan truth)."""
+    if task.truth == defaults.TRUTH or task.dtm_path is None:
+        yield None
+        return
+    with open_build_dtm(task.dtm_path, task.dtm_scale) as dtm:
+        yield dtm
+
+
+def truth_attrs(task: LabelTask) -> dict[str, Any]:
+    """The label-shard attributes of a labelling's truth (written only for the terrain truth)."""
+    return {
+        "truth": task.truth,
+        "truth_dtm": Path(task.dtm_path).name if task.dtm_path else "",
+        "truth_dtm_scale": float(task.dtm_scale),
+    }
 
 
 def _record(task: LabelTask, out: Path, n_scans: int, counts: np.ndarray) -> LabelRecord:
@@ -196,6 +254,8 @@ def _existing(task: LabelTask) -> LabelRecord | None:
         with LabelShardReader(out) as reader:
             a = reader.h5.attrs
             if a.get("source_sha256") != task.source_sha256 or a.get("labeling") != task.labeling:
+                return None
+            if str(a.get("truth", defaults.TRUTH)) != task.truth:
                 return None
             lab = reader.h5["label"][:]
             n = len(reader)
@@ -241,13 +301,17 @@ def label_dataset(
     workers: int | None = None,
     scheduler: str | None = None,
     progress: Callable[[int, int], None] | None = None,
+    truth: str = defaults.TRUTH,
 ) -> LabelSummary:
     """Label every scan of the dataset at ``directory`` with ``lander`` on ``dem`` grids.
 
     ``dem`` defaults to 100 x 100 cells of 1 m made with the lander's convention's gridding.
+    ``truth``: ``"clean-scan"`` (the deterministic labels of the clean scan's DEM, the paper's) or
+    ``"terrain"`` (of the DTM the dataset was built on, sampled on each scan's DEM grid; ``hdlabels.truth``).
 
     Raises:
-        LabelStoreError: not an hd dataset, a lander too large for the DEM, an all-NaN DEM.
+        LabelStoreError: not an hd dataset, a lander too large for the DEM, an all-NaN DEM, an
+            unknown truth, a terrain truth whose DTM is missing or changed.
     """
     t0 = time.perf_counter()
     root = Path(directory).resolve()
@@ -255,7 +319,10 @@ def label_dataset(
     if dem is None:
         dem = DemSpec.for_convention(lander.convention)
     check_lander_fits(lander, dem)
-    name = labeling_name(lander, dem)
+    if truth not in defaults.TRUTHS:
+        raise LabelStoreError(f"unknown truth {truth!r}; use one of {', '.join(defaults.TRUTHS)}")
+    name = labeling_name(lander, dem, truth)
+    dtm_path, dtm_scale = (None, 1.0) if truth == defaults.TRUTH else check_build_terrain(root, manifest)
     for lab in manifest.get("labelings", []):
         if lab["name"] == name:
             return _summary_from_entry(lab, manifest, time.perf_counter() - t0, reused=True)
@@ -272,6 +339,9 @@ def label_dataset(
             lander=lander,
             dem=dem,
             labeling=name,
+            truth=truth,
+            dtm_path=None if dtm_path is None else str(dtm_path),
+            dtm_scale=dtm_scale,
         )
         for i, s in enumerate(manifest["shards"])
     ]
@@ -318,6 +388,8 @@ def label_dataset(
         "baseline_safe_fraction": _baseline_fractions(root, [records[i].entry for i in sorted(records)], manifest),
         "shards": [records[i].entry for i in sorted(records)],
     }
+    if truth != defaults.TRUTH:  # absent: the clean scan's (entries as before the terrain truth existed)
+        entry["truth"] = truth
     add_labeling_to_manifest(root, entry)
     return _summary_from_entry(entry, manifest, time.perf_counter() - t0, reused=False)
 
@@ -347,4 +419,5 @@ def _summary_from_entry(entry: dict[str, Any], manifest: dict[str, Any], seconds
         baseline_safe_fraction=entry.get("baseline_safe_fraction", {}),
         seconds=seconds,
         reused=reused,
+        truth=labeling_truth(entry),
     )

@@ -37,6 +37,8 @@ class LabelSettings:
         convention: ``"paper"`` or ``"hd"`` (docs/labels.md).
         baseline_combine: ``"product"`` or ``"min"``; None takes the convention's.
         gridding: ``"linear"``, ``"mean"``, ``"max"`` or ``"nearest"``; None takes the convention's.
+        truth: what the deterministic labels come from: ``"clean-scan"`` (the clean scan's DEM, the
+            paper's) or ``"terrain"`` (the DTM the dataset was built on, on each scan's DEM grid).
     """
 
     lander: str = defaults.LAYOUT
@@ -51,6 +53,7 @@ class LabelSettings:
     convention: str = defaults.CONVENTION
     baseline_combine: str | None = None
     gridding: str | None = None
+    truth: str = defaults.TRUTH
 
     @classmethod
     def from_recipe(cls, section: Mapping[str, Any], where: str = "recipe") -> LabelSettings:
@@ -77,6 +80,7 @@ class LabelSettings:
             "convention": str,
             "baseline_combine": str,
             "gridding": str,
+            "truth": str,
         }
         values: dict[str, Any] = {"convention": RECIPE_CONVENTION_BEFORE_CONVENTIONS}
         for key, value in section.items():
@@ -84,6 +88,9 @@ class LabelSettings:
                 values[key] = casts[key](value)
             except (TypeError, ValueError) as exc:
                 raise HdLabelsError(f"{where}: [label] {key} = {value!r} is not a valid value") from exc
+        if values.get("truth", defaults.TRUTH) not in defaults.TRUTHS:
+            truths = ", ".join(defaults.TRUTHS)
+            raise HdLabelsError(f"{where}: [label] truth = {values['truth']!r} is not one of {truths}")
         return cls(**values)
 
     def to_lander(self) -> Lander:

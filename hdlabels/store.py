@@ -112,12 +112,24 @@ class DemSpec:
         )
 
 
-def labeling_name(lander: Lander, dem: DemSpec) -> str:
-    """Directory name of a labelling, readable and unique per lander, convention and DEM settings.
+def labeling_name(lander: Lander, dem: DemSpec, truth: str = defaults.TRUTH) -> str:
+    """Directory name of a labelling, readable and unique per lander, convention, DEM settings and truth.
 
     hd-convention labellings with the "min" baseline on linear DEMs keep the names they had before
-    conventions existed, so existing datasets keep their labellings.
+    conventions existed, so existing datasets keep their labellings; the clean-scan truth adds
+    nothing to a name, the terrain truth ``-truth-terrain``.
     """
+    return _labeling_body(lander, dem) + ("" if truth == defaults.TRUTH else f"-truth-{truth}")
+
+
+def labeling_truth(entry: dict[str, Any]) -> str:
+    """The truth of a labelling's manifest entry: ``"terrain"`` or ``"clean-scan"`` (entries without
+    a ``truth`` key, every labelling made before the terrain truth existed, are the clean scan's)."""
+    return str(entry.get("truth", defaults.TRUTH))
+
+
+def _labeling_body(lander: Lander, dem: DemSpec) -> str:
+    """The name of a labelling, truth aside."""
     holes = "-holes" if lander.count_holes else ""
     body = (
         f"{lander.layout}-d{lander.diameter_m:g}m-pad{lander.pad_diameter_m:g}m-slope{lander.max_slope_deg:g}deg"

@@ -346,6 +346,7 @@ def _label(pipeline: Pipeline, workers: int | None, echo: Echo, progress: Progre
             pipeline.label.to_dem_spec(),
             workers=workers,
             progress=bar,
+            truth=pipeline.label.truth,
         )
     echo(summary.paragraph())
 

@@ -81,7 +81,10 @@ def describe_dataset(directory: str | os.PathLike) -> str:
     for lab in labelings:
         frac = lab.get("safe_fraction")
         frac_txt = f", {frac * 100:.1f}% of labelled pixels safe" if isinstance(frac, float) else ""
-        lines.append(f"labels    {lab.get('name')}: {len(lab.get('shards', []))} label shards{frac_txt}")
+        truth = "terrain (the DTM on each scan's DEM grid)" if lab.get("truth") == "terrain" else "clean scan"
+        lines.append(
+            f"labels    {lab.get('name')}: {len(lab.get('shards', []))} label shards{frac_txt}; truth: {truth}"
+        )
     if not labelings:
         lines.append("labels    none (run `hd label`)")
     listed = {lab.get("name") for lab in labelings}
@@ -128,6 +131,7 @@ def dataset_record(directory: str | os.PathLike) -> dict[str, Any]:
             {
                 "name": lab.get("name"),
                 "convention": lab.get("convention"),
+                "truth": lab.get("truth", "clean-scan"),
                 "n_shards": len(lab.get("shards", [])),
                 "safe_fraction": lab.get("safe_fraction"),
                 "label_counts": lab.get("label_counts"),

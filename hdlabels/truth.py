@@ -1,0 +1,148 @@
+"""The terrain truth: the DTM a dataset was built on, sampled on each scan's DEM grid (``hd label --truth terrain``).
+
+The paper labels the clean *scan*: its DEM is the sensor's view of the terrain. Once the sensor
+blurs (a pixel footprint) or misses (occlusion), the truth must come from the terrain itself. This
+module gives, for one scan, the DEM of the terrain under that scan's DEM grid:
+
+* the terrain is the surface the build cast its rays against: the triangle mesh of the DTM's cell
+  centres that ``lidarsim.scan.TileScene`` makes (same file, same ``--dtm-scale``);
+* the grid is the scan's: north-up, centred at the scan's nadir point ``origin_map`` (its x, y),
+  heights relative to its reference height (its z), the scan frame the clean points are in;
+* the surface is sampled by vertical rays at ``n x n`` points per DEM cell (the cell centre among
+  them; ``hdlabels.defaults.TERRAIN_SAMPLES_MIN``), and those points are gridded by the labelling's
+  own gridding (``hdlabels.grid.grid_points``), so a truth DEM is what a perfect, dense sensor
+  straight above every cell would give;
+* cells where the clean scan's DEM has no support (outside the scan's footprint) stay NaN, so the
+  truth covers the same ground as the clean-scan truth.
+
+The dataset records its DTM in the manifest (``dtm``: path, sha256, scale in ``config.dtm_scale``):
+the procedural terrain inside the dataset (``terrain/``), a user's DTM by its absolute path. A DTM
+that is missing or whose bytes changed is refused with one line (:func:`check_build_terrain`).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hdlabels import defaults
+from hdlabels.grid import cell_centres, grid_points
+from hdlabels.store import DemSpec, LabelStoreError
+from lidarsim.errors import HdError
+from lidarsim.scan import TileScene
+from lidarsim.storage import sha256_file
+from lidarsim.terrain import DTM
+
+# hd choice: the sampling rays start this far above the highest terrain of the window, metres.
+_RAY_CLEARANCE_M = 10.0
+
+
+def build_terrain_path(root: Path, manifest: dict[str, Any]) -> tuple[Path, str, float]:
+    """The DTM a dataset was built on: its path, recorded sha256 and the build's ``--dtm-scale``.
+
+    Raises:
+        LabelStoreError: the manifest records no DTM.
+    """
+    dtm = manifest.get("dtm")
+    if not isinstance(dtm, dict) or not isinstance(dtm.get("path"), str) or not isinstance(dtm.get("sha256"), str):
+        raise LabelStoreError(f"{root}: the manifest records no terrain (dtm path, sha256); --truth terrain needs it")
+    config = manifest.get("config")
+    scale = config.get("dtm_scale", 1.0) if isinstance(config, dict) else 1.0
+    if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not 0.0 < scale <= 1.0:
+        raise LabelStoreError(f"{root}: the manifest's config.dtm_scale {scale!r} is not a scale in (0, 1]")
+    path = Path(dtm["path"])
+    return (path if path.is_absolute() else root / path), str(dtm["sha256"]), float(scale)
+
+
+def check_build_terrain(root: Path, manifest: dict[str, Any]) -> tuple[Path, float]:
+    """The DTM a dataset was built on, checked: present and the bytes the build read (sha256).
+
+    Returns:
+        ``(path, scale)``.
+
+    Raises:
+        LabelStoreError: one line naming the file: missing, unreadable or changed since the build.
+    """
+    path, recorded, scale = build_terrain_path(root, manifest)
+    if not path.is_file():
+        raise LabelStoreError(
+            f"{path}: the terrain {root.name} was built on is missing; --truth terrain samples it (restore the "
+            "file, or label with --truth clean-scan)"
+        )
+    try:
+        digest = sha256_file(path)
+    except HdError as exc:
+        raise LabelStoreError(f"{path}: the dataset's terrain cannot be read ({exc})") from exc
+    if digest != recorded:
+        raise LabelStoreError(
+            f"{path}: the terrain changed since {root.name} was built (sha256 {digest[:12]}..., the manifest "
+            f"says {recorded[:12]}...); --truth terrain needs the DTM the scans were cast on"
+        )
+    return path, scale
+
+
+def samples_per_cell(dem_spacing_m: float, dtm_spacing_m: float) -> int:
+    """Odd number of sampling rays per DEM cell and axis: at least two per DTM cell (module docstring)."""
+    n = math.ceil(2.0 * dem_spacing_m / dtm_spacing_m - 1e-9)
+    n += 1 - n % 2
+    return int(min(defaults.TERRAIN_SAMPLES_MAX, max(defaults.TERRAIN_SAMPLES_MIN, n)))
+
+
+def sample_points(origin_map: np.ndarray, dem: DemSpec, n: int, dtm: DTM) -> np.ndarray:
+    """The DTM's surface under a scan's DEM grid, sampled by vertical rays: an organised point cloud.
+
+    Args:
+        origin_map: (3,) map coordinates of the scan frame's origin (nadir x, y; reference height), metres.
+        dem: the DEM grid (rows, cols, spacing_m metres/pixel), centred at the nadir point.
+        n: odd number of samples per cell along each axis.
+        dtm: the open DTM (at the build's scale).
+
+    Returns:
+        float64 (rows * n, cols * n, 3) points in the scan frame (x east, y north, z up, metres), row-major
+        from the north-west corner; NaN heights where the surface has no cell (nodata, off the DTM).
+    """
+    x0, y0, z0 = (float(v) for v in origin_map)
+    xc, yc = cell_centres((dem.rows, dem.cols), dem.spacing_m)
+    offsets = (np.arange(n) - (n - 1) / 2.0) * (dem.spacing_m / n)
+    xs = (xc[:, None] + offsets[None, :]).ravel()  # west to east
+    ys = (yc[:, None] - offsets[None, :]).ravel()  # north to south
+    half = max(dem.rows, dem.cols) * dem.spacing_m / 2.0 + 2.0 * max(dtm.info.spacing_m)
+    scene = TileScene(dtm, (x0, y0), half)
+    finite = scene.heights[np.isfinite(scene.heights)]
+    xx, yy = np.meshgrid(xs, ys)
+    points = np.stack([xx, yy, np.full_like(xx, np.nan)], axis=-1)
+    if finite.size == 0:
+        return points
+    top = float(finite.max()) + _RAY_CLEARANCE_M
+    origins = np.stack([x0 + xx.ravel(), y0 + yy.ravel(), np.full(xx.size, top)], axis=-1)
+    down = np.zeros((xx.size, 1, 1, 3))
+    down[..., 2] = -1.0
+    t = scene.cast(origins, down).astype(np.float64).reshape(xx.shape)
+    points[..., 2] = top - t - z0
+    points[~np.isfinite(t)] = np.nan  # no surface there: no point, as a ray that misses
+    return points
+
+
+def terrain_dem(origin_map: np.ndarray, dem_clean: np.ndarray, dem: DemSpec, dtm: DTM) -> np.ndarray:
+    """The terrain-truth DEM of one scan (float32 metres, scan frame; NaN where ``dem_clean`` is NaN).
+
+    Args:
+        origin_map: (3,) the scan's ``origin_map`` (metres).
+        dem_clean: the clean scan's DEM on the same grid: its support is the scan's footprint.
+        dem: the DEM grid and gridding.
+        dtm: the open DTM the dataset was built on (at the build's scale).
+    """
+    n = samples_per_cell(dem.spacing_m, min(dtm.info.spacing_m))
+    points = sample_points(origin_map, dem, n, dtm)
+    out = grid_points(points, (dem.rows, dem.cols), dem.spacing_m, method=dem.gridding)
+    out[~np.isfinite(dem_clean)] = np.nan
+    return out.astype(np.float32, copy=False)
+
+
+def open_build_dtm(path: str | os.PathLike, scale: float) -> DTM:
+    """The DTM at ``path`` opened at the build's scale (checked beforehand by :func:`check_build_terrain`)."""
+    return DTM.open(path, scale=scale)
