@@ -50,7 +50,7 @@ from lidarsim.span import SpanType as _Span
 _options = options
 
 # The paper's dataset recipe, which `hd reproduce` runs (beside this file in a source checkout).
-PAPER_RECIPE = Path(__file__).resolve().parent / "datasets" / "mars-paper"
+PAPER_RECIPE = "mars-paper"  # hd reproduce's recipe, one that comes with hd (lidarsim.recipe.shipped_recipe)
 
 
 # ------------------------------------------------------------------------------------------ commands
@@ -615,8 +615,8 @@ def demo_cmd(out_dir: Path, scans: int, epochs: int, workers: int | None) -> Non
     epochs_option("Training epochs (default: the profile's)."),
     workers_option(),
     recipe_option(
-        f"The dataset recipe to reproduce the paper on (default: {PAPER_RECIPE.parent.name}/{PAPER_RECIPE.name} "
-        "of the hd source tree)."
+        f"The dataset recipe to reproduce the paper on (default: {PAPER_RECIPE}, the recipe that comes with hd, "
+        "in a source checkout or an installed package)."
     ),
 )
 @friendly_errors
@@ -628,8 +628,10 @@ def reproduce_cmd(
     sweep and panels, plus the risk-controlled threshold (alpha = 0.05). Each stage is resumable; finished stages
     are skipped."""
     from hdnet.pipeline import reproduce_pipeline, run_pipeline
+    from lidarsim.recipe import shipped_recipe
 
-    pipeline = reproduce_pipeline(out_dir, recipe if recipe is not None else PAPER_RECIPE, profile, epochs, dtm_path)
+    recipe = recipe if recipe is not None else shipped_recipe(PAPER_RECIPE)
+    pipeline = reproduce_pipeline(out_dir, recipe, profile, epochs, dtm_path)
     run_pipeline(pipeline, workers, echo=click.echo, progress=ScanProgress)
 
 

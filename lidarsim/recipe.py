@@ -231,13 +231,36 @@ class Recipe:
 RECIPE_PATH_ENV = "HD_RECIPE_PATH"
 # The recipes of a source checkout (an editable install): datasets/ beside the packages.
 SOURCE_RECIPES = Path(__file__).resolve().parents[1] / "datasets"
+# The recipes of an installed wheel: the same datasets/ folder, shipped as the package data
+# ``lidarsim/datasets`` (pyproject.toml maps the package ``lidarsim.datasets`` onto datasets/).
+PACKAGED_RECIPES = Path(__file__).resolve().parent / "datasets"
+
+
+def shipped_recipe_dirs() -> list[Path]:
+    """The folders of the recipes that come with hd: the source checkout's ``datasets/`` and, in an
+    installed wheel, the package data ``lidarsim/datasets`` (only those that exist)."""
+    return [d for d in (SOURCE_RECIPES, PACKAGED_RECIPES) if d.is_dir()]
 
 
 def recipe_search_dirs() -> list[Path]:
     """Where a recipe given by its bare name is looked for, in order: the current directory,
-    each directory of ``$HD_RECIPE_PATH``, then the source checkout's ``datasets/``."""
+    each directory of ``$HD_RECIPE_PATH``, then the recipes that come with hd
+    (:func:`shipped_recipe_dirs`)."""
     extra = [Path(d) for d in os.environ.get(RECIPE_PATH_ENV, "").split(os.pathsep) if d]
-    return [Path("."), *extra, SOURCE_RECIPES]
+    return [Path("."), *extra, *shipped_recipe_dirs()]
+
+
+def shipped_recipe(name: str) -> Path:
+    """The directory of the recipe ``name`` that comes with hd (``mars-paper``), wherever hd is
+    installed; never one of the current directory or of ``$HD_RECIPE_PATH``.
+
+    Raises:
+        RecipeError: hd ships no recipe of that name.
+    """
+    for d in shipped_recipe_dirs():
+        if (d / name / RECIPE_FILE).is_file():
+            return d / name
+    raise RecipeError(f"{name}: hd ships no such recipe (looked in {', '.join(map(str, shipped_recipe_dirs()))})")
 
 
 def find_recipe(path: str | os.PathLike) -> Path:
