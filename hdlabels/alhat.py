@@ -2,9 +2,9 @@
 
 A replica of the deterministic slope / roughness evaluation and of the probabilistic roughness
 evaluation of Ivanov, Huertas & Carson (2013), as used by the paper for its labels (clean DEM)
-and its baseline (noisy DEM), in either of two conventions (``Lander.convention``; the sampling
-tables of each come from ``hdlabels.lander.geometry``). For every aiming point (DEM pixel) and every
-placement of the pads around it:
+and its baseline (noisy DEM), in either of two conventions (``Lander.rules``,
+``hdlabels.conventions``: the sampling tables, the noise scale and the slope test of each). For
+every aiming point (DEM pixel) and every placement of the pads around it:
 
 1. each pad rests on the highest terrain under it (hd: bilinear terrain over the pad disk; paper:
    the highest node of the pad's pixel disk);
@@ -24,20 +24,21 @@ Site slope and roughness are the worst case over configurations; P(safe) is the 
 slope test times the smallest configuration probability. ``docs/labels.md`` holds the equations,
 units and choices. Everything is in pixels internally (see ``lander.py``); heights are metres.
 
-Two interchangeable back ends compute the same numbers: vectorised numpy (loops over yaws, pads
-and nodes, each an array operation over all sites) and, when numba is installed, the same loops
-compiled (``backend="numba"``, the default via ``"auto"``). The compiled product rule sums the
-nodes only of the sites and configurations whose result the cheaper bounds leave open
-(``_product_loops``): the maps and the P >= 0.5 decision are those of the full sums, P(safe)
-is within 1e-7 of them.
+The kernels are compiled by numba (cached on disk, ``cache=True``), one row of sites at a time;
+``parallel=True`` spreads the rows over numba's threads (``NUMBA_NUM_THREADS``) with the same
+numbers. The compiled product rule sums the nodes only of the sites and configurations whose
+result the cheaper bounds leave open (``_product_loops``): the maps and the P >= 0.5 decision are
+those of the full sums, P(safe) is within 1e-7 of them. The same rules written as array
+operations (numpy) are the tests' oracle (``tests/hdlabels/alhat_numpy.py``), not a back end.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Literal
 
+import numba
 import numpy as np
 from scipy import ndimage
 from scipy.special import log_ndtr, ndtr
@@ -46,15 +47,13 @@ from hdlabels import defaults
 from hdlabels.errors import HdLabelsError
 from hdlabels.lander import Geometry, Lander, geometry
 
-try:  # numba is optional: the numpy back end computes the same numbers, slower.
-    import numba
-except ImportError:  # pragma: no cover - exercised only where numba is absent
-    numba = None  # type: ignore[assignment]  # absent: the numpy back end is taken
-
-Backend = Literal["auto", "numba", "numpy"]
-
 # P(safe) modes of the kernels.
 _P_NONE, _P_PRODUCT, _P_MIN = 0, 1, 2
+
+# A worst-case kernel: (z, valid, geometry, lander, spacing, P mode, sigma, parallel) -> slope, roughness, P score.
+WorstCase = Callable[
+    [np.ndarray, np.ndarray, Geometry, Lander, float, int, float, bool], tuple[np.ndarray, np.ndarray, np.ndarray]
+]
 
 
 @dataclass(frozen=True)
@@ -80,25 +79,24 @@ class HazardMaps:
         return self.label != defaults.LABEL_INVALID
 
 
-def hazard_maps(
-    dem: np.ndarray, spacing_m: float, lander: Lander = Lander(), *, backend: Backend = "auto"
-) -> HazardMaps:
+def hazard_maps(dem: np.ndarray, spacing_m: float, lander: Lander = Lander(), *, parallel: bool = False) -> HazardMaps:
     """Deterministic slope, roughness and label of every aiming point of a DEM.
 
     Args:
         dem: (H, W) terrain heights, metres, north-up; NaN marks cells without data.
         spacing_m: grid spacing, metres per pixel.
         lander: lander geometry, thresholds and convention.
-        backend: ``"numba"``, ``"numpy"`` or ``"auto"`` (numba when installed).
+        parallel: rows of sites on numba's threads (the same numbers; for one DEM at a time, not
+            inside worker processes that already share the cores).
 
     Returns:
         HazardMaps with slope (radians), roughness (metres) and the uint8 label.
     """
-    return _evaluate(dem, spacing_m, lander, None, _choose(backend))[0]
+    return _evaluate(dem, spacing_m, lander, None, parallel)[0]
 
 
 def safety_probability(
-    dem: np.ndarray, spacing_m: float, sigma_m: float, lander: Lander = Lander(), *, backend: Backend = "auto"
+    dem: np.ndarray, spacing_m: float, sigma_m: float, lander: Lander = Lander(), *, parallel: bool = False
 ) -> np.ndarray:
     """Probabilistic baseline P(safe) of a noisy DEM whose heights have 1-sigma noise ``sigma_m`` (metres).
 
@@ -106,15 +104,15 @@ def safety_probability(
     lander's convention and ``baseline_combine`` (module docstring). ``sigma_m = 0`` gives the
     deterministic roughness test. Returns float32 in [0, 1], NaN where invalid; the baseline map is P >= 0.5.
     """
-    return hazard_and_probability(dem, spacing_m, sigma_m, lander, backend=backend)[1]
+    return hazard_and_probability(dem, spacing_m, sigma_m, lander, parallel=parallel)[1]
 
 
 def hazard_and_probability(
-    dem: np.ndarray, spacing_m: float, sigma_m: float, lander: Lander = Lander(), *, backend: Backend = "auto"
+    dem: np.ndarray, spacing_m: float, sigma_m: float, lander: Lander = Lander(), *, parallel: bool = False
 ) -> tuple[HazardMaps, np.ndarray]:
     """``hazard_maps`` and ``safety_probability`` of one DEM from a single pass over its sites."""
     _check_sigma(sigma_m)
-    maps, p = _evaluate(dem, spacing_m, lander, float(sigma_m), _choose(backend))
+    maps, p = _evaluate(dem, spacing_m, lander, float(sigma_m), parallel)
     assert p is not None
     return maps, p
 
@@ -130,19 +128,32 @@ def probability_from_maps(maps: HazardMaps, sigma_m: float, lander: Lander = Lan
     scale need the DEM itself: use ``safety_probability``.
     """
     _check_sigma(sigma_m)
-    if lander.convention != "hd" or lander.baseline_combine != "min":
+    if not lander.rules.baseline_from_maps(str(lander.baseline_combine)):
         raise HdLabelsError(
             "P(safe) follows from the hazard maps only for the hd convention with the 'min' combination; "
             "use safety_probability(dem, ...)"
         )
     slope = maps.slope_rad.astype(np.float64)
     rough = maps.roughness_m.astype(np.float64)
-    slope_ok = slope < math.radians(lander.max_slope_deg)
+    slope_ok = slope_passes(slope, lander, baseline=True)
     margin = lander.max_roughness_m - rough
     p_rough = ndtr(margin / sigma_m) if sigma_m > 0 else (margin > 0).astype(np.float64)
     p = np.where(slope_ok, p_rough, 0.0)
     p[~maps.valid] = np.nan
     return p.astype(np.float32)
+
+
+def slope_passes(slope_rad: np.ndarray, lander: Lander, *, baseline: bool) -> np.ndarray:
+    """The slope test, the one place it is written: bool array, True where ``slope_rad`` passes.
+
+    The labels call a slope safe below the limit (``slope < max_slope_deg``) in both conventions;
+    the baseline keeps a slope equal to the limit where the convention says so (the paper's replica
+    calls ``slope > limit`` unsafe). NaN fails.
+    """
+    limit = math.radians(lander.max_slope_deg)
+    if baseline and lander.rules.baseline_slope_inclusive:
+        return np.asarray(slope_rad <= limit)
+    return np.asarray(slope_rad < limit)
 
 
 def valid_sites(dem: np.ndarray, spacing_m: float, lander: Lander = Lander()) -> np.ndarray:
@@ -152,16 +163,6 @@ def valid_sites(dem: np.ndarray, spacing_m: float, lander: Lander = Lander()) ->
 
 # --------------------------------------------------------------------------------------------------
 # Internals.
-
-
-def _choose(backend: Backend) -> str:
-    if backend == "auto":
-        return "numba" if numba is not None else "numpy"
-    if backend == "numba" and numba is None:
-        raise HdLabelsError("The numba back end was requested but numba is not installed.")
-    if backend not in ("numba", "numpy"):
-        raise HdLabelsError(f"Unknown back end {backend!r}: use 'auto', 'numba' or 'numpy'.")
-    return backend
 
 
 def _prepare(dem: np.ndarray, spacing_m: float, lander: Lander) -> tuple[np.ndarray, np.ndarray, Geometry]:
@@ -191,44 +192,30 @@ def _prepare(dem: np.ndarray, spacing_m: float, lander: Lander) -> tuple[np.ndar
     return z, valid, geo
 
 
-def _resting_planes(heights: np.ndarray, geo: Geometry, n_pads: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Resting planes per site, stacked over (yaw, plane of that yaw), from the pad heights.
-
-    ``heights`` is (n_yaws * n_pads, Hv, Wv), metres. Returns gx, gy (metres per pixel along x east
-    and y north) and c (metres, the plane's height at the site), each (n_yaws * n_cfg, Hv, Wv).
-    """
-    n_yaws = heights.shape[0] // n_pads
-    h = heights.reshape(n_yaws, n_pads, *heights.shape[1:])
-    gx, gy, c = [], [], []
-    for m in range(n_yaws):
-        coeffs = [
-            np.tensordot(geo.plane_weights[m, t], h[m, list(triple)], axes=1) for t, triple in enumerate(geo.triples)
-        ]
-        if n_pads == 4:  # rock on the higher diagonal, both ways
-            on_02 = h[m, 0] + h[m, 2] >= h[m, 1] + h[m, 3]
-            coeffs = [np.where(on_02, coeffs[0], coeffs[2]), np.where(on_02, coeffs[1], coeffs[3])]
-        for co in coeffs:
-            gx.append(co[0])
-            gy.append(co[1])
-            c.append(co[2])
-    return np.stack(gx), np.stack(gy), np.stack(c)
-
-
 def _check_sigma(sigma_m: float) -> None:
     if isinstance(sigma_m, bool) or not (isinstance(sigma_m, (int, float)) and math.isfinite(sigma_m) and sigma_m >= 0):
         raise HdLabelsError(f"DEM noise sigma must be a finite number of metres >= 0, got {sigma_m!r}.")
 
 
 def _evaluate(
-    dem: np.ndarray, spacing_m: float, lander: Lander, sigma_m: float | None, backend: str
+    dem: np.ndarray,
+    spacing_m: float,
+    lander: Lander,
+    sigma_m: float | None,
+    parallel: bool,
+    worst_case: WorstCase | None = None,
 ) -> tuple[HazardMaps, np.ndarray | None]:
-    """The hazard maps and, when ``sigma_m`` is given, P(safe) (float32, NaN where invalid)."""
+    """The hazard maps and, when ``sigma_m`` is given, P(safe) (float32, NaN where invalid).
+
+    ``worst_case``: the kernel (``_worst_case``; the tests pass their numpy oracle).
+    """
     z, valid, geo = _prepare(dem, spacing_m, lander)
-    legacy_min = lander.convention == "hd" and lander.baseline_combine == "min"
+    from_maps = lander.rules.baseline_from_maps(str(lander.baseline_combine))
     mode = _P_NONE
-    if sigma_m and not legacy_min:
+    if sigma_m and not from_maps:
         mode = _P_PRODUCT if lander.baseline_combine == "product" else _P_MIN
-    slope, rough, score = _worst_case(z, valid, geo, lander, spacing_m, backend, mode, sigma_m or 0.0)
+    kernel = worst_case or _worst_case
+    slope, rough, score = kernel(z, valid, geo, lander, spacing_m, mode, sigma_m or 0.0, parallel)
     b = geo.band_px
     inner = (slice(b, z.shape[0] - b), slice(b, z.shape[1] - b))
 
@@ -239,23 +226,19 @@ def _evaluate(
         return out
 
     slope_full, rough_full = full(slope), full(rough)
-    safe = (slope_full < math.radians(lander.max_slope_deg)) & (rough_full < lander.max_roughness_m)
+    safe = slope_passes(slope_full, lander, baseline=False) & (rough_full < lander.max_roughness_m)
     label = np.where(safe, defaults.LABEL_SAFE, defaults.LABEL_UNSAFE).astype(np.uint8)
     label[~valid] = defaults.LABEL_INVALID
     maps = HazardMaps(slope_full.astype(np.float32), rough_full.astype(np.float32), label)
     if sigma_m is None:
         return maps, None
-    if legacy_min:
+    if from_maps:
         return maps, probability_from_maps(maps, sigma_m, lander)
     if mode == _P_NONE:  # sigma 0: every node's probability is 0 or 1, whichever the combination
         p = (rough_full < lander.max_roughness_m).astype(np.float64)
     else:
         p = _score_to_probability(full(score), mode)
-    # The slope test: the replica keeps a site whose slope equals the limit (slope > limit is
-    # unsafe); hd's own convention is strict (slope < limit is safe), as for the labels.
-    limit = math.radians(lander.max_slope_deg)
-    slope_ok = slope_full <= limit if lander.convention == "paper" else slope_full < limit
-    p = np.where(slope_ok, p, 0.0)
+    p = np.where(slope_passes(slope_full, lander, baseline=True), p, 0.0)
     p[~valid] = np.nan
     return maps, p.astype(np.float32)
 
@@ -273,9 +256,9 @@ def _worst_case(
     geo: Geometry,
     lander: Lander,
     spacing_m: float,
-    backend: str,
     mode: int,
     sigma_m: float,
+    parallel: bool,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Worst-case slope (rad), roughness (m) and P score over the interior sites (band removed).
 
@@ -284,96 +267,46 @@ def _worst_case(
     """
     b = geo.band_px
     hv, wv = z.shape[0] - 2 * b, z.shape[1] - 2 * b
-    scale_by_c = lander.convention == "paper"
+    scale_by_c = lander.rules.noise_scale_by_cos
     inv_sigma = 1.0 / sigma_m if sigma_m > 0 else 0.0  # unused when sigma is 0 (no P mode)
     score = np.zeros((hv, wv))
-    if backend == "numba":
-        z = z.astype(np.float32)  # half the memory traffic, twice the SIMD width; ~1e-6 m rounding
-        heights = np.empty((geo.tap_w.shape[0], hv, wv), dtype=np.float32)
-        _pad_heights_jit(z, b, geo.tap_di, geo.tap_dj, geo.tap_w.astype(np.float32), heights)
-        slope = np.empty((hv, wv))
-        rough = np.empty((hv, wv))
-        args = (z, b, heights, lander.n_pads, geo.plane_weights, geo.triples, geo.node_ptr, geo.node_di, geo.node_dj)
-        if mode == _P_PRODUCT:
-            inner_valid = np.ascontiguousarray(valid[b : b + hv, b : b + wv])
-            tan2_cut = math.tan(math.radians(lander.max_slope_deg)) ** 2 * (1.0 + _TAN2_MARGIN)
-            _product_jit(
-                *args,
-                lander.count_holes,
-                spacing_m,
-                lander.max_roughness_m,
-                inv_sigma,
-                scale_by_c,
-                _LOG_PHI,
-                inner_valid,
-                tan2_cut,
-                slope,
-                rough,
-                score,
-            )
-        else:
-            _maps_jit(
-                *args,
-                lander.count_holes,
-                spacing_m,
-                mode == _P_MIN,
-                lander.max_roughness_m,
-                inv_sigma,
-                scale_by_c,
-                slope,
-                rough,
-                score,
-            )
-        return slope, rough, score
-    heights = np.empty((geo.tap_w.shape[0], hv, wv))
-    _pad_heights_numpy(z, b, geo, heights)
-    gx, gy, c = _resting_planes(heights, geo, lander.n_pads)
-    n_cfg = gx.shape[0] // geo.n_yaws
-    tan2 = (gx * gx + gy * gy) / (spacing_m * spacing_m)
-    sec = np.sqrt(1.0 + tan2)
-    slope = np.arctan(np.sqrt(tan2.max(axis=0)))
-    rough = np.zeros((hv, wv))
-    best = np.full((hv, wv), np.inf)
-    rc = lander.max_roughness_m
-    for q in range(gx.shape[0]):
-        di, dj = geo.nodes(q // n_cfg)
-        dev = np.stack([z[b + a : b + a + hv, b + e : b + e + wv] for a, e in zip(di, dj, strict=True)])
-        dev = dev - c[q] - gx[q] * dj[:, None, None] + gy[q] * di[:, None, None]
-        height = np.maximum(dev.max(axis=0), 0.0)
-        if lander.count_holes:
-            height = np.maximum(height, -dev.min(axis=0))
-        r_q = height / sec[q]
-        np.maximum(rough, r_q, out=rough)
-        if mode == _P_NONE:
-            continue
-        # Standardised margin of a node at perpendicular height r: u = (rc - r) / s, with the noise
-        # scale s = c sigma (paper, c = 1 / sec) or sigma (hd).
-        scale = sec[q] * inv_sigma if scale_by_c else inv_sigma
-        if mode == _P_PRODUCT:
-            q_score = log_ndtr((rc - dev / sec[q]) * scale).sum(axis=0)
-        else:  # the worst node: the largest signed height above the plane
-            q_score = (rc - dev.max(axis=0) / sec[q]) * scale
-        np.minimum(best, q_score, out=best)
-    if mode != _P_NONE:
-        score = best
+    z = z.astype(np.float32)  # half the memory traffic, twice the SIMD width; ~1e-6 m rounding
+    heights = np.empty((geo.tap_w.shape[0], hv, wv), dtype=np.float32)
+    _pad_heights_jit(z, b, geo.tap_di, geo.tap_dj, geo.tap_w.astype(np.float32), heights)
+    slope = np.empty((hv, wv))
+    rough = np.empty((hv, wv))
+    args = (z, b, heights, lander.n_pads, geo.plane_weights, geo.triples, geo.node_ptr, geo.node_di, geo.node_dj)
+    if mode == _P_PRODUCT:
+        inner_valid = np.ascontiguousarray(valid[b : b + hv, b : b + wv])
+        tan2_cut = math.tan(math.radians(lander.max_slope_deg)) ** 2 * (1.0 + _TAN2_MARGIN)
+        (_product_par_jit if parallel else _product_jit)(
+            *args,
+            lander.count_holes,
+            spacing_m,
+            lander.max_roughness_m,
+            inv_sigma,
+            scale_by_c,
+            _LOG_PHI,
+            inner_valid,
+            tan2_cut,
+            slope,
+            rough,
+            score,
+        )
+    else:
+        (_maps_par_jit if parallel else _maps_jit)(
+            *args,
+            lander.count_holes,
+            spacing_m,
+            mode == _P_MIN,
+            lander.max_roughness_m,
+            inv_sigma,
+            scale_by_c,
+            slope,
+            rough,
+            score,
+        )
     return slope, rough, score
-
-
-def _pad_heights_numpy(z: np.ndarray, b: int, geo: Geometry, out: np.ndarray) -> None:
-    """Pad contact heights, numpy: for each pad position, max over samples of bilinear terrain."""
-    n_pos, n_samp, n_tap = geo.tap_w.shape
-    hv, wv = out.shape[1:]
-    for p in range(n_pos):
-        best = np.full((hv, wv), -np.inf)
-        for q in range(n_samp):
-            value = np.zeros((hv, wv))
-            for t in range(n_tap):
-                w = geo.tap_w[p, q, t]
-                if w > 0.0:
-                    i0, j0 = b + geo.tap_di[p, q, t], b + geo.tap_dj[p, q, t]
-                    value += w * z[i0 : i0 + hv, j0 : j0 + wv]
-            np.maximum(best, value, out=best)
-        out[p] = best
 
 
 # log Phi as a piecewise cubic on a grid of step 1/32 (cubic Hermite through the exact values and
@@ -512,23 +445,23 @@ def _maps_loops(
 ):  # pragma: no cover - compiled by numba
     """Resting planes, slope, roughness and, with ``min_mode``, the P score of the worst node (numba).
 
-    Same numbers as ``_worst_case``'s numpy path; rows are processed one at a time so every
-    working array stays in the L1 cache. ``score``: the smallest u of any node over the
-    configurations. The product rule has its own kernel, ``_product_loops``.
+    Rows of sites are independent (in parallel with ``parallel=True``), each with working arrays
+    small enough for the L1 cache. ``score``: the smallest u of any node over the configurations.
+    The product rule has its own kernel, ``_product_loops``.
     """
     n_yaws = plane_weights.shape[0]
     hv, wv = slope.shape
     n_cfg = 2 if n_pads == 4 else 1
-    gx = np.empty((n_cfg, wv), dtype=z.dtype)
-    gy = np.empty((n_cfg, wv), dtype=z.dtype)
-    c = np.empty((n_cfg, wv), dtype=z.dtype)
-    dmax = np.empty(wv, dtype=z.dtype)
-    dmin = np.empty(wv, dtype=z.dtype)
-    slope[:, :] = 0.0
-    rough[:, :] = 0.0
-    score[:, :] = np.inf
     inv_s2 = 1.0 / (spacing * spacing)
-    for i in range(hv):
+    for i in numba.prange(hv):
+        gx = np.empty((n_cfg, wv), dtype=z.dtype)
+        gy = np.empty((n_cfg, wv), dtype=z.dtype)
+        c = np.empty((n_cfg, wv), dtype=z.dtype)
+        dmax = np.empty(wv, dtype=z.dtype)
+        dmin = np.empty(wv, dtype=z.dtype)
+        slope[i, :] = 0.0
+        rough[i, :] = 0.0
+        score[i, :] = np.inf
         for m in range(n_yaws):
             h0 = heights[m * n_pads]
             h1 = heights[m * n_pads + 1]
@@ -580,7 +513,6 @@ def _maps_loops(
                         sec = np.sqrt(1.0 + tan2)
                         scale = sec * inv_sigma if scale_by_c else inv_sigma
                         score[i, j] = min(score[i, j], (rc - dmax[j] / sec) * scale)
-    for i in range(hv):
         for j in range(wv):
             slope[i, j] = np.arctan(np.sqrt(slope[i, j]))
 
@@ -609,9 +541,10 @@ def _product_loops(
 ):  # pragma: no cover - compiled by numba
     """Resting planes, slope, roughness and the product rule's P score, worst case over configurations (numba).
 
-    The same slope and roughness as ``_maps_loops`` (and ``_worst_case``'s numpy path); ``score`` is
+    The same slope and roughness as ``_maps_loops`` (and the tests' numpy oracle); ``score`` is
     the smallest sum over a configuration's nodes of log Phi(u) (log P), or anything where
-    ``valid`` is False or the slope fails (there -inf). One row of sites at a time, in three steps:
+    ``valid`` is False or the slope fails (there -inf). Rows of sites are independent, each with its
+    own working arrays (in parallel with ``parallel=True``, the same numbers), each in three steps:
 
     1. every configuration's plane and highest node (which give slope and roughness) and, in the
        same pass, its sum of the polynomial ``_poly_log_phi`` with the sum's error bound;
@@ -626,24 +559,24 @@ def _product_loops(
     hv, wv = slope.shape
     n_cfg = 2 if n_pads == 4 else 1
     n_q = n_yaws * n_cfg
-    gx = np.empty((n_q, wv), dtype=z.dtype)
-    gy = np.empty((n_q, wv), dtype=z.dtype)
-    c = np.empty((n_q, wv), dtype=z.dtype)
-    dmax = np.empty((n_q, wv), dtype=z.dtype)
-    dmin = np.empty(wv, dtype=z.dtype)
-    ua = np.empty((n_q, wv))
-    ub = np.empty((n_q, wv))
-    approx = np.zeros((n_q, wv))  # sum of the polynomial over the nodes (product mode)
-    error = np.zeros((n_q, wv))  # its bound: |approx - the table's sum| <= error
-    xr = np.empty(wv)  # one node's table positions along the row
-    need = np.zeros((n_q, wv), dtype=np.bool_)
-    acc = np.empty(wv)
-    sel = np.empty(wv, dtype=np.int64)
-    slope[:, :] = 0.0
-    rough[:, :] = 0.0
-    score[:, :] = np.inf
     inv_s2 = 1.0 / (spacing * spacing)
-    for i in range(hv):
+    for i in numba.prange(hv):
+        gx = np.empty((n_q, wv), dtype=z.dtype)
+        gy = np.empty((n_q, wv), dtype=z.dtype)
+        c = np.empty((n_q, wv), dtype=z.dtype)
+        dmax = np.empty((n_q, wv), dtype=z.dtype)
+        dmin = np.empty(wv, dtype=z.dtype)
+        ua = np.empty((n_q, wv))
+        ub = np.empty((n_q, wv))
+        approx = np.zeros((n_q, wv))  # sum of the polynomial over the nodes (product mode)
+        error = np.zeros((n_q, wv))  # its bound: |approx - the table's sum| <= error
+        xr = np.empty(wv)  # one node's table positions along the row
+        need = np.zeros((n_q, wv), dtype=np.bool_)
+        acc = np.empty(wv)
+        sel = np.empty(wv, dtype=np.int64)
+        slope[i, :] = 0.0
+        rough[i, :] = 0.0
+        score[i, :] = np.inf
         # 1a. the resting planes of every configuration q = (yaw m, plane k), along the row
         for m in range(n_yaws):
             h0 = heights[m * n_pads]
@@ -767,7 +700,6 @@ def _product_loops(
                         dev = z[i + b + di, b + dj + j] - cq[j] - gxq[j] * dj + gyq[j] * di
                         total += _table_log_phi_jit(log_phi, uaq[j] - ubq[j] * dev)
                     score[i, j] = min(score[i, j], total)
-    for i in range(hv):
         for j in range(wv):
             slope[i, j] = np.arctan(np.sqrt(slope[i, j]))
 
@@ -808,10 +740,11 @@ def _product_bounds(log_phi, ua, ub, dmax, approx, error, node_ptr, n_cfg, need,
 # Fast-math without the no-NaN / no-inf assumptions (the loops start from -inf).
 _FASTMATH = {"contract", "reassoc", "arcp", "nsz", "afn"}
 
-if numba is not None:
-    _pad_heights_jit = numba.njit(cache=True, fastmath=_FASTMATH)(_pad_heights_loops)
-    _table_log_phi_jit = numba.njit(cache=True, fastmath=_FASTMATH)(_table_log_phi)
-    _poly_log_phi_jit = numba.njit(cache=True, fastmath=_FASTMATH, inline="always")(_poly_log_phi)
-    _product_bounds_jit = numba.njit(cache=True, fastmath=_FASTMATH, inline="always")(_product_bounds)
-    _maps_jit = numba.njit(cache=True, fastmath=_FASTMATH)(_maps_loops)
-    _product_jit = numba.njit(cache=True, fastmath=_FASTMATH)(_product_loops)
+_pad_heights_jit = numba.njit(cache=True, fastmath=_FASTMATH)(_pad_heights_loops)
+_table_log_phi_jit = numba.njit(cache=True, fastmath=_FASTMATH)(_table_log_phi)
+_poly_log_phi_jit = numba.njit(cache=True, fastmath=_FASTMATH, inline="always")(_poly_log_phi)
+_product_bounds_jit = numba.njit(cache=True, fastmath=_FASTMATH, inline="always")(_product_bounds)
+_maps_jit = numba.njit(cache=True, fastmath=_FASTMATH)(_maps_loops)
+_maps_par_jit = numba.njit(cache=True, fastmath=_FASTMATH, parallel=True)(_maps_loops)
+_product_jit = numba.njit(cache=True, fastmath=_FASTMATH)(_product_loops)
+_product_par_jit = numba.njit(cache=True, fastmath=_FASTMATH, parallel=True)(_product_loops)

@@ -34,12 +34,12 @@ import numpy as np
 
 from hdlabels import defaults
 from hdlabels.errors import HdLabelsError
-from hdlabels.lander import RESTING_TRIPLES, Geometry, Lander, plane_weights_of
+from hdlabels.geometry import RESTING_TRIPLES, Geometry, LanderShape, plane_weights_of
 
 Offset = tuple[int, int]  # (row, column) offset from the site, pixels
 
 
-def pixel_radii(lander: Lander, spacing_m: float) -> tuple[int, int]:
+def pixel_radii(lander: LanderShape, spacing_m: float) -> tuple[int, int]:
     """(pad radius, lander radius) in whole pixels, rounded down, as the replica sizes them."""
     return int(lander.pad_radius_m / spacing_m), int(lander.radius_m / spacing_m)
 
@@ -116,7 +116,7 @@ def distinct_polygons(layout: str, radius_px: int) -> list[tuple[Offset, ...]]:
 
 
 @lru_cache(maxsize=32)
-def paper_geometry(lander: Lander, spacing_m: float) -> Geometry:
+def paper_geometry(lander: LanderShape, spacing_m: float) -> Geometry:
     """The paper convention's sampling tables for ``lander`` at ``spacing_m`` metres per pixel (cached)."""
     n_pad, n_body = pixel_radii(lander, spacing_m)
     radius = n_body - n_pad

@@ -12,6 +12,7 @@ from dataclasses import dataclass, fields
 from typing import Any
 
 from hdlabels import defaults
+from hdlabels.conventions import convention
 from hdlabels.errors import HdLabelsError
 from hdlabels.lander import Lander
 from hdlabels.store import DemSpec
@@ -99,7 +100,7 @@ class LabelSettings:
         Raises:
             HdLabelsError: an invalid lander, or ``yaws`` with the paper convention.
         """
-        if self.yaws is not None and self.convention != "hd":
+        if self.yaws is not None and not convention(self.convention).has_yaws:
             raise HdLabelsError(
                 "--yaws applies to --convention hd only (the paper convention turns the lander in "
                 f"{defaults.PAPER_ORIENTATION_STEP_DEG:g}-degree steps)"

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from hdlabels import defaults
+from hdlabels import conventions, defaults
 from hdlabels._version import __version__
 from hdlabels.errors import HdLabelsError, LabelStoreError
 from hdlabels.lander import Lander
@@ -98,7 +98,8 @@ class DemSpec:
         gridding: str | None = None,
     ) -> DemSpec:
         """A grid with the label convention's gridding unless ``gridding`` is given."""
-        return cls(rows, cols, spacing_m, gridding if gridding is not None else defaults.GRIDDING[convention])
+        default = conventions.convention(convention).gridding
+        return cls(rows, cols, spacing_m, gridding if gridding is not None else default)
 
     @classmethod
     def from_entry(cls, entry: dict[str, Any]) -> DemSpec:
@@ -136,11 +137,7 @@ def _labeling_body(lander: Lander, dem: DemSpec) -> str:
         f"-rough{lander.max_roughness_m:g}m"
     )
     grid = f"dem{dem.rows}x{dem.cols}at{dem.spacing_m:g}m"
-    if lander.convention == "paper":
-        return f"paper-{body}{holes}-{lander.baseline_combine}-{dem.gridding}-{grid}"
-    extra = "" if lander.baseline_combine == defaults.BASELINE_COMBINE["hd"] else f"-{lander.baseline_combine}"
-    extra += "" if dem.gridding == defaults.GRIDDING["hd"] else f"-{dem.gridding}"
-    return f"{body}-yaws{lander.n_yaws}{holes}{extra}-{grid}"
+    return lander.rules.labeling_name(body, lander.n_yaws, holes, str(lander.baseline_combine), dem.gridding, grid)
 
 
 def label_shard_name(index: int) -> str:

@@ -6,8 +6,10 @@ import math
 
 import numpy as np
 import pytest
+from alhat_numpy import Backend, hazard_maps, safety_probability
 
-from hdlabels.alhat import Backend, HazardMaps, hazard_maps, probability_from_maps, safety_probability, valid_sites
+from hdlabels import alhat
+from hdlabels.alhat import HazardMaps, probability_from_maps, valid_sites
 from hdlabels.defaults import LABEL_INVALID, LABEL_SAFE, LABEL_UNSAFE
 from hdlabels.errors import HdLabelsError
 from hdlabels.lander import Lander
@@ -215,11 +217,36 @@ def test_bad_dem_is_one_line_error(dem: np.ndarray, spacing: float, message: str
     assert "\n" not in str(info.value)
 
 
-def test_bad_sigma_and_backend() -> None:
+def test_bad_sigma() -> None:
     with pytest.raises(HdLabelsError, match="sigma"):
         safety_probability(plane(0.0), 1.0, -0.1, HD)
-    with pytest.raises(HdLabelsError, match="back end"):
-        hazard_maps(plane(0.0), 1.0, HD, backend="fortran")  # type: ignore[arg-type]  # the point: refused
+
+
+@pytest.mark.parametrize(
+    "lander", [HD, Lander(), Lander(baseline_combine="min"), Lander(convention="hd", count_holes=True)]
+)
+def test_parallel_rows_give_the_same_numbers(lander: Lander) -> None:
+    """Rows of sites on numba's threads: every map and P(safe) bit for bit those of one thread."""
+    rng = np.random.default_rng(7)
+    dem = plane(4.0) + rng.normal(0.0, 0.02, (N, N))
+    dem[17, 22] += 0.4
+    serial = alhat.hazard_and_probability(dem, 1.0, 0.05, lander)
+    parallel = alhat.hazard_and_probability(dem, 1.0, 0.05, lander, parallel=True)
+    for a, b in ((serial[0].slope_rad, parallel[0].slope_rad), (serial[0].roughness_m, parallel[0].roughness_m)):
+        assert np.array_equal(a, b, equal_nan=True)
+    assert np.array_equal(serial[0].label, parallel[0].label)
+    assert np.array_equal(serial[1], parallel[1], equal_nan=True)
+    assert np.array_equal(alhat.hazard_maps(dem, 1.0, lander, parallel=True).label, serial[0].label)
+    assert 0 < np.count_nonzero(serial[1] >= 0.5) < np.count_nonzero(serial[0].valid)  # both decisions occur
+
+
+def test_the_slope_test_is_strict_for_labels_and_as_the_convention_says_for_the_baseline() -> None:
+    limit = math.radians(10.0)
+    slopes = np.array([limit - 1e-9, limit, limit + 1e-9, np.nan])
+    assert alhat.slope_passes(slopes, HD, baseline=False).tolist() == [True, False, False, False]
+    assert alhat.slope_passes(slopes, HD, baseline=True).tolist() == [True, False, False, False]
+    assert alhat.slope_passes(slopes, Lander(), baseline=False).tolist() == [True, False, False, False]
+    assert alhat.slope_passes(slopes, Lander(), baseline=True).tolist() == [True, True, False, False]
 
 
 def test_hazard_maps_is_a_frozen_record() -> None:

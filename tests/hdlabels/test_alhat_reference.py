@@ -6,10 +6,10 @@ from functools import cache
 
 import numpy as np
 import pytest
+from alhat_numpy import Backend, hazard_maps
 from alhat_reference import reference_maps
 from scipy.ndimage import gaussian_filter
 
-from hdlabels.alhat import Backend, hazard_maps
 from hdlabels.defaults import LABEL_INVALID
 from hdlabels.lander import Lander
 

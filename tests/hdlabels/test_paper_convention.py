@@ -6,10 +6,11 @@ import math
 
 import numpy as np
 import pytest
+from alhat_numpy import Backend, hazard_and_probability, hazard_maps, safety_probability
 from paper_reference import reference
 from scipy.special import ndtr
 
-from hdlabels.alhat import Backend, hazard_and_probability, hazard_maps, safety_probability, valid_sites
+from hdlabels.alhat import valid_sites
 from hdlabels.defaults import LABEL_INVALID, LABEL_SAFE, LABEL_UNSAFE
 from hdlabels.errors import HdLabelsError
 from hdlabels.lander import Lander, geometry

@@ -32,7 +32,7 @@ SIGMAS = (0.0167, 0.03, 0.07, 0.15)
 
 def assert_same_as_previous(dem: np.ndarray, spacing: float, sigma: float, lander: Lander) -> np.ndarray:
     """Both kernels on one DEM: identical maps and decisions, P within 1e-6. Returns the new P."""
-    maps, p = hazard_and_probability(dem, spacing, sigma, lander, backend="numba")
+    maps, p = hazard_and_probability(dem, spacing, sigma, lander)
     old_maps, old_p = previous_hazard_and_probability(dem, spacing, sigma, lander)
     assert_maps_equal(maps, old_maps)
     assert np.array_equal(np.isnan(p), np.isnan(old_p))
