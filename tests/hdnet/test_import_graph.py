@@ -1,0 +1,84 @@
+"""The packages' import graph: the layers import one way (lidarsim → hdlabels → hdnet) and no two
+modules import each other, directly or round a longer loop.
+
+Every import statement counts, also those inside functions and under ``TYPE_CHECKING``: a
+deferred import hides a loop from Python, not from a reader.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+LAYERS = ("lidarsim", "hdlabels", "hdnet")  # each may import only the ones before it
+
+
+def import_graph(packages: tuple[str, ...] = LAYERS) -> dict[str, set[str]]:
+    """Module name -> the modules of ``packages`` it imports (``from P import m`` counts as ``P.m``)."""
+    files = {
+        (pkg if f.stem == "__init__" else f"{pkg}.{f.stem}"): f for pkg in packages for f in (ROOT / pkg).glob("*.py")
+    }
+    edges: dict[str, set[str]] = {name: set() for name in files}
+    for name, path in files.items():
+        for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+            if isinstance(node, ast.Import):
+                targets = [alias.name for alias in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                targets = [node.module, *(f"{node.module}.{alias.name}" for alias in node.names)]
+            else:
+                continue
+            edges[name] |= {t for t in targets if t in files and t != name}
+    return edges
+
+
+def cycles(edges: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components with more than one module (Tarjan), each sorted."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    found: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        for w in sorted(edges[v]):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = [stack.pop()]
+            while component[-1] != v:
+                component.append(stack.pop())
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for v in sorted(edges):
+        if v not in index:
+            visit(v)
+    return found
+
+
+def test_the_cycle_finder_finds_a_loop_and_only_a_loop() -> None:
+    assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert cycles({"a": {"b"}, "b": set(), "c": {"a", "b"}}) == []
+
+
+@pytest.mark.parametrize("package", LAYERS)
+def test_no_import_cycle_inside_a_package(package: str) -> None:
+    assert cycles(import_graph((package,))) == []
+
+
+def test_the_layers_import_one_way() -> None:
+    edges = import_graph()
+    upward = [
+        (src, dst)
+        for src, targets in edges.items()
+        for dst in targets
+        if LAYERS.index(dst.split(".")[0]) > LAYERS.index(src.split(".")[0])
+    ]
+    assert upward == []
