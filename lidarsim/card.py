@@ -129,6 +129,10 @@ def render_card(directory: str | os.PathLike, recipe: Recipe, machine: str = "")
     licence = PROCEDURAL_LICENCE if cfg.get("dtm_path") is None else "that of the DTM you supplied (check its source)"
     if (recipe.path.parent / SOURCE_FILE).is_file():
         licence = f"see `{SOURCE_FILE}` beside this card (where the DTM comes from, its credit and licence)"
+    trajectory = cfg["trajectory"]
+    altitude = f"{trajectory['altitude_m']} m altitude"
+    if trajectory.get("altitude_max_m") is not None:
+        altitude = f"{trajectory['altitude_m']:g} to {trajectory['altitude_max_m']:g} m altitude drawn per scan"
     lines = [
         f"# Dataset card: {recipe.name} (recipe version {recipe.version})",
         "",
@@ -137,12 +141,13 @@ def render_card(directory: str | os.PathLike, recipe: Recipe, machine: str = "")
         "## What it is",
         (
             f"{m['n_scans']} simulated flash-LiDAR scans ({cfg['sensor']['rows']}×{cfg['sensor']['cols']} px, "
-            f"{cfg['sensor']['fov_x_deg']}° FOV, {cfg['trajectory']['altitude_m']} m altitude) over {terrain}, "
+            f"{cfg['sensor']['fov_x_deg']}° FOV, {altitude}) over {terrain}, "
             "with clean "
             f"points and noisy points at σ = {', '.join(f'{s:g}' for s in m['sigmas_m'])} m, split "
             f"{m['splits']['train']}/{m['splits']['val']}/{m['splits']['test']} (train/val/test, seeded blocks of "
             "consecutive scans)."
         ),
+        *_sensor_realism(cfg),
         "",
         "## How to rebuild and check it",
         "```bash",
@@ -168,6 +173,10 @@ def render_card(directory: str | os.PathLike, recipe: Recipe, machine: str = "")
         f"- trajectory: `{json.dumps(cfg['trajectory'])}` (lattice step {m['trajectory']['step_m']} m)",
         f"- DTM: scale {cfg['dtm_scale']}; {dtm.get('rows')}×{dtm.get('cols')} cells at {dtm.get('spacing_m')} m/px",
     ]
+    if cfg.get("footprint"):
+        lines.append(f"- footprint: `{json.dumps(cfg['footprint'])}`")
+    if cfg.get("noise_model"):
+        lines.append(f"- noise model: `{json.dumps(cfg['noise_model'])}`")
     if cfg.get("terrain"):
         lines.append(f"- procedural terrain: `{json.dumps(cfg['terrain'])}`")
     lines += [
@@ -188,6 +197,39 @@ def render_card(directory: str | os.PathLike, recipe: Recipe, machine: str = "")
         "",
     ]
     return "\n".join(lines)
+
+
+def _sensor_realism(cfg: dict[str, Any]) -> list[str]:
+    """The card's sentences on a realistic sensor (pixel footprint, SNR noise; docs/lidarsim.md); none for
+    the paper's sensor."""
+    out = []
+    footprint = cfg.get("footprint")
+    if footprint:
+        k = footprint["samples"]
+        estimator = (
+            "the energy-weighted centroid of its returned pulse"
+            if footprint["range_estimator"] == "centroid"
+            else f"the first crossing of {footprint['return_fraction']:g} of its pulse's peak"
+        )
+        out.append(
+            f"Each pixel integrates its whole field of view: {k}×{k} sub-rays with a {footprint['spot_profile']} "
+            f"spot profile, its range {estimator} (pulse width {footprint['pulse_width_m']:g} m FWHM), so that rocks "
+            "smaller than the footprint come back lower and wider and edges give mixed ranges."
+        )
+    noise = cfg.get("noise_model")
+    if noise:
+        out.append(
+            f"Range noise grows as the signal falls: σ above is that of a whole pixel's return at "
+            f"{noise['reference_range_m']:g} m and normal incidence (SNR {noise['snr_ref']:g}); a return of signal "
+            f"P = cos θ (R_ref/r)² has σ/√P, and one with SNR below {noise['snr_min']:g} comes back with no return "
+            "(status 4, weak; NaN points)."
+        )
+    if out:
+        out.append(
+            "The sensor blurs the terrain, so its clean scans are not the terrain: score against labels from the "
+            "terrain itself (`hd label --truth terrain`) where that matters, and say which truth a result used."
+        )
+    return [line for sentence in out for line in ("", sentence)]
 
 
 @dataclass(frozen=True)
