@@ -8,9 +8,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
-import rasterio
 from click.testing import CliRunner
-from rasterio.transform import from_origin
 
 from cli import main
 from hdlabels.alhat import hazard_maps, safety_probability
@@ -30,6 +28,7 @@ from lidarsim.errors import FormatError
 from lidarsim.sensor import SensorConfig
 from lidarsim.shards import ScanShardReader, read_manifest, sha256_file, verify_dataset
 from lidarsim.trajectory import TrajectoryConfig
+from tests.geotiff import write_geotiff
 
 
 def write_terrain(path: Path, n: int = 320, spacing: float = 0.5) -> Path:
@@ -41,18 +40,7 @@ def write_terrain(path: Path, n: int = 320, spacing: float = 0.5) -> Path:
     for cx, cy in rng.uniform(20, 140, size=(40, 2)):
         r2 = (xx - cx) ** 2 + (yy - cy) ** 2
         z = np.maximum(z, np.where(r2 < 1.0, 0.02 * xx + 0.6 * np.sqrt(np.clip(1 - r2, 0, 1)), -np.inf))
-    with rasterio.open(
-        path,
-        "w",
-        driver="GTiff",
-        width=n,
-        height=n,
-        count=1,
-        dtype="float32",
-        transform=from_origin(0, n * spacing, spacing, spacing),
-    ) as dst:
-        dst.write(z.astype(np.float32), 1)
-    return path
+    return write_geotiff(path, z, spacing, (0.0, n * spacing))
 
 
 @pytest.fixture(scope="module")

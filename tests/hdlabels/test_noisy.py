@@ -5,8 +5,6 @@ from __future__ import annotations
 import h5py
 import numpy as np
 import pytest
-import rasterio
-from rasterio.transform import from_origin
 from scipy import ndimage
 
 from hdlabels.labeling import label_dataset
@@ -17,6 +15,7 @@ from lidarsim.errors import LidarsimError
 from lidarsim.scan import STATUS_DAMAGED, STATUS_DEAD
 from lidarsim.sensor import SensorConfig
 from lidarsim.trajectory import TrajectoryConfig
+from tests.geotiff import write_geotiff
 
 SIGMAS = (0.0167, 0.05)
 
@@ -24,12 +23,7 @@ SIGMAS = (0.0167, 0.05)
 def _dtm(path, n=300, seed=4):
     rng = np.random.default_rng(seed)
     z = ndimage.gaussian_filter(rng.normal(0.0, 1.0, (n, n)), 10) * 20.0
-    with rasterio.open(
-        path, "w", driver="GTiff", width=n, height=n, count=1, dtype="float32",
-        transform=from_origin(5000.0, 9000.0, 1.0, 1.0),
-    ) as dst:  # fmt: skip
-        dst.write(z.astype(np.float32), 1)
-    return path
+    return write_geotiff(path, z, 1.0, (5000.0, 9000.0))
 
 
 @pytest.fixture(scope="module", params=["linear", "nearest"])

@@ -10,8 +10,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import rasterio
-from rasterio.transform import from_origin
 from scipy import ndimage
 
 from hdlabels.labeling import label_dataset
@@ -19,6 +17,7 @@ from lidarsim.build import BuildConfig, build_dataset
 from lidarsim.sensor import SensorConfig
 from lidarsim.shards import read_manifest, sha256_file, write_json_atomic
 from lidarsim.trajectory import TrajectoryConfig
+from tests.geotiff import write_geotiff
 
 SIGMAS_M = (0.0167, 0.07)
 
@@ -32,18 +31,7 @@ def hills_dtm(path: Path, n: int = 400, relief_m: float = 2.0, seed: int = 3) ->
     idx = rng.integers(0, n, (60, 2))
     rocks[idx[:, 0], idx[:, 1]] = 1.0
     z += ndimage.gaussian_filter(rocks, 1.5) * 8.0
-    with rasterio.open(
-        path,
-        "w",
-        driver="GTiff",
-        width=n,
-        height=n,
-        count=1,
-        dtype="float32",
-        transform=from_origin(1000.0, 2000.0, 1.0, 1.0),
-    ) as dst:
-        dst.write(z.astype(np.float32), 1)
-    return path
+    return write_geotiff(path, z)
 
 
 def build_labelled(root: Path, n_scans: int = 20, sigmas_m: tuple[float, ...] = SIGMAS_M, label: bool = True) -> Path:

@@ -54,6 +54,7 @@ from lidarsim.errors import LockedError, OutputExistsError, TerrainError
 from lidarsim.procedural import MarsTerrainParams, generate_mars_terrain, write_geotiff
 from lidarsim.shards import sha256_file
 from lidarsim.storage import PARTIAL_MARK, WriterLock
+from tests.geotiff import write_geotiff as write_test_geotiff
 
 REAL = Path("/work/shared/data/real-terrain")
 needs_real = pytest.mark.skipif(not REAL.is_dir(), reason=f"{REAL} (the shared real terrains) is not present")
@@ -75,20 +76,7 @@ def trained(tmp_path_factory):
 
 
 def write_dtm(path: Path, z: np.ndarray, spacing: float, origin=(1000.0, 2000.0), crs=None, nodata=None) -> Path:
-    profile = {
-        "driver": "GTiff",
-        "width": z.shape[1],
-        "height": z.shape[0],
-        "count": 1,
-        "dtype": "float32",
-        "transform": from_origin(origin[0], origin[1], spacing, spacing),
-        "nodata": nodata,
-    }
-    if crs is not None:
-        profile["crs"] = crs
-    with rasterio.open(path, "w", **profile) as dst:
-        dst.write(z.astype(np.float32), 1)
-    return path
+    return write_test_geotiff(path, z, spacing, origin, crs, nodata)
 
 
 def tilted_plane(n: int, spacing: float, slope_deg: float, azimuth_deg: float = 30.0) -> np.ndarray:

@@ -8,9 +8,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import rasterio
 from rasterio.crs import CRS
-from rasterio.transform import from_origin
+
+from tests.geotiff import write_geotiff
 
 REAL_TERRAIN_DIR = Path("/work/shared/data/real-terrain")
 
@@ -30,22 +30,8 @@ def write_tif(
     crs: CRS | None = None,
     nodata: float | None = None,
 ) -> Path:
-    """Write a north-up float32 GeoTIFF with top-left corner ``origin_xy`` (independent of lidarsim)."""
-    profile = {
-        "driver": "GTiff",
-        "height": heights.shape[0],
-        "width": heights.shape[1],
-        "count": 1,
-        "dtype": "float32",
-        "transform": from_origin(origin_xy[0], origin_xy[1], spacing_m, spacing_m),
-    }
-    if crs is not None:
-        profile["crs"] = crs
-    if nodata is not None:
-        profile["nodata"] = nodata
-    with rasterio.open(path, "w", **profile) as dst:
-        dst.write(heights.astype(np.float32), 1)
-    return path
+    """Write a north-up float32 GeoTIFF with top-left corner ``origin_xy`` (``tests.geotiff``)."""
+    return write_geotiff(path, heights, spacing_m, origin_xy, crs, nodata)
 
 
 def plane(rows: int, cols: int, spacing_m: float, z0: float, gx: float, gy: float) -> np.ndarray:

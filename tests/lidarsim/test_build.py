@@ -13,15 +13,14 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
-import rasterio
 from click.testing import CliRunner
-from rasterio.transform import from_origin
 
 from cli import main
 from lidarsim.build import BuildConfig, assign_splits, build_dataset
 from lidarsim.sensor import SensorConfig
 from lidarsim.shards import ScanShardReader, iter_scans, read_manifest, verify_dataset
 from lidarsim.trajectory import TrajectoryConfig
+from tests.geotiff import write_geotiff
 
 REPO = Path(__file__).resolve().parents[2]
 REAL = REPO.parent / "shared" / "data" / "real-terrain"
@@ -35,19 +34,7 @@ def rough_dtm(
     rng = np.random.default_rng(seed)
     z = np.cumsum(np.cumsum(rng.normal(0, 0.02, (n, n)), axis=0), axis=1)
     z += rng.normal(0, 0.05, (n, n))
-    with rasterio.open(
-        path,
-        "w",
-        driver="GTiff",
-        width=n,
-        height=n,
-        count=1,
-        dtype="float32",
-        crs=crs,
-        transform=from_origin(origin[0], origin[1], spacing, spacing),
-    ) as dst:
-        dst.write(z.astype(np.float32), 1)
-    return path
+    return write_geotiff(path, z, spacing, origin, crs)
 
 
 def small_config(dtm: Path, **kw) -> BuildConfig:
@@ -254,19 +241,7 @@ def test_bad_inputs_are_refused_with_one_line(tmp_path, dtm):
 
 
 def test_all_nodata_and_geographic_dtms_are_refused(tmp_path):
-    nodata = tmp_path / "empty.tif"
-    with rasterio.open(
-        nodata,
-        "w",
-        driver="GTiff",
-        width=50,
-        height=50,
-        count=1,
-        dtype="float32",
-        nodata=-9999,
-        transform=from_origin(0, 50, 1, 1),
-    ) as dst:
-        dst.write(np.full((50, 50), -9999, np.float32), 1)
+    nodata = write_geotiff(tmp_path / "empty.tif", np.full((50, 50), -9999.0), 1.0, (0.0, 50.0), nodata=-9999)
     assert "nodata" in _run_bad(tmp_path, "--dtm", str(nodata))
     geo = rough_dtm(tmp_path / "geo.tif", n=50, spacing=0.001, origin=(10.0, 45.0), crs="EPSG:4326")
     assert "geographic" in _run_bad(tmp_path, "--dtm", str(geo))

@@ -8,13 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rasterio
-from rasterio.transform import from_origin
 
 from lidarsim.errors import LidarsimError
 from lidarsim.scan import STATUS_DAMAGED, STATUS_DEAD, STATUS_MISS, TileScene, scan_geometry, simulate_scans
 from lidarsim.sensor import SensorConfig, footprint_half_width_m, ray_directions, sensor_attitude
 from lidarsim.terrain import DTM
 from lidarsim.trajectory import TrajectoryConfig, plan_scans
+from tests.geotiff import write_geotiff
 
 
 def write_plane(
@@ -32,19 +32,7 @@ def write_plane(
     x = x0 + (np.arange(n) + 0.5) * spacing
     y = y0 - (np.arange(n) + 0.5) * spacing
     z = z0 + slope_x * (x[None, :] - x0) + slope_y * (y[:, None] - y0)
-    with rasterio.open(
-        path,
-        "w",
-        driver="GTiff",
-        width=n,
-        height=n,
-        count=1,
-        dtype="float64",
-        crs=crs,
-        transform=from_origin(x0, y0, spacing, spacing),
-    ) as dst:
-        dst.write(z, 1)
-    return path
+    return write_geotiff(path, z, spacing, origin, crs, dtype="float64")
 
 
 def test_rays_are_unit_and_pass_through_pixel_centres():

@@ -14,13 +14,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import rasterio
 from click.testing import CliRunner, Result
-from rasterio.transform import from_origin
 from scipy import ndimage
 
 from cli import main
 from lidarsim.shards import read_manifest
+from tests.geotiff import write_geotiff
 
 REPO = Path(__file__).resolve().parents[2]
 FAULTS = Path(__file__).resolve().parent / "faultinject"
@@ -41,18 +40,7 @@ def hills(path: Path, n: int = 300, seed: int = 3, fill_rows: int = 0, fill: flo
     z += ndimage.gaussian_filter(rocks, 1.5) * 8.0
     z = z.astype(np.float32)
     z[:fill_rows] = fill
-    with rasterio.open(
-        path,
-        "w",
-        driver="GTiff",
-        width=n,
-        height=n,
-        count=1,
-        dtype="float32",
-        transform=from_origin(1000.0, 2000.0, 1.0, 1.0),
-    ) as dst:
-        dst.write(z, 1)
-    return path
+    return write_geotiff(path, z)
 
 
 def invoke(*args: str | os.PathLike[str]) -> Result:

@@ -20,6 +20,7 @@ from lidarsim.build import check_returns
 from lidarsim.errors import LidarsimError
 from lidarsim.scan import STATUS_DEAD, STATUS_MISS, STATUS_RETURN
 from lidarsim.shards import iter_scans
+from tests.geotiff import write_geotiff
 
 
 @pytest.mark.parametrize("fill", [np.inf, -np.inf, 1e30, -1e30, 3e38, np.nan], ids=str)
@@ -46,18 +47,7 @@ def test_a_dtm_of_fill_values_only_is_refused(tmp_path, fill):
 def test_absurd_integer_heights_are_nodata(tmp_path):
     z = np.full((300, 300), 100, dtype=np.int32)
     z[:100] = 2_000_000_000
-    path = tmp_path / "int.tif"
-    with rasterio.open(
-        path,
-        "w",
-        driver="GTiff",
-        width=300,
-        height=300,
-        count=1,
-        dtype="int32",
-        transform=from_origin(0.0, 300.0, 1.0, 1.0),
-    ) as dst:
-        dst.write(z, 1)
+    path = write_geotiff(tmp_path / "int.tif", z, 1.0, (0.0, 300.0), dtype="int32")
     out = tmp_path / "data"
     result = invoke("build-dataset", "--out", out, "--dtm", path, "--workers", "1", *BUILD_ARGS)
     assert result.exit_code == 0, result.output
