@@ -16,23 +16,19 @@ import click
 
 from hdlabels import defaults as label_defaults
 from hdlabels import limits as label_limits
-from hdnet import limits as net_limits
 from hdnet import terminal
+from hdnet.detect_job import DetectSettings
 from hdnet.inspection import Verdict, inspect_directory, verify_directory
 from hdnet.outcome import Done
 from hdnet.shared_options import (
-    batch_size_option,
     dtm_option,
     epochs_option,
-    labels_option,
-    mc_samples_option,
     options,
     out_option,
     overwrite_option,
     recipe_option,
     scheduler_option,
     seed_option,
-    threshold_option,
     workers_option,
 )
 from hdnet.terminal import OUTPUT, HdGroup, ScanProgress, epoch_lines, friendly_errors, record, refuse_with_recipe, say
@@ -41,9 +37,8 @@ from lidarsim import limits
 from lidarsim._version import __version__
 from lidarsim.errors import LidarsimError
 from lidarsim.make_dtm import DtmSettings
-from lidarsim.setting import DIRECTORY, NonEmptyPath, SettingsCommand, click_options
+from lidarsim.setting import DIRECTORY, FILE_OR_DIRECTORY, NonEmptyPath, SettingsCommand, click_options
 from lidarsim.setting import DIRECTORY as _DIRECTORY
-from lidarsim.setting import FILE_OR_DIRECTORY as _FILE_OR_DIRECTORY
 from lidarsim.setting import bounded as _bounded
 from lidarsim.span import SpanType as _Span
 
@@ -501,81 +496,21 @@ def eval_cmd(run_dir: Path, dataset: Path, out_dir: Path, overwrite: bool, **opt
 
 
 @main.command("detect")
-@click.argument("run_dir", type=_FILE_OR_DIRECTORY)
-@_options(
-    dtm_option("Terrain to map: any GDAL raster in metres (GeoTIFF, HiRISE PDS3 .IMG), any size."),
-    click.option(
-        "--data", "dataset", type=_DIRECTORY, default=None, help="Instead of --dtm: a labelled dataset, with --scan."
-    ),
-    click.option(
-        "--scan",
-        type=_bounded(net_limits.SCAN_INDEX),
-        default=None,
-        help="With --data: the scan whose noisy DEM to map (scan frame).",
-    ),
-    out_option("out_dir", "Output directory (maps, sites, overview, detect.json).", directory=False),
-    mc_samples_option(),
-    threshold_option("Calibrated as hd eval does."),
-    click.option(
-        "--sigma",
-        "sigma_m",
-        type=_bounded(net_limits.NOISE_SIGMA_M),
-        default=None,
-        help="The sensor's range noise, metres (default: the run's reference training sigma): the ALHAT "
-        "baseline's sigma, the network's noise input where it takes one, the calibration level with "
-        "--calibrate each; with --data also the noise level of the scan's DEM.",
-    ),
-    click.option(
-        "--calibrate",
-        type=click.Choice(["reference", "each"]),
-        default="reference",
-        show_default=True,
-        help="Calibrate the threshold on the validation split at the run's reference noise level, or at the "
-        "sensor's --sigma (guarded above the run's training levels), as hd eval --calibrate.",
-    ),
-    click.option(
-        "--sites",
-        "n_sites",
-        type=_bounded(net_limits.SITES),
-        default=10,
-        show_default=True,
-        help="Most landing sites to propose.",
-    ),
-    click.option(
-        "--upsample",
-        is_flag=True,
-        help="A DTM coarser than the run's DEM spacing (e.g. HiRISE at 2-4 m) is interpolated bilinearly to it "
-        "(recorded in detect.json) instead of refused; it holds no rocks below its own resolution.",
-    ),
-    overwrite_option("Replace an earlier hd detect output in --out (never other files, never an input)."),
-    labels_option("With --data: the labelling (when the dataset has several)."),
-    seed_option("MC dropout"),
-    batch_size_option("Tiles per inference batch."),
-)
+@click.argument("run_dir", type=FILE_OR_DIRECTORY)
+@dtm_option("Terrain to map: any GDAL raster in metres (GeoTIFF, HiRISE PDS3 .IMG), any size.")
+@click.option("--data", "dataset", type=DIRECTORY, help="Instead of --dtm: a labelled dataset, with --scan.")
+@out_option("out_dir", "Output directory (maps, sites, overview, detect.json).", directory=False)
+@click_options(DetectSettings)
+@overwrite_option("Replace an earlier hd detect output in --out (never other files, never an input).")
 @friendly_errors
 def detect_cmd(
-    run_dir: Path, out_dir: Path, dataset: Path | None, scan: int | None, dtm_path: Path | None, **options: Any
+    run_dir: Path, out_dir: Path, dataset: Path | None, dtm_path: Path | None, overwrite: bool, **settings: Any
 ) -> None:
     """Hazard maps and ranked landing sites of a DTM (or of one scan) from a trained run."""
-    from hdnet.detect import detect
+    from hdnet.detect_job import detect_job
 
-    progress = ScanProgress("tiles", unit="tile")
-    try:
-        result = detect(
-            run_dir,
-            out_dir,
-            dtm=dtm_path,
-            dataset=dataset,
-            scan=scan,
-            labels=options.pop("labeling"),
-            progress=progress,
-            **options,
-        )
-    finally:
-        progress.close()
-    say(result.summary())
-    say(f"maps, sites.csv, sites.geojson, overview.png and detect.json in {out_dir}")
-    record({"command": "detect", "out": str(out_dir), **result.info})
+    with ScanProgress("tiles", unit="tile") as progress:
+        _done(detect_job(run_dir, out_dir, dtm_path, dataset, DetectSettings(**settings), overwrite, progress))
 
 
 @main.command("demo")

@@ -63,9 +63,9 @@ from hdnet.data import (
     open_labeling,
     sigma_index,
 )
+from hdnet.detect_job import DetectSettings
 from hdnet.errors import HdNetError
 from hdnet.evaluate import (
-    CALIBRATIONS,
     checkpoint_path,
     guard_above_training,
     preferred_labeling,
@@ -77,7 +77,6 @@ from hdnet.fit import is_run_dir
 from hdnet.infer import mc_dropout_predict, predictive_entropy
 from hdnet.inputs import InputSpec, to_dem_grid
 from hdnet.inputs import network_input as prepare_input
-from hdnet.limits import MAX_BATCH_SIZE, MAX_MC_SAMPLES
 from hdnet.model import BayesianSegNet
 from hdnet.noise_levels import TrainingNoise
 from hdnet.report import json_plain
@@ -374,8 +373,6 @@ class _ScanTerrain(_Terrain):
             raise HdNetError(
                 f"{dataset}: its DEMs are at {spacing:g} m/px, the run was trained at {run.spacing_m:g} m/px."
             )
-        if isinstance(scan, bool) or not isinstance(scan, int):
-            raise HdNetError(f"the scan index must be an integer, got {scan!r}.")
         found = None
         all_scans: list[int] = []
         for path, shard in zip(paths, entry["shards"], strict=True):
@@ -442,13 +439,6 @@ def _origin_map(dataset: Path, label_shard: dict[str, Any], scan: int) -> list[f
 
 
 # --- options -----------------------------------------------------------------------------------------
-def _check_int(name: str, value: Any, low: int, high: int | None = None) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < low or (high is not None and value > high):
-        bound = f">= {low}" if high is None else f"in {low}..{high}"
-        raise HdNetError(f"{name} must be an integer {bound}, got {value!r}.")
-    return value
-
-
 def _fixed_threshold(spec: str) -> float | None:
     """H_t of a ``nats:H`` spec (H >= 0 nats, 'inf' allowed), or None for the calibrated specs."""
     parsed = parse_threshold_spec(spec)
@@ -675,9 +665,19 @@ def detect(
     t_start = time.perf_counter()
     fixed = _fixed_threshold(threshold)
     spec = parse_threshold_spec(threshold) if fixed is None else None
-    _check_detect_options(mc_samples, n_sites, batch_size, sigma_m, dtm, dataset, scan)
-    if calibrate not in CALIBRATIONS:
-        raise HdNetError(f"calibrate must be one of {', '.join(CALIBRATIONS)}, got {calibrate!r}.")
+    settings = DetectSettings(
+        scan=scan,
+        mc_samples=mc_samples,
+        threshold=threshold,
+        sigma_m=sigma_m,
+        calibrate=calibrate,
+        n_sites=n_sites,
+        upsample=upsample,
+        labels=labels,
+        seed=seed,
+        batch_size=batch_size,
+    )  # each value's kind and range (its field's metadata)
+    _check_detect_options(settings, dtm, dataset)
     output = output_dir(out_dir, {"the run": run_dir, "the DTM": dtm, "the dataset": dataset})
     output.check_place()  # a usable path that is no input, before the run is even loaded
     dev = torch.device(device) if device else torch.device("cuda" if torch.cuda.is_available() else "cpu")
@@ -728,20 +728,11 @@ def detect(
 
 
 def _check_detect_options(
-    mc_samples: int,
-    n_sites: int,
-    batch_size: int,
-    sigma_m: float | None,
-    dtm: str | os.PathLike | None,
-    dataset: str | os.PathLike | None,
-    scan: int | None,
+    settings: DetectSettings, dtm: str | os.PathLike | None, dataset: str | os.PathLike | None
 ) -> None:
-    """Step 1: the options alone (before the run is loaded or anything is written)."""
-    _check_int("the number of MC samples", mc_samples, 1, MAX_MC_SAMPLES)
-    _check_int("the number of sites", n_sites, 1)
-    _check_int("the batch size", batch_size, 1, MAX_BATCH_SIZE)
-    if sigma_m is not None and not (isinstance(sigma_m, (int, float)) and math.isfinite(sigma_m) and sigma_m >= 0):
-        raise HdNetError(f"sigma must be a finite number of metres >= 0, got {sigma_m!r}.")
+    """Step 1: the options alone (before the run is loaded or anything is written); each value's kind
+    and range were checked by :class:`~hdnet.detect_job.DetectSettings`, here how they go together."""
+    scan = settings.scan
     if (dtm is None) == (dataset is None):
         raise HdNetError("give either a DTM (--dtm) or a dataset and a scan (--data with --scan).")
     if dataset is not None and scan is None:
@@ -766,7 +757,7 @@ def _open_terrain(
     if dataset is None or scan is None:  # excluded by _check_detect_options
         raise HdNetError("give either a DTM (--dtm) or a dataset and a scan (--data with --scan).")
     lab = labels if labels is not None else preferred_labeling(dataset, run.labels)
-    terrain = _ScanTerrain(Path(dataset), int(scan) if not isinstance(scan, bool) else scan, sigma_m, lab, run)
+    terrain = _ScanTerrain(Path(dataset), scan, sigma_m, lab, run)
     return terrain, Path(dataset), terrain.labels
 
 

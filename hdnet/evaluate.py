@@ -49,7 +49,6 @@ from hdnet.metrics import ConfusionAccumulator, SegmentationMetrics
 from hdnet.model import BayesianSegNet
 from hdnet.noise_levels import TrainingNoise, check_levels
 from hdnet.results import EvaluationResult, ReliabilityBins, ReportRow, SplitInference
-from hdnet.shared_options import CALIBRATIONS as CALIBRATIONS  # re-exported: hdnet.detect reads it here
 from hdnet.shared_options import (
     batch_size_setting,
     calibrate_setting,
