@@ -17,7 +17,7 @@ moved into place file by file with ``detect.json`` last, so the output is comple
 
 Pipeline (docs/user-guide.md, "Hazard maps and landing sites"):
 
-1. the run: model, input preparation (``run_data``), lander and label convention (the run's
+1. the run: model, input preparation (``hdnet.run_record``), lander and label convention (the run's
    labelling entry; older runs: their dataset's manifest), DEM size and spacing;
 2. H_t exactly as ``hd eval`` computes it (``validation_threshold`` on a validation split at the
    training sigma), or a fixed ``nats:H``;
@@ -69,7 +69,6 @@ from hdnet.evaluate import (
     checkpoint_path,
     guard_above_training,
     preferred_labeling,
-    run_data,
     split_dataset,
     validation_threshold,
 )
@@ -81,6 +80,7 @@ from hdnet.model import BayesianSegNet
 from hdnet.noise_levels import TrainingNoise
 from hdnet.report import json_plain
 from hdnet.results import SITE_COLUMNS, Site
+from hdnet.run_record import TrainingData, checkpoint_data
 from hdnet.threshold_cache import CachedThreshold, cache_key
 from hdnet.thresholds import ThresholdSpec, parse_threshold_spec, uncertain_mask
 from hdnet.tiling import TilePlan
@@ -122,7 +122,8 @@ class DetectRun:
 
     ``labeling`` is the labelling entry the run was trained on (lander, DEM grid, label convention);
     ``dem_shape`` (rows, cols) and ``spacing_m`` (metres/pixel) are its DEM grid; ``dataset`` the
-    training dataset (None when it is not present any more).
+    training dataset (None when it is not present any more); ``data`` the run record's training data
+    (``hdnet.run_record``; None for a model made in code).
     """
 
     checkpoint: Path
@@ -136,6 +137,7 @@ class DetectRun:
     dem_shape: tuple[int, int]
     spacing_m: float
     dataset: Path | None
+    data: TrainingData | None = field(default=None, repr=False)
 
     @property
     def input_size(self) -> int | None:
@@ -145,8 +147,12 @@ class DetectRun:
     @property
     def train_noise(self) -> TrainingNoise:
         """The run's training noise levels (one level for runs that do not record them)."""
-        record = (self.ckpt.get("extra_config") or {}).get("train_noise")
-        return TrainingNoise.from_dict(record) if record else TrainingNoise.single(self.train_sigma_m)
+        return self.data.train_noise if self.data is not None else TrainingNoise.single(self.train_sigma_m)
+
+    @property
+    def recorded_dataset(self) -> str | None:
+        """The training dataset's path as the run records it (present or not)."""
+        return None if self.data is None else self.data.dataset
 
 
 def load_run(run_dir: str | os.PathLike, device: torch.device) -> DetectRun:
@@ -159,33 +165,34 @@ def load_run(run_dir: str | os.PathLike, device: torch.device) -> DetectRun:
     if not Path(run_dir).exists():
         raise HdNetError(f"run {run_dir} does not exist.")
     model, ckpt = load_trained_model(path, map_location=device)
-    train_sigma, input_spec, labels = run_data(ckpt, path)
-    extra = ckpt.get("extra_config") or {}
-    dataset = Path(extra["dataset"]) if extra.get("dataset") else None
+    data = checkpoint_data(ckpt, path)
+    labels = data.labels
+    dataset = Path(data.dataset) if data.dataset else None
     if dataset is not None and not (dataset / MANIFEST_NAME).is_file():
         dataset = None
-    labeling = extra.get("labeling") or None
+    labeling = data.labeling
     if labeling is None:
         if dataset is None:
             raise HdNetError(
-                f"{path} does not record its lander and its dataset {extra.get('dataset')} is not present; "
+                f"{path} does not record its lander and its dataset {data.dataset} is not present; "
                 "retrain it with this hd or restore the dataset."
             )
         labeling = {k: v for k, v in find_labeling(dataset, labels).items() if k != "shards"}
     dem = labeling.get("dem", {})
-    shape = extra.get("dem_shape") or [dem.get("rows", defaults.DEM_SIZE_PX), dem.get("cols", defaults.DEM_SIZE_PX)]
+    shape = data.dem_shape or (dem.get("rows", defaults.DEM_SIZE_PX), dem.get("cols", defaults.DEM_SIZE_PX))
     return DetectRun(
         path,
         model,
         ckpt,
-        train_sigma,
-        input_spec,
+        data.train_sigma_m,
+        data.input,
         str(labeling.get("name", labels)),
         labeling,
         lander_of(labeling),
         (int(shape[0]), int(shape[1])),
         dem_spacing_m(labeling),
         dataset,
+        data,
     )
 
 
@@ -692,7 +699,7 @@ def detect(
         if spec is not None and calib_dir is None:
             raise HdNetError(
                 f"the {spec} threshold is calibrated on the run's validation split, but its dataset "
-                f"{run.ckpt.get('extra_config', {}).get('dataset')} is not present; restore it or give "
+                f"{run.recorded_dataset} is not present; restore it or give "
                 "a fixed threshold, e.g. --threshold nats:0.3."
             )
         plan = TilePlan.make(terrain.shape, run.dem_shape, overlap_px(run.lander, run.spacing_m))
@@ -973,7 +980,6 @@ def _info(
     sites: list[Site],
     timings: dict[str, float],
 ) -> dict[str, Any]:
-    extra = run.ckpt.get("extra_config") or {}
     return {
         "software": "hd",
         "software_version": __version__,
@@ -985,7 +991,7 @@ def _info(
             "train_sigma_m": run.train_sigma_m,
             "train_noise": run.train_noise.to_dict(),
             "input_size": run.input_size,
-            "dataset": extra.get("dataset"),
+            "dataset": run.recorded_dataset,
             "labels": run.labels,
             "dem_shape": list(run.dem_shape),
             "dem_spacing_m": run.spacing_m,

@@ -49,6 +49,7 @@ from hdnet.metrics import ConfusionAccumulator, SegmentationMetrics
 from hdnet.model import BayesianSegNet
 from hdnet.noise_levels import TrainingNoise, check_levels
 from hdnet.results import EvaluationResult, ReliabilityBins, ReportRow, SplitInference
+from hdnet.run_record import checkpoint_data
 from hdnet.shared_options import (
     batch_size_setting,
     calibrate_setting,
@@ -248,16 +249,8 @@ def run_data(ckpt: dict[str, Any], path: Path) -> tuple[float, InputSpec, str | 
 
     Raises HdNetError for a checkpoint not trained by ``hdnet.fit`` (no run data config).
     """
-    extra = ckpt.get("extra_config") or {}
-    if "train_sigma_m" not in extra or ("input" not in extra and "normalisation" not in extra):
-        raise HdNetError(
-            f"{path} was not trained by hdnet.fit: its run config lacks the training sigma and normalisation."
-        )
-    try:
-        spec = InputSpec.from_run_config(extra, ckpt.get("model_config"))
-    except HdNetError as exc:
-        raise HdNetError(f"{path}: {str(exc).rstrip('.')}.") from exc
-    return float(extra["train_sigma_m"]), spec, extra.get("labels")
+    data = checkpoint_data(ckpt, path)
+    return data.train_sigma_m, data.input, data.labels
 
 
 def split_dataset(
@@ -423,8 +416,7 @@ class _Setup:
     @property
     def train_noise(self) -> TrainingNoise:
         """The run's training noise levels (one level for runs that do not record them)."""
-        record = (self.ckpt.get("extra_config") or {}).get("train_noise")
-        return TrainingNoise.from_dict(record) if record else TrainingNoise.single(self.train_sigma_m)
+        return checkpoint_data(self.ckpt, self.ckpt_path).train_noise
 
     def dataset(
         self,
@@ -468,10 +460,8 @@ def calibration_datasets(
     ``run_labels``; else the evaluated dataset ``dataset_dir`` (labelling ``labels``), with the reason."""
     if cfg.calibrate_on:
         return Calibration(tuple(str(Path(d).resolve()) for d in cfg.calibrate_on), labels, "calibrate-on")
-    extra = ckpt.get("extra_config") or {}
-    also = extra.get("also")
-    also = also if isinstance(also, list) else []
-    recorded = [extra.get("dataset"), *(a.get("dataset") for a in also if isinstance(a, dict))]
+    data = checkpoint_data(ckpt, "the run")
+    recorded = [data.dataset, *(a.dataset for a in data.also)]
     evaluated = str(Path(dataset_dir).resolve())
     note = "the run does not record its training data"
     if recorded[0]:
@@ -797,7 +787,7 @@ def _run_info(
     """Step 5: the ``run`` entry of the report: checkpoint, run settings, dataset and evaluation settings."""
     root = Path(dataset_dir).resolve()
     ckpt = setup.ckpt
-    extra = ckpt.get("extra_config") or {}
+    data = checkpoint_data(ckpt, setup.ckpt_path)
     return {
         "checkpoint": str(setup.ckpt_path.resolve()),
         "checkpoint_sha256": sha256_file(setup.ckpt_path),
@@ -806,14 +796,14 @@ def _run_info(
         "profile": ckpt.get("profile", {}).get("name"),
         "model_config": ckpt.get("model_config"),
         "train_sigma_m": setup.train_sigma_m,
-        "train_noise": extra.get("train_noise") or TrainingNoise.single(setup.train_sigma_m).to_dict(),
+        "train_noise": data.train_noise.to_dict(),
         "sigma_sweep_m": list(cfg.sigma_sweep),
         "input_size": setup.input_spec.input_size,
         "input": setup.input_spec.to_dict(),
         "dataset": str(root),
         "manifest_sha256": sha256_file(root / MANIFEST_NAME),
         "labels": setup.labels,
-        "same_dataset_as_training": extra.get("manifest_sha256") == sha256_file(root / MANIFEST_NAME),
+        "same_dataset_as_training": data.manifest_sha256 == sha256_file(root / MANIFEST_NAME),
         "sigmas_m": list(setup.sigmas_m),
         "mc_samples": cfg.mc_samples,
         "drop_pixels": cfg.drop_pixels,

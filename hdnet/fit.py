@@ -5,7 +5,7 @@ training split's min and max at the training noise level), the training and vali
 ``HazardDataset`` at that noise level (D4 augmentation on the training split only, when the profile
 asks for it), and hands them to ``hdnet.train.train``. What evaluation and inference need to
 prepare new inputs exactly like the training inputs is stored in the run's ``config.json`` and in
-every checkpoint under ``extra_config`` (see ``RUN_DATA_KEYS``; ``input`` is the ``InputSpec``).
+every checkpoint under ``extra_config`` (``hdnet.run_record.TrainingData``; ``input`` is the ``InputSpec``).
 
 The run directory is checked before any work (``prepare_run_dir``: a writable place, not the
 dataset nor inside it; a non-empty directory that is not an hd run is refused, ``overwrite`` or
@@ -40,7 +40,8 @@ from hdnet.errors import HdNetError
 from hdnet.inputs import InputSpec, Normalisation
 from hdnet.noise_levels import TrainingNoise
 from hdnet.profiles import PROFILES, TrainingProfile, get_profile
-from hdnet.train import BEST, CONFIG, LAST, METRICS, load_checkpoint, train
+from hdnet.run_record import CONFIG, RUN_SCHEMA, AlsoDataset, TrainingData, read_run_record
+from hdnet.train import BEST, LAST, METRICS, load_checkpoint, train
 from lidarsim import limits as lidar_limits
 from lidarsim.errors import HdWarning
 from lidarsim.setting import DIRECTORY, check, setting
@@ -54,25 +55,6 @@ from lidarsim.storage import (
 )
 
 RUN_FILES = (LAST, BEST, METRICS, CONFIG)
-
-RUN_DATA_KEYS = (
-    "dataset",
-    "manifest_sha256",
-    "labels",
-    "labeling",
-    "train_sigma_m",
-    "train_noise",
-    "normalisation",
-    "input_size",
-    "input_rule",
-    "dem_shape",
-    "input",
-)
-
-
-def input_rule(input_size: int | None, size_multiple: int = defaults.SIZE_MULTIPLE_PX) -> str:
-    """How DEMs reach the network: ``resize:N`` (bilinear to N x N) or ``pad:M`` (edge padding to a multiple of M)."""
-    return f"resize:{input_size}" if input_size is not None else f"pad:{size_multiple}"
 
 
 def input_spec_for(profile: TrainingProfile, spacing_m: float, normalisation: Normalisation | None) -> InputSpec:
@@ -88,7 +70,7 @@ def input_spec_for(profile: TrainingProfile, spacing_m: float, normalisation: No
     )
 
 
-def run_data_config(
+def training_data(
     dataset_dir: str | os.PathLike,
     labels: str,
     sigma_m: float,
@@ -96,30 +78,32 @@ def run_data_config(
     dem_shape: tuple[int, int],
     labeling: dict[str, Any] | None = None,
     noise: TrainingNoise | None = None,
-) -> dict[str, Any]:
-    """The ``extra_config`` of a run: the data a model was trained on and how inputs were prepared.
+    also: tuple[str | os.PathLike, ...] = (),
+) -> TrainingData:
+    """The training data of a run (its ``extra_config``, ``hdnet.run_record.TrainingData``): the data
+    a model was trained on and how inputs were prepared.
 
-    ``input`` is the full ``InputSpec``; ``normalisation``, ``input_size`` and ``input_rule`` repeat
-    parts of it for readers of older runs (``normalisation`` is None unless the heights are min-max).
     ``labeling`` is the dataset manifest's entry of the labelling trained on (lander, DEM grid, label
     convention); it is kept without its shard list, so a run can be used without its dataset.
-    ``train_noise`` records the training noise levels (``TrainingNoise.to_dict``); ``train_sigma_m``
-    is the reference level (``reference_sigma``).
+    ``noise``: the training noise levels (default: ``sigma_m`` alone, metres), ``sigma_m`` the
+    reference level (``reference_sigma``); ``also``: further training datasets.
     """
     root = Path(dataset_dir).resolve()
-    return {
-        "dataset": str(root),
-        "manifest_sha256": sha256_file(root / MANIFEST_NAME),
-        "labels": labels,
-        "labeling": {k: v for k, v in (labeling or {}).items() if k != "shards"},
-        "train_sigma_m": float(sigma_m),
-        "train_noise": (noise if noise is not None else TrainingNoise.single(sigma_m)).to_dict(),
-        "normalisation": None if spec.normalisation is None else spec.normalisation.to_dict(),
-        "input_size": spec.input_size,
-        "input_rule": spec.rule,
-        "dem_shape": list(dem_shape),
-        "input": spec.to_dict(),
-    }
+    return TrainingData(
+        dataset=str(root),
+        manifest_sha256=sha256_file(root / MANIFEST_NAME),
+        labels=labels,
+        labeling={k: v for k, v in (labeling or {}).items() if k != "shards"},
+        train_sigma_m=float(sigma_m),
+        train_noise=noise if noise is not None else TrainingNoise.single(sigma_m),
+        dem_shape=(int(dem_shape[0]), int(dem_shape[1])),
+        input=spec,
+        also=_also_datasets(also),
+    )
+
+
+def _also_datasets(also: tuple[str | os.PathLike, ...]) -> tuple[AlsoDataset, ...]:
+    return tuple(AlsoDataset(str(Path(d).resolve()), sha256_file(Path(d) / MANIFEST_NAME)) for d in also)
 
 
 def is_run_dir(run_dir: str | os.PathLike) -> bool:
@@ -128,7 +112,7 @@ def is_run_dir(run_dir: str | os.PathLike) -> bool:
     if (run_dir / LAST).is_file():
         return True
     try:
-        return json.loads((run_dir / CONFIG).read_text()).get("schema") == "hdnet.run"
+        return json.loads((run_dir / CONFIG).read_text()).get("schema") == RUN_SCHEMA
     except (OSError, ValueError, AttributeError):
         return False
 
@@ -170,14 +154,11 @@ def run_transaction(run_dir: Path, check: Callable[[], Any], rollback: Callable[
     """The run directory's output transaction (``lidarsim.storage.OutputTransaction``, in place:
     checkpoints are written one by one, each atomically, and a later call resumes them); yields
     ``check()``'s result, checked under the lock. Rank 0 only under torchrun (other ranks write
-    nothing). Storage errors of the transaction itself become HdNetErrors."""
+    nothing)."""
     if int(os.environ.get("RANK", "0")) != 0:
         yield check()
         return
-    tx = OutputTransaction(run_dir, "run", check=check, rollback=rollback)
-    tx.__enter__()
-    with contextlib.ExitStack() as stack:
-        stack.push(tx)  # its __exit__ commits or rolls back
+    with OutputTransaction(run_dir, "run", check=check, rollback=rollback) as tx:
         yield tx.checked
 
 
@@ -329,30 +310,26 @@ def already_trained(dataset_dir: str | os.PathLike, run_dir: str | os.PathLike, 
         return False
     run = Path(run_dir)
     try:
-        recorded = json.loads((run / CONFIG).read_text())
+        recorded = read_run_record(run)
+        data = recorded.data
         epochs_done = sum(1 for _ in (run / METRICS).open()) - 1
         profile = config.training_profile()
         entry, paths = open_labeling(dataset_dir, config.labels)
         noise = training_noise(config.train_noise, config.train_sigma_m, profile, dataset_sigmas(paths))
     except (OSError, ValueError, HdNetError):
         return False
-    if not isinstance(recorded, dict) or not (run / LAST).is_file():
+    if not (run / LAST).is_file():
         return False
-    extra = recorded.get("extra_config") or {}
     epochs = profile.epochs if config.epochs is None else int(config.epochs)
-    also = [
-        {"dataset": str(Path(d).resolve()), "manifest_sha256": sha256_file(Path(d) / MANIFEST_NAME)}
-        for d in config.also
-    ]
     return (
-        recorded.get("profile") == json.loads(json.dumps(profile.to_dict()))
-        and recorded.get("epochs") == epochs == epochs_done
-        and recorded.get("seed") == config.seed
-        and extra.get("dataset") == str(Path(dataset_dir).resolve())
-        and extra.get("manifest_sha256") == sha256_file(Path(dataset_dir) / MANIFEST_NAME)
-        and extra.get("labels") == entry.get("name")
-        and extra.get("train_noise") == json.loads(json.dumps(noise.to_dict()))
-        and extra.get("also", []) == also
+        recorded.profile == json.loads(json.dumps(profile.to_dict()))
+        and recorded.epochs == epochs == epochs_done
+        and recorded.seed == config.seed
+        and data.dataset == str(Path(dataset_dir).resolve())
+        and data.manifest_sha256 == sha256_file(Path(dataset_dir) / MANIFEST_NAME)
+        and data.labels == entry.get("name")
+        and data.train_noise == noise
+        and data.also == _also_datasets(tuple(config.also))
         and _intact_last_epoch(run / LAST) == epochs
     )
 
@@ -406,16 +383,13 @@ def fit(dataset_dir: str | os.PathLike, run_dir: str | os.PathLike, config: FitC
     for name, ds in (("train", train_ds), ("val", val_ds)):
         if len(ds) == 0:  # type: ignore[arg-type]  # map-style datasets have a length
             raise HdNetError(f"{dataset_dir}: the {name} split is empty; build a dataset with more scans.")
-    extra = run_data_config(
-        dataset_dir, train_ds.labels, train_sigma_m, spec, train_ds.dem_shape, labeling=train_ds.entry, noise=noise
-    )
+    labels, dem_shape, entry = train_ds.labels, train_ds.dem_shape, train_ds.entry
     if cfg.also:
         mixed_train, mixed_val = _mix(cfg, train_ds, val_ds, noise, train_sigma_m, profile, common)
-        extra["also"] = [
-            {"dataset": str(Path(d).resolve()), "manifest_sha256": sha256_file(Path(d) / MANIFEST_NAME)}
-            for d in cfg.also
-        ]
         train_ds, val_ds = mixed_train, mixed_val  # type: ignore[assignment]  # the mix reads like one dataset
+    data = training_data(
+        dataset_dir, labels, train_sigma_m, spec, dem_shape, labeling=entry, noise=noise, also=tuple(cfg.also)
+    )
 
     def no_run_without_epoch() -> None:  # a config.json alone is no run
         if not (run_path / LAST).exists():
@@ -436,7 +410,7 @@ def fit(dataset_dir: str | os.PathLike, run_dir: str | os.PathLike, config: FitC
             seed=cfg.seed,
             resume=resume and not replace,
             progress=cfg.progress,
-            extra_config=extra,
+            extra_config=data.to_dict(),
             num_workers=cfg.num_workers,
             stop_after=cfg.stop_after,
         )

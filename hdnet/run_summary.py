@@ -1,6 +1,6 @@
 """What a run directory holds (``hd inspect RUN``): profile, training data and noise, epochs, metrics.
 
-Reads ``config.json`` and ``metrics.csv`` only (never the checkpoints' tensors), so it answers at
+Reads ``config.json`` (``hdnet.run_record``) and ``metrics.csv`` only (never the checkpoints' tensors), so it answers at
 once and works on a run whose checkpoints are being written.
 """
 
@@ -14,7 +14,8 @@ from typing import Any
 
 from hdnet.errors import HdNetError
 from hdnet.fit import is_run_dir
-from hdnet.train import BEST, CONFIG, LAST, METRICS
+from hdnet.run_record import CONFIG, TrainingData, read_run_record
+from hdnet.train import BEST, LAST, METRICS
 
 __all__ = ["describe_run", "is_run_dir", "run_record"]
 
@@ -38,37 +39,34 @@ def run_record(directory: str | os.PathLike) -> dict[str, Any]:
     d = Path(directory)
     if not is_run_dir(d):
         raise HdNetError(f"{d} is not an hd run (no {CONFIG} or {LAST}).")
+    record = read_run_record(d)
     try:
-        config = json.loads((d / CONFIG).read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise HdNetError(f"{d / CONFIG}: unreadable run config ({exc}).") from exc
-    if not isinstance(config, dict):
-        raise HdNetError(f"{d / CONFIG}: not a JSON object.")
-    extra = config.get("extra_config") or {}
-    profile = config.get("profile") or {}
+        data: TrainingData | None = record.data
+    except HdNetError:  # a run of hdnet.train alone records no training data
+        data = None
     rows = _metrics(d / METRICS)
     best = min(rows, key=lambda r: r.get("val_loss", float("inf"))) if rows else None
     return {
         "run": str(d.resolve()),
         "kind": "hd.run",
-        "schema_version": config.get("schema_version"),
-        "profile": profile.get("name"),
-        "model": config.get("model_config"),
-        "epochs_planned": config.get("epochs"),
+        "schema_version": record.file_version,
+        "profile": record.profile_name,
+        "model": record.model_config,
+        "epochs_planned": record.epochs,
         "epochs_done": len(rows),
-        "finished": bool(rows) and len(rows) >= int(config.get("epochs") or 0),
+        "finished": bool(rows) and len(rows) >= record.epochs,
         "checkpoints": [name for name in (LAST, BEST) if (d / name).is_file()],
-        "dataset": extra.get("dataset"),
-        "also": [e.get("dataset") for e in extra.get("also", []) if isinstance(e, dict)],
-        "labels": extra.get("labels"),
-        "convention": (extra.get("labeling") or {}).get("convention"),
-        "train_sigma_m": extra.get("train_sigma_m"),
-        "train_noise": extra.get("train_noise"),
-        "input": extra.get("input"),
+        "dataset": None if data is None else data.dataset,
+        "also": [] if data is None else [a.dataset for a in data.also],
+        "labels": None if data is None else data.labels,
+        "convention": None if data is None else (data.labeling or {}).get("convention"),
+        "train_sigma_m": None if data is None else data.train_sigma_m,
+        "train_noise": None if data is None else data.train_noise.to_dict(),
+        "input": None if data is None else data.input.to_dict(),
         "last_epoch": rows[-1] if rows else None,
         "best_epoch": best,
-        "hd_version": config.get("hd_version"),
-        "torch_version": config.get("torch_version"),
+        "hd_version": record.hd_version,
+        "torch_version": record.torch_version,
     }
 
 

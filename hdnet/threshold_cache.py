@@ -13,19 +13,40 @@ from __future__ import annotations
 
 import json
 import os
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 from lidarsim.shards import MANIFEST_NAME, sha256_file
 from lidarsim.storage import StorageError, write_json_atomic
 
-__all__ = ["CACHE_FILE", "CachedThreshold", "cache_key"]
+__all__ = ["CACHE_FILE", "CachedThreshold", "ThresholdKey", "cache_key"]
 
 CACHE_FILE = "thresholds.json"
 CACHE_SCHEMA = "hd.threshold-cache"
 CACHE_SCHEMA_VERSION = 1
 # hd choice: entries kept per run (the oldest go first); each is a few hundred bytes.
 MAX_ENTRIES = 256
+
+
+@dataclass(frozen=True)
+class ThresholdKey:
+    """Everything a calibrated H_t depends on: the checkpoint and the calibration dataset's manifest
+    (by sha256), the labelling, the noise level (metres), the threshold spec and rule, and the MC
+    settings. Stored in the cache file as a dictionary (:meth:`to_dict`)."""
+
+    checkpoint_sha256: str
+    manifest_sha256: str
+    labels: str
+    sigma_m: float
+    spec: str
+    calibrate: str
+    mc_samples: int
+    batch_size: int
+    seed: int
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
 
 
 def cache_key(
@@ -38,19 +59,19 @@ def cache_key(
     mc_samples: int,
     batch_size: int,
     seed: int,
-) -> dict[str, Any]:
-    """Everything a calibrated H_t depends on (the checkpoint and the dataset manifest by sha256)."""
-    return {
-        "checkpoint_sha256": sha256_file(checkpoint),
-        "manifest_sha256": sha256_file(Path(calib_dir) / MANIFEST_NAME),
-        "labels": labels,
-        "sigma_m": round(float(sigma_m), 12),
-        "spec": spec,
-        "calibrate": calibrate,
-        "mc_samples": int(mc_samples),
-        "batch_size": int(batch_size),
-        "seed": int(seed),
-    }
+) -> ThresholdKey:
+    """The key of a calibration (the checkpoint and the dataset manifest hashed here)."""
+    return ThresholdKey(
+        checkpoint_sha256=sha256_file(checkpoint),
+        manifest_sha256=sha256_file(Path(calib_dir) / MANIFEST_NAME),
+        labels=labels,
+        sigma_m=round(float(sigma_m), 12),
+        spec=spec,
+        calibrate=calibrate,
+        mc_samples=int(mc_samples),
+        batch_size=int(batch_size),
+        seed=int(seed),
+    )
 
 
 class CachedThreshold:
@@ -70,20 +91,22 @@ class CachedThreshold:
             return []
         return [e for e in record["entries"] if isinstance(e, dict) and isinstance(e.get("key"), dict)]
 
-    def get(self, key: dict[str, Any]) -> tuple[float, dict[str, Any]] | None:
+    def get(self, key: ThresholdKey) -> tuple[float, dict[str, Any]] | None:
         """(H_t in nats, its calibration info) stored under ``key``, or None."""
+        plain = key.to_dict()
         for entry in self._entries():
             value = entry.get("value_nats")
-            if entry["key"] == key and (value is None or isinstance(value, (int, float))):
+            if entry["key"] == plain and (value is None or isinstance(value, (int, float))):
                 info = entry.get("info")
                 return (float("inf") if value is None else float(value)), info if isinstance(info, dict) else {}
         return None
 
-    def put(self, key: dict[str, Any], value_nats: float, info: dict[str, Any]) -> bool:
+    def put(self, key: ThresholdKey, value_nats: float, info: dict[str, Any]) -> bool:
         """Store an entry (replacing one of the same key); False when the run directory is not writable."""
-        entries = [e for e in self._entries() if e["key"] != key]
+        plain = key.to_dict()
+        entries = [e for e in self._entries() if e["key"] != plain]
         finite = value_nats if value_nats != float("inf") else None
-        entries.append({"key": key, "value_nats": finite, "info": info})
+        entries.append({"key": plain, "value_nats": finite, "info": info})
         record = {"schema": CACHE_SCHEMA, "schema_version": CACHE_SCHEMA_VERSION, "entries": entries[-MAX_ENTRIES:]}
         if not os.access(self.path.parent, os.W_OK):
             return False

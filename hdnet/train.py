@@ -2,8 +2,8 @@
 
 Run directory layout (all written by rank 0, each file atomically: temporary name, then rename):
 
-* ``config.json``: profile, model config, seed, epochs, world size, versions, ``extra_config``
-  (e.g. the training split's normalisation min/max);
+* ``config.json``: the run record (``hdnet.run_record.RunRecord``: profile, model config, seed,
+  epochs, world size, versions, ``extra_config``, e.g. the training data of ``hdnet.fit``);
 * ``last.pt``: checkpoint after the latest epoch; ``best.pt``: the epoch with the lowest validation loss;
 * ``metrics.csv``: ``epoch, train_loss, val_loss, val_pixel_accuracy, val_miou, lr, train_images_per_s``
   (rewritten from the checkpoint's history each epoch, so it never holds an epoch the checkpoint
@@ -62,6 +62,7 @@ from hdnet._version import __version__
 from hdnet.errors import HdNetError
 from hdnet.model import MODEL_NAME, BayesianSegNet, ModelConfig
 from hdnet.profiles import TrainingProfile, profile_from_dict
+from hdnet.run_record import RunRecord, write_run_record
 from lidarsim.errors import HdWarning
 from lidarsim.storage import write_bytes_atomic
 
@@ -69,7 +70,7 @@ CHECKPOINT_SCHEMA = "hdnet.checkpoint"
 CHECKPOINT_VERSION = 2
 READABLE_CHECKPOINT_VERSIONS = (1, 2)  # 1: without content_sha256
 DIGEST_KEY = "content_sha256"
-LAST, BEST, CONFIG, METRICS = "last.pt", "best.pt", "config.json", "metrics.csv"
+LAST, BEST, METRICS = "last.pt", "best.pt", "metrics.csv"  # and CONFIG, the run record (hdnet.run_record)
 
 
 # --- process group ------------------------------------------------------------------------------
@@ -439,23 +440,21 @@ def train(
             state.model, device_ids=[device.index] if device.type == "cuda" else None
         )
     train_loader, val_loader = _loaders(train_ds, val_ds, profile, world, rank, seed, num_workers, device)
-    config = {
-        "schema": "hdnet.run",
-        "schema_version": 1,
-        "model_name": MODEL_NAME,
-        "model_config": model_config.to_dict(),
-        "profile": profile.to_dict(),
-        "epochs": total_epochs,
-        "seed": seed,
-        "world_size": world,
-        "hd_version": __version__,
-        "torch_version": torch.__version__,
-        "extra_config": extra,
-        "class_weights": None if state.weight is None or class_weights is None else [float(w) for w in class_weights],
-    }
+    record = RunRecord(
+        model_name=MODEL_NAME,
+        model_config=model_config.to_dict(),
+        profile=profile.to_dict(),
+        epochs=total_epochs,
+        seed=seed,
+        world_size=world,
+        hd_version=__version__,
+        torch_version=torch.__version__,
+        extra_config=extra,
+        class_weights=None if state.weight is None or class_weights is None else [float(w) for w in class_weights],
+    )
     if rank == 0:
         run_dir.mkdir(parents=True, exist_ok=True)
-        _atomic_write_bytes(run_dir / CONFIG, (json.dumps(config, indent=2) + "\n").encode())
+        write_run_record(run_dir, record)
 
     bar = None
     report = progress if callable(progress) and rank == 0 else None

@@ -216,11 +216,15 @@ def test_report_and_figures_do_not_import_the_evaluation() -> None:
 
 def test_a_run_saved_before_input_specs_evaluates_like_before(setup, tmp_path):
     """An hd 0.1.0 checkpoint: no ``input`` spec in extra_config, no ``depth`` in the model config."""
+    from hdnet.inputs import InputSpec
     from hdnet.train import load_checkpoint, save_checkpoint
 
     dataset, run, _, _ = setup
     ckpt = load_checkpoint(run / "last.pt")
+    spec = InputSpec.from_dict(ckpt["extra_config"]["input"])
+    assert spec.normalisation is not None  # hd 0.1.0 knew min-max heights only, recorded beside the input
     old_extra = {k: v for k, v in ckpt["extra_config"].items() if k != "input"}
+    old_extra.update(normalisation=spec.normalisation.to_dict(), input_size=spec.input_size)
     old_model = {k: v for k, v in ckpt["model_config"].items() if k != "depth"}
     old = {**ckpt, "extra_config": old_extra, "model_config": old_model}
     old.pop("timing")

@@ -11,7 +11,9 @@ from hdnet_datasets import build_labelled
 from hdlabels.errors import LabelStoreError
 from hdnet.data import compute_normalisation, lander_of
 from hdnet.errors import HdNetError
-from hdnet.fit import RUN_DATA_KEYS, FitConfig, fit
+from hdnet.fit import FitConfig, fit
+from hdnet.inputs import InputSpec
+from hdnet.run_record import RUN_DATA_KEYS, RUN_SCHEMA_VERSION, read_run_record
 from hdnet.train import load_checkpoint
 from lidarsim.shards import sha256_file
 
@@ -24,19 +26,23 @@ def dataset(tmp_path_factory) -> Path:
 def test_tiny_fit_records_the_data_it_was_trained_on(dataset, tmp_path):
     last = fit(dataset, tmp_path / "run", FitConfig(profile="tiny", epochs=1, progress=False))
     assert last == tmp_path / "run" / "last.pt" and last.is_file()
-    extra = json.loads((tmp_path / "run" / "config.json").read_text())["extra_config"]
-    assert set(extra) == set(RUN_DATA_KEYS)
+    config = json.loads((tmp_path / "run" / "config.json").read_text())
+    extra = config["extra_config"]
+    assert config["schema_version"] == RUN_SCHEMA_VERSION and set(extra) == set(RUN_DATA_KEYS)
     assert extra["dataset"] == str(dataset.resolve())
     assert extra["manifest_sha256"] == sha256_file(dataset / "manifest.json")
     assert extra["train_sigma_m"] == 0.0167
-    assert extra["normalisation"] == compute_normalisation(dataset, 0.0167).to_dict()
-    assert extra["input_size"] is None and extra["input_rule"] == "pad:32" and extra["dem_shape"] == [100, 100]
+    spec = InputSpec.from_dict(extra["input"])
+    assert spec.normalisation == compute_normalisation(dataset, 0.0167)
+    assert spec.input_size is None and spec.rule == "pad:32" and extra["dem_shape"] == [100, 100]
     assert extra["labels"].startswith("paper-square-d10m")
     entry = json.loads((dataset / "manifest.json").read_text())["labelings"][0]
     assert extra["labeling"] == {k: v for k, v in entry.items() if k != "shards"}  # lander and DEM grid, no shard list
     assert lander_of(extra["labeling"]) == lander_of(entry) and lander_of(extra["labeling"]).convention == "paper"
     ckpt = load_checkpoint(last)
     assert ckpt["extra_config"] == extra and ckpt["epoch"] == 1 and ckpt["profile"]["name"] == "tiny"
+    record = read_run_record(tmp_path / "run")
+    assert record.to_dict() == config and record.data.dataset == str(dataset.resolve())
 
 
 def test_fit_refuses_bad_datasets(dataset, tmp_path):
@@ -58,7 +64,6 @@ def test_fit_with_the_cpu_levers_records_its_input_spec_and_resumes_exactly(data
 
     import torch
 
-    from hdnet.inputs import InputSpec
     from hdnet.profiles import TINY
 
     profile = replace(
@@ -80,7 +85,7 @@ def test_fit_with_the_cpu_levers_records_its_input_spec_and_resumes_exactly(data
     assert spec == InputSpec(
         heights="median", height_scale_m=0.5, extra_channels=("slope", "highpass"), spacing_m=1.0, size_multiple=8
     )
-    assert a["extra_config"]["normalisation"] is None and a["extra_config"]["input_rule"] == "pad:8"
+    assert spec.normalisation is None and spec.rule == "pad:8"
     assert a["model_config"]["in_channels"] == 3 and a["model_config"]["depth"] == 3
 
 

@@ -1,0 +1,320 @@
+"""The run record: what a training run is, as one typed value (``RUN/config.json`` and the
+metadata every checkpoint carries).
+
+One writer (:func:`write_run_record`, called by ``hdnet.train``), one reader of ``config.json``
+(:func:`read_run_record`) and one of a checkpoint's metadata (:func:`checkpoint_data`); every
+record read, of any age, goes through :func:`migrate` first.
+
+Schema ``hdnet.run``, version 2:
+
+* ``model_name``, ``model_config``, ``profile`` (``TrainingProfile.to_dict``), ``epochs`` (the
+  schedule's length), ``seed``, ``world_size``, ``hd_version``, ``torch_version``,
+  ``class_weights`` (None unless the profile balances the classes);
+* ``extra_config``: for a run trained by ``hdnet.fit``, :class:`TrainingData` - the dataset (path
+  and manifest sha256), the labelling (name and manifest entry without its shard list), the
+  training noise (reference level and levels or range), the input spec (``hdnet.inputs``), the DEM
+  shape and the ``--also`` datasets. ``hdnet.train.train`` used alone stores any JSON dictionary
+  there.
+
+Earlier versions, read through :func:`migrate`:
+
+* version 1 (hd 0.1.x) repeated parts of the input spec beside it in ``extra_config``
+  (``normalisation``, ``input_size``, ``input_rule``); they are dropped;
+* the first runs (hd 0.1.0) had no input spec: min-max heights with the recorded normalisation,
+  one channel, padding to the model's ``2**depth`` (``InputSpec.from_run_config``); runs without a
+  ``train_noise`` were trained at ``train_sigma_m`` alone; runs without a ``labeling`` entry are
+  read with None there (``hd detect`` then reads it from the dataset).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from hdnet.errors import HdNetError
+from hdnet.inputs import InputSpec
+from hdnet.noise_levels import TrainingNoise
+from lidarsim.storage import StorageError, write_json_atomic
+
+__all__ = [
+    "CONFIG",
+    "RUN_DATA_KEYS",
+    "RUN_SCHEMA",
+    "RUN_SCHEMA_VERSION",
+    "AlsoDataset",
+    "RunRecord",
+    "TrainingData",
+    "checkpoint_data",
+    "migrate",
+    "read_run_record",
+    "write_run_record",
+]
+
+CONFIG = "config.json"
+RUN_SCHEMA = "hdnet.run"
+RUN_SCHEMA_VERSION = 2
+# Keys of extra_config that version 1 repeated from the input spec (dropped by ``migrate``).
+_LEGACY_INPUT_KEYS = ("normalisation", "input_size", "input_rule")
+# The extra_config of a run of hdnet.fit (``also`` only with further datasets).
+RUN_DATA_KEYS = (
+    "dataset",
+    "manifest_sha256",
+    "labels",
+    "labeling",
+    "train_sigma_m",
+    "train_noise",
+    "dem_shape",
+    "input",
+)
+
+
+@dataclass(frozen=True)
+class AlsoDataset:
+    """A further training dataset (``hd train --also``): its absolute path and manifest sha256."""
+
+    dataset: str
+    manifest_sha256: str
+
+    def to_dict(self) -> dict[str, str]:
+        return {"dataset": self.dataset, "manifest_sha256": self.manifest_sha256}
+
+
+@dataclass(frozen=True)
+class TrainingData:
+    """What a model was trained on and how its inputs are prepared (a run's ``extra_config``).
+
+    ``dataset``: the training dataset's absolute path at training time and ``manifest_sha256`` its
+    manifest's checksum (None in records that lack them); ``labels``: the labelling's name;
+    ``labeling``: its manifest entry without the shard list (lander, DEM grid, convention; None for
+    runs trained before it was recorded); ``train_sigma_m``: the reference noise level, metres;
+    ``train_noise``: every training level or the range; ``input``: how DEMs become network inputs;
+    ``dem_shape``: (rows, cols) of the training DEMs (None when not recorded); ``also``: further
+    training datasets.
+    """
+
+    train_sigma_m: float
+    input: InputSpec
+    train_noise: TrainingNoise
+    dataset: str | None = None
+    manifest_sha256: str | None = None
+    labels: str | None = None
+    labeling: dict[str, Any] | None = None
+    dem_shape: tuple[int, int] | None = None
+    also: tuple[AlsoDataset, ...] = ()
+
+    def to_dict(self) -> dict[str, Any]:
+        """The ``extra_config`` of schema version 2 (JSON types)."""
+        out: dict[str, Any] = {
+            "dataset": self.dataset,
+            "manifest_sha256": self.manifest_sha256,
+            "labels": self.labels,
+            "labeling": self.labeling,
+            "train_sigma_m": float(self.train_sigma_m),
+            "train_noise": self.train_noise.to_dict(),
+            "dem_shape": None if self.dem_shape is None else list(self.dem_shape),
+            "input": self.input.to_dict(),
+        }
+        if self.also:
+            out["also"] = [a.to_dict() for a in self.also]
+        return out
+
+    @classmethod
+    def from_dict(cls, extra: Any, where: str = "the run config") -> TrainingData:
+        """Rebuild from a migrated ``extra_config`` (see :func:`migrate`).
+
+        Raises:
+            HdNetError: not a run of ``hdnet.fit`` (no training sigma or input spec), or a field of
+                the wrong type; the message starts with ``where``.
+        """
+        if not isinstance(extra, dict) or "train_sigma_m" not in extra or "input" not in extra:
+            raise HdNetError(
+                f"{where} was not trained by hdnet.fit: its run config lacks the training sigma and normalisation."
+            )
+        try:
+            sigma = float(extra["train_sigma_m"])
+            spec = InputSpec.from_dict(extra["input"])
+            noise = TrainingNoise.from_dict(extra["train_noise"])
+            shape = extra.get("dem_shape")
+            also = tuple(AlsoDataset(str(a["dataset"]), str(a["manifest_sha256"])) for a in extra.get("also") or ())
+            labeling = extra.get("labeling")
+            if labeling is not None and not isinstance(labeling, dict):
+                raise TypeError("labeling is not a dictionary")
+            return cls(
+                train_sigma_m=sigma,
+                input=spec,
+                train_noise=noise,
+                dataset=_optional_str(extra.get("dataset")),
+                manifest_sha256=_optional_str(extra.get("manifest_sha256")),
+                labels=_optional_str(extra.get("labels")),
+                labeling=labeling or None,
+                dem_shape=None if not shape else (int(shape[0]), int(shape[1])),
+                also=also,
+            )
+        except HdNetError as exc:
+            raise HdNetError(f"{where}: {str(exc).rstrip('.')}.") from exc
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
+            raise HdNetError(f"{where}: unreadable training data record ({exc}).") from exc
+
+
+def _optional_str(value: Any) -> str | None:
+    return None if value is None else str(value)
+
+
+@dataclass(frozen=True)
+class RunRecord:
+    """A run's ``config.json``: how the network was trained (see the module docstring).
+
+    ``extra_config`` stays plain JSON (``hdnet.train.train`` takes any); :attr:`data` reads it as
+    :class:`TrainingData`. ``file_version`` is the schema version the record was read from (the
+    writer always writes :data:`RUN_SCHEMA_VERSION`).
+    """
+
+    model_name: str
+    model_config: dict[str, Any]
+    profile: dict[str, Any]
+    epochs: int
+    seed: int
+    world_size: int
+    hd_version: str
+    torch_version: str
+    extra_config: dict[str, Any] = field(default_factory=dict)
+    class_weights: list[float] | None = None
+    file_version: int = RUN_SCHEMA_VERSION
+
+    @property
+    def profile_name(self) -> str | None:
+        name = self.profile.get("name")
+        return None if name is None else str(name)
+
+    @property
+    def data(self) -> TrainingData:
+        """The training data of a run of ``hdnet.fit``.
+
+        Raises:
+            HdNetError: a run of ``hdnet.train.train`` alone, without one.
+        """
+        return TrainingData.from_dict(self.extra_config)
+
+    def to_dict(self) -> dict[str, Any]:
+        """``config.json`` of schema version :data:`RUN_SCHEMA_VERSION`."""
+        return {
+            "schema": RUN_SCHEMA,
+            "schema_version": RUN_SCHEMA_VERSION,
+            "model_name": self.model_name,
+            "model_config": self.model_config,
+            "profile": self.profile,
+            "epochs": self.epochs,
+            "seed": self.seed,
+            "world_size": self.world_size,
+            "hd_version": self.hd_version,
+            "torch_version": self.torch_version,
+            "extra_config": self.extra_config,
+            "class_weights": self.class_weights,
+        }
+
+    @classmethod
+    def from_dict(cls, raw: Any, where: str = "run config") -> RunRecord:
+        """Read a ``config.json`` of any schema version (through :func:`migrate`).
+
+        Raises:
+            HdNetError: another schema, a newer version, or fields of the wrong type.
+        """
+        version = raw.get("schema_version") if isinstance(raw, dict) else None
+        record = migrate(raw, where)
+        try:
+            return cls(
+                model_name=str(record.get("model_name", "")),
+                model_config=dict(record.get("model_config") or {}),
+                profile=dict(record.get("profile") or {}),
+                epochs=int(record.get("epochs") or 0),
+                seed=int(record.get("seed") or 0),
+                world_size=int(record.get("world_size") or 1),
+                hd_version=str(record.get("hd_version", "")),
+                torch_version=str(record.get("torch_version", "")),
+                extra_config=dict(record.get("extra_config") or {}),
+                class_weights=None if record.get("class_weights") is None else list(record["class_weights"]),
+                file_version=int(version) if isinstance(version, int) else RUN_SCHEMA_VERSION,
+            )
+        except (TypeError, ValueError) as exc:
+            raise HdNetError(f"{where}: unreadable run config ({exc}).") from exc
+
+
+def migrate(raw: Any, where: str = "run config") -> dict[str, Any]:
+    """A run record of any schema version in the current version's layout (a new dictionary).
+
+    ``raw`` is a ``config.json`` or a checkpoint's metadata (``model_config`` and ``extra_config``;
+    a record without ``schema_version`` is read as version 1, which is how checkpoints store it).
+    Only runs of ``hdnet.fit`` have an ``extra_config`` to migrate: one without a training sigma
+    (``hdnet.train.train`` alone) is kept as it is.
+
+    Raises:
+        HdNetError: not a dictionary, another schema, or a version newer than this hd reads.
+    """
+    if not isinstance(raw, dict):
+        raise HdNetError(f"{where}: not a JSON object.")
+    schema = raw.get("schema", RUN_SCHEMA)
+    version = raw.get("schema_version", 1)
+    if schema != RUN_SCHEMA:
+        raise HdNetError(f"{where}: schema {schema!r} is not an hd run ({RUN_SCHEMA}).")
+    if isinstance(version, bool) or not isinstance(version, int) or not 1 <= version <= RUN_SCHEMA_VERSION:
+        raise HdNetError(
+            f"{where}: run schema version {version!r} is not readable by this hd (reads 1 to {RUN_SCHEMA_VERSION})."
+        )
+    record = {**raw, "schema": RUN_SCHEMA, "schema_version": RUN_SCHEMA_VERSION}
+    extra = raw.get("extra_config")
+    if not isinstance(extra, dict) or "train_sigma_m" not in extra:
+        return record
+    extra = dict(extra)
+    if "input" not in extra and "normalisation" in extra:  # hd 0.1.0: no input spec
+        try:
+            extra["input"] = InputSpec.from_run_config(extra, raw.get("model_config")).to_dict()
+        except HdNetError as exc:
+            raise HdNetError(f"{where}: {str(exc).rstrip('.')}.") from exc
+    for key in _LEGACY_INPUT_KEYS:  # version 1: parts of the input spec repeated beside it
+        extra.pop(key, None)
+    if not extra.get("train_noise"):
+        with contextlib.suppress(TypeError, ValueError, HdNetError):  # TrainingData.from_dict names a bad sigma
+            extra["train_noise"] = TrainingNoise.single(float(extra["train_sigma_m"])).to_dict()
+    extra.setdefault("labeling", None)
+    record["extra_config"] = extra
+    return record
+
+
+def read_run_record(run_dir: str | os.PathLike) -> RunRecord:
+    """The record of the run at ``run_dir`` (its ``config.json``).
+
+    Raises:
+        HdNetError: a missing or unreadable ``config.json``, or one that is no run record.
+    """
+    path = Path(run_dir) / CONFIG
+    try:
+        raw = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+        raise HdNetError(f"{path}: unreadable run config ({exc}).") from exc
+    return RunRecord.from_dict(raw, str(path))
+
+
+def write_run_record(run_dir: str | os.PathLike, record: RunRecord) -> None:
+    """Write ``RUN/config.json`` atomically (``lidarsim.storage.write_json_atomic``).
+
+    Raises:
+        HdNetError: a value JSON cannot hold, or an OS error (a full disk); nothing is half-written.
+    """
+    try:
+        write_json_atomic(Path(run_dir) / CONFIG, record.to_dict())
+    except StorageError as exc:
+        raise HdNetError(str(exc)) from exc
+
+
+def checkpoint_data(ckpt: dict[str, Any], path: str | os.PathLike) -> TrainingData:
+    """The training data a checkpoint carries (its ``extra_config``, migrated like a ``config.json``).
+
+    Raises:
+        HdNetError: a checkpoint not trained by ``hdnet.fit``; the message names ``path``.
+    """
+    raw = {"model_config": ckpt.get("model_config"), "extra_config": ckpt.get("extra_config") or {}}
+    return TrainingData.from_dict(migrate(raw, str(path))["extra_config"], str(path))
