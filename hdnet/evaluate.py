@@ -35,6 +35,7 @@ import torch
 
 from hdlabels import defaults as label_defaults
 from hdlabels.alhat import safety_probability
+from hdlabels.store import labeling_truth
 from hdnet import defaults, limits
 from hdnet.data import (
     HazardDataset,
@@ -803,6 +804,7 @@ def _run_info(
         "dataset": str(root),
         "manifest_sha256": sha256_file(root / MANIFEST_NAME),
         "labels": setup.labels,
+        "truth": labeling_truth(open_labeling(root, setup.labels)[0]),
         "same_dataset_as_training": data.manifest_sha256 == sha256_file(root / MANIFEST_NAME),
         "sigmas_m": list(setup.sigmas_m),
         "mc_samples": cfg.mc_samples,

@@ -123,6 +123,13 @@ def _paper_table(rows: list[ReportRow]) -> list[str]:
     return [HEADER, *lines] if lines else []
 
 
+# What a run was scored against, per labelling truth (report.json's run.truth; reports written before
+# the terrain truth existed have none and were scored against the clean scan).
+TRUTH_WORDS = {
+    "clean-scan": "the clean-scan truth: labels of the clean scan's DEM",
+    "terrain": "the terrain truth: labels of the DTM on each scan's DEM grid",
+}
+
 # hd choice: below this many test scans the report says that its decimals overstate the precision.
 FEW_TEST_SCANS = 20
 DECIMALS = 4
@@ -136,7 +143,8 @@ def report_markdown(result: EvaluationResult, figures: list[str] | None = None) 
     out += [
         f"- checkpoint: `{run.get('checkpoint')}` (epoch {run.get('epoch')}, profile `{run.get('profile')}`)",
         (
-            f"- dataset: `{run.get('dataset')}`, labelling `{run.get('labels')}`, "
+            f"- dataset: `{run.get('dataset')}`, labelling `{run.get('labels')}` "
+            f"(scored against {TRUTH_WORDS.get(str(run.get('truth', 'clean-scan')), run.get('truth'))}), "
             f"{run.get('test_scans')} test / {run.get('val_scans')} validation scans"
             + (
                 f" (few test scans: the metrics below vary by far more than their {DECIMALS} decimals)"

@@ -276,3 +276,15 @@ def test_the_paper_values_sit_beside_the_paper_dataset_only(setup):
     *_, result = setup
     paper = dataclasses.replace(result, run={**result.run, "paper_dataset": True})
     assert "0.9345" in report_markdown(paper) and "0.9345" not in report_markdown(result)
+
+
+def test_the_report_says_which_truth_the_run_was_scored_against(setup):
+    import dataclasses
+
+    from hdnet.report import report_markdown
+
+    _, _, out, result = setup
+    assert result.run["truth"] == "clean-scan"
+    assert "scored against the clean-scan truth" in (out / "report.md").read_text()
+    terrain = dataclasses.replace(result, run={**result.run, "truth": "terrain"})
+    assert "scored against the terrain truth" in report_markdown(terrain)
