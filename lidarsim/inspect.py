@@ -61,9 +61,12 @@ def describe_dataset(directory: str | os.PathLike) -> str:
                 a = reader.attrs
                 lines.append(
                     f"sensor    {a.get('sensor_rows')} x {a.get('sensor_cols')} px, FOV {a.get('sensor_fov_x_deg')} x "
-                    f"{a.get('sensor_fov_y_deg')} deg, altitude {a.get('trajectory_altitude_m')} m, tilt "
-                    f"{a.get('trajectory_tilt_deg')} deg, jitter {a.get('trajectory_jitter_deg')} deg"
+                    f"{a.get('sensor_fov_y_deg')} deg, altitude {_span(a, 'trajectory_altitude')}, tilt "
+                    f"{_span(a, 'trajectory_tilt')}, jitter {_span(a, 'trajectory_jitter')}"
                 )
+                realism = _realism(a)
+                if realism:
+                    lines.append(f"realism   {realism}")
                 if len(reader):
                     scan = reader[0]
                     valid = float(np.mean(scan.valid))
@@ -147,6 +150,31 @@ def dataset_record(directory: str | os.PathLike) -> dict[str, Any]:
 def _mapping(value: object) -> dict:
     """An informative manifest entry (``splits``, ``dtm``) as a dict; one of another type shows as unknown."""
     return value if isinstance(value, dict) else {}
+
+
+def _span(attrs: dict[str, Any], key: str) -> str:
+    """A trajectory setting of a shard's attributes (``trajectory_altitude``) with its unit: ``500.0 m``
+    or, drawn per scan from a range, ``250.0 to 1000.0 m per scan``."""
+    unit = "m" if key.endswith("altitude") else "deg"
+    low, high = attrs.get(f"{key}_{unit}"), attrs.get(f"{key}_max_{unit}")
+    return f"{low} {unit}" if high is None else f"{low} to {high} {unit} per scan"
+
+
+def _realism(attrs: dict[str, Any]) -> str:
+    """The pixel footprint and noise model of a 1.2 shard, in words ("" for the paper's sensor)."""
+    parts = []
+    if "footprint_samples" in attrs:
+        k = attrs["footprint_samples"]
+        parts.append(
+            f"footprint {k} x {k} sub-rays, {attrs.get('footprint_spot_profile')} spot, "
+            f"{attrs.get('footprint_range_estimator')} range (pulse {attrs.get('footprint_pulse_width_m')} m)"
+        )
+    if attrs.get("noise_model") == "snr":
+        parts.append(
+            f"snr noise (sigma at {attrs.get('noise_reference_range_m')} m, SNR {attrs.get('noise_snr_ref')}; "
+            f"no return below SNR {attrs.get('noise_snr_min')})"
+        )
+    return "; ".join(parts)
 
 
 def _fmt_spacing(spacing: object) -> str:

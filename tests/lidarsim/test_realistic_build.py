@@ -18,6 +18,7 @@ from hdlabels.store import DemSpec
 from lidarsim.build import BuildConfig, build_dataset
 from lidarsim.errors import LidarsimError
 from lidarsim.footprint import FootprintConfig
+from lidarsim.inspect import describe_dataset
 from lidarsim.noise import NoiseModel
 from lidarsim.recipe import BuildSettings
 from lidarsim.scan import STATUS_RETURN, STATUS_WEAK
@@ -139,3 +140,9 @@ def test_a_realistic_build_is_labelled(realistic):
     label_dataset(realistic, dem=DemSpec(rows=16, cols=16, spacing_m=1.0), workers=1)
     manifest = json.loads((realistic / "manifest.json").read_text())
     assert manifest["labelings"]
+
+
+def test_hd_inspect_names_the_realistic_sensor(realistic):
+    text = describe_dataset(realistic)
+    assert "altitude 400.0 to 1000.0 m per scan" in text
+    assert "footprint 3 x 3 sub-rays, gaussian spot, centroid range" in text and "snr noise" in text
