@@ -17,12 +17,12 @@ import click
 from hdlabels import defaults as label_defaults
 from hdlabels import limits as label_limits
 from hdnet import terminal
+from hdnet.chains import PAPER_RECIPE, DemoSettings, ReproduceSettings, run_demo, run_reproduce
 from hdnet.detect_job import DetectSettings
 from hdnet.inspection import Verdict, inspect_directory, verify_directory
 from hdnet.outcome import Done
 from hdnet.shared_options import (
     dtm_option,
-    epochs_option,
     options,
     out_option,
     overwrite_option,
@@ -43,9 +43,6 @@ from lidarsim.setting import bounded as _bounded
 from lidarsim.span import SpanType as _Span
 
 _options = options
-
-# The paper's dataset recipe, which `hd reproduce` runs (beside this file in a source checkout).
-PAPER_RECIPE = "mars-paper"  # hd reproduce's recipe, one that comes with hd (lidarsim.recipe.shipped_recipe)
 
 
 # ------------------------------------------------------------------------------------------ commands
@@ -514,60 +511,33 @@ def detect_cmd(
 
 
 @main.command("demo")
-@_options(
-    out_option("out_dir", "Directory of the demo run.", required=False, default=Path("demo-out")),
-    click.option(
-        "--scans",
-        type=_bounded(limits.SCANS),
-        default=200,
-        show_default=True,
-        help="Scans in the demo dataset.",
-    ),
-    epochs_option("Training epochs (cpu profile).", default=10),
-    workers_option(),
-)
+@out_option("out_dir", "Directory of the demo run.", required=False, default=Path("demo-out"))
+@click_options(DemoSettings)
+@workers_option()
 @friendly_errors
-def demo_cmd(out_dir: Path, scans: int, epochs: int, workers: int | None) -> None:
+def demo_cmd(out_dir: Path, workers: int | None, **settings: Any) -> None:
     """The whole chain at demo scale on the built-in procedural Mars terrain (re-running resumes)."""
-    from hdnet.pipeline import demo_next_steps, demo_pipeline, run_pipeline
-
-    run_pipeline(demo_pipeline(out_dir, scans, epochs), workers, echo=click.echo, progress=ScanProgress)
-    say(demo_next_steps(out_dir))
+    say(run_demo(out_dir, DemoSettings(**settings), workers, click.echo, ScanProgress))
 
 
 @main.command("reproduce")
-@_options(
-    click.option(
-        "--profile",
-        type=click.Choice(["cpu", "robust", "paper"]),
-        default="cpu",
-        show_default=True,
-        help="Training profile: cpu (about 13 min on 2 cores, trained at 1.67 cm as the paper), robust (about "
-        "45 min on 2 cores, trained across 0 to 10 cm, scored with the robust rule and a noise sweep) or paper (GPU).",
-    ),
-    dtm_option("Use this DTM instead of the recipe's terrain."),
-    out_option("out_dir", "Directory of the reproduction.", required=False, default=Path("reproduction")),
-    epochs_option("Training epochs (default: the profile's)."),
-    workers_option(),
-    recipe_option(
-        f"The dataset recipe to reproduce the paper on (default: {PAPER_RECIPE}, the recipe that comes with hd, "
-        "in a source checkout or an installed package)."
-    ),
+@click_options(ReproduceSettings)
+@dtm_option("Use this DTM instead of the recipe's terrain.")
+@out_option("out_dir", "Directory of the reproduction.", required=False, default=Path("reproduction"))
+@workers_option()
+@recipe_option(
+    f"The dataset recipe to reproduce the paper on (default: {PAPER_RECIPE}, the recipe that comes with hd, "
+    "in a source checkout or an installed package)."
 )
 @friendly_errors
 def reproduce_cmd(
-    profile: str, dtm_path: Path | None, out_dir: Path, epochs: int | None, workers: int | None, recipe: Path | None
+    dtm_path: Path | None, out_dir: Path, workers: int | None, recipe: Path | None, **settings: Any
 ) -> None:
     """The paper end to end: the dataset of datasets/mars-paper (S-167/S-300/S-700 on one terrain and trajectory,
     1000 scans, 800/100/100) and its labels, training at 1.67 cm, Table 1, Table 2 (10 dropped pixels), threshold
     sweep and panels, plus the risk-controlled threshold (alpha = 0.05). Each stage is resumable; finished stages
     are skipped."""
-    from hdnet.pipeline import reproduce_pipeline, run_pipeline
-    from lidarsim.recipe import shipped_recipe
-
-    recipe = recipe if recipe is not None else shipped_recipe(PAPER_RECIPE)
-    pipeline = reproduce_pipeline(out_dir, recipe, profile, epochs, dtm_path)
-    run_pipeline(pipeline, workers, echo=click.echo, progress=ScanProgress)
+    run_reproduce(out_dir, recipe, dtm_path, ReproduceSettings(**settings), workers, click.echo, ScanProgress)
 
 
 @main.command("card")
