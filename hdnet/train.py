@@ -128,11 +128,6 @@ def _seed_everything(seed: int) -> None:
 
 
 # --- checkpoint I/O ----------------------------------------------------------------------------
-def _atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write a run file atomically through the storage layer (OS errors become one-line HdNetErrors)."""
-    write_bytes_atomic(path, data)
-
-
 def _hash_into(h: Any, obj: Any) -> None:
     if isinstance(obj, torch.Tensor):
         t = obj.detach().cpu().contiguous()
@@ -164,7 +159,7 @@ def save_checkpoint(path: Path, checkpoint: dict[str, Any]) -> None:
     """Write a checkpoint atomically (temporary file, fsync, rename) with its ``content_sha256``."""
     buf = io.BytesIO()
     torch.save({**checkpoint, DIGEST_KEY: checkpoint_digest(checkpoint)}, buf)
-    _atomic_write_bytes(Path(path), buf.getvalue())
+    write_bytes_atomic(Path(path), buf.getvalue())
 
 
 def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
@@ -272,7 +267,7 @@ def _write_metrics_csv(path: Path, history: list[dict[str, float]], timing: list
     for row in history:
         full = {**row, **rates.get(int(row["epoch"]), {})}
         writer.writerow({k: (int(v) if k == "epoch" else f"{v:.6g}") for k, v in full.items() if k in METRIC_FIELDS})
-    _atomic_write_bytes(path, buf.getvalue().encode())
+    write_bytes_atomic(path, buf.getvalue().encode())
 
 
 def _best_epoch(history: list[dict[str, float]]) -> int:
