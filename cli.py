@@ -36,10 +36,13 @@ from lidarsim import defaults as lidar_defaults
 from lidarsim import limits
 from lidarsim._version import __version__
 from lidarsim.errors import LidarsimError
+from lidarsim.export import ExportSettings
 from lidarsim.make_dtm import DtmSettings
 from lidarsim.setting import DIRECTORY, FILE_OR_DIRECTORY, NonEmptyPath, SettingsCommand, click_options
 from lidarsim.setting import DIRECTORY as _DIRECTORY
 from lidarsim.setting import bounded as _bounded
+from lidarsim.setting import click_options as _click_options
+from lidarsim.setting import settings_from_options as _settings_from_options
 from lidarsim.span import SpanType as _Span
 
 _options = options
@@ -538,6 +541,35 @@ def reproduce_cmd(
     sweep and panels, plus the risk-controlled threshold (alpha = 0.05). Each stage is resumable; finished stages
     are skipped."""
     run_reproduce(out_dir, recipe, dtm_path, ReproduceSettings(**settings), workers, click.echo, ScanProgress)
+
+
+@main.command("export")
+@click.argument("dataset", type=_DIRECTORY)
+@out_option("out_dir", "Directory of the LAS/LAZ files (one per scan) and export.json.")
+@_click_options(ExportSettings)
+@click.option(
+    "--scans",
+    "scans_text",
+    default=None,
+    metavar="LIST",
+    help="Scans to export: indices and ranges, e.g. 0,5,10-19 (default: every scan).",
+)
+@overwrite_option("Replace an earlier export in --out.")
+@friendly_errors
+def export_cmd(dataset: Path, out_dir: Path, scans_text: str | None, overwrite: bool, **options: Any) -> None:
+    """Write scans as LAS 1.4 / LAZ point clouds for point-cloud tools (CloudCompare, PDAL), one file per scan,
+    in the scan frame or in map coordinates with the DTM's CRS."""
+    from lidarsim.export import export_scans, parse_scans
+
+    scans = parse_scans(scans_text) if scans_text is not None else ()
+    settings = _settings_from_options(ExportSettings, options, scans=scans)
+    progress = ScanProgress("export")
+    try:
+        summary = export_scans(dataset, out_dir, settings, overwrite=overwrite, progress=progress)
+    finally:
+        progress.close()
+    say(summary.paragraph())
+    record({"command": "export", **dataclasses.asdict(summary)})
 
 
 @main.command("card")
