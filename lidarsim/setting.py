@@ -45,7 +45,8 @@ class Described:
     option's name when it is not the field's name dashed; ``cli``: whether the command line takes it;
     ``click_type``: the option's type when it is not made from the kind (a path that must exist);
     ``checked``: whether :func:`check` checks it (not for a value that may also be an object, e.g.
-    a training profile given by name or as itself).
+    a training profile given by name or as itself); ``span``: one number or a range drawn per scan
+    (``lidarsim.span``: ``500``, ``"250:1000"``, ``(250, 1000)``), each end within ``bound``.
     """
 
     help: str
@@ -61,6 +62,7 @@ class Described:
     cli: bool = True
     click_type: Any = None
     checked: bool = True
+    span: bool = False
 
     def option_name(self, field_name: str) -> str:
         """The command-line flag of the setting (``--dem-size``)."""
@@ -76,6 +78,8 @@ class Described:
 
     def problem(self, value: Any) -> str | None:
         """What is wrong with one value (None: nothing)."""
+        if self.span:
+            return self._span_problem(value)
         if self.kind is bool:
             ok = value is True or value is False
             expected = "true or false"
@@ -97,6 +101,21 @@ class Described:
             ok, expected = False, f"{expected} in {self.bound.interval()}"
         return None if ok else f"must be {expected}, got {value!r}"
 
+    def _span_problem(self, value: Any) -> str | None:
+        from lidarsim.errors import LidarsimError
+        from lidarsim.span import parse_span
+
+        try:
+            low, high = parse_span("value", value)
+        except LidarsimError:
+            return f"must be a number or a range LOW:HIGH, got {value!r}"
+        ends = (low,) if high is None else (low, high)
+        if self.bound is not None and not all(self.bound.contains(e) for e in ends):
+            return f"must be within {self.bound.interval()}, got {value!r}"
+        if high is not None and high < low:
+            return f"must be a range LOW:HIGH with LOW <= HIGH, got {value!r}"
+        return None
+
 
 def setting(
     default: Any,
@@ -113,6 +132,7 @@ def setting(
     cli: bool = True,
     click_type: Any = None,
     checked: bool = True,
+    span: bool = False,
 ) -> Any:
     """A dataclass field described once (see :class:`Described`). ``kind`` is taken from the range
     (integer or not), the choices or the default when not given; a tuple default makes a repeated
@@ -142,6 +162,7 @@ def setting(
         cli=cli,
         click_type=click_type,
         checked=checked,
+        span=span,
     )
     return dataclasses.field(default=default, metadata={_KEY: described})
 
@@ -176,28 +197,30 @@ def check(settings: Any, error: type[HdError], name: Callable[[str, Described], 
                 raise error(f"{label} {problem}")
 
 
-def from_mapping(cls: type[T], section: Mapping[str, Any], where: str, error: type[HdError], **fixed: Any) -> T:
-    """A settings object from a recipe section (keys are the field names): unknown keys refused,
-    an integer taken for a number, a list for a repeated setting, then checked by the class.
-    ``fixed``: values of fields that the section does not give (defaults of the recipe's own).
+def from_mapping(
+    cls: type[T], values: Mapping[str, Any], where: str, section: str, error: type[HdError], **fixed: Any
+) -> T:
+    """A settings object from a recipe's ``[section]`` (keys are the field names): unknown keys
+    refused, an integer taken for a number, a list for a repeated setting, then checked by the
+    class. ``fixed``: values of fields that the section does not give (defaults of the recipe's own).
 
     Raises:
-        error: an unknown key or a wrong value, naming ``where`` and the key.
+        error: an unknown key or a wrong value, naming ``where`` (the recipe), the section and the key.
     """
     described = {f.name: d for f, d in described_fields(cls)}
-    unknown = sorted(set(section) - set(described))
+    unknown = sorted(set(values) - set(described))
     if unknown:
-        raise error(f"{where}: unknown key(s) {unknown}")
-    values: dict[str, Any] = dict(fixed)
-    for key, value in section.items():
+        raise error(f"{where}: unknown [{section}] key(s) {unknown}")
+    for key, value in values.items():
         d = described[key]
         many = d.multiple and isinstance(value, list | tuple)
-        values[key] = tuple(_number(d, v) for v in value) if many else _number(d, value)
-        for v in values[key] if many else (values[key],):
+        given = tuple(_number(d, v) for v in value) if many else _number(d, value)
+        for v in given if many else (given,):
             problem = d.problem(v)
-            if problem is not None:
-                raise error(f"{where}: {key} {problem}")
-    return cls(**values)
+            if problem is not None and not (v is None and d.optional):
+                raise error(f"{where}: [{section}] {key} {problem}")
+        fixed[key] = given
+    return cls(**fixed)
 
 
 def _number(d: Described, value: Any) -> Any:
