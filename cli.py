@@ -20,7 +20,6 @@ from hdnet import terminal
 from hdnet.chains import PAPER_RECIPE, DemoSettings, ReproduceSettings, run_demo, run_reproduce
 from hdnet.detect_job import DetectSettings
 from hdnet.inspection import Verdict, inspect_directory, verify_directory
-from hdnet.outcome import Done
 from hdnet.shared_options import (
     dtm_option,
     options,
@@ -38,6 +37,7 @@ from lidarsim._version import __version__
 from lidarsim.errors import LidarsimError
 from lidarsim.export import ExportSettings
 from lidarsim.make_dtm import DtmSettings
+from lidarsim.outcome import Done
 from lidarsim.setting import DIRECTORY, FILE_OR_DIRECTORY, NonEmptyPath, SettingsCommand, click_options
 from lidarsim.setting import DIRECTORY as _DIRECTORY
 from lidarsim.setting import bounded as _bounded

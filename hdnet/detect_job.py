@@ -14,7 +14,6 @@ from pathlib import Path
 
 from hdnet import limits
 from hdnet.errors import HdNetError
-from hdnet.outcome import Done
 from hdnet.shared_options import (
     batch_size_setting,
     calibrate_setting,
@@ -23,6 +22,7 @@ from hdnet.shared_options import (
     seed_setting,
     threshold_setting,
 )
+from lidarsim.outcome import Done
 from lidarsim.setting import check, setting
 
 

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from hdnet.errors import HdNetError
-from hdnet.outcome import Done
+from lidarsim.outcome import Done
 from lidarsim.setting import check, setting, settings_from_options
 
 
