@@ -6,9 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import rasterio
 from click.testing import CliRunner
-from rasterio.transform import from_origin
 
 from cli import main
 from hdlabels.labeling import label_dataset
@@ -27,6 +25,7 @@ from lidarsim.sensor import SensorConfig
 from lidarsim.shards import read_manifest
 from lidarsim.terrain import DTM
 from lidarsim.trajectory import TrajectoryConfig
+from tests.geotiff import write_geotiff
 
 SIDE_M = 160.0  # the rock field
 PLANE_SIDE_M = 240.0  # room for a footprint tilted 4 degrees
@@ -34,19 +33,7 @@ PLANE_SIDE_M = 240.0  # room for a footprint tilted 4 degrees
 
 def write_dtm(path: Path, heights: np.ndarray, spacing_m: float) -> Path:
     """A north-up float32 GeoTIFF of ``heights`` with its top-left corner at (0, its height in metres)."""
-    rows, cols = heights.shape
-    with rasterio.open(
-        path,
-        "w",
-        driver="GTiff",
-        width=cols,
-        height=rows,
-        count=1,
-        dtype="float32",
-        transform=from_origin(0.0, rows * spacing_m, spacing_m, spacing_m),
-    ) as dst:
-        dst.write(heights.astype(np.float32), 1)
-    return path
+    return write_geotiff(path, heights, spacing_m, (0.0, heights.shape[0] * spacing_m))
 
 
 def plane_dtm(path: Path, slope_deg: float, spacing_m: float = 0.5) -> Path:

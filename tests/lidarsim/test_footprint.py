@@ -8,8 +8,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import rasterio
-from rasterio.transform import from_origin
 
 from lidarsim.errors import LidarsimError
 from lidarsim.footprint import FootprintConfig, spot_weights, subpixel_offsets, subray_directions
@@ -17,6 +15,7 @@ from lidarsim.noise import NoiseModel
 from lidarsim.scan import STATUS_RETURN, STATUS_WEAK, ScanGeometry, TileScene, simulate_scans
 from lidarsim.sensor import SensorConfig, ray_directions, sensor_attitude
 from lidarsim.terrain import DTM
+from tests.geotiff import write_geotiff
 
 ALTITUDE = 500.0
 IFOV_DEG = 12.0 / 128.0  # the paper's pixel: 1.64 mrad
@@ -27,18 +26,7 @@ def _scene(tmp_path: Path, heights: np.ndarray, spacing: float, name: str = "t.t
     and the map coordinate of the centre (x = y)."""
     n = heights.shape[0]
     side = n * spacing
-    path = tmp_path / name
-    with rasterio.open(
-        path,
-        "w",
-        driver="GTiff",
-        width=n,
-        height=n,
-        count=1,
-        dtype="float64",
-        transform=from_origin(0.0, side, spacing, spacing),
-    ) as dst:
-        dst.write(heights, 1)
+    path = write_geotiff(tmp_path / name, heights, spacing, (0.0, side), dtype="float64")
     with DTM.open(path) as dtm:
         return TileScene(dtm, (side / 2, side / 2), side / 2 - spacing), side / 2
 
