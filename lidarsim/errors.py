@@ -5,7 +5,12 @@ one sentence that names the value, option or file and what is wrong with it, and
 command prints it as one ``Error: ...`` line with exit status 1. A program using hd as a library
 catches ``HdError`` for "the input was refused" and lets everything else through as a bug.
 ``HdError`` subclasses ``ValueError``, so code written against the earlier hierarchies still
-catches them. Each package keeps a small hierarchy under the root in its ``errors`` module::
+catches them. An error keeps its kind and its cause on its way up: hdnet and hdlabels let a
+``LockedError`` or ``DamagedFileError`` of the storage layer pass as it is (never re-worded into
+their own error from its text), code that adds context raises the same kind
+(``raise type(exc)(f"{where}: {exc}") from exc``), and every re-raise names its cause
+(``from exc``; ``tests/hdnet/test_error_causes.py`` checks all three packages). Each package
+keeps a small hierarchy under the root in its ``errors`` module::
 
     HdError
     ├── LidarsimError              lidarsim (this module)
