@@ -22,6 +22,8 @@ from lidarsim.storage import (
     DamagedFileError,
     FormatError,
     H5Image,
+    LockedError,
+    OutputTransaction,
     StorageError,
     atomic_path,
     check_schema,
@@ -71,6 +73,61 @@ def test_atomic_path_for_writers_that_need_a_name(tmp_path):
     with pytest.raises(StorageError, match=r"No space|no space"):
         _write_half_then_fill_the_disk(tmp_path / "g.png")
     assert sorted(os.listdir(tmp_path)) == ["fig.png"]
+
+
+def _interrupted_while_locked(out, undone):
+    with OutputTransaction(out, "dataset", rollback=lambda: undone.append(1)):
+        assert storage.lock_holder(out) == os.getpid()
+        with pytest.raises(LockedError, match=r"being written by another hd process \(PID \d+\)"):
+            OutputTransaction(out, "dataset").__enter__()
+        raise KeyboardInterrupt  # SIGINT in the middle of the work
+
+
+def _disk_full_while_staged(out):
+    with OutputTransaction(out, "report", staged=True) as tx:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(tx.staging / "report.md"))
+
+
+def test_an_output_transaction_commits_in_place_or_rolls_back(tmp_path):
+    out = tmp_path / "a" / "b"
+    undone: list[int] = []
+    with pytest.raises(KeyboardInterrupt):
+        _interrupted_while_locked(out, undone)
+    assert undone == [1] and not (tmp_path / "a").exists()  # the directories it created are gone again
+    with OutputTransaction(out, "dataset", check=lambda: "resume", rollback=lambda: undone.append(2)) as tx:
+        assert tx.checked == "resume"
+        write_json_atomic(out / "manifest.json", {"n": 1})
+    assert undone == [1] and sorted(os.listdir(out)) == ["manifest.json"]  # lock released, nothing rolled back
+    assert storage.lock_holder(out) is None
+
+
+def test_a_failed_check_under_the_lock_writes_nothing(tmp_path):
+    def refuse() -> None:
+        raise StorageError("holds something else")
+
+    with pytest.raises(StorageError, match="holds something else"), OutputTransaction(tmp_path / "x", check=refuse):
+        pass
+    assert os.listdir(tmp_path) == []
+
+
+def test_a_staged_output_appears_whole_or_not_at_all(tmp_path):
+    out = tmp_path / "report"
+    out.mkdir()
+    (out / "old.png").write_bytes(b"old")
+    (out / "notes.txt").write_text("mine")
+    with OutputTransaction(out, "report", staged=True) as tx:
+        (tx.staging / "report.md").write_text("# new")
+        (tx.staging / "report.json").write_text("{}")
+        assert sorted(os.listdir(out)) == [".hd-lock", ".report.partial-" + str(os.getpid()), "notes.txt", "old.png"]
+        final = tx.commit(last="report.json", replaces=lambda name: name.endswith((".png", ".md", ".json")))
+    assert [p.name for p in final] == ["report.md", "report.json"]  # the marker last
+    assert sorted(os.listdir(out)) == ["notes.txt", "report.json", "report.md"]  # old.png replaced, notes kept
+    with pytest.raises(StorageError, match=r"report/report\.md: no space left on device"):  # named by its final path
+        _disk_full_while_staged(out)
+    assert sorted(os.listdir(out)) == ["notes.txt", "report.json", "report.md"]
+    with OutputTransaction(out, "report", staged=True) as tx:  # a block that never commits rolls back
+        (tx.staging / "report.json").write_text("[]")
+    assert (out / "report.json").read_text() == "{}"
 
 
 def test_hdf5_is_built_in_memory_and_written_once(tmp_path):
