@@ -69,17 +69,19 @@ class Described:
         return self.flag or "--" + field_name.replace("_", "-")
 
     def help_text(self) -> str:
-        """The ``--help`` text: the sentence with its unit, at ``{unit}`` in the help or after it (the
-        range is added by click)."""
-        if "{unit}" in self.help:
-            return self.help.replace("{unit}", self.unit)
+        """The ``--help`` text: the sentence with its unit, at ``{unit}`` in the help or after it (click
+        adds a number's range; ``{bound}`` writes it where click cannot, e.g. for a span)."""
+        if "{unit}" in self.help or "{bound}" in self.help:
+            bound = self.bound.interval() if self.bound is not None else ""
+            return self.help.replace("{unit}", self.unit).replace("{bound}", bound)
         text = self.help.rstrip(".")
         return f"{text}, {self.unit}." if self.unit else f"{text}."
 
-    def problem(self, value: Any) -> str | None:
-        """What is wrong with one value (None: nothing)."""
+    def expected(self, value: Any) -> str | None:
+        """What one value should have been, when it is wrong (``"an integer in [1, 360]"``); None
+        when it is right."""
         if self.span:
-            return self._span_problem(value)
+            return self._span_expected(value)
         if self.kind is bool:
             ok = value is True or value is False
             expected = "true or false"
@@ -99,21 +101,21 @@ class Described:
             ok, expected = False, "one of " + ", ".join(self.choices)
         if ok and self.bound is not None and not self.bound.contains(float(value)):
             ok, expected = False, f"{expected} in {self.bound.interval()}"
-        return None if ok else f"must be {expected}, got {value!r}"
+        return None if ok else expected
 
-    def _span_problem(self, value: Any) -> str | None:
+    def _span_expected(self, value: Any) -> str | None:
         from lidarsim.errors import LidarsimError
         from lidarsim.span import parse_span
 
         try:
             low, high = parse_span("value", value)
         except LidarsimError:
-            return f"must be a number or a range LOW:HIGH, got {value!r}"
+            return "a number or a range LOW:HIGH"
         ends = (low,) if high is None else (low, high)
         if self.bound is not None and not all(self.bound.contains(e) for e in ends):
-            return f"must be within {self.bound.interval()}, got {value!r}"
+            return f"within {self.bound.interval()}"
         if high is not None and high < low:
-            return f"must be a range LOW:HIGH with LOW <= HIGH, got {value!r}"
+            return "a range LOW:HIGH with LOW <= HIGH"
         return None
 
 
@@ -192,9 +194,9 @@ def check(settings: Any, error: type[HdError], name: Callable[[str, Described], 
         else:
             values = (value,)
         for v in values:
-            problem = d.problem(v)
-            if problem is not None:
-                raise error(f"{label} {problem}")
+            expected = d.expected(v)
+            if expected is not None:
+                raise error(f"{label} must be {expected}, got {v!r}")
 
 
 def from_mapping(
@@ -216,9 +218,9 @@ def from_mapping(
         many = d.multiple and isinstance(value, list | tuple)
         given = tuple(_number(d, v) for v in value) if many else _number(d, value)
         for v in given if many else (given,):
-            problem = d.problem(v)
-            if problem is not None and not (v is None and d.optional):
-                raise error(f"{where}: [{section}] {key} {problem}")
+            expected = d.expected(v)
+            if expected is not None and not (v is None and d.optional):
+                raise error(f"{where}: [{section}] {key} = {v!r} is not {expected}")
         fixed[key] = given
     return cls(**fixed)
 

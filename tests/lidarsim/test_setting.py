@@ -63,7 +63,7 @@ def test_a_recipe_section_is_read_one_way():
     assert toy.levels_m == (1.0, 2.0) and toy.shape == "triangle"
     with pytest.raises(LidarsimError, match=r"r.toml: unknown \[toy\] key\(s\) \['depth'\]"):
         from_mapping(Toy, {"depth": 1}, "r.toml", "toy", LidarsimError)
-    with pytest.raises(LidarsimError, match=r"r.toml: \[toy\] holes must be true or false, got 'yes'"):
+    with pytest.raises(LidarsimError, match=r"r.toml: \[toy\] holes = 'yes' is not true or false"):
         from_mapping(Toy, {"holes": "yes"}, "r.toml", "toy", LidarsimError)
 
 
