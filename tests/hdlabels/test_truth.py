@@ -9,8 +9,10 @@ import pytest
 from click.testing import CliRunner
 
 from cli import main
+from hdlabels.errors import HdLabelsError
 from hdlabels.labeling import label_dataset
 from hdlabels.lander import Lander
+from hdlabels.settings import LabelSettings
 from hdlabels.store import (
     DemSpec,
     LabeledScan,
@@ -181,3 +183,10 @@ def test_a_missing_or_changed_terrain_is_one_line(tmp_path):
     assert not (root / "labels").exists() or not any((root / "labels").rglob("*.h5"))
     # the clean-scan truth needs no terrain
     assert label_dataset(root, workers=1).safe_fraction == 1.0
+
+
+def test_a_recipe_names_the_truth():
+    assert LabelSettings.from_recipe({}).truth == "clean-scan"
+    assert LabelSettings.from_recipe({"truth": "terrain"}).truth == "terrain"
+    with pytest.raises(HdLabelsError, match=r"\[label\] truth = 'dtm' is not one of clean-scan, terrain"):
+        LabelSettings.from_recipe({"truth": "dtm"}, "r.toml")
