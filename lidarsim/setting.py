@@ -73,7 +73,8 @@ class Described:
         adds a number's range; ``{bound}`` writes it where click cannot, e.g. for a span)."""
         if "{unit}" in self.help or "{bound}" in self.help:
             bound = self.bound.interval() if self.bound is not None else ""
-            return self.help.replace("{unit}", self.unit).replace("{bound}", bound)
+            text = self.help.replace("{unit}", self.unit).replace("{bound}", bound)
+            return text if text.endswith(".") else f"{text}."
         text = self.help.rstrip(".")
         return f"{text}, {self.unit}." if self.unit else f"{text}."
 
