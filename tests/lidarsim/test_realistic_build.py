@@ -20,7 +20,7 @@ from lidarsim.errors import LidarsimError
 from lidarsim.footprint import FootprintConfig
 from lidarsim.inspect import describe_dataset
 from lidarsim.noise import NoiseModel
-from lidarsim.recipe import BuildSettings
+from lidarsim.recipe import BuildSettings, load_recipe
 from lidarsim.scan import STATUS_RETURN, STATUS_WEAK
 from lidarsim.sensor import SensorConfig
 from lidarsim.shards import read_manifest
@@ -146,3 +146,14 @@ def test_hd_inspect_names_the_realistic_sensor(realistic):
     text = describe_dataset(realistic)
     assert "altitude 400.0 to 1000.0 m per scan" in text
     assert "footprint 3 x 3 sub-rays, gaussian spot, centroid range" in text and "snr noise" in text
+
+
+def test_the_realistic_sensor_recipe_is_what_its_card_says():
+    recipe = load_recipe("mars-realistic-sensor")
+    build = recipe.build
+    assert build.footprint == FootprintConfig(samples=5)
+    assert build.noise_model == NoiseModel(kind="snr", snr_ref=25.0, snr_min=5.0)
+    assert (build.trajectory.altitude_m, build.trajectory.altitude_max_m) == (250.0, 1000.0)
+    published = recipe.checksums()
+    assert published is not None and published["config_sha256"] == build.fingerprint()
+    assert published["shard_schema_version"] == "1.2"
