@@ -25,7 +25,6 @@ replaced only with ``overwrite``.
 
 from __future__ import annotations
 
-import json
 import os
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -40,7 +39,7 @@ from lidarsim.errors import LidarsimError
 from lidarsim.scan import STATUS_DAMAGED, STATUS_RETURN
 from lidarsim.setting import check, setting
 from lidarsim.shards import open_scan_shard, read_manifest
-from lidarsim.storage import OutputDir, sha256_file
+from lidarsim.storage import OutputDir, sha256_file, write_json_atomic
 
 EXPORT_FORMATS: tuple[str, ...] = ("laz", "las")
 EXPORT_FRAMES: tuple[str, ...] = ("scan", "map")
@@ -198,7 +197,7 @@ def export_scans(
             "crs_wkt": crs_wkt,
             "files": sorted(files, key=lambda f: f["scan_index"]),
         }
-        (staging / EXPORT_MARKER).write_text(json.dumps(record, indent=2) + "\n")
+        write_json_atomic(staging / EXPORT_MARKER, record)
         out.commit()
     return ExportSummary(str(out.path), len(files), total, settings.frame, settings.cloud, bool(crs_wkt))
 
