@@ -63,7 +63,7 @@ from hdnet.data import (
     open_labeling,
     sigma_index,
 )
-from hdnet.detect_job import DetectSettings
+from hdnet.detect_settings import DetectSettings
 from hdnet.errors import HdNetError
 from hdnet.evaluate import (
     checkpoint_path,
@@ -738,7 +738,7 @@ def _check_detect_options(
     settings: DetectSettings, dtm: str | os.PathLike | None, dataset: str | os.PathLike | None
 ) -> None:
     """Step 1: the options alone (before the run is loaded or anything is written); each value's kind
-    and range were checked by :class:`~hdnet.detect_job.DetectSettings`, here how they go together."""
+    and range were checked by :class:`~hdnet.detect_settings.DetectSettings`, here how they go together."""
     scan = settings.scan
     if (dtm is None) == (dataset is None):
         raise HdNetError("give either a DTM (--dtm) or a dataset and a scan (--data with --scan).")

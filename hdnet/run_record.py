@@ -38,7 +38,7 @@ from typing import Any
 from hdnet.errors import HdNetError
 from hdnet.inputs import InputSpec
 from hdnet.noise_levels import TrainingNoise
-from lidarsim.storage import StorageError, write_json_atomic
+from lidarsim.storage import write_json_atomic
 
 __all__ = [
     "CONFIG",
@@ -302,12 +302,9 @@ def write_run_record(run_dir: str | os.PathLike, record: RunRecord) -> None:
     """Write ``RUN/config.json`` atomically (``lidarsim.storage.write_json_atomic``).
 
     Raises:
-        HdNetError: a value JSON cannot hold, or an OS error (a full disk); nothing is half-written.
+        StorageError: a value JSON cannot hold, or an OS error (a full disk); nothing is half-written.
     """
-    try:
-        write_json_atomic(Path(run_dir) / CONFIG, record.to_dict())
-    except StorageError as exc:
-        raise HdNetError(str(exc)) from exc
+    write_json_atomic(Path(run_dir) / CONFIG, record.to_dict())
 
 
 def checkpoint_data(ckpt: dict[str, Any], path: str | os.PathLike) -> TrainingData:

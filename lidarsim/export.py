@@ -213,8 +213,8 @@ def _laspy(fmt: str) -> Any:
     """laspy, with a LAZ backend when ``fmt`` is laz."""
     try:
         import laspy
-    except ImportError:
-        raise LidarsimError("hd export needs laspy: pip install 'laspy[lazrs]'") from None
+    except ImportError as exc:
+        raise LidarsimError("hd export needs laspy: pip install 'laspy[lazrs]'") from exc
     if fmt == "laz" and not laspy.LazBackend.Lazrs.is_available():
         raise LidarsimError("hd export --format laz needs the lazrs backend: pip install 'laspy[lazrs]'")
     return laspy

@@ -1,0 +1,58 @@
+"""The settings of ``hd detect``, described once (help, unit, default, range as field metadata: the
+command's options and checks are made from them).
+
+A leaf module: ``hdnet.detect`` takes its keywords from :class:`DetectSettings` and
+``hdnet.detect_job`` runs ``hdnet.detect.detect`` with them, without the two importing each other.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from hdnet import limits
+from hdnet.errors import HdNetError
+from hdnet.shared_options import (
+    batch_size_setting,
+    calibrate_setting,
+    labels_setting,
+    mc_samples_setting,
+    seed_setting,
+    threshold_setting,
+)
+from lidarsim.setting import check, setting
+
+
+@dataclass(frozen=True)
+class DetectSettings:
+    """How ``hd detect`` maps a terrain (the keywords of :func:`hdnet.detect.detect`)."""
+
+    scan: int | None = setting(
+        None, "With --data: the scan whose noisy DEM to map (scan frame)", bound=limits.SCAN_INDEX
+    )
+    mc_samples: int = mc_samples_setting()
+    threshold: str = threshold_setting("Calibrated as hd eval does.")
+    sigma_m: float | None = setting(
+        None,
+        "The sensor's range noise, {unit} (default: the run's reference training sigma): the ALHAT baseline's "
+        "sigma, the network's noise input where it takes one, the calibration level with --calibrate each; with "
+        "--data also the noise level of the scan's DEM.",
+        unit="metres",
+        bound=limits.NOISE_SIGMA_M,
+        flag="--sigma",
+    )
+    calibrate: str = calibrate_setting(
+        "Calibrate the threshold on the validation split at the run's reference noise level, or at the sensor's "
+        "--sigma (guarded above the run's training levels), as hd eval --calibrate"
+    )
+    n_sites: int = setting(10, "Most landing sites to propose", bound=limits.SITES, flag="--sites")
+    upsample: bool = setting(
+        False,
+        "A DTM coarser than the run's DEM spacing (e.g. HiRISE at 2-4 m) is interpolated bilinearly to it "
+        "(recorded in detect.json) instead of refused; it holds no rocks below its own resolution",
+    )
+    labels: str | None = labels_setting("With --data: the labelling (when the dataset has several)")
+    seed: int = seed_setting("MC dropout")
+    batch_size: int = batch_size_setting("Tiles per inference batch")
+
+    def __post_init__(self) -> None:
+        check(self, HdNetError)
