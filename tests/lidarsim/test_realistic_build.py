@@ -10,8 +10,10 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+from click.testing import CliRunner
 from test_build import rough_dtm
 
+from cli import main
 from hdlabels.grid import grid_points
 from hdlabels.labeling import label_dataset
 from hdlabels.store import DemSpec
@@ -157,3 +159,30 @@ def test_the_realistic_sensor_recipe_is_what_its_card_says():
     published = recipe.checksums()
     assert published is not None and published["config_sha256"] == build.fingerprint()
     assert published["shard_schema_version"] == "1.2"
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["--footprint-samples", "0"], "--footprint-samples"),
+        (["--footprint-samples", "17"], "--footprint-samples"),
+        (["--pulse-width", "0"], "--pulse-width"),
+        (["--return-fraction", "1"], "--return-fraction"),
+        (["--noise-model", "poisson"], "--noise-model"),
+        (["--snr-min", "-1"], "--snr-min"),
+        (["--altitude", "1000:250"], "--altitude"),
+        (["--altitude", "250:inf"], "--altitude"),
+        (["--tilt", "0:61"], "--tilt"),
+    ],
+)
+def test_the_command_line_refuses_bad_sensor_settings_before_any_work(tmp_path, args, needle):
+    out = tmp_path / "never"
+    result = CliRunner().invoke(main, ["build-dataset", "--out", str(out), "--scans", "4", *args])
+    assert result.exit_code != 0 and needle in result.output and not out.exists()
+
+
+def test_help_shows_the_new_settings_and_their_ranges():
+    text = CliRunner().invoke(main, ["build-dataset", "--help"], terminal_width=200).output
+    flags = ("--footprint-samples", "--range-estimator", "--pulse-width", "--noise-model", "--snr-ref", "--snr-min")
+    assert all(flag in text for flag in flags)
+    assert "1<=x<=16" in text and "LOW:HIGH" in text
