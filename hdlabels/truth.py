@@ -11,7 +11,9 @@ module gives, for one scan, the DEM of the terrain under that scan's DEM grid:
 * the surface is sampled by vertical rays at ``n x n`` points per DEM cell (the cell centre among
   them; ``hdlabels.defaults.TERRAIN_SAMPLES_MIN``), and those points are gridded by the labelling's
   own gridding (``hdlabels.grid.grid_points``), so a truth DEM is what a perfect, dense sensor
-  straight above every cell would give;
+  straight above every cell would give. The ``nearest`` and ``linear`` griddings take the centre's
+  height from such samples (the most central point; a vertex of the triangulation), so for them the
+  centre alone is sampled (``n = 1``): the same DEM, ``n * n`` times fewer rays;
 * cells where the clean scan's DEM has no support (outside the scan's footprint) stay NaN, so the
   truth covers the same ground as the clean-scan truth.
 
@@ -37,6 +39,8 @@ from lidarsim.scan import TileScene
 from lidarsim.storage import sha256_file
 from lidarsim.terrain import DTM
 
+# Griddings whose DEM value is the height at the cell centre when a sample lies there.
+CENTRE_GRIDDINGS: tuple[str, ...] = ("nearest", "linear")
 # hd choice: the sampling rays start this far above the highest terrain of the window, metres.
 _RAY_CLEARANCE_M = 10.0
 
@@ -85,8 +89,11 @@ def check_build_terrain(root: Path, manifest: dict[str, Any]) -> tuple[Path, flo
     return path, scale
 
 
-def samples_per_cell(dem_spacing_m: float, dtm_spacing_m: float) -> int:
-    """Odd number of sampling rays per DEM cell and axis: at least two per DTM cell (module docstring)."""
+def samples_per_cell(dem_spacing_m: float, dtm_spacing_m: float, gridding: str = "mean") -> int:
+    """Odd number of sampling rays per DEM cell and axis: at least two per DTM cell for the ``mean`` and
+    ``max`` griddings, the centre alone for ``nearest`` and ``linear`` (module docstring)."""
+    if gridding in CENTRE_GRIDDINGS:
+        return 1
     n = math.ceil(2.0 * dem_spacing_m / dtm_spacing_m - 1e-9)
     n += 1 - n % 2
     return int(min(defaults.TERRAIN_SAMPLES_MAX, max(defaults.TERRAIN_SAMPLES_MIN, n)))
@@ -136,7 +143,7 @@ def terrain_dem(origin_map: np.ndarray, dem_clean: np.ndarray, dem: DemSpec, dtm
         dem: the DEM grid and gridding.
         dtm: the open DTM the dataset was built on (at the build's scale).
     """
-    n = samples_per_cell(dem.spacing_m, min(dtm.info.spacing_m))
+    n = samples_per_cell(dem.spacing_m, min(dtm.info.spacing_m), dem.gridding)
     points = sample_points(origin_map, dem, n, dtm)
     out = grid_points(points, (dem.rows, dem.cols), dem.spacing_m, method=dem.gridding)
     out[~np.isfinite(dem_clean)] = np.nan

@@ -10,6 +10,7 @@ from click.testing import CliRunner
 
 from cli import main
 from hdlabels.errors import HdLabelsError
+from hdlabels.grid import grid_points
 from hdlabels.labeling import label_dataset
 from hdlabels.lander import Lander
 from hdlabels.settings import LabelSettings
@@ -75,8 +76,23 @@ def labelled(root: Path, name: str) -> list[LabeledScan]:
 def test_samples_per_cell_is_odd_and_covers_every_dtm_cell():
     assert samples_per_cell(1.0, 0.5) == 5  # 0.2 m apart: two per 0.5 m cell along each axis
     assert samples_per_cell(1.0, 1.0) == 3  # the minimum
-    assert samples_per_cell(1.0, 0.1) == 15  # the maximum
+    assert samples_per_cell(1.0, 0.1, "max") == 15  # the maximum
     assert all(samples_per_cell(1.0, s) % 2 == 1 for s in (0.13, 0.3, 0.7, 2.0))
+    assert samples_per_cell(1.0, 0.1, "nearest") == samples_per_cell(1.0, 0.1, "linear") == 1  # the centre
+
+
+@pytest.mark.parametrize("gridding", ["nearest", "linear"])
+def test_the_centre_alone_gives_the_dense_dem_of_centre_griddings(tmp_path, gridding):
+    """nearest takes the most central sample and linear interpolates at the centre, a sample: the
+    centre's height either way, so one ray per cell gives the DEM of 5 x 5."""
+    dtm_path, _ = rock_field(tmp_path / "rocks.tif")
+    grid = DemSpec(rows=30, cols=30, spacing_m=1.0, gridding=gridding)
+    origin = np.array([80.8, 81.2, 0.0])  # cell centres on the rocks' centres (x = 1.3 + 6k, y = 158.7 - 6k)
+    with DTM.open(dtm_path) as dtm:
+        dense = grid_points(sample_points(origin, grid, 5, dtm), (30, 30), 1.0, method=gridding)
+        centre = grid_points(sample_points(origin, grid, 1, dtm), (30, 30), 1.0, method=gridding)
+    assert np.ptp(dense) == pytest.approx(0.4, abs=1e-3)  # rocks under the grid, at their full height
+    np.testing.assert_allclose(centre, dense, atol=1e-6)
 
 
 def test_sampled_surface_is_the_plane_in_the_scan_frame(tmp_path):
