@@ -248,8 +248,9 @@ def compare_with_published(
     dataset with the recipe to compare it).
 
     Raises:
-        RecipeError: malformed published checksums or fingerprints, or fingerprints of an unknown
-            major schema version.
+        RecipeError: malformed published checksums.
+        FormatError: malformed published fingerprints, or fingerprints of an unknown major schema
+            version (``lidarsim.fingerprint``'s own error, passed on).
     """
     out = PublishedComparison()
     if manifest.get("config_sha256") != recorded.get("config_sha256"):
@@ -268,7 +269,7 @@ def compare_with_published(
     try:
         check_fingerprint_schema(recorded, CHECKSUMS_FILE)
     except FormatError as exc:
-        raise RecipeError(f"{exc}; this hd cannot compare the content of a rebuild with them") from exc
+        raise type(exc)(f"{exc}; this hd cannot compare the content of a rebuild with them") from exc
     shards = _entries(recorded.get("shards", []), "shards")
     labelings = recorded.get("labelings", [])
     if not isinstance(labelings, list) or not all(
@@ -317,7 +318,7 @@ def compare_with_recipe(
 
     Raises:
         RecipeError: the recipe cannot be read, has no published ``checksums.json``, or its
-            checksums are malformed.
+            checksums are malformed (``FormatError``: its fingerprints, see :func:`compare_with_published`).
     """
     recipe = load_recipe(recipe_dir)
     recorded = recipe.checksums()

@@ -304,7 +304,7 @@ class DTM:
             try:
                 self._sha256 = sha256_file(self.info.path)
             except StorageError as exc:
-                raise TerrainError(f"{self.info.path}: cannot be read for hashing ({exc})") from exc
+                raise type(exc)(f"{self.info.path}: cannot be read for hashing ({exc})") from exc
         return self._sha256
 
     # ------------------------------------------------------------------ reading
