@@ -105,7 +105,8 @@ class ExportSummary:
         where = "map coordinates" + (" with the DTM's CRS" if self.crs else " (the DTM has no CRS)")
         frame = where if self.frame == "map" else "the scan frame"
         return (
-            f"Exported {self.n_files} scans ({self.n_points:,} {self.cloud} points, {frame}) to {self.out_dir}; "
+            f"Exported {self.n_files} scan{'' if self.n_files == 1 else 's'} ({self.n_points:,} {self.cloud} points, "
+            f"{frame}) to {self.out_dir}; "
             f"{EXPORT_MARKER} lists them."
         )
 
