@@ -5,15 +5,16 @@ blurs (a pixel footprint) or misses (occlusion), the truth must come from the te
 module gives, for one scan, the DEM of the terrain under that scan's DEM grid:
 
 * the terrain is the surface the build cast its rays against: the triangle mesh of the DTM's cell
-  centres that ``lidarsim.scan.TileScene`` makes (same file, same ``--dtm-scale``);
+  centres that ``lidarsim.scan.terrain_mesh`` makes for ``TileScene`` (same file, same
+  ``--dtm-scale``), evaluated where a vertical ray would meet it (:func:`mesh_heights`);
 * the grid is the scan's: north-up, centred at the scan's nadir point ``origin_map`` (its x, y),
   heights relative to its reference height (its z), the scan frame the clean points are in;
-* the surface is sampled by vertical rays at ``n x n`` points per DEM cell (the cell centre among
+* the surface is sampled at ``n x n`` points per DEM cell (the cell centre among
   them; ``hdlabels.defaults.TERRAIN_SAMPLES_MIN``), and those points are gridded by the labelling's
   own gridding (``hdlabels.grid.grid_points``), so a truth DEM is what a perfect, dense sensor
   straight above every cell would give. The ``nearest`` and ``linear`` griddings take the centre's
   height from such samples (the most central point; a vertex of the triangulation), so for them the
-  centre alone is sampled (``n = 1``): the same DEM, ``n * n`` times fewer rays;
+  centre alone is sampled (``n = 1``): the same DEM from ``n * n`` times fewer samples;
 * cells where the clean scan's DEM has no support (outside the scan's footprint) stay NaN, so the
   truth covers the same ground as the clean-scan truth.
 
@@ -35,14 +36,11 @@ from hdlabels import defaults
 from hdlabels.grid import cell_centres, grid_points
 from hdlabels.store import DemSpec, LabelStoreError
 from lidarsim.errors import HdError
-from lidarsim.scan import TileScene
 from lidarsim.storage import sha256_file
 from lidarsim.terrain import DTM
 
 # Griddings whose DEM value is the height at the cell centre when a sample lies there.
 CENTRE_GRIDDINGS: tuple[str, ...] = ("nearest", "linear")
-# hd choice: the sampling rays start this far above the highest terrain of the window, metres.
-_RAY_CLEARANCE_M = 10.0
 
 
 def build_terrain_path(root: Path, manifest: dict[str, Any]) -> tuple[Path, str, float]:
@@ -90,7 +88,7 @@ def check_build_terrain(root: Path, manifest: dict[str, Any]) -> tuple[Path, flo
 
 
 def samples_per_cell(dem_spacing_m: float, dtm_spacing_m: float, gridding: str = "mean") -> int:
-    """Odd number of sampling rays per DEM cell and axis: at least two per DTM cell for the ``mean`` and
+    """Odd number of samples per DEM cell and axis: at least two per DTM cell for the ``mean`` and
     ``max`` griddings, the centre alone for ``nearest`` and ``linear`` (module docstring)."""
     if gridding in CENTRE_GRIDDINGS:
         return 1
@@ -99,8 +97,37 @@ def samples_per_cell(dem_spacing_m: float, dtm_spacing_m: float, gridding: str =
     return int(min(defaults.TERRAIN_SAMPLES_MAX, max(defaults.TERRAIN_SAMPLES_MIN, n)))
 
 
+def mesh_heights(dtm: DTM, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Heights of the DTM's triangle mesh at map points, metres: the surface the build's rays hit.
+
+    The mesh is ``lidarsim.scan.terrain_mesh``'s: a vertex at every cell centre (at the DTM's scale),
+    each 2 x 2 block of centres split into two triangles along the diagonal from its north-east to
+    its south-west centre, a triangle with a nodata vertex left out. A point's height is the plane
+    of the triangle under it (exact where a vertical ray cast on the scene meets it, without the
+    scene's float32 rounding).
+
+    Args:
+        dtm: the open DTM.
+        x, y: map coordinates, metres (arrays of one shape).
+
+    Returns:
+        float64 heights of that shape, NaN off the DTM or over a left-out triangle.
+    """
+    r, c = dtm.rowcol_of_xy(x, y)
+    i, j = np.floor(r), np.floor(c)
+    row0, col0 = int(np.min(i)), int(np.min(j))
+    heights = dtm.read(row0, col0, int(np.max(i)) - row0 + 2, int(np.max(j)) - col0 + 2)
+    ii, jj = (i - row0).astype(np.int64), (j - col0).astype(np.int64)
+    fv, fu = r - i, c - j  # southwards and eastwards within the block, in [0, 1)
+    a, b = heights[ii, jj], heights[ii, jj + 1]  # north-west, north-east
+    c_, d = heights[ii + 1, jj], heights[ii + 1, jj + 1]  # south-west, south-east
+    upper = a + fu * (b - a) + fv * (c_ - a)  # triangle (a, c, b)
+    lower = d + (1.0 - fu) * (c_ - d) + (1.0 - fv) * (b - d)  # triangle (b, c, d)
+    return np.where(fu + fv <= 1.0, upper, lower)
+
+
 def sample_points(origin_map: np.ndarray, dem: DemSpec, n: int, dtm: DTM) -> np.ndarray:
-    """The DTM's surface under a scan's DEM grid, sampled by vertical rays: an organised point cloud.
+    """The DTM's surface under a scan's DEM grid at ``n x n`` points per cell: an organised point cloud.
 
     Args:
         origin_map: (3,) map coordinates of the scan frame's origin (nadir x, y; reference height), metres.
@@ -110,27 +137,17 @@ def sample_points(origin_map: np.ndarray, dem: DemSpec, n: int, dtm: DTM) -> np.
 
     Returns:
         float64 (rows * n, cols * n, 3) points in the scan frame (x east, y north, z up, metres), row-major
-        from the north-west corner; NaN heights where the surface has no cell (nodata, off the DTM).
+        from the north-west corner; NaN where the surface has no triangle (nodata, off the DTM).
     """
     x0, y0, z0 = (float(v) for v in origin_map)
     xc, yc = cell_centres((dem.rows, dem.cols), dem.spacing_m)
     offsets = (np.arange(n) - (n - 1) / 2.0) * (dem.spacing_m / n)
     xs = (xc[:, None] + offsets[None, :]).ravel()  # west to east
     ys = (yc[:, None] - offsets[None, :]).ravel()  # north to south
-    half = max(dem.rows, dem.cols) * dem.spacing_m / 2.0 + 2.0 * max(dtm.info.spacing_m)
-    scene = TileScene(dtm, (x0, y0), half)
-    finite = scene.heights[np.isfinite(scene.heights)]
     xx, yy = np.meshgrid(xs, ys)
-    points = np.stack([xx, yy, np.full_like(xx, np.nan)], axis=-1)
-    if finite.size == 0:
-        return points
-    top = float(finite.max()) + _RAY_CLEARANCE_M
-    origins = np.stack([x0 + xx.ravel(), y0 + yy.ravel(), np.full(xx.size, top)], axis=-1)
-    down = np.zeros((xx.size, 1, 1, 3))
-    down[..., 2] = -1.0
-    t = scene.cast(origins, down).astype(np.float64).reshape(xx.shape)
-    points[..., 2] = top - t - z0
-    points[~np.isfinite(t)] = np.nan  # no surface there: no point, as a ray that misses
+    z = mesh_heights(dtm, x0 + xx, y0 + yy) - z0
+    points = np.stack([xx, yy, z], axis=-1)
+    points[~np.isfinite(z)] = np.nan  # no surface there: no point, as a ray that misses
     return points
 
 

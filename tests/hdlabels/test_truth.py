@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import rasterio
 from click.testing import CliRunner
 
 from cli import main
@@ -22,8 +23,9 @@ from hdlabels.store import (
     find_labeling,
     label_shard_paths,
 )
-from hdlabels.truth import sample_points, samples_per_cell
+from hdlabels.truth import mesh_heights, sample_points, samples_per_cell
 from lidarsim.build import BuildConfig, build_dataset
+from lidarsim.scan import TileScene
 from lidarsim.sensor import SensorConfig
 from lidarsim.shards import read_manifest
 from lidarsim.terrain import DTM
@@ -95,8 +97,31 @@ def test_the_centre_alone_gives_the_dense_dem_of_centre_griddings(tmp_path, grid
     np.testing.assert_allclose(centre, dense, atol=1e-6)
 
 
+def test_the_sampled_surface_is_the_one_the_rays_hit(tmp_path):
+    """mesh_heights equals vertical rays cast on the build's Open3D scene of the same DTM (a rock field
+    with a nodata hole), to the scene's float32 precision, holes included."""
+    dtm_path, _ = rock_field(tmp_path / "rocks.tif")
+    with rasterio.open(dtm_path, "r+") as f:
+        z = f.read(1)
+        z[400:420, 400:430] = np.nan  # a hole: the mesh leaves its triangles out
+        f.write(z, 1)
+    rng = np.random.default_rng(5)
+    x, y = rng.uniform(70.0, 95.0, 4000), rng.uniform(70.0, 95.0, 4000)
+    with DTM.open(dtm_path) as dtm:
+        got = mesh_heights(dtm, x, y)
+        scene = TileScene(dtm, (82.0, 82.0), 20.0)
+        top = 10.0
+        down = np.zeros((x.size, 1, 1, 3))
+        down[..., 2] = -1.0
+        t = scene.cast(np.stack([x, y, np.full_like(x, top)], axis=-1), down)[:, 0, 0]
+    hit = top - t.astype(np.float64)
+    np.testing.assert_array_equal(np.isnan(got), np.isnan(hit))
+    assert np.isnan(got).sum() > 100 and np.nanmax(got) > 0.39  # the hole and the rocks were sampled
+    np.testing.assert_allclose(got, hit, atol=2e-5, equal_nan=True)
+
+
 def test_sampled_surface_is_the_plane_in_the_scan_frame(tmp_path):
-    """Vertical rays on a tilted plane return z(x, y) - z_ref at every sample, to float32 precision."""
+    """On a tilted plane the samples are z(x, y) - z_ref."""
     dtm_path = plane_dtm(tmp_path / "p.tif", 8.0)
     origin = np.array([80.3, 79.6, 25.0])
     with DTM.open(dtm_path) as dtm:
@@ -104,7 +129,7 @@ def test_sampled_surface_is_the_plane_in_the_scan_frame(tmp_path):
     assert pts.shape == (30, 36, 3)
     x, y = origin[0] + pts[..., 0], origin[1] + pts[..., 1]
     expected = 20.0 + np.tan(np.radians(8.0)) * x + 0.01 * y - origin[2]
-    np.testing.assert_allclose(pts[..., 2], expected, atol=2e-4)
+    np.testing.assert_allclose(pts[..., 2], expected, atol=1e-4)  # the float32 GeoTIFF
     # the centre sample of the north-west cell sits at its centre: x = -5.5, y = +4.5 (metres)
     np.testing.assert_allclose(pts[1, 1, :2], [-5.5, 4.5])
 
