@@ -103,3 +103,28 @@ def barycentric(t: np.ndarray, px: np.ndarray, py: np.ndarray) -> tuple[np.ndarr
         l2 = (e1x * (py - y0) - (px - x0) * e1y) / det
     inside = (det != 0) & (l1 >= -_BARY_EPS) & (l2 >= -_BARY_EPS) & (l1 + l2 <= 1 + _BARY_EPS)
     return l1, l2, inside
+
+
+def bin_nearest(points: np.ndarray, shape: tuple[int, int], spacing_m: float) -> np.ndarray:
+    """The nearest binning of ``grid.bin_points`` as array operations: each cell (float32, metres,
+    NaN without a return) takes the height of its most central return, the first in detector order
+    among equally central ones. ``points`` is (N, 3), NaN rows ignored."""
+    rows, cols = shape
+    pts = points[np.isfinite(points).all(axis=1)]
+    j = np.floor(pts[:, 0] / spacing_m + cols / 2.0)
+    i = np.floor(rows / 2.0 - pts[:, 1] / spacing_m)
+    inside = (i >= 0) & (i < rows) & (j >= 0) & (j < cols)
+    cell = (i[inside] * cols + j[inside]).astype(np.int64)
+    z = pts[inside, 2]
+    fx = pts[inside, 0] / spacing_m + cols / 2.0 - (j[inside] + 0.5)
+    fy = rows / 2.0 - pts[inside, 1] / spacing_m - (i[inside] + 0.5)
+    dist = fx * fx + fy * fy
+    best = np.full(rows * cols, np.inf)
+    np.minimum.at(best, cell, dist)
+    first = np.full(rows * cols, cell.size)
+    candidates = np.flatnonzero(dist == best[cell])
+    np.minimum.at(first, cell[candidates], candidates)
+    dem = np.full(rows * cols, np.nan)
+    has = first < cell.size
+    dem[has] = z[first[has]]
+    return dem.reshape(rows, cols).astype(np.float32)

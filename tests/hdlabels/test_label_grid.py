@@ -7,11 +7,12 @@ from collections.abc import Callable
 
 import numpy as np
 import pytest
+from grid_numpy import bin_nearest
 from grid_numpy import grid_points as oracle_grid_points
 from scipy.interpolate import LinearNDInterpolator
 
 from hdlabels.errors import HdLabelsError
-from hdlabels.grid import cell_centres, grid_points
+from hdlabels.grid import bin_points, cell_centres, grid_points
 
 Surface = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
@@ -115,3 +116,33 @@ def test_bad_input_is_one_line_error(points: np.ndarray, shape: tuple[int, int],
     with pytest.raises(HdLabelsError) as info:
         grid_points(points, shape, spacing)
     assert "\n" not in str(info.value)
+
+
+def test_nearest_binning_takes_the_most_central_return_and_the_first_of_a_tie() -> None:
+    # Cell (0, 0) of a 2x2 grid at 1 m spans x in [-1, 0), y in (0, 1]; its centre is (-0.5, 0.5).
+    pts = np.array(
+        [
+            [-0.9, 0.9, 1.0],  # corner of cell (0, 0)
+            [-0.5, 0.6, 2.0],  # 0.1 m from its centre: taken
+            [-0.4, 0.5, 3.0],  # also 0.1 m away, later: a tie keeps the first
+            [0.0, 0.5, 4.0],  # x = 0 belongs to the cell east of the boundary, (0, 1)
+            [np.nan, 0.5, 9.0],  # no return
+            [5.0, 0.5, 9.0],  # outside the grid
+        ]
+    )
+    dem = bin_points(pts, (2, 2), 1.0, "nearest")
+    assert dem[0, 0] == 2.0 and dem[0, 1] == 4.0
+    assert np.isnan(dem[1]).all()
+
+
+def test_nearest_binning_equals_its_numpy_oracle_on_a_noisy_scan() -> None:
+    rng = np.random.default_rng(5)
+    pts = nadir_scan(hills)
+    pts[..., :2] += rng.normal(0.0, 0.2, (*pts.shape[:2], 2))
+    pts[rng.random(pts.shape[:2]) < 0.02] = np.nan
+    flat = pts.reshape(-1, 3).astype(np.float32).astype(np.float64)
+    flat[:50, :2] = np.round(flat[:50, :2])  # returns exactly on cell boundaries
+    for shape, spacing in (((100, 100), 1.0), ((150, 150), 0.7)):
+        expected = bin_nearest(flat, shape, spacing)
+        assert np.array_equal(bin_points(flat, shape, spacing, "nearest"), expected, equal_nan=True)
+        assert np.isfinite(expected).sum() > 0.5 * shape[0] * shape[1]  # most cells have a return
