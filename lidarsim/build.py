@@ -14,6 +14,7 @@ created its directory and completed no shard removes the directory too (docs/rel
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import math
 import os
@@ -178,9 +179,37 @@ class BuildConfig:
             attrs.update(self.noise_model.to_attrs())
         return attrs
 
+    def canonical_dict(self) -> dict[str, Any]:
+        """``to_dict`` with the DTM named by its file name and content (``dtm_sha256``) instead of
+        the path it was read from, so that the same recipe gives the same settings wherever the
+        checkout or the DTM lies (the settings hash and the shards' ``config_json``)."""
+        d = self.to_dict()
+        if self.dtm_path is not None:
+            d["dtm_path"] = Path(self.dtm_path).name
+            d["dtm_sha256"] = dtm_content_sha256(self.dtm_path)
+        return d
+
     def fingerprint(self) -> str:
-        """SHA-256 of the canonical JSON of the configuration (the DTM by its path and content)."""
-        return sha256_bytes(json.dumps(self.to_dict(), sort_keys=True).encode())
+        """SHA-256 of the canonical JSON of the configuration (the DTM by its name and content)."""
+        return sha256_bytes(json.dumps(self.canonical_dict(), sort_keys=True).encode())
+
+
+def dtm_content_sha256(path: str | os.PathLike) -> str:
+    """The sha256 of a DTM file, hashed once per (path, size, modification time); "" when the file
+    cannot be read (the build's own checks then name the problem)."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return ""
+    return _sha256_of(str(Path(path).resolve()), st.st_size, st.st_mtime_ns)
+
+
+@functools.lru_cache(maxsize=16)
+def _sha256_of(path: str, size: int, mtime_ns: int) -> str:
+    try:
+        return sha256_file(path)
+    except OSError:
+        return ""
 
 
 @dataclass(frozen=True)
@@ -790,7 +819,7 @@ def _file_attrs(config: BuildConfig, terrain: _BuildTerrain) -> dict[str, Any]:
     """Step 2: the root attributes of every scan shard (settings, sensor, trajectory, terrain)."""
     return {
         "seed": config.seed,
-        "config_json": json.dumps(config.to_dict(), sort_keys=True),
+        "config_json": json.dumps(config.canonical_dict(), sort_keys=True),
         "config_sha256": config.fingerprint(),
         "frame": (
             "scan frame: origin at the nadir point on the reference height (origin_map); x east, y north, z up; metres"

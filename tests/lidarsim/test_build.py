@@ -339,6 +339,10 @@ def test_recipes_parse_and_mars_paper_is_what_reproduce_builds():
         assert r.build.sigmas_m == paper.build.sigmas_m and r.build.trajectory.n_scans == 1000
         assert r.label == load_recipe(REPO / "datasets" / "mars-paper").label
     assert "DTEEC_045994_1985_046060_1985_U01" in (REPO / "datasets" / "mars-jezero" / "SOURCE.md").read_text()
+    # Every published build's settings hash is the recipe's here, wherever this checkout lies.
+    for published in sorted((REPO / "datasets").glob("*/checksums.json")):
+        recorded = json.loads(published.read_text())["config_sha256"]
+        assert load_recipe(published.parent).build.fingerprint() == recorded, published.parent.name
 
 
 def test_build_from_a_recipe_and_verify_against_its_checksums(tmp_path, dtm):
@@ -421,3 +425,30 @@ def test_a_recipe_is_found_by_name_from_anywhere(tmp_path, monkeypatch):
         load_recipe("elsewhere/mars-paper")
     result = CliRunner().invoke(main, ["build-dataset", "--recipe", "nope", "--out", str(tmp_path / "x")])
     assert result.exit_code != 0 and "no such recipe" in result.output and not (tmp_path / "x").exists()
+
+
+def test_the_settings_hash_names_the_dtm_by_its_content_not_where_it_lies(tmp_path, dtm):
+    """A recipe checked out in two places builds the same bytes: the settings hash and the shards'
+    ``config_json`` name the DTM by file name and sha256, not by the path it was read from."""
+    import shutil
+
+    here, there = tmp_path / "a" / "rough.tif", tmp_path / "b" / "deeper" / "rough.tif"
+    for copy in (here, there):
+        copy.parent.mkdir(parents=True)
+        shutil.copyfile(dtm, copy)
+    cfg_here, cfg_there = small_config(here), small_config(there)
+    assert cfg_here.to_dict()["dtm_path"] != cfg_there.to_dict()["dtm_path"]  # the manifest keeps where it was
+    assert cfg_here.fingerprint() == cfg_there.fingerprint()
+    assert cfg_here.canonical_dict()["dtm_path"] == "rough.tif"
+    # Same name, other content: other settings.
+    (tmp_path / "c").mkdir()
+    other = rough_dtm(tmp_path / "c" / "rough.tif", seed=4)
+    assert small_config(other).fingerprint() != cfg_here.fingerprint()
+    small = {"trajectory": TrajectoryConfig(n_scans=4, altitude_m=500.0)}
+    build_dataset(tmp_path / "da", small_config(here, **small), workers=1)
+    build_dataset(tmp_path / "db", small_config(there, **small), workers=1)
+    shards = [e["path"] for e in read_manifest(tmp_path / "da")["shards"]]
+    for name in shards:
+        assert (tmp_path / "da" / name).read_bytes() == (tmp_path / "db" / name).read_bytes(), name
+        with h5py.File(tmp_path / "da" / name) as f:
+            assert str(tmp_path) not in f.attrs["config_json"]
