@@ -45,8 +45,8 @@ class Described:
     option's name when it is not the field's name dashed; ``cli``: whether the command line takes it;
     ``click_type``: the option's type when it is not made from the kind (a path that must exist);
     ``checked``: whether :func:`check` checks it (not for a value that may also be an object, e.g.
-    a training profile given by name or as itself); ``span``: one number or a range drawn per scan
-    (``lidarsim.span``: ``500``, ``"250:1000"``, ``(250, 1000)``), each end within ``bound``.
+    a training profile given by name or as itself, or one number or a range drawn per scan, which
+    ``lidarsim.trajectory`` checks with the range's own messages).
     """
 
     help: str
@@ -62,7 +62,6 @@ class Described:
     cli: bool = True
     click_type: Any = None
     checked: bool = True
-    span: bool = False
 
     def option_name(self, field_name: str) -> str:
         """The command-line flag of the setting (``--dem-size``)."""
@@ -81,8 +80,6 @@ class Described:
     def expected(self, value: Any) -> str | None:
         """What one value should have been, when it is wrong (``"an integer in [1, 360]"``); None
         when it is right."""
-        if self.span:
-            return self._span_expected(value)
         if self.kind is bool:
             ok = value is True or value is False
             expected = "true or false"
@@ -104,21 +101,6 @@ class Described:
             ok, expected = False, f"{expected} in {self.bound.interval()}"
         return None if ok else expected
 
-    def _span_expected(self, value: Any) -> str | None:
-        from lidarsim.errors import LidarsimError
-        from lidarsim.span import parse_span
-
-        try:
-            low, high = parse_span("value", value)
-        except LidarsimError:
-            return "a number or a range LOW:HIGH"
-        ends = (low,) if high is None else (low, high)
-        if self.bound is not None and not all(self.bound.contains(e) for e in ends):
-            return f"within {self.bound.interval()}"
-        if high is not None and high < low:
-            return "a range LOW:HIGH with LOW <= HIGH"
-        return None
-
 
 def setting(
     default: Any,
@@ -135,7 +117,6 @@ def setting(
     cli: bool = True,
     click_type: Any = None,
     checked: bool = True,
-    span: bool = False,
 ) -> Any:
     """A dataclass field described once (see :class:`Described`). ``kind`` is taken from the range
     (integer or not), the choices or the default when not given; a tuple default makes a repeated
@@ -165,7 +146,6 @@ def setting(
         cli=cli,
         click_type=click_type,
         checked=checked,
-        span=span,
     )
     return dataclasses.field(default=default, metadata={_KEY: described})
 
@@ -220,7 +200,7 @@ def from_mapping(
         given = tuple(_number(d, v) for v in value) if many else _number(d, value)
         for v in given if many else (given,):
             expected = d.expected(v)
-            if expected is not None and not (v is None and d.optional):
+            if expected is not None and d.checked and not (v is None and d.optional):
                 raise error(f"{where}: [{section}] {key} = {v!r} is not {expected}")
         fixed[key] = given
     return cls(**fixed)

@@ -23,9 +23,6 @@ class Toy:
     shape: str = setting("square", "Shape", choices=("square", "triangle"))
     holes: bool = setting(False, "Count the holes")
     yaws: int | None = setting(None, "Yaws (default: the shape's)", bound=Bound(1, 360, integer=True))
-    altitude_m: float | str = setting(
-        500.0, "Altitude or LOW:HIGH", unit="metres", bound=Bound(0.0, low_open=True), span=True
-    )
 
     def __post_init__(self) -> None:
         check(self, LidarsimError)
@@ -43,8 +40,6 @@ class Toy:
         ("shape", "circle", "one of square, triangle"),
         ("holes", 1, "true or false"),
         ("yaws", 0, "--yaws"),
-        ("altitude_m", "900:100", "LOW <= HIGH"),
-        ("altitude_m", "0:100", r"within \(0, inf\)"),
     ],
 )
 def test_a_wrong_value_is_refused_naming_its_option(field, value, needle):
@@ -53,7 +48,7 @@ def test_a_wrong_value_is_refused_naming_its_option(field, value, needle):
 
 
 def test_right_values_pass_and_none_is_the_default_of_an_optional_setting():
-    toy = Toy(count=10, width_m=1, levels_m=(0.0, 2.0), shape="triangle", holes=True, altitude_m="250:1000")
+    toy = Toy(count=10, width_m=1, levels_m=(0.0, 2.0), shape="triangle", holes=True)
     assert toy.count == 10 and toy.yaws is None
 
 
@@ -73,7 +68,7 @@ def _command(lazy: bool) -> click.Command:
 
     if lazy:
         return SettingsCommand("toy", callback=run, settings=(f"{__name__}:Toy",))
-    return click.command("toy")(click_options(Toy, skip=("altitude_m",))(run))
+    return click.command("toy")(click_options(Toy)(run))
 
 
 @pytest.mark.parametrize("lazy", [False, True], ids=["decorator", "lazy"])
