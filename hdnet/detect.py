@@ -150,6 +150,17 @@ class DetectRun:
         return self.data.train_noise if self.data is not None else TrainingNoise.single(self.train_sigma_m)
 
     @property
+    def training_datasets(self) -> tuple[Path, ...] | None:
+        """Every dataset the run was trained on (its dataset and each ``--also`` one), or None when
+        one of them is not present any more."""
+        if self.dataset is None:
+            return None
+        also = [Path(a.dataset) for a in self.data.also] if self.data is not None else []
+        if not all((d / MANIFEST_NAME).is_file() for d in also):
+            return None
+        return (self.dataset, *also)
+
+    @property
     def recorded_dataset(self) -> str | None:
         """The training dataset's path as the run records it (present or not)."""
         return None if self.data is None else self.data.dataset
@@ -692,11 +703,11 @@ def detect(
     output.add_inputs({"the checkpoint": run.checkpoint, "the run's dataset": run.dataset})
     out = output.check(overwrite)
     baseline_sigma = run.train_sigma_m if sigma_m is None else float(sigma_m)
-    terrain, calib_dir, calib_labels = _open_terrain(run, dtm, dataset, scan, labels, baseline_sigma, upsample)
+    terrain, calib_dirs, calib_labels = _open_terrain(run, dtm, dataset, scan, labels, baseline_sigma, upsample)
     if isinstance(terrain, _ScanTerrain):
         baseline_sigma = terrain.sigma_m
     try:
-        if spec is not None and calib_dir is None:
+        if spec is not None and not calib_dirs:
             raise HdNetError(
                 f"the {spec} threshold is calibrated on the run's validation split, but its dataset "
                 f"{run.recorded_dataset} is not present; restore it or give "
@@ -706,9 +717,9 @@ def detect(
         with output.open(overwrite) as tmp:
             timings: dict[str, float] = {}
             t0 = time.perf_counter()
-            if spec is not None and calib_dir is not None:
+            if spec is not None and calib_dirs:
                 h_t, threshold_info = _calibrated_threshold(
-                    run, spec, calib_dir, calib_labels, mc_samples, batch_size, seed, dev, calibrate, baseline_sigma
+                    run, spec, calib_dirs, calib_labels, mc_samples, batch_size, seed, dev, calibrate, baseline_sigma
                 )
             else:
                 assert fixed is not None  # exactly one of fixed and spec is set
@@ -756,22 +767,27 @@ def _open_terrain(
     labels: str | None,
     sigma_m: float,
     upsample: bool = False,
-) -> tuple[_Terrain, Path | None, str]:
-    """Step 2: the terrain (a DTM, or one scan's noisy DEM at ``sigma_m`` metres), with the dataset and
-    labelling the threshold is calibrated on (the run's for a DTM, the scan's dataset's for a scan)."""
+) -> tuple[_Terrain, tuple[Path, ...], str]:
+    """Step 2: the terrain (a DTM, or one scan's noisy DEM at ``sigma_m`` metres), with the datasets
+    and labelling the threshold is calibrated on: the run's own training data (every ``--also``
+    dataset included), as ``hd eval`` does; for a scan whose run's data is not present any more, the
+    scan's dataset; for a DTM then none (only a fixed threshold can be used)."""
+    own = run.training_datasets
     if dtm is not None:
-        return _DtmTerrain(Path(dtm), run, upsample), run.dataset, run.labels
+        return _DtmTerrain(Path(dtm), run, upsample), own or (), run.labels
     if dataset is None or scan is None:  # excluded by _check_detect_options
         raise HdNetError("give either a DTM (--dtm) or a dataset and a scan (--data with --scan).")
     lab = labels if labels is not None else preferred_labeling(dataset, run.labels)
     terrain = _ScanTerrain(Path(dataset), scan, sigma_m, lab, run)
-    return terrain, Path(dataset), terrain.labels
+    if own is not None:
+        return terrain, own, run.labels
+    return terrain, (Path(dataset),), terrain.labels
 
 
 def _calibrated_threshold(
     run: DetectRun,
     spec: ThresholdSpec,
-    calib_dir: Path,
+    calib_dirs: tuple[Path, ...],
     calib_labels: str,
     mc_samples: int,
     batch_size: int,
@@ -780,17 +796,19 @@ def _calibrated_threshold(
     calibrate: str = "reference",
     sensor_sigma_m: float | None = None,
 ) -> tuple[float, dict[str, Any]]:
-    """Step 3: the entropy threshold (nats) calibrated on the validation split of ``calib_dir``, as ``hd eval``
+    """Step 3: the entropy threshold (nats) calibrated on the validation splits of ``calib_dirs``, as ``hd eval``
     does: at the run's reference noise level, or (``calibrate="each"``) at the sensor's ``sensor_sigma_m``
     with the precision guard above the training levels."""
     sigma = run.train_sigma_m if calibrate == "reference" or sensor_sigma_m is None else sensor_sigma_m
     # Cached in the run directory (never beside a checkpoint file given on its own).
     cache = CachedThreshold(run.checkpoint.parent) if is_run_dir(run.checkpoint.parent) else None
-    key = cache_key(run.checkpoint, calib_dir, calib_labels, sigma, str(spec), calibrate, mc_samples, batch_size, seed)
+    key = cache_key(run.checkpoint, calib_dirs, calib_labels, sigma, str(spec), calibrate, mc_samples, batch_size, seed)
     hit = cache.get(key) if cache is not None else None
     if hit is not None and cache is not None:
         return hit[0], dict(hit[1], cached=str(cache.path))
-    val_ds = split_dataset(calib_dir, "val", sigma, labels=calib_labels, input_spec=run.input_spec, seed=seed)
+    val_ds = [
+        split_dataset(d, "val", sigma, labels=calib_labels, input_spec=run.input_spec, seed=seed) for d in calib_dirs
+    ]
     th = validation_threshold(
         run.model, val_ds, spec, mc_samples=mc_samples, batch_size=batch_size, seed=seed, device=dev
     )
@@ -799,7 +817,8 @@ def _calibrated_threshold(
     info = dict(
         th.info,
         calibrate=calibrate,
-        calibration_dataset=str(Path(calib_dir).resolve()),
+        calibration_dataset=str(Path(calib_dirs[0]).resolve()),
+        calibration_datasets=[str(Path(d).resolve()) for d in calib_dirs],
         calibration_labels=calib_labels,
     )
     if cache is not None:

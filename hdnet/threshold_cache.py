@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -51,7 +52,7 @@ class ThresholdKey:
 
 def cache_key(
     checkpoint: Path,
-    calib_dir: Path,
+    calib_dirs: Sequence[Path],
     labels: str,
     sigma_m: float,
     spec: str,
@@ -60,10 +61,11 @@ def cache_key(
     batch_size: int,
     seed: int,
 ) -> ThresholdKey:
-    """The key of a calibration (the checkpoint and the dataset manifest hashed here)."""
+    """The key of a calibration (the checkpoint and the manifests of the calibration datasets, in
+    order, hashed here; one dataset's key is its manifest's sha256 alone)."""
     return ThresholdKey(
         checkpoint_sha256=sha256_file(checkpoint),
-        manifest_sha256=sha256_file(Path(calib_dir) / MANIFEST_NAME),
+        manifest_sha256=",".join(sha256_file(Path(d) / MANIFEST_NAME) for d in calib_dirs),
         labels=labels,
         sigma_m=round(float(sigma_m), 12),
         spec=spec,

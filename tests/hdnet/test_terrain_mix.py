@@ -175,3 +175,20 @@ def test_a_report_on_another_dataset_sets_no_paper_numbers_beside_it(two, mixed_
     write_report(result, tmp_path / "r", figures=False)
     md = (tmp_path / "r" / "report.md").read_text()
     assert "The paper's values" not in md and "few test scans" in md and f"`{a.resolve()}`" in md
+
+
+def test_detect_calibrates_on_the_runs_own_training_data_as_eval_does(two, mixed_run, tmp_path):
+    from hdnet.detect import detect
+    from tests.geotiff import write_geotiff
+
+    a, b = two
+    cfg = EvalConfig(mc_samples=2, threshold="quantile:0.5", batch_size=4)
+    reference = evaluate(mixed_run, b, cfg).threshold
+    x = np.arange(60, dtype=np.float32)
+    dtm = write_geotiff(tmp_path / "plane.tif", np.tile(x * 0.05, (60, 1)), 1.0)
+    own = [str(a.resolve()), str(b.resolve())]
+    for out, where in (("dtm", {"dtm": dtm}), ("scan", {"dataset": b, "scan": 0})):
+        detect(mixed_run, tmp_path / out, mc_samples=2, threshold="quantile:0.5", batch_size=4, **where)
+        info = json.loads((tmp_path / out / "detect.json").read_text())["threshold"]
+        assert info["calibration_datasets"] == own, out
+        assert info["value_nats"] == reference["value_nats"], out
