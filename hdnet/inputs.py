@@ -49,12 +49,16 @@ from scipy import ndimage
 
 from hdnet import defaults
 from hdnet.errors import HdNetError
+from lidarsim.limits import Bound
+from lidarsim.setting import check, setting
 
 Heights = Literal["minmax", "median", "plane"]
 HEIGHTS: tuple[str, ...] = ("minmax", "median", "plane")
 EXTRA_CHANNELS: tuple[str, ...] = ("slope", "highpass", "sigma")
 # hd choice: the sigma channel holds sigma / 5 cm (about 0.3 at the paper's 1.67 cm, 1.4 at 7 cm).
 SIGMA_CHANNEL_SCALE_M = 0.05
+_POSITIVE = Bound(0.0, low_open=True)
+_COUNT = Bound(1, integer=True)
 HIGHPASS_WINDOW_M = 10.0  # hd choice: the lander diameter (the paper's 10 m lander), the scale of the hazard rule
 INPUT_SCHEMA_VERSION = 1
 
@@ -84,51 +88,44 @@ class Normalisation:
 
 @dataclass(frozen=True)
 class InputSpec:
-    """How a DEM becomes the network input (see the module docstring).
-
-    Attributes:
-        heights: ``minmax``, ``median`` or ``plane``.
-        normalisation: training-split min/max heights (metres); required for ``minmax`` only.
-        height_scale_m: metres per input unit of the ``median``/``plane`` heights and ``highpass``.
-        extra_channels: channels after the heights, from ``slope`` and ``highpass``.
-        highpass_window_m: side of the ``highpass`` averaging box, metres.
-        spacing_m: DEM spacing, metres per pixel (for ``slope`` and the ``highpass`` window).
-        input_size: square size the channels are resized to (pixels), or None to pad.
-        size_multiple: padding multiple in pixels (the network's 2**depth) when ``input_size`` is None.
+    """How a DEM becomes the network input (see the module docstring). Each field's meaning, unit
+    and range is its metadata (``lidarsim.setting``), from which the checks here are made;
+    ``normalisation`` is the training split's min/max heights (metres), required for ``minmax`` only.
     """
 
-    heights: Heights = "minmax"
+    heights: Heights = setting("minmax", "How the heights enter", choices=HEIGHTS, cli=False)
     normalisation: Normalisation | None = None
-    height_scale_m: float = 1.0
-    extra_channels: tuple[str, ...] = ()
-    highpass_window_m: float = HIGHPASS_WINDOW_M
-    spacing_m: float = 1.0
-    input_size: int | None = None
-    size_multiple: int = defaults.SIZE_MULTIPLE_PX
+    height_scale_m: float = setting(
+        1.0, "Input unit of the median/plane heights and of highpass", unit="metres", bound=_POSITIVE, cli=False
+    )
+    extra_channels: tuple[str, ...] = setting((), "Channels after the heights", kind=str, cli=False)
+    highpass_window_m: float = setting(
+        HIGHPASS_WINDOW_M, "Side of the highpass averaging box", unit="metres", bound=_POSITIVE, cli=False
+    )
+    spacing_m: float = setting(
+        1.0, "DEM spacing (for slope and the highpass window)", unit="metres/pixel", bound=_POSITIVE, cli=False
+    )
+    input_size: int | None = setting(
+        None, "Square size the channels are resized to (None: padded)", unit="pixels", bound=_COUNT, cli=False
+    )
+    size_multiple: int = setting(
+        defaults.SIZE_MULTIPLE_PX,
+        "Padding multiple (the network's 2**depth) when input_size is None",
+        unit="pixels",
+        bound=_COUNT,
+        cli=False,
+    )
 
     def __post_init__(self) -> None:
-        if self.heights not in HEIGHTS:
-            raise HdNetError(f"heights must be one of {', '.join(HEIGHTS)}, got {self.heights!r}.")
+        check(self, HdNetError)
         if self.heights == "minmax" and self.normalisation is None:
             raise HdNetError("minmax heights need the training split's normalisation (min and max heights).")
-        for name in ("height_scale_m", "highpass_window_m", "spacing_m"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
-                raise HdNetError(f"{name} must be a positive number, got {value!r}.")
         bad = [c for c in self.extra_channels if c not in EXTRA_CHANNELS]
         if bad or len(set(self.extra_channels)) != len(self.extra_channels):
             raise HdNetError(
                 f"extra channels must be distinct names from {', '.join(EXTRA_CHANNELS)}, "
                 f"got {list(self.extra_channels)}."
             )
-        if self.input_size is not None and (
-            isinstance(self.input_size, bool) or not isinstance(self.input_size, int) or self.input_size < 1
-        ):
-            raise HdNetError(
-                f"input_size must be a positive integer number of pixels or None, got {self.input_size!r}."
-            )
-        if isinstance(self.size_multiple, bool) or not isinstance(self.size_multiple, int) or self.size_multiple < 1:
-            raise HdNetError(f"size_multiple must be a positive integer, got {self.size_multiple!r}.")
 
     @property
     def n_channels(self) -> int:

@@ -158,7 +158,8 @@ def described_fields(cls: Any) -> list[tuple[dataclasses.Field[Any], Described]]
 def check(settings: Any, error: type[HdError], name: Callable[[str, Described], str] | None = None) -> None:
     """Check every described field of ``settings`` (its kind, choices and range).
 
-    ``name`` gives the name a message uses for a field (default: its option, ``--dem-size``).
+    ``name`` gives the name a message uses for a field (default: its option, ``--dem-size``, or
+    the field's name for a setting the command line does not take).
 
     Raises:
         error: the first wrong value, naming the setting.
@@ -167,7 +168,7 @@ def check(settings: Any, error: type[HdError], name: Callable[[str, Described], 
         value = getattr(settings, f.name)
         if (value is None and d.optional) or not d.checked:
             continue
-        label = name(f.name, d) if name is not None else d.option_name(f.name)
+        label = name(f.name, d) if name is not None else d.option_name(f.name) if d.cli else f.name
         if d.multiple:
             if not isinstance(value, tuple | list):
                 raise error(f"{label} must be a sequence of values, got {value!r}")
