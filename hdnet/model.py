@@ -39,40 +39,40 @@ from torch import nn
 
 from hdnet import defaults
 from hdnet.errors import HdNetError
+from lidarsim.limits import Bound
+from lidarsim.setting import check, setting
 
 MODEL_NAME = "bayesian_segnet"
 
 
 @dataclass(frozen=True)
 class ModelConfig:
-    """Hyper-parameters that define the architecture (stored in every checkpoint).
-
-    ``width`` scales every channel count (rounded, at least 1); ``dropout_p`` is the drop probability;
-    ``depth`` is the number of encoder blocks, each ending in a 2x2 max-pool (5 = the paper's VGG16
-    SegNet; fewer keeps VGG16's first ``depth`` blocks and their mirrored decoder units). Checkpoints
-    written before ``depth`` existed hold 5-block models and load with the default.
+    """Hyper-parameters that define the architecture (stored in every checkpoint). Each field's
+    meaning and range is its metadata (``lidarsim.setting``), from which the checks here are made.
+    Checkpoints written before ``depth`` existed hold 5-block models and load with the default.
     """
 
-    in_channels: int = defaults.IN_CHANNELS
-    n_classes: int = defaults.N_CLASSES
-    width: float = 1.0
-    dropout_p: float = defaults.DROPOUT_P
-    depth: int = len(defaults.ENCODER_CHANNELS)
+    in_channels: int = setting(defaults.IN_CHANNELS, "Input channels", bound=Bound(1, integer=True), cli=False)
+    n_classes: int = setting(defaults.N_CLASSES, "Output classes", bound=Bound(2, integer=True), cli=False)
+    width: float = setting(
+        1.0, "Scale of every channel count (rounded, at least 1)", bound=Bound(0.0, low_open=True), cli=False
+    )
+    dropout_p: float = setting(
+        defaults.DROPOUT_P,
+        "Drop probability of the MC-dropout layers",
+        bound=Bound(0.0, 1.0, high_open=True),
+        cli=False,
+    )
+    depth: int = setting(
+        len(defaults.ENCODER_CHANNELS),
+        "Encoder blocks, each ending in a 2x2 max-pool (5 = the paper's VGG16 SegNet; fewer keeps VGG16's "
+        "first blocks and their mirrored decoder units)",
+        bound=Bound(1, len(defaults.ENCODER_CHANNELS), integer=True),
+        cli=False,
+    )
 
     def __post_init__(self) -> None:
-        if self.in_channels < 1 or self.n_classes < 2:
-            raise HdNetError(
-                f"in_channels must be >= 1 and n_classes >= 2, got {self.in_channels} and {self.n_classes}."
-            )
-        if not self.width > 0:
-            raise HdNetError(f"width must be > 0, got {self.width}.")
-        if not 0.0 <= self.dropout_p < 1.0:
-            raise HdNetError(f"dropout_p must be in [0, 1), got {self.dropout_p}.")
-        n_blocks = len(defaults.ENCODER_CHANNELS)
-        if isinstance(self.depth, bool) or not isinstance(self.depth, int) or not 1 <= self.depth <= n_blocks:
-            raise HdNetError(
-                f"depth must be an integer number of encoder blocks in [1, {n_blocks}], got {self.depth!r}."
-            )
+        check(self, HdNetError)
 
     @property
     def size_multiple(self) -> int:
