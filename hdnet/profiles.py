@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, replace
+from dataclasses import MISSING, asdict, dataclass, replace
 from typing import Literal
 
 from hdnet import defaults
@@ -28,9 +28,13 @@ from hdnet.augment import AUGMENTATIONS
 from hdnet.errors import HdNetError
 from hdnet.inputs import EXTRA_CHANNELS, HEIGHTS
 from hdnet.model import ModelConfig
+from lidarsim.limits import Bound
+from lidarsim.setting import check, setting
 
 LR_SCHEDULES: tuple[str, ...] = ("constant", "cosine", "onecycle")
 CLASS_WEIGHTINGS: tuple[str, ...] = ("none", "balanced")
+_POSITIVE = Bound(0.0, low_open=True)
+_COUNT = Bound(1, integer=True)
 # torch.optim.lr_scheduler.OneCycleLR defaults (Smith and Topin 2019): warm-up share, start lr =
 # peak / 25, final lr = start / 10^4.
 ONECYCLE_PCT_START = 0.3
@@ -40,66 +44,76 @@ ONECYCLE_FINAL_DIV_FACTOR = 1e4
 
 @dataclass(frozen=True)
 class TrainingProfile:
-    """One training configuration.
-
-    The first fields are the paper's knobs: ``input_size`` (pixels, square) is the size the DEM is
-    upsampled to, None = the native DEM size (padded to a multiple of 2**depth); ``width`` scales
-    the channel counts; ``lr`` is the (peak) learning rate; ``momentum`` is used by SGD only;
-    ``epochs`` is the default epoch count.
-
-    The other fields default to the paper's choices, so a profile saved before they existed reads
-    back unchanged:
-
-    * ``lr_schedule``: ``constant``; ``cosine`` (from ``lr`` to 0); ``onecycle`` (Smith and Topin
-      2019, the shape of ``torch.optim.lr_scheduler.OneCycleLR`` with its defaults, in continuous
-      time: cosine warm-up from lr/25 to lr over the first 30 % of the run, then cosine down to
-      lr/25/10^4). Every schedule is a pure function of the (fractional) epoch, set before every
-      optimiser step;
-    * ``depth``: encoder blocks (pooling stages) of the SegNet, 5 = VGG16;
-    * ``dropout_p``: drop probability of the MC-dropout layers, in training and sampling;
-    * ``heights``, ``height_scale_m``, ``extra_channels``: the input representation
-      (``hdnet.inputs``): ``minmax`` = the paper's dataset min-max, ``median``/``plane`` = heights
-      relative to each DEM's median / least-squares plane in units of ``height_scale_m`` metres,
-      plus optional ``slope`` / ``highpass`` channels;
-    * ``augment``: ``none`` or ``d4`` (random rotation/flip of each training DEM and its label);
-    * ``class_weighting``: ``none`` or ``balanced`` (cross-entropy weighted by N / (2 N_c) with the
-      training split's pixel counts N_c of each class);
-    * ``channels_last``: run the network in the channels-last memory format (same numbers, faster
-      convolutions on CPUs);
-    * ``train_sigma_range_m``: (low, high) metres: by default the profile trains across this range
-      of noise levels, drawn per sample (``hdnet.noise_levels``); None: at one level.
+    """One training configuration. Each field's meaning, unit and range is its metadata
+    (``lidarsim.setting``), from which the checks here are made. The first fields are the paper's
+    knobs; the others default to the paper's choices, so a profile saved before they existed reads
+    back unchanged.
     """
 
-    name: str
-    input_size: int | None
-    width: float
-    batch_size: int
-    lr: float
-    momentum: float
-    epochs: int
-    optimizer: Literal["sgd", "adam"]
-    lr_schedule: Literal["constant", "cosine", "onecycle"] = "constant"
-    depth: int = len(defaults.ENCODER_CHANNELS)
-    dropout_p: float = defaults.DROPOUT_P
-    heights: Literal["minmax", "median", "plane"] = "minmax"
-    height_scale_m: float = 1.0
-    extra_channels: tuple[str, ...] = ()
-    augment: Literal["none", "d4"] = "none"
-    class_weighting: Literal["none", "balanced"] = "none"
-    channels_last: bool = False
+    name: str = setting(MISSING, "The profile's name", kind=str, cli=False)
+    input_size: int | None = setting(
+        MISSING,
+        "Square size the DEM is upsampled to (None: the native DEM size, padded to a multiple of 2**depth)",
+        unit="pixels",
+        bound=_COUNT,
+        optional=True,
+        cli=False,
+    )
+    width: float = setting(MISSING, "Scale of the channel counts", bound=_POSITIVE, cli=False)
+    batch_size: int = setting(MISSING, "Images per training batch", bound=_COUNT, cli=False)
+    lr: float = setting(MISSING, "The (peak) learning rate", bound=_POSITIVE, cli=False)
+    momentum: float = setting(MISSING, "Momentum, used by SGD only", kind=float, cli=False)
+    epochs: int = setting(MISSING, "The default epoch count", bound=_COUNT, cli=False)
+    optimizer: Literal["sgd", "adam"] = setting(MISSING, "The optimiser", choices=("sgd", "adam"), cli=False)
+    lr_schedule: Literal["constant", "cosine", "onecycle"] = setting(
+        "constant",
+        "constant; cosine (from lr to 0); onecycle (Smith and Topin 2019, the shape of "
+        "torch.optim.lr_scheduler.OneCycleLR with its defaults, in continuous time: cosine warm-up from lr/25 to lr "
+        "over the first 30 % of the run, then cosine down to lr/25/10^4). Every schedule is a pure function of the "
+        "(fractional) epoch, set before every optimiser step",
+        choices=LR_SCHEDULES,
+        cli=False,
+    )
+    depth: int = setting(
+        len(defaults.ENCODER_CHANNELS), "Encoder blocks (pooling stages) of the SegNet, 5 = VGG16", kind=int, cli=False
+    )
+    dropout_p: float = setting(
+        defaults.DROPOUT_P, "Drop probability of the MC-dropout layers, in training and sampling", kind=float, cli=False
+    )
+    heights: Literal["minmax", "median", "plane"] = setting(
+        "minmax",
+        "The input heights (hdnet.inputs): minmax = the paper's dataset min-max, median/plane = heights relative "
+        "to each DEM's median / least-squares plane in units of height_scale_m",
+        choices=HEIGHTS,
+        cli=False,
+    )
+    height_scale_m: float = setting(
+        1.0, "Input unit of the median/plane heights", unit="metres", bound=_POSITIVE, cli=False
+    )
+    extra_channels: tuple[str, ...] = setting(
+        (), "Input channels after the heights: slope, highpass, sigma (hdnet.inputs)", kind=str, cli=False
+    )
+    augment: Literal["none", "d4"] = setting(
+        "none", "none or d4 (random rotation/flip of each training DEM and its label)", choices=AUGMENTATIONS, cli=False
+    )
+    class_weighting: Literal["none", "balanced"] = setting(
+        "none",
+        "none or balanced (cross-entropy weighted by N / (2 N_c) with the training split's pixel counts N_c of "
+        "each class)",
+        choices=CLASS_WEIGHTINGS,
+        cli=False,
+    )
+    channels_last: bool = setting(
+        False,
+        "Run the network in the channels-last memory format (same numbers, faster convolutions on CPUs)",
+        cli=False,
+    )
+    # (low, high) metres: by default the profile trains across this range of noise levels, drawn per
+    # sample (hdnet.noise_levels); None: at one level.
     train_sigma_range_m: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
-        if self.lr_schedule not in LR_SCHEDULES:
-            raise HdNetError(f"lr_schedule must be one of {', '.join(LR_SCHEDULES)}, got {self.lr_schedule!r}.")
-        if self.class_weighting not in CLASS_WEIGHTINGS:
-            raise HdNetError(
-                f"class_weighting must be one of {', '.join(CLASS_WEIGHTINGS)}, got {self.class_weighting!r}."
-            )
-        if self.augment not in AUGMENTATIONS:
-            raise HdNetError(f"augment must be one of {', '.join(AUGMENTATIONS)}, got {self.augment!r}.")
-        if self.heights not in HEIGHTS:
-            raise HdNetError(f"heights must be one of {', '.join(HEIGHTS)}, got {self.heights!r}.")
+        check(self, HdNetError)
         if isinstance(self.extra_channels, list):
             object.__setattr__(self, "extra_channels", tuple(self.extra_channels))
         if self.train_sigma_range_m is not None:
@@ -111,8 +125,6 @@ class TrainingProfile:
             raise HdNetError(
                 f"extra_channels must be names from {', '.join(EXTRA_CHANNELS)}, got {list(self.extra_channels)}."
             )
-        if isinstance(self.batch_size, bool) or not isinstance(self.batch_size, int) or self.batch_size < 1:
-            raise HdNetError(f"batch_size must be a positive integer, got {self.batch_size!r}.")
 
     def learning_rate(self, epoch: float, total_epochs: int) -> float:
         """Learning rate at (fractional, 0-based) ``epoch`` of a run of ``total_epochs``.
