@@ -36,6 +36,7 @@ import numpy as np
 from lidarsim import limits
 from lidarsim._version import __version__
 from lidarsim.errors import LidarsimError
+from lidarsim.limits import Bound
 from lidarsim.scan import STATUS_DAMAGED, STATUS_RETURN
 from lidarsim.setting import check, setting
 from lidarsim.shards import open_scan_shard, read_manifest
@@ -56,15 +57,8 @@ CLASS_UNCLASSIFIED = 1  # ASPRS standard class 1, "unclassified"
 
 @dataclass(frozen=True)
 class ExportSettings:
-    """Settings of ``hd export`` (the described fields are its options; ``scans`` is parsed by :func:`parse_scans`).
-
-    Attributes:
-        format: ``"laz"`` (compressed, lazrs) or ``"las"``.
-        frame: ``"scan"`` (the scan frame, metres) or ``"map"`` (the DTM's map coordinates, metres).
-        cloud: ``"clean"`` or ``"noisy"`` points.
-        sigma_m: the noise level of the noisy points, metres (None: the dataset's first).
-        scans: scan indices to export (empty: every scan).
-    """
+    """Settings of ``hd export``, each described once as field metadata: the options and the checks
+    are made from it (``scans`` is typed as a list and parsed by :func:`parse_scans`)."""
 
     format: str = setting("laz", "File format: laz (LAS compressed by lazrs) or las", choices=EXPORT_FORMATS)
     frame: str = setting(
@@ -80,14 +74,14 @@ class ExportSettings:
         bound=limits.SIGMA_M,
         flag="--sigma",
     )
-    scans: tuple[int, ...] = ()
+    scans: tuple[int, ...] = setting(
+        (), "Scan indices to export (none: every scan)", bound=Bound(0, limits.MAX_SCANS - 1, integer=True), cli=False
+    )
 
     def __post_init__(self) -> None:
         check(self, LidarsimError)
         if self.sigma_m is not None and self.cloud != "noisy":
             raise LidarsimError("--sigma chooses the noise level of --cloud noisy; the clean points have none")
-        if any(isinstance(k, bool) or not isinstance(k, int) or k < 0 for k in self.scans):
-            raise LidarsimError(f"--scans must be scan indices (integers >= 0), got {list(self.scans)}")
 
 
 @dataclass(frozen=True)
