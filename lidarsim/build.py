@@ -375,6 +375,7 @@ def run_shard(task: ShardTask) -> ShardRecord:
                         points_noisy=result.points_noisy,
                         status=result.status,
                         valid=((result.status == STATUS_RETURN) | (result.status == STATUS_DAMAGED)).astype(np.uint8),
+                        noise_scale=result.noise_scale,
                     )
                     k += 1
         assert k == n

@@ -88,6 +88,7 @@ class ScanResult:
     points_clean: np.ndarray  # float32 (rows, cols, 3), NaN where no return
     points_noisy: np.ndarray  # float32 (n_sigma, rows, cols, 3)
     status: np.ndarray  # uint8 (rows, cols), STATUS_* codes
+    noise_scale: np.ndarray | None = None  # float32 (rows, cols): factor on each sigma (snr noise model)
 
 
 def element_defects(sensor: SensorConfig, seed: int) -> np.ndarray:
@@ -255,7 +256,9 @@ def simulate_scans(
             cast, signal = pixel_returns(scene, origins[k], g.attitude, sensor, footprint, noise_model, n_threads)
             weak = np.isfinite(cast) & ~noise_model.detected(signal)
             cast[weak] = np.nan
-            sigma_scale = noise_model.sigma_scale(signal)
+            scale = noise_model.sigma_scale(signal)
+            # float32 as stored (noise_scale), so that noise drawn later from the shard is the stored noise
+            sigma_scale = None if scale is None else scale.astype(np.float32).astype(np.float64)
         else:
             cast, weak = ranges[k], None
         r = cast.astype(np.float64)
@@ -271,7 +274,15 @@ def simulate_scans(
             noisy[s_i] = noisy_points(
                 r, d, g.sensor_position, sigma, seed, scan, damaged, sensor.damaged_error_m, sigma_scale=sigma_scale
             )
-        results.append(ScanResult(geometry=g, points_clean=clean, points_noisy=noisy, status=status))
+        results.append(
+            ScanResult(
+                geometry=g,
+                points_clean=clean,
+                points_noisy=noisy,
+                status=status,
+                noise_scale=None if sigma_scale is None else sigma_scale.astype(np.float32),
+            )
+        )
     return results
 
 

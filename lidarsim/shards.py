@@ -189,6 +189,8 @@ class ScanShardWriter:
         self._d["points_noisy"].attrs["sigmas_m"] = np.asarray(self.sigmas_m, dtype=np.float64)
         realistic = scan_schema_version(self.attrs) != SCAN_SCHEMA_VERSION_PLAIN
         self._d["status"].attrs["codes"] = STATUS_CODES if realistic else STATUS_CODES_PLAIN
+        if self.attrs.get("noise_model") == "snr":
+            self._d["noise_scale"] = f.create_dataset("noise_scale", (n, r, c), np.float32, chunks=(1, r, c), **kw)
         return self
 
     def write_scan(
@@ -203,8 +205,9 @@ class ScanShardWriter:
         points_noisy: np.ndarray,
         status: np.ndarray,
         valid: np.ndarray,
+        noise_scale: np.ndarray | None = None,
     ) -> None:
-        """Write scan ``k`` (0-based within the shard)."""
+        """Write scan ``k`` (0-based within the shard); ``noise_scale`` only to a shard of the snr noise model."""
         d = self._d
         d["scan_index"][k] = scan_index
         d["split"][k] = split
@@ -215,6 +218,10 @@ class ScanShardWriter:
         d["points_noisy"][k] = points_noisy
         d["status"][k] = status
         d["valid"][k] = valid
+        if "noise_scale" in d:
+            if noise_scale is None:
+                raise ValueError("a shard of the snr noise model needs each scan's noise_scale")
+            d["noise_scale"][k] = noise_scale
 
     def commit(self) -> str:
         """Write the shard to its final path (temporary name, fsync, rename); returns its sha256.
@@ -250,6 +257,7 @@ class Scan:
     points_noisy: np.ndarray  # (n_sigma, rows, cols, 3)
     status: np.ndarray
     valid: np.ndarray
+    noise_scale: np.ndarray | None = None  # (rows, cols) factor on each sigma (1.2, snr noise model only)
 
 
 # Every array of a scan shard by its axes: named axes must agree across the arrays (docs/shard-format.md).
@@ -264,6 +272,8 @@ SCAN_ARRAYS: dict[str, tuple[int | str, ...]] = {
     "status": ("scan", "row", "col"),
     "valid": ("scan", "row", "col"),
 }
+# Optional arrays: present only in the shards whose settings make them (1.2: the snr noise model).
+OPTIONAL_SCAN_ARRAYS: dict[str, tuple[int | str, ...]] = {"noise_scale": ("scan", "row", "col")}
 
 
 def check_arrays(f: CheckedH5File, layout: dict[str, tuple[int | str, ...]], what: str) -> dict[str, int]:
@@ -321,7 +331,8 @@ class ScanShardReader:
             )
             self.attrs: dict[str, Any] = {k: _py(v) for k, v in attrs.items()}
             self.sigmas_m: tuple[float, ...] = tuple(float(s) for s in np.atleast_1d(attrs["sigmas_m"]))
-            dims = check_arrays(self._f, SCAN_ARRAYS, self.what)
+            optional = {k: v for k, v in OPTIONAL_SCAN_ARRAYS.items() if k in self._f}
+            dims = check_arrays(self._f, SCAN_ARRAYS | optional, self.what)
             if dims["sigma"] != len(self.sigmas_m):
                 raise DamagedFileError(
                     f"{self.what}: points_noisy holds {dims['sigma']} noise levels, sigmas_m lists {len(self.sigmas_m)}"
@@ -357,6 +368,7 @@ class ScanShardReader:
             points_noisy=f["points_noisy"][k],
             status=f["status"][k],
             valid=f["valid"][k].astype(bool),
+            noise_scale=f["noise_scale"][k] if "noise_scale" in f else None,
         )
 
     def __iter__(self) -> Iterator[Scan]:

@@ -21,11 +21,11 @@ from lidarsim.build import BuildConfig, build_dataset
 from lidarsim.errors import LidarsimError
 from lidarsim.footprint import FootprintConfig
 from lidarsim.inspect import describe_dataset
-from lidarsim.noise import NoiseModel
+from lidarsim.noise import NoiseModel, noisy_points, recover_ranges, scan_directions
 from lidarsim.recipe import BuildSettings, load_recipe
 from lidarsim.scan import STATUS_RETURN, STATUS_WEAK
 from lidarsim.sensor import SensorConfig
-from lidarsim.shards import read_manifest
+from lidarsim.shards import iter_scans, read_manifest
 from lidarsim.span import parse_span
 from lidarsim.trajectory import TrajectoryConfig
 
@@ -186,3 +186,20 @@ def test_help_shows_the_new_settings_and_their_ranges():
     flags = ("--footprint-samples", "--range-estimator", "--pulse-width", "--noise-model", "--snr-ref", "--snr-min")
     assert all(flag in text for flag in flags)
     assert "1<=x<=16" in text and "LOW:HIGH" in text
+
+
+def test_noise_drawn_again_from_a_shard_of_the_snr_model_is_the_stored_noise(realistic):
+    # the one noise model on the fly: clean points, the stored noise_scale and the dataset's streams
+    manifest = read_manifest(realistic)
+    sigmas = manifest["sigmas_m"]
+    for scan in iter_scans(realistic):
+        assert scan.noise_scale is not None and scan.noise_scale.dtype == np.float32
+        returned = scan.status == STATUS_RETURN
+        scale = scan.noise_scale.astype(np.float64)
+        # below 500 m the signal exceeds a whole pixel's at 500 m: sigma shrinks there, as (r / 500 m)
+        assert np.isfinite(scale).all() and (scale[returned] > 0.0).all()
+        d = scan_directions(NARROW, scan.sensor_attitude)
+        ranges = recover_ranges(scan.points_clean, scan.sensor_position, d)
+        for s, sigma in enumerate(sigmas):
+            again = noisy_points(ranges, d, scan.sensor_position, sigma, 5, scan.scan_index, sigma_scale=scale)
+            assert np.array_equal(again, scan.points_noisy[s], equal_nan=True)
