@@ -42,7 +42,8 @@ class CleanScan:
     ``ranges_m``: float32 (rows, cols) ranges the ray caster returned, metres, NaN where none;
     ``directions``: float64 (rows, cols, 3) unit rays in the scan frame (shared by the scans of
     one attitude); ``sensor_position``: (3,) metres, scan frame; ``damaged``: (rows, cols) bool
-    damaged detector elements, or None.
+    damaged detector elements, or None; ``noise_scale``: (rows, cols) factor on every sigma of a
+    scan of the snr noise model (shard format 1.2), None for the constant sigma.
     """
 
     scan_index: int
@@ -50,6 +51,7 @@ class CleanScan:
     directions: np.ndarray
     sensor_position: np.ndarray
     damaged: np.ndarray | None
+    noise_scale: np.ndarray | None = None
 
 
 class NoisyDems:
@@ -97,8 +99,10 @@ class NoisyDems:
         sensor_position: np.ndarray,
         attitude: np.ndarray,
         scan_index: int,
+        noise_scale: np.ndarray | None = None,
     ) -> CleanScan:
-        """A scan's :class:`CleanScan` from its stored clean points, status and pose.
+        """A scan's :class:`CleanScan` from its stored clean points, status and pose (and, for the
+        snr noise model, its stored per-element ``noise_scale``).
 
         Raises:
             LidarsimError: clean points that are not this sensor's returns (see ``recover_ranges``),
@@ -116,6 +120,7 @@ class NoisyDems:
             d,
             np.asarray(sensor_position, dtype=np.float64).copy(),
             damaged if damaged.any() else None,
+            None if noise_scale is None else np.asarray(noise_scale, dtype=np.float64),
         )
 
     def read_scans(self, dataset_dir: str | os.PathLike, shard: dict[str, Any], rows: Sequence[int]) -> list[CleanScan]:
@@ -131,6 +136,7 @@ class NoisyDems:
                     f["sensor_position"][r],
                     f["sensor_attitude"][r],
                     int(f["scan_index"][r]),
+                    f["noise_scale"][r] if "noise_scale" in f else None,
                 )
                 for r in rows
             ]
@@ -148,6 +154,7 @@ class NoisyDems:
             scan.damaged,
             self.sensor.damaged_error_m,
             realisation,
+            scan.noise_scale,
         )
 
     def dem(self, scan: CleanScan, sigma_m: float, realisation: int | None = None) -> np.ndarray:

@@ -12,6 +12,8 @@ from hdlabels.noisy import NoisyDems
 from hdlabels.store import DemSpec, find_labeling
 from lidarsim.build import BuildConfig, build_dataset
 from lidarsim.errors import LidarsimError
+from lidarsim.footprint import FootprintConfig
+from lidarsim.noise import NoiseModel
 from lidarsim.scan import STATUS_DAMAGED, STATUS_DEAD
 from lidarsim.sensor import SensorConfig
 from lidarsim.trajectory import TrajectoryConfig
@@ -26,10 +28,13 @@ def _dtm(path, n=300, seed=4):
     return write_geotiff(path, z, 1.0, (5000.0, 9000.0))
 
 
-@pytest.fixture(scope="module", params=["linear", "nearest"])
+@pytest.fixture(scope="module", params=["linear", "nearest", "nearest-snr"])
 def dataset(request, tmp_path_factory):
-    """6 scans with tilt, attitude jitter, dead and damaged elements; labelled with one gridding."""
+    """6 scans with tilt, attitude jitter, dead and damaged elements; labelled with one gridding
+    (``-snr``: the snr noise model, whose sigma differs per element, and a 3 x 3 pixel footprint)."""
     root = tmp_path_factory.mktemp(f"noisy-{request.param}")
+    gridding, _, model = request.param.partition("-")
+    realism = {"noise_model": NoiseModel(kind="snr", snr_ref=25.0), "footprint": FootprintConfig(samples=3)}
     config = BuildConfig(
         sigmas_m=SIGMAS,
         sensor=SensorConfig(rows=40, cols=40, dead_elements=7, damaged_elements=5),
@@ -37,10 +42,11 @@ def dataset(request, tmp_path_factory):
         dtm_path=str(_dtm(root / "t.tif")),
         shard_size=3,
         seed=11,
+        **(realism if model == "snr" else {}),
     )
     out = root / "data"
     build_dataset(out, config, workers=1)
-    label_dataset(out, dem=DemSpec(rows=50, cols=50, spacing_m=1.0, gridding=request.param), workers=1)
+    label_dataset(out, dem=DemSpec(rows=50, cols=50, spacing_m=1.0, gridding=gridding), workers=1)
     return out
 
 
