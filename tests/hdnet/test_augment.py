@@ -49,10 +49,10 @@ def test_the_eight_elements_are_distinct_and_invertible() -> None:
 def test_square_lander_labels_are_invariant_under_d4(convention: Literal["paper", "hd"], n_yaws: int) -> None:
     lander = Lander(diameter_m=6.0, pad_diameter_m=1.0, layout="square", n_yaws=n_yaws, convention=convention)
     dem = _terrain()
-    label = hazard_maps(dem, 1.0, lander, backend="numpy").label
+    label = hazard_maps(dem, 1.0, lander).label
     assert {0, 1} <= set(np.unique(label).tolist())  # both classes present: the check can fail
     for k in range(D4_ORDER):
-        moved = hazard_maps(np.ascontiguousarray(d4(dem, k)), 1.0, lander, backend="numpy").label
+        moved = hazard_maps(np.ascontiguousarray(d4(dem, k)), 1.0, lander).label
         np.testing.assert_array_equal(moved, d4(label, k), err_msg=f"element {k}")
     assert label_is_d4_invariant(lander)
 
@@ -67,11 +67,11 @@ def test_a_triangle_lander_is_not_invariant_and_is_refused(convention: Literal["
         n_yaws=1 if convention == "hd" else 8,
     )
     dem = _terrain()
-    label = hazard_maps(dem, 1.0, lander, backend="numpy").label
+    label = hazard_maps(dem, 1.0, lander).label
     changed = [
         k
         for k in range(D4_ORDER)
-        if (hazard_maps(np.ascontiguousarray(d4(dem, k)), 1.0, lander, backend="numpy").label != d4(label, k)).any()
+        if (hazard_maps(np.ascontiguousarray(d4(dem, k)), 1.0, lander).label != d4(label, k)).any()
     ]
     if convention == "hd":
         assert changed  # three pads at 0/120/240 deg turned by 90 deg are other pads
