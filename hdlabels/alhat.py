@@ -386,7 +386,7 @@ _POLY_ERROR, _TAIL_ERROR = _approximation_errors()
 
 
 def _pad_heights_loops(z, b, tap_di, tap_dj, tap_w, out):  # pragma: no cover - compiled by numba
-    """Same as ``_pad_heights_numpy``, as explicit loops (compiled by numba)."""
+    """Pad contact heights (metres): for each pad position, the max over its samples of the bilinear terrain."""
     n_pos, n_samp, _ = tap_w.shape
     hv, wv = out.shape[1], out.shape[2]
     for p in range(n_pos):

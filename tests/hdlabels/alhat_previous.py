@@ -36,13 +36,13 @@ from hdlabels.lander import Lander
 def previous_hazard_and_probability(
     dem: np.ndarray, spacing_m: float, sigma_m: float, lander: Lander = Lander()
 ) -> tuple[HazardMaps, np.ndarray]:
-    """``hdlabels.alhat.hazard_and_probability(..., backend="numba")`` computed by the previous kernel.
+    """``hdlabels.alhat.hazard_and_probability`` computed by the previous kernel.
 
     Only the kernel's P(safe) modes (``product``, or ``min`` with the paper convention) are
     reproduced; the hd convention's ``min`` baseline never used the kernel's P score.
     """
     z, valid, geo = _prepare(dem, spacing_m, lander)
-    assert not (lander.convention == "hd" and lander.baseline_combine == "min")
+    assert not lander.rules.baseline_from_maps(str(lander.baseline_combine))
     mode = _P_NONE
     if sigma_m:
         mode = _P_PRODUCT if lander.baseline_combine == "product" else _P_MIN
@@ -67,7 +67,7 @@ def previous_hazard_and_probability(
         mode,
         lander.max_roughness_m,
         1.0 / sigma_m if sigma_m > 0 else 0.0,
-        lander.convention == "paper",
+        lander.rules.noise_scale_by_cos,
         _LOG_PHI,
         slope,
         rough,
@@ -91,7 +91,7 @@ def previous_hazard_and_probability(
     else:
         p = _score_to_probability(full(score), mode)
     limit = math.radians(lander.max_slope_deg)
-    slope_ok = slope_full <= limit if lander.convention == "paper" else slope_full < limit
+    slope_ok = slope_full <= limit if lander.rules.baseline_slope_inclusive else slope_full < limit
     p = np.where(slope_ok, p, 0.0)
     p[~valid] = np.nan
     return maps, p.astype(np.float32)
