@@ -34,7 +34,7 @@ def dataset(request, tmp_path_factory):
     (``-snr``: the snr noise model, whose sigma differs per element, and a 3 x 3 pixel footprint)."""
     root = tmp_path_factory.mktemp(f"noisy-{request.param}")
     gridding, _, model = request.param.partition("-")
-    realism = {"noise_model": NoiseModel(kind="snr", snr_ref=25.0), "footprint": FootprintConfig(samples=3)}
+    snr = model == "snr"
     config = BuildConfig(
         sigmas_m=SIGMAS,
         sensor=SensorConfig(rows=40, cols=40, dead_elements=7, damaged_elements=5),
@@ -42,7 +42,8 @@ def dataset(request, tmp_path_factory):
         dtm_path=str(_dtm(root / "t.tif")),
         shard_size=3,
         seed=11,
-        **(realism if model == "snr" else {}),
+        noise_model=NoiseModel(kind="snr", snr_ref=25.0) if snr else NoiseModel(),
+        footprint=FootprintConfig(samples=3) if snr else FootprintConfig(),
     )
     out = root / "data"
     build_dataset(out, config, workers=1)
