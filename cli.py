@@ -27,12 +27,9 @@ from hdnet.shared_options import (
     overwrite_option,
     recipe_option,
     scheduler_option,
-    seed_option,
     workers_option,
 )
 from hdnet.terminal import OUTPUT, HdGroup, ScanProgress, epoch_lines, friendly_errors, record, refuse_with_recipe, say
-from lidarsim import defaults as lidar_defaults
-from lidarsim import limits
 from lidarsim._version import __version__
 from lidarsim.errors import LidarsimError
 from lidarsim.export import ExportSettings
@@ -43,7 +40,6 @@ from lidarsim.setting import DIRECTORY as _DIRECTORY
 from lidarsim.setting import bounded as _bounded
 from lidarsim.setting import click_options as _click_options
 from lidarsim.setting import settings_from_options as _settings_from_options
-from lidarsim.span import SpanType as _Span
 
 _options = options
 
@@ -62,222 +58,28 @@ def main(ctx: click.Context, quiet: bool = False, no_progress: bool = False, as_
     terminal.start(ctx, quiet, no_progress, as_json)
 
 
-@main.command("build-dataset")
-@_options(
-    out_option(
-        "out_dir",
-        "Dataset directory to create (default: named after the recipe, the DTM file or the "
-        "procedural terrain, in the current directory).",
-        required=False,
-    ),
-    dtm_option("DTM (GeoTIFF, HiRISE PDS3 .IMG, any GDAL raster in metres). Default: the procedural Mars terrain."),
-    click.option(
-        "--sigma",
-        "sigmas_m",
-        type=_bounded(limits.SIGMA_M),
-        multiple=True,
-        default=(lidar_defaults.DEFAULT_SIGMA_M,),
-        help=f"Range noise 1-sigma in metres; repeat for several levels (default {lidar_defaults.DEFAULT_SIGMA_M}).",
-    ),
-    click.option(
-        "--scans",
-        type=_bounded(limits.SCANS),
-        default=lidar_defaults.N_SCANS,
-        show_default=True,
-        help="Number of scans.",
-    ),
-    seed_option("every random stream of the build"),
-    workers_option(),
-    click.option(
-        "--altitude",
-        "altitude_m",
-        type=_Span(limits.ALTITUDE_M),
-        metavar="M|LOW:HIGH",
-        default=lidar_defaults.ALTITUDE_M,
-        show_default=True,
-        help=f"Sensor altitude above the terrain, metres, in {limits.ALTITUDE_M.interval()}; LOW:HIGH draws it per "
-        "scan (a descent: 250:1000).",
-    ),
-    click.option(
-        "--dtm-scale",
-        type=_bounded(limits.DTM_SCALE),
-        default=lidar_defaults.DTM_SCALE,
-        show_default=True,
-        help=f"Resample the DTM by this factor (the paper used {lidar_defaults.PAPER_DTM_SCALE}).",
-    ),
-    scheduler_option(),
-    overwrite_option("Replace an existing dataset in --out."),
-    click.option(
-        "--shard-size",
-        type=_bounded(limits.SHARD_SIZE),
-        default=lidar_defaults.SHARD_SIZE,
-        show_default=True,
-        help="Scans per shard file.",
-    ),
-    click.option(
-        "--tilt",
-        "tilt_deg",
-        type=_Span(limits.TILT_DEG),
-        metavar="DEG|LOW:HIGH",
-        default=lidar_defaults.TILT_DEG,
-        show_default=True,
-        help=f"Off-nadir tilt of the boresight, degrees, in {limits.TILT_DEG.interval()}; LOW:HIGH draws it per scan.",
-    ),
-    click.option(
-        "--jitter",
-        "jitter_deg",
-        type=_Span(limits.JITTER_DEG),
-        metavar="DEG|LOW:HIGH",
-        default=lidar_defaults.JITTER_DEG,
-        show_default=True,
-        help=f"1-sigma attitude jitter per axis, degrees, in {limits.JITTER_DEG.interval()}; LOW:HIGH draws it per "
-        "scan.",
-    ),
-    click.option(
-        "--resolution",
-        type=_bounded(limits.DETECTOR_PX),
-        default=lidar_defaults.DETECTOR_ROWS,
-        show_default=True,
-        help="Detector pixels per side.",
-    ),
-    click.option(
-        "--fov",
-        "fov_deg",
-        type=_bounded(limits.FOV_DEG),
-        default=lidar_defaults.FOV_DEG,
-        show_default=True,
-        help="Field of view per side, degrees.",
-    ),
-    click.option(
-        "--dead-elements",
-        type=_bounded(limits.DETECTOR_ELEMENTS),
-        default=lidar_defaults.DEAD_ELEMENTS,
-        show_default=True,
-        help="Dead detector elements (no return).",
-    ),
-    click.option(
-        "--damaged-elements",
-        type=_bounded(limits.DETECTOR_ELEMENTS),
-        default=lidar_defaults.DAMAGED_ELEMENTS,
-        show_default=True,
-        help="Damaged detector elements (large range error).",
-    ),
-    click.option(
-        "--compression",
-        type=click.Choice(lidar_defaults.COMPRESSIONS),
-        default=lidar_defaults.COMPRESSION,
-        show_default=True,
-        help="HDF5 compression of the point arrays.",
-    ),
-    click.option(
-        "--rocks-on-dtm",
-        is_flag=True,
-        help="Scan the --dtm resampled to 0.5 m with the procedural rock population added (as hd make-dtm --base).",
-    ),
-    click.option(
-        "--footprint-samples",
-        type=_bounded(limits.FOOTPRINT_SAMPLES),
-        default=lidar_defaults.FOOTPRINT_SAMPLES,
-        show_default=True,
-        help="Sub-rays per pixel side: K x K sub-rays over each pixel's field of view (1: one ray through the centre).",
-    ),
-    click.option(
-        "--spot-profile",
-        type=click.Choice(lidar_defaults.SPOT_PROFILES),
-        default=lidar_defaults.SPOT_PROFILE,
-        show_default=True,
-        help="Weights of the sub-rays over the pixel (gaussian: 1/e^2 radius at half the pixel's side).",
-    ),
-    click.option(
-        "--range-estimator",
-        type=click.Choice(lidar_defaults.RANGE_ESTIMATORS),
-        default=lidar_defaults.RANGE_ESTIMATOR,
-        show_default=True,
-        help="A pixel's range from its returned pulse: energy-weighted centroid, or first crossing of "
-        "--return-fraction of the peak.",
-    ),
-    click.option(
-        "--pulse-width",
-        "pulse_width_m",
-        type=_bounded(limits.PULSE_WIDTH_M),
-        default=lidar_defaults.PULSE_WIDTH_M,
-        show_default=True,
-        help="Full width at half maximum of the returned pulse, in range, metres.",
-    ),
-    click.option(
-        "--return-fraction",
-        type=_bounded(limits.RETURN_FRACTION),
-        default=lidar_defaults.RETURN_FRACTION,
-        show_default=True,
-        help="Fraction of the pulse's peak at which the first-return estimator fires.",
-    ),
-    click.option(
-        "--noise-model",
-        type=click.Choice(lidar_defaults.NOISE_MODELS),
-        default=lidar_defaults.NOISE_MODEL,
-        show_default=True,
-        help="constant: one sigma everywhere; snr: --sigma at 500 m and normal incidence, growing as "
-        "range / sqrt(cos incidence), weak returns dropped.",
-    ),
-    click.option(
-        "--snr-ref",
-        type=_bounded(limits.SNR_REF),
-        default=lidar_defaults.SNR_REF,
-        show_default=True,
-        help="snr model: signal-to-noise ratio of a whole pixel's return at 500 m, normal incidence.",
-    ),
-    click.option(
-        "--snr-min",
-        type=_bounded(limits.SNR_MIN),
-        default=lidar_defaults.SNR_MIN,
-        show_default=True,
-        help="snr model: returns below this signal-to-noise ratio come back as no return (status weak).",
-    ),
-    recipe_option("Build exactly the dataset of a recipe (datasets/<name>); the recipe fixes every content setting."),
+@main.command("build-dataset", cls=SettingsCommand, settings=("lidarsim.recipe:BuildSettings",))
+@out_option(
+    "out_dir",
+    "Dataset directory to create (default: named after the recipe, the DTM file or the procedural terrain, in the "
+    "current directory).",
+    required=False,
 )
+@workers_option()
+@scheduler_option()
+@overwrite_option("Replace an existing dataset in --out.")
+@recipe_option("Build exactly the dataset of a recipe (datasets/<name>); the recipe fixes every content setting.")
 @click.pass_context
 @friendly_errors
-def build_dataset_cmd(
-    ctx: click.Context,
-    out_dir: Path | None,
-    workers: int | None,
-    scheduler: str | None,
-    overwrite: bool,
-    recipe: Path | None,
-    **settings: Any,
-) -> None:
+def build_dataset_cmd(ctx: click.Context, out_dir: Path | None, recipe: Path | None, **options: Any) -> None:
     """Simulate flash-LiDAR scans over a terrain and write clean and noisy point clouds as HDF5 shards."""
-    from lidarsim.build import build_dataset, default_out_dir
-    from lidarsim.recipe import BuildSettings, load_recipe
-    from lidarsim.storage import check_output_dir
+    from lidarsim.build_job import build_job
 
-    if out_dir is not None:
-        check_output_dir(out_dir, "--out")
-    if scheduler is not None:
-        from lidarsim.parallel import check_scheduler_address
-
-        check_scheduler_address(scheduler)
+    workers, scheduler, overwrite = options.pop("workers"), options.pop("scheduler"), options.pop("overwrite")
     if recipe is not None:
-        refuse_with_recipe(ctx, set(settings), "every content setting", LidarsimError)
-        loaded = load_recipe(recipe)
-        config, name = loaded.build, loaded.name
-    else:
-        dtm_path = settings.pop("dtm_path")
-        config = BuildSettings(**settings, dtm_path=str(dtm_path) if dtm_path is not None else None).to_config()
-        name = None
-    if out_dir is None:
-        out_dir = default_out_dir(config, name)
-        check_output_dir(out_dir, "--out")
-        say(f"no --out given: building into {out_dir}")
-    progress = ScanProgress("scans")
-    try:
-        summary = build_dataset(
-            out_dir, config, workers=workers, scheduler=scheduler, overwrite=overwrite, progress=progress
-        )
-    finally:
-        progress.close()
-    say(summary.paragraph())
-    record({"command": "build-dataset", **dataclasses.asdict(summary)})
+        refuse_with_recipe(ctx, set(options), "every content setting", LidarsimError)
+    with ScanProgress("scans") as progress:
+        _done(build_job(out_dir, options, recipe, workers, scheduler, overwrite, progress, say))
 
 
 @main.command("make-dtm")

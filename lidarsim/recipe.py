@@ -54,13 +54,15 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from lidarsim import defaults
+from lidarsim import defaults, limits
 from lidarsim.build import BuildConfig
 from lidarsim.errors import LidarsimError, RecipeError
 from lidarsim.footprint import FootprintConfig
+from lidarsim.limits import Bound
 from lidarsim.noise import NoiseModel
 from lidarsim.sensor import SensorConfig
-from lidarsim.span import parse_span
+from lidarsim.setting import FILE_OR_DIRECTORY, check, from_mapping, setting
+from lidarsim.span import SpanType, parse_span
 from lidarsim.trajectory import TrajectoryConfig
 
 RECIPE_FILE = "recipe.toml"
@@ -86,60 +88,126 @@ _LABEL_KEYS = {
 class BuildSettings:
     """The content settings of a dataset as ``hd build-dataset`` takes them and a recipe's
     ``[build]`` section records them (one flat record; :meth:`to_config` makes the
-    :class:`~lidarsim.build.BuildConfig`). Defaults are ``lidarsim.defaults``'.
-
-    Attributes:
-        sigmas_m: noise levels (1-sigma along each ray), metres; with the ``snr`` noise model, at the
-            reference range and normal incidence.
-        scans: number of scans.
-        seed: master seed of every random stream.
-        altitude_m: sensor altitude above the terrain, metres; or ``(low, high)`` (``"low:high"``),
-            drawn uniformly per scan.
-        dtm_path: DTM file; None builds on the procedural Mars terrain.
-        dtm_scale: resampling factor of the DTM (1 = full resolution).
-        shard_size: scans per shard file.
-        tilt_deg: off-nadir tilt of the boresight, degrees (or a range, as ``altitude_m``).
-        jitter_deg: 1-sigma attitude jitter per axis, degrees (or a range, as ``altitude_m``).
-        resolution: detector pixels per side.
-        fov_deg: field of view per side, degrees.
-        dead_elements: detector elements that never return.
-        damaged_elements: detector elements with a large range error.
-        compression: HDF5 compression of the point arrays: gzip, lzf or none.
-        rocks_on_dtm: scan the DTM resampled to 0.5 m with the procedural rock population added.
-        footprint_samples: sub-rays per pixel side (K x K per pixel; 1 = through the pixel centre).
-        spot_profile: weights of the sub-rays over the pixel: gaussian or uniform.
-        range_estimator: the pixel's range from its pulse: centroid or first (constant fraction).
-        pulse_width_m: full width at half maximum of the returned pulse in range, metres.
-        return_fraction: fraction of the pulse's peak at which the first-return estimator fires.
-        noise_model: constant (one sigma) or snr (sigma grows with range and incidence; weak
-            returns dropped).
-        snr_ref: signal-to-noise ratio of a whole pixel's return at 500 m, normal incidence (snr model).
-        snr_min: detection threshold on the signal-to-noise ratio (snr model).
+    :class:`~lidarsim.build.BuildConfig`). Defaults are ``lidarsim.defaults``'. Each field's help,
+    unit, default and range is its metadata (``lidarsim.setting``): the options of
+    ``hd build-dataset``, the reading of a recipe's ``[build]`` and the checks here are made from it.
     """
 
-    sigmas_m: tuple[float, ...] = (defaults.DEFAULT_SIGMA_M,)
-    scans: int = defaults.N_SCANS
-    seed: int = defaults.SEED
-    altitude_m: float | tuple[float, float] | str = defaults.ALTITUDE_M
-    dtm_path: str | None = None
-    dtm_scale: float = defaults.DTM_SCALE
-    shard_size: int = defaults.SHARD_SIZE
-    tilt_deg: float | tuple[float, float] | str = defaults.TILT_DEG
-    jitter_deg: float | tuple[float, float] | str = defaults.JITTER_DEG
-    resolution: int = defaults.DETECTOR_ROWS
-    fov_deg: float = defaults.FOV_DEG
-    dead_elements: int = defaults.DEAD_ELEMENTS
-    damaged_elements: int = defaults.DAMAGED_ELEMENTS
-    compression: str = defaults.COMPRESSION
-    rocks_on_dtm: bool = False
-    footprint_samples: int = defaults.FOOTPRINT_SAMPLES
-    spot_profile: str = defaults.SPOT_PROFILE
-    range_estimator: str = defaults.RANGE_ESTIMATOR
-    pulse_width_m: float = defaults.PULSE_WIDTH_M
-    return_fraction: float = defaults.RETURN_FRACTION
-    noise_model: str = defaults.NOISE_MODEL
-    snr_ref: float = defaults.SNR_REF
-    snr_min: float = defaults.SNR_MIN
+    sigmas_m: tuple[float, ...] = setting(
+        (defaults.DEFAULT_SIGMA_M,),
+        "Range noise 1-sigma, {unit}; repeat for several levels (with --noise-model snr: at 500 m, normal incidence)",
+        unit="metres",
+        bound=limits.SIGMA_M,
+        flag="--sigma",
+    )
+    scans: int = setting(defaults.N_SCANS, "Number of scans", bound=limits.SCANS)
+    seed: int = setting(defaults.SEED, "Seed of every random stream of the build", bound=limits.SEED)
+    altitude_m: float | tuple[float, float] | str = setting(
+        defaults.ALTITUDE_M,
+        "Sensor altitude above the terrain, {unit}, in {bound}; LOW:HIGH draws it per scan (a descent: 250:1000).",
+        unit="metres",
+        bound=limits.ALTITUDE_M,
+        checked=False,  # one number or LOW:HIGH: lidarsim.trajectory checks it, with the range's own messages
+        flag="--altitude",
+        metavar="M|LOW:HIGH",
+        click_type=SpanType(limits.ALTITUDE_M),
+    )
+    dtm_path: str | None = setting(
+        None,
+        "DTM (GeoTIFF, HiRISE PDS3 .IMG, any GDAL raster in metres). Default: the procedural Mars terrain.",
+        kind=Path,
+        flag="--dtm",
+        click_type=FILE_OR_DIRECTORY,
+    )
+    dtm_scale: float = setting(
+        defaults.DTM_SCALE,
+        f"Resample the DTM by this factor (the paper used {defaults.PAPER_DTM_SCALE})",
+        bound=limits.DTM_SCALE,
+    )
+    shard_size: int = setting(defaults.SHARD_SIZE, "Scans per shard file", bound=limits.SHARD_SIZE)
+    tilt_deg: float | tuple[float, float] | str = setting(
+        defaults.TILT_DEG,
+        "Off-nadir tilt of the boresight, {unit}, in {bound}; LOW:HIGH draws it per scan.",
+        unit="degrees",
+        bound=limits.TILT_DEG,
+        checked=False,  # one number or LOW:HIGH: lidarsim.trajectory checks it, with the range's own messages
+        flag="--tilt",
+        metavar="DEG|LOW:HIGH",
+        click_type=SpanType(limits.TILT_DEG),
+    )
+    jitter_deg: float | tuple[float, float] | str = setting(
+        defaults.JITTER_DEG,
+        "1-sigma attitude jitter per axis, {unit}, in {bound}; LOW:HIGH draws it per scan.",
+        unit="degrees",
+        bound=limits.JITTER_DEG,
+        checked=False,  # one number or LOW:HIGH: lidarsim.trajectory checks it, with the range's own messages
+        flag="--jitter",
+        metavar="DEG|LOW:HIGH",
+        click_type=SpanType(limits.JITTER_DEG),
+    )
+    resolution: int = setting(defaults.DETECTOR_ROWS, "Detector pixels per side", bound=limits.DETECTOR_PX)
+    fov_deg: float = setting(
+        defaults.FOV_DEG, "Field of view per side", unit="degrees", bound=limits.FOV_DEG, flag="--fov"
+    )
+    dead_elements: int = setting(
+        defaults.DEAD_ELEMENTS, "Dead detector elements (no return)", bound=limits.DETECTOR_ELEMENTS
+    )
+    damaged_elements: int = setting(
+        defaults.DAMAGED_ELEMENTS, "Damaged detector elements (large range error)", bound=limits.DETECTOR_ELEMENTS
+    )
+    compression: str = setting(
+        defaults.COMPRESSION, "HDF5 compression of the point arrays", choices=defaults.COMPRESSIONS
+    )
+    rocks_on_dtm: bool = setting(
+        False, "Scan the --dtm resampled to 0.5 m with the procedural rock population added (as hd make-dtm --base)"
+    )
+    footprint_samples: int = setting(
+        defaults.FOOTPRINT_SAMPLES,
+        "Sub-rays per pixel side: K x K sub-rays over each pixel's field of view (1: one ray through the centre)",
+        bound=limits.FOOTPRINT_SAMPLES,
+    )
+    spot_profile: str = setting(
+        defaults.SPOT_PROFILE,
+        "Weights of the sub-rays over the pixel (gaussian: 1/e^2 radius at half the pixel's side)",
+        choices=defaults.SPOT_PROFILES,
+    )
+    range_estimator: str = setting(
+        defaults.RANGE_ESTIMATOR,
+        "A pixel's range from its returned pulse: energy-weighted centroid, or first crossing of "
+        "--return-fraction of the peak",
+        choices=defaults.RANGE_ESTIMATORS,
+    )
+    pulse_width_m: float = setting(
+        defaults.PULSE_WIDTH_M,
+        "Full width at half maximum of the returned pulse, in range",
+        unit="metres",
+        bound=limits.PULSE_WIDTH_M,
+        flag="--pulse-width",
+    )
+    return_fraction: float = setting(
+        defaults.RETURN_FRACTION,
+        "Fraction of the pulse's peak at which the first-return estimator fires",
+        bound=limits.RETURN_FRACTION,
+    )
+    noise_model: str = setting(
+        defaults.NOISE_MODEL,
+        "constant: one sigma everywhere; snr: --sigma at 500 m and normal incidence, growing as "
+        "range / sqrt(cos incidence), weak returns dropped",
+        choices=defaults.NOISE_MODELS,
+    )
+    snr_ref: float = setting(
+        defaults.SNR_REF,
+        "snr model: signal-to-noise ratio of a whole pixel's return at 500 m, normal incidence",
+        bound=limits.SNR_REF,
+    )
+    snr_min: float = setting(
+        defaults.SNR_MIN,
+        "snr model: returns below this signal-to-noise ratio come back as no return (status weak)",
+        bound=limits.SNR_MIN,
+    )
+
+    def __post_init__(self) -> None:
+        check(self, LidarsimError)
 
     def to_config(self) -> BuildConfig:
         """The build configuration (a square detector with the same FOV on both axes).
@@ -174,7 +242,7 @@ class BuildSettings:
             dtm_scale=float(self.dtm_scale),
             shard_size=int(self.shard_size),
             compression=str(self.compression),
-            rocks_on_dtm=_flag("rocks_on_dtm", self.rocks_on_dtm),
+            rocks_on_dtm=self.rocks_on_dtm,
             footprint=FootprintConfig(
                 samples=int(self.footprint_samples),
                 spot_profile=str(self.spot_profile),
@@ -188,19 +256,24 @@ class BuildSettings:
         )
 
 
-def _flag(name: str, value: object) -> bool:
-    """A true/false setting; anything else (1, "yes") is refused rather than guessed."""
-    if not isinstance(value, bool):
-        raise LidarsimError(f"{name} must be true or false, got {value!r}")
-    return value
-
-
 # Recipe [build] keys that differ from the BuildSettings field they fill.
 _BUILD_KEY_FIELDS = {"dtm": "dtm_path"}
 _BUILD_KEYS = {k for k in (f.name for f in fields(BuildSettings)) if k not in _BUILD_KEY_FIELDS.values()} | {
     *_BUILD_KEY_FIELDS,
     "dtm_sha256",
 }
+
+
+@dataclass(frozen=True)
+class RecipeMeta:
+    """A recipe's ``[dataset]`` section (each key described once, as for the settings)."""
+
+    name: str | None = setting(None, "The dataset's name (default: the recipe directory's)", kind=str, cli=False)
+    description: str = setting("", "What the dataset is for", cli=False)
+    version: int = setting(1, "Bumped whenever the content changes", bound=Bound(1, integer=True), cli=False)
+
+    def __post_init__(self) -> None:
+        check(self, RecipeError)
 
 
 @dataclass(frozen=True)
@@ -321,29 +394,21 @@ def load_recipe(path: str | os.PathLike) -> Recipe:
                 _check_dtm_sha256(path, dtm_path, dtm_sha256)
         elif dtm_sha256:
             raise RecipeError(f"{path}: [build] dtm_sha256 is given without a dtm")
-        if "sigmas_m" in values:
-            values["sigmas_m"] = tuple(values["sigmas_m"])
-        config = BuildSettings(**values).to_config()
+        config = from_mapping(BuildSettings, values, str(path), "build", RecipeError).to_config()
     except (TypeError, ValueError) as exc:
         if isinstance(exc, RecipeError):
             raise
         if isinstance(exc, LidarsimError):  # a bad value is a RecipeError; a TerrainError etc. stays one
             raise (RecipeError if type(exc) is LidarsimError else type(exc))(f"{path}: {exc}") from exc
         raise RecipeError(f"{path}: invalid value ({exc})") from exc
-    meta = data.get("dataset", {})
-    unknown = set(meta) - {"name", "description", "version"}
-    if unknown:
-        raise RecipeError(f"{path}: unknown [dataset] key(s) {sorted(unknown)}")
-    version = meta.get("version", 1)
-    if isinstance(version, bool) or not isinstance(version, int) or version < 1:
-        raise RecipeError(f"{path}: [dataset] version must be a positive integer, got {version!r}")
+    meta = from_mapping(RecipeMeta, data.get("dataset", {}), str(path), "dataset", RecipeError)
     return Recipe(
-        name=str(meta.get("name", path.parent.name)),
+        name=meta.name if meta.name is not None else path.parent.name,
         path=path.resolve(),
         build=config,
         label=dict(label),
-        description=str(meta.get("description", "")),
-        version=version,
+        description=meta.description,
+        version=meta.version,
     )
 
 

@@ -1,0 +1,59 @@
+"""``hd build-dataset``: a dataset from the command line's settings or from a recipe, and what to say.
+
+The settings are :class:`lidarsim.recipe.BuildSettings`' fields (each described once, as field
+metadata: the options and checks are made from them); :func:`build_job` checks where to write,
+makes the configuration and builds.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from lidarsim.outcome import Done
+
+
+def build_job(
+    out_dir: Path | None,
+    settings: dict[str, Any],
+    recipe: Path | None,
+    workers: int | None,
+    scheduler: str | None,
+    overwrite: bool,
+    progress: Callable[[int, int], None] | None,
+    echo: Callable[[str], None],
+) -> Done:
+    """Build the dataset of ``settings`` (BuildSettings' fields), or of ``recipe``, into ``out_dir``
+    (None: named after the recipe, the DTM or the procedural terrain; ``echo`` says which).
+
+    Raises:
+        LidarsimError: an unusable output directory or scheduler address, a bad recipe or value,
+            before anything is written; and whatever ``build_dataset`` refuses.
+    """
+    from lidarsim.build import build_dataset, default_out_dir
+    from lidarsim.recipe import BuildSettings, load_recipe
+    from lidarsim.storage import check_output_dir
+
+    if out_dir is not None:
+        check_output_dir(out_dir, "--out")
+    if scheduler is not None:
+        from lidarsim.parallel import check_scheduler_address
+
+        check_scheduler_address(scheduler)
+    name = None
+    if recipe is not None:
+        loaded = load_recipe(recipe)
+        config, name = loaded.build, loaded.name
+    else:
+        dtm = settings.get("dtm_path")
+        config = BuildSettings(**{**settings, "dtm_path": str(dtm) if dtm is not None else None}).to_config()
+    if out_dir is None:
+        out_dir = default_out_dir(config, name)
+        check_output_dir(out_dir, "--out")
+        echo(f"no --out given: building into {out_dir}")
+    summary = build_dataset(
+        out_dir, config, workers=workers, scheduler=scheduler, overwrite=overwrite, progress=progress
+    )
+    return Done([summary.paragraph()], {"command": "build-dataset", **dataclasses.asdict(summary)})
