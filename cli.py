@@ -14,15 +14,13 @@ from typing import Any
 
 import click
 
-from hdlabels import defaults as label_defaults
-from hdlabels import limits as label_limits
+from hdlabels.errors import HdLabelsError
 from hdnet import terminal
 from hdnet.chains import PAPER_RECIPE, DemoSettings, ReproduceSettings, run_demo, run_reproduce
 from hdnet.detect_job import DetectSettings
 from hdnet.inspection import Verdict, inspect_directory, verify_directory
 from hdnet.shared_options import (
     dtm_option,
-    options,
     out_option,
     overwrite_option,
     recipe_option,
@@ -37,11 +35,8 @@ from lidarsim.make_dtm import DtmSettings
 from lidarsim.outcome import Done
 from lidarsim.setting import DIRECTORY, FILE_OR_DIRECTORY, NonEmptyPath, SettingsCommand, click_options
 from lidarsim.setting import DIRECTORY as _DIRECTORY
-from lidarsim.setting import bounded as _bounded
 from lidarsim.setting import click_options as _click_options
 from lidarsim.setting import settings_from_options as _settings_from_options
-
-_options = options
 
 
 # ------------------------------------------------------------------------------------------ commands
@@ -128,139 +123,22 @@ def verify_cmd(directory: Path, recipe: Path | None) -> None:
     _show(verify_directory(directory, recipe))
 
 
-@main.command("label")
-@click.argument("directory", type=_DIRECTORY)
-@_options(
-    click.option(
-        "--lander-diameter",
-        "lander_diameter_m",
-        type=_bounded(label_limits.LANDER_DIAMETER_M),
-        default=label_defaults.LANDER_DIAMETER_M,
-        show_default=True,
-        help="Lander diameter, metres.",
-    ),
-    click.option(
-        "--pad-diameter",
-        "pad_diameter_m",
-        type=_bounded(label_limits.PAD_DIAMETER_M),
-        default=label_defaults.PAD_DIAMETER_M,
-        show_default=True,
-        help="Footpad diameter, metres.",
-    ),
-    click.option(
-        "--max-slope-deg",
-        type=_bounded(label_limits.MAX_SLOPE_DEG),
-        default=label_defaults.MAX_SLOPE_DEG,
-        show_default=True,
-        help="Critical slope, degrees.",
-    ),
-    click.option(
-        "--max-roughness",
-        "max_roughness_m",
-        type=_bounded(label_limits.MAX_ROUGHNESS_M),
-        default=label_defaults.MAX_ROUGHNESS_M,
-        show_default=True,
-        help="Critical roughness, metres.",
-    ),
-    click.option(
-        "--lander",
-        type=click.Choice(label_defaults.LAYOUTS),
-        default=label_defaults.LAYOUT,
-        show_default=True,
-        help="Pad layout: 4 pads in a square or 3 in a triangle.",
-    ),
-    click.option(
-        "--convention",
-        type=click.Choice(label_defaults.CONVENTIONS),
-        default=label_defaults.CONVENTION,
-        show_default=True,
-        help="Label rules: paper (the ALHAT replica the paper used) or hd (sub-pixel geometric convention).",
-    ),
-    click.option(
-        "--baseline-combine",
-        type=click.Choice(label_defaults.BASELINE_COMBINES),
-        default=None,
-        help="How the P(safe) baseline combines the nodes under the lander (default: paper product, hd min).",
-    ),
-    click.option(
-        "--gridding",
-        type=click.Choice(label_defaults.GRIDDINGS),
-        default=None,
-        help="Points to DEM: linear interpolation, or the mean, max or most central of each cell's returns "
-        "(default: the convention's).",
-    ),
-    click.option(
-        "--yaws",
-        type=_bounded(label_limits.YAWS),
-        default=None,
-        help=f"hd convention: yaws per symmetry period of the pad layout (default {label_defaults.N_YAWS}).",
-    ),
-    click.option("--count-holes", is_flag=True, help="Count terrain below the lander plane as roughness too."),
-    click.option(
-        "--dem-size",
-        type=_bounded(label_limits.DEM_SIZE_PX),
-        default=label_defaults.DEM_ROWS,
-        show_default=True,
-        help="DEM side, pixels.",
-    ),
-    click.option(
-        "--dem-spacing",
-        "dem_spacing_m",
-        type=_bounded(label_limits.DEM_SPACING_M),
-        default=label_defaults.DEM_SPACING_M,
-        show_default=True,
-        help="DEM spacing, metres/pixel.",
-    ),
-    click.option(
-        "--truth",
-        type=click.Choice(label_defaults.TRUTHS),
-        default=label_defaults.TRUTH,
-        show_default=True,
-        help="What the deterministic labels come from: the clean scan's DEM (the paper's) or the terrain itself, "
-        "the DTM the dataset was built on sampled on each scan's DEM grid.",
-    ),
-    workers_option(),
-    scheduler_option(),
-    recipe_option("Take the lander and DEM settings from a recipe's [label] section."),
-)
+@main.command("label", cls=SettingsCommand, settings=("hdlabels.settings:LabelSettings",))
+@click.argument("directory", type=DIRECTORY)
+@workers_option()
+@scheduler_option()
+@recipe_option("Take the lander and DEM settings from a recipe's [label] section.")
 @click.pass_context
 @friendly_errors
-def label_cmd(
-    ctx: click.Context,
-    directory: Path,
-    workers: int | None,
-    scheduler: str | None,
-    recipe: Path | None,
-    **settings: Any,
-) -> None:
+def label_cmd(ctx: click.Context, directory: Path, workers: int | None, recipe: Path | None, **options: Any) -> None:
     """Grid every scan into DEMs and add ALHAT labels and the baseline P(safe) to the dataset."""
-    from hdlabels.errors import HdLabelsError
-    from hdlabels.labeling import label_dataset
-    from hdlabels.settings import LabelSettings
+    from hdlabels.label_job import label_job
 
+    scheduler = options.pop("scheduler")
     if recipe is not None:
-        from lidarsim.recipe import load_recipe
-
-        refuse_with_recipe(ctx, set(settings), "the lander and DEM settings", HdLabelsError)
-        loaded = load_recipe(recipe)
-        label = LabelSettings.from_recipe(loaded.label, str(loaded.path))
-    else:
-        label = LabelSettings(**settings)
-    lander = label.to_lander()
-    if scheduler is not None:
-        from lidarsim.parallel import probe_scheduler
-
-        probe_scheduler(scheduler)  # a malformed or unreachable address, before anything is written
-    grid = label.to_dem_spec()
-    progress = ScanProgress("labels")
-    try:
-        summary = label_dataset(
-            directory, lander, grid, workers=workers, scheduler=scheduler, progress=progress, truth=label.truth
-        )
-    finally:
-        progress.close()
-    say(summary.paragraph())
-    record({"command": "label", **dataclasses.asdict(summary)})
+        refuse_with_recipe(ctx, set(options), "the lander and DEM settings", HdLabelsError)
+    with ScanProgress("labels") as progress:
+        _done(label_job(directory, options, recipe, workers, scheduler, progress))
 
 
 def _done(done: Done) -> None:

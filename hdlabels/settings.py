@@ -8,14 +8,15 @@ the command line and recipes map onto the lander in one place.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Any
 
-from hdlabels import defaults
+from hdlabels import defaults, limits
 from hdlabels.conventions import convention
 from hdlabels.errors import HdLabelsError
 from hdlabels.lander import Lander
 from hdlabels.store import DemSpec
+from lidarsim.setting import check, from_mapping, setting
 
 # Recipes written before label conventions existed carry no ``convention``: they are the hd convention.
 RECIPE_CONVENTION_BEFORE_CONVENTIONS = "hd"
@@ -23,38 +24,67 @@ RECIPE_CONVENTION_BEFORE_CONVENTIONS = "hd"
 
 @dataclass(frozen=True)
 class LabelSettings:
-    """Lander and DEM settings of a labelling (field names are the recipe's ``[label]`` keys).
-
-    Attributes:
-        lander: pad layout, ``"square"`` (4 pads) or ``"triangle"`` (3 pads).
-        lander_diameter_m: lander (body) diameter, metres.
-        pad_diameter_m: footpad diameter, metres.
-        max_slope_deg: critical slope, degrees.
-        max_roughness_m: critical roughness, metres.
-        yaws: hd convention only: yaws per symmetry period of the layout (None: the default).
-        count_holes: count terrain below the lander plane as roughness too.
-        dem_size: DEM side, pixels.
-        dem_spacing_m: DEM spacing, metres/pixel.
-        convention: ``"paper"`` or ``"hd"`` (docs/labels.md).
-        baseline_combine: ``"product"`` or ``"min"``; None takes the convention's.
-        gridding: ``"linear"``, ``"mean"``, ``"max"`` or ``"nearest"``; None takes the convention's.
-        truth: what the deterministic labels come from: ``"clean-scan"`` (the clean scan's DEM, the
-            paper's) or ``"terrain"`` (the DTM the dataset was built on, on each scan's DEM grid).
+    """Lander and DEM settings of a labelling (field names are the recipe's ``[label]`` keys). Each
+    field's help, unit, default and range is its metadata (``lidarsim.setting``): the options of
+    ``hd label``, the reading of a recipe's ``[label]`` and the checks here are made from it.
     """
 
-    lander: str = defaults.LAYOUT
-    lander_diameter_m: float = defaults.LANDER_DIAMETER_M
-    pad_diameter_m: float = defaults.PAD_DIAMETER_M
-    max_slope_deg: float = defaults.MAX_SLOPE_DEG
-    max_roughness_m: float = defaults.MAX_ROUGHNESS_M
-    yaws: int | None = None
-    count_holes: bool = defaults.COUNT_HOLES
-    dem_size: int = defaults.DEM_ROWS
-    dem_spacing_m: float = defaults.DEM_SPACING_M
-    convention: str = defaults.CONVENTION
-    baseline_combine: str | None = None
-    gridding: str | None = None
-    truth: str = defaults.TRUTH
+    lander: str = setting(
+        defaults.LAYOUT, "Pad layout: 4 pads in a square or 3 in a triangle", choices=defaults.LAYOUTS
+    )
+    lander_diameter_m: float = setting(
+        defaults.LANDER_DIAMETER_M,
+        "Lander diameter",
+        unit="metres",
+        bound=limits.LANDER_DIAMETER_M,
+        flag="--lander-diameter",
+    )
+    pad_diameter_m: float = setting(
+        defaults.PAD_DIAMETER_M, "Footpad diameter", unit="metres", bound=limits.PAD_DIAMETER_M, flag="--pad-diameter"
+    )
+    max_slope_deg: float = setting(defaults.MAX_SLOPE_DEG, "Critical slope", unit="degrees", bound=limits.MAX_SLOPE_DEG)
+    max_roughness_m: float = setting(
+        defaults.MAX_ROUGHNESS_M,
+        "Critical roughness",
+        unit="metres",
+        bound=limits.MAX_ROUGHNESS_M,
+        flag="--max-roughness",
+    )
+    yaws: int | None = setting(
+        None,
+        f"hd convention: yaws per symmetry period of the pad layout (default {defaults.N_YAWS})",
+        bound=limits.YAWS,
+    )
+    count_holes: bool = setting(defaults.COUNT_HOLES, "Count terrain below the lander plane as roughness too")
+    dem_size: int = setting(defaults.DEM_ROWS, "DEM side", unit="pixels", bound=limits.DEM_SIZE_PX)
+    dem_spacing_m: float = setting(
+        defaults.DEM_SPACING_M, "DEM spacing", unit="metres/pixel", bound=limits.DEM_SPACING_M, flag="--dem-spacing"
+    )
+    convention: str = setting(
+        defaults.CONVENTION,
+        "Label rules: paper (the ALHAT replica the paper used) or hd (sub-pixel geometric convention)",
+        choices=defaults.CONVENTIONS,
+    )
+    baseline_combine: str | None = setting(
+        None,
+        "How the P(safe) baseline combines the nodes under the lander (default: paper product, hd min)",
+        choices=defaults.BASELINE_COMBINES,
+    )
+    gridding: str | None = setting(
+        None,
+        "Points to DEM: linear interpolation, or the mean, max or most central of each cell's returns "
+        "(default: the convention's)",
+        choices=defaults.GRIDDINGS,
+    )
+    truth: str = setting(
+        defaults.TRUTH,
+        "What the deterministic labels come from: the clean scan's DEM (the paper's) or the terrain itself, "
+        "the DTM the dataset was built on sampled on each scan's DEM grid",
+        choices=defaults.TRUTHS,
+    )
+
+    def __post_init__(self) -> None:
+        check(self, HdLabelsError)
 
     @classmethod
     def from_recipe(cls, section: Mapping[str, Any], where: str = "recipe") -> LabelSettings:
@@ -62,37 +92,11 @@ class LabelSettings:
         without ``convention`` is the hd convention, as recipes were before conventions existed).
 
         Raises:
-            HdLabelsError: an unknown key or a value of the wrong type, naming ``where`` and the key.
+            HdLabelsError: an unknown key or a wrong value, naming ``where`` and the key.
         """
-        known = {f.name: f for f in fields(cls)}
-        unknown = sorted(set(section) - set(known))
-        if unknown:
-            raise HdLabelsError(f"{where}: unknown [label] key(s) {unknown}")
-        casts = {
-            "lander": str,
-            "lander_diameter_m": float,
-            "pad_diameter_m": float,
-            "max_slope_deg": float,
-            "max_roughness_m": float,
-            "yaws": int,
-            "count_holes": bool,
-            "dem_size": int,
-            "dem_spacing_m": float,
-            "convention": str,
-            "baseline_combine": str,
-            "gridding": str,
-            "truth": str,
-        }
-        values: dict[str, Any] = {"convention": RECIPE_CONVENTION_BEFORE_CONVENTIONS}
-        for key, value in section.items():
-            try:
-                values[key] = casts[key](value)
-            except (TypeError, ValueError) as exc:
-                raise HdLabelsError(f"{where}: [label] {key} = {value!r} is not a valid value") from exc
-        if values.get("truth", defaults.TRUTH) not in defaults.TRUTHS:
-            truths = ", ".join(defaults.TRUTHS)
-            raise HdLabelsError(f"{where}: [label] truth = {values['truth']!r} is not one of {truths}")
-        return cls(**values)
+        return from_mapping(
+            cls, section, where, "label", HdLabelsError, convention=RECIPE_CONVENTION_BEFORE_CONVENTIONS
+        )
 
     def to_lander(self) -> Lander:
         """The lander these settings describe.
