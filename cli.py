@@ -17,7 +17,7 @@ import click
 from hdlabels.errors import HdLabelsError
 from hdnet import terminal
 from hdnet.chains import PAPER_RECIPE, DemoSettings, ReproduceSettings, run_demo, run_reproduce
-from hdnet.detect_job import DetectSettings
+from hdnet.detect_settings import DetectSettings
 from hdnet.inspection import Verdict, inspect_directory, verify_directory
 from hdnet.shared_options import (
     dtm_option,
@@ -30,13 +30,16 @@ from hdnet.shared_options import (
 from hdnet.terminal import OUTPUT, HdGroup, ScanProgress, epoch_lines, friendly_errors, record, refuse_with_recipe, say
 from lidarsim._version import __version__
 from lidarsim.errors import LidarsimError
-from lidarsim.export import ExportSettings
 from lidarsim.make_dtm import DtmSettings
 from lidarsim.outcome import Done
-from lidarsim.setting import DIRECTORY, FILE_OR_DIRECTORY, NonEmptyPath, SettingsCommand, click_options
-from lidarsim.setting import DIRECTORY as _DIRECTORY
-from lidarsim.setting import click_options as _click_options
-from lidarsim.setting import settings_from_options as _settings_from_options
+from lidarsim.setting import (
+    DIRECTORY,
+    FILE_OR_DIRECTORY,
+    NonEmptyPath,
+    SettingsCommand,
+    click_options,
+    settings_from_options,
+)
 
 
 # ------------------------------------------------------------------------------------------ commands
@@ -223,10 +226,9 @@ def reproduce_cmd(
     run_reproduce(out_dir, recipe, dtm_path, ReproduceSettings(**settings), workers, click.echo, ScanProgress)
 
 
-@main.command("export")
-@click.argument("dataset", type=_DIRECTORY)
+@main.command("export", cls=SettingsCommand, settings=("lidarsim.export:ExportSettings",))
+@click.argument("dataset", type=DIRECTORY)
 @out_option("out_dir", "Directory of the LAS/LAZ files (one per scan) and export.json.")
-@_click_options(ExportSettings)
 @click.option(
     "--scans",
     "scans_text",
@@ -239,21 +241,18 @@ def reproduce_cmd(
 def export_cmd(dataset: Path, out_dir: Path, scans_text: str | None, overwrite: bool, **options: Any) -> None:
     """Write scans as LAS 1.4 / LAZ point clouds for point-cloud tools (CloudCompare, PDAL), one file per scan,
     in the scan frame or in map coordinates with the DTM's CRS."""
-    from lidarsim.export import export_scans, parse_scans
+    from lidarsim.export import ExportSettings, export_scans, parse_scans
 
     scans = parse_scans(scans_text) if scans_text is not None else ()
-    settings = _settings_from_options(ExportSettings, options, scans=scans)
-    progress = ScanProgress("export")
-    try:
+    settings = settings_from_options(ExportSettings, options, scans=scans)
+    with ScanProgress("export") as progress:
         summary = export_scans(dataset, out_dir, settings, overwrite=overwrite, progress=progress)
-    finally:
-        progress.close()
     say(summary.paragraph())
     record({"command": "export", **dataclasses.asdict(summary)})
 
 
 @main.command("card")
-@click.argument("dataset", type=_DIRECTORY)
+@click.argument("dataset", type=DIRECTORY)
 @recipe_option(
     "Recipe directory the dataset was built from; card.md and checksums.json are written there.", required=True
 )

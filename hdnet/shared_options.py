@@ -37,12 +37,6 @@ def scheduler_option() -> Decorator:
     )
 
 
-def seed_option(what: str) -> Decorator:
-    return click.option(
-        "--seed", type=bounded(limits.SEED), default=lidar_defaults.SEED, show_default=True, help=f"Seed of {what}."
-    )
-
-
 def overwrite_option(what: str) -> Decorator:
     return click.option("--overwrite", is_flag=True, help=what)
 
@@ -69,57 +63,11 @@ def dtm_option(what: str) -> Decorator:
     return click.option("--dtm", "dtm_path", type=FILE_OR_DIRECTORY, default=None, help=what)
 
 
-def epochs_option(what: str, default: int | None = None) -> Decorator:
-    return click.option(
-        "--epochs", type=bounded(net_limits.EPOCHS), default=default, show_default=default is not None, help=what
-    )
-
-
-def labels_option(what: str) -> Decorator:
-    return click.option("--labels", "labeling", default=None, help=what)
-
-
-def mc_samples_option() -> Decorator:
-    return click.option(
-        "--mc-samples",
-        type=bounded(net_limits.MC_SAMPLES),
-        default=net_defaults.MC_SAMPLES,
-        show_default=True,
-        help="MC-dropout samples M.",
-    )
-
-
-def batch_size_option(what: str) -> Decorator:
-    return click.option(
-        "--batch-size",
-        type=bounded(net_limits.BATCH_SIZE),
-        default=net_defaults.BATCH_SIZE,
-        show_default=True,
-        help=what,
-    )
-
-
 # The threshold forms, worded once (hdnet.thresholds.parse_threshold_spec reads them).
 THRESHOLD_FORMS = (
     "Uncertainty threshold: mean (the validation split's mean entropy, the paper's), quantile:Q, risk:ALPHA "
     "(false-safe rate at most ALPHA), all calibrated on a validation split, or nats:H (fixed, in nats)."
 )
-
-
-def threshold_option(what: str = "") -> Decorator:
-    help_text = f"{THRESHOLD_FORMS} {what}".strip()
-    return click.option("--threshold", default=net_defaults.THRESHOLD_SPEC, show_default=True, help=help_text)
-
-
-def options(*decorators: Decorator) -> Decorator:
-    """Apply ``decorators`` in the order given (the first is the first option of the help)."""
-
-    def apply(func: Callable[..., Any]) -> Callable[..., Any]:
-        for decorator in reversed(decorators):
-            func = decorator(func)
-        return func
-
-    return apply
 
 
 # ----------------------------------------------------- settings that several settings classes share
