@@ -21,6 +21,7 @@ from hdlabels.conventions import Convention, convention
 from hdlabels.errors import HdLabelsError
 from hdlabels.geometry import RESTING_TRIPLES, Geometry, plane_weights_of
 from hdlabels.hd_geometry import bilinear_taps, pad_sample_points
+from lidarsim.setting import check, setting
 
 __all__ = [
     "RESTING_TRIPLES",
@@ -35,62 +36,83 @@ __all__ = [
 
 @dataclass(frozen=True)
 class Lander:
-    """A legged lander, seen from above: a body disk and footpads on a circle inside it.
-
-    Attributes:
-        diameter_m: lander (body) diameter, metres; the body disk is what must clear the terrain.
-        pad_diameter_m: footpad diameter, metres; pad centres lie on a circle of radius
-            ``(diameter_m - pad_diameter_m) / 2`` so the pads sit inside the body disk.
-        max_slope_deg: critical slope, degrees; a resting tilt at or above it is unsafe.
-        max_roughness_m: critical roughness, metres; terrain at or above this distance from the
-            lander plane (perpendicular) under the body is unsafe.
-        layout: ``"square"`` (4 pads, 90 deg apart) or ``"triangle"`` (3 pads, 120 deg apart).
-        n_yaws: yaws evaluated per symmetry period of the layout (90 deg square, 120 deg triangle),
-            evenly spaced from 0.
-        count_holes: if True, terrain below the lander plane counts as roughness too
-            (absolute distance); by default only terrain above the plane counts.
-        convention: ``"paper"`` (the ALHAT replica the paper used: pads on pixel nodes, 10-degree
-            orientations over a full turn, roughness over the nodes strictly inside the pad polygon)
-            or ``"hd"`` (sub-pixel pads, ``n_yaws`` yaws, roughness over the body disk); see
-            ``docs/labels.md``.
-        baseline_combine: how the P(safe) baseline combines the per-node probabilities of one
-            lander configuration: ``"product"`` (Ivanov et al. 2013, Eq. 13) or ``"min"`` (the worst
-            node); None takes the convention's default (paper: product, hd: min).
+    """A legged lander, seen from above: a body disk and footpads on a circle inside it. Each field's
+    meaning, unit and range is its metadata (``lidarsim.setting``), from which the checks here are
+    made; how the fields go together (the pads inside the body, the convention's own rules) is
+    checked after them.
     """
 
-    diameter_m: float = defaults.LANDER_DIAMETER_M
-    pad_diameter_m: float = defaults.PAD_DIAMETER_M
-    max_slope_deg: float = defaults.MAX_SLOPE_DEG
-    max_roughness_m: float = defaults.MAX_ROUGHNESS_M
-    layout: Literal["square", "triangle"] = defaults.LAYOUT
-    n_yaws: int = defaults.N_YAWS
-    count_holes: bool = defaults.COUNT_HOLES
-    convention: Literal["paper", "hd"] = defaults.CONVENTION
-    baseline_combine: Literal["product", "min"] | None = None
+    diameter_m: float = setting(
+        defaults.LANDER_DIAMETER_M,
+        "Lander (body) diameter; the body disk is what must clear the terrain",
+        unit="metres",
+        bound=limits.LANDER_DIAMETER_M,
+        cli=False,
+    )
+    pad_diameter_m: float = setting(
+        defaults.PAD_DIAMETER_M,
+        "Footpad diameter; pad centres lie on a circle of radius (diameter_m - pad_diameter_m) / 2 so the pads "
+        "sit inside the body disk",
+        unit="metres",
+        bound=limits.PAD_DIAMETER_M,
+        cli=False,
+    )
+    max_slope_deg: float = setting(
+        defaults.MAX_SLOPE_DEG,
+        "Critical slope; a resting tilt at or above it is unsafe",
+        unit="degrees",
+        bound=limits.MAX_SLOPE_DEG,
+        cli=False,
+    )
+    max_roughness_m: float = setting(
+        defaults.MAX_ROUGHNESS_M,
+        "Critical roughness; terrain at or above this distance from the lander plane (perpendicular) under the "
+        "body is unsafe",
+        unit="metres",
+        bound=limits.MAX_ROUGHNESS_M,
+        cli=False,
+    )
+    layout: Literal["square", "triangle"] = setting(
+        defaults.LAYOUT,
+        "square (4 pads, 90 deg apart) or triangle (3 pads, 120 deg apart)",
+        choices=defaults.LAYOUTS,
+        cli=False,
+    )
+    n_yaws: int = setting(
+        defaults.N_YAWS,
+        "Yaws evaluated per symmetry period of the layout (90 deg square, 120 deg triangle), evenly spaced from 0",
+        bound=limits.YAWS,
+        cli=False,
+    )
+    count_holes: bool = setting(
+        defaults.COUNT_HOLES,
+        "Terrain below the lander plane counts as roughness too (absolute distance); by default only terrain "
+        "above the plane counts",
+        cli=False,
+    )
+    convention: Literal["paper", "hd"] = setting(
+        defaults.CONVENTION,
+        "paper (the ALHAT replica the paper used: pads on pixel nodes, 10-degree orientations over a full turn, "
+        "roughness over the nodes strictly inside the pad polygon) or hd (sub-pixel pads, n_yaws yaws, roughness "
+        "over the body disk); docs/labels.md. Checked by hdlabels.conventions",
+        kind=str,
+        cli=False,
+    )
+    baseline_combine: Literal["product", "min"] | None = setting(
+        None,
+        "How the P(safe) baseline combines the per-node probabilities of one lander configuration: product "
+        "(Ivanov et al. 2013, Eq. 13) or min (the worst node); None takes the convention's (paper: product, hd: min)",
+        choices=defaults.BASELINE_COMBINES,
+        cli=False,
+    )
 
     def __post_init__(self) -> None:
-        for name in ("diameter_m", "pad_diameter_m", "max_slope_deg", "max_roughness_m"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise HdLabelsError(f"Lander {name} must be a finite number, got {value!r}.")
-            if value <= 0:
-                raise HdLabelsError(f"Lander {name} must be > 0, got {value!r}.")
+        check(self, HdLabelsError, name=lambda field, _: f"Lander {field}")
         if self.pad_diameter_m >= self.diameter_m:
             raise HdLabelsError(
                 f"Lander pad diameter ({self.pad_diameter_m} m) must be smaller than the lander "
                 f"diameter ({self.diameter_m} m)."
             )
-        if not limits.MAX_SLOPE_DEG.contains(self.max_slope_deg):
-            raise HdLabelsError(
-                f"Lander max_slope_deg must be in {limits.MAX_SLOPE_DEG.interval()} degrees, "
-                f"got {self.max_slope_deg!r}."
-            )
-        if self.layout not in defaults.LAYOUTS:
-            raise HdLabelsError(f"Lander layout must be 'square' or 'triangle', got {self.layout!r}.")
-        if isinstance(self.n_yaws, bool) or not isinstance(self.n_yaws, int) or not limits.YAWS.contains(self.n_yaws):
-            raise HdLabelsError(f"Lander n_yaws must be an integer in {limits.YAWS.interval()}, got {self.n_yaws!r}.")
-        if not isinstance(self.count_holes, bool):
-            raise HdLabelsError(f"Lander count_holes must be True or False, got {self.count_holes!r}.")
         rules = convention(self.convention)
         rules.check(self)
         if self.baseline_combine is None:
