@@ -51,8 +51,8 @@ class Lander:
     )
     pad_diameter_m: float = setting(
         defaults.PAD_DIAMETER_M,
-        "Footpad diameter; pad centres lie on a circle of radius (diameter_m - pad_diameter_m) / 2 so the pads "
-        "sit inside the body disk",
+        "Footpad diameter; pad centres lie on a circle of radius (lander diameter - pad diameter) / 2, so the "
+        "pads sit inside the body disk",
         unit="metres",
         bound=limits.PAD_DIAMETER_M,
         cli=False,
@@ -94,14 +94,14 @@ class Lander:
         defaults.CONVENTION,
         "paper (the ALHAT replica the paper used: pads on pixel nodes, 10-degree orientations over a full turn, "
         "roughness over the nodes strictly inside the pad polygon) or hd (sub-pixel pads, n_yaws yaws, roughness "
-        "over the body disk); docs/labels.md. Checked by hdlabels.conventions",
-        kind=str,
+        "over the body disk); docs/labels.md",
+        kind=str,  # its choices are checked by hdlabels.conventions, with the conventions' own message
         cli=False,
     )
     baseline_combine: Literal["product", "min"] | None = setting(
         None,
         "How the P(safe) baseline combines the per-node probabilities of one lander configuration: product "
-        "(Ivanov et al. 2013, Eq. 13) or min (the worst node); None takes the convention's (paper: product, hd: min)",
+        "(Ivanov et al. 2013, Eq. 13) or min (the worst node); default: the convention's (paper: product, hd: min)",
         choices=defaults.BASELINE_COMBINES,
         cli=False,
     )

@@ -16,7 +16,7 @@ from hdlabels.conventions import convention
 from hdlabels.errors import HdLabelsError
 from hdlabels.lander import Lander
 from hdlabels.store import DemSpec
-from lidarsim.setting import check, from_mapping, setting
+from lidarsim.setting import check, described_as, from_mapping, setting
 
 # Recipes written before label conventions existed carry no ``convention``: they are the hd convention.
 RECIPE_CONVENTION_BEFORE_CONVENTIONS = "hd"
@@ -29,47 +29,23 @@ class LabelSettings:
     ``hd label``, the reading of a recipe's ``[label]`` and the checks here are made from it.
     """
 
-    lander: str = setting(
-        defaults.LAYOUT, "Pad layout: 4 pads in a square or 3 in a triangle", choices=defaults.LAYOUTS
-    )
-    lander_diameter_m: float = setting(
-        defaults.LANDER_DIAMETER_M,
-        "Lander diameter",
-        unit="metres",
-        bound=limits.LANDER_DIAMETER_M,
-        flag="--lander-diameter",
-    )
-    pad_diameter_m: float = setting(
-        defaults.PAD_DIAMETER_M, "Footpad diameter", unit="metres", bound=limits.PAD_DIAMETER_M, flag="--pad-diameter"
-    )
-    max_slope_deg: float = setting(defaults.MAX_SLOPE_DEG, "Critical slope", unit="degrees", bound=limits.MAX_SLOPE_DEG)
-    max_roughness_m: float = setting(
-        defaults.MAX_ROUGHNESS_M,
-        "Critical roughness",
-        unit="metres",
-        bound=limits.MAX_ROUGHNESS_M,
-        flag="--max-roughness",
-    )
+    lander: str = described_as(Lander, "layout", cli=True)
+    lander_diameter_m: float = described_as(Lander, "diameter_m", cli=True, flag="--lander-diameter")
+    pad_diameter_m: float = described_as(Lander, "pad_diameter_m", cli=True, flag="--pad-diameter")
+    max_slope_deg: float = described_as(Lander, "max_slope_deg", cli=True)
+    max_roughness_m: float = described_as(Lander, "max_roughness_m", cli=True, flag="--max-roughness")
     yaws: int | None = setting(
         None,
         f"hd convention: yaws per symmetry period of the pad layout (default {defaults.N_YAWS})",
         bound=limits.YAWS,
     )
-    count_holes: bool = setting(defaults.COUNT_HOLES, "Count terrain below the lander plane as roughness too")
+    count_holes: bool = described_as(Lander, "count_holes", cli=True)
     dem_size: int = setting(defaults.DEM_ROWS, "DEM side", unit="pixels", bound=limits.DEM_SIZE_PX)
     dem_spacing_m: float = setting(
         defaults.DEM_SPACING_M, "DEM spacing", unit="metres/pixel", bound=limits.DEM_SPACING_M, flag="--dem-spacing"
     )
-    convention: str = setting(
-        defaults.CONVENTION,
-        "Label rules: paper (the ALHAT replica the paper used) or hd (sub-pixel geometric convention)",
-        choices=defaults.CONVENTIONS,
-    )
-    baseline_combine: str | None = setting(
-        None,
-        "How the P(safe) baseline combines the nodes under the lander (default: paper product, hd min)",
-        choices=defaults.BASELINE_COMBINES,
-    )
+    convention: str = described_as(Lander, "convention", cli=True, choices=defaults.CONVENTIONS)
+    baseline_combine: str | None = described_as(Lander, "baseline_combine", cli=True)
     gridding: str | None = setting(
         None,
         "Points to DEM: linear interpolation, or the mean, max or most central of each cell's returns "

@@ -150,6 +150,14 @@ def setting(
     return dataclasses.field(default=default, metadata={_KEY: described})
 
 
+def described_as(cls: Any, name: str, **changes: Any) -> Any:
+    """A field described as the field ``name`` of ``cls`` is (the same help, unit, default and range),
+    with ``changes`` to its description (e.g. the ``flag`` and ``cli`` of a flat record that fills
+    ``cls``)."""
+    f = next(f for f in dataclasses.fields(cls) if f.name == name)
+    return dataclasses.field(default=f.default, metadata={_KEY: dataclasses.replace(f.metadata[_KEY], **changes)})
+
+
 def described_fields(cls: Any) -> list[tuple[dataclasses.Field[Any], Described]]:
     """The described fields of a settings dataclass, in their order."""
     return [(f, f.metadata[_KEY]) for f in dataclasses.fields(cls) if _KEY in f.metadata]

@@ -10,7 +10,15 @@ from click.testing import CliRunner
 
 from lidarsim.errors import LidarsimError
 from lidarsim.limits import Bound
-from lidarsim.setting import SettingsCommand, check, click_options, from_mapping, setting
+from lidarsim.setting import (
+    SettingsCommand,
+    check,
+    click_options,
+    described_as,
+    described_fields,
+    from_mapping,
+    setting,
+)
 
 
 @dataclass(frozen=True)
@@ -83,3 +91,13 @@ def test_the_options_carry_help_unit_default_and_range(lazy):
     ran = CliRunner().invoke(command, ["--levels-m", "1", "--levels-m", "2", "--holes"])
     assert ran.exit_code == 0, ran.output
     assert "levels_m=(1.0, 2.0)" in ran.output and "holes=True" in ran.output
+
+
+def test_a_field_described_as_another_shares_its_description():
+    @dataclass(frozen=True)
+    class Flat:
+        size: int = described_as(Toy, "count", flag="--size")
+
+    ((field, described),) = described_fields(Flat)
+    assert field.default == 3 and described.bound == Bound(1, 10, integer=True)
+    assert described.help == "Things counted" and described.option_name("size") == "--size"
