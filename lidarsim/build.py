@@ -14,7 +14,6 @@ created its directory and completed no shard removes the directory too (docs/rel
 from __future__ import annotations
 
 import contextlib
-import functools
 import json
 import math
 import os
@@ -180,36 +179,19 @@ class BuildConfig:
         return attrs
 
     def canonical_dict(self) -> dict[str, Any]:
-        """``to_dict`` with the DTM named by its file name and content (``dtm_sha256``) instead of
-        the path it was read from, so that the same recipe gives the same settings wherever the
-        checkout or the DTM lies (the settings hash and the shards' ``config_json``)."""
+        """``to_dict`` with the DTM named by its file name instead of the path it was read from, so
+        that the same recipe gives the same settings wherever the checkout or the DTM lies (the
+        settings hash and the shards' ``config_json``). The DTM's content is checked apart from the
+        settings: every shard records its ``dtm_sha256`` and is made again when the DTM changed, and
+        a recipe names its DTM by sha256."""
         d = self.to_dict()
         if self.dtm_path is not None:
             d["dtm_path"] = Path(self.dtm_path).name
-            d["dtm_sha256"] = dtm_content_sha256(self.dtm_path)
         return d
 
     def fingerprint(self) -> str:
-        """SHA-256 of the canonical JSON of the configuration (the DTM by its name and content)."""
+        """SHA-256 of the canonical JSON of the configuration (the DTM by its file name)."""
         return sha256_bytes(json.dumps(self.canonical_dict(), sort_keys=True).encode())
-
-
-def dtm_content_sha256(path: str | os.PathLike) -> str:
-    """The sha256 of a DTM file, hashed once per (path, size, modification time); "" when the file
-    cannot be read (the build's own checks then name the problem)."""
-    try:
-        st = os.stat(path)
-    except OSError:
-        return ""
-    return _sha256_of(str(Path(path).resolve()), st.st_size, st.st_mtime_ns)
-
-
-@functools.lru_cache(maxsize=16)
-def _sha256_of(path: str, size: int, mtime_ns: int) -> str:
-    try:
-        return sha256_file(path)
-    except OSError:
-        return ""
 
 
 @dataclass(frozen=True)
