@@ -35,6 +35,7 @@ operations (numpy) are the tests' oracle (``tests/hdlabels/alhat_numpy.py``), no
 from __future__ import annotations
 
 import math
+import types
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -744,7 +745,20 @@ _pad_heights_jit = numba.njit(cache=True, fastmath=_FASTMATH)(_pad_heights_loops
 _table_log_phi_jit = numba.njit(cache=True, fastmath=_FASTMATH)(_table_log_phi)
 _poly_log_phi_jit = numba.njit(cache=True, fastmath=_FASTMATH, inline="always")(_poly_log_phi)
 _product_bounds_jit = numba.njit(cache=True, fastmath=_FASTMATH, inline="always")(_product_bounds)
+
+
+def _named_copy(func: Callable[..., object], suffix: str) -> Callable[..., object]:
+    """The same Python function under another qualified name. numba's on-disk cache (``cache=True``)
+    files a compiled function under its qualified name and signature, not its options: a serial and
+    a ``parallel=True`` dispatcher of one function would share entries, and whichever compiled first
+    would serve both (the parallel kernels then ran on one thread)."""
+    copy = types.FunctionType(func.__code__, func.__globals__, func.__name__ + suffix, func.__defaults__)
+    copy.__qualname__ = func.__qualname__ + suffix
+    copy.__doc__ = func.__doc__
+    return copy
+
+
 _maps_jit = numba.njit(cache=True, fastmath=_FASTMATH)(_maps_loops)
-_maps_par_jit = numba.njit(cache=True, fastmath=_FASTMATH, parallel=True)(_maps_loops)
+_maps_par_jit = numba.njit(cache=True, fastmath=_FASTMATH, parallel=True)(_named_copy(_maps_loops, "_parallel"))
 _product_jit = numba.njit(cache=True, fastmath=_FASTMATH)(_product_loops)
-_product_par_jit = numba.njit(cache=True, fastmath=_FASTMATH, parallel=True)(_product_loops)
+_product_par_jit = numba.njit(cache=True, fastmath=_FASTMATH, parallel=True)(_named_copy(_product_loops, "_parallel"))

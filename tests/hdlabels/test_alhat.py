@@ -240,6 +240,15 @@ def test_parallel_rows_give_the_same_numbers(lander: Lander) -> None:
     assert 0 < np.count_nonzero(serial[1] >= 0.5) < np.count_nonzero(serial[0].valid)  # both decisions occur
 
 
+def test_parallel_kernels_are_cached_apart_from_the_serial_ones() -> None:
+    """numba's disk cache files a kernel by qualified name and signature, not by its options: the
+    parallel dispatchers compile copies under their own names, else they load the serial code."""
+    for serial, parallel in ((alhat._maps_jit, alhat._maps_par_jit), (alhat._product_jit, alhat._product_par_jit)):
+        assert parallel.targetoptions.get("parallel") and not serial.targetoptions.get("parallel")
+        assert parallel.py_func.__qualname__ != serial.py_func.__qualname__
+        assert parallel.py_func.__code__ is serial.py_func.__code__  # the same loops, compiled twice
+
+
 def test_the_slope_test_is_strict_for_labels_and_as_the_convention_says_for_the_baseline() -> None:
     limit = math.radians(10.0)
     slopes = np.array([limit - 1e-9, limit, limit + 1e-9, np.nan])
