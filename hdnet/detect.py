@@ -153,12 +153,11 @@ class DetectRun:
     def training_datasets(self) -> tuple[Path, ...] | None:
         """Every dataset the run was trained on (its dataset and each ``--also`` one), or None when
         one of them is not present any more."""
-        if self.dataset is None:
+        if self.data is None:  # a run made in code: its dataset alone
+            return None if self.dataset is None else (self.dataset,)
+        if not self.data.datasets or self.data.missing_datasets():
             return None
-        also = [Path(a.dataset) for a in self.data.also] if self.data is not None else []
-        if not all((d / MANIFEST_NAME).is_file() for d in also):
-            return None
-        return (self.dataset, *also)
+        return tuple(Path(d) for d in self.data.datasets)
 
     @property
     def recorded_dataset(self) -> str | None:

@@ -462,20 +462,20 @@ def calibration_datasets(
     if cfg.calibrate_on:
         return Calibration(tuple(str(Path(d).resolve()) for d in cfg.calibrate_on), labels, "calibrate-on")
     data = checkpoint_data(ckpt, "the run")
-    recorded = [data.dataset, *(a.dataset for a in data.also)]
+    recorded = data.datasets
     evaluated = str(Path(dataset_dir).resolve())
     note = "the run does not record its training data"
-    if recorded[0]:
-        missing = [str(d) for d in recorded if not isinstance(d, str) or not (Path(d) / MANIFEST_NAME).is_file()]
+    if recorded:
+        missing = data.missing_datasets()
         note = f"the run's training data {missing[0]} is not present" if missing else ""
         if not missing:
             try:
                 for d in recorded:
-                    open_labeling(str(d), run_labels)
+                    open_labeling(d, run_labels)
             except HdError:
                 note = f"the run's training data {recorded[0]} lacks the run's labelling"
         if not note:
-            resolved = tuple(str(Path(str(d)).resolve()) for d in recorded)
+            resolved = tuple(str(Path(d).resolve()) for d in recorded)
             return Calibration(resolved, run_labels or labels, "run")
     return Calibration((evaluated,), labels, "evaluated", note)
 

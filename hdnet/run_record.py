@@ -38,6 +38,7 @@ from typing import Any
 from hdnet.errors import HdNetError
 from hdnet.inputs import InputSpec
 from hdnet.noise_levels import TrainingNoise
+from lidarsim.shards import MANIFEST_NAME
 from lidarsim.storage import write_json_atomic
 
 __all__ = [
@@ -105,6 +106,16 @@ class TrainingData:
     labeling: dict[str, Any] | None = None
     dem_shape: tuple[int, int] | None = None
     also: tuple[AlsoDataset, ...] = ()
+
+    @property
+    def datasets(self) -> tuple[str, ...]:
+        """Every dataset the run was trained on: ``dataset`` and each ``also`` one (empty when the
+        record names none)."""
+        return (self.dataset, *(a.dataset for a in self.also)) if self.dataset else ()
+
+    def missing_datasets(self) -> list[str]:
+        """The training datasets (:attr:`datasets`) that are not present any more (no manifest)."""
+        return [d for d in self.datasets if not (Path(d) / MANIFEST_NAME).is_file()]
 
     def to_dict(self) -> dict[str, Any]:
         """The ``extra_config`` of schema version 2 (JSON types)."""
