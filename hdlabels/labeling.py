@@ -72,10 +72,11 @@ class LabelTask:
 
 @dataclass(frozen=True)
 class LabelRecord:
-    """Manifest entry of one label shard, plus its label counts."""
+    """Manifest entry of one label shard, plus its label counts and the baseline's safe counts."""
 
     entry: dict[str, Any]
     counts: tuple[int, int, int]  # unsafe, safe, invalid pixels
+    baseline_safe: tuple[int, ...]  # per sigma: labelled pixels whose P(safe) >= 0.5
 
 
 @dataclass(frozen=True)
@@ -160,6 +161,15 @@ def label_scan(
     }
 
 
+def baseline_safe_counts(label: np.ndarray, p_safe: np.ndarray) -> np.ndarray:
+    """Per sigma, the labelled pixels (label not invalid) whose P(safe) calls them safe (>= 0.5),
+    int64 (S,), of one scan's (H, W) label and (S, H, W) P(safe) or of a shard's (N, H, W) and (N, S, H, W)."""
+    labelled = label != defaults.LABEL_INVALID
+    sigma_axis = p_safe.ndim - 3
+    safe = (p_safe >= defaults.SAFE_PROBABILITY_THRESHOLD) & np.expand_dims(labelled, sigma_axis)
+    return safe.sum(axis=tuple(a for a in range(p_safe.ndim) if a != sigma_axis), dtype=np.int64)
+
+
 def label_counts(label: np.ndarray) -> np.ndarray:
     """Pixel counts (unsafe, safe, invalid) of a label array, int64 (3,)."""
     return np.array(
@@ -176,6 +186,7 @@ def run_label_task(task: LabelTask) -> LabelRecord:
     with open_scan_shard(root, {"path": task.source_path, "sha256": task.source_sha256}) as reader:
         sigmas = reader.sigmas_m
         n_scans = len(reader)
+        baseline = np.zeros(len(sigmas), dtype=np.int64)
         attrs = {
             "labeling": task.labeling,
             "source_shard": task.source_path,
@@ -187,26 +198,27 @@ def run_label_task(task: LabelTask) -> LabelRecord:
             attrs.update(truth_attrs(task))
         writer = LabelShardWriter(out, len(reader), len(sigmas), task.dem, attrs)
         try:
+            f = reader.h5
+            points_clean, points_noisy = f["points_clean"], f["points_noisy"]
+            scan_index, split = f["scan_index"][:], f["split"][:]
             with _truth_dtm(task) as dtm:
-                for k in range(len(reader)):
-                    f = reader.h5
+                for k in range(n_scans):
                     truth = None
                     if dtm is not None:
                         origin = np.asarray(f["origin_map"][k], dtype=np.float64)
                         truth = partial(_terrain_truth, origin_map=origin, dem=task.dem, dtm=dtm)
                     try:
-                        arrays = label_scan(
-                            f["points_clean"][k], f["points_noisy"][k], sigmas, task.lander, task.dem, truth
-                        )
+                        arrays = label_scan(points_clean[k], points_noisy[k], sigmas, task.lander, task.dem, truth)
                     except LabelStoreError as exc:
-                        raise LabelStoreError(f"{task.source_path} scan {int(f['scan_index'][k])}: {exc}") from exc
-                    writer.write(k, int(f["scan_index"][k]), int(f["split"][k]), **arrays)
+                        raise LabelStoreError(f"{task.source_path} scan {int(scan_index[k])}: {exc}") from exc
+                    writer.write(k, int(scan_index[k]), int(split[k]), **arrays)
                     counts += label_counts(arrays["label"])
-            writer.commit()
+                    baseline += baseline_safe_counts(arrays["label"], arrays["p_safe"])
+            sha256 = writer.commit()
         except BaseException:
             writer.abort()
             raise
-    return _record(task, out, n_scans, counts)
+    return _record(task, sha256, n_scans, counts, baseline)
 
 
 def _terrain_truth(dem_clean: np.ndarray, *, origin_map: np.ndarray, dem: DemSpec, dtm: DTM) -> np.ndarray:
@@ -232,17 +244,21 @@ def truth_attrs(task: LabelTask) -> dict[str, Any]:
     }
 
 
-def _record(task: LabelTask, out: Path, n_scans: int, counts: np.ndarray) -> LabelRecord:
+def _record(task: LabelTask, sha256: str, n_scans: int, counts: np.ndarray, baseline: np.ndarray) -> LabelRecord:
     entry = {
         "path": task.out_path,
-        "sha256": sha256_file(out),
+        "sha256": sha256,
         "n_scans": n_scans,
         "source_path": task.source_path,
         "source_sha256": task.source_sha256,
         "schema": LABEL_SCHEMA,
         "schema_version": LABEL_SCHEMA_VERSION,
     }
-    return LabelRecord(entry=entry, counts=(int(counts[0]), int(counts[1]), int(counts[2])))
+    return LabelRecord(
+        entry=entry,
+        counts=(int(counts[0]), int(counts[1]), int(counts[2])),
+        baseline_safe=tuple(int(c) for c in baseline),
+    )
 
 
 def _existing(task: LabelTask) -> LabelRecord | None:
@@ -258,11 +274,12 @@ def _existing(task: LabelTask) -> LabelRecord | None:
             if str(a.get("truth", defaults.TRUTH)) != task.truth:
                 return None
             lab = reader.h5["label"][:]
+            p_safe = reader.h5["p_safe"][:]
             n = len(reader)
         check_h5_data(out)  # every chunk's fletcher32 checksum
     except (LabelStoreError, ShardFormatError, OSError, KeyError):
         return None
-    return _record(task, out, n, label_counts(lab))
+    return _record(task, sha256_file(out), n, label_counts(lab), baseline_safe_counts(lab, p_safe))
 
 
 def _single_writer(func: Callable[..., LabelSummary]) -> Callable[..., LabelSummary]:
@@ -385,7 +402,7 @@ def label_dataset(
         },
         "label_counts": {"unsafe": int(counts[0]), "safe": int(counts[1]), "invalid": int(counts[2])},
         "safe_fraction": safe_fraction,
-        "baseline_safe_fraction": _baseline_fractions(root, [records[i].entry for i in sorted(records)], manifest),
+        "baseline_safe_fraction": _baseline_fractions(list(records.values()), manifest),
         "shards": [records[i].entry for i in sorted(records)],
     }
     if truth != defaults.TRUTH:  # absent: the clean scan's (entries as before the terrain truth existed)
@@ -394,19 +411,11 @@ def label_dataset(
     return _summary_from_entry(entry, manifest, time.perf_counter() - t0, reused=False)
 
 
-def _baseline_fractions(root: Path, entries: list[dict[str, Any]], manifest: dict[str, Any]) -> dict[str, float]:
+def _baseline_fractions(records: list[LabelRecord], manifest: dict[str, Any]) -> dict[str, float]:
     """Fraction of labelled pixels the baseline (P >= 0.5) calls safe, per sigma."""
     sigmas = manifest["sigmas_m"]
-    safe = np.zeros(len(sigmas))
-    valid = 0
-    for e in entries:
-        with LabelShardReader(root / e["path"]) as reader:
-            lab = reader.h5["label"][:]
-            p = reader.h5["p_safe"][:]
-        mask = lab != defaults.LABEL_INVALID
-        valid += int(mask.sum())
-        for s in range(len(sigmas)):
-            safe[s] += int(((p[:, s] >= defaults.SAFE_PROBABILITY_THRESHOLD) & mask).sum())
+    safe = np.sum([r.baseline_safe for r in records], axis=0, dtype=np.int64).reshape(len(sigmas))
+    valid = sum(r.counts[0] + r.counts[1] for r in records)
     return {f"{sig:g}": float(safe[s] / max(1, valid)) for s, sig in enumerate(sigmas)}
 
 

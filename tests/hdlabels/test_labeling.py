@@ -231,3 +231,50 @@ def test_a_labelling_is_found_by_a_short_name_and_the_names_are_listed(dataset):
     with pytest.raises(LabelStoreError, match="has no labelling named 'nope'; it has: ") as info:
         find_labeling(dataset, "nope")
     assert all(lab["name"] in str(info.value) for lab in labelings)
+
+
+def test_the_manifests_counts_are_those_of_the_label_shards_also_after_a_resumed_run(dataset, tmp_path, monkeypatch):
+    """The workers count labels and baseline-safe pixels as they label; a shard left by an
+    interrupted run is counted from its file. Both must equal a count over the written shards."""
+    import shutil
+
+    from hdlabels import labeling
+
+    data = tmp_path / "data"
+    shutil.copytree(dataset, data)
+    manifest = read_manifest(data)
+    manifest.pop("labelings", None)
+    (data / "manifest.json").write_text(json.dumps(manifest))
+    shutil.rmtree(data / "labels", ignore_errors=True)
+    real = labeling.run_label_task
+    calls = []
+
+    def second_fails(task):
+        calls.append(task.out_path)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(task)
+
+    monkeypatch.setattr(labeling, "run_label_task", second_fails)
+    with pytest.raises(KeyboardInterrupt):
+        label_dataset(data, workers=1)
+    label_dataset(data, workers=1)  # the first shard is found complete and counted from its file
+    assert len(calls) == 3 and calls[2] == calls[1]
+    entry = find_labeling(data)
+    labels, p_safe = [], []
+    for path in label_shard_paths(data, entry):
+        with h5py.File(path) as f:
+            labels.append(f["label"][:])
+            p_safe.append(f["p_safe"][:])
+    label, p = np.concatenate(labels), np.concatenate(p_safe)
+    labelled = label != 255
+    assert entry["label_counts"] == {
+        "unsafe": int((label == 0).sum()),
+        "safe": int((label == 1).sum()),
+        "invalid": int((label == 255).sum()),
+    }
+    expected = {
+        f"{s:g}": float(((p[:, k] >= 0.5) & labelled).sum() / labelled.sum()) for k, s in enumerate((0.01, 0.07))
+    }
+    assert entry["baseline_safe_fraction"] == expected
+    assert 0.0 < expected["0.01"] <= 1.0
