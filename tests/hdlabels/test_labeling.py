@@ -278,3 +278,44 @@ def test_the_manifests_counts_are_those_of_the_label_shards_also_after_a_resumed
     }
     assert entry["baseline_safe_fraction"] == expected
     assert 0.0 < expected["0.01"] <= 1.0
+
+
+def test_a_label_shard_written_in_blocks_reads_back_row_by_row(tmp_path, monkeypatch):
+    """The writer holds up to _WRITE_BLOCK scans and writes them together: with blocks of 2, five
+    scans come back exactly, and the bytes equal those of one block; rows go in order."""
+    from hdlabels import store
+
+    rng = np.random.default_rng(3)
+    dem = DemSpec(rows=8, cols=8, spacing_m=1.0, gridding="nearest")
+    rows: list[dict[str, np.ndarray]] = [
+        {
+            "dem_clean": rng.random((8, 8), dtype=np.float32),
+            "dem_noisy": rng.random((2, 8, 8), dtype=np.float32),
+            "label": rng.integers(0, 2, (8, 8)).astype(np.uint8),
+            "slope_rad": rng.random((8, 8), dtype=np.float32),
+            "roughness_m": rng.random((8, 8), dtype=np.float32),
+            "p_safe": rng.random((2, 8, 8), dtype=np.float32),
+        }
+        for _ in range(5)
+    ]
+
+    def write(path: Path, block: int) -> None:
+        monkeypatch.setattr(store, "_WRITE_BLOCK", block)
+        writer = store.LabelShardWriter(path, 5, 2, dem, {"labeling": "t", "sigmas_m": np.array([0.01, 0.07])})
+        for k, arrays in enumerate(rows):
+            writer.write(k, 10 + k, k % 3, **arrays)
+        writer.commit()
+
+    write(tmp_path / "blocks.h5", 2)
+    write(tmp_path / "one.h5", 64)
+    assert sha256_file(tmp_path / "blocks.h5") == sha256_file(tmp_path / "one.h5")
+    with h5py.File(tmp_path / "blocks.h5") as f:
+        assert f["scan_index"][:].tolist() == [10, 11, 12, 13, 14] and f["split"][:].tolist() == [0, 1, 2, 0, 1]
+        for k, arrays in enumerate(rows):
+            for name, value in arrays.items():
+                np.testing.assert_array_equal(f[name][k], value)
+    writer = store.LabelShardWriter(tmp_path / "order.h5", 5, 2, dem, {"labeling": "t"})
+    writer.write(0, 0, 0, **rows[0])
+    with pytest.raises(ValueError, match="in order"):
+        writer.write(2, 2, 0, **rows[2])
+    writer.abort()
