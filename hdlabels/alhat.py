@@ -744,12 +744,11 @@ def _product_bounds(log_phi, ua, ub, dmax, approx, error, node_ptr, n_cfg, need,
 # of the product rule's time); no divisor here can be zero (sigma > 0 before 1 / sigma, sec >= 1,
 # n_cfg >= 1).
 _FASTMATH = {"contract", "reassoc", "arcp", "nsz", "afn"}
-_JIT = {"cache": True, "error_model": "numpy", "fastmath": _FASTMATH}
 
-_pad_heights_jit = numba.njit(**_JIT)(_pad_heights_loops)
-_table_log_phi_jit = numba.njit(**_JIT)(_table_log_phi)
-_poly_log_phi_jit = numba.njit(**_JIT, inline="always")(_poly_log_phi)
-_product_bounds_jit = numba.njit(**_JIT, inline="always")(_product_bounds)
+_pad_heights_jit = numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)(_pad_heights_loops)
+_table_log_phi_jit = numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)(_table_log_phi)
+_poly_log_phi_jit = numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH, inline="always")(_poly_log_phi)
+_product_bounds_jit = numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH, inline="always")(_product_bounds)
 
 
 def _named_copy(func: Callable[..., object], suffix: str) -> Callable[..., object]:
@@ -763,7 +762,11 @@ def _named_copy(func: Callable[..., object], suffix: str) -> Callable[..., objec
     return copy
 
 
-_maps_jit = numba.njit(**_JIT)(_maps_loops)
-_maps_par_jit = numba.njit(**_JIT, parallel=True)(_named_copy(_maps_loops, "_parallel"))
-_product_jit = numba.njit(**_JIT)(_product_loops)
-_product_par_jit = numba.njit(**_JIT, parallel=True)(_named_copy(_product_loops, "_parallel"))
+_maps_jit = numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)(_maps_loops)
+_maps_par_jit = numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH, parallel=True)(
+    _named_copy(_maps_loops, "_parallel")
+)
+_product_jit = numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)(_product_loops)
+_product_par_jit = numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH, parallel=True)(
+    _named_copy(_product_loops, "_parallel")
+)
