@@ -177,7 +177,10 @@ def render_card(directory: str | os.PathLike, recipe: Recipe, machine: str = "")
         lines.append(f"- footprint: `{json.dumps(cfg['footprint'])}`")
     if cfg.get("noise_model"):
         lines.append(f"- noise model: `{json.dumps(cfg['noise_model'])}`")
-    if cfg.get("terrain"):
+    if cfg.get("rocks_on_dtm"):  # the DTM's relief, resampled, plus the rocks: only these fields are used
+        rocks = {k: v for k, v in cfg["terrain"].items() if k == "spacing_m" or k.startswith("rock_")}
+        lines.append(f"- rocks added to the DTM (resampled to `spacing_m`): `{json.dumps(rocks)}`")
+    elif cfg.get("terrain"):
         lines.append(f"- procedural terrain: `{json.dumps(cfg['terrain'])}`")
     lines += [
         "",

@@ -212,3 +212,21 @@ def test_a_recipe_names_its_dtm_by_sha256_and_may_put_rocks_on_it(base: Path, tm
         with pytest.raises(RecipeError, match=needle) as info:
             load_recipe(recipe(extra))
         assert str(info.value).count("recipe.toml") == 1
+
+
+def test_the_card_of_a_build_with_rocks_on_the_dtm_lists_only_the_rock_settings(base: Path, tmp_path: Path) -> None:
+    """Such a build takes its relief from the DTM: the card names the rock population it added,
+    not the procedural relief and crater fields, which the build does not use."""
+    from lidarsim.card import render_card
+    from lidarsim.recipe import load_recipe
+
+    (tmp_path / "recipe.toml").write_text(f'[build]\nscans = 3\ndtm = "{base}"\nrocks_on_dtm = true\n')
+    recipe = load_recipe(tmp_path)
+    cfg = dataclasses.replace(
+        recipe.build, sensor=SensorConfig(rows=16, cols=16), trajectory=TrajectoryConfig(n_scans=3, altitude_m=200.0)
+    )
+    build_dataset(tmp_path / "d", cfg, workers=1)
+    card = render_card(tmp_path / "d", recipe)
+    line = next(x for x in card.splitlines() if "rocks added to the DTM" in x)
+    assert '"rock_k": 0.08' in line and '"spacing_m": 0.5' in line
+    assert "crater" not in card and "relief_" not in card and "procedural terrain:" not in card
