@@ -8,7 +8,8 @@ the results are compared with the stored labels and P(safe):
 * valid masks: the fraction of all pixels on which both agree (valid or invalid);
 * labels: the fraction of pixels valid in both with the same safe/unsafe label;
 * baseline: per noise level, the fraction of pixels valid in both with the same P(safe) >= 0.5
-  decision, and the largest |P - P_ref|.
+  decision, and the largest |P - P_ref|;
+* the first differing pixels of each map, with hd's slope and roughness (labels) or both P(safe).
 
     .venv/bin/python scripts/compare_reference.py DATASET --reference-python /tmp/pydem-venv/bin/python \\
         --reference-src /tmp/pydem [--labels NAME] [--scans 200]
@@ -30,14 +31,15 @@ from hdlabels.defaults import LABEL_INVALID, LABEL_SAFE, SAFE_PROBABILITY_THRESH
 from hdlabels.store import LabelShardReader, find_labeling, label_shard_paths
 
 RUNNER = Path(__file__).resolve().parents[1] / "benchmarks" / "reference_pydem.py"
+MAX_SHOWN = 10  # differing pixels listed per map, with the values that decide them
 
 
 def stored(dataset: Path, labels: str | None, n_scans: int | None) -> dict[str, np.ndarray]:
-    """DEMs, labels and P(safe) of the labelling, stacked over scans."""
+    """DEMs, labels, slope, roughness and P(safe) of the labelling, stacked over scans."""
     entry = find_labeling(dataset, labels)
     if entry.get("convention") != "paper":
         raise SystemExit(f"{entry['name']} is not a paper-convention labelling")
-    keys = ("dem_clean", "dem_noisy", "label", "p_safe")
+    keys = ("dem_clean", "dem_noisy", "label", "slope_rad", "roughness_m", "p_safe")
     out: dict[str, list[np.ndarray]] = {k: [] for k in keys}
     sigmas: tuple[float, ...] = ()
     for path in label_shard_paths(dataset, entry):
@@ -84,6 +86,13 @@ def main() -> None:
         f"(safe: hd {np.mean(ours['label'][both] == LABEL_SAFE) * 100:.2f}%, "
         f"reference {np.mean(ref['label'][both] == 1) * 100:.2f}%)"
     )
+    for k, i, j in np.argwhere(both & ~same)[:MAX_SHOWN]:
+        hd_safe, ref_safe = ours["label"][k, i, j] == LABEL_SAFE, ref["label"][k, i, j] == 1
+        slope, rough = np.degrees(ours["slope_rad"][k, i, j]), ours["roughness_m"][k, i, j]
+        print(
+            f"  differs at scan row {k}, pixel ({i}, {j}): hd {'safe' if hd_safe else 'unsafe'} (slope {slope:.6f} "
+            f"deg, roughness {rough:.7f} m), reference {'safe' if ref_safe else 'unsafe'}"
+        )
     for s, sigma in enumerate(ours["sigmas"]):
         p, pr = ours["p_safe"][:, s], ref["p"][:, s]
         ok = both & np.isfinite(p) & np.isfinite(pr)
@@ -94,6 +103,8 @@ def main() -> None:
             f"reference {np.mean(pr[ok] >= 0.5) * 100:.2f}%); "
             f"max |P - P_ref| = {np.abs(p - pr)[ok].max():.2e}"
         )
+        for k, i, j in np.argwhere(ok & ~agree)[:MAX_SHOWN]:
+            print(f"  differs at scan row {k}, pixel ({i}, {j}): P hd {p[k, i, j]:.7f}, reference {pr[k, i, j]:.7f}")
 
 
 if __name__ == "__main__":
