@@ -77,7 +77,7 @@ def main() -> None:
         base = BuildConfig(sigmas_m=PAPER_SIGMAS_M, trajectory=TrajectoryConfig(n_scans=args.scans))
         t0 = time.perf_counter()
         dtm_path = tmp_path / procedural_terrain_name(base.seed)
-        dtm_path.write_bytes(_procedural_terrain_bytes(base, dtm_path))
+        dtm_path.write_bytes(_procedural_terrain_bytes(base.terrain, base.seed, dtm_path))
         print(f"procedural terrain generated in {time.perf_counter() - t0:.1f} s (not counted below)")
         config = BuildConfig(sigmas_m=PAPER_SIGMAS_M, trajectory=base.trajectory, dtm_path=str(dtm_path))
         if args.footprint:

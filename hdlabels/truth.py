@@ -20,7 +20,9 @@ module gives, for one scan, the DEM of the terrain under that scan's DEM grid:
 
 The dataset records its DTM in the manifest (``dtm``: path, sha256, scale in ``config.dtm_scale``):
 the procedural terrain inside the dataset (``terrain/``), a user's DTM by its absolute path. A DTM
-that is missing or whose bytes changed is refused with one line (:func:`check_build_terrain`).
+that is missing or whose bytes changed is refused with one line (:func:`check_build_terrain`),
+except a missing procedural terrain, which is regenerated from the build's seed and parameters
+when that gives the recorded sha256 (``lidarsim.build.restore_procedural_terrain``).
 """
 
 from __future__ import annotations
@@ -70,6 +72,15 @@ def check_build_terrain(root: Path, manifest: dict[str, Any]) -> tuple[Path, flo
         LabelStoreError: one line naming the file: missing, unreadable or changed since the build.
     """
     path, recorded, scale = build_terrain_path(root, manifest)
+    if not path.is_file():
+        from lidarsim.build import restore_procedural_terrain
+
+        try:
+            restored = restore_procedural_terrain(root, manifest)
+        except HdError as exc:
+            raise LabelStoreError(str(exc)) from exc
+        if restored is not None:
+            return restored, scale
     if not path.is_file():
         raise LabelStoreError(
             f"{path}: the terrain {root.name} was built on is missing; --truth terrain samples it (restore the "

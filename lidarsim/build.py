@@ -591,18 +591,63 @@ def rocky_terrain_name(dtm_path: str, seed: int) -> str:
     return f"{Path(dtm_path).stem}-rocks-seed{seed}.tif"
 
 
-def _procedural_terrain_bytes(config: BuildConfig, path: Path) -> bytes:
-    """The procedural terrain of ``config`` as GeoTIFF bytes (built in memory; nothing is written)."""
-    params = config.terrain
-    heights = generate_mars_terrain(params, seed=config.seed)
+def _procedural_terrain_bytes(params: MarsTerrainParams, seed: int, path: Path) -> bytes:
+    """The procedural terrain of ``params`` and ``seed`` as GeoTIFF bytes (built in memory; nothing is written)."""
+    heights = generate_mars_terrain(params, seed=seed)
     return geotiff_bytes(
         heights,
         params.spacing_m,
         origin_xy=(0.0, 0.0),
         crs_wkt="",
-        tags=terrain_tags(params, config.seed),
+        tags=terrain_tags(params, seed),
         name=str(path),
     )
+
+
+def restore_procedural_terrain(root: Path, manifest: dict[str, Any]) -> Path | None:
+    """Write back the procedural terrain of the dataset at ``root`` when its file in ``terrain/`` is
+    gone: regenerated from the seed and terrain parameters the manifest records, and kept only if
+    its sha256 is the one the manifest records for the build's terrain (with a warning that says so).
+
+    Returns:
+        The path written; None when the file is there or the dataset was not built on the
+        procedural terrain (a user's DTM, or rocks on one, cannot be regenerated from the manifest).
+
+    Raises:
+        LidarsimError: the regenerated terrain is not the one the build cast its rays on (another hd
+            version made the dataset), or it cannot be written.
+    """
+    config, dtm = manifest.get("config"), manifest.get("dtm")
+    if not isinstance(config, dict) or not isinstance(dtm, dict) or config.get("dtm_path") is not None:
+        return None
+    seed, terrain = config.get("seed"), config.get("terrain")
+    if isinstance(seed, bool) or not isinstance(seed, int) or not isinstance(terrain, dict):
+        return None
+    path = root / TERRAIN_DIR / procedural_terrain_name(seed)
+    if path.exists() or dtm.get("path") != f"{TERRAIN_DIR}/{path.name}":
+        return None
+    try:
+        params = MarsTerrainParams(**terrain)
+    except (TypeError, ValueError):
+        return None  # parameters this version does not know: it cannot regenerate that terrain
+    data = _procedural_terrain_bytes(params, seed, path)
+    digest = sha256_bytes(data)
+    if digest != dtm.get("sha256"):
+        raise LidarsimError(
+            f"{path}: the terrain {root.name} was built on is missing, and regenerating it from the build's seed "
+            f"{seed} gives other bytes (sha256 {digest[:12]}..., the manifest says {str(dtm.get('sha256'))[:12]}...); "
+            "restore the file"
+        )
+    path.parent.mkdir(exist_ok=True)
+    write_bytes_atomic(path, data)
+    warnings.warn(
+        HdWarning(
+            f"{path} was missing: regenerated from the build's seed {seed} and terrain parameters "
+            "(the sha256 the manifest records)"
+        ),
+        stacklevel=2,
+    )
+    return path
 
 
 def check_workers(workers: int | None, flag: str = "--workers") -> None:
@@ -735,7 +780,7 @@ def _open_terrain(out_dir: Path, config: BuildConfig) -> _BuildTerrain:
     terrain_bytes: bytes | None = None
     if config.dtm_path is None:
         dtm_path = out_dir / TERRAIN_DIR / procedural_terrain_name(config.seed)
-        terrain_bytes = _procedural_terrain_bytes(config, dtm_path)
+        terrain_bytes = _procedural_terrain_bytes(config.terrain, config.seed, dtm_path)
     elif config.rocks_on_dtm:
         dtm_path = out_dir / TERRAIN_DIR / rocky_terrain_name(config.dtm_path, config.seed)
         rocky = rocks_on_base(config.dtm_path, config.terrain, config.seed, config.terrain.spacing_m)

@@ -231,3 +231,41 @@ def test_a_recipe_names_the_truth():
     assert LabelSettings.from_recipe({"truth": "terrain"}).truth == "terrain"
     with pytest.raises(HdLabelsError, match=r"\[label\] truth = 'dtm' is not one of clean-scan, terrain"):
         LabelSettings.from_recipe({"truth": "dtm"}, "r.toml")
+
+
+def test_a_missing_procedural_terrain_is_regenerated_when_it_gives_the_recorded_bytes(tmp_path, monkeypatch):
+    """The procedural terrain is a function of the build's seed and parameters (in the manifest):
+    a deleted terrain/ file is written back, with a warning, when it hashes to the recorded sha256;
+    otherwise the labelling stops with one line and writes nothing."""
+    from lidarsim import build as build_module
+    from lidarsim.errors import HdWarning
+    from lidarsim.procedural import MarsTerrainParams
+    from lidarsim.shards import sha256_file
+
+    root = tmp_path / "d"
+    build_dataset(
+        root,
+        BuildConfig(
+            sigmas_m=(0.02,),
+            seed=4,
+            sensor=SensorConfig(rows=32, cols=32),
+            trajectory=TrajectoryConfig(n_scans=2),
+            terrain=MarsTerrainParams(size_m=256.0),
+            shard_size=2,
+        ),
+        workers=1,
+    )
+    terrain = root / "terrain" / "mars-procedural-seed4.tif"
+    recorded = sha256_file(terrain)
+    terrain.unlink()
+    real = build_module._procedural_terrain_bytes
+    monkeypatch.setattr(build_module, "_procedural_terrain_bytes", lambda *a: real(*a) + b"\0")
+    with pytest.raises(
+        LabelStoreError, match=r"mars-procedural-seed4\.tif: .* is missing, and regenerating it .* other bytes"
+    ):
+        label_dataset(root, workers=1, truth="terrain")
+    assert not terrain.exists() and not list(root.glob("labels/**/*.h5"))
+    monkeypatch.setattr(build_module, "_procedural_terrain_bytes", real)
+    with pytest.warns(HdWarning, match="was missing: regenerated from the build's seed 4"):
+        summary = label_dataset(root, workers=1, truth="terrain")
+    assert sha256_file(terrain) == recorded and summary.truth == "terrain" and 0.0 < summary.safe_fraction <= 1.0
