@@ -70,15 +70,13 @@ def check_build_terrain(root: Path, manifest: dict[str, Any]) -> tuple[Path, flo
 
     Raises:
         LabelStoreError: one line naming the file: missing, unreadable or changed since the build.
+        LidarsimError: a missing procedural terrain that regenerates to other bytes than the build's.
     """
     path, recorded, scale = build_terrain_path(root, manifest)
     if not path.is_file():
         from lidarsim.build import restore_procedural_terrain
 
-        try:
-            restored = restore_procedural_terrain(root, manifest)
-        except HdError as exc:
-            raise LabelStoreError(str(exc)) from exc
+        restored = restore_procedural_terrain(root, manifest)
         if restored is not None:
             return restored, scale
     if not path.is_file():

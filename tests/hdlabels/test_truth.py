@@ -238,7 +238,7 @@ def test_a_missing_procedural_terrain_is_regenerated_when_it_gives_the_recorded_
     a deleted terrain/ file is written back, with a warning, when it hashes to the recorded sha256;
     otherwise the labelling stops with one line and writes nothing."""
     from lidarsim import build as build_module
-    from lidarsim.errors import HdWarning
+    from lidarsim.errors import HdWarning, LidarsimError
     from lidarsim.procedural import MarsTerrainParams
     from lidarsim.shards import sha256_file
 
@@ -261,7 +261,7 @@ def test_a_missing_procedural_terrain_is_regenerated_when_it_gives_the_recorded_
     real = build_module._procedural_terrain_bytes
     monkeypatch.setattr(build_module, "_procedural_terrain_bytes", lambda *a: real(*a) + b"\0")
     with pytest.raises(
-        LabelStoreError, match=r"mars-procedural-seed4\.tif: .* is missing, and regenerating it .* other bytes"
+        LidarsimError, match=r"mars-procedural-seed4\.tif: .* is missing, and regenerating it .* other bytes"
     ):
         label_dataset(root, workers=1, truth="terrain")
     assert not terrain.exists() and not list(root.glob("labels/**/*.h5"))
