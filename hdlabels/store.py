@@ -35,7 +35,7 @@ from lidarsim.shards import (
     write_attrs,
     write_json_atomic,
 )
-from lidarsim.storage import CheckedH5File, H5Image, confine, open_h5, verify_sha256
+from lidarsim.storage import CheckedH5File, H5Image, RowBlocks, confine, open_h5, verify_sha256
 
 LABEL_SCHEMA = "hd.labels"
 # 1.1: the label convention, the baseline's combination and the gridding are recorded (attributes
@@ -159,10 +159,6 @@ class LabeledScan:
     p_safe: np.ndarray  # float32 (S, H, W)
 
 
-# Scans whose arrays a label shard writer holds before writing them (about 0.4 MB each at 3 sigma).
-_WRITE_BLOCK = 64
-
-
 class LabelShardWriter:
     """Writes one label shard: built in memory, written atomically by ``commit`` (``abort`` drops it)."""
 
@@ -196,11 +192,7 @@ class LabelShardWriter:
             "roughness_m": f.create_dataset("roughness_m", (n, h, w), np.float32, chunks=(1, h, w), **gz),
             "p_safe": f.create_dataset("p_safe", (n, s, h, w), np.float32, chunks=(1, 1, h, w), **gz),
         }
-        # the rows of up to _WRITE_BLOCK scans, written to the file together
-        self._buffers = {
-            name: np.zeros((min(n, _WRITE_BLOCK), *ds.shape[1:]), ds.dtype) for name, ds in self._d.items()
-        }
-        self._start = self._next = 0
+        self._rows = RowBlocks(self._d)
         self._d["label"].attrs["codes"] = (
             f"{defaults.LABEL_UNSAFE} unsafe, {defaults.LABEL_SAFE} safe, {defaults.LABEL_INVALID} invalid"
         )
@@ -218,33 +210,24 @@ class LabelShardWriter:
         p_safe: np.ndarray,
     ) -> None:
         """Write the labels of scan ``k`` of the shard."""
-        if k != self._next:
-            raise ValueError(f"label shard rows are written in order: row {k} after {self._next - 1}")
-        if k - self._start == _WRITE_BLOCK:
-            self._write_block()
-        b, r = self._buffers, k - self._start
-        self._next = k + 1
-        b["scan_index"][r] = scan_index
-        b["split"][r] = split
-        b["dem_clean"][r] = dem_clean
-        b["dem_noisy"][r] = dem_noisy
-        b["label"][r] = label
-        b["slope_rad"][r] = slope_rad
-        b["roughness_m"][r] = roughness_m
-        b["p_safe"][r] = p_safe
+        self._rows.put(
+            k,
+            {
+                "scan_index": scan_index,
+                "split": split,
+                "dem_clean": dem_clean,
+                "dem_noisy": dem_noisy,
+                "label": label,
+                "slope_rad": slope_rad,
+                "roughness_m": roughness_m,
+                "p_safe": p_safe,
+            },
+        )
 
     def commit(self) -> str:
         """Write the shard to its final path (temporary name, fsync, rename); returns its sha256."""
-        self._write_block()
+        self._rows.flush()
         return self._image.commit()
-
-    def _write_block(self) -> None:
-        """Write the buffered rows, one call per array (far fewer HDF5 calls than row by row)."""
-        end = self._next
-        for name, data in self._buffers.items():
-            if end > self._start:
-                self._d[name][self._start : end] = data[: end - self._start]
-        self._start = end
 
     def abort(self) -> None:
         self._image.discard()

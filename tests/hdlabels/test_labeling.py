@@ -281,9 +281,10 @@ def test_the_manifests_counts_are_those_of_the_label_shards_also_after_a_resumed
 
 
 def test_a_label_shard_written_in_blocks_reads_back_row_by_row(tmp_path, monkeypatch):
-    """The writer holds up to _WRITE_BLOCK scans and writes them together: with blocks of 2, five
-    scans come back exactly, and the bytes equal those of one block; rows go in order."""
+    """The writer holds up to ROW_BLOCK_BYTES of scans and writes them together: with blocks of 2,
+    five scans come back exactly, and the bytes equal those of one block; rows go in order."""
     from hdlabels import store
+    from lidarsim import storage
 
     rng = np.random.default_rng(3)
     dem = DemSpec(rows=8, cols=8, spacing_m=1.0, gridding="nearest")
@@ -299,8 +300,10 @@ def test_a_label_shard_written_in_blocks_reads_back_row_by_row(tmp_path, monkeyp
         for _ in range(5)
     ]
 
+    row_bytes = 8 + 1 + sum(a.nbytes for a in rows[0].values())  # scan_index, split and the maps
+
     def write(path: Path, block: int) -> None:
-        monkeypatch.setattr(store, "_WRITE_BLOCK", block)
+        monkeypatch.setattr(storage, "ROW_BLOCK_BYTES", block * row_bytes)
         writer = store.LabelShardWriter(path, 5, 2, dem, {"labeling": "t", "sigmas_m": np.array([0.01, 0.07])})
         for k, arrays in enumerate(rows):
             writer.write(k, 10 + k, k % 3, **arrays)
