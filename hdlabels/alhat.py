@@ -38,9 +38,11 @@ import math
 import types
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Literal, TypeVar
 
 import numba
 import numpy as np
+from numba.core.dispatcher import Dispatcher
 from scipy import ndimage
 from scipy.special import log_ndtr, ndtr
 
@@ -744,11 +746,20 @@ def _product_bounds(log_phi, ua, ub, dmax, approx, error, node_ptr, n_cfg, need,
 # of the product rule's time); no divisor here can be zero (sigma > 0 before 1 / sigma, sec >= 1,
 # n_cfg >= 1).
 _FASTMATH = {"contract", "reassoc", "arcp", "nsz", "afn"}
+_Kernel = TypeVar("_Kernel", bound=Callable[..., object])
 
-_pad_heights_jit = numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)(_pad_heights_loops)
-_table_log_phi_jit = numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)(_table_log_phi)
-_poly_log_phi_jit = numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH, inline="always")(_poly_log_phi)
-_product_bounds_jit = numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH, inline="always")(_product_bounds)
+
+def _compile(
+    func: _Kernel, *, inline: Literal["never", "always"] = "never", parallel: bool = False
+) -> Dispatcher[_Kernel]:
+    """``func`` compiled by numba with the kernels' options (above), cached on disk."""
+    return numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH, inline=inline, parallel=parallel)(func)
+
+
+_pad_heights_jit = _compile(_pad_heights_loops)
+_table_log_phi_jit = _compile(_table_log_phi)
+_poly_log_phi_jit = _compile(_poly_log_phi, inline="always")
+_product_bounds_jit = _compile(_product_bounds, inline="always")
 
 
 def _named_copy(func: Callable[..., object], suffix: str) -> Callable[..., object]:
@@ -762,11 +773,7 @@ def _named_copy(func: Callable[..., object], suffix: str) -> Callable[..., objec
     return copy
 
 
-_maps_jit = numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)(_maps_loops)
-_maps_par_jit = numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH, parallel=True)(
-    _named_copy(_maps_loops, "_parallel")
-)
-_product_jit = numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)(_product_loops)
-_product_par_jit = numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH, parallel=True)(
-    _named_copy(_product_loops, "_parallel")
-)
+_maps_jit = _compile(_maps_loops)
+_maps_par_jit = _compile(_named_copy(_maps_loops, "_parallel"), parallel=True)
+_product_jit = _compile(_product_loops)
+_product_par_jit = _compile(_named_copy(_product_loops, "_parallel"), parallel=True)

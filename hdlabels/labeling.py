@@ -414,7 +414,9 @@ def label_dataset(
 def _baseline_fractions(records: list[LabelRecord], manifest: dict[str, Any]) -> dict[str, float]:
     """Fraction of labelled pixels the baseline (P >= 0.5) calls safe, per sigma."""
     sigmas = manifest["sigmas_m"]
-    safe = np.sum([r.baseline_safe for r in records], axis=0, dtype=np.int64).reshape(len(sigmas))
+    safe = np.zeros(len(sigmas), dtype=np.int64)
+    for r in records:
+        safe += r.baseline_safe
     valid = sum(r.counts[0] + r.counts[1] for r in records)
     return {f"{sig:g}": float(safe[s] / max(1, valid)) for s, sig in enumerate(sigmas)}
 

@@ -79,7 +79,6 @@ def check_build_terrain(root: Path, manifest: dict[str, Any]) -> tuple[Path, flo
         restored = restore_procedural_terrain(root, manifest)
         if restored is not None:
             return restored, scale
-    if not path.is_file():
         raise LabelStoreError(
             f"{path}: the terrain {root.name} was built on is missing; --truth terrain samples it (restore the "
             "file, or label with --truth clean-scan)"
