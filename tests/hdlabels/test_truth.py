@@ -25,6 +25,7 @@ from hdlabels.store import (
 )
 from hdlabels.truth import mesh_heights, sample_points, samples_per_cell
 from lidarsim.build import BuildConfig, build_dataset
+from lidarsim.procedural import MarsTerrainParams
 from lidarsim.scan import TileScene
 from lidarsim.sensor import SensorConfig
 from lidarsim.shards import read_manifest
@@ -50,7 +51,8 @@ def plane_dtm(path: Path, slope_deg: float, spacing_m: float = 0.5) -> Path:
     return write_dtm(path, z, spacing_m)
 
 
-def build(dtm: Path, out: Path, n_scans: int = 3, tilt_deg: float = 0.0) -> Path:
+def build(dtm: Path | None, out: Path, n_scans: int = 3, tilt_deg: float = 0.0) -> Path:
+    """A small dataset (seed 3) on ``dtm``, or on a 256 m procedural terrain when None."""
     build_dataset(
         out,
         BuildConfig(
@@ -58,7 +60,8 @@ def build(dtm: Path, out: Path, n_scans: int = 3, tilt_deg: float = 0.0) -> Path
             seed=3,
             sensor=SensorConfig(rows=64, cols=64),
             trajectory=TrajectoryConfig(n_scans=n_scans, tilt_deg=tilt_deg),
-            dtm_path=str(dtm),
+            dtm_path=None if dtm is None else str(dtm),
+            terrain=MarsTerrainParams(size_m=256.0),
             shard_size=n_scans,
         ),
         workers=1,
@@ -239,33 +242,20 @@ def test_a_missing_procedural_terrain_is_regenerated_when_it_gives_the_recorded_
     otherwise the labelling stops with one line and writes nothing."""
     from lidarsim import build as build_module
     from lidarsim.errors import HdWarning, LidarsimError
-    from lidarsim.procedural import MarsTerrainParams
     from lidarsim.shards import sha256_file
 
-    root = tmp_path / "d"
-    build_dataset(
-        root,
-        BuildConfig(
-            sigmas_m=(0.02,),
-            seed=4,
-            sensor=SensorConfig(rows=32, cols=32),
-            trajectory=TrajectoryConfig(n_scans=2),
-            terrain=MarsTerrainParams(size_m=256.0),
-            shard_size=2,
-        ),
-        workers=1,
-    )
-    terrain = root / "terrain" / "mars-procedural-seed4.tif"
+    root = build(None, tmp_path / "d", n_scans=2)
+    terrain = root / "terrain" / "mars-procedural-seed3.tif"
     recorded = sha256_file(terrain)
     terrain.unlink()
     real = build_module._procedural_terrain_bytes
     monkeypatch.setattr(build_module, "_procedural_terrain_bytes", lambda *a: real(*a) + b"\0")
     with pytest.raises(
-        LidarsimError, match=r"mars-procedural-seed4\.tif: .* is missing, and regenerating it .* other bytes"
+        LidarsimError, match=r"mars-procedural-seed3\.tif: .* is missing, and regenerating it .* other bytes"
     ):
         label_dataset(root, workers=1, truth="terrain")
     assert not terrain.exists() and not list(root.glob("labels/**/*.h5"))
     monkeypatch.setattr(build_module, "_procedural_terrain_bytes", real)
-    with pytest.warns(HdWarning, match="was missing: regenerated from the build's seed 4"):
+    with pytest.warns(HdWarning, match="was missing: regenerated from the build's seed 3"):
         summary = label_dataset(root, workers=1, truth="terrain")
     assert sha256_file(terrain) == recorded and summary.truth == "terrain" and 0.0 < summary.safe_fraction <= 1.0
