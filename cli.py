@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import click
+from click.core import ParameterSource
 
 from hdlabels.errors import HdLabelsError
 from hdnet import terminal
@@ -138,10 +139,14 @@ def label_cmd(ctx: click.Context, directory: Path, workers: int | None, recipe: 
     from hdlabels.label_job import label_job
 
     scheduler = options.pop("scheduler")
+    truth = None
     if recipe is not None:
-        refuse_with_recipe(ctx, set(options), "the lander and DEM settings", HdLabelsError)
+        # The truth picks which labelling of the recipe to make; the lander and DEM stay the recipe's.
+        refuse_with_recipe(ctx, set(options) - {"truth"}, "the lander and DEM settings", HdLabelsError)
+        if ctx.get_parameter_source("truth") is ParameterSource.COMMANDLINE:
+            truth = options["truth"]
     with ScanProgress("labels") as progress:
-        _done(label_job(directory, options, recipe, workers, scheduler, progress))
+        _done(label_job(directory, options, recipe, workers, scheduler, progress, truth=truth))
 
 
 def _done(done: Done) -> None:

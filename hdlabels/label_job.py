@@ -22,9 +22,11 @@ def label_job(
     workers: int | None,
     scheduler: str | None,
     progress: Callable[[int, int], None] | None,
+    truth: str | None = None,
 ) -> Done:
     """Label the dataset ``directory`` with ``settings`` (LabelSettings' fields), or with the
-    ``[label]`` section of ``recipe``.
+    ``[label]`` section of ``recipe``; ``truth`` (given: ``clean-scan`` or ``terrain``) replaces the
+    recipe's truth, so that one recipe's lander and DEM can be labelled against either truth.
 
     Raises:
         HdLabelsError: a bad value or lander, an unreachable scheduler, before anything is written;
@@ -38,6 +40,8 @@ def label_job(
 
         loaded = load_recipe(recipe)
         label = LabelSettings.from_recipe(loaded.label, str(loaded.path))
+        if truth is not None:
+            label = dataclasses.replace(label, truth=truth)
     else:
         label = LabelSettings(**settings)
     lander = label.to_lander()

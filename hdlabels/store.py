@@ -129,6 +129,16 @@ def labeling_truth(entry: dict[str, Any]) -> str:
     return str(entry.get("truth", defaults.TRUTH))
 
 
+def labelings_by_truth(directory: str | os.PathLike, entry: dict[str, Any]) -> dict[str, str]:
+    """The labellings of a dataset made with the lander and DEM of the labelling ``entry``, one name per
+    truth (``"clean-scan"``, ``"terrain"``): the same hazards judged on the clean scan and on the terrain."""
+    out: dict[str, str] = {}
+    for other in read_manifest(directory).get("labelings", []):
+        if other.get("lander") == entry.get("lander") and other.get("dem") == entry.get("dem"):
+            out.setdefault(labeling_truth(other), str(other.get("name")))
+    return out
+
+
 def _labeling_body(lander: Lander, dem: DemSpec) -> str:
     """The name of a labelling, truth aside."""
     holes = "-holes" if lander.count_holes else ""

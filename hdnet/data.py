@@ -143,6 +143,25 @@ def _open_verified(dataset_dir: str | os.PathLike, shard: dict[str, Any]) -> Lab
     return open_label_shard(dataset_dir, shard)
 
 
+def split_labels(dataset_dir: str | os.PathLike, split: str, labels: str) -> dict[int, np.ndarray]:
+    """The labels of every scan of ``split`` under the labelling ``labels``, by scan index, as stored
+    (uint8 DEM grids: 1 safe, 0 unsafe, 255 invalid), every label shard checked before it is read."""
+    if split not in SPLITS:
+        raise HdNetError(f"split must be one of {', '.join(SPLITS)}, got {split!r}.")
+    entry = find_labeling(dataset_dir, labels)
+    code = SPLITS.index(split)
+    out: dict[int, np.ndarray] = {}
+    for shard in entry["shards"]:
+        with _open_verified(dataset_dir, shard) as reader:
+            f = reader.h5
+            rows = np.flatnonzero(f["split"][:] == code)
+            if rows.size:
+                scans = f["scan_index"][:]
+                block = f["label"][rows[0] : rows[-1] + 1][rows - rows[0]]
+                out.update((int(scans[r]), block[k]) for k, r in enumerate(rows))
+    return out
+
+
 # --- normalisation -----------------------------------------------------------------------------
 def compute_normalisation(dataset_dir: str | os.PathLike, sigma_m: float, labels: str | None = None) -> Normalisation:
     """Min and max (metres) of the finite noisy-DEM heights at ``sigma_m`` over the training split only."""

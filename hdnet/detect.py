@@ -81,6 +81,14 @@ from hdnet.noise_levels import TrainingNoise
 from hdnet.report import json_plain
 from hdnet.results import SITE_COLUMNS, Site
 from hdnet.run_record import TrainingData, checkpoint_data
+from hdnet.sites import (
+    SAFETY_INVALID,
+    SAFETY_SAFE,
+    SAFETY_UNCERTAIN,
+    SAFETY_UNSAFE,
+    SITE_RANK_RULES,
+    select_sites,
+)
 from hdnet.threshold_cache import CachedThreshold, cache_key
 from hdnet.thresholds import ThresholdSpec, parse_threshold_spec, uncertain_mask
 from hdnet.tiling import TilePlan
@@ -99,7 +107,6 @@ from lidarsim.storage import (
 )
 from lidarsim.terrain import DTM
 
-SAFETY_UNSAFE, SAFETY_SAFE, SAFETY_UNCERTAIN, SAFETY_INVALID = 0, 1, 2, 255
 MAP_FILES = ("p_safe.tif", "entropy.tif", "safety.tif", "baseline_p_safe.tif")
 OUTPUT_FILES = (*MAP_FILES, "sites.csv", "sites.geojson", "overview.png", "detect.json")
 # The ALHAT baseline is safe where P(safe) >= this (paper, "Label generation"; one source: hdlabels.defaults).
@@ -109,9 +116,6 @@ BASELINE_THRESHOLD = label_defaults.SAFE_PROBABILITY_THRESHOLD
 SPACING_TOLERANCE = 0.02
 # hd choice: cells of a DTM upsampled in memory (--upsample): 2**28 float32 = 1 GiB, as lidarsim's limit.
 MAX_UPSAMPLED_CELLS = 1 << 28
-# hd choice: sites are ranked by their footprint-mean P(safe) rounded to 0.001, then by clearance.
-# Differences below 0.001 are far inside the MC estimate's spread (M = 8), so clearance decides.
-SITE_RANK_DECIMALS = 3
 OVERVIEW_MAX_PX = 1200  # hd choice: longest side of the overview's hillshade, pixels
 
 
@@ -473,86 +477,6 @@ def output_dir(out: str | os.PathLike, inputs: dict[str, str | os.PathLike | Non
 
 
 # --- sites -----------------------------------------------------------------------------------------
-def body_disk(lander: Lander, spacing_m: float) -> np.ndarray:
-    """(2k+1, 2k+1) bool: the cells whose centres lie under the lander body (a disk of the lander's
-    diameter) when it is centred on the middle cell; ``spacing_m`` in metres per cell."""
-    r = lander.radius_m / spacing_m
-    k = int(math.floor(r + 1e-9))
-    di, dj = np.mgrid[-k : k + 1, -k : k + 1]
-    return di * di + dj * dj <= r * r + 1e-9
-
-
-def select_sites(
-    safety: np.ndarray,
-    p_safe: np.ndarray,
-    entropy: Any,
-    baseline: Any,
-    transform: Affine,
-    spacing_xy_m: tuple[float, float],
-    lander: Lander,
-    n_sites: int,
-) -> list[Site]:
-    """Ranked, non-overlapping landing sites of a safety map.
-
-    A site is a cell whose whole lander body disk is safe and certain (``safety == 1``); its
-    ``p_safe`` is the mean P(safe) over the disk, ``entropy_max`` the largest entropy there,
-    ``clearance_m`` the distance between cell centres to the nearest unsafe, uncertain or invalid
-    cell (cells outside the grid count as invalid), ``baseline_p_safe`` the baseline at the site.
-    Greedy: best first by (P(safe) rounded to ``SITE_RANK_DECIMALS``, clearance, north, west); each
-    site removes every candidate closer than one lander diameter; at most ``n_sites``.
-
-    ``safety`` (uint8) and ``p_safe`` (float) are whole arrays; ``entropy`` and ``baseline`` are read
-    only around the chosen sites, through 2-D slicing (arrays, or windowed raster readers).
-    Memory: about 32 bytes per cell at the peak (the distance transform), besides the two inputs.
-    """
-    sx, sy = spacing_xy_m
-    disk = body_disk(lander, float(np.sqrt(sx * sy)))
-    rd = disk.shape[0] // 2
-    clear = safety == SAFETY_SAFE
-    candidate = ndimage.binary_erosion(clear, structure=disk, border_value=0)
-    if not candidate.any():
-        return []
-    # One ranking key per cell: round(mean P(safe), 3) * scale + clearance, scale > any clearance.
-    key = ndimage.correlate(np.where(clear, p_safe, 0.0).astype(np.float64), disk / disk.sum(), mode="constant")
-    np.multiply(key, 10.0**SITE_RANK_DECIMALS, out=key)
-    np.rint(key, out=key)
-    h, w = clear.shape
-    key *= 2.0 ** math.ceil(math.log2(math.hypot(h * sy, w * sx) + 1.0))
-    edt = ndimage.distance_transform_edt(np.pad(clear, 1), sampling=(sy, sx))[1:-1, 1:-1]  # outside = invalid
-    key += edt
-    clearance = edt.astype(np.float32)
-    del edt
-    key[~candidate] = -np.inf
-    d = lander.diameter_m
-    ri, rj = int(math.ceil(d / sy)), int(math.ceil(d / sx))
-    di, dj = np.mgrid[-ri : ri + 1, -rj : rj + 1]
-    too_close = (di * sy) ** 2 + (dj * sx) ** 2 < d * d * (1.0 - 1e-12)
-    sites: list[Site] = []
-    while len(sites) < n_sites:
-        k = int(np.argmax(key))  # the first maximum in row-major order: ties go north, then west
-        r, c = divmod(k, w)
-        if key[r, c] == -np.inf:
-            break
-        window = (slice(r - rd, r + rd + 1), slice(c - rd, c + rd + 1))
-        x, y = transform @ (c + 0.5, r + 0.5)
-        sites.append(
-            Site(
-                len(sites) + 1,
-                float(x),
-                float(y),
-                float(np.mean(np.asarray(p_safe[window], np.float64)[disk])),
-                float(np.max(np.asarray(entropy[window])[disk])),
-                float(clearance[r, c]),
-                float(np.asarray(baseline[r : r + 1, c : c + 1])[0, 0]),
-                r,
-                c,
-            )
-        )
-        r0, r1, c0, c1 = max(r - ri, 0), min(r + ri + 1, h), max(c - rj, 0), min(c + rj + 1, w)
-        key[r0:r1, c0:c1][too_close[r0 - r + ri : r1 - r + ri, c0 - c + rj : c1 - c + rj]] = -np.inf
-    return sites
-
-
 class _RasterWindows:
     """Band 1 of an open raster, read by 2-D slicing (``reader[r0:r1, c0:c1]``), window by window."""
 
@@ -578,6 +502,7 @@ def _sites_csv(sites: list[Site]) -> str:
                 f"{s.entropy_max:.6f}",
                 f"{s.clearance_m:.3f}",
                 "" if not math.isfinite(s.baseline_p_safe) else f"{s.baseline_p_safe:.6f}",
+                f"{s.touchdown_p_safe:.6f}",
             ]
         )
     return buf.getvalue()
@@ -649,6 +574,7 @@ def detect(
     threshold: str = defaults.THRESHOLD_SPEC,
     sigma_m: float | None = None,
     n_sites: int = 10,
+    nav_sigma_m: float = 0.0,
     overwrite: bool = False,
     seed: int = 0,
     batch_size: int = 8,
@@ -669,7 +595,9 @@ def detect(
     ``dataset`` with a scan, as ``hd eval`` does) or ``nats:H`` (fixed); ``calibrate``: ``reference``
     (at the run's reference noise level) or ``each`` (at the sensor's ``sigma_m``, guarded above the
     run's training levels; ``hd eval --calibrate``). ``progress`` is called with (tiles done, tiles
-    total). Runs that take the noise level as an input receive ``sigma_m``.
+    total). Runs that take the noise level as an input receive ``sigma_m``. ``nav_sigma_m`` (metres,
+    1-sigma per horizontal axis): the navigation dispersion the sites are ranked with
+    (``select_sites``; recorded in ``detect.json`` under ``site_rule``).
 
     Raises:
         HdNetError / TerrainError: bad options, a missing or foreign run, an unusable DTM (geographic
@@ -689,6 +617,7 @@ def detect(
         sigma_m=sigma_m,
         calibrate=calibrate,
         n_sites=n_sites,
+        nav_sigma_m=nav_sigma_m,
         upsample=upsample,
         labels=labels,
         seed=seed,
@@ -730,13 +659,25 @@ def detect(
             )
             timings |= map_timings
             t0 = time.perf_counter()
-            sites = _write_sites(tmp, terrain, run, n_sites)
+            sites = _write_sites(tmp, terrain, run, n_sites, nav_sigma_m)
             timings["sites"] = time.perf_counter() - t0
             t0 = time.perf_counter()
             _overview(tmp, terrain, sites, run, h_t, baseline_sigma)
             timings["overview"] = time.perf_counter() - t0
             timings["total"] = time.perf_counter() - t_start
-            info = _info(run, terrain, plan, threshold_info, baseline_sigma, mc_samples, seed, counts, sites, timings)
+            info = _info(
+                run,
+                terrain,
+                plan,
+                threshold_info,
+                baseline_sigma,
+                mc_samples,
+                seed,
+                counts,
+                sites,
+                timings,
+                nav_sigma_m,
+            )
             write_json_atomic(tmp / "detect.json", json_plain(info))
             output.commit()
     finally:
@@ -825,7 +766,7 @@ def _calibrated_threshold(
     return th.value_nats, info
 
 
-def _write_sites(tmp: Path, terrain: _Terrain, run: DetectRun, n_sites: int) -> list[Site]:
+def _write_sites(tmp: Path, terrain: _Terrain, run: DetectRun, n_sites: int, nav_sigma_m: float = 0.0) -> list[Site]:
     """Step 5: the ranked landing sites from the written maps, as ``sites.csv`` and ``sites.geojson``."""
     with rasterio.open(tmp / "entropy.tif") as h_src, rasterio.open(tmp / "baseline_p_safe.tif") as b_src:
         sites = select_sites(
@@ -837,6 +778,7 @@ def _write_sites(tmp: Path, terrain: _Terrain, run: DetectRun, n_sites: int) -> 
             terrain.spacing_xy_m,
             run.lander,
             n_sites,
+            nav_sigma_m,
         )
     write_text_atomic(tmp / "sites.csv", _sites_csv(sites))
     write_json_atomic(tmp / "sites.geojson", _sites_geojson(sites, terrain.crs_wkt), indent=1)
@@ -997,6 +939,7 @@ def _info(
     counts: dict[str, int],
     sites: list[Site],
     timings: dict[str, float],
+    nav_sigma_m: float = 0.0,
 ) -> dict[str, Any]:
     return {
         "software": "hd",
@@ -1040,7 +983,9 @@ def _info(
         "site_rule": {
             "footprint": "lander body disk",
             "min_separation_m": run.lander.diameter_m,
-            "rank_by": f"footprint-mean p_safe rounded to {SITE_RANK_DECIMALS} decimals, then clearance_m",
+            "nav_sigma_m": nav_sigma_m,
+            "rank_by": SITE_RANK_RULES["touchdown" if nav_sigma_m > 0.0 else "aim"],
+            "touchdown_p_safe": "the map's expected P(safe) at the touchdown under nav_sigma_m (hdnet.landing)",
         },
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
         "files": list(OUTPUT_FILES),

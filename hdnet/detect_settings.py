@@ -45,6 +45,15 @@ class DetectSettings:
         "--sigma (guarded above the run's training levels), as hd eval --calibrate"
     )
     n_sites: int = setting(10, "Most landing sites to propose", bound=limits.SITES, flag="--sites")
+    nav_sigma_m: float = setting(
+        0.0,
+        "Navigation dispersion of the touchdown around the aim point, {unit} 1-sigma per horizontal axis: sites "
+        "are ranked by the map's expected P(safe) where the vehicle lands, not only at the aim point (0: by the "
+        "aim point's footprint)",
+        unit="metres",
+        bound=limits.NAV_SIGMA_M,
+        flag="--nav-sigma",
+    )
     upsample: bool = setting(
         False,
         "A DTM coarser than the run's DEM spacing (e.g. HiRISE at 2-4 m) is interpolated bilinearly to it "

@@ -35,21 +35,27 @@ import torch
 
 from hdlabels import defaults as label_defaults
 from hdlabels.alhat import safety_probability
-from hdlabels.store import labeling_truth
+from hdlabels.defaults import TRUTHS
+from hdlabels.store import labeling_truth, labelings_by_truth
 from hdnet import defaults, limits
 from hdnet.data import (
     HazardDataset,
     dataset_sigmas,
+    dem_spacing_m,
+    lander_of,
     open_labeling,
+    split_labels,
     stored_sigma_index,
 )
 from hdnet.errors import HdNetError
 from hdnet.infer import mc_dropout_predict, predictive_entropy
 from hdnet.inputs import InputSpec
+from hdnet.landing import NAV_SIGMAS_M
+from hdnet.landing_table import LandingSettings, landing_rows
 from hdnet.metrics import ConfusionAccumulator, SegmentationMetrics
 from hdnet.model import BayesianSegNet
 from hdnet.noise_levels import TrainingNoise, check_levels
-from hdnet.results import EvaluationResult, ReliabilityBins, ReportRow, SplitInference
+from hdnet.results import EvaluationResult, LandingRow, ReliabilityBins, ReportRow, SplitInference
 from hdnet.run_record import checkpoint_data
 from hdnet.shared_options import (
     batch_size_setting,
@@ -177,7 +183,7 @@ def infer_split(
     torch.manual_seed(seed)
     n = len(ds)
     h, w = ds.dem_shape
-    arrays = {k: np.zeros((n, h, w), np.float32) for k in ("prob", "entropy", "clean", "noisy")}
+    arrays = {k: np.zeros((n, h, w), np.float32) for k in ("prob", "entropy", "clean", "noisy", "baseline")}
     label = np.zeros((n, h, w), np.int64)
     pred = np.zeros((n, h, w), np.int64)
     ignore = np.zeros((n, h, w), bool)
@@ -201,6 +207,7 @@ def infer_split(
                 if recompute_baseline
                 else ds.baseline_p_safe(s)
             )
+            arrays["baseline"][j] = p_safe
             base[j] = np.nan_to_num(p_safe, nan=0.0) >= BASELINE_THRESHOLD
         if progress is not None:
             progress(len(idx))
@@ -215,6 +222,7 @@ def infer_split(
         base,
         arrays["clean"],
         arrays["noisy"],
+        arrays["baseline"],
     )
 
 
@@ -222,8 +230,10 @@ def concat_inference(parts: Sequence[SplitInference]) -> SplitInference:
     """Inferences of several splits at one noise level as one (images one after the other)."""
     if len(parts) == 1:
         return parts[0]
-    arrays = {
-        f.name: np.concatenate([getattr(p, f.name) for p in parts])
+    arrays: dict[str, Any] = {
+        f.name: None
+        if any(getattr(p, f.name) is None for p in parts)
+        else np.concatenate([getattr(p, f.name) for p in parts])
         for f in dataclasses.fields(SplitInference)
         if f.name != "sigma_m"
     }
@@ -346,7 +356,8 @@ class EvalConfig:
     per test DEM for Table 2 (0: no dead-pixel table); ``threshold``: ``mean``, ``quantile:Q`` or
     ``risk:ALPHA``; ``labels``: the labelling to score against (None: the one the run was trained
     on when the dataset has it, else the dataset's newest); ``seed``: dropout masks and dead pixels;
-    ``batch_size``: DEMs per inference batch; ``device``: a torch device
+    ``batch_size``: DEMs per inference batch; ``nav_sigma_m``: the navigation dispersions (metres)
+    of the landing table (``hdnet.landing_table``); ``device``: a torch device
     (None: CUDA when available, else the CPU); ``sigma_sweep``: noise levels (metres) the test
     split is also scored at, made from the clean points where the dataset does not store them;
     ``calibrate``: ``reference`` (H_t calibrated once, on the validation split at the run's
@@ -389,8 +400,18 @@ class EvalConfig:
         click_type=DIRECTORY,
     )
 
+    nav_sigma_m: tuple[float, ...] = setting(
+        NAV_SIGMAS_M,
+        "Navigation dispersion of the landing table, {unit} 1-sigma per horizontal axis: each method's best site "
+        "per test scene is landed on with it and scored against the truths the dataset has; repeat for several",
+        unit="metres",
+        bound=limits.NAV_SIGMA_M,
+        flag="--nav-sigma",
+    )
+
     def __post_init__(self) -> None:
         parse_threshold_spec(self.threshold)
+        object.__setattr__(self, "nav_sigma_m", tuple(sorted(set(self.nav_sigma_m))))
         object.__setattr__(self, "sigma_sweep", check_levels(tuple(self.sigma_sweep), "a sweep sigma"))
         check(self, HdNetError)
 
@@ -520,6 +541,8 @@ def evaluate(
         sweep_rows, sweep_achieved = _sigma_sweep(setup, dataset_dir, cfg, thresholds)
         rows += sweep_rows
         achieved += sweep_achieved
+    # 6. landing outcomes: each method's best site per test scene, landed on and scored against the truths
+    landing, landing_info = _landing_table(setup, dataset_dir, cfg, thresholds, tests)
     threshold_info = th.info
     threshold_info["calibrate"] = cfg.calibrate
     threshold_info["calibration_datasets"] = list(setup.calibration.datasets)
@@ -540,6 +563,8 @@ def evaluate(
         _run_info(setup, dataset_dir, cfg, tests, val),
         tests,
         val.entropy_nats[val.valid],
+        landing,
+        landing_info,
     )
 
 
@@ -778,6 +803,31 @@ def _sigma_sweep(
     return rows, achieved
 
 
+def _landing_table(
+    setup: _Setup,
+    dataset_dir: str | os.PathLike,
+    cfg: EvalConfig,
+    thresholds: _Thresholds,
+    tests: dict[float, SplitInference],
+) -> tuple[list[LandingRow], dict[str, Any]]:
+    """Step 6: the landing table at every noise level of Table 1, against each truth the dataset has
+    for the evaluated labelling's lander and DEM (``hdnet.landing_table``)."""
+    entry, _ = open_labeling(dataset_dir, setup.labels)
+    names = labelings_by_truth(dataset_dir, entry)
+    truths = {truth: split_labels(dataset_dir, "test", name) for truth, name in sorted(names.items(), reverse=True)}
+    settings = LandingSettings(nav_sigmas_m=cfg.nav_sigma_m, seed=cfg.seed)
+    rows: list[LandingRow] = []
+    for sigma, inf in tests.items():
+        rows += landing_rows(
+            inf, thresholds.at(sigma).value_nats, truths, lander_of(entry), dem_spacing_m(entry), settings
+        )
+    info: dict[str, Any] = {**settings.to_dict(), "labelings": {t: names[t] for t in truths}}
+    missing = [t for t in TRUTHS if t not in truths]
+    if missing:
+        info["missing_truths"] = missing
+    return rows, info
+
+
 def _run_info(
     setup: _Setup,
     dataset_dir: str | os.PathLike,
@@ -846,6 +896,7 @@ def report_is_current(
         and run.get("seed") == cfg.seed
         and run.get("batch_size") == cfg.batch_size
         and run.get("sigma_sweep_m") == list(cfg.sigma_sweep)
+        and report.get("landing_settings", {}).get("nav_sigmas_m") == list(cfg.nav_sigma_m)
         and th.get("spec") == str(cfg.threshold_spec)
         and th.get("calibrate") == cfg.calibrate
         and th.get("calibration_datasets") == calibration

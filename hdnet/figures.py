@@ -204,6 +204,57 @@ def qualitative_figure(inf: SplitInference, row: int, threshold_nats: float | No
     return fig
 
 
+LANDING_METHODS = (
+    ("alhat_baseline", "ALHAT baseline", "tab:gray"),
+    ("base_net", "base net", "tab:orange"),
+    ("uncertainty_aware", "uncertainty-aware", "tab:blue"),
+)
+
+
+def landing_figure(result: EvaluationResult, path: Path) -> None:
+    """P(safe landing) against the navigation dispersion, one panel per truth and test noise level,
+    one line per method with its 95 % interval; abstentions in the legend's text."""
+    truths = list(dict.fromkeys(r.truth for r in result.landing))
+    sigmas = sorted({r.test_sigma_m for r in result.landing})
+    fig, axes = plt.subplots(
+        len(truths), len(sigmas), figsize=(3.4 * len(sigmas), 2.9 * len(truths)), squeeze=False, sharey=True
+    )
+    for i, truth in enumerate(truths):
+        for k, sigma in enumerate(sigmas):
+            ax = axes[i][k]
+            for method, name, colour in LANDING_METHODS:
+                rows = sorted(
+                    (r for r in result.landing if r.truth == truth and r.test_sigma_m == sigma and r.method == method),
+                    key=lambda r: r.nav_sigma_m,
+                )
+                if not rows:
+                    continue
+                x = np.array([r.nav_sigma_m for r in rows])
+                y = np.array([r.p_safe for r in rows])
+                err = np.array([[r.p_safe - r.p_safe_low for r in rows], [r.p_safe_high - r.p_safe for r in rows]])
+                abstain = max(r.abstain_rate for r in rows)
+                ax.errorbar(
+                    x,
+                    y,
+                    yerr=err,
+                    color=colour,
+                    marker="o",
+                    ms=3,
+                    capsize=2,
+                    label=f"{name} (abstains ≤ {100 * abstain:.0f} %)",
+                )
+            ax.set_title(f"{truth} truth, test σ {sigma_label(sigma)}", fontsize=8)
+            ax.set_xlabel("navigation dispersion 1σ (m)", fontsize=8)
+            if k == 0:
+                ax.set_ylabel("P(safe landing)", fontsize=8)
+            ax.tick_params(labelsize=7)
+            ax.grid(alpha=0.3)
+            ax.legend(fontsize=6, loc="lower left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
 def write_figures(result: EvaluationResult, out_dir: Path) -> list[Path]:
     """All figures of a result into ``out_dir``; returns their paths."""
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -213,6 +264,9 @@ def write_figures(result: EvaluationResult, out_dir: Path) -> list[Path]:
     if any(r.table == "sigma_sweep" for r in result.rows):
         paths.append(out_dir / "noise_sweep.png")
         noise_sweep(result, paths[-1])
+    if result.landing:
+        paths.append(out_dir / "landing.png")
+        landing_figure(result, paths[-1])
     if result.test:
         first = next(iter(result.test.values()))
         row = representative_scan(first)

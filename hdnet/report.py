@@ -75,6 +75,8 @@ def report_dict(result: EvaluationResult) -> dict[str, Any]:
             "sweep": result.sweep,
             "calibration": result.calibration,
             "run": result.run,
+            "landing": [asdict(r) for r in result.landing],
+            "landing_settings": result.landing_settings,
         }
     )
 
@@ -189,6 +191,7 @@ def report_markdown(result: EvaluationResult, figures: list[str] | None = None) 
             which = "Table 1" if table == "noise" else "Table 2"
             out += [f"The paper's values for the same rows (Tomita et al., {which}):", "", *paper, ""]
     out += _sweep_section(result)
+    out += _landing_section(result)
     if th.get("achieved_risk"):
         out += [
             "## Risk control",
@@ -272,6 +275,68 @@ def _sweep_section(result: EvaluationResult) -> list[str]:
             cells.append(f"{vc}{_num(row.pixel_accuracy, 3)} / {_num(row.precision, 3)} / {_num(row.sensitivity, 3)}")
         out.append(f"| {_cm(sigma)} | {trained(sigma)} | " + " | ".join(cells) + " |")
     return [*out, ""]
+
+
+METHOD_WORDS = {"alhat_baseline": "ALHAT baseline", "base_net": "base net", "uncertainty_aware": "uncertainty-aware"}
+
+
+def _landing_section(result: EvaluationResult) -> list[str]:
+    """``## Landing outcome``: P(safe landing) per truth, method, noise level and navigation dispersion."""
+    if not result.landing:
+        return []
+    settings = result.landing_settings
+    out = [
+        "## Landing outcome (test split)",
+        "",
+        (
+            "Each method picks its best landing site in every test scene (`hd detect`'s rule; ranked with the "
+            f"navigation dispersion), the vehicle touches down {settings.get('touchdowns')} times around it "
+            "(1σ per horizontal axis as in the table; seeded), and each touchdown is judged by the truth's label "
+            "of the cell it lands in (a lander centred there is safe or not); ground outside the DEM or without a "
+            "label counts as not safe. P(safe landing): mean over the scenes where the method chose a site, with "
+            "its 95 % Wilson interval over those scenes; a scene without a site is an abstention, never a safe "
+            "landing. Clearance: distance from the aim point to the nearest cell that is not safe, in the "
+            "method's map and in the truth."
+        ),
+        "",
+    ]
+    missing = settings.get("missing_truths") or []
+    if missing:
+        words = " and ".join(TRUTH_WORDS.get(t, t) for t in missing)
+        out += [
+            (
+                f"The dataset has no labelling against {words} for this lander and DEM; "
+                "`hd label DATASET --truth terrain` adds the terrain's."
+            ),
+            "",
+        ]
+    truths = list(dict.fromkeys(r.truth for r in result.landing))
+    for truth in truths:
+        out += [
+            f"### Against {TRUTH_WORDS.get(truth, truth)}",
+            "",
+            (
+                "| Method | Test noise 1σ | Nav. 1σ | Scenes | P(safe landing) [95 % CI] | Abstain % [95 % CI] | "
+                "Unknown ground % | Clearance map / truth (m) |"
+            ),
+            "|---|---|---|---|---|---|---|---|",
+        ]
+        for r in result.landing:
+            if r.truth != truth:
+                continue
+            p = "--" if r.landed == 0 else f"{r.p_safe:.4f} [{r.p_safe_low:.4f}, {r.p_safe_high:.4f}]"
+            out.append(
+                f"| {METHOD_WORDS.get(r.method, r.method)} | {_cm(r.test_sigma_m)} | {r.nav_sigma_m:g} m | "
+                f"{r.scenes} | {p} | {100 * r.abstain_rate:.1f} [{100 * r.abstain_low:.1f}, "
+                f"{100 * r.abstain_high:.1f}] | {_pct1(r.unknown_fraction)} | "
+                f"{_num(r.clearance_m, 1)} / {_num(r.truth_clearance_m, 1)} |"
+            )
+        out.append("")
+    return out
+
+
+def _pct1(x: float | None) -> str:
+    return "--" if x is None or not math.isfinite(x) else f"{100 * x:.1f}"
 
 
 def _calibration_words(th: dict[str, Any], run: dict[str, Any]) -> str:

@@ -14,7 +14,7 @@ import numpy as np
 
 from hdnet import defaults
 
-SITE_COLUMNS = ("rank", "x", "y", "p_safe", "entropy_max", "clearance_m", "baseline_p_safe")
+SITE_COLUMNS = ("rank", "x", "y", "p_safe", "entropy_max", "clearance_m", "baseline_p_safe", "touchdown_p_safe")
 
 
 @dataclass(frozen=True)
@@ -24,7 +24,9 @@ class SplitInference:
     Arrays are (N, H, W): ``label`` int64 (0 unsafe, 1 safe, 255 ignored: invalid cells and DEM
     holes); ``ignore`` bool (dead-pixel neighbourhoods); ``prob_safe`` float32 mean softmax of
     "safe"; ``prediction`` int64 (argmax); ``entropy_nats`` float32; ``baseline_safe`` bool
-    (P(safe) >= 0.5); ``dem_clean_m`` / ``dem_noisy_m`` float32 heights (metres) for figures.
+    (P(safe) >= 0.5); ``dem_clean_m`` / ``dem_noisy_m`` float32 heights (metres) for figures;
+    ``baseline_p_safe`` float32, the baseline's P(safe) itself (NaN where it has none: the border band
+    and footprints that touch a hole), for choosing its landing sites.
     """
 
     sigma_m: float
@@ -37,6 +39,7 @@ class SplitInference:
     baseline_safe: np.ndarray
     dem_clean_m: np.ndarray
     dem_noisy_m: np.ndarray
+    baseline_p_safe: np.ndarray | None = None  # float32 ALHAT P(safe), NaN where the baseline has none
 
     @property
     def valid(self) -> np.ndarray:
@@ -81,6 +84,8 @@ class EvaluationResult:
     run: dict[str, Any] = field(default_factory=dict)
     test: dict[float, SplitInference] = field(default_factory=dict, repr=False)
     validation_entropy_nats: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32), repr=False)
+    landing: list[LandingRow] = field(default_factory=list)
+    landing_settings: dict[str, Any] = field(default_factory=dict)
 
     def summary(self) -> str:
         """A compact text table of the rows (for the terminal)."""
@@ -106,7 +111,9 @@ class EvaluationResult:
 @dataclass(frozen=True)
 class Site:
     """A proposed landing site: rank (1 = best), map position of its cell centre (metres, input CRS),
-    footprint-mean P(safe), footprint-max entropy (nats), clearance (metres) and baseline P(safe)."""
+    footprint-mean P(safe), footprint-max entropy (nats), clearance (metres), baseline P(safe), its
+    cell (row, col) and the map's expected P(safe) at the touchdown under the navigation dispersion
+    it was chosen with (``hdnet.sites.select_sites``)."""
 
     rank: int
     x: float
@@ -117,7 +124,41 @@ class Site:
     baseline_p_safe: float
     row: int
     col: int
+    touchdown_p_safe: float = float("nan")
 
     def columns(self) -> dict[str, float | int]:
         """The ``SITE_COLUMNS`` values of the site, by name."""
         return {k: getattr(self, k) for k in SITE_COLUMNS}
+
+
+@dataclass(frozen=True)
+class LandingRow:
+    """P(safe landing) of one method at one noise level and one navigation dispersion, against one truth
+    (``hdnet.landing``; docs/evaluation.md, "Landing outcome").
+
+    ``method``: one of the evaluation's methods; ``test_sigma_m`` and ``nav_sigma_m`` in metres;
+    ``truth``: ``"terrain"`` or ``"clean-scan"``. ``scenes``: test scenes scored; ``landed``: scenes
+    where the method chose a site; ``p_safe``: mean over the landed scenes of the per-scene fraction
+    of touchdowns on safe ground, with its 95 % Wilson interval (``p_safe_low``, ``p_safe_high``);
+    ``abstain_rate``: scenes without a site / scenes, with its interval; ``unknown_fraction``:
+    touchdowns on unknown ground (outside the DEM or unlabelled; counted as not safe);
+    ``clearance_m``: mean clearance of the chosen sites in the map that chose them;
+    ``truth_clearance_m``: mean distance from the aim point to the truth's nearest cell that is not
+    safe. Rates in [0, 1]; NaN where undefined (no landed scene).
+    """
+
+    method: str
+    test_sigma_m: float
+    nav_sigma_m: float
+    truth: str
+    scenes: int
+    landed: int
+    p_safe: float
+    p_safe_low: float
+    p_safe_high: float
+    abstain_rate: float
+    abstain_low: float
+    abstain_high: float
+    unknown_fraction: float
+    clearance_m: float
+    truth_clearance_m: float

@@ -81,6 +81,7 @@ _LABEL_KEYS = {
     "convention",
     "baseline_combine",
     "gridding",
+    "truth",
 }
 
 

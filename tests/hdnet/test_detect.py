@@ -38,7 +38,6 @@ from hdnet.detect import (
     SAFETY_UNCERTAIN,
     SAFETY_UNSAFE,
     SITE_COLUMNS,
-    body_disk,
     detect,
     load_run,
     network_input,
@@ -49,6 +48,8 @@ from hdnet.errors import HdNetError
 from hdnet.evaluate import EvalConfig, evaluate
 from hdnet.fit import FitConfig, fit
 from hdnet.infer import mc_dropout_predict
+from hdnet.landing import cell_masses
+from hdnet.sites import SITE_RANK_RULES, body_disk
 from hdnet.train import save_checkpoint
 from lidarsim.errors import LockedError, OutputExistsError, TerrainError
 from lidarsim.procedural import MarsTerrainParams, generate_mars_terrain, write_geotiff
@@ -321,6 +322,41 @@ def test_procedural_terrain_constant_run_sites_by_hand(trained, tmp_path):
     edt = ndimage.distance_transform_edt(np.pad(safety == SAFETY_SAFE, 1))[1:-1, 1:-1]
     assert clearances[0] == pytest.approx(edt.max(), abs=5e-4)  # site 1 is the clearest cell (CSV: 1 mm)
     assert profile_of(out / "safety.tif")["crs"] is None
+
+
+def test_nav_sigma_ranks_sites_by_the_touchdown_and_records_the_rule(trained, tmp_path):
+    """The same terrain with --nav-sigma 3: each site's touchdown_p_safe is the map's P(safe) on safe and
+    certain cells weighted by the dispersion (by brute force from the written maps), the ranking follows
+    it, and sites.csv and detect.json say so; without it the record names the aim-point rule."""
+    _, _, constant = trained
+    params = MarsTerrainParams(size_m=160.0, crater_n_gt_10m_per_km2=0.0, rock_k=0.0)
+    heights = generate_mars_terrain(params, seed=4)
+    heights[150:170, 60:200] = np.nan
+    dtm = tmp_path / "mars.tif"
+    write_geotiff(dtm, heights, 0.5, origin_xy=(0.0, 160.0))
+    out = tmp_path / "nav"
+    result = detect(constant, out, dtm=dtm, threshold="nats:0.5", mc_samples=2, n_sites=4, nav_sigma_m=3.0)
+    rows = check_sites(out, Lander())
+    maps = check_consistent_maps(out, 0.5)
+    ok = np.where(maps["safety.tif"] == SAFETY_SAFE, maps["p_safe.tif"], 0.0)
+    weights = cell_masses(3.0, 1.0)
+    k = len(weights) // 2
+    padded = np.pad(ok, k)
+    values = []
+    for site in result.sites:
+        brute = float(weights @ padded[site.row : site.row + 2 * k + 1, site.col : site.col + 2 * k + 1] @ weights)
+        assert site.touchdown_p_safe == pytest.approx(brute, abs=1e-9)
+        values.append(round(site.touchdown_p_safe, 3))
+    assert values == sorted(values, reverse=True)
+    assert [float(r["touchdown_p_safe"]) for r in rows] == pytest.approx(
+        [s.touchdown_p_safe for s in result.sites], abs=1e-6
+    )
+    rule = json.loads((out / "detect.json").read_text())["site_rule"]
+    assert rule["nav_sigma_m"] == 3.0 and rule["rank_by"] == SITE_RANK_RULES["touchdown"]
+    plain = detect(constant, tmp_path / "aim", dtm=dtm, threshold="nats:0.5", mc_samples=2, n_sites=4)
+    rule = json.loads((tmp_path / "aim" / "detect.json").read_text())["site_rule"]
+    assert rule["nav_sigma_m"] == 0.0 and rule["rank_by"] == SITE_RANK_RULES["aim"]
+    assert all(s.touchdown_p_safe == pytest.approx(1 / (1 + math.exp(-6)), rel=1e-6) for s in plain.sites)
 
 
 @pytest.mark.parametrize(("slope_deg", "safe"), [(0.0, True), (5.0, True), (9.0, True), (11.0, False), (15.0, False)])

@@ -1,0 +1,338 @@
+"""hdnet.landing and the landing table of hd eval: touchdowns, exact probabilities, intervals, ranking."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from hdnet_datasets import SIGMAS_M, build_labelled
+from rasterio.transform import Affine
+from scipy.special import ndtri
+
+from hdlabels.labeling import label_dataset
+from hdlabels.lander import Lander
+from hdlabels.store import find_labeling, labelings_by_truth
+from hdnet.data import split_labels
+from hdnet.evaluate import EvalConfig
+from hdnet.fit import FitConfig, fit
+from hdnet.landing import (
+    LandingTally,
+    TouchdownScore,
+    cell_masses,
+    dispersion_weighted,
+    exact_safe_probability,
+    score_touchdowns,
+    touchdown_cells,
+    touchdown_offsets,
+    truth_clearance_map,
+    wilson_interval,
+)
+from hdnet.landing_table import METHODS, LandingSettings, landing_rows, method_map
+from hdnet.pipeline import evaluate_to_report
+from hdnet.results import SplitInference
+from hdnet.sites import SAFETY_INVALID, SAFETY_SAFE, SAFETY_UNCERTAIN, SAFETY_UNSAFE, select_sites
+
+SPACING = (1.0, 1.0)
+LANDER = Lander()  # the paper's: 10 m diameter
+
+
+def disk(shape: tuple[int, int], centre: tuple[int, int], radius_m: float) -> np.ndarray:
+    """Cells whose centres lie within ``radius_m`` of the centre of cell ``centre`` (1 m cells)."""
+    r, c = np.mgrid[: shape[0], : shape[1]]
+    return (r - centre[0]) ** 2 + (c - centre[1]) ** 2 <= radius_m**2
+
+
+def safe_disk_truth(radius_m: float, n: int = 101) -> np.ndarray:
+    """A safe disk (label 1) in an unsafe field (label 0), centred on cell (n // 2, n // 2)."""
+    return disk((n, n), (n // 2, n // 2), radius_m).astype(np.uint8)
+
+
+# --- the model ----------------------------------------------------------------------------------
+def test_wilson_interval_matches_its_closed_forms():
+    z2 = float(ndtri(0.975)) ** 2
+    lo, hi = wilson_interval(0, 100)
+    assert lo == pytest.approx(0.0, abs=1e-15) and hi == pytest.approx(
+        z2 / (100 + z2), rel=1e-12
+    )  # the "rule of three" neighbour
+    lo, hi = wilson_interval(500, 500)
+    assert hi == 1.0 and lo == pytest.approx(500 / (500 + z2), rel=1e-12)  # 0.99238: all 500 safe
+    lo, hi = wilson_interval(50, 100)
+    half = math.sqrt(z2) * math.sqrt(0.25 / 100 + z2 / (4 * 100**2)) / (1 + z2 / 100)
+    assert lo == pytest.approx(0.5 - half, rel=1e-12) and hi == pytest.approx(0.5 + half, rel=1e-12)
+    assert all(math.isnan(v) for v in wilson_interval(0, 0))
+
+
+def test_touchdown_cells_follow_a_north_up_grid():
+    offsets = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [-0.49, 0.49], [0.51, -0.51]])
+    rows, cols = touchdown_cells(10, 20, offsets, SPACING)
+    assert rows.tolist() == [10, 10, 9, 10, 11]  # north is up: a northward touchdown lands a row above
+    assert cols.tolist() == [20, 21, 20, 20, 21]
+    rows, cols = touchdown_cells(10, 20, np.array([[0.9, 1.0]]), (2.0, 0.5))  # anisotropic cells
+    assert (rows[0], cols[0]) == (8, 20)
+
+
+def test_cell_masses_are_a_discretised_gaussian():
+    w = cell_masses(1.5, 1.0)
+    assert w.sum() == pytest.approx(1.0, abs=1e-9) and np.allclose(w, w[::-1])  # cut at 6 sigma + 1 cell
+    k = len(w) // 2
+    assert w[k] == pytest.approx(math.erf(0.5 / (1.5 * math.sqrt(2))), rel=1e-12)  # P(|e| < 0.5 m)
+    assert cell_masses(0.0, 1.0).tolist() == [1.0]
+
+
+def test_a_safe_disk_in_an_unsafe_field_matches_the_analytic_probability():
+    """The Monte Carlo lands within its own 95 % interval of the exact value, which itself is the
+    Rayleigh probability 1 - exp(-R^2 / 2 sigma^2) up to the disk's pixelation."""
+    radius, sigma = 6.0, 3.0
+    truth = safe_disk_truth(radius)
+    exact = exact_safe_probability(truth, 50, 50, sigma, SPACING)
+    rayleigh = 1.0 - math.exp(-(radius**2) / (2 * sigma**2))  # 0.8647
+    assert exact == pytest.approx(rayleigh, abs=0.03)
+    n = 20_000
+    score = score_touchdowns(truth, 50, 50, touchdown_offsets(n, sigma, seed=0, scene=7), SPACING)
+    lo, hi = wilson_interval(score.safe * n, n)
+    assert lo <= exact <= hi
+    assert score.unknown == 0.0
+    # a dispersion that reaches the disk's edge from an off-centre aim: lower, and still exact
+    off = exact_safe_probability(truth, 50, 54, sigma, SPACING)
+    score = score_touchdowns(truth, 50, 54, touchdown_offsets(n, sigma, seed=0, scene=8), SPACING)
+    lo, hi = wilson_interval(score.safe * n, n)
+    assert off < exact and lo <= off <= hi
+
+
+def test_no_dispersion_lands_on_the_aim_point():
+    truth = safe_disk_truth(3.0)
+    assert exact_safe_probability(truth, 50, 50, 0.0, SPACING) == 1.0
+    assert exact_safe_probability(truth, 50, 60, 0.0, SPACING) == 0.0
+    score = score_touchdowns(truth, 50, 50, touchdown_offsets(100, 0.0, 0, 0), SPACING)
+    assert score == TouchdownScore(1.0, 0.0)
+
+
+def test_touchdowns_off_the_grid_or_unlabelled_are_unknown_and_not_safe():
+    truth = np.ones((20, 20), np.uint8)
+    truth[:, :5] = 255  # an unlabelled band
+    far = np.tile([[-100.0, 0.0]], (10, 1))  # 100 m west: off the grid
+    assert score_touchdowns(truth, 10, 10, far, SPACING) == TouchdownScore(0.0, 1.0)
+    band = np.tile([[-7.0, 0.0]], (4, 1))
+    assert score_touchdowns(truth, 10, 10, band, SPACING) == TouchdownScore(0.0, 1.0)
+    assert exact_safe_probability(truth, 10, 1, 0.0, SPACING) == 0.0
+
+
+def test_touchdowns_are_deterministic_by_seed_and_scene():
+    a, b = touchdown_offsets(50, 2.0, 3, 11), touchdown_offsets(50, 2.0, 3, 11)
+    assert np.array_equal(a, b)
+    assert not np.array_equal(a, touchdown_offsets(50, 2.0, 3, 12))
+    assert not np.array_equal(a, touchdown_offsets(50, 2.0, 4, 11))
+    assert np.allclose(touchdown_offsets(50, 1.0, 3, 11) * 2.0, a)  # one scene's draws scale with sigma
+    big = touchdown_offsets(200_000, 2.0, 0, 0)
+    assert np.abs(big.mean(axis=0)).max() < 0.02 and np.allclose(big.std(axis=0), 2.0, rtol=0.01)
+
+
+def test_truth_clearance_is_the_distance_to_ground_that_is_not_safe():
+    truth = safe_disk_truth(6.0)
+    c = truth_clearance_map(truth, SPACING)
+    assert c[50, 50] == pytest.approx(math.sqrt(37.0))  # the nearest cells outside the disk: (6, 1) away
+    assert c[0, 0] == 0.0
+    edge = np.ones((5, 5), np.uint8)
+    assert truth_clearance_map(edge, SPACING)[2, 2] == 3.0  # outside the grid counts as not safe
+
+
+def test_dispersion_weighting_is_the_exact_expectation():
+    rng = np.random.default_rng(0)
+    values = rng.random((30, 30))
+    out = dispersion_weighted(values, 2.0, SPACING)
+    brute = exact_safe_probability((values > 0.5).astype(np.uint8), 12, 17, 2.0, SPACING)
+    assert dispersion_weighted((values > 0.5).astype(float), 2.0, SPACING)[12, 17] == pytest.approx(brute, abs=1e-12)
+    assert np.array_equal(dispersion_weighted(values, 0.0, SPACING), values)
+    assert out.shape == values.shape
+
+
+def test_the_tally_counts_abstentions_apart():
+    tally = LandingTally()
+    tally.abstain()
+    tally.land(TouchdownScore(1.0, 0.0), 12.0, 8.0)
+    tally.land(TouchdownScore(0.5, 0.25), 6.0, 2.0)
+    row = tally.row("base_net", 0.03, 1.0, "terrain")
+    assert (row.scenes, row.landed) == (3, 2)
+    assert row.p_safe == pytest.approx(0.75) and row.abstain_rate == pytest.approx(1 / 3)
+    assert (row.p_safe_low, row.p_safe_high) == wilson_interval(1.5, 2)
+    assert row.unknown_fraction == pytest.approx(0.125)
+    assert (row.clearance_m, row.truth_clearance_m) == (9.0, 5.0)
+    empty = LandingTally()
+    empty.abstain()
+    row = empty.row("base_net", 0.03, 1.0, "terrain")
+    assert math.isnan(row.p_safe) and row.abstain_rate == 1.0
+
+
+# --- dispersion-aware ranking -----------------------------------------------------------------
+def two_regions() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A hand-made map: a small safe island of P(safe) 0.99 just larger than the lander, and a wide
+    safe field of P(safe) 0.95; unsafe ground between them (also the truth: safe where the map is)."""
+    safety = np.full((80, 140), SAFETY_UNSAFE, np.uint8)
+    island = disk(safety.shape, (40, 30), 7.0)
+    field = np.zeros_like(island)
+    field[10:70, 70:130] = True
+    safety[island | field] = SAFETY_SAFE
+    p = np.where(island, 0.99, np.where(field, 0.95, 0.2))
+    return safety, p, (island | field).astype(np.uint8)
+
+
+def test_dispersion_aware_ranking_prefers_room_to_land():
+    safety, p, truth = two_regions()
+    zeros = np.zeros(safety.shape, np.float32)
+    args = (zeros, zeros, Affine.identity(), SPACING, LANDER, 2)
+    aim = select_sites(safety, p, *args)
+    assert (aim[0].row, aim[0].col) == (40, 30)  # the aim point's footprint: the island's 0.99 wins
+    assert math.isnan(aim[0].touchdown_p_safe) is False and aim[0].touchdown_p_safe == pytest.approx(0.99)
+    wide = select_sites(safety, p, *args, nav_sigma_m=3.0)
+    best = wide[0]
+    assert 10 <= best.row < 70 and 70 <= best.col < 130  # with 3 m of dispersion, the wide field
+    assert abs(best.row - 39.5) <= 1 and abs(best.col - 99.5) <= 1  # ... at its centre (clearance)
+    assert best.touchdown_p_safe == pytest.approx(0.95, abs=1e-6)
+    island_value = dispersion_weighted(np.where(safety == SAFETY_SAFE, p, 0.0), 3.0, SPACING)[40, 30]
+    assert island_value < 0.95  # the island loses touchdowns off its edge
+    # ... and on the ground the dispersion-aware choice lands safely more often
+    p_aim = exact_safe_probability(truth, aim[0].row, aim[0].col, 3.0, SPACING)
+    p_wide = exact_safe_probability(truth, best.row, best.col, 3.0, SPACING)
+    assert p_wide == pytest.approx(1.0, abs=1e-9) and p_aim < 0.99
+
+
+def test_uncertain_and_invalid_ground_carry_no_touchdown_probability():
+    safety, p, _ = two_regions()
+    safety[10:70, 70:130][:, ::7] = SAFETY_UNCERTAIN  # stripes of uncertainty through the field
+    zeros = np.zeros(safety.shape, np.float32)
+    site = select_sites(safety, p, zeros, zeros, Affine.identity(), SPACING, LANDER, 1, nav_sigma_m=3.0)[0]
+    assert (site.row, site.col) == (40, 30)  # the field has no whole certain footprint any more
+    safety[:] = SAFETY_INVALID
+    assert select_sites(safety, p, zeros, zeros, Affine.identity(), SPACING, LANDER, 1, nav_sigma_m=3.0) == []
+
+
+# --- the landing table ------------------------------------------------------------------------
+def fake_inference(truth: np.ndarray) -> SplitInference:
+    """Two scenes: one where every method sees the truth, one where the base net is wrong and unsure."""
+    n, (h, w) = 2, truth.shape
+    label = np.stack([truth.astype(np.int64)] * n)
+    prob = np.stack([np.where(truth == 1, 0.9, 0.1)] * n).astype(np.float32)
+    prob[1] = np.where(truth == 1, 0.1, 0.9)  # scene 1: the net has safe and unsafe the wrong way round ...
+    entropy = np.full((n, h, w), 0.1, np.float32)
+    entropy[1] = 0.6  # ... and is unsure everywhere
+    base = np.stack([np.where(truth == 1, 0.8, 0.2)] * n).astype(np.float32)
+    base[:, :5], base[:, -5:], base[:, :, :5], base[:, :, -5:] = np.nan, np.nan, np.nan, np.nan  # the border band
+    z = np.zeros((n, h, w), np.float32)
+    return SplitInference(
+        0.03,
+        np.array([4, 9]),
+        label,
+        np.zeros((n, h, w), bool),
+        prob,
+        (prob >= 0.5).astype(np.int64),
+        entropy,
+        base >= 0.5,
+        z,
+        z,
+        base,
+    )
+
+
+def test_landing_rows_score_each_method_against_each_truth():
+    truth = safe_disk_truth(12.0, n=61)
+    inf = fake_inference(truth)
+    shifted = np.roll(truth, 20, axis=1)  # a second truth that disagrees
+    truths = {"terrain": {4: truth, 9: truth}, "clean-scan": {4: shifted, 9: shifted}}
+    rows = landing_rows(inf, 0.5, truths, LANDER, 1.0, LandingSettings(nav_sigmas_m=(0.0, 2.0), touchdowns=400))
+    by = {(r.truth, r.method, r.nav_sigma_m): r for r in rows}
+    assert len(rows) == 2 * len(METHODS) * 2 and all(r.scenes == 2 for r in rows)
+    ua = by[("terrain", "uncertainty_aware", 0.0)]
+    assert ua.landed == 1 and ua.abstain_rate == 0.5 and ua.p_safe == 1.0  # scene 1: all uncertain -> abstains
+    net = by[("terrain", "base_net", 0.0)]
+    assert net.landed == 2 and net.p_safe == 0.5  # scene 1: it lands where it wrongly sees safe ground
+    assert by[("terrain", "alhat_baseline", 2.0)].p_safe == pytest.approx(1.0)  # 12 m of room, 2 m of dispersion
+    assert by[("clean-scan", "alhat_baseline", 0.0)].p_safe == 0.0  # the same site, judged by another truth
+    assert by[("terrain", "alhat_baseline", 0.0)].truth_clearance_m == pytest.approx(math.sqrt(145.0))  # (12, 1)
+
+
+def test_method_maps_use_the_baseline_band_as_invalid():
+    truth = safe_disk_truth(12.0, n=61)
+    inf = fake_inference(truth)
+    for method in METHODS:
+        safety, _ = method_map(method, inf, 1, 0.5)
+        assert (safety[:5] == SAFETY_INVALID).all()
+    assert (method_map("uncertainty_aware", inf, 1, 0.5)[0][10:-10, 10:-10] == SAFETY_UNCERTAIN).all()
+    net = method_map("base_net", inf, 1, 0.5)[0][5:-5, 5:-5]
+    inside = truth[5:-5, 5:-5] == 1
+    assert (net[inside] == SAFETY_UNSAFE).all() and (net[~inside] == SAFETY_SAFE).all()
+
+
+@pytest.fixture(scope="module")
+def two_truths(tmp_path_factory):
+    root = tmp_path_factory.mktemp("landing")
+    dataset = build_labelled(root / "data")
+    label_dataset(dataset, workers=1, truth="terrain")
+    run = root / "run"
+    names = labelings_by_truth(dataset, find_labeling(dataset, _clean_name(dataset)))
+    fit(dataset, run, FitConfig(profile="tiny", epochs=1, progress=False, labels=names["terrain"]))
+    return dataset, run, names
+
+
+def _clean_name(dataset) -> str:
+    from lidarsim.shards import read_manifest
+
+    return next(
+        lab["name"] for lab in read_manifest(dataset)["labelings"] if lab.get("truth", "clean-scan") == "clean-scan"
+    )
+
+
+def test_eval_reports_landing_against_both_truths(two_truths, tmp_path):
+    dataset, run, names = two_truths
+    assert set(names) == {"clean-scan", "terrain"}
+    out = tmp_path / "report"
+    cfg = EvalConfig(mc_samples=2, labels=names["terrain"], nav_sigma_m=(2.0, 0.0, 2.0))
+    assert cfg.nav_sigma_m == (0.0, 2.0)
+    result = evaluate_to_report(run, dataset, out, cfg)
+    report = json.loads((out / "report.json").read_text())
+    rows = report["landing"]
+    assert {(r["truth"], r["method"], r["test_sigma_m"], r["nav_sigma_m"]) for r in rows} == {
+        (t, m, s, n) for t in ("terrain", "clean-scan") for m in METHODS for s in SIGMAS_M for n in (0.0, 2.0)
+    }
+    assert report["landing_settings"]["labelings"] == names
+    n_test = result.run["test_scans"]
+    assert all(r["scenes"] == n_test for r in rows)
+    # the baseline at no dispersion, by hand: its best site per scene from the label shard's P(safe)
+    clean = split_labels(dataset, "test", names["clean-scan"])
+    terrain = split_labels(dataset, "test", names["terrain"])
+    inf = result.test[SIGMAS_M[0]]
+    safe_at_site: dict[str, list[bool]] = {"terrain": [], "clean-scan": []}
+    assert inf.baseline_p_safe is not None
+    for j, scan in enumerate(inf.scan_index):
+        safety, p = method_map("alhat_baseline", inf, j, math.inf)
+        sites = select_sites(
+            safety, p, inf.entropy_nats[j], inf.baseline_p_safe[j], Affine.identity(), SPACING, LANDER, 1
+        )
+        if sites:
+            safe_at_site["terrain"].append(terrain[int(scan)][sites[0].row, sites[0].col] == 1)
+            safe_at_site["clean-scan"].append(clean[int(scan)][sites[0].row, sites[0].col] == 1)
+    for truth, hits in safe_at_site.items():
+        row = next(
+            r
+            for r in rows
+            if (r["truth"], r["method"], r["test_sigma_m"], r["nav_sigma_m"])
+            == (truth, "alhat_baseline", SIGMAS_M[0], 0.0)
+        )
+        assert row["landed"] == len(hits)
+        assert row["p_safe"] == (pytest.approx(np.mean(hits)) if hits else None)
+    md = (out / "report.md").read_text()
+    assert "## Landing outcome (test split)" in md and "### Against the terrain truth" in md
+    assert (out / "landing.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_eval_says_when_the_terrain_truth_is_missing(tmp_path):
+    dataset = build_labelled(tmp_path / "data", n_scans=10)
+    run = tmp_path / "run"
+    fit(dataset, run, FitConfig(profile="tiny", epochs=1, progress=False))
+    out = tmp_path / "report"
+    evaluate_to_report(run, dataset, out, EvalConfig(mc_samples=2, nav_sigma_m=(1.0,)))
+    report = json.loads((out / "report.json").read_text())
+    assert {r["truth"] for r in report["landing"]} == {"clean-scan"}
+    assert report["landing_settings"]["missing_truths"] == ["terrain"]
+    assert "`hd label DATASET --truth terrain` adds the terrain's" in (out / "report.md").read_text()
