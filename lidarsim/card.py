@@ -153,6 +153,10 @@ def render_card(directory: str | os.PathLike, recipe: Recipe, machine: str = "")
         "```bash",
         f"hd build-dataset --recipe datasets/{recipe.path.parent.name} --out {recipe.name}",
         f"hd label {recipe.name} --recipe datasets/{recipe.path.parent.name}",
+        *(
+            f"hd label {recipe.name} --recipe datasets/{recipe.path.parent.name} --truth {truth}"
+            for truth in _other_truths(m, recipe)
+        ),
         f"hd verify {recipe.name} --recipe datasets/{recipe.path.parent.name}   # vs. the published build",
         "```",
         f"`{CHECKSUMS_FILE}` beside this card holds the sha256 and the content fingerprint of every file of the "
@@ -200,6 +204,17 @@ def render_card(directory: str | os.PathLike, recipe: Recipe, machine: str = "")
         "",
     ]
     return "\n".join(lines)
+
+
+# A labelling without a truth in the manifest (and a recipe's [label] without one) is the clean scan's.
+DEFAULT_TRUTH = "clean-scan"
+
+
+def _other_truths(manifest: dict[str, Any], recipe: Recipe) -> list[str]:
+    """The truths of the published labellings other than the recipe's own (each rebuilt with ``--truth``)."""
+    own = str(recipe.label.get("truth", DEFAULT_TRUTH))
+    made = {str(lab.get("truth", DEFAULT_TRUTH)) for lab in manifest.get("labelings", [])}
+    return sorted(made - {own})
 
 
 def _sensor_realism(cfg: dict[str, Any]) -> list[str]:

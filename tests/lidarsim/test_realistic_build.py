@@ -203,3 +203,50 @@ def test_noise_drawn_again_from_a_shard_of_the_snr_model_is_the_stored_noise(rea
         for s, sigma in enumerate(sigmas):
             again = noisy_points(ranges, d, scan.sensor_position, sigma, 5, scan.scan_index, sigma_scale=scale)
             assert np.array_equal(again, scan.points_noisy[s], equal_nan=True)
+
+
+def test_the_landing_recipe_is_the_realistic_sensor_at_training_scale_labelled_from_the_terrain():
+    landing, sensor = load_recipe("mars-landing"), load_recipe("mars-realistic-sensor")
+    build = landing.build
+    assert (build.footprint, build.noise_model) == (sensor.build.footprint, sensor.build.noise_model)
+    assert (build.trajectory.altitude_m, build.trajectory.altitude_max_m) == (250.0, 1000.0)
+    assert build.trajectory.n_scans == 5000 and build.seed != sensor.build.seed
+    assert landing.label["truth"] == "terrain"
+    published = landing.checksums()
+    assert published is not None and published["config_sha256"] == build.fingerprint()
+    card = (Path(landing.path).parent / "card.md").read_text()
+    assert "--truth clean-scan" in card and "split 4000/500/500" in card
+
+
+def test_label_with_a_recipe_takes_its_truth_and_may_name_the_other(tmp_path):
+    """A recipe's [label] truth is what `hd label --recipe` makes; --truth picks the other truth of the
+    same lander and DEM, while the lander and DEM options stay refused."""
+    dtm = rough_dtm(tmp_path / "rough.tif")
+    data = tmp_path / "data"
+    build_dataset(
+        data,
+        BuildConfig(
+            sigmas_m=(0.02,),
+            sensor=SensorConfig(rows=24, cols=24),
+            trajectory=TrajectoryConfig(n_scans=2, altitude_m=250.0),
+            dtm_path=str(dtm),
+        ),
+        workers=1,
+    )
+    recipe = tmp_path / "r"
+    recipe.mkdir()
+    (recipe / "recipe.toml").write_text(
+        '[dataset]\nname = "r"\nversion = 1\n\n[build]\nscans = 2\nsigmas_m = [0.02]\n\n'
+        '[label]\nconvention = "paper"\ndem_size = 16\ntruth = "terrain"\n'
+    )
+    runner = CliRunner()
+    result = runner.invoke(main, ["label", str(data), "--recipe", str(recipe), "--workers", "1"])
+    assert result.exit_code == 0, result.output
+    result = runner.invoke(
+        main, ["label", str(data), "--recipe", str(recipe), "--truth", "clean-scan", "--workers", "1"]
+    )
+    assert result.exit_code == 0, result.output
+    truths = sorted(lab.get("truth", "clean-scan") for lab in read_manifest(data)["labelings"])
+    assert truths == ["clean-scan", "terrain"]
+    result = runner.invoke(main, ["label", str(data), "--recipe", str(recipe), "--dem-size", "20"])
+    assert result.exit_code != 0 and "--recipe fixes the lander and DEM settings" in result.output
