@@ -16,6 +16,7 @@ TOPICS = {
     "the gridding",
     "the label rule",
     "the baseline",
+    "the landing outcome",
     "the network",
     "a training profile",
     "a threshold rule",
