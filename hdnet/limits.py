@@ -29,8 +29,8 @@ DROP_PIXELS = Bound(0, MAX_DEM_SIDE_PX * MAX_DEM_SIDE_PX - 1, integer=True)
 SITES = Bound(1, integer=True)
 # Index of a scan in a dataset.
 SCAN_INDEX = Bound(0, lidar_limits.MAX_SCANS - 1, integer=True)
-# A sensor's or a training input's range noise 1-sigma, metres (0: noise-free).
-NOISE_SIGMA_M = Bound(0.0)
+# A sensor's or a training input's range noise 1-sigma, metres (0: noise-free; one bound for every command).
+NOISE_SIGMA_M = lidar_limits.NOISE_SIGMA_M
 # Navigation dispersion of the touchdown around the aim point, metres 1-sigma per horizontal axis
 # (hd choice: 100 m is ten landers' diameters, far past any terrain-relative navigation).
 NAV_SIGMA_M = Bound(0.0, 100.0)

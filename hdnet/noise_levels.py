@@ -22,10 +22,10 @@ from typing import Any
 import numpy as np
 
 from hdnet.errors import HdNetError
+from lidarsim import limits as lidar_limits
 
-# hd choice: the largest noise level hd trains or sweeps at, metres (10x the paper's largest, 7 cm):
-# beyond it the 0.2 m roughness rule is drowned and the DEMs are noise.
-MAX_SIGMA_M = 0.7
+# The largest noise level hd trains or sweeps at, metres (one bound for every command: lidarsim.limits).
+MAX_SIGMA_M = lidar_limits.MAX_SIGMA_M
 # hd choice: a sweep has at most this many levels (each one is an inference over a whole split).
 MAX_SWEEP_LEVELS = 200
 # hd choice: the validation levels of a range are this many evenly spaced points, ends included.
@@ -36,7 +36,7 @@ def _check_sigma(value: Any, what: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise HdNetError(f"{what} must be a finite number of metres, got {value!r}.")
     if not 0.0 <= value <= MAX_SIGMA_M:
-        raise HdNetError(f"{what} must be in [0, {MAX_SIGMA_M:g}] metres, got {value:g}.")
+        raise HdNetError(f"{what} must be in [0, {MAX_SIGMA_M:g}] metres, got {value:g} ({lidar_limits.SIGMA_HINT}).")
     return float(value)
 
 

@@ -129,7 +129,9 @@ class BuildConfig:
             raise LidarsimError("at least one --sigma is needed")
         for s in self.sigmas_m:
             if not (isinstance(s, (int, float)) and limits.SIGMA_M.contains(s)):
-                raise LidarsimError(f"--sigma must be a number of metres in {limits.SIGMA_M.interval()}, got {s}")
+                raise LidarsimError(
+                    f"--sigma must be a number of metres in {limits.SIGMA_M.interval()}, got {s} ({limits.SIGMA_HINT})"
+                )
         if len(set(self.sigmas_m)) != len(self.sigmas_m):
             raise LidarsimError(f"--sigma values must be distinct, got {list(self.sigmas_m)}")
         if not limits.SEED.contains(self.seed):

@@ -36,6 +36,7 @@ class Bound:
 
     ``low``/``high``: the ends (None: unbounded on that side), in the setting's unit; ``low_open``/
     ``high_open``: the end itself is excluded. ``integer``: the setting is a count or an index.
+    ``hint``: a sentence said with every refusal of a value outside the range.
     """
 
     low: float | None = None
@@ -43,6 +44,7 @@ class Bound:
     low_open: bool = False
     high_open: bool = False
     integer: bool = False
+    hint: str = ""  # said after the range when a value falls outside it (e.g. the unit it is in)
 
     def contains(self, value: float) -> bool:
         """True when ``value`` is a finite number within the range."""
@@ -78,8 +80,15 @@ LOADER_WORKERS = _int_bound(0, MAX_LOADER_WORKERS)
 DETECTOR_PX = _int_bound(2, MAX_DETECTOR_PX)
 # Dead or damaged detector elements (together at most the detector's pixels, checked with --resolution).
 DETECTOR_ELEMENTS = _int_bound(0, MAX_DETECTOR_PX * MAX_DETECTOR_PX)
+# hd choice: the largest range-noise 1-sigma any command takes, metres: ten times the paper's largest
+# level (7 cm). Beyond it the 0.2 m roughness rule is drowned and the DEMs are noise; a larger value is
+# almost always centimetres typed where metres are meant.
+MAX_SIGMA_M: float = 0.7
+SIGMA_HINT = "noise levels are in metres: 7 cm is 0.07"
 # Range noise 1-sigma of a dataset's noise level, metres (a noise-free copy is stored beside every level).
-SIGMA_M = Bound(0.0, low_open=True)
+SIGMA_M = Bound(0.0, MAX_SIGMA_M, low_open=True, hint=SIGMA_HINT)
+# A range noise 1-sigma where noise-free (0) is allowed: a sensor's, a training input's, a sweep's; metres.
+NOISE_SIGMA_M = Bound(0.0, MAX_SIGMA_M, hint=SIGMA_HINT)
 # Sensor altitude, metres (the footprint is then compared with the terrain before any work).
 ALTITUDE_M = Bound(0.0, low_open=True)
 # Off-nadir tilt of the boresight, degrees (beyond 60 degrees the footprint grazes the terrain).

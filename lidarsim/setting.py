@@ -98,7 +98,8 @@ class Described:
         if ok and self.choices is not None and value not in self.choices:
             ok, expected = False, "one of " + ", ".join(self.choices)
         if ok and self.bound is not None and not self.bound.contains(float(value)):
-            ok, expected = False, f"{expected} in {self.bound.interval()}"
+            hint = f" ({self.bound.hint})" if self.bound.hint else ""
+            ok, expected = False, f"{expected} in {self.bound.interval()}{hint}"
         return None if ok else expected
 
 
@@ -240,8 +241,15 @@ class Finite(click.FloatRange):
     def _describe_range(self) -> str:
         return super()._describe_range() if (self.min is not None or self.max is not None) else "finite"
 
+    hint = ""  # said after a refusal of a value outside the range (Bound.hint)
+
     def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
-        number = super().convert(value, param, ctx)
+        try:
+            number = super().convert(value, param, ctx)
+        except click.BadParameter as exc:
+            if not self.hint:
+                raise
+            self.fail(f"{exc.message.rstrip('.')} ({self.hint})", param, ctx)
         if not math.isfinite(number):
             self.fail(f"{number} is not a finite number", param, ctx)
         return number
@@ -257,7 +265,9 @@ def bounded(bound: Bound) -> click.ParamType:
             min_open=bound.low_open,
             max_open=bound.high_open,
         )
-    return Finite(min=bound.low, max=bound.high, min_open=bound.low_open, max_open=bound.high_open)
+    finite = Finite(min=bound.low, max=bound.high, min_open=bound.low_open, max_open=bound.high_open)
+    finite.hint = bound.hint
+    return finite
 
 
 DIRECTORY = NonEmptyPath(file_okay=False, path_type=Path)

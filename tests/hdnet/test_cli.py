@@ -70,3 +70,37 @@ def test_train_on_an_unlabelled_dataset_or_an_impossible_sigma_fails_clearly(tmp
     labelled = build_labelled(tmp_path / "lab")
     result = runner.invoke(main, ["train", str(labelled), "--out", str(tmp_path / "run2"), "--train-sigma", "0.9"])
     assert result.exit_code != 0 and "must be in [0, 0.7] metres" in result.output
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["build-dataset", "--sigma", "7", "--scans", "4"],
+        ["detect", "RUN", "--dtm", "RUN/x.tif", "--sigma", "7"],
+        ["train", "DATA", "--train-sigma", "7"],
+        ["train", "DATA", "--train-sigma-range", "0:7"],
+        ["eval", "RUN", "--data", "DATA", "--sigma-sweep", "0:15:1"],
+        ["export", "DATA", "--cloud", "noisy", "--sigma", "7"],
+    ],
+)
+def test_a_noise_level_in_centimetres_is_refused_with_its_unit_before_any_work(tmp_path, args):
+    """σ is in metres everywhere, bounded by one limit (lidarsim.limits.MAX_SIGMA_M = 0.7 m): 7 (cm
+    typed as metres) is refused by every command with the unit in the message, and nothing is written."""
+    for d in ("RUN", "DATA"):
+        (tmp_path / d).mkdir()
+    out = tmp_path / "out"
+    argv = [str(tmp_path / a) if a in ("RUN", "DATA", "RUN/x.tif") else a for a in args]
+    result = CliRunner().invoke(main, [*argv, "--out", str(out)])
+    assert result.exit_code != 0
+    assert "0.7" in result.output and "noise levels are in metres: 7 cm is 0.07" in result.output, result.output
+    assert not out.exists()
+
+
+def test_a_recipe_noise_level_in_centimetres_is_refused_with_its_unit(tmp_path):
+    recipe = tmp_path / "r"
+    recipe.mkdir()
+    (recipe / "recipe.toml").write_text('[dataset]\nname = "r"\nversion = 1\n\n[build]\nscans = 4\nsigmas_m = [7]\n')
+    out = tmp_path / "out"
+    result = CliRunner().invoke(main, ["build-dataset", "--recipe", str(recipe), "--out", str(out)])
+    assert result.exit_code != 0 and "noise levels are in metres: 7 cm is 0.07" in result.output, result.output
+    assert not out.exists()
