@@ -1,16 +1,18 @@
-"""MC-dropout inference (Kendall et al. 2015; paper Eq. 1-2): mean softmax, prediction, predictive entropy.
+"""MC-dropout inference (Kendall et al. 2015; paper Eq. 1-2): mean softmax, prediction, predictive entropy,
+expected entropy and mutual information.
 
 While sampling, every BatchNorm (and every other module) is in inference mode and only the
 ``MCDropout`` modules are in training mode; the previous modes are restored afterwards, so running
 statistics are never touched. The M samples are batched: the deterministic prefix (everything before
 the first dropout) is computed once, tiled M times along the batch (sample-major) and passed through
-the stochastic suffix in one pass (or in chunks of ``samples_per_pass`` samples to bound memory).
+the stochastic suffix in one pass (or in chunks of ``samples_per_pass`` samples to bound memory). The
+samples' softmaxes and their entropies are summed chunk by chunk; no sample is kept.
 """
 
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import torch
@@ -26,13 +28,28 @@ class MCPrediction:
     """MC-dropout output for a batch of N inputs of H x W pixels.
 
     ``mean_probs``: mean softmax (N, n_classes, H, W); ``prediction``: argmax class (N, H, W) int64
-    (1 = safe, 0 = unsafe); ``entropy_nats``: predictive entropy of the mean softmax (N, H, W), in nats
-    (0 = certain, ln 2 = maximal for two classes).
+    (1 = safe, 0 = unsafe); ``entropy_nats``: predictive entropy H[mean_m p_m] of the mean softmax
+    (N, H, W), in nats (0 = certain, ln 2 = maximal for two classes); ``expected_entropy_nats``: the
+    mean over the M samples of each sample's softmax entropy, mean_m H[p_m] (N, H, W), nats.
     """
 
     mean_probs: torch.Tensor
     prediction: torch.Tensor
     entropy_nats: torch.Tensor
+    expected_entropy_nats: torch.Tensor
+
+    @property
+    def mutual_information_nats(self) -> torch.Tensor:
+        """H[mean_m p_m] - mean_m H[p_m] (N, H, W), nats: the samples' disagreement (``mutual_information``)."""
+        return mutual_information(self.entropy_nats, self.expected_entropy_nats)
+
+    def on_grid(self, to_grid: Callable[[torch.Tensor], torch.Tensor]) -> MCPrediction:
+        """The prediction on another grid: ``to_grid`` maps (N, C, H, W) to (N, C, h, w) (e.g. the
+        DEM grid, ``hdnet.inputs.to_dem_grid``) and is applied to the mean softmax (float32) and to
+        the expected entropy; the prediction and the predictive entropy are made again on the new grid."""
+        probs = to_grid(self.mean_probs.float())
+        expected = to_grid(self.expected_entropy_nats.float()[:, None])[:, 0]
+        return MCPrediction(probs, probs.argmax(dim=1), predictive_entropy(probs), expected)
 
 
 def _unwrap(model: nn.Module) -> BayesianSegNet:
@@ -62,8 +79,16 @@ def predictive_entropy(mean_probs: torch.Tensor, dim: int = 1) -> torch.Tensor:
     return -torch.special.xlogy(mean_probs, mean_probs).sum(dim=dim)
 
 
-def _summarise(mean_probs: torch.Tensor) -> MCPrediction:
-    return MCPrediction(mean_probs, mean_probs.argmax(dim=1), predictive_entropy(mean_probs))
+def mutual_information(entropy_nats: torch.Tensor, expected_entropy_nats: torch.Tensor) -> torch.Tensor:
+    """MI = H[mean_m p_m] - mean_m H[p_m] (nats; Gal, Islam & Ghahramani 2017, the BALD score), clipped
+    at 0: it is >= 0 by the concavity of the entropy, and only round-off makes it negative."""
+    return (entropy_nats - expected_entropy_nats).clamp_min(0.0)
+
+
+def _summarise(prob_sum: torch.Tensor, entropy_sum: torch.Tensor, n_samples: int) -> MCPrediction:
+    """The prediction from the sums over the M samples of their softmaxes and of their entropies."""
+    mean_probs = prob_sum / n_samples
+    return MCPrediction(mean_probs, mean_probs.argmax(dim=1), predictive_entropy(mean_probs), entropy_sum / n_samples)
 
 
 def _check_samples(n_samples: int) -> None:
@@ -86,15 +111,19 @@ def mc_dropout_predict(
         state = net.prefix(x)
         n = x.shape[0]
         total: torch.Tensor | None = None
+        entropy_total: torch.Tensor | None = None
         done = 0
         while done < n_samples:
             m = min(chunk, n_samples - done)
             probs = torch.softmax(net.suffix(state.repeat(m) if m > 1 else state), dim=1)
-            part = probs.view(m, n, *probs.shape[1:]).sum(dim=0)
+            samples = probs.view(m, n, *probs.shape[1:])
+            part = samples.sum(dim=0)
+            entropy_part = predictive_entropy(samples.float(), dim=2).sum(dim=0)
             total = part if total is None else total + part
+            entropy_total = entropy_part if entropy_total is None else entropy_total + entropy_part
             done += m
-        assert total is not None
-        return _summarise(total / n_samples)
+        assert total is not None and entropy_total is not None
+        return _summarise(total, entropy_total, n_samples)
 
 
 @torch.no_grad()
@@ -102,8 +131,10 @@ def mc_dropout_predict_naive(model: nn.Module, x: torch.Tensor, n_samples: int =
     """Reference MC dropout: M independent full forward passes (for tests and benchmarks)."""
     _check_samples(n_samples)
     with mc_dropout_mode(model) as net:
-        total = sum(torch.softmax(net(x), dim=1) for _ in range(n_samples))
-        return _summarise(total / n_samples)  # type: ignore[arg-type]  # a sum of tensors is a tensor
+        samples = [torch.softmax(net(x), dim=1) for _ in range(n_samples)]
+        total = sum(samples)
+        entropy_total = sum(predictive_entropy(p.float()) for p in samples)
+        return _summarise(total, entropy_total, n_samples)  # type: ignore[arg-type]  # sums of tensors are tensors
 
 
 def dropout_modules(model: nn.Module) -> list[MCDropout]:

@@ -107,3 +107,95 @@ def test_entropy_of_uniform_two_class_mean_is_ln2_and_certain_is_zero() -> None:
 def test_bad_sample_count_raises() -> None:
     with pytest.raises(HdNetError):
         mc_dropout_predict(_model(), torch.randn(1, 1, 32, 32), n_samples=0)
+
+
+class FixedSoftmaxes:
+    """A forward hook on the classifier that makes sample k's softmax ``probs[k]`` at every pixel.
+
+    The logits ln p give the softmax p. A call with batch k*N returns the next k samples, sample-major,
+    as ``MaskInjector`` does: k = 1 on the naive path, k = M (or a chunk) with the shared prefix.
+    """
+
+    def __init__(self, model: BayesianSegNet, n: int, probs: list[list[float]]) -> None:
+        self.n, self.logits, self.calls = n, torch.log(torch.tensor(probs)), 0
+        self.handle = model.classifier.register_forward_hook(self.hook)
+
+    def hook(self, module, inputs, output):
+        k = output.shape[0] // self.n
+        rows = self.logits[self.calls : self.calls + k].repeat_interleave(self.n, dim=0)
+        self.calls += k
+        return rows[:, :, None, None].expand_as(output).clone()
+
+
+def entropy_of(p: list[float]) -> float:
+    return -sum(q * math.log(q) for q in p if q > 0)
+
+
+@pytest.mark.parametrize("path", ["shared", "naive"])
+def test_mutual_information_of_two_opposite_samples_by_hand(path) -> None:
+    """Samples [0.9, 0.1] and [0.1, 0.9]: mean [0.5, 0.5], H = ln 2, expected entropy H(0.9, 0.1)."""
+    model = _model()
+    fixed = FixedSoftmaxes(model, n=2, probs=[[0.9, 0.1], [0.1, 0.9]])
+    x = torch.randn(2, 1, 32, 32)
+    out = mc_dropout_predict(model, x, n_samples=2) if path == "shared" else mc_dropout_predict_naive(model, x, 2)
+    fixed.handle.remove()
+    assert fixed.calls == 2
+    torch.testing.assert_close(out.mean_probs, torch.full_like(out.mean_probs, 0.5))
+    h, expected = math.log(2), entropy_of([0.9, 0.1])
+    torch.testing.assert_close(out.entropy_nats, torch.full((2, 32, 32), h))
+    torch.testing.assert_close(out.expected_entropy_nats, torch.full((2, 32, 32), expected))
+    torch.testing.assert_close(out.mutual_information_nats, torch.full((2, 32, 32), h - expected))
+
+
+def test_expected_entropy_averages_unequal_samples_by_hand() -> None:
+    """Three samples, one certain: expected entropy (H(0.8, 0.2) + 0 + H(0.5, 0.5)) / 3, chunked by 2."""
+    model = _model()
+    samples = [[0.8, 0.2], [1.0 - 1e-12, 1e-12], [0.5, 0.5]]
+    fixed = FixedSoftmaxes(model, n=1, probs=samples)
+    out = mc_dropout_predict(model, torch.randn(1, 1, 32, 32), n_samples=3, samples_per_pass=2)
+    fixed.handle.remove()
+    mean = [sum(p[c] for p in samples) / 3 for c in range(2)]
+    expected = sum(entropy_of(p) for p in samples) / 3
+    assert out.expected_entropy_nats[0, 0, 0].item() == pytest.approx(expected, abs=1e-6)
+    assert out.mutual_information_nats[0, 0, 0].item() == pytest.approx(entropy_of(mean) - expected, abs=1e-6)
+
+
+def test_mutual_information_is_zero_when_every_sample_is_the_same() -> None:
+    x = torch.randn(2, 1, 32, 32)
+    one = mc_dropout_predict(_model(), x, n_samples=1)  # one sample: H[p] - H[p]
+    assert torch.equal(one.mutual_information_nats, torch.zeros(2, 32, 32))
+    torch.manual_seed(0)
+    no_dropout = BayesianSegNet(width=1 / 16, dropout_p=0.0)  # every sample the deterministic network
+    for out in (mc_dropout_predict(no_dropout, x, n_samples=4), mc_dropout_predict_naive(no_dropout, x, 3)):
+        torch.testing.assert_close(out.expected_entropy_nats, out.entropy_nats)
+        assert (out.mutual_information_nats >= 0).all() and out.mutual_information_nats.max() < 1e-6
+
+
+@pytest.mark.parametrize("chunk", [None, 2])
+def test_mutual_information_shared_prefix_equals_naive_and_lies_in_zero_to_entropy(chunk) -> None:
+    model = _model()
+    x = torch.randn(2, 1, 40, 36)
+    inj = MaskInjector(model, n=2, m=4, seed=2)
+    naive = mc_dropout_predict_naive(model, x, n_samples=4)
+    inj.calls.clear()
+    shared = mc_dropout_predict(model, x, n_samples=4, samples_per_pass=chunk)
+    inj.remove()
+    torch.testing.assert_close(shared.expected_entropy_nats, naive.expected_entropy_nats)
+    torch.testing.assert_close(shared.mutual_information_nats, naive.mutual_information_nats)
+    for out in (shared, naive):
+        mi = out.mutual_information_nats
+        assert out.expected_entropy_nats.shape == mi.shape == (2, 40, 36)
+        assert (mi >= 0).all() and (mi <= out.entropy_nats).all() and (mi > 0).any()  # the samples disagree
+
+
+def test_on_grid_maps_probabilities_and_expected_entropy_and_recomputes_the_rest() -> None:
+    out = mc_dropout_predict(_model(), torch.randn(1, 1, 32, 32), n_samples=3)
+
+    def crop(t: torch.Tensor) -> torch.Tensor:
+        return t[..., :20, :10]
+
+    grid = out.on_grid(crop)
+    torch.testing.assert_close(grid.mean_probs, crop(out.mean_probs))
+    torch.testing.assert_close(grid.entropy_nats, crop(out.entropy_nats))
+    torch.testing.assert_close(grid.expected_entropy_nats, crop(out.expected_entropy_nats))
+    assert torch.equal(grid.prediction, crop(out.prediction)) and grid.mutual_information_nats.shape == (1, 20, 10)
