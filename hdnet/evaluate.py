@@ -2,13 +2,14 @@
 
 Protocol (docs/evaluation.md; paper, "Results & Discussion"):
 
-1. the entropy threshold H_t is calibrated on the validation split at the training noise level
-   (``mean``, ``quantile:Q`` or ``risk:ALPHA``, ``hdnet.thresholds``);
+1. the threshold H_t of the uncertainty score (predictive entropy, the paper's, or mutual
+   information: ``hdnet.uncertainty``) is calibrated on the validation split's scores at the
+   training noise level (``mean``, ``quantile:Q`` or ``risk:ALPHA``, ``hdnet.thresholds``);
 2. for every noise level of the dataset, the test split is run once through MC dropout; the mean
    softmax is brought back to the DEM grid (``HazardDataset.to_dem_grid``) and every method is
    scored from one confusion matrix over the whole split (``hdnet.metrics``):
    ``alhat_baseline`` (P(safe) >= 0.5 of the label shard), ``base_net`` (argmax of the mean
-   softmax) and ``uncertainty_aware`` (base net without the pixels with H >= H_t);
+   softmax) and ``uncertainty_aware`` (base net without the pixels whose score is >= H_t);
 3. the same inference serves the precision/sensitivity sweep over threshold quantiles, the expected
    calibration error of the safe probability and, for ``risk:ALPHA``, the false-safe rate achieved;
 4. ``drop_pixels=K`` repeats step 2 with K dead pixels per test DEM, repaired bilinearly, the
@@ -48,7 +49,7 @@ from hdnet.data import (
     stored_sigma_index,
 )
 from hdnet.errors import HdNetError
-from hdnet.infer import mc_dropout_predict, predictive_entropy
+from hdnet.infer import mc_dropout_predict
 from hdnet.inputs import InputSpec
 from hdnet.landing import NAV_SIGMAS_M
 from hdnet.landing_table import LandingSettings, landing_rows
@@ -64,6 +65,7 @@ from hdnet.shared_options import (
     mc_samples_setting,
     seed_setting,
     threshold_setting,
+    uncertainty_setting,
 )
 from hdnet.thresholds import (
     EntropyCalibration,
@@ -73,6 +75,7 @@ from hdnet.thresholds import (
     select_threshold,
 )
 from hdnet.train import LAST, load_checkpoint, load_trained_model
+from hdnet.uncertainty import ENTROPY, UncertaintyScore, recorded_score, uncertainty_score, with_score
 from lidarsim.errors import HdError
 from lidarsim.setting import DIRECTORY, check, setting
 from lidarsim.shards import MANIFEST_NAME, read_manifest, sha256_file
@@ -124,10 +127,16 @@ def reliability(prob_safe: np.ndarray, truth_safe: np.ndarray, n_bins: int = ECE
     return ReliabilityBins(edges, count, mean_p, frac, ece)
 
 
-def method_rows(inf: SplitInference, table: str, train_sigma_m: float, threshold_nats: float) -> list[ReportRow]:
-    """The three methods' rows for one split inference."""
+def method_rows(
+    inf: SplitInference,
+    table: str,
+    train_sigma_m: float,
+    threshold_nats: float,
+    uncertainty: UncertaintyScore = ENTROPY,
+) -> list[ReportRow]:
+    """The three methods' rows for one split inference (uncertain: ``uncertainty`` >= ``threshold_nats``)."""
     out = []
-    uncertain = inf.entropy_nats >= threshold_nats
+    uncertain = uncertainty.of(inf) >= threshold_nats
     for method in METHODS:
         if method == "alhat_baseline":
             m = score(inf.label, inf.baseline_safe.astype(np.int64), inf.ignore)
@@ -151,11 +160,12 @@ def method_rows(inf: SplitInference, table: str, train_sigma_m: float, threshold
     return out
 
 
-def false_safe_rate(inf: SplitInference, threshold_nats: float) -> float:
-    """Mean over images of (certain false-safe pixels / valid pixels): the loss risk control bounds."""
+def false_safe_rate(inf: SplitInference, threshold_nats: float, uncertainty: UncertaintyScore = ENTROPY) -> float:
+    """Mean over images of (certain false-safe pixels / valid pixels): the loss risk control bounds
+    (certain: ``uncertainty`` < ``threshold_nats``)."""
     cal = EntropyCalibration()
     cal.update(
-        torch.from_numpy(inf.entropy_nats),
+        torch.from_numpy(uncertainty.of(inf)),
         torch.from_numpy(inf.prediction),
         torch.from_numpy(inf.label),
         torch.from_numpy(inf.ignore),
@@ -183,7 +193,7 @@ def infer_split(
     torch.manual_seed(seed)
     n = len(ds)
     h, w = ds.dem_shape
-    arrays = {k: np.zeros((n, h, w), np.float32) for k in ("prob", "entropy", "clean", "noisy", "baseline")}
+    arrays = {k: np.zeros((n, h, w), np.float32) for k in ("prob", "entropy", "mi", "clean", "noisy", "baseline")}
     label = np.zeros((n, h, w), np.int64)
     pred = np.zeros((n, h, w), np.int64)
     ignore = np.zeros((n, h, w), bool)
@@ -193,12 +203,12 @@ def infer_split(
         idx = range(start, min(n, start + batch_size))
         samples = [ds.dem_sample(i) for i in idx]
         x = torch.stack([ds.prepare(s)["image"] for s in samples]).to(device)
-        out = mc_dropout_predict(model, x, n_samples=mc_samples)
-        probs = ds.to_dem_grid(out.mean_probs.float()).cpu()
+        out = mc_dropout_predict(model, x, n_samples=mc_samples).on_grid(lambda t: ds.to_dem_grid(t).cpu())
         sl = slice(idx.start, idx.stop)
-        arrays["prob"][sl] = probs[:, defaults.CLASS_SAFE].numpy()
-        arrays["entropy"][sl] = predictive_entropy(probs).numpy()
-        pred[sl] = probs.argmax(dim=1).numpy()
+        arrays["prob"][sl] = out.mean_probs[:, defaults.CLASS_SAFE].numpy()
+        arrays["entropy"][sl] = out.entropy_nats.numpy()
+        arrays["mi"][sl] = out.mutual_information_nats.numpy()
+        pred[sl] = out.prediction.numpy()
         for j, s in zip(idx, samples, strict=True):
             scans[j], label[j], ignore[j] = s.scan_index, s.label, s.ignore
             arrays["clean"][j], arrays["noisy"][j] = s.dem_clean_m, s.dem_noisy_m
@@ -223,6 +233,7 @@ def infer_split(
         arrays["clean"],
         arrays["noisy"],
         arrays["baseline"],
+        arrays["mi"],
     )
 
 
@@ -291,7 +302,8 @@ def _finite_or_none(x: float) -> float | None:
 class ValidationThreshold:
     """H_t (nats; +inf = every pixel certain) calibrated on a validation split, and how it was obtained.
 
-    ``info`` is the ``threshold`` entry of ``report.json`` (spec, value, mean, calibration split and sizes).
+    ``info`` is the ``threshold`` entry of ``report.json`` (spec, value, mean, calibration split and
+    sizes; the uncertainty score when it is not the default, ``hdnet.uncertainty.with_score``).
     """
 
     value_nats: float
@@ -310,8 +322,10 @@ def validation_threshold(
     seed: int,
     device: torch.device,
     progress: Callable[[int], None] | None = None,
+    uncertainty: UncertaintyScore = ENTROPY,
 ) -> ValidationThreshold:
-    """Step 1 of the protocol: MC dropout over the validation split, entropies collected, H_t selected.
+    """Step 1 of the protocol: MC dropout over the validation split, its ``uncertainty`` (predictive entropy
+    or mutual information, nats) collected, H_t selected.
 
     Several validation splits (one noise level, several datasets) calibrate together.
     """
@@ -320,23 +334,23 @@ def validation_threshold(
         [infer_split(model, ds, mc_samples, batch_size, seed, device, progress=progress) for ds in parts]
     )
     cal = EntropyCalibration()
-    cal.update(torch.from_numpy(val.entropy_nats), torch.from_numpy(val.prediction), torch.from_numpy(val.label))
+    cal.update(torch.from_numpy(uncertainty.of(val)), torch.from_numpy(val.prediction), torch.from_numpy(val.label))
     h_t = select_threshold(spec, cal)
     h_mean = cal.mean()
-    val_entropy = val.entropy_nats[val.valid]
+    val_scores = uncertainty.of(val)[val.valid]
     info: dict[str, Any] = {
         "spec": str(spec),
         "kind": spec.kind,
         "parameter": spec.value,
         "value_nats": _finite_or_none(h_t),
         "mean_nats": h_mean,
-        "mean_quantile": float(np.mean(val_entropy < h_mean)),
+        "mean_quantile": float(np.mean(val_scores < h_mean)),
         "calibration_split": "val",
         "calibration_sigma_m": val.sigma_m,
         "calibration_images": cal.n_images,
-        "calibration_pixels": int(val_entropy.size),
+        "calibration_pixels": int(val_scores.size),
     }
-    return ValidationThreshold(h_t, info, cal, val)
+    return ValidationThreshold(h_t, with_score(info, uncertainty), cal, val)
 
 
 # --- the evaluation --------------------------------------------------------------------------------
@@ -355,7 +369,9 @@ class EvalConfig:
     ``mc_samples``: MC-dropout samples per DEM; ``drop_pixels``: dead pixels
     per test DEM for Table 2 (0: no dead-pixel table); ``threshold``: ``mean``, ``quantile:Q`` or
     ``risk:ALPHA``; ``labels``: the labelling to score against (None: the one the run was trained
-    on when the dataset has it, else the dataset's newest); ``seed``: dropout masks and dead pixels;
+    on when the dataset has it, else the dataset's newest); ``uncertainty``: the score thresholded at
+    H_t (``entropy``, the paper's, or ``mutual-information``: ``hdnet.uncertainty``); ``seed``:
+    dropout masks and dead pixels;
     ``batch_size``: DEMs per inference batch; ``nav_sigma_m``: the navigation dispersions (metres)
     of the landing table (``hdnet.landing_table``); ``device``: a torch device
     (None: CUDA when available, else the CPU); ``sigma_sweep``: noise levels (metres) the test
@@ -380,6 +396,7 @@ class EvalConfig:
         bound=limits.DROP_PIXELS,
     )
     threshold: str = threshold_setting()
+    uncertainty: str = uncertainty_setting()
     labels: str | None = labels_setting("Labelling to evaluate against (when the dataset has several)")
     seed: int = seed_setting("MC dropout and dropped pixels")
     batch_size: int = batch_size_setting("DEMs per inference batch")
@@ -419,6 +436,11 @@ class EvalConfig:
     def threshold_spec(self) -> ThresholdSpec:
         """The parsed ``threshold``."""
         return parse_threshold_spec(self.threshold)
+
+    @property
+    def uncertainty_score(self) -> UncertaintyScore:
+        """The score ``uncertainty`` names."""
+        return uncertainty_score(self.uncertainty)
 
 
 @dataclass(frozen=True)
@@ -642,6 +664,7 @@ class _Thresholds:
                 seed=cfg.seed,
                 device=self.setup.device,
                 progress=self.progress,
+                uncertainty=cfg.uncertainty_score,
             )
         return th
 
@@ -698,6 +721,7 @@ def _noise_table(
 ]:
     """Steps 2-3: the test split at every noise level: the three methods (Table 1), the sweep over
     threshold quantiles, the calibration of P(safe) and, for ``risk:ALPHA``, the false-safe rate."""
+    uncertainty = cfg.uncertainty_score
     rows: list[ReportRow] = []
     sweep: list[dict[str, Any]] = []
     cal_rows: list[dict[str, Any]] = []
@@ -717,9 +741,10 @@ def _noise_table(
             progress=thresholds.progress,
         )
         tests[sigma] = inf
-        rows += method_rows(inf, "noise", val_sigma, h_t)
+        rows += method_rows(inf, "noise", val_sigma, h_t, uncertainty)
+        u = uncertainty.of(inf)
         for q, t in quantile_thresholds:
-            m = score(inf.label, inf.prediction, inf.ignore, inf.entropy_nats >= t)
+            m = score(inf.label, inf.prediction, inf.ignore, u >= t)
             sweep.append(
                 {
                     "test_sigma_m": sigma,
@@ -745,7 +770,8 @@ def _noise_table(
             }
         )
         if cfg.threshold_spec.kind == "risk":
-            achieved.append({"test_sigma_m": sigma, "table": "noise", "false_safe_rate": false_safe_rate(inf, h_t)})
+            rate = false_safe_rate(inf, h_t, uncertainty)
+            achieved.append({"test_sigma_m": sigma, "table": "noise", "false_safe_rate": rate})
     return tests, rows, sweep, cal_rows, achieved
 
 
@@ -769,11 +795,10 @@ def _dead_pixel_table(
             recompute_baseline=True,
             progress=thresholds.progress,
         )
-        rows += method_rows(inf, "dead_pixels", val_sigma, h_t)
+        rows += method_rows(inf, "dead_pixels", val_sigma, h_t, cfg.uncertainty_score)
         if cfg.threshold_spec.kind == "risk":
-            achieved.append(
-                {"test_sigma_m": sigma, "table": "dead_pixels", "false_safe_rate": false_safe_rate(inf, h_t)}
-            )
+            rate = false_safe_rate(inf, h_t, cfg.uncertainty_score)
+            achieved.append({"test_sigma_m": sigma, "table": "dead_pixels", "false_safe_rate": rate})
     return rows, achieved
 
 
@@ -795,11 +820,10 @@ def _sigma_sweep(
             setup.device,
             progress=thresholds.progress,
         )
-        rows += method_rows(inf, "sigma_sweep", setup.train_sigma_m, h_t)
+        rows += method_rows(inf, "sigma_sweep", setup.train_sigma_m, h_t, cfg.uncertainty_score)
         if cfg.threshold_spec.kind == "risk":
-            achieved.append(
-                {"test_sigma_m": inf.sigma_m, "table": "sigma_sweep", "false_safe_rate": false_safe_rate(inf, h_t)}
-            )
+            rate = false_safe_rate(inf, h_t, cfg.uncertainty_score)
+            achieved.append({"test_sigma_m": inf.sigma_m, "table": "sigma_sweep", "false_safe_rate": rate})
     return rows, achieved
 
 
@@ -819,7 +843,13 @@ def _landing_table(
     rows: list[LandingRow] = []
     for sigma, inf in tests.items():
         rows += landing_rows(
-            inf, thresholds.at(sigma).value_nats, truths, lander_of(entry), dem_spacing_m(entry), settings
+            inf,
+            thresholds.at(sigma).value_nats,
+            truths,
+            lander_of(entry),
+            dem_spacing_m(entry),
+            settings,
+            uncertainty=cfg.uncertainty_score,
         )
     info: dict[str, Any] = {**settings.to_dict(), "labelings": {t: names[t] for t in truths}}
     missing = [t for t in TRUTHS if t not in truths]
@@ -870,10 +900,12 @@ def report_is_current(
     report_dir: str | os.PathLike, run_dir: str | os.PathLike, dataset_dir: str | os.PathLike, cfg: EvalConfig
 ) -> bool:
     """True when ``report_dir`` holds the report this evaluation would write (``hd eval`` run again):
-    the same checkpoint bytes, dataset manifest, labelling request and evaluation settings."""
+    the same checkpoint bytes, dataset manifest, labelling request and evaluation settings (the
+    uncertainty score included)."""
     try:
         report = json.loads((Path(report_dir) / "report.json").read_text())
         run, th = report["run"], report["threshold"]
+        same_score = recorded_score(th) is cfg.uncertainty_score
         ckpt = checkpoint_path(run_dir)
         same_inputs = (
             run.get("checkpoint_sha256") == sha256_file(ckpt)
@@ -898,6 +930,7 @@ def report_is_current(
         and run.get("sigma_sweep_m") == list(cfg.sigma_sweep)
         and report.get("landing_settings", {}).get("nav_sigmas_m") == list(cfg.nav_sigma_m)
         and th.get("spec") == str(cfg.threshold_spec)
+        and same_score
         and th.get("calibrate") == cfg.calibrate
         and th.get("calibration_datasets") == calibration
     )

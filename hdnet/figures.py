@@ -22,6 +22,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
 from hdnet import defaults
+from hdnet.uncertainty import ENTROPY, UncertaintyScore, recorded_score
 
 if TYPE_CHECKING:
     from hdnet.results import EvaluationResult, Site, SplitInference
@@ -65,9 +66,11 @@ def reliability_diagram(result: EvaluationResult, path: Path) -> None:
 def threshold_sweep(result: EvaluationResult, path: Path) -> None:
     """Precision and sensitivity of the uncertainty-aware map vs the threshold's validation quantile.
 
-    One panel per test sigma; dashed line: the mean-entropy threshold (as a validation quantile);
-    dotted lines: the ALHAT baseline's precision and sensitivity at that sigma.
+    One panel per test sigma; dashed line: the threshold at the mean validation score (entropy or
+    mutual information, ``hdnet.uncertainty``; as a validation quantile); dotted lines: the ALHAT
+    baseline's precision and sensitivity at that sigma.
     """
+    short = recorded_score(result.threshold).short
     sigmas = sorted({row["test_sigma_m"] for row in result.sweep})
     fig, axes = plt.subplots(1, len(sigmas), figsize=(4.2 * len(sigmas), 3.8), squeeze=False)
     for ax, sigma in zip(axes[0], sigmas, strict=True):
@@ -75,7 +78,7 @@ def threshold_sweep(result: EvaluationResult, path: Path) -> None:
         q = [r["quantile"] for r in pts]
         ax.plot(q, [r["precision"] for r in pts], "o-", color="tab:blue", label="precision")
         ax.plot(q, [r["sensitivity"] for r in pts], "s-", color="tab:orange", label="sensitivity")
-        ax.axvline(result.threshold["mean_quantile"], color="k", ls="--", lw=1, label="mean-entropy threshold")
+        ax.axvline(result.threshold["mean_quantile"], color="k", ls="--", lw=1, label=f"mean-{short} threshold")
         base = [
             r for r in result.rows if r.table == "noise" and r.method == "alhat_baseline" and r.test_sigma_m == sigma
         ]
@@ -88,7 +91,7 @@ def threshold_sweep(result: EvaluationResult, path: Path) -> None:
         ax.set(
             xlim=(0, 1.05),
             ylim=(0, 1.02),
-            xlabel="threshold quantile (validation entropy)",
+            xlabel=f"threshold quantile (validation {short})",
             title=f"test sigma {sigma_label(sigma)}",
         )
     axes[0][0].set_ylabel("fraction")
@@ -161,24 +164,29 @@ def representative_scan(inf: SplitInference) -> int:
     return int(np.argmin(np.abs(frac - 0.5)))
 
 
-def qualitative_panel(inf: SplitInference, row: int, threshold_nats: float | None, path: Path) -> None:
+def qualitative_panel(
+    inf: SplitInference, row: int, threshold_nats: float | None, path: Path, uncertainty: UncertaintyScore = ENTROPY
+) -> None:
     """True DEM, label, noisy DEM, uncertainty, uncertainty-aware prediction, baseline for one scan,
-    saved to ``path`` (PNG)."""
-    fig = qualitative_figure(inf, row, threshold_nats)
+    saved to ``path`` (PNG); ``uncertainty``: the score shown and thresholded."""
+    fig = qualitative_figure(inf, row, threshold_nats, uncertainty)
     fig.savefig(path, dpi=DPI)
     plt.close(fig)
 
 
-def qualitative_figure(inf: SplitInference, row: int, threshold_nats: float | None) -> Figure:
+def qualitative_figure(
+    inf: SplitInference, row: int, threshold_nats: float | None, uncertainty: UncertaintyScore = ENTROPY
+) -> Figure:
     """The figure of ``qualitative_panel``: six panels, safety maps explained by a colour legend."""
     label = inf.label[row]
     t = math.inf if threshold_nats is None else threshold_nats
-    uncertain = inf.entropy_nats[row] >= t
+    values = uncertainty.of(inf)[row]
+    uncertain = values >= t
     panels: list[tuple[str, np.ndarray, dict[str, Any]]] = [
         ("true DEM (m)", inf.dem_clean_m[row], {"cmap": "terrain"}),
         ("label", _safety_codes(label == defaults.CLASS_SAFE, label), {"cmap": SAFETY_COLOURS, "vmin": 0, "vmax": 3}),
         ("noisy DEM (m)", inf.dem_noisy_m[row], {"cmap": "terrain"}),
-        ("uncertainty (nats)", inf.entropy_nats[row], {"cmap": "viridis", "vmin": 0.0, "vmax": math.log(2)}),
+        ("uncertainty (nats)", values, {"cmap": "viridis", "vmin": 0.0, "vmax": math.log(2)}),
         (
             "uncertainty-aware",
             _safety_codes(inf.prediction[row] == defaults.CLASS_SAFE, label, uncertain),
@@ -272,7 +280,7 @@ def write_figures(result: EvaluationResult, out_dir: Path) -> list[Path]:
         row = representative_scan(first)
         for sigma, inf in result.test.items():
             p = out_dir / f"qualitative_{sigma_label(sigma)}.png"
-            qualitative_panel(inf, row, result.threshold["value_nats"], p)
+            qualitative_panel(inf, row, result.threshold["value_nats"], p, recorded_score(result.threshold))
             paths.append(p)
     return paths
 

@@ -7,7 +7,8 @@ and footprints that touch a hole of the noisy DEM):
 
 * ``alhat_baseline``: safe where the baseline's P(safe) >= 0.5, ranked by that P(safe);
 * ``base_net``: safe where the network's mean softmax says safe, ranked by its P(safe);
-* ``uncertainty_aware``: the base net's map with the pixels at or above H_t uncertain.
+* ``uncertainty_aware``: the base net's map with the pixels whose uncertainty score (predictive
+  entropy or mutual information, ``hdnet.uncertainty``) is at or above H_t uncertain.
 
 ``hdnet.sites.select_sites`` picks the best site (one, with the same dispersion the touchdowns are
 drawn with: a system ranks its sites knowing its navigation), ``hdnet.landing`` draws the touchdowns
@@ -37,6 +38,7 @@ from hdnet.landing import (
 )
 from hdnet.results import LandingRow, SplitInference
 from hdnet.sites import SAFETY_INVALID, SAFETY_SAFE, SAFETY_UNCERTAIN, SAFETY_UNSAFE, select_sites
+from hdnet.uncertainty import ENTROPY, UncertaintyScore
 
 METHODS = ("alhat_baseline", "base_net", "uncertainty_aware")
 # The ALHAT baseline is safe where P(safe) >= this (paper, "Label generation"; one source: hdlabels.defaults).
@@ -56,9 +58,12 @@ class LandingSettings:
         return {"nav_sigmas_m": list(self.nav_sigmas_m), "touchdowns": self.touchdowns, "seed": self.seed}
 
 
-def method_map(method: str, inf: SplitInference, j: int, threshold_nats: float) -> tuple[np.ndarray, np.ndarray]:
+def method_map(
+    method: str, inf: SplitInference, j: int, threshold_nats: float, uncertainty: UncertaintyScore = ENTROPY
+) -> tuple[np.ndarray, np.ndarray]:
     """The safety map (uint8 ``hdnet.detect`` codes) and the P(safe) that ranks sites, of scene ``j``
-    of ``inf`` under ``method`` (``threshold_nats``: H_t of the uncertainty-aware map)."""
+    of ``inf`` under ``method`` (``threshold_nats``: H_t of the uncertainty-aware map, applied to
+    the score ``uncertainty``)."""
     if inf.baseline_p_safe is None:
         raise HdNetError("the landing table needs the baseline's P(safe) of every test scene.")
     base = inf.baseline_p_safe[j]
@@ -73,7 +78,7 @@ def method_map(method: str, inf: SplitInference, j: int, threshold_nats: float) 
         raise HdNetError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}.")
     safety = np.where(safe, SAFETY_SAFE, SAFETY_UNSAFE).astype(np.uint8)
     if method == "uncertainty_aware":
-        safety[inf.entropy_nats[j] >= threshold_nats] = SAFETY_UNCERTAIN
+        safety[uncertainty.of(inf)[j] >= threshold_nats] = SAFETY_UNCERTAIN
     safety[invalid] = SAFETY_INVALID
     return safety, p
 
@@ -86,10 +91,12 @@ def landing_rows(
     spacing_m: float,
     settings: LandingSettings = LandingSettings(),
     methods: Sequence[str] = METHODS,
+    uncertainty: UncertaintyScore = ENTROPY,
 ) -> list[LandingRow]:
     """The rows (method x dispersion x truth) of one noise level's test split ``inf``.
 
-    ``truths``: per truth name, the stored labels of every scene by scan index (``hdnet.data.split_labels``).
+    ``truths``: per truth name, the stored labels of every scene by scan index (``hdnet.data.split_labels``);
+    ``uncertainty``: the score H_t (``threshold_nats``) applies to.
 
     Raises:
         HdNetError: a scene without the truth's labels, or of another shape.
@@ -108,7 +115,7 @@ def landing_rows(
             truth_maps[name] = (lab, truth_clearance_map(lab, spacing))
         unit_offsets = touchdown_offsets(settings.touchdowns, 1.0, settings.seed, scan)
         for method in methods:
-            safety, p = method_map(method, inf, j, threshold_nats)
+            safety, p = method_map(method, inf, j, threshold_nats, uncertainty)
             base = inf.baseline_p_safe[j] if inf.baseline_p_safe is not None else p  # method_map checked it
             for nav in settings.nav_sigmas_m:
                 sites = select_sites(safety, p, inf.entropy_nats[j], base, transform, spacing, lander, 1, nav)

@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from hdnet.paper_results import paper_row
+from hdnet.uncertainty import recorded_score
 from lidarsim.storage import (
     OutputDir,
     write_json_atomic,
@@ -140,6 +141,7 @@ DECIMALS = 4
 def report_markdown(result: EvaluationResult, figures: list[str] | None = None) -> str:
     """The content of ``report.md``."""
     run, th = result.run, result.threshold
+    score = recorded_score(th)
     out = ["# hd evaluation report", ""]
     h_t = "unbounded (every pixel certain)" if th["value_nats"] is None else f"{_num(th['value_nats'])} nats"
     out += [
@@ -159,9 +161,10 @@ def report_markdown(result: EvaluationResult, figures: list[str] | None = None) 
             f" (reference {_cm(run.get('train_sigma_m'))}); MC samples M = {run.get('mc_samples')}; "
             f"seed {run.get('seed')}"
         ),
+        *([] if score.is_default else [f"- uncertainty score `{score.name}`: the {score.description}"]),
         (
             f"- threshold `{th['spec']}`: H_t = {h_t}, calibrated on the {th['calibration_split']} split at "
-            f"{_cm(th['calibration_sigma_m'])} (mean entropy {_num(th['mean_nats'])} nats = validation quantile "
+            f"{_cm(th['calibration_sigma_m'])} (mean {score.noun} {_num(th['mean_nats'])} nats = validation quantile "
             f"{_num(th['mean_quantile'], 3)})"
             + _calibration_words(th, run)
             + (

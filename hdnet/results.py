@@ -1,8 +1,8 @@
 """Result types of an evaluation and of a detection: plain records, no behaviour beyond formatting.
 
 ``hdnet.evaluate`` and ``hdnet.detect`` produce them; ``hdnet.report`` and ``hdnet.figures`` read
-them. This module imports nothing of hdnet but its defaults, so that the writers of reports and
-figures never depend on the code that computes what they show.
+them. This module imports nothing of hdnet but its defaults and the uncertainty scores (both leaves),
+so that the writers of reports and figures never depend on the code that computes what they show.
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from hdnet import defaults
+from hdnet.uncertainty import recorded_score
 
 SITE_COLUMNS = ("rank", "x", "y", "p_safe", "entropy_max", "clearance_m", "baseline_p_safe", "touchdown_p_safe")
 
@@ -26,7 +27,9 @@ class SplitInference:
     "safe"; ``prediction`` int64 (argmax); ``entropy_nats`` float32; ``baseline_safe`` bool
     (P(safe) >= 0.5); ``dem_clean_m`` / ``dem_noisy_m`` float32 heights (metres) for figures;
     ``baseline_p_safe`` float32, the baseline's P(safe) itself (NaN where it has none: the border band
-    and footprints that touch a hole), for choosing its landing sites.
+    and footprints that touch a hole), for choosing its landing sites; ``mutual_information_nats``
+    float32, the MC-dropout samples' mutual information H[mean p] - mean H[p] (nats; ``hdnet.uncertainty``).
+    The last two are None in inferences made without them.
     """
 
     sigma_m: float
@@ -40,6 +43,7 @@ class SplitInference:
     dem_clean_m: np.ndarray
     dem_noisy_m: np.ndarray
     baseline_p_safe: np.ndarray | None = None  # float32 ALHAT P(safe), NaN where the baseline has none
+    mutual_information_nats: np.ndarray | None = None  # float32, nats
 
     @property
     def valid(self) -> np.ndarray:
@@ -102,8 +106,9 @@ class EvaluationResult:
                 f"{r.pixel_accuracy:6.4f} {r.miou:6.4f} {r.precision:6.4f} {r.sensitivity:6.4f}"
             )
         value = self.threshold.get("value_nats")
+        on = recorded_score(self.threshold).qualifier
         lines.append(
-            f"threshold {self.threshold.get('spec', '')}: {'unbounded' if value is None else f'{value:.4f} nats'}"
+            f"threshold {self.threshold.get('spec', '')}{on}: {'unbounded' if value is None else f'{value:.4f} nats'}"
         )
         return "\n".join(lines)
 

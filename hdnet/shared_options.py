@@ -15,6 +15,7 @@ import click
 
 from hdnet import defaults as net_defaults
 from hdnet import limits as net_limits
+from hdnet import uncertainty
 from lidarsim import defaults as lidar_defaults
 from lidarsim import limits
 from lidarsim.setting import DIRECTORY, FILE_OR_DIRECTORY, bounded, setting
@@ -84,6 +85,12 @@ def batch_size_setting(what: str) -> Any:
 def threshold_setting(what: str = "") -> Any:
     """The uncertainty threshold's form (``hdnet.thresholds.parse_threshold_spec``)."""
     return setting(net_defaults.THRESHOLD_SPEC, f"{THRESHOLD_FORMS} {what}".strip(), kind=str)
+
+
+def uncertainty_setting(what: str = "") -> Any:
+    """The uncertainty score the threshold applies to (one of ``hdnet.uncertainty.SCORES``)."""
+    words = f"The per-pixel uncertainty score (nats) the threshold H_t applies to. {uncertainty.help_text()}"
+    return setting(uncertainty.DEFAULT, f"{words}. {what}".strip(), choices=tuple(uncertainty.SCORES))
 
 
 def seed_setting(what: str) -> Any:

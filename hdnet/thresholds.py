@@ -1,7 +1,9 @@
 """Uncertainty thresholds H_t from validation entropies: mean (paper), quantile, conformal risk control.
 
 A pixel is *uncertain* (invalid) when its predictive entropy H >= H_t (paper, "Uncertainty-aware
-Safety Map Generation"); all entropies are in nats.
+Safety Map Generation"); all entropies are in nats. Every rule here applies as it stands to the other
+uncertainty score, the mutual information (``hdnet.uncertainty``): "entropy" below is then the
+pixel's mutual information, and H_t a threshold on it.
 
 Specs (``parse_threshold_spec``):
 

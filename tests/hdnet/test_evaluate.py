@@ -288,3 +288,107 @@ def test_the_report_says_which_truth_the_run_was_scored_against(setup):
     assert "scored against the clean-scan truth" in (out / "report.md").read_text()
     terrain = dataclasses.replace(result, run={**result.run, "truth": "terrain"})
     assert "scored against the terrain truth" in report_markdown(terrain)
+
+
+# --- the uncertainty score: predictive entropy (the default) or mutual information ---------------------
+# The threshold record of a default report: exactly the keys reports had before the score was a choice.
+DEFAULT_THRESHOLD_KEYS = {
+    "spec",
+    "kind",
+    "parameter",
+    "value_nats",
+    "mean_nats",
+    "mean_quantile",
+    "calibration_split",
+    "calibration_sigma_m",
+    "calibration_images",
+    "calibration_pixels",
+    "calibrate",
+    "calibration_datasets",
+    "calibration_source",
+}
+MI = {"uncertainty": "mutual-information"}
+CPU = torch.device("cpu")
+
+
+@pytest.fixture(scope="module")
+def mi_report(setup, tmp_path_factory):
+    """The tiny run evaluated with the mutual information as its uncertainty score, report written."""
+    dataset, run, _, _ = setup
+    out = tmp_path_factory.mktemp("mi") / "report"
+    config = EvalConfig(uncertainty="mutual-information", mc_samples=4)
+    return out, config, evaluate_to_report(run, dataset, out, config)
+
+
+def validation_inference(dataset, run, mc_samples: int, seed: int = 0):
+    """MC dropout over the validation split at the run's 1.67 cm, as evaluate's calibration makes it."""
+    from hdnet.evaluate import infer_split
+    from hdnet.inputs import InputSpec
+    from hdnet.train import load_trained_model
+
+    model, ckpt = load_trained_model(run / "last.pt")
+    spec = InputSpec.from_run_config(ckpt["extra_config"], ckpt["model_config"])
+    return infer_split(model, HazardDataset(dataset, "val", 0.0167, input_spec=spec), mc_samples, 8, seed, CPU)
+
+
+def test_mutual_information_is_calibrated_on_the_validation_mutual_information(setup, mi_report):
+    dataset, run, _, default = setup
+    _, _, result = mi_report
+    val = validation_inference(dataset, run, 4)
+    assert val.mutual_information_nats is not None
+    mi = val.mutual_information_nats[val.valid].astype(np.float64)
+    th = result.threshold
+    assert th["uncertainty"] == "mutual-information" and th["spec"] == "mean"
+    assert th["value_nats"] == pytest.approx(mi.mean(), rel=1e-9) and th["value_nats"] == th["mean_nats"]
+    assert th["calibration_pixels"] == mi.size and th["mean_quantile"] == pytest.approx(np.mean(mi < mi.mean()))
+    assert th["value_nats"] < default.threshold["value_nats"]  # MI <= H pixel by pixel
+    for q, t in [(s["quantile"], s["threshold_nats"]) for s in result.sweep if s["test_sigma_m"] == 0.07]:
+        assert t == pytest.approx(np.quantile(val.mutual_information_nats[val.valid], q), rel=1e-6)
+
+
+def test_mutual_information_rows_equal_a_hand_count(mi_report):
+    _, _, result = mi_report
+    h_t = result.threshold["value_nats"]
+    for sigma, inf in result.test.items():
+        assert inf.mutual_information_nats is not None
+        mi = inf.mutual_information_nats
+        assert ((mi >= 0) & (mi <= inf.entropy_nats)).all()
+        valid = inf.label != 255
+        certain = valid & (mi < h_t)
+        ua = next(
+            r for r in result.rows if r.table == "noise" and r.method == "uncertainty_aware" and r.test_sigma_m == sigma
+        )
+        t, p = inf.label == 1, inf.prediction == 1
+        ts, fs = (certain & t & p).sum(), (certain & ~t & p).sum()
+        assert ua.vc_fraction == pytest.approx(certain.sum() / valid.sum())
+        assert ua.precision == pytest.approx(ts / (ts + fs)) and ua.sensitivity == pytest.approx(ts / (valid & t).sum())
+        base = next(r for r in result.rows if r.table == "noise" and r.method == "base_net" and r.test_sigma_m == sigma)
+        assert base.pixel_accuracy == pytest.approx(((t == p) & valid).sum() / valid.sum())  # the score leaves it be
+
+
+def test_the_report_names_the_mutual_information_and_the_default_report_is_unchanged(setup, mi_report):
+    dataset, run, default_out, default = setup
+    out, config, result = mi_report
+    md = (out / "report.md").read_text()
+    assert "- uncertainty score `mutual-information`: the mutual information H[mean p] - mean H[p]" in md
+    assert "(mean mutual information " in md and "on the mutual information" in result.summary()
+    assert json.loads((out / "report.json").read_text())["threshold"]["uncertainty"] == "mutual-information"
+    assert (out / "qualitative_7.00cm.png").read_bytes()[:4] == b"\x89PNG"
+    # The default: the score unnamed, the report's threshold record and wording as before the choice.
+    th = json.loads((default_out / "report.json").read_text())["threshold"]
+    assert set(th) == DEFAULT_THRESHOLD_KEYS
+    md = (default_out / "report.md").read_text()
+    assert "uncertainty score" not in md and "(mean entropy " in md and " on the " not in default.summary()
+    # Each report is current for its own score only.
+    from hdnet.evaluate import report_is_current
+
+    entropy_config = EvalConfig(mc_samples=4, drop_pixels=10, seed=0)
+    assert report_is_current(default_out, run, dataset, entropy_config)
+    assert not report_is_current(default_out, run, dataset, EvalConfig(**{**vars(entropy_config), **MI}))
+    assert report_is_current(out, run, dataset, config)
+    assert not report_is_current(out, run, dataset, EvalConfig(mc_samples=4))
+
+
+def test_an_unknown_uncertainty_score_is_refused():
+    with pytest.raises(HdNetError, match="uncertainty"):
+        EvalConfig(uncertainty="bald")

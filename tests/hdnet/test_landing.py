@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
@@ -15,6 +16,7 @@ from hdlabels.labeling import label_dataset
 from hdlabels.lander import Lander
 from hdlabels.store import find_labeling, labelings_by_truth
 from hdnet.data import split_labels
+from hdnet.errors import HdNetError
 from hdnet.evaluate import EvalConfig
 from hdnet.fit import FitConfig, fit
 from hdnet.landing import (
@@ -33,6 +35,7 @@ from hdnet.landing_table import METHODS, LandingSettings, landing_rows, method_m
 from hdnet.pipeline import evaluate_to_report
 from hdnet.results import SplitInference
 from hdnet.sites import SAFETY_INVALID, SAFETY_SAFE, SAFETY_UNCERTAIN, SAFETY_UNSAFE, select_sites
+from hdnet.uncertainty import MUTUAL_INFORMATION
 
 SPACING = (1.0, 1.0)
 LANDER = Lander()  # the paper's: 10 m diameter
@@ -250,6 +253,31 @@ def test_landing_rows_score_each_method_against_each_truth():
     assert by[("terrain", "alhat_baseline", 2.0)].p_safe == pytest.approx(1.0)  # 12 m of room, 2 m of dispersion
     assert by[("clean-scan", "alhat_baseline", 0.0)].p_safe == 0.0  # the same site, judged by another truth
     assert by[("terrain", "alhat_baseline", 0.0)].truth_clearance_m == pytest.approx(math.sqrt(145.0))  # (12, 1)
+
+
+def test_the_uncertainty_aware_landing_thresholds_the_score_it_is_given():
+    """Scene 0 sure of itself (H 0.1) but its samples disagree (MI 0.55); scene 1 unsure (H 0.6) with
+    samples that agree (MI 0.05): on the mutual information at H_t 0.5 the uncertainty-aware map
+    abstains in scene 0 and lands in scene 1 where the base net wrongly sees safe ground."""
+    truth = safe_disk_truth(12.0, n=61)
+    inf = fake_inference(truth)
+    with pytest.raises(HdNetError, match="holds no mutual information"):
+        method_map("uncertainty_aware", inf, 0, 0.5, MUTUAL_INFORMATION)
+    mi = np.full(inf.entropy_nats.shape, 0.05, np.float32)
+    mi[0] = 0.55
+    inf = dataclasses.replace(inf, mutual_information_nats=mi)
+    safety, _ = method_map("uncertainty_aware", inf, 0, 0.5, MUTUAL_INFORMATION)
+    assert set(np.unique(safety)) == {SAFETY_UNCERTAIN, SAFETY_INVALID}
+    safety, _ = method_map("uncertainty_aware", inf, 1, 0.5, MUTUAL_INFORMATION)
+    np.testing.assert_array_equal(safety, method_map("base_net", inf, 1, 0.5)[0])
+    truths = {"terrain": {4: truth, 9: truth}}
+    settings = LandingSettings(nav_sigmas_m=(0.0,), touchdowns=400)
+    (on_entropy,) = landing_rows(inf, 0.5, truths, LANDER, 1.0, settings, methods=("uncertainty_aware",))
+    (on_mi,) = landing_rows(
+        inf, 0.5, truths, LANDER, 1.0, settings, methods=("uncertainty_aware",), uncertainty=MUTUAL_INFORMATION
+    )
+    assert (on_entropy.landed, on_entropy.p_safe) == (1, 1.0)  # scene 0 lands on safe ground, scene 1 abstains
+    assert (on_mi.landed, on_mi.abstain_rate, on_mi.p_safe) == (1, 0.5, 0.0)  # scene 0 abstains, scene 1 is wrong
 
 
 def test_method_maps_use_the_baseline_band_as_invalid():
