@@ -8,9 +8,11 @@ moved into place file by file with ``detect.json`` last, so the output is comple
 ``detect.json`` is there):
 
 * ``p_safe.tif`` (float32, MC-dropout mean P(safe)), ``entropy.tif`` (float32, predictive entropy,
-  nats), ``safety.tif`` (uint8: 0 unsafe, 1 safe, 2 uncertain = entropy >= H_t, 255 invalid) and
-  ``baseline_p_safe.tif`` (float32, the ALHAT P(safe) baseline), all on one grid: the input's extent
-  at the run's DEM spacing, with its CRS; NaN / 255 where invalid;
+  nats), ``mutual_information.tif`` (float32, the MC-dropout samples' mutual information, nats),
+  ``safety.tif`` (uint8: 0 unsafe, 1 safe, 2 uncertain = the uncertainty score, entropy or mutual
+  information (``hdnet.uncertainty``), >= H_t, 255 invalid) and ``baseline_p_safe.tif`` (float32,
+  the ALHAT P(safe) baseline), all on one grid: the input's extent at the run's DEM spacing, with
+  its CRS; NaN / 255 where invalid;
 * ``sites.csv`` and ``sites.geojson``: ranked landing sites (``SITE_COLUMNS``);
 * ``overview.png`` (hillshade, safety map, numbered sites) and ``detect.json`` (run, input sha256,
   threshold, tiling, counts, timings).
@@ -19,8 +21,8 @@ Pipeline (docs/user-guide.md, "Hazard maps and landing sites"):
 
 1. the run: model, input preparation (``hdnet.run_record``), lander and label convention (the run's
    labelling entry; older runs: their dataset's manifest), DEM size and spacing;
-2. H_t exactly as ``hd eval`` computes it (``validation_threshold`` on a validation split at the
-   training sigma), or a fixed ``nats:H``;
+2. H_t exactly as ``hd eval`` computes it (``validation_threshold`` on the uncertainty score of a
+   validation split at the training sigma), or a fixed ``nats:H``;
 3. tiles of the training DEM size overlapping by ``overlap_px`` (``hdnet.tiling``), one row of
    tiles at a time: DTM window -> scan frame (heights minus the tile's mean height, as the
    simulator's scan frame is referenced to the mean terrain height under the footprint) ->
@@ -73,7 +75,7 @@ from hdnet.evaluate import (
     validation_threshold,
 )
 from hdnet.fit import is_run_dir
-from hdnet.infer import mc_dropout_predict, predictive_entropy
+from hdnet.infer import mc_dropout_predict
 from hdnet.inputs import InputSpec, to_dem_grid
 from hdnet.inputs import network_input as prepare_input
 from hdnet.model import BayesianSegNet
@@ -93,6 +95,7 @@ from hdnet.threshold_cache import CachedThreshold, cache_key
 from hdnet.thresholds import ThresholdSpec, parse_threshold_spec, uncertain_mask
 from hdnet.tiling import TilePlan
 from hdnet.train import load_trained_model
+from hdnet.uncertainty import ENTROPY, UncertaintyScore, recorded_score, uncertainty_score, with_score
 from lidarsim.base_relief import resample_bilinear
 from lidarsim.errors import TerrainError
 from lidarsim.procedural import geotiff_bytes, geotiff_profile
@@ -107,7 +110,7 @@ from lidarsim.storage import (
 )
 from lidarsim.terrain import DTM
 
-MAP_FILES = ("p_safe.tif", "entropy.tif", "safety.tif", "baseline_p_safe.tif")
+MAP_FILES = ("p_safe.tif", "entropy.tif", "mutual_information.tif", "safety.tif", "baseline_p_safe.tif")
 OUTPUT_FILES = (*MAP_FILES, "sites.csv", "sites.geojson", "overview.png", "detect.json")
 # The ALHAT baseline is safe where P(safe) >= this (paper, "Label generation"; one source: hdlabels.defaults).
 BASELINE_THRESHOLD = label_defaults.SAFE_PROBABILITY_THRESHOLD
@@ -548,6 +551,7 @@ class DetectResult:
             for k in ("safe", "unsafe", "uncertain", "baseline_safe")
         }
         t = "unbounded" if not math.isfinite(self.threshold_nats) else f"{self.threshold_nats:.4f} nats"
+        t += recorded_score(self.info.get("threshold", {})).qualifier
         best = (
             (
                 f"; best site #1 at ({self.sites[0].x:.1f}, {self.sites[0].y:.1f}) P(safe) {self.sites[0].p_safe:.3f}, "
@@ -583,6 +587,7 @@ def detect(
     progress: Callable[[int, int], None] | None = None,
     calibrate: str = "reference",
     upsample: bool = False,
+    uncertainty: str = ENTROPY.name,
 ) -> DetectResult:
     """Hazard maps and ranked landing sites of a DTM (``dtm``) or of one scan (``dataset`` + ``scan``).
 
@@ -594,10 +599,12 @@ def detect(
     (calibrated on the validation split at the training sigma of the run's dataset, or of
     ``dataset`` with a scan, as ``hd eval`` does) or ``nats:H`` (fixed); ``calibrate``: ``reference``
     (at the run's reference noise level) or ``each`` (at the sensor's ``sigma_m``, guarded above the
-    run's training levels; ``hd eval --calibrate``). ``progress`` is called with (tiles done, tiles
-    total). Runs that take the noise level as an input receive ``sigma_m``. ``nav_sigma_m`` (metres,
-    1-sigma per horizontal axis): the navigation dispersion the sites are ranked with
-    (``select_sites``; recorded in ``detect.json`` under ``site_rule``).
+    run's training levels; ``hd eval --calibrate``); ``uncertainty``: the score H_t applies to
+    (``entropy``, the paper's, or ``mutual-information``: ``hdnet.uncertainty``; calibrated on that
+    score of the validation split; ``mutual_information.tif`` is written either way). ``progress``
+    is called with (tiles done, tiles total). Runs that take the noise level as an input receive
+    ``sigma_m``. ``nav_sigma_m`` (metres, 1-sigma per horizontal axis): the navigation dispersion the
+    sites are ranked with (``select_sites``; recorded in ``detect.json`` under ``site_rule``).
 
     Raises:
         HdNetError / TerrainError: bad options, a missing or foreign run, an unusable DTM (geographic
@@ -622,7 +629,9 @@ def detect(
         labels=labels,
         seed=seed,
         batch_size=batch_size,
+        uncertainty=uncertainty,
     )  # each value's kind and range (its field's metadata)
+    score = uncertainty_score(uncertainty)
     _check_detect_options(settings, dtm, dataset)
     output = output_dir(out_dir, {"the run": run_dir, "the DTM": dtm, "the dataset": dataset})
     output.check_place()  # a usable path that is no input, before the run is even loaded
@@ -647,22 +656,34 @@ def detect(
             t0 = time.perf_counter()
             if spec is not None and calib_dirs:
                 h_t, threshold_info = _calibrated_threshold(
-                    run, spec, calib_dirs, calib_labels, mc_samples, batch_size, seed, dev, calibrate, baseline_sigma
+                    run,
+                    spec,
+                    calib_dirs,
+                    calib_labels,
+                    mc_samples,
+                    batch_size,
+                    seed,
+                    dev,
+                    calibrate,
+                    baseline_sigma,
+                    score,
                 )
             else:
                 assert fixed is not None  # exactly one of fixed and spec is set
                 h_t = float(fixed)
-                threshold_info = {"spec": f"nats:{h_t:g}", "kind": "fixed", "parameter": h_t, "value_nats": h_t}
+                threshold_info = with_score(
+                    {"spec": f"nats:{h_t:g}", "kind": "fixed", "parameter": h_t, "value_nats": h_t}, score
+                )
             timings["calibration"] = time.perf_counter() - t0
             counts, map_timings = _write_maps(
-                tmp, terrain, run, plan, h_t, baseline_sigma, mc_samples, batch_size, seed, dev, progress
+                tmp, terrain, run, plan, h_t, baseline_sigma, mc_samples, batch_size, seed, dev, progress, score
             )
             timings |= map_timings
             t0 = time.perf_counter()
             sites = _write_sites(tmp, terrain, run, n_sites, nav_sigma_m)
             timings["sites"] = time.perf_counter() - t0
             t0 = time.perf_counter()
-            _overview(tmp, terrain, sites, run, h_t, baseline_sigma)
+            _overview(tmp, terrain, sites, run, h_t, baseline_sigma, score)
             timings["overview"] = time.perf_counter() - t0
             timings["total"] = time.perf_counter() - t_start
             info = _info(
@@ -735,14 +756,17 @@ def _calibrated_threshold(
     dev: torch.device,
     calibrate: str = "reference",
     sensor_sigma_m: float | None = None,
+    uncertainty: UncertaintyScore = ENTROPY,
 ) -> tuple[float, dict[str, Any]]:
-    """Step 3: the entropy threshold (nats) calibrated on the validation splits of ``calib_dirs``, as ``hd eval``
-    does: at the run's reference noise level, or (``calibrate="each"``) at the sensor's ``sensor_sigma_m``
-    with the precision guard above the training levels."""
+    """Step 3: the threshold (nats) of the score ``uncertainty`` calibrated on the validation splits of
+    ``calib_dirs``, as ``hd eval`` does: at the run's reference noise level, or (``calibrate="each"``)
+    at the sensor's ``sensor_sigma_m`` with the precision guard above the training levels."""
     sigma = run.train_sigma_m if calibrate == "reference" or sensor_sigma_m is None else sensor_sigma_m
     # Cached in the run directory (never beside a checkpoint file given on its own).
     cache = CachedThreshold(run.checkpoint.parent) if is_run_dir(run.checkpoint.parent) else None
-    key = cache_key(run.checkpoint, calib_dirs, calib_labels, sigma, str(spec), calibrate, mc_samples, batch_size, seed)
+    key = cache_key(
+        run.checkpoint, calib_dirs, calib_labels, sigma, str(spec), calibrate, mc_samples, batch_size, seed, uncertainty
+    )
     hit = cache.get(key) if cache is not None else None
     if hit is not None and cache is not None:
         return hit[0], dict(hit[1], cached=str(cache.path))
@@ -750,7 +774,14 @@ def _calibrated_threshold(
         split_dataset(d, "val", sigma, labels=calib_labels, input_spec=run.input_spec, seed=seed) for d in calib_dirs
     ]
     th = validation_threshold(
-        run.model, val_ds, spec, mc_samples=mc_samples, batch_size=batch_size, seed=seed, device=dev
+        run.model,
+        val_ds,
+        spec,
+        mc_samples=mc_samples,
+        batch_size=batch_size,
+        seed=seed,
+        device=dev,
+        uncertainty=uncertainty,
     )
     if calibrate == "each":
         th = guard_above_training(th, sigma, run.train_noise)
@@ -802,8 +833,10 @@ def _write_maps(
     seed: int,
     dev: torch.device,
     progress: Callable[[int, int], None] | None,
+    uncertainty: UncertaintyScore = ENTROPY,
 ) -> tuple[dict[str, int], dict[str, float]]:
-    """Step 4: every row of tiles through the network and the baseline, owned crops written to the four maps."""
+    """Step 4: every row of tiles through the network and the baseline, owned crops written to the five
+    maps; a cell is uncertain where the score ``uncertainty`` is >= ``h_t``."""
     # The baseline, like the network, takes the cells as the run's: the grid is within 2 % of that
     # spacing, and the lander's sampling (pads on grid nodes in the paper convention) is then exactly
     # the one of the training labels.
@@ -830,6 +863,7 @@ def _write_maps(
             strip: dict[str, np.ndarray] = {
                 "p": np.full((n_rows, n_cols), np.nan, np.float32),
                 "h": np.full((n_rows, n_cols), np.nan, np.float32),
+                "mi": np.full((n_rows, n_cols), np.nan, np.float32),
                 "b": np.full((n_rows, n_cols), np.nan, np.float32),
                 "s": np.full((n_rows, n_cols), SAFETY_INVALID, np.uint8),
             }
@@ -842,12 +876,14 @@ def _write_maps(
                 if live:
                     t0 = time.perf_counter()
                     x = torch.cat([network_input(_scan_frame(dems[k], terrain), run, sigma_m) for k in live]).to(dev)
-                    probs = network_output(
-                        mc_dropout_predict(run.model, x, n_samples=mc_samples).mean_probs.float(), run
-                    ).cpu()
-                    p_all = probs[:, defaults.CLASS_SAFE].numpy()
-                    h_all = predictive_entropy(probs).numpy()
-                    safe_all = (probs.argmax(dim=1) == defaults.CLASS_SAFE).numpy()
+                    out_grid = mc_dropout_predict(run.model, x, n_samples=mc_samples).on_grid(
+                        lambda t: network_output(t, run).cpu()
+                    )
+                    p_all = out_grid.mean_probs[:, defaults.CLASS_SAFE].numpy()
+                    h_all = out_grid.entropy_nats.numpy()
+                    mi_all = out_grid.mutual_information_nats.numpy()
+                    u_all = uncertainty.of(out_grid).numpy()
+                    safe_all = (out_grid.prediction == defaults.CLASS_SAFE).numpy()
                     t_net += time.perf_counter() - t0
                 for j, k in enumerate(live):
                     tile = batch[k]
@@ -857,11 +893,12 @@ def _write_maps(
                     crop = tile.crop
                     valid = np.isfinite(base[crop])
                     safety = np.where(safe_all[j][crop], SAFETY_SAFE, SAFETY_UNSAFE).astype(np.uint8)
-                    safety[uncertain_mask(torch.from_numpy(h_all[j][crop]), h_t).numpy()] = SAFETY_UNCERTAIN
+                    safety[uncertain_mask(torch.from_numpy(u_all[j][crop]), h_t).numpy()] = SAFETY_UNCERTAIN
                     safety[~valid] = SAFETY_INVALID
                     out = (slice(None), slice(tile.own_cols[0], tile.own_cols[1]))
                     strip["p"][out] = np.where(valid, p_all[j][crop], np.nan)
                     strip["h"][out] = np.where(valid, h_all[j][crop], np.nan)
+                    strip["mi"][out] = np.where(valid, mi_all[j][crop], np.nan)
                     strip["b"][out] = base[crop]
                     strip["s"][out] = safety
                 done += len(batch)
@@ -869,7 +906,7 @@ def _write_maps(
                     progress(done, plan.n_tiles)
             t0 = time.perf_counter()
             window = Window(0, r_lo, n_cols, n_rows)
-            for name, key in zip(MAP_FILES, ("p", "h", "s", "b"), strict=True):
+            for name, key in zip(MAP_FILES, ("p", "h", "mi", "s", "b"), strict=True):
                 dst[name].write(strip[key], window)
             t_write += time.perf_counter() - t0
             for name, code in (
@@ -906,7 +943,15 @@ def _writers(tmp: Path, profiles: dict[str, dict[str, Any]]) -> Iterator[dict[st
             writer.abandon()  # after an error: closed without a word (a no-op for closed ones)
 
 
-def _overview(tmp: Path, terrain: _Terrain, sites: list[Site], run: DetectRun, h_t: float, sigma_m: float) -> None:
+def _overview(
+    tmp: Path,
+    terrain: _Terrain,
+    sites: list[Site],
+    run: DetectRun,
+    h_t: float,
+    sigma_m: float,
+    uncertainty: UncertaintyScore = ENTROPY,
+) -> None:
     from hdnet.figures import detect_overview
 
     heights, cell_m = terrain.hillshade_heights(OVERVIEW_MAX_PX)
@@ -917,6 +962,7 @@ def _overview(tmp: Path, terrain: _Terrain, sites: list[Site], run: DetectRun, h
     left, right, top, bottom = c, c + a * cols, f, f + e * rows
     name = terrain.provenance.get("name") or f"scan {terrain.provenance.get('scan_index')}"
     t = "unbounded" if not math.isfinite(h_t) else f"{h_t:.3f} nats"
+    t += uncertainty.qualifier
     title = (
         f"{name}: {len(sites)} site(s), lander {run.lander.diameter_m:g} m, sensor σ {sigma_m * 100:.2f} cm, H_t {t}"
     )

@@ -18,6 +18,7 @@ from hdnet.shared_options import (
     mc_samples_setting,
     seed_setting,
     threshold_setting,
+    uncertainty_setting,
 )
 from lidarsim.setting import check, setting
 
@@ -31,6 +32,10 @@ class DetectSettings:
     )
     mc_samples: int = mc_samples_setting()
     threshold: str = threshold_setting("Calibrated as hd eval does.")
+    uncertainty: str = uncertainty_setting(
+        "The uncertain cells of safety.tif are those at or above H_t; entropy.tif and mutual_information.tif "
+        "hold both scores."
+    )
     sigma_m: float | None = setting(
         None,
         "The sensor's range noise, {unit} (default: the run's reference training sigma): the ALHAT baseline's "

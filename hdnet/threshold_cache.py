@@ -2,8 +2,8 @@
 
 Calibrating H_t (MC dropout over a validation split) is most of a small ``hd detect`` call. The
 result depends only on the checkpoint, the validation split (its dataset manifest and labelling),
-the noise level, the threshold spec and rule, and the MC settings; the cache keys an entry on all
-of them (the checkpoint and the manifest by sha256), so a retrained run, a relabelled dataset or
+the noise level, the threshold spec and rule, the uncertainty score and the MC settings; the cache
+keys an entry on all of them (the checkpoint and the manifest by sha256), so a retrained run, a relabelled dataset or
 other settings never meet a stale value. The file is a cache: written atomically, ignored when it
 cannot be read (a damaged file is recomputed and replaced) and skipped when the run directory is
 not writable.
@@ -18,6 +18,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+from hdnet.uncertainty import ENTROPY, UncertaintyScore, uncertainty_score, with_score
 from lidarsim.shards import MANIFEST_NAME, sha256_file
 from lidarsim.storage import StorageError, write_json_atomic
 
@@ -33,8 +34,9 @@ MAX_ENTRIES = 256
 @dataclass(frozen=True)
 class ThresholdKey:
     """Everything a calibrated H_t depends on: the checkpoint and the calibration dataset's manifest
-    (by sha256), the labelling, the noise level (metres), the threshold spec and rule, and the MC
-    settings. Stored in the cache file as a dictionary (:meth:`to_dict`)."""
+    (by sha256), the labelling, the noise level (metres), the threshold spec and rule, the MC
+    settings and the uncertainty score (``hdnet.uncertainty``) whose values H_t bounds. Stored in the
+    cache file as a dictionary (:meth:`to_dict`)."""
 
     checkpoint_sha256: str
     manifest_sha256: str
@@ -45,9 +47,14 @@ class ThresholdKey:
     mc_samples: int
     batch_size: int
     seed: int
+    uncertainty: str = ENTROPY.name
 
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        """The key as stored; the default score unnamed (``hdnet.uncertainty.with_score``), so entries
+        cached before the score was a choice, all of predictive entropy, keep their keys."""
+        plain = asdict(self)
+        del plain["uncertainty"]
+        return with_score(plain, uncertainty_score(self.uncertainty))
 
 
 def cache_key(
@@ -60,9 +67,11 @@ def cache_key(
     mc_samples: int,
     batch_size: int,
     seed: int,
+    uncertainty: UncertaintyScore = ENTROPY,
 ) -> ThresholdKey:
     """The key of a calibration (the checkpoint and the manifests of the calibration datasets, in
-    order, hashed here; one dataset's key is its manifest's sha256 alone)."""
+    order, hashed here; one dataset's key is its manifest's sha256 alone) of H_t on the score
+    ``uncertainty``."""
     return ThresholdKey(
         checkpoint_sha256=sha256_file(checkpoint),
         manifest_sha256=",".join(sha256_file(Path(d) / MANIFEST_NAME) for d in calib_dirs),
@@ -73,6 +82,7 @@ def cache_key(
         mc_samples=int(mc_samples),
         batch_size=int(batch_size),
         seed=int(seed),
+        uncertainty=uncertainty.name,
     )
 
 

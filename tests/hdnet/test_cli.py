@@ -104,3 +104,12 @@ def test_a_recipe_noise_level_in_centimetres_is_refused_with_its_unit(tmp_path):
     result = CliRunner().invoke(main, ["build-dataset", "--recipe", str(recipe), "--out", str(out)])
     assert result.exit_code != 0 and "noise levels are in metres: 7 cm is 0.07" in result.output, result.output
     assert not out.exists()
+
+
+@pytest.mark.parametrize("command", ["eval", "detect"])
+def test_eval_and_detect_offer_the_uncertainty_score(command):
+    result = CliRunner().invoke(main, [command, "--help"], terminal_width=200)
+    assert result.exit_code == 0 and "--uncertainty [entropy|mutual-information]" in result.output
+    assert "[default: entropy]" in result.output.split("--uncertainty", 1)[1]
+    bad = CliRunner().invoke(main, [command, "run", "--out", "out", "--uncertainty", "bald"])
+    assert bad.exit_code != 0 and "'bald' is not one of 'entropy', 'mutual-information'" in bad.output

@@ -45,12 +45,14 @@ from hdnet.detect import (
     select_sites,
 )
 from hdnet.errors import HdNetError
-from hdnet.evaluate import EvalConfig, evaluate
+from hdnet.evaluate import EvalConfig, evaluate, validation_threshold
 from hdnet.fit import FitConfig, fit
 from hdnet.infer import mc_dropout_predict
 from hdnet.landing import cell_masses
 from hdnet.sites import SITE_RANK_RULES, body_disk
+from hdnet.thresholds import parse_threshold_spec
 from hdnet.train import save_checkpoint
+from hdnet.uncertainty import MUTUAL_INFORMATION
 from lidarsim.errors import LockedError, OutputExistsError, TerrainError
 from lidarsim.procedural import MarsTerrainParams, generate_mars_terrain, write_geotiff
 from lidarsim.shards import sha256_file
@@ -105,17 +107,20 @@ def profile_of(path: Path) -> dict:
         }
 
 
-def check_consistent_maps(out: Path, threshold_nats: float) -> dict[str, np.ndarray]:
-    """The four maps agree: one invalid set, codes from argmax and H >= H_t; returns them."""
+def check_consistent_maps(out: Path, threshold_nats: float, score_map: str = "entropy.tif") -> dict[str, np.ndarray]:
+    """The five maps agree: one invalid set, 0 <= MI <= H, codes from argmax and the score (the map
+    ``score_map``) >= H_t; returns them."""
     maps = {name: read(out / name)[0] for name in MAP_FILES}
     p, h, s, b = maps["p_safe.tif"], maps["entropy.tif"], maps["safety.tif"], maps["baseline_p_safe.tif"]
+    mi = maps["mutual_information.tif"]
     invalid = s == SAFETY_INVALID
     assert set(np.unique(s)) <= {SAFETY_UNSAFE, SAFETY_SAFE, SAFETY_UNCERTAIN, SAFETY_INVALID}
-    for arr in (p, h, b):
+    for arr in (p, h, mi, b):
         np.testing.assert_array_equal(np.isnan(arr), invalid)
     v = ~invalid
     assert ((p[v] >= 0) & (p[v] <= 1)).all() and ((h[v] >= 0) & (h[v] <= math.log(2) + 1e-6)).all()
-    np.testing.assert_array_equal(s[v] == SAFETY_UNCERTAIN, h[v] >= threshold_nats)
+    assert ((mi[v] >= 0) & (mi[v] <= h[v] + 1e-6)).all()
+    np.testing.assert_array_equal(s[v] == SAFETY_UNCERTAIN, maps[score_map][v] >= threshold_nats)
     certain = v & (s != SAFETY_UNCERTAIN)
     np.testing.assert_array_equal(s[certain] == SAFETY_SAFE, p[certain] > 0.5)
     return maps
@@ -235,6 +240,54 @@ def test_scan_mode_is_the_evaluation_path(trained, tmp_path):
     assert info["input"]["kind"] == "scan" and info["input"]["scan_index"] == scan and info["input"]["sigma_m"] == 0.07
     assert len(info["input"]["origin_map"]) == 3 and info["threshold"]["value_nats"] == 0.5
     assert result.threshold_nats == 0.5
+
+
+def test_mutual_information_map_and_a_threshold_on_it(trained, tmp_path):
+    """mutual_information.tif = entropy - expected entropy of the same MC samples; with the mutual
+    information as the score, H_t is its mean over the validation split and safety.tif's uncertain
+    cells are MI >= H_t."""
+    dataset, run_dir, _ = trained
+    run = load_run(run_dir, CPU)
+    ds = HazardDataset(dataset, "test", 0.07, input_spec=run.input_spec)
+    scan = ds.scan_indices[1]
+    out = tmp_path / "mi"
+    result = detect(
+        run_dir, out, dataset=dataset, scan=scan, sigma_m=0.07, mc_samples=4, seed=3, uncertainty="mutual-information"
+    )
+    assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUT_FILES) and "mutual_information.tif" in OUTPUT_FILES
+    mi_profile, h_profile = profile_of(out / "mutual_information.tif"), profile_of(out / "entropy.tif")
+    assert math.isnan(mi_profile.pop("nodata")) and math.isnan(h_profile.pop("nodata")) and mi_profile == h_profile
+    maps = check_consistent_maps(out, result.threshold_nats, "mutual_information.tif")
+    torch.manual_seed(3)  # the maps' MC samples: detect seeds them before the first tile
+    sample = ds.dem_sample(1)
+    prediction = mc_dropout_predict(run.model, ds.prepare(sample)["image"][None], n_samples=4).on_grid(
+        lambda t: to_dem_grid(t, (100, 100), None)
+    )
+    valid = maps["safety.tif"] != SAFETY_INVALID
+    h, mi = maps["entropy.tif"], maps["mutual_information.tif"]
+    np.testing.assert_allclose(h[valid], prediction.entropy_nats[0].numpy()[valid], rtol=0, atol=1e-6)
+    expected_entropy = prediction.expected_entropy_nats[0].numpy()
+    np.testing.assert_allclose(mi[valid], (h - expected_entropy)[valid], rtol=0, atol=1e-6)
+    uncertain = maps["safety.tif"] == SAFETY_UNCERTAIN
+    assert 0 < uncertain.sum() < valid.sum()  # the mean validation MI splits this scan's cells
+    np.testing.assert_array_equal(uncertain[valid], mi[valid] >= result.threshold_nats)
+    # H_t: the validation split's mean mutual information, calibrated as hd eval does.
+    val = validation_threshold(
+        run.model,
+        HazardDataset(dataset, "val", 0.0167, input_spec=run.input_spec),
+        parse_threshold_spec("mean"),
+        mc_samples=4,
+        batch_size=8,
+        seed=3,
+        device=CPU,
+        uncertainty=MUTUAL_INFORMATION,
+    )
+    assert val.inference.mutual_information_nats is not None
+    assert result.threshold_nats == val.value_nats
+    assert val.value_nats == pytest.approx(val.inference.mutual_information_nats[val.inference.valid].mean(), rel=1e-6)
+    info = json.loads((out / "detect.json").read_text())
+    assert info["threshold"]["uncertainty"] == "mutual-information" and "mutual_information.tif" in info["files"]
+    assert "on the mutual information" in result.summary()
 
 
 def test_threshold_is_calibrated_as_hd_eval_does(trained, tmp_path):
@@ -769,6 +822,12 @@ def test_the_calibrated_threshold_is_cached_in_the_run_and_keyed_on_what_it_depe
     assert "cached" not in first and cache.is_file()
     second = threshold("b")
     assert second["cached"] == str(cache) and second["value_nats"] == first["value_nats"]
+    mi = threshold("mi", uncertainty="mutual-information")  # another score: never the entropy's threshold
+    assert "cached" not in mi and mi["uncertainty"] == "mutual-information" and mi["value_nats"] < first["value_nats"]
+    again = threshold("mi-again", uncertainty="mutual-information")
+    assert again["cached"] == str(cache) and again["value_nats"] == mi["value_nats"]
+    keys = [e["key"] for e in json.loads(cache.read_text())["entries"]]
+    assert [k.get("uncertainty") for k in keys] == [None, "mutual-information"]  # the entropy's key as before
     other = threshold("c", seed=1)  # another MC seed: calibrated again
     assert "cached" not in other
     # A damaged cache is ignored and rewritten; a checkpoint given on its own never writes one.
