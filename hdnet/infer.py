@@ -80,7 +80,7 @@ def predictive_entropy(mean_probs: torch.Tensor, dim: int = 1) -> torch.Tensor:
 
 
 def mutual_information(entropy_nats: torch.Tensor, expected_entropy_nats: torch.Tensor) -> torch.Tensor:
-    """MI = H[mean_m p_m] - mean_m H[p_m] (nats; Gal, Islam & Ghahramani 2017, the BALD score), clipped
+    """MI = H[mean_m p_m] - mean_m H[p_m] (nats; Gal et al. 2017, the BALD score), clipped
     at 0: it is >= 0 by the concavity of the entropy, and only round-off makes it negative."""
     return (entropy_nats - expected_entropy_nats).clamp_min(0.0)
 

@@ -6,9 +6,10 @@ Both are per pixel, in nats, from the M Monte Carlo dropout softmaxes p_1 ... p_
   It is high where a pixel is hard to call: ambiguous terrain the network has learnt to be unsure
   about (aleatoric) as well as terrain unlike its training data (epistemic).
 * ``mutual-information``: MI = H[mean_m p_m] - mean_m H[p_m], the mutual information between the
-  prediction and the network's weights (the BALD score: Houlsby et al. 2011, Gal, Islam &
-  Ghahramani 2017; Smith & Gal 2018). It is the epistemic part alone: high only where the dropout
-  samples disagree, which is the established score for inputs unlike the training data. 0 <= MI <= H.
+  prediction and the network's weights (the BALD score: Houlsby et al. 2011, Gal et al. 2017;
+  Smith & Gal 2018; docs/references.md). It is the epistemic part alone: high only where the
+  dropout samples disagree, which is the established score for inputs unlike the training data.
+  0 <= MI <= H.
 
 A score is one record here (its name, its words and which array of an inference holds it), so
 that every place that thresholds "the uncertainty" (calibration, the uncertainty-aware map, the

@@ -20,6 +20,7 @@ TOPICS = {
     "the network",
     "a training profile",
     "a threshold rule",
+    "an uncertainty score",
 }
 
 
