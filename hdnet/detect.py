@@ -556,6 +556,11 @@ class DetectResult:
             (
                 f"; best site #1 at ({self.sites[0].x:.1f}, {self.sites[0].y:.1f}) P(safe) {self.sites[0].p_safe:.3f}, "
                 f"clearance {self.sites[0].clearance_m:.1f} m"
+                + (
+                    f", P(safe) at the touchdown {self.sites[0].touchdown_p_safe:.3f} (navigation 1σ {nav:g} m)"
+                    if (nav := float(self.info.get("site_rule", {}).get("nav_sigma_m") or 0.0)) > 0
+                    else ""
+                )
             )
             if self.sites
             else "; no site: no lander footprint is wholly safe and certain"

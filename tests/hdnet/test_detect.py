@@ -406,6 +406,7 @@ def test_nav_sigma_ranks_sites_by_the_touchdown_and_records_the_rule(trained, tm
     )
     rule = json.loads((out / "detect.json").read_text())["site_rule"]
     assert rule["nav_sigma_m"] == 3.0 and rule["rank_by"] == SITE_RANK_RULES["touchdown"]
+    assert f"P(safe) at the touchdown {result.sites[0].touchdown_p_safe:.3f} (navigation 1σ 3 m)" in result.summary()
     plain = detect(constant, tmp_path / "aim", dtm=dtm, threshold="nats:0.5", mc_samples=2, n_sites=4)
     rule = json.loads((tmp_path / "aim" / "detect.json").read_text())["site_rule"]
     assert rule["nav_sigma_m"] == 0.0 and rule["rank_by"] == SITE_RANK_RULES["aim"]
