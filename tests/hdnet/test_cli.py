@@ -69,7 +69,7 @@ def test_train_on_an_unlabelled_dataset_or_an_impossible_sigma_fails_clearly(tmp
     assert result.exit_code != 0 and "hd label" in result.output
     labelled = build_labelled(tmp_path / "lab")
     result = runner.invoke(main, ["train", str(labelled), "--out", str(tmp_path / "run2"), "--train-sigma", "0.9"])
-    assert result.exit_code != 0 and "must be in [0, 0.7] metres" in result.output
+    assert result.exit_code == 2 and "0.7 (noise levels are in metres" in result.output  # refused as it is parsed
 
 
 @pytest.mark.parametrize(
