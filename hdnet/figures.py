@@ -239,7 +239,11 @@ def landing_figure(result: EvaluationResult, path: Path) -> None:
                     continue
                 x = np.array([r.nav_sigma_m for r in rows])
                 y = np.array([r.p_safe for r in rows])
-                err = np.array([[r.p_safe - r.p_safe_low for r in rows], [r.p_safe_high - r.p_safe for r in rows]])
+                # Wilson's interval holds the rate, but its ends may fall a rounding error inside it;
+                # a method that never landed has no rate (NaN, not drawn).
+                err = np.nan_to_num(
+                    np.array([[r.p_safe - r.p_safe_low for r in rows], [r.p_safe_high - r.p_safe for r in rows]])
+                ).clip(min=0.0)
                 abstain = max(r.abstain_rate for r in rows)
                 ax.errorbar(
                     x,

@@ -364,3 +364,23 @@ def test_eval_says_when_the_terrain_truth_is_missing(tmp_path):
     assert {r["truth"] for r in report["landing"]} == {"clean-scan"}
     assert report["landing_settings"]["missing_truths"] == ["terrain"]
     assert "`hd label DATASET --truth terrain` adds the terrain's" in (out / "report.md").read_text()
+
+
+def test_the_landing_figure_draws_rates_at_the_ends_and_methods_that_never_landed(tmp_path):
+    """A rate of 1 whose Wilson end rounds a hair below it, and a method that abstained everywhere
+    (no rate), are drawn without error."""
+    from hdnet.figures import landing_figure
+    from hdnet.results import EvaluationResult, LandingRow
+
+    def row(method: str, nav: float, p: float, lo: float, hi: float, landed: int) -> LandingRow:
+        return LandingRow(method, 0.03, nav, "terrain", 500, landed, p, lo, hi, 0.0, 0.0, 0.0, 0.0, 10.0, 9.0)
+
+    rows = [
+        row("uncertainty_aware", 0.0, 1.0, 0.9924, 1.0 - 1e-16, 500),
+        row("uncertainty_aware", 1.0, 0.998, 0.99, 0.999, 500),
+        row("base_net", 0.0, math.nan, math.nan, math.nan, 0),
+        row("base_net", 1.0, math.nan, math.nan, math.nan, 0),
+    ]
+    result = EvaluationResult([], {}, [], {}, landing=rows)
+    landing_figure(result, tmp_path / "landing.png")
+    assert (tmp_path / "landing.png").read_bytes()[:4] == b"\x89PNG"
