@@ -46,7 +46,7 @@ def test_tiny_fit_records_the_data_it_was_trained_on(dataset, tmp_path):
 
 
 def test_fit_refuses_bad_datasets(dataset, tmp_path):
-    with pytest.raises(HdNetError, match=r"must be in \[0, 0\.7\] metres"):
+    with pytest.raises(HdNetError, match=r"in \[0, 0\.7\] \(noise levels are in metres: 7 cm is 0\.07\)"):
         fit(dataset, tmp_path / "a", FitConfig(profile="tiny", epochs=1, train_sigma_m=0.9, progress=False))
     with pytest.raises(HdNetError, match="unknown training profile"):
         fit(dataset, tmp_path / "b", FitConfig(profile="huge", epochs=1, progress=False))

@@ -222,12 +222,15 @@ EVAL = [
     ("threshold-quantile-nan", ["--threshold", "quantile:nan"], "quantile"),
     ("threshold-quantile-two", ["--threshold", "quantile:2"], "quantile"),
     ("threshold-risk-inf", ["--threshold", "risk:inf"], "alpha"),
+    ("nav-sigma-nan", ["--nav-sigma", "nan"], "--nav-sigma"),
+    ("nav-sigma-inf", ["--nav-sigma", "inf"], "--nav-sigma"),
+    ("nav-sigma-negative", ["--nav-sigma", "-1"], "--nav-sigma"),
 ]
 
 
 @pytest.mark.parametrize(("case", "args", "needle"), EVAL, ids=[c[0] for c in EVAL])
 def test_eval_refuses(case, args, needle, places, labelled, trained, monkeypatch):
-    if case.startswith(("out-", "mc-", "batch-", "seed-", "threshold-")):
+    if case.startswith(("out-", "mc-", "batch-", "seed-", "threshold-", "nav-")):
         _no_work(monkeypatch, ("hdnet.evaluate", "load_trained_model"))  # checked before the model is loaded
     else:
         _no_work(monkeypatch, ("hdnet.evaluate", "infer_split"))  # needs the labelling's DEM size first
@@ -289,7 +292,9 @@ def test_every_float_option_rejects_nan_and_inf():
 
     from cli import main
 
-    covered = {a for rows in (BUILD, LABEL, MAKE_DTM, TRAIN) for _, args, _ in rows for a in args if a.startswith("--")}
+    covered = {
+        a for rows in (BUILD, LABEL, MAKE_DTM, TRAIN, EVAL) for _, args, _ in rows for a in args if a.startswith("--")
+    }  # detect's --nav-sigma is eval's setting (one Bound, limits.NAV_SIGMA_M): covered by eval's cases
     floats = {
         f"{c}:{o}"
         for c, cmd in main.commands.items()
