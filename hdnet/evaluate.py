@@ -56,7 +56,7 @@ from hdnet.landing_table import LandingSettings, landing_rows
 from hdnet.metrics import ConfusionAccumulator, SegmentationMetrics
 from hdnet.model import BayesianSegNet
 from hdnet.noise_levels import TrainingNoise, check_levels
-from hdnet.results import EvaluationResult, LandingRow, ReliabilityBins, ReportRow, SplitInference
+from hdnet.results import METHODS, EvaluationResult, LandingRow, ReliabilityBins, ReportRow, SplitInference
 from hdnet.run_record import checkpoint_data
 from hdnet.shared_options import (
     batch_size_setting,
@@ -80,7 +80,6 @@ from lidarsim.errors import HdError
 from lidarsim.setting import DIRECTORY, check, setting
 from lidarsim.shards import MANIFEST_NAME, read_manifest, sha256_file
 
-METHODS: tuple[str, str, str] = ("alhat_baseline", "base_net", "uncertainty_aware")
 # Where H_t is calibrated: once at the run's reference noise level (the paper), or at each test level.
 # hd choice: above a run's training noise levels, `--calibrate each` calls a pixel certain-safe only
 # where the validation split at that noise level shows at least this precision (the "above the

@@ -36,11 +36,10 @@ from hdnet.landing import (
     touchdown_offsets,
     truth_clearance_map,
 )
-from hdnet.results import LandingRow, SplitInference
+from hdnet.results import METHODS, LandingRow, SplitInference
 from hdnet.sites import SAFETY_INVALID, SAFETY_SAFE, SAFETY_UNCERTAIN, SAFETY_UNSAFE, select_sites
 from hdnet.uncertainty import ENTROPY, UncertaintyScore
 
-METHODS = ("alhat_baseline", "base_net", "uncertainty_aware")
 # The ALHAT baseline is safe where P(safe) >= this (paper, "Label generation"; one source: hdlabels.defaults).
 BASELINE_THRESHOLD = label_defaults.SAFE_PROBABILITY_THRESHOLD
 

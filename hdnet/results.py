@@ -15,6 +15,8 @@ import numpy as np
 from hdnet import defaults
 from hdnet.uncertainty import recorded_score
 
+# The methods every table of an evaluation scores (Table 1, Table 2, the sweeps, the landing table).
+METHODS: tuple[str, str, str] = ("alhat_baseline", "base_net", "uncertainty_aware")
 SITE_COLUMNS = ("rank", "x", "y", "p_safe", "entropy_max", "clearance_m", "baseline_p_safe", "touchdown_p_safe")
 
 
