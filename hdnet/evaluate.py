@@ -79,6 +79,7 @@ from hdnet.uncertainty import ENTROPY, UncertaintyScore, recorded_score, uncerta
 from lidarsim.errors import HdError
 from lidarsim.setting import DIRECTORY, check, setting
 from lidarsim.shards import MANIFEST_NAME, read_manifest, sha256_file
+from lidarsim.storage import read_regular_text
 
 # Where H_t is calibrated: once at the run's reference noise level (the paper), or at each test level.
 # hd choice: above a run's training noise levels, `--calibrate each` calls a pixel certain-safe only
@@ -902,7 +903,7 @@ def report_is_current(
     the same checkpoint bytes, dataset manifest, labelling request and evaluation settings (the
     uncertainty score included)."""
     try:
-        report = json.loads((Path(report_dir) / "report.json").read_text())
+        report = json.loads(read_regular_text(Path(report_dir) / "report.json"))
         run, th = report["run"], report["threshold"]
         same_score = recorded_score(th) is cfg.uncertainty_score
         ckpt = checkpoint_path(run_dir)

@@ -52,6 +52,7 @@ from lidarsim.storage import (
     OutputTransaction,
     check_not_input,
     check_output_dir,
+    read_regular_text,
 )
 
 RUN_FILES = (LAST, BEST, METRICS, CONFIG)
@@ -112,7 +113,7 @@ def is_run_dir(run_dir: str | os.PathLike) -> bool:
     if (run_dir / LAST).is_file():
         return True
     try:
-        return json.loads((run_dir / CONFIG).read_text()).get("schema") == RUN_SCHEMA
+        return json.loads(read_regular_text(run_dir / CONFIG)).get("schema") == RUN_SCHEMA
     except (OSError, ValueError, AttributeError):
         return False
 
@@ -312,7 +313,7 @@ def already_trained(dataset_dir: str | os.PathLike, run_dir: str | os.PathLike, 
     try:
         recorded = read_run_record(run)
         data = recorded.data
-        epochs_done = sum(1 for _ in (run / METRICS).open()) - 1
+        epochs_done = len(read_regular_text(run / METRICS).splitlines()) - 1
         profile = config.training_profile()
         entry, paths = open_labeling(dataset_dir, config.labels)
         noise = training_noise(config.train_noise, config.train_sigma_m, profile, dataset_sigmas(paths))

@@ -34,6 +34,7 @@ from hdnet.profiles import ROBUST_THRESHOLD_SPEC, get_profile
 from lidarsim import defaults as lidar_defaults
 from lidarsim.build import BuildConfig
 from lidarsim.errors import LidarsimError
+from lidarsim.storage import read_regular_text
 
 if TYPE_CHECKING:
     from hdnet.evaluate import EvalConfig
@@ -472,7 +473,7 @@ class StageLog:
         previous: Any
         with OutputTransaction(self.out_dir, "pipeline"):
             try:
-                previous = json.loads(path.read_text()) if path.exists() else {}
+                previous = json.loads(read_regular_text(path)) if os.path.lexists(path) else {}
             except (OSError, ValueError):
                 previous = {}
             if not isinstance(previous, dict) or not isinstance(previous.get("runs", []), list):

@@ -38,8 +38,9 @@ from typing import Any
 from hdnet.errors import HdNetError
 from hdnet.inputs import InputSpec
 from hdnet.noise_levels import TrainingNoise
+from lidarsim.errors import StorageError
 from lidarsim.shards import MANIFEST_NAME
-from lidarsim.storage import write_json_atomic
+from lidarsim.storage import read_regular_text, write_json_atomic
 
 __all__ = [
     "CONFIG",
@@ -303,8 +304,8 @@ def read_run_record(run_dir: str | os.PathLike) -> RunRecord:
     """
     path = Path(run_dir) / CONFIG
     try:
-        raw = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+        raw = json.loads(read_regular_text(path))
+    except (StorageError, json.JSONDecodeError, RecursionError) as exc:
         raise HdNetError(f"{path}: unreadable run config ({exc}).") from exc
     return RunRecord.from_dict(raw, str(path))
 

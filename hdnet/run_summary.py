@@ -7,6 +7,7 @@ once and works on a run whose checkpoints are being written.
 from __future__ import annotations
 
 import csv
+import io
 import json
 import os
 from pathlib import Path
@@ -16,16 +17,17 @@ from hdnet.errors import HdNetError
 from hdnet.fit import is_run_dir
 from hdnet.run_record import CONFIG, TrainingData, read_run_record
 from hdnet.train import BEST, LAST, METRICS
+from lidarsim.storage import read_regular_text
 
 __all__ = ["describe_run", "is_run_dir", "run_record"]
 
 
 def _metrics(path: Path) -> list[dict[str, float]]:
-    if not path.is_file():
+    if not os.path.lexists(path):
         return []
     try:
-        with path.open(newline="") as f:
-            return [{k: float(v) for k, v in row.items()} for row in csv.DictReader(f)]
+        text = read_regular_text(path)
+        return [{k: float(v) for k, v in row.items()} for row in csv.DictReader(io.StringIO(text, newline=""))]
     except (OSError, ValueError, TypeError, csv.Error) as exc:
         raise HdNetError(f"{path}: unreadable metrics ({exc}).") from exc
 

@@ -71,6 +71,7 @@ from lidarsim.storage import (
     check_output_dir,
     first_missing,
     make_subdir,
+    read_regular_text,
     sha256_bytes,
     write_bytes_atomic,
 )
@@ -503,8 +504,8 @@ def prepare_output(out_dir: Path, config: BuildConfig, overwrite: bool) -> bool:
 def _recorded_settings(path: Path) -> dict[str, Any]:
     """``config_sha256`` and ``config`` recorded in a manifest or a build state file ({} if unreadable)."""
     try:
-        record = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError):
+        record = json.loads(read_regular_text(path))
+    except (ValueError, json.JSONDecodeError, RecursionError):
         return {}
     return record if isinstance(record, dict) else {}
 

@@ -56,13 +56,14 @@ from typing import Any
 
 from lidarsim import defaults, limits
 from lidarsim.build import BuildConfig
-from lidarsim.errors import LidarsimError, RecipeError
+from lidarsim.errors import LidarsimError, RecipeError, StorageError
 from lidarsim.footprint import FootprintConfig
 from lidarsim.limits import Bound
 from lidarsim.noise import NoiseModel
 from lidarsim.sensor import SensorConfig
 from lidarsim.setting import FILE_OR_DIRECTORY, check, from_mapping, setting
 from lidarsim.span import SpanType, parse_span
+from lidarsim.storage import read_regular_bytes
 from lidarsim.trajectory import TrajectoryConfig
 
 RECIPE_FILE = "recipe.toml"
@@ -294,8 +295,8 @@ class Recipe:
         if not path.is_file():
             return None
         try:
-            recorded = json.loads(path.read_bytes().decode("utf-8"))
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+            recorded = json.loads(read_regular_bytes(path).decode("utf-8"))
+        except (StorageError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
             raise RecipeError(f"{path}: unreadable checksums ({exc})") from exc
         _check_checksums(recorded, path)
         return recorded
@@ -369,8 +370,8 @@ def load_recipe(path: str | os.PathLike) -> Recipe:
     """
     path = find_recipe(path)
     try:
-        data = tomllib.loads(path.read_bytes().decode("utf-8"))
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        data = tomllib.loads(read_regular_bytes(path).decode("utf-8"))
+    except (StorageError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
         raise RecipeError(f"{path}: not a valid TOML recipe ({exc})") from exc
     unknown_sections = set(data) - {"dataset", "build", "label"}
     if unknown_sections:

@@ -285,3 +285,59 @@ def test_checksums_published_for_an_older_shard_schema_are_named_as_such(labelle
     if published.get("shard_schema_version") == manifest["shards"][0]["schema_version"]:
         pytest.skip("the published checksums are of the current shard schema")
     assert len(problems) == 1 and "published for scan shards of schema version 1.0" in problems[0]
+
+
+# ---------------------------------------------------------------------------------------- not regular files
+@pytest.fixture
+def no_hang():
+    """A read that blocks (a FIFO opened for reading waits for a writer) fails the test after 20 s."""
+
+    def _timeout(signum, frame):
+        raise TimeoutError("the read blocked")
+
+    previous = signal.signal(signal.SIGALRM, _timeout)
+    signal.alarm(20)
+    yield
+    signal.alarm(0)
+    signal.signal(signal.SIGALRM, previous)
+
+
+@pytest.mark.parametrize("kind", ["fifo", "directory", "device", "socket"])
+def test_side_files_that_are_not_regular_files_are_refused_at_once(tmp_path, no_hang, kind):
+    import socket
+
+    path = tmp_path / "config.json"
+    keep = None
+    if kind == "fifo":
+        os.mkfifo(path)
+    elif kind == "directory":
+        path.mkdir()
+    elif kind == "device":
+        path.symlink_to("/dev/zero")
+    else:
+        keep = socket.socket(socket.AF_UNIX)
+        keep.bind(str(path))
+    expected = {"fifo": "a FIFO", "directory": "a directory", "device": "a character device", "socket": "a socket"}
+    try:
+        for read in (storage.read_regular_bytes, storage.read_regular_text, storage.read_json):
+            with pytest.raises(FormatError, match=f"is {expected[kind]}, not a regular file"):
+                read(path)
+        with pytest.raises(FormatError, match="not a regular file"):
+            storage.check_regular_file(path)
+    finally:
+        if keep is not None:
+            keep.close()
+
+
+def test_side_files_are_read_whole_up_to_their_bound(tmp_path):
+    path = tmp_path / "f.json"
+    path.write_text('{"a": 1}')
+    assert storage.read_json(path) == {"a": 1}
+    assert storage.read_regular_bytes(path, max_bytes=8) == b'{"a": 1}'
+    with pytest.raises(FormatError, match="8 bytes, more than the 7"):
+        storage.read_regular_bytes(path, max_bytes=7)
+    with pytest.raises(StorageError, match="f.missing"):
+        storage.read_regular_bytes(tmp_path / "f.missing")
+    path.write_bytes(b"\xff\xfe")
+    with pytest.raises(DamagedFileError, match="not UTF-8"):
+        storage.read_regular_text(path)
