@@ -679,6 +679,8 @@ def detect(
                 threshold_info = with_score(
                     {"spec": f"nats:{h_t:g}", "kind": "fixed", "parameter": h_t, "value_nats": h_t}, score
                 )
+            # The record states the threshold the maps use, whatever its source (hdnet.threshold_cache).
+            threshold_info = dict(threshold_info, value_nats=None if math.isinf(h_t) else h_t)
             timings["calibration"] = time.perf_counter() - t0
             counts, map_timings = _write_maps(
                 tmp, terrain, run, plan, h_t, baseline_sigma, mc_samples, batch_size, seed, dev, progress, score

@@ -53,7 +53,7 @@ from hdnet.sites import SITE_RANK_RULES, body_disk
 from hdnet.thresholds import parse_threshold_spec
 from hdnet.train import save_checkpoint
 from hdnet.uncertainty import MUTUAL_INFORMATION
-from lidarsim.errors import LockedError, OutputExistsError, TerrainError
+from lidarsim.errors import HdWarning, LockedError, OutputExistsError, TerrainError
 from lidarsim.procedural import MarsTerrainParams, generate_mars_terrain, write_geotiff
 from lidarsim.shards import sha256_file
 from lidarsim.storage import PARTIAL_MARK, WriterLock
@@ -833,6 +833,31 @@ def test_the_calibrated_threshold_is_cached_in_the_run_and_keyed_on_what_it_depe
     assert "cached" not in other
     # A damaged cache is ignored and rewritten; a checkpoint given on its own never writes one.
     cache.write_text("{not json")
-    assert "cached" not in threshold("d") and json.loads(cache.read_text())["schema"] == "hd.threshold-cache"
+    with pytest.warns(HdWarning, match="unreadable threshold cache"):
+        assert "cached" not in threshold("d")
+    assert json.loads(cache.read_text())["schema"] == "hd.threshold-cache"
     detect(constant, tmp_path / "e", dtm=dtm, mc_samples=2)
     assert not (constant.parent / "thresholds.json").exists()
+
+
+@pytest.mark.parametrize("forged", [5.0, None])
+def test_a_forged_cached_threshold_is_recalibrated_and_the_record_states_the_value_used(trained, tmp_path, forged):
+    _, run, _ = trained
+    dtm = write_dtm(tmp_path / "site.tif", tilted_plane(60, 1.0, 3.0), 1.0)
+    cache = run / "thresholds.json"
+    cache.unlink(missing_ok=True)
+    detect(run, tmp_path / "a", dtm=dtm, mc_samples=2)
+    calibrated = json.loads((tmp_path / "a" / "detect.json").read_text())["threshold"]["value_nats"]
+    record = json.loads(cache.read_text())
+    record["entries"][0]["value_nats"] = forged  # "H_t unbounded" (None) or beyond any entropy (5.0)
+    cache.write_text(json.dumps(record))
+    with pytest.warns(HdWarning, match="calibrated again"):
+        result = detect(run, tmp_path / "b", dtm=dtm, mc_samples=2)
+    info = json.loads((tmp_path / "b" / "detect.json").read_text())["threshold"]
+    assert "cached" not in info and info["value_nats"] == calibrated == result.threshold_nats
+    with rasterio.open(tmp_path / "a" / "safety.tif") as a, rasterio.open(tmp_path / "b" / "safety.tif") as b:
+        assert np.array_equal(a.read(1), b.read(1))
+    # The entry is replaced by the calibrated one, which the next call uses.
+    again = detect(run, tmp_path / "c", dtm=dtm, mc_samples=2)
+    assert again.threshold_nats == calibrated
+    assert json.loads((tmp_path / "c" / "detect.json").read_text())["threshold"]["cached"] == str(cache)

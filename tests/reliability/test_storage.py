@@ -336,7 +336,7 @@ def test_side_files_are_read_whole_up_to_their_bound(tmp_path):
     assert storage.read_regular_bytes(path, max_bytes=8) == b'{"a": 1}'
     with pytest.raises(FormatError, match="8 bytes, more than the 7"):
         storage.read_regular_bytes(path, max_bytes=7)
-    with pytest.raises(StorageError, match="f.missing"):
+    with pytest.raises(StorageError, match=r"f\.missing"):
         storage.read_regular_bytes(tmp_path / "f.missing")
     path.write_bytes(b"\xff\xfe")
     with pytest.raises(DamagedFileError, match="not UTF-8"):
