@@ -36,7 +36,7 @@ import numpy as np
 from lidarsim import limits
 from lidarsim._version import __version__
 from lidarsim.errors import LidarsimError
-from lidarsim.limits import Bound
+from lidarsim.limits import Bound, parse_integer
 from lidarsim.scan import STATUS_DAMAGED, STATUS_RETURN
 from lidarsim.setting import check, setting
 from lidarsim.shards import open_scan_shard, read_manifest
@@ -106,22 +106,33 @@ class ExportSummary:
 
 
 def parse_scans(text: str) -> tuple[int, ...]:
-    """Scan indices from ``"3"``, ``"0,5,9"`` or ranges ``"10-19"`` (inclusive), in the order given.
+    """Scan indices from ``"3"``, ``"0,5,9"`` or ranges ``"10-19"`` (inclusive), in the order given;
+    indices in the ASCII digits 0-9 (:func:`lidarsim.limits.parse_integer`). The scans a list names
+    (ranges counted in full, repeats included) are bounded by ``limits.SCANS`` - a dataset holds no
+    more - before the list is expanded.
 
     Raises:
-        LidarsimError: anything else.
+        LidarsimError: anything else, naming the text.
     """
-    out: list[int] = []
+    usage = "use scan indices and ranges, e.g. 0,5,10-19"
+    where = f"--scans {text!r}" if len(text) <= 40 else f"--scans {text[:37] + '...'!r}"
+    spans: list[tuple[int, int]] = []
     for part in text.split(","):
         item = part.strip()
+        if not item:
+            raise LidarsimError(f"{where}: an empty entry; {usage}")
         lo, sep, hi = item.partition("-")
-        if not lo.isdigit() or (sep and not hi.isdigit()):
-            raise LidarsimError(f"--scans {text!r}: use scan indices and ranges, e.g. 0,5,10-19")
-        first, last = int(lo), int(hi) if sep else int(lo)
+        first = parse_integer(lo, f"{where}: scan", hint=usage)
+        last = parse_integer(hi, f"{where}: scan", hint=usage) if sep else first
         if last < first:
-            raise LidarsimError(f"--scans {text!r}: the range {item} runs backwards")
-        out.extend(range(first, last + 1))
-    return tuple(dict.fromkeys(out))
+            raise LidarsimError(f"{where}: the range {item} runs backwards")
+        spans.append((first, last))
+    named = sum(last - first + 1 for first, last in spans)
+    if not limits.SCANS.contains(named):
+        raise LidarsimError(
+            f"{where} names {named:,} scans; a list names at most {limits.MAX_SCANS:,} (a dataset holds no more)"
+        )
+    return tuple(dict.fromkeys(k for first, last in spans for k in range(first, last + 1)))
 
 
 def is_export_file(name: str) -> bool:

@@ -8,9 +8,11 @@ once instead of a MemoryError after a long wait (docs/reliability.md lists them)
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 
 from lidarsim import terrain_defaults
+from lidarsim.errors import LidarsimError
 
 # Detector pixels per side: one ray-casting batch (16 scans) of 1024 x 1024 rays needs ~0.4 GB.
 MAX_DETECTOR_PX: int = 1024
@@ -118,3 +120,36 @@ RETURN_FRACTION = Bound(0.0, 1.0, low_open=True, high_open=True)
 SNR_REF = Bound(0.0, low_open=True)
 # Detection threshold on the signal-to-noise ratio (0: every return is kept).
 SNR_MIN = Bound(0.0)
+
+
+# ------------------------------------------------------------------------------------ integers in text
+_DIGITS = re.compile(r"[0-9]+")
+_SIGNED_DIGITS = re.compile(r"-?[0-9]+")
+# hd's counts and indices have at most 10 digits; Python's int() refuses more than 4300.
+_MAX_DIGITS = 100
+
+
+def parse_integer(text: str, what: str = "", *, negative: bool = False, hint: str = "") -> int:
+    """The integer written in ``text`` with the ASCII digits 0-9 only (and a leading ``-`` when
+    ``negative``): Python's ``int()`` also takes other scripts' digits (``'٣'``), superscripts
+    (``'²'``, then fails), underscores (``'1_000'``), a ``+`` and blanks around the number, none of
+    which hd's options, lists and specs take. Every parser of an integer in user text goes through here.
+
+    ``what`` names where the text comes from (``"--scans '0,²': scan"``), ``hint`` is said after the
+    refusal (the form expected, with an example).
+
+    Raises:
+        LidarsimError: ``{what} {text!r} is not ...``, one line naming the text.
+    """
+    pattern = _SIGNED_DIGITS if negative else _DIGITS
+    if isinstance(text, str) and pattern.fullmatch(text) and len(text.lstrip("-")) <= _MAX_DIGITS:
+        return int(text)
+    shown = repr(text) if not isinstance(text, str) or len(text) <= 40 else repr(text[:37] + "...")
+    if isinstance(text, str) and pattern.fullmatch(text):
+        problem = f"has {len(text.lstrip('-'))} digits, more than any count or index hd takes"
+    elif negative:
+        problem = "is not an integer written with the digits 0-9 and an optional leading '-'"
+    else:
+        problem = "is not a whole number written with the digits 0-9"
+    tail = f"; {hint}" if hint else ""
+    raise LidarsimError(f"{what} {shown} {problem}{tail}".strip())

@@ -32,6 +32,7 @@ from multiprocessing.connection import Connection, wait
 from typing import Any, TypeVar, cast
 
 from lidarsim.errors import LidarsimError, WorkerError
+from lidarsim.limits import parse_integer
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -265,7 +266,7 @@ def check_scheduler_address(address: str) -> str:
     host, colon, port = rest.rpartition(":")
     if not colon or not host or "/" in rest or " " in rest:
         raise LidarsimError(f"--scheduler {text!r} is not a scheduler address; {hint}")
-    if not port.isdigit() or not 0 < int(port) < 65536:
+    if not 0 < parse_integer(port, f"--scheduler {text!r}: the port", hint=hint) < 65536:
         raise LidarsimError(f"--scheduler {text!r}: port {port!r} must be a number in 1..65535; {hint}")
     return text
 

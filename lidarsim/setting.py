@@ -25,8 +25,8 @@ from typing import Any, TypeVar
 
 import click
 
-from lidarsim.errors import HdError
-from lidarsim.limits import Bound
+from lidarsim.errors import HdError, LidarsimError
+from lidarsim.limits import Bound, parse_integer
 
 _KEY = "hd.setting"
 T = TypeVar("T")
@@ -255,11 +255,28 @@ class Finite(click.FloatRange):
         return number
 
 
+class Integer(click.IntRange):
+    """An integer option written with the ASCII digits 0-9 and an optional leading ``-``
+    (:func:`lidarsim.limits.parse_integer`; click's own ``int()`` also takes other scripts' digits
+    such as ``'٣'``, ``'1_000'``, ``'+8'`` and blanks), within the range when one is given."""
+
+    def _describe_range(self) -> str:
+        return super()._describe_range() if (self.min is not None or self.max is not None) else "integer"
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        if isinstance(value, str):
+            try:
+                value = parse_integer(value, negative=True)
+            except LidarsimError as exc:
+                self.fail(str(exc), param, ctx)
+        return super().convert(value, param, ctx)
+
+
 def bounded(bound: Bound) -> click.ParamType:
     """The click type of a numeric option within ``bound``: click shows the range in ``--help`` and
     refuses a value outside it with a usage error, before any work."""
     if bound.integer:
-        return click.IntRange(
+        return Integer(
             None if bound.low is None else int(bound.low),
             None if bound.high is None else int(bound.high),
             min_open=bound.low_open,
@@ -285,6 +302,8 @@ def _option(name: str, d: Described, default: Any, help: str | None = None) -> t
         kind = bounded(d.bound)
     elif d.choices is not None:
         kind = click.Choice(d.choices)
+    elif d.kind is int:
+        kind = Integer()
     else:
         kind = d.kind
     return [d.option_name(name), name], {

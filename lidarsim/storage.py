@@ -65,7 +65,15 @@ from typing import Any
 import h5py
 import numpy as np
 
-from lidarsim.errors import DamagedFileError, FormatError, LockedError, OutputExistsError, StorageError
+from lidarsim.errors import (
+    DamagedFileError,
+    FormatError,
+    LidarsimError,
+    LockedError,
+    OutputExistsError,
+    StorageError,
+)
+from lidarsim.limits import parse_integer
 
 LOCK_NAME = ".hd-lock"
 PARTIAL_MARK = ".partial-"
@@ -229,8 +237,11 @@ def remove_stale_partials(final: Path) -> None:
     prefix = f".{final.name}{PARTIAL_MARK}"
     with contextlib.suppress(OSError):
         for p in final.parent.glob(f"{glob_escape(prefix)}*"):
-            pid = p.name[len(prefix) :]
-            if pid.isdigit() and int(pid) != os.getpid() and not _pid_alive(int(pid)):
+            try:
+                pid = parse_integer(p.name[len(prefix) :])
+            except LidarsimError:
+                continue  # not a PID in ASCII digits: not a name hd writes
+            if pid != os.getpid() and not _pid_alive(pid):
                 with contextlib.suppress(OSError):
                     p.unlink()
 

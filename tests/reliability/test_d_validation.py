@@ -63,6 +63,14 @@ BUILD = [
     ("scheduler-no-port", ["--scheduler", "tcp://host"], "scheduler"),
     ("scheduler-port-range", ["--scheduler", "tcp://host:99999"], "port"),
     ("scheduler-protocol", ["--scheduler", "ftp://host:21"], "protocol"),
+    ("scheduler-port-superscript", ["--scheduler", "tcp://host:\u00b2"], "digits 0-9"),  # was a ValueError traceback
+    # Integers are ASCII digits: click's int() took these as 3, 8, 1000, 8 and 2.
+    ("scans-arabic-indic-digit", ["--scans", "\u0663"], "'--scans': '\u0663' is not"),
+    ("scans-fullwidth-digit", ["--scans", "\uff18"], "'--scans': '\uff18' is not"),
+    ("shard-size-underscore", ["--shard-size", "1_000"], "'--shard-size': '1_000' is not"),
+    ("scans-blanks", ["--scans", " 8 "], "'--scans': ' 8 ' is not"),
+    ("seed-plus", ["--seed", "+2"], "'--seed': '+2' is not"),
+    ("workers-devanagari-digit", ["--workers", "\u0968"], "'--workers': '\u0968' is not"),
     ("dtm-missing", ["--dtm", "{tmp}/missing.tif"], "missing.tif"),
     ("dtm-directory", ["--dtm", "{tmp}"], "directory"),
     ("dtm-not-a-raster", ["--dtm", "{file}"], "not a raster"),
@@ -225,6 +233,7 @@ EVAL = [
     ("nav-sigma-nan", ["--nav-sigma", "nan"], "--nav-sigma"),
     ("nav-sigma-inf", ["--nav-sigma", "inf"], "--nav-sigma"),
     ("nav-sigma-negative", ["--nav-sigma", "-1"], "--nav-sigma"),
+    ("mc-samples-arabic-indic-digit", ["--mc-samples", "\u0668"], "'--mc-samples': '\u0668' is not"),
 ]
 
 
@@ -374,3 +383,80 @@ def test_a_value_outside_its_range_is_a_usage_error_before_work(command, option,
     last = assert_one_line_error(result, f"'{option.opts[0]}'")
     assert result.exit_code == 2 and option.type._describe_range() in last, result.output
     assert list(tmp_path.iterdir()) == []
+
+
+# Scan lists are ASCII digits and ranges, and the number of scans they name is bounded
+# (lidarsim.limits.SCANS) before the list is expanded.
+EXPORT = [
+    ("superscript", "\u00b2", "'\u00b2' is not"),  # was a ValueError traceback
+    ("superscript-in-a-range", "1-\u00b3", "'\u00b3' is not"),  # was a ValueError traceback
+    ("arabic-indic", "\u0663", "'\u0663' is not"),  # was scan 3
+    ("too-many-digits", "9" * 5000, "digits"),  # was a ValueError traceback (int() refuses 4301+ digits)
+    ("beyond-the-bound", "0-1000000", "1,000,001 scans"),  # was a list of a million scans, then the export
+]
+
+
+@pytest.mark.parametrize(("case", "text", "needle"), EXPORT, ids=[c[0] for c in EXPORT])
+def test_export_refuses_scan_lists(case, text, needle, reference, tmp_path, monkeypatch):
+    _no_work(monkeypatch, ("lidarsim.export", "export_scans"))
+    last = assert_one_line_error(invoke("export", reference, "--out", tmp_path / "laz", "--scans", text), needle)
+    assert "--scans" in last and len(last) < 300, last
+    assert list(tmp_path.iterdir()) == []
+
+
+def _refusal(t: click.ParamType, text: str, p: click.Parameter, ctx: click.Context) -> str | None:
+    """click's message refusing ``text`` for ``p``, or None when it takes it."""
+    try:
+        t.convert(text, p, ctx)
+    except click.BadParameter as exc:
+        return exc.message
+    return None
+
+
+def test_every_integer_option_takes_ascii_digits_only():
+    """Guard for new options: every integer option of every command refuses a value inside its range
+    written with other digits (Arabic-Indic, fullwidth), with underscores, blanks or a '+', naming
+    the text; the ASCII digits of the same value are taken (click's own int() took all of them)."""
+    others = {
+        "arabic-indic": str.maketrans("0123456789", "\u0660\u0661\u0662\u0663\u0664\u0665\u0666\u0667\u0668\u0669")
+    }
+    others["fullwidth"] = str.maketrans("0123456789", "\uff10\uff11\uff12\uff13\uff14\uff15\uff16\uff17\uff18\uff19")
+    integers = [(c, cmd, p) for c, cmd, p in NUMERIC if isinstance(p.type, IntParamType)]
+    assert len(integers) >= 25
+    taken = []
+    for c, cmd, p in integers:
+        t = p.type
+        assert isinstance(t, _NumberRangeBase)
+        low = 0 if t.min is None else int(t.min) + (1 if t.min_open else 0)
+        value = low + 1 if t.max is None or low + 1 <= t.max else low  # two digits where the range allows
+        ctx = click.Context(cmd, info_name=c)
+        assert t.convert(str(value), p, ctx) == value
+        texts = [str(value).translate(table) for table in others.values()]
+        texts += [f" {value}", f"{value} ", f"+{value}", f"0_{value}"]
+        for text in texts:
+            refusal = _refusal(t, text, p, ctx)
+            if refusal is None:
+                taken.append(f"{c} {p.opts[0]} {text!r}")
+            else:
+                assert repr(text) in refusal and "digits 0-9" in refusal, refusal
+    assert taken == [], f"integer options that take more than ASCII digits: {taken}"
+
+
+def test_partial_names_that_are_not_ascii_pids_are_not_hds(tmp_path):
+    """A file named like a partial write whose "PID" is not written in ASCII digits is not hd's:
+    it is left alone (a superscript made the clean-up raise ValueError; Arabic-Indic digits read as
+    PID 3, long dead, and the file was deleted)."""
+    import subprocess
+
+    from lidarsim.storage import write_bytes_atomic
+
+    final = tmp_path / "manifest.json"
+    strangers = [tmp_path / ".manifest.json.partial-\u00b2", tmp_path / ".manifest.json.partial-\u0663"]
+    for p in strangers:
+        p.write_text("a user's file\n")
+    dead = subprocess.Popen(["true"])
+    dead.wait()
+    leftover = tmp_path / f".manifest.json.partial-{dead.pid}"  # a killed writer's: still removed
+    leftover.write_text("{")
+    write_bytes_atomic(final, b"{}")
+    assert final.read_bytes() == b"{}" and all(p.exists() for p in strangers) and not leftover.exists()
