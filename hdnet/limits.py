@@ -19,10 +19,15 @@ MAX_MC_SAMPLES: int = 1024
 MAX_BATCH_SIZE: int = 1024
 # Training epochs: the paper's SGD needs 10^4 (hdnet.profiles); ten times that bounds a typo.
 MAX_EPOCHS: int = 100_000
+# Noise levels of one sweep (hd eval --sigma-sweep; hd choice): each level is one inference over the
+# whole test split (with the paper's M = 8 and 100 test DEMs, 200 levels are 160,000 network passes),
+# and 200 levels already step 0.5 mm from 0 to 10 cm, finer than any sensor's noise is known.
+MAX_SWEEP_LEVELS: int = 200
 
 MC_SAMPLES = Bound(1, MAX_MC_SAMPLES, integer=True)
 BATCH_SIZE = Bound(1, MAX_BATCH_SIZE, integer=True)
 EPOCHS = Bound(1, MAX_EPOCHS, integer=True)
+SWEEP_LEVELS = Bound(1, MAX_SWEEP_LEVELS, integer=True, hint="each level is an inference over the whole test split")
 # Dead pixels dropped from each DEM (also fewer than the DEM's pixels, checked with the data).
 DROP_PIXELS = Bound(0, MAX_DEM_SIDE_PX * MAX_DEM_SIDE_PX - 1, integer=True)
 # Landing sites hd detect proposes, at most.

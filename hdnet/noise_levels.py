@@ -21,13 +21,12 @@ from typing import Any
 
 import numpy as np
 
+from hdnet import limits as net_limits
 from hdnet.errors import HdNetError
 from lidarsim import limits as lidar_limits
 
 # The largest noise level hd trains or sweeps at, metres (one bound for every command: lidarsim.limits).
 MAX_SIGMA_M = lidar_limits.MAX_SIGMA_M
-# hd choice: a sweep has at most this many levels (each one is an inference over a whole split).
-MAX_SWEEP_LEVELS = 200
 # hd choice: the validation levels of a range are this many evenly spaced points, ends included.
 RANGE_VALIDATION_LEVELS = 3
 
@@ -147,26 +146,41 @@ def parse_sigma_range(text: str) -> tuple[float, float]:
     return lo, hi
 
 
-def parse_sigma_sweep(text: str) -> tuple[float, ...]:
+def parse_sigma_sweep(text: str, what: str = "--sigma-sweep") -> tuple[float, ...]:
     """``START:STOP:STEP`` (metres) as the levels START, START+STEP, ... <= STOP (STOP included when
-    it falls on the grid within 1e-9 m); e.g. ``0:0.12:0.01`` gives 13 levels."""
+    it falls on the grid within 1e-9 m); e.g. ``0:0.12:0.01`` gives 13 levels. The form, the ends
+    (finite, within the noise bound), a finite STEP > 0 and the number of levels
+    (``hdnet.limits.SWEEP_LEVELS``) are checked before any level is made. ``what``: the option named
+    by the errors.
+
+    Raises:
+        HdNetError: one line naming ``what``, the text and the fix.
+    """
+    form = "START:STOP:STEP in metres"
     parts = str(text).split(":")
+    if len(parts) == 2:
+        raise HdNetError(f"{what} {text!r} has no STEP: give {form}, e.g. {text}:0.01")
     if len(parts) != 3:
-        raise HdNetError(f"a sigma sweep is START:STOP:STEP in metres (e.g. 0:0.12:0.01), got {text!r}.")
+        raise HdNetError(f"{what} is {form} (e.g. 0:0.12:0.01), got {text!r}.")
     try:
         start, stop, step = (float(p) for p in parts)
     except ValueError as exc:
-        raise HdNetError(f"a sigma sweep is START:STOP:STEP in metres (e.g. 0:0.12:0.01), got {text!r}.") from exc
-    start = _check_sigma(start, "the sweep's START")
-    stop = _check_sigma(stop, "the sweep's STOP")
+        raise HdNetError(f"{what} is {form} (e.g. 0:0.12:0.01), got {text!r}.") from exc
+    start = _check_sigma(start, f"{what}'s START")
+    stop = _check_sigma(stop, f"{what}'s STOP")
     if not (math.isfinite(step) and step > 0):
-        raise HdNetError(f"the sweep's STEP must be a positive number of metres, got {step:g}.")
+        raise HdNetError(f"{what}'s STEP must be a positive number of metres, got {step:g}.")
     if stop < start:
-        raise HdNetError(f"the sweep's STOP ({stop:g}) is below its START ({start:g}).")
-    n = int(math.floor((stop - start) / step + 1e-9)) + 1
-    if n > MAX_SWEEP_LEVELS:
-        raise HdNetError(f"the sweep {text!r} has {n} levels; at most {MAX_SWEEP_LEVELS}.")
-    return tuple(round(start + k * step, 12) for k in range(n))
+        raise HdNetError(f"{what}'s STOP ({stop:g}) is below its START ({start:g}).")
+    steps = (stop - start) / step  # inf when STEP underflows against the span
+    n = math.floor(steps + 1e-9) + 1 if math.isfinite(steps) else math.inf
+    if not net_limits.SWEEP_LEVELS.contains(n):
+        most = net_limits.MAX_SWEEP_LEVELS
+        raise HdNetError(
+            f"{what} {text!r} gives more than {most} levels (at most {most}: {net_limits.SWEEP_LEVELS.hint}); "
+            f"use a STEP of at least {(stop - start) / (most - 1):.3g} m."
+        )
+    return tuple(round(start + k * step, 12) for k in range(int(n)))
 
 
 def check_levels(levels: Sequence[float], what: str) -> tuple[float, ...]:

@@ -233,13 +233,17 @@ EVAL = [
     ("nav-sigma-nan", ["--nav-sigma", "nan"], "--nav-sigma"),
     ("nav-sigma-inf", ["--nav-sigma", "inf"], "--nav-sigma"),
     ("nav-sigma-negative", ["--nav-sigma", "-1"], "--nav-sigma"),
+    # Sweeps are checked, and their number of levels bounded, before anything is expanded or loaded.
+    ("sigma-sweep-no-step", ["--sigma-sweep", "0:0.1"], "e.g. 0:0.1:0.01"),
+    ("sigma-sweep-subnormal-step", ["--sigma-sweep", "0:0.12:5e-324"], "more than 200 levels"),  # was OverflowError
+    ("sigma-sweep-tiny-step", ["--sigma-sweep", "0:0.12:5e-32"], "a STEP of at least 0.000603"),
     ("mc-samples-arabic-indic-digit", ["--mc-samples", "\u0668"], "'--mc-samples': '\u0668' is not"),
 ]
 
 
 @pytest.mark.parametrize(("case", "args", "needle"), EVAL, ids=[c[0] for c in EVAL])
 def test_eval_refuses(case, args, needle, places, labelled, trained, monkeypatch):
-    if case.startswith(("out-", "mc-", "batch-", "seed-", "threshold-", "nav-")):
+    if case.startswith(("out-", "mc-", "batch-", "seed-", "threshold-", "nav-", "sigma-sweep-")):
         _no_work(monkeypatch, ("hdnet.evaluate", "load_trained_model"))  # checked before the model is loaded
     else:
         _no_work(monkeypatch, ("hdnet.evaluate", "infer_split"))  # needs the labelling's DEM size first
