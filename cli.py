@@ -29,6 +29,7 @@ from hdnet.shared_options import (
     workers_option,
 )
 from hdnet.terminal import OUTPUT, HdGroup, ScanProgress, epoch_lines, friendly_errors, record, refuse_with_recipe, say
+from lidarsim import limits
 from lidarsim._version import __version__
 from lidarsim.errors import LidarsimError
 from lidarsim.make_dtm import DtmSettings
@@ -38,6 +39,7 @@ from lidarsim.setting import (
     FILE_OR_DIRECTORY,
     NonEmptyPath,
     SettingsCommand,
+    bounded,
     click_options,
     settings_from_options,
 )
@@ -66,6 +68,14 @@ def main(ctx: click.Context, quiet: bool = False, no_progress: bool = False, as_
 )
 @workers_option()
 @scheduler_option()
+@click.option(
+    "--max-shards",
+    type=bounded(limits.SHARD_FILES),
+    default=limits.MAX_SHARD_FILES,
+    show_default=True,
+    help="Shard files the build may write (scans / --shard-size, rounded up); a build that needs more is "
+    "refused before any work. Not recorded in the dataset.",
+)
 @overwrite_option("Replace an existing dataset in --out.")
 @recipe_option("Build exactly the dataset of a recipe (datasets/<name>); the recipe fixes every content setting.")
 @click.pass_context
@@ -75,10 +85,11 @@ def build_dataset_cmd(ctx: click.Context, out_dir: Path | None, recipe: Path | N
     from lidarsim.build_job import build_job
 
     workers, scheduler, overwrite = options.pop("workers"), options.pop("scheduler"), options.pop("overwrite")
+    max_shards = options.pop("max_shards")
     if recipe is not None:
         refuse_with_recipe(ctx, set(options), "every content setting", LidarsimError)
     with ScanProgress("scans") as progress:
-        _done(build_job(out_dir, options, recipe, workers, scheduler, overwrite, progress, say))
+        _done(build_job(out_dir, options, recipe, workers, scheduler, overwrite, progress, say, max_shards))
 
 
 @main.command("make-dtm")

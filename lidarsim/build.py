@@ -659,6 +659,23 @@ def check_workers(workers: int | None, flag: str = "--workers") -> None:
         raise LidarsimError(f"{flag} must be in 1..{limits.MAX_WORKERS}, got {workers}")
 
 
+def check_shard_files(config: BuildConfig, max_shards: int = limits.MAX_SHARD_FILES) -> None:
+    """Refuse a build that would write more than ``max_shards`` shard files (``--max-shards``; by
+    default ``limits.MAX_SHARD_FILES``). The bound is an option of the command, not of the dataset:
+    it is recorded nowhere, so a dataset's bytes do not depend on it."""
+    if isinstance(max_shards, bool) or not limits.SHARD_FILES.contains(max_shards):
+        raise LidarsimError(f"--max-shards must be an integer in {limits.SHARD_FILES.interval()}, got {max_shards!r}")
+    scans, size = config.trajectory.n_scans, config.shard_size
+    files = math.ceil(scans / size)
+    if files > max_shards:
+        why = ": the default, against a --shard-size typed too small" if max_shards == limits.MAX_SHARD_FILES else ""
+        raise LidarsimError(
+            f"the build would write {files:,} shard files ({scans:,} scans, {size:,} per shard), more than "
+            f"--max-shards allows ({max_shards:,}{why}); make shards of at least {math.ceil(scans / max_shards):,} "
+            f"scans, or allow them with --max-shards {files}"
+        )
+
+
 def _completed_shards(out_dir: Path) -> int:
     shard_dir = out_dir / SHARD_DIR
     if not shard_dir.is_dir():
@@ -683,6 +700,7 @@ def build_dataset(
     scheduler: str | None = None,
     overwrite: bool = False,
     progress: Callable[[int, int], None] | None = None,
+    max_shards: int = limits.MAX_SHARD_FILES,
 ) -> BuildSummary:
     """Build (or finish building) a dataset of clean and noisy scans.
 
@@ -693,13 +711,16 @@ def build_dataset(
         scheduler: address of a Dask scheduler (``tcp://host:8786``), or None for a process pool.
         overwrite: replace an existing dataset at ``out_dir``.
         progress: called with (scans done, scans total) as shards finish.
+        max_shards: the most shard files the build may write (:func:`check_shard_files`).
 
     Raises:
-        LidarsimError: bad input (DTM, sizes, existing output); nothing is written or overwritten then.
+        LidarsimError: bad input (DTM, sizes, existing output, more shard files than ``max_shards``);
+            nothing is written or overwritten then.
     """
     t_start = time.perf_counter()
     out_dir = check_output_dir(out_dir, "--out").resolve()
     check_workers(workers)
+    check_shard_files(config, max_shards)
     if not overwrite and (done := finished_identical(out_dir, config)) is not None:
         splits = done.get("splits")
         return BuildSummary(

@@ -12,6 +12,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from lidarsim import limits
 from lidarsim.outcome import Done
 
 
@@ -24,9 +25,12 @@ def build_job(
     overwrite: bool,
     progress: Callable[[int, int], None] | None,
     echo: Callable[[str], None],
+    max_shards: int = limits.MAX_SHARD_FILES,
 ) -> Done:
     """Build the dataset of ``settings`` (BuildSettings' fields), or of ``recipe``, into ``out_dir``
-    (None: named after the recipe, the DTM or the procedural terrain; ``echo`` says which).
+    (None: named after the recipe, the DTM or the procedural terrain; ``echo`` says which), writing
+    at most ``max_shards`` shard files (``--max-shards``, a bound of this command only: the dataset
+    records nothing of it).
 
     Raises:
         LidarsimError: an unusable output directory or scheduler address, a bad recipe or value,
@@ -54,6 +58,12 @@ def build_job(
         check_output_dir(out_dir, "--out")
         echo(f"no --out given: building into {out_dir}")
     summary = build_dataset(
-        out_dir, config, workers=workers, scheduler=scheduler, overwrite=overwrite, progress=progress
+        out_dir,
+        config,
+        workers=workers,
+        scheduler=scheduler,
+        overwrite=overwrite,
+        progress=progress,
+        max_shards=max_shards,
     )
     return Done([summary.paragraph()], {"command": "build-dataset", **dataclasses.asdict(summary)})

@@ -27,6 +27,11 @@ MAX_WORKERS: int = 512
 MIN_RETURN_FRACTION: float = 0.5
 # DataLoader worker processes of `hd train`.
 MAX_LOADER_WORKERS: int = 256
+# Shard files one build may create unless told otherwise (`hd build-dataset --max-shards`). Ten
+# thousand files hold ten times the paper's 1000 scans at one scan per file (the published recipes
+# make 4 to 50); more is almost always a --shard-size typed too small, and every file of a
+# dataset is listed, checksummed (hd verify), labelled into a label shard of its own and copied.
+MAX_SHARD_FILES: int = 10_000
 
 
 # ------------------------------------------------------------------------------------ option ranges
@@ -77,6 +82,8 @@ MAX_SEED: int = 2**32 - 1
 SEED = _int_bound(0, MAX_SEED)
 SCANS = _int_bound(1, MAX_SCANS)
 SHARD_SIZE = _int_bound(1, MAX_SCANS)
+# The shard files a build may create (--max-shards): a build writes at most one shard per scan.
+SHARD_FILES = _int_bound(1, MAX_SCANS)
 WORKERS = _int_bound(1, MAX_WORKERS)
 LOADER_WORKERS = _int_bound(0, MAX_LOADER_WORKERS)
 DETECTOR_PX = _int_bound(2, MAX_DETECTOR_PX)

@@ -13,7 +13,7 @@ import re
 import click
 import pytest
 from click.types import FloatParamType, IntParamType, _NumberRangeBase
-from reliability_kit import assert_one_line_error, invoke
+from reliability_kit import BUILD_ARGS, assert_one_line_error, invoke
 
 BIG = str(10**9)
 
@@ -71,6 +71,9 @@ BUILD = [
     ("scans-blanks", ["--scans", " 8 "], "'--scans': ' 8 ' is not"),
     ("seed-plus", ["--seed", "+2"], "'--seed': '+2' is not"),
     ("workers-devanagari-digit", ["--workers", "\u0968"], "'--workers': '\u0968' is not"),
+    # More shard files than the stated bound (lidarsim.limits.MAX_SHARD_FILES) without --max-shards.
+    ("shard-files-beyond-bound", ["--scans", "200000", "--shard-size", "1"], "200,000 shard files"),
+    ("shard-files-beyond-max-shards", ["--scans", "8", "--shard-size", "2", "--max-shards", "3"], "4 shard files"),
     ("dtm-missing", ["--dtm", "{tmp}/missing.tif"], "missing.tif"),
     ("dtm-directory", ["--dtm", "{tmp}"], "directory"),
     ("dtm-not-a-raster", ["--dtm", "{file}"], "not a raster"),
@@ -444,6 +447,36 @@ def test_every_integer_option_takes_ascii_digits_only():
             else:
                 assert repr(text) in refusal and "digits 0-9" in refusal, refusal
     assert taken == [], f"integer options that take more than ASCII digits: {taken}"
+
+
+def test_a_build_may_make_more_shard_files_when_told_and_records_nothing_of_it(reference, dtm, tmp_path):
+    """--max-shards allows a build beyond the bound (here: lowered to the build's own 4 shards) and
+    leaves no trace in the dataset: every file is byte-identical to the build without it."""
+    import hashlib
+
+    out = tmp_path / "data"
+    result = invoke("build-dataset", "--out", out, "--dtm", dtm, "--workers", "1", "--max-shards", "4", *BUILD_ARGS)
+    assert result.exit_code == 0, result.output
+
+    def sums(root):
+        return {
+            str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(root.rglob("*"))
+            if p.is_file()
+        }
+
+    assert sums(out) == sums(reference)
+
+
+def test_a_recipe_beyond_the_shard_file_bound_needs_max_shards(tmp_path, monkeypatch):
+    _no_work(monkeypatch, ("lidarsim.build", "plan_scans"), ("lidarsim.build", "_procedural_terrain_bytes"))
+    recipe = tmp_path / "many"
+    recipe.mkdir()
+    (recipe / "recipe.toml").write_text("[build]\nscans = 20000\nshard_size = 1\n")
+    before = _snapshot(tmp_path)
+    result = invoke("build-dataset", "--recipe", recipe, "--out", tmp_path / "data")
+    assert_one_line_error(result, "20,000 shard files", "--max-shards 20000")
+    assert _snapshot(tmp_path) == before
 
 
 def test_partial_names_that_are_not_ascii_pids_are_not_hds(tmp_path):
