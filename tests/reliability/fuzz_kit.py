@@ -7,7 +7,9 @@ not take the test session with it. The invariant (:func:`check`): exit status 0,
 status whose last line is one ``Error: ...`` line; never a traceback, a signal, a hang or a
 ``.partial-`` file left behind; and exit 0 only where the mutation leaves a correct input (a
 mutation that ``must_fail`` - a damaged file, a checksum that no longer matches - accepted with
-exit 0 is a silently wrong result).
+exit 0 is a silently wrong result; one that ``must_pass`` - a correct option value - refused is a
+wrong refusal). Targets that call a function in process instead of a command log through
+:func:`report`.
 
 Sizes: ``HD_FUZZ_CAMPAIGN=long`` selects the long campaign's numbers of examples,
 ``HD_FUZZ_EXAMPLES=target=N,...`` sets some targets' numbers, ``HD_FUZZ_SCALE`` (default 1)
@@ -24,12 +26,13 @@ import contextlib
 import json
 import math
 import os
+import re
 import resource
 import select
 import signal
 import time
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -38,7 +41,6 @@ import h5py
 import numpy as np
 from hypothesis import HealthCheck, seed, settings
 from hypothesis import strategies as st
-from reliability_kit import invoke
 
 from lidarsim.shards import sha256_file
 
@@ -95,6 +97,9 @@ def run_forked(args: list[Any], timeout_s: float) -> Outcome:
     if pid == 0:  # the child: run, report as JSON on the pipe, leave without running the parent's exit handlers
         code = 0
         try:
+            # Imported here (the test process has it already): the summary (``__main__``) runs without the tests' path.
+            from reliability_kit import invoke
+
             os.close(read_fd)
             os.setpgid(0, 0)
             resource.setrlimit(resource.RLIMIT_AS, (MEMORY_BOUND_BYTES, MEMORY_BOUND_BYTES))
@@ -142,9 +147,37 @@ def run_forked(args: list[Any], timeout_s: float) -> Outcome:
     return Outcome(data["exit_code"], data["output"], data["error"], seconds=seconds)
 
 
+class Hang(Exception):
+    """An in-process call ran past its bound (:func:`bounded`)."""
+
+
+@contextlib.contextmanager
+def bounded(seconds: float) -> Iterator[None]:
+    """Raise :class:`Hang` in the main thread after ``seconds``: the bound of a target that runs in process
+    (SIGALRM interrupts a blocking open or read, of a FIFO say)."""
+
+    def expire(signum: int, frame: Any) -> None:
+        raise Hang(f"still running after {seconds:g} s")
+
+    previous = signal.signal(signal.SIGALRM, expire)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+
+
 # ---------------------------------------------------------------------------------------- invariant
-def violation(outcome: Outcome, must_fail: bool, roots: list[Path]) -> str | None:
-    """The broken part of the invariant, or None when the outcome is a correct result or a one-line error."""
+def terminal_lines(text: str) -> list[str]:
+    """The non-blank lines a terminal shows of ``text``: broken at \\n and \\r only (str.splitlines also breaks
+    at \\x1c-\\x1e, \\x85 and \\u2028, which a terminal prints inside a line)."""
+    return [line for line in re.split(r"\r\n?|\n", text) if line.strip()]
+
+
+def violation(outcome: Outcome, must_fail: bool, roots: list[Path], must_pass: bool = False) -> str | None:
+    """The broken part of the invariant, or None when the outcome is a correct result or a one-line error
+    (``must_pass``: an input the command must accept, where a one-line error is a wrong refusal)."""
     if outcome.timed_out:
         return f"hang: still running after {outcome.seconds:.0f} s"
     if outcome.signal is not None:
@@ -158,9 +191,11 @@ def violation(outcome: Outcome, must_fail: bool, roots: list[Path]) -> str | Non
         return f"partial files left: {left[:3]}"
     if outcome.exit_code == 0:
         return "silently wrong: exit 0 on a damaged input" if must_fail else None
-    lines = outcome.output.strip().splitlines()
+    lines = terminal_lines(outcome.output)
     if not lines or not lines[-1].startswith("Error: "):
         return f"exit {outcome.exit_code} without a one-line error: {lines[-1:]!r}"
+    if must_pass:
+        return "refused a correct input: " + lines[-1][:200]
     return None
 
 
@@ -172,13 +207,22 @@ def check(
     timeout_s: float = 120.0,
     roots: tuple[Path, ...] = (),
     accept: Callable[[Outcome], str | None] | None = None,
+    must_pass: bool = False,
 ) -> Outcome:
-    """Run ``args`` forked and hold the invariant (``accept`` adds a target's own check of an exit 0)."""
+    """Run ``args`` forked and hold the invariant (``accept`` adds a target's own check of an exit 0;
+    ``must_pass``: the mutation leaves a correct input, which must not be refused)."""
     outcome = run_forked(args, timeout_s)
-    problem = violation(outcome, must_fail, list(roots))
+    problem = violation(outcome, must_fail, list(roots), must_pass)
     if problem is None and outcome.exit_code == 0 and accept is not None:
         problem = accept(outcome)
-    last = outcome.output.strip().splitlines()[-1:] if outcome.output.strip() else []
+    report(target, mutation, problem, outcome)
+    return outcome
+
+
+def report(target: str, mutation: Any, problem: str | None, outcome: Outcome) -> None:
+    """Log one example (``HD_FUZZ_LOG``) and fail on its violation ``problem`` (unless ``HD_FUZZ_COLLECT``).
+    Targets that call a function in process (no command, no fork) report through it too."""
+    last = terminal_lines(outcome.output)[-1:]
     if LOG:
         with open(LOG, "a") as fh:
             record = {
@@ -193,7 +237,6 @@ def check(
             fh.write(json.dumps(record) + "\n")
     if problem is not None and not COLLECT:
         raise AssertionError(f"{target}: {problem}\nmutation: {mutation!r}\n{outcome.output[-3000:]}\n{outcome.error}")
-    return outcome
 
 
 # ---------------------------------------------------------------------------------------- values
