@@ -1,4 +1,4 @@
-"""Class I: property-based fuzzing of every file hd reads, fed to the commands that read it.
+"""Class I: property-based fuzzing of every file hd reads, and of the options it parses, fed to the commands.
 
 Mutations (drawn by hypothesis, deterministic): manifests (keys removed, types changed, numbers
 huge, negative or NaN, odd strings, raw bytes), scan and label shards (attributes, dataset shapes
@@ -7,22 +7,30 @@ checkpoints (state_dict keys, shapes and dtypes, config and other values, raw by
 content checksum updated or not), recipes and their published checksums, GeoTIFFs (sizes, dtypes,
 nodata, cell sizes, rotations, bands, raw header bytes). The commands: ``hd verify``,
 ``hd inspect``, ``hd label``, ``hd train``, ``hd eval``, ``hd detect`` (and ``hd build-dataset``
-on GeoTIFFs). The invariant and the runner are in ``fuzz_kit.py``: exit 0 with a correct result,
+on GeoTIFFs). Option and side-file surfaces: a run's threshold cache (``hd detect``, and
+``CachedThreshold.get`` in process), ``hd export --scans``, ``hd eval --sigma-sweep`` (with
+``--threshold``, ``--nav-sigma``, ``--drop-pixels``), recipes by name (``hd verify --recipe``) and
+training mixes (``hd train --also``). The invariant and the runner are in ``fuzz_kit.py``: exit 0 with a correct result,
 or one ``Error:`` line and a non-zero exit; never a traceback, a signal, a hang past the bound or
-a damaged input accepted. The normal run draws a few examples per target (about 40 s in all on
-two cores); ``HD_FUZZ_CAMPAIGN=long`` runs the long campaign (docs/reliability.md).
+a damaged input accepted (nor a correct input refused, where a target knows it is correct). The
+normal run draws a few examples per target (about 70 s in all on two cores);
+``HD_FUZZ_CAMPAIGN=long`` runs the long campaign (docs/reliability.md).
 """
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import json
 import math
 import os
 import shutil
 import tempfile
+import time
 import tomllib
+import warnings
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -34,30 +42,38 @@ from fuzz_kit import (
     LONG_CAMPAIGN,
     ByteEdit,
     H5Edit,
+    Hang,
     Outcome,
     TreeEdit,
     apply_bytes,
     apply_h5,
+    bounded,
     byte_edits,
     check,
     draw_h5_edit,
     draw_tree_edits,
     fuzz_settings,
     json_values,
+    report,
     reseal,
+    same,
     scalars,
 )
 from hypothesis import given
 from hypothesis import strategies as st
 from rasterio.transform import Affine
-from reliability_kit import REPO, assert_one_line_error, hills, invoke
+from reliability_kit import BUILD_ARGS, REPO, assert_one_line_error, hills, invoke
 
+from hdnet.threshold_cache import CACHE_FILE, CachedThreshold, ThresholdKey, entry_digest
 from hdnet.train import checkpoint_digest
 from lidarsim.shards import read_manifest
 
 # Examples per target (family/command) in the normal run; the long campaign (HD_FUZZ_CAMPAIGN=long)
-# draws about 11 600 in all, sized for about 70 minutes on one core. HD_FUZZ_SCALE multiplies either.
+# draws about 11 600 of the file families, sized for about 70 minutes on one core, and 10 750 of the
+# option and side-file targets, about 40 minutes. HD_FUZZ_SCALE multiplies either.
 SHORT = {"verify": 6, "inspect": 3, "label": 3, "train": 2, "eval": 2, "detect": 2, "resume": 2, "build": 2}
+# Targets whose normal number differs from their command's (cheap ones draw more).
+SHORT_TARGETS = {"thresholds/get": 60, "export-spec/export": 6, "recipe-name/verify": 12, "sweep/eval": 3}
 LONG = {
     "manifest/verify": 2000,
     "manifest/inspect": 800,
@@ -76,6 +92,13 @@ LONG = {
     "recipe/verify": 1000,
     "geotiff/detect": 400,
     "geotiff/build": 400,
+    # The option and side-file surfaces (their own long campaign, about 10 000 examples; docs/reliability.md).
+    "thresholds/detect": 300,
+    "thresholds/get": 5000,
+    "export-spec/export": 2500,
+    "sweep/eval": 150,
+    "recipe-name/verify": 2500,
+    "also/train": 300,
 }
 
 
@@ -89,10 +112,21 @@ def examples(target: str) -> int:
     """The number of examples of ``target`` ("family/command") in this run, before HD_FUZZ_SCALE."""
     if target in OVERRIDES:
         return OVERRIDES[target]
-    return LONG[target] if LONG_CAMPAIGN else SHORT[target.split("/")[1]]
+    if LONG_CAMPAIGN:
+        return LONG[target]
+    return SHORT_TARGETS[target] if target in SHORT_TARGETS else SHORT[target.split("/")[1]]
 
 
-TIMEOUT_S = {"verify": 60, "inspect": 60, "label": 120, "train": 180, "eval": 180, "detect": 120, "resume": 180}
+TIMEOUT_S = {
+    "verify": 60,
+    "inspect": 60,
+    "label": 120,
+    "train": 180,
+    "eval": 180,
+    "detect": 120,
+    "resume": 180,
+    "export": 60,
+}
 LABEL_FIELDS = ("sha256", "path", "n_scans")
 LABEL_SHARD = "labels/*/labels-00002.h5"
 
@@ -564,6 +598,772 @@ def test_mutated_geotiffs(name, trained, scratch):
             must_fail=empty and raw is None,
             timeout_s=TIMEOUT_S["detect"],
             roots=(work,),
+        )
+        shutil.rmtree(work, ignore_errors=True)
+
+    example()
+
+
+# ------------------------------------------------------------------------------------- the threshold cache
+LN2 = math.log(2.0)
+# Values a forged entry may hold: in and just outside the score's range [0, ln 2] nats, and of other types.
+THRESHOLD_VALUES = [0.0, -0.0, 0, 0.3, LN2, LN2 + 5e-7, LN2 + 2e-6, 1.0, -1e-12, math.nan, math.inf, None, True, "0.3"]
+# An integer literal longer than Python's limit for converting digits to an int (4300): json.loads raises
+# a plain ValueError, not a JSONDecodeError.
+HUGE_LITERAL = "7" * 5000
+CACHE_SPECIALS = [
+    "absent",
+    "empty",
+    "fifo",
+    "directory",
+    "padded-past-4MiB",
+    "sparse-5MiB",
+    "link-to-dev-zero",
+    "dangling-link",
+    "link-loop",
+    "link-to-a-copy",
+    "nested-100000",
+    "huge-integer-literal",
+    "schema-version-1",
+    "300-copies",
+]
+
+
+@dataclass(frozen=True)
+class Calibrated:
+    """A private copy of the trained run whose cache holds the calibrated default threshold of ``dtm``."""
+
+    run: Path
+    dtm: Path
+    value_nats: float
+    safety: np.ndarray  # safety.tif of the calibrated detect
+
+
+def _safety(out: Path) -> np.ndarray:
+    with rasterio.open(out / "safety.tif") as src:
+        return np.asarray(src.read(1))
+
+
+@pytest.fixture(scope="module")
+def calibrated(trained, scratch) -> Calibrated:
+    """``hd detect`` once with the default (calibrated) threshold: the value and maps every example must give."""
+    run = scratch / "calibrated-run"
+    shutil.copytree(trained, run, ignore=shutil.ignore_patterns(CACHE_FILE))
+    dtm = hills(scratch / "calibrated.tif", n=120)
+    result = invoke("detect", run, "--dtm", dtm, "--out", scratch / "calibrated-detect", "--mc-samples", "2")
+    assert result.exit_code == 0, result.output
+    value = json.loads((scratch / "calibrated-detect" / "detect.json").read_text())["threshold"]["value_nats"]
+    entries = json.loads((run / CACHE_FILE).read_text())["entries"]
+    assert [e["value_nats"] for e in entries] == [value]
+    return Calibrated(run, dtm, value, _safety(scratch / "calibrated-detect"))
+
+
+def _reseal(tree: Any) -> None:
+    """Give every entry of a cache tree the digest of its (edited) key, value and record, where it has them."""
+    for entry in tree.get("entries", []) if isinstance(tree, dict) and isinstance(tree.get("entries"), list) else []:
+        if isinstance(entry, dict) and isinstance(entry.get("key"), dict):
+            with contextlib.suppress(KeyError, TypeError, ValueError, RecursionError):
+                entry["sha256"] = entry_digest(entry["key"], entry["value_nats"], entry["info"])
+
+
+def _in_range(value: Any) -> bool:
+    """A threshold the cache may hold: None (unbounded) or a number of nats in [0, ln 2] (+ the cache's
+    float slack of 1e-6)."""
+    if value is None:
+        return True
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    return math.isfinite(value) and 0.0 <= value <= LN2 + 1e-6
+
+
+def _sealed_forgeries(tree: Any) -> list[Any]:
+    """The values of a resealed tree's entries that the cache may trust (a consistent forgery: docs, Not covered)."""
+    entries = tree.get("entries") if isinstance(tree, dict) else None
+    return [
+        entry["value_nats"]
+        for entry in (entries if isinstance(entries, list) else [])
+        if isinstance(entry, dict)
+        and "value_nats" in entry
+        and _in_range(entry["value_nats"])
+        and isinstance(entry.get("info"), dict)
+    ]
+
+
+def _special_cache(path: Path, kind: str, valid: bytes) -> None:
+    """Put something that is not a plain threshold cache at ``path`` (a cache's bytes are ``valid``)."""
+    path.unlink(missing_ok=True)
+    if kind == "empty":
+        path.write_bytes(b"")
+    elif kind == "fifo":
+        os.mkfifo(path)
+    elif kind == "directory":
+        path.mkdir()
+    elif kind == "padded-past-4MiB":  # a valid cache, too long to be read
+        path.write_bytes(valid + b" " * (4 << 20))
+    elif kind == "sparse-5MiB":
+        with open(path, "wb") as fh:
+            fh.truncate(5 << 20)
+    elif kind == "link-to-dev-zero":
+        path.symlink_to("/dev/zero")
+    elif kind == "dangling-link":
+        path.symlink_to(path.parent / "nowhere.json")
+    elif kind == "link-loop":
+        path.symlink_to(path)
+    elif kind == "link-to-a-copy":
+        (path.parent / "copy.json").write_bytes(valid)
+        path.symlink_to(path.parent / "copy.json")
+    elif kind == "nested-100000":
+        path.write_text("[" * 100_000 + "]" * 100_000)
+    elif kind == "huge-integer-literal":
+        tree = json.loads(valid)
+        tree["entries"][0]["info"]["calibration_images"] = 0  # replaced by the literal below
+        path.write_text(json.dumps(tree).replace('"calibration_images": 0', f'"calibration_images": {HUGE_LITERAL}'))
+    elif kind == "schema-version-1":
+        tree = json.loads(valid)
+        tree["schema_version"] = 1
+        path.write_text(json.dumps(tree))
+    elif kind == "300-copies":
+        tree = json.loads(valid)
+        tree["entries"] = tree["entries"] * 300
+        path.write_text(json.dumps(tree))
+
+
+def _mutate_cache(data: st.DataObject, path: Path, valid: bytes, values: st.SearchStrategy[Any]) -> tuple[Any, Any]:
+    """Damage the cache file at ``path`` (holding ``valid``): a tree edit (resealed or not), raw bytes or a
+    special file. Returns the edit and the tree written when it was resealed (else None)."""
+    how = data.draw(st.sampled_from(["tree", "tree", "tree", "sealed", "bytes", "bytes", "special"]), label="how")
+    if how in ("tree", "sealed"):
+        tree = json.loads(valid)
+        edit: Any = draw_tree_edits(data, tree, values)
+        if how == "sealed":
+            _reseal(tree)
+        path.write_text(json.dumps(tree, indent=1))
+        return (how, edit), tree if how == "sealed" else None
+    if how == "bytes":
+        edit = data.draw(byte_edits(), label="byte edit")
+        apply_bytes(path, edit)
+        return (how, edit), None
+    kind = data.draw(st.sampled_from(CACHE_SPECIALS), label="special")
+    _special_cache(path, kind, valid)
+    return (how, kind), None
+
+
+def _cache_values() -> st.SearchStrategy[Any]:
+    return st.one_of(json_values(), st.sampled_from(THRESHOLD_VALUES), st.floats(0.0, 1.0))
+
+
+def test_mutated_threshold_caches(calibrated, scratch):
+    """hd detect with a damaged or forged RUN/thresholds.json: the calibrated value, or a one-line error."""
+    valid = (calibrated.run / CACHE_FILE).read_bytes()
+
+    @fuzz_settings(examples("thresholds/detect"))
+    @given(st.data())
+    def example(data):
+        work = fresh(scratch)
+        run = work / "run"
+        shutil.copytree(calibrated.run, run, ignore=shutil.ignore_patterns(CACHE_FILE))
+        (run / CACHE_FILE).write_bytes(valid)
+        edit, sealed = _mutate_cache(data, run / CACHE_FILE, valid, _cache_values())
+        allowed = [calibrated.value_nats, *(_sealed_forgeries(sealed) if sealed is not None else [])]
+
+        def accept(outcome: Outcome) -> str | None:
+            try:
+                value = json.loads((work / "d" / "detect.json").read_text())["threshold"]["value_nats"]
+            except (OSError, ValueError, KeyError, TypeError) as exc:
+                return f"exit 0 without a readable detect.json threshold ({exc})"
+            if not any(value == a if a is not None and value is not None else value is a for a in allowed):
+                return f"the maps used {value!r} nats; calibrated {calibrated.value_nats!r}"
+            if value == calibrated.value_nats and not np.array_equal(_safety(work / "d"), calibrated.safety):
+                return "safety.tif differs from the calibrated run's"
+            return None
+
+        args = ["detect", run, "--dtm", calibrated.dtm, "--out", work / "d", "--mc-samples", "2"]
+        check("thresholds/detect", args, edit, timeout_s=TIMEOUT_S["detect"], roots=(work,), accept=accept)
+        shutil.rmtree(work, ignore_errors=True)
+
+    example()
+
+
+def _cache_keys() -> list[ThresholdKey]:
+    """Keys of four calibrations of one run that differ in spec, score or noise level."""
+    common: dict[str, Any] = {
+        "checkpoint_sha256": "c" * 64,
+        "manifest_sha256": "d" * 64,
+        "labels": "paper-square",
+        "calibrate": "reference",
+        "mc_samples": 2,
+        "batch_size": 8,
+        "seed": 0,
+    }
+    return [
+        ThresholdKey(sigma_m=0.0167, spec="mean", **common),
+        ThresholdKey(sigma_m=0.0167, spec="quantile:0.9", **common),
+        ThresholdKey(sigma_m=0.05, spec="risk:0.05", **common),
+        ThresholdKey(sigma_m=0.0167, spec="mean", uncertainty="mutual-information", **common),
+    ]
+
+
+def test_mutated_threshold_cache_entries(scratch):
+    """CachedThreshold.get on a damaged or forged file (in process, no command): None or exactly what was
+    stored under the key, never an exception; an entry whose neighbour alone was damaged is still found."""
+    keys = _cache_keys()
+    values: list[float] = [0.4321, math.inf, 0.0, LN2]
+    base = scratch / "cache-entries"
+    base.mkdir()
+    cache = CachedThreshold(base)
+    for key, value in zip(keys, values, strict=True):
+        assert cache.put(key, value, {"spec": key.spec, "kind": key.spec.split(":")[0], "calibration_images": 3})
+    valid = (base / CACHE_FILE).read_bytes()
+    stored = {key: cache.get(key) for key in keys}
+    assert all(stored.values())
+
+    @fuzz_settings(examples("thresholds/get"))
+    @given(st.data())
+    def example(data):
+        d = Path(tempfile.mkdtemp(dir=scratch))
+        (d / CACHE_FILE).write_bytes(valid)
+        edit, sealed = _mutate_cache(data, d / CACHE_FILE, valid, _cache_values())
+        start = time.monotonic()
+        problem = None
+        got: dict[ThresholdKey, Any] = {}
+        try:
+            with warnings.catch_warnings(), bounded(30.0):
+                warnings.simplefilter("ignore")
+                got = {key: CachedThreshold(d).get(key) for key in keys}
+        except Hang as exc:
+            problem = f"hang: {exc}"
+        except Exception as exc:  # noqa: BLE001 - any exception is the violation this target looks for
+            problem = f"get raised {type(exc).__name__}: {str(exc)[:200]}"
+        forged = [None if v is None else float(v) for v in _sealed_forgeries(sealed)] if sealed is not None else []
+        for i, (key, hit) in enumerate(got.items()):
+            if hit is not None and not (isinstance(hit, tuple) and len(hit) == 2):
+                problem = problem or f"get({key.spec}) returned {hit!r}, not (value, record)"
+                continue
+            if hit is None or same(list(hit), list(stored[key] or ())):
+                untouched = _only_touches_another_entry(edit, i)
+                if hit is None and untouched:
+                    problem = problem or f"the untouched entry {key.spec} (sigma {key.sigma_m}) was not found"
+                continue
+            value = None if hit[0] == math.inf else hit[0]
+            if not any(value == v if v is not None and value is not None else value is v for v in forged):
+                problem = problem or f"get({key.spec}) returned {hit!r}, stored {stored[key]!r}"
+        shutil.rmtree(d, ignore_errors=True)
+        report("thresholds/get", edit, problem, Outcome(0, seconds=time.monotonic() - start))
+
+    example()
+
+
+def _only_touches_another_entry(edit: Any, index: int) -> bool:
+    """True for one tree edit (resealed or not) inside an entry other than the ``index``-th, not its key
+    (so the ``index``-th entry and its position are untouched)."""
+    how, edits = edit
+    if how not in ("tree", "sealed") or len(edits) != 1:
+        return False
+    path = edits[0].path
+    return (
+        len(path) >= 3 and path[0] == "entries" and isinstance(path[1], int) and path[1] != index and path[2] != "key"
+    )
+
+
+# ------------------------------------------------------------------------------------- hd export --scans
+INDEX_TEXTS = ["0", "1", "3", "5", "7", "00", "007"]
+BEYOND_TEXTS = ["8", "10", "999999", "1000000", "4294967296", "99999999999999999999", "1" + "0" * 30]
+# Decimal digits of other scripts (Arabic-Indic three and zero, fullwidth one, mathematical double-struck zero,
+# N'Ko seven), and characters that str.isdigit or str.isnumeric call digits but that are no decimal digits
+# (superscript two and three, one half, Roman numeral eight).
+UNICODE_TEXTS = [
+    "\u0663",
+    "\uff11",
+    "\u0660",
+    "\U0001d7d8",
+    "\u07c7",
+    "\u0663\u0663",
+    "\u00b2",
+    "\u00b3",
+    "\u00bd",
+    "\u2167",
+]
+ODD_TEXTS = ["1_0", "+1", "-0", "1e3", "0x1", "1.0", "", " ", "-", "-5", "5-", "1-2-3", ":", "0:3", "_", "0--1"]
+
+
+def _scan_numbers() -> st.SearchStrategy[str]:
+    return st.one_of(
+        st.sampled_from(INDEX_TEXTS),
+        st.sampled_from(INDEX_TEXTS),
+        st.sampled_from(BEYOND_TEXTS),
+        st.sampled_from(UNICODE_TEXTS),
+    )
+
+
+def _scan_specs() -> st.SearchStrategy[str]:
+    """Texts for ``hd export --scans``: lists of indices and ranges, with odd digits, separators and spaces."""
+    pad = st.sampled_from(["", "", "", " ", "  ", "\t"])
+    item = st.one_of(
+        st.builds(lambda a, n, b: a + n + b, pad, _scan_numbers(), pad),
+        st.builds(
+            lambda a, lo, dash, hi, b: a + lo + dash + hi + b,
+            pad,
+            _scan_numbers(),
+            st.sampled_from(["-", "-", "-", " - ", "--", ":", "\u2013"]),
+            _scan_numbers(),
+            pad,
+        ),
+        st.sampled_from(ODD_TEXTS),
+    )
+    return st.one_of(
+        st.builds(
+            lambda items, sep: sep.join(items),
+            st.lists(item, min_size=1, max_size=5),
+            st.sampled_from([",", ",", ", ", ";", " "]),
+        ),
+        st.text(alphabet="0123456789-,: _\u00b2\u0663\uff11\t", max_size=12),
+    )
+
+
+def scans_named(spec: str, n_scans: int) -> tuple[set[int] | None, bool]:
+    """The scans ``--scans SPEC`` names in a dataset of ``n_scans`` (None: SPEC is no list of valid indices
+    and ranges ``A`` and ``A-B``, A <= B < n_scans, between commas, spaces around them), and whether SPEC
+    uses decimal digits other than ASCII ones (which hd may accept, read as int() does, or refuse)."""
+    out: set[int] = set()
+    other_digits = False
+    for part in spec.split(","):
+        item = part.strip(" \t")
+        lo, dash, hi = item.partition("-")
+        ends = [lo, hi] if dash else [lo]
+        if not all(e and all(c.isdecimal() for c in e) for e in ends):
+            return None, False
+        other_digits |= not item.isascii()
+        first, last = int(ends[0]), int(ends[-1])
+        if last < first or last >= n_scans:
+            return None, False
+        out |= set(range(first, last + 1))
+    return out, other_digits
+
+
+def test_fuzzed_export_scan_specs(labelled, scratch):
+    """hd export --scans SPEC: exactly the files SPEC names, or a one-line error."""
+    n_scans = int(read_manifest(labelled)["n_scans"])
+
+    @fuzz_settings(examples("export-spec/export"))
+    @given(_scan_specs())
+    def example(spec):
+        work = fresh(scratch)
+        named, other_digits = scans_named(spec, n_scans)
+
+        def accept(outcome: Outcome) -> str | None:
+            files = {p.name for p in (work / "x").iterdir()}
+            want = {f"scan-{k:06d}.laz" for k in named or ()} | {"export.json"}
+            return None if files == want else f"exported {sorted(files)[:5]}, the spec names {sorted(want)[:5]}"
+
+        check(
+            "export-spec/export",
+            ["export", labelled, "--scans", spec, "--out", work / "x"],
+            spec,
+            must_fail=named is None,
+            must_pass=named is not None and not other_digits,
+            timeout_s=TIMEOUT_S["export"],
+            roots=(work,),
+            accept=accept,
+        )
+        shutil.rmtree(work, ignore_errors=True)
+
+    example()
+
+
+# ------------------------------------------------------------------------------------- hd eval's lists and ranges
+SWEEP_NUMBERS = [
+    *["0", "0.0", "0.01", "0.02", "0.0167", "0.05", "0.1", "0.7", "-0", "+0.01", " 0.01 "],
+    *["0.7000001", "0.75", "1", "-0.01", "1e-9", "5e-32", "5e-324", "1e-320", "1e308", "1e309"],
+    *[
+        "nan",
+        "NaN",
+        "inf",
+        "-inf",
+        "",
+        " ",
+        "0x1",
+        "1e",
+        ".",
+        "1_0",
+        "\u0660",
+        "\u0660.\u0660\u0665",
+        "\uff11",
+        "0.0\uff15",
+        "\u00b2",
+    ],
+]
+# (text, whether hd eval must take it: True, False, or None where either is right)
+THRESHOLD_TEXTS = [
+    ("mean", True),
+    ("MEAN", None),
+    (" mean ", None),
+    ("quantile:0.9", True),
+    ("quantile:0", True),
+    ("quantile:1", True),
+    ("quantile:1.0000001", False),
+    ("quantile:nan", False),
+    ("quantile:-0.1", False),
+    ("risk:0.05", True),
+    ("risk:0", False),
+    ("risk:1", False),
+    ("risk:1e-300", True),
+    ("nats:0.3", True),
+    ("nats:0", True),
+    ("nats:inf", None),
+    ("nats:1e309", None),
+    ("nats:-0.0", None),
+    ("nats:\u0660.\u0663", None),
+    ("nats:-inf", False),
+    ("nats:-1", False),
+    ("nats:nan", False),
+    ("nats:", False),
+    ("nats", False),
+    ("mean:0.1", False),
+    ("nats:0.3:0.4", False),
+    ("", False),
+    (":", False),
+    ("bogus", False),
+]
+NAV_SIGMA_TEXTS = [
+    ("0", True),
+    ("1", True),
+    ("3", True),
+    ("100", True),
+    ("-0", None),
+    ("1e-320", True),
+    ("100.0001", False),
+    ("-1", False),
+    ("nan", False),
+    ("inf", False),
+    ("", False),
+]
+DROP_PIXEL_TEXTS = [
+    ("0", True),
+    ("1", True),
+    ("10", True),
+    ("100", True),
+    ("9999", None),  # every pixel of a 100 x 100 DEM but one
+    ("10000", False),
+    ("4194303", False),
+    ("4194304", False),
+    ("-1", False),
+    ("1e3", False),
+    ("\u0661\u0660", None),
+]
+
+
+def _sweeps() -> st.SearchStrategy[str]:
+    """Texts for ``--sigma-sweep START:STOP:STEP``: odd numbers, a part too many or too few, steps from
+    5e-324 to 1e308, sweeps of about 200 levels (each level is an inference: a third of the steps are small)."""
+    level = st.floats(0.0, 0.7).map(lambda v: f"{v:.4g}")
+    large = st.sampled_from(["0.05", "0.1", "0.2", "0.7", "1", "1e308"])
+    small = st.sampled_from(["0.01", "0.0035", "0.00351", "0.001", "1e-12", "1e-13", "5e-324"])
+    step = st.one_of(large, large, small)
+    return st.one_of(
+        st.builds(lambda a, b, c: f"{a}:{b}:{c}", level, level, step),
+        st.builds(":".join, st.lists(st.sampled_from(SWEEP_NUMBERS), min_size=3, max_size=3)),
+        st.builds(":".join, st.lists(st.sampled_from(SWEEP_NUMBERS), min_size=0, max_size=5)),
+        st.text(alphabet="0123456789.:-e naif", max_size=14),
+    )
+
+
+def sweep_levels(spec: str) -> tuple[int, int, bool] | None:
+    """The number of levels ``--sigma-sweep SPEC`` asks for, as (fewest, most) where STOP's inclusion is a
+    matter of rounding (levels START + k STEP <= STOP, within 1e-9 m), and whether SPEC writes numbers
+    other than plainly (other digits, underscores: hd may accept them, read as float() does, or refuse);
+    None: no sweep (not three numbers, START or STOP outside [0, 0.7] m, STEP not positive and finite,
+    STOP below START, more than 200 levels)."""
+    parts = spec.split(":")
+    if len(parts) != 3:
+        return None
+    try:
+        start, stop, step = (float(p) for p in parts)
+    except ValueError:
+        return None
+    if not all(math.isfinite(v) for v in (start, stop, step)) or step <= 0:
+        return None
+    if not (0.0 <= start <= 0.7 and 0.0 <= stop <= 0.7 and start <= stop):
+        return None
+    fewest = math.floor((stop - start - 1e-9) / step) + 1 if stop - start > 1e-9 else 1
+    most = math.floor((stop - start + 1e-9) / step) + 1
+    if fewest > 200:
+        return None
+    plain = spec.isascii() and "_" not in spec
+    return fewest, most, not plain
+
+
+def test_fuzzed_eval_sweeps(labelled, trained, scratch):
+    """hd eval --sigma-sweep SPEC (with odd --threshold, --nav-sigma and --drop-pixels values): report.json
+    with the levels SPEC names, or a one-line error."""
+
+    @fuzz_settings(examples("sweep/eval"))
+    @given(
+        _sweeps(),
+        st.one_of(st.none(), st.none(), st.sampled_from(THRESHOLD_TEXTS)),
+        st.one_of(st.none(), st.none(), st.lists(st.sampled_from(NAV_SIGMA_TEXTS), min_size=1, max_size=3)),
+        st.one_of(st.none(), st.none(), st.none(), st.sampled_from(DROP_PIXEL_TEXTS)),
+    )
+    def example(spec, threshold, nav_sigmas, drop_pixels):
+        work = fresh(scratch)
+        args: list[Any] = ["eval", trained, "--data", labelled, "--out", work / "report", "--mc-samples", "2"]
+        args += ["--sigma-sweep", spec]
+        verdicts: list[bool | None] = []
+        if threshold is not None:
+            args += ["--threshold", threshold[0]]
+            verdicts.append(threshold[1])
+        for text, verdict in nav_sigmas or ():
+            args += ["--nav-sigma", text]
+            verdicts.append(verdict)
+        if drop_pixels is not None:
+            args += ["--drop-pixels", drop_pixels[0]]
+            verdicts.append(drop_pixels[1])
+        levels = sweep_levels(spec)
+        verdicts.append(False if levels is None else None if levels[2] or levels[1] > 200 else True)
+
+        def accept(outcome: Outcome) -> str | None:
+            path = work / "report" / "report.json"
+            if not path.is_file():
+                return "exit 0 without report.json"
+            got = json.loads(path.read_text())["run"]["sigma_sweep_m"]
+            if levels is None or not levels[0] <= len(got) <= levels[1]:
+                return f"{len(got)} sweep levels, the spec names {levels}"
+            if len(set(got)) != len(got):
+                return f"the sweep's levels repeat: {got[:4]}..."
+            return None
+
+        check(
+            "sweep/eval",
+            args,
+            (spec, threshold, nav_sigmas, drop_pixels),
+            must_fail=False in verdicts,
+            must_pass=all(v is True for v in verdicts),
+            timeout_s=TIMEOUT_S["eval"],
+            roots=(work,),
+            accept=accept,
+        )
+        shutil.rmtree(work, ignore_errors=True)
+
+    example()
+
+
+# ------------------------------------------------------------------------------------- recipes by name
+PUBLISHED = sorted(p.parent.name for p in (REPO / "datasets").glob("*/recipe.toml"))
+# Entries of the directory the commands run in: the dataset's own recipe (a directory, copies, links, one
+# that shadows a published name), and things that are not recipes.
+OWN_RECIPES = ["fuzz-own", "own-link", "\u00fcn\u00efc\u00f8d\u00e9-own", "mars-landing"]
+NOT_RECIPES = ["notes.txt", "data.json", "binary.bin", "empty-dir", "not-a-recipe", "fifo-recipe", "loop", "dangling"]
+NAME_SHAPES = [
+    "as is",
+    "as is",
+    "as is",
+    "upper",
+    "trailing slash",
+    "recipe.toml",
+    "dot slash",
+    "dot dot",
+    "through dot dot",
+    "absolute",
+    "double slash",
+    "trailing dot",
+    "one more",
+    "one less",
+    "space",
+    "long",
+]
+
+
+@pytest.fixture(scope="module")
+def recipe_place(labelled, scratch) -> Path:
+    """A directory to run in, holding the recipe of ``labelled`` (under several names) and files that are not
+    recipes."""
+    place = scratch / "recipe-place"
+    own = place / "fuzz-own"
+    own.mkdir(parents=True)
+    manifest = read_manifest(labelled)
+    (own / "recipe.toml").write_text(to_toml(RECIPE))
+    published = {
+        "config_sha256": manifest["config_sha256"],
+        "schema": manifest["schema"],
+        "schema_version": manifest["schema_version"],
+        "shard_schema_version": manifest["shards"][0]["schema_version"],
+        "shards": [{k: e[k] for k in LABEL_FIELDS} for e in manifest["shards"]],
+    }
+    (own / "checksums.json").write_text(json.dumps(published, indent=1))
+    (place / "own-link").symlink_to(own)
+    shutil.copytree(own, place / OWN_RECIPES[2])
+    shutil.copytree(own, place / "mars-landing")  # the current directory comes before the published recipes
+    for name in ("recipe.toml", "checksums.json"):  # "." names the current directory's recipe
+        shutil.copy(own / name, place / name)
+    (place / "notes.txt").write_text("not a recipe\n")
+    (place / "data.json").write_text('{"build": {}}')
+    (place / "binary.bin").write_bytes(bytes(range(256)))
+    (place / "empty-dir").mkdir()
+    (place / "not-a-recipe").mkdir()
+    (place / "not-a-recipe" / "recipe.toml").write_text("[build\nscans = ")
+    (place / "fifo-recipe").mkdir()
+    os.mkfifo(place / "fifo-recipe" / "recipe.toml")
+    (place / "loop").symlink_to(place / "loop")
+    (place / "dangling").symlink_to(place / "nowhere")
+    result = invoke("verify", labelled, "--recipe", own)
+    assert result.exit_code == 0, result.output
+    return place
+
+
+def _shaped(name: str, shape: str, place: Path) -> str:
+    """``name`` written another way."""
+    return {
+        "as is": name,
+        "upper": name.upper(),
+        "trailing slash": name + "/",
+        "recipe.toml": name + "/recipe.toml",
+        "dot slash": "./" + name,
+        "dot dot": "../" + name,
+        "through dot dot": f"empty-dir/../{name}",
+        "absolute": str(place / name),
+        "double slash": name.replace("-", "-/") if "-" in name else "/" + name,
+        "trailing dot": name + ".",
+        "one more": name + "x",
+        "one less": name[:-1],
+        "space": " " + name,
+        "long": (name + "/") * 60 if len(name) < 5 else name * 60,
+    }[shape]
+
+
+LONG_AND_ODD_NAMES = ["", "x" * 300, "\u00e9" * 200, "a/" * 200, "/etc/passwd", "/dev/null", "/proc/self/status"]
+
+
+def _recipe_names() -> st.SearchStrategy[tuple[str, str]]:
+    base = st.sampled_from([*PUBLISHED, *PUBLISHED, *OWN_RECIPES, *NOT_RECIPES, ".", "..", "/", "~", "-", "recipe"])
+    texts = st.text(st.characters(exclude_characters="\x00", exclude_categories=["Cs"]), max_size=20)
+    return st.one_of(
+        st.tuples(base, st.sampled_from(NAME_SHAPES)),
+        st.tuples(st.one_of(texts, st.sampled_from(LONG_AND_ODD_NAMES)), st.just("as is")),
+    )
+
+
+def recipe_file(name: str, place: Path) -> Path | None:
+    """The recipe file a name leads to, run in ``place``: a ``recipe.toml`` or its directory (relative to
+    ``place`` or absolute), else a bare name's directory under the published ``datasets/`` (None: none; an
+    empty name names nothing, though pathlib reads it as ".")."""
+    if not name:
+        return None
+    given = Path(name)
+    candidates = [place / given]
+    if len(given.parts) == 1 and given.name not in (".", ".."):
+        candidates.append(REPO / "datasets" / given)
+    for candidate in candidates:
+        try:
+            file = candidate / "recipe.toml" if os.path.isdir(candidate) else candidate
+            if os.path.isfile(file):
+                return Path(os.path.realpath(file))
+        except (OSError, ValueError):
+            continue
+    return None
+
+
+def test_fuzzed_recipe_names(labelled, recipe_place, scratch, monkeypatch):
+    """hd verify DATA --recipe NAME: NAME that leads to the dataset's own recipe is accepted; any other
+    (a published recipe, a file that is no recipe, no file at all) is refused in one line."""
+    monkeypatch.chdir(recipe_place)
+    monkeypatch.delenv("HD_RECIPE_PATH", raising=False)
+    own = {Path(os.path.realpath(recipe_place / n / "recipe.toml")) for n in OWN_RECIPES}
+    own.add(Path(os.path.realpath(recipe_place / "recipe.toml")))
+
+    @fuzz_settings(examples("recipe-name/verify"))
+    @given(_recipe_names())
+    def example(drawn):
+        name = _shaped(drawn[0], drawn[1], recipe_place)
+        file = recipe_file(name, recipe_place)
+        check(
+            "recipe-name/verify",
+            ["verify", labelled, "--recipe", name],
+            (drawn, name),
+            must_fail=file not in own,
+            must_pass=file in own,
+            timeout_s=TIMEOUT_S["verify"],
+            roots=(recipe_place,),
+        )
+
+    example()
+
+
+# ------------------------------------------------------------------------------------- hd train --also
+ALSO_NAMES = [
+    "self",
+    "link-self",
+    "copy-self",
+    "other",
+    "link-other",
+    "ünïcødé-other",
+    "missing",
+    "file",
+    "fifo",
+    "empty-dir",
+]
+# The dataset each name is (equal names: the same data); None: no dataset.
+ALSO_IDENTITY = {
+    "self": "self",
+    "link-self": "self",
+    "copy-self": "self",
+    "other": "other",
+    "link-other": "other",
+    ALSO_NAMES[5]: "other",
+}
+
+
+@pytest.fixture(scope="module")
+def mix_place(labelled, scratch) -> Path:
+    """Names for ``--also``: the training data itself, a link to it and a copy of it, another dataset (a
+    smaller build of another seed, labelled the same way) under three names, and things that are no dataset."""
+    place = scratch / "mix-place"
+    place.mkdir()
+    other = place / "other"
+    args = [*BUILD_ARGS]
+    args[args.index("--scans") + 1] = "4"
+    args[args.index("--seed") + 1] = "4"
+    built = invoke("build-dataset", "--out", other, "--dtm", hills(scratch / "other.tif"), "--workers", "1", *args)
+    assert built.exit_code == 0, built.output
+    assert invoke("label", other, "--workers", "1").exit_code == 0
+    (place / "link-self").symlink_to(labelled)
+    shutil.copytree(labelled, place / "copy-self")
+    (place / "link-other").symlink_to(other)
+    shutil.copytree(other, place / ALSO_NAMES[5])
+    (place / "file").write_text("not a dataset\n")
+    os.mkfifo(place / "fifo")
+    (place / "empty-dir").mkdir()
+    return place
+
+
+def test_fuzzed_training_mixes(labelled, mix_place, scratch):
+    """hd train DATA --also X [--also Y]: a mix of distinct datasets trains; a mix that names the same data
+    twice (the data itself, a link or a byte-identical copy of it, one dataset twice) or no dataset is refused."""
+    data = labelled  # "self" names this very path
+
+    @fuzz_settings(examples("also/train"))
+    @given(st.lists(st.sampled_from(ALSO_NAMES), min_size=1, max_size=2))
+    def example(names):
+        work = fresh(scratch)
+        args: list[Any] = ["train", data, "--out", work / "run", "--profile", "tiny", "--epochs", "1"]
+        for name in names:
+            args += ["--also", data if name == "self" else mix_place / name]
+        identities = ["self", *(ALSO_IDENTITY.get(n) for n in names)]
+        refused = None in identities or len(set(identities)) < len(identities)
+
+        def accept(outcome: Outcome) -> str | None:
+            if not (work / "run" / "last.pt").is_file():
+                return "exit 0 without last.pt"
+            also = json.loads((work / "run" / "config.json").read_text())["extra_config"].get("also", [])
+            return None if len(also) == len(names) else f"config.json records {len(also)} --also datasets"
+
+        check(
+            "also/train",
+            args,
+            names,
+            must_fail=refused,
+            must_pass=not refused,
+            timeout_s=TIMEOUT_S["train"],
+            roots=(work,),
+            accept=accept,
         )
         shutil.rmtree(work, ignore_errors=True)
 
