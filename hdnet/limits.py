@@ -23,6 +23,10 @@ MAX_EPOCHS: int = 100_000
 # whole test split (with the paper's M = 8 and 100 test DEMs, 200 levels are 160,000 network passes),
 # and 200 levels already step 0.5 mm from 0 to 10 cm, finer than any sensor's noise is known.
 MAX_SWEEP_LEVELS: int = 200
+# The finest step of a sweep, metres (hd choice): a micrometre, below the float32 resolution of heights
+# hundreds of metres from the sensor (3e-5 m at 500 m), so finer levels are not different noise; the
+# levels are kept to 1e-12 m, and a finer step would repeat levels.
+MIN_SWEEP_STEP_M: float = 1e-6
 
 MC_SAMPLES = Bound(1, MAX_MC_SAMPLES, integer=True)
 BATCH_SIZE = Bound(1, MAX_BATCH_SIZE, integer=True)

@@ -170,6 +170,11 @@ def parse_sigma_sweep(text: str, what: str = "--sigma-sweep") -> tuple[float, ..
     stop = _check_sigma(stop, f"{what}'s STOP")
     if not (math.isfinite(step) and step > 0):
         raise HdNetError(f"{what}'s STEP must be a positive number of metres, got {step:g}.")
+    if step < net_limits.MIN_SWEEP_STEP_M and stop > start:
+        raise HdNetError(
+            f"{what}'s STEP {step:g} m is finer than noise levels are told apart "
+            f"(at least {net_limits.MIN_SWEEP_STEP_M:g} m); use a coarser STEP."
+        )
     if stop < start:
         raise HdNetError(f"{what}'s STOP ({stop:g}) is below its START ({start:g}).")
     steps = (stop - start) / step  # inf when STEP underflows against the span

@@ -38,7 +38,6 @@ from typing import Any
 from hdnet.errors import HdNetError
 from hdnet.inputs import InputSpec
 from hdnet.noise_levels import TrainingNoise
-from lidarsim.errors import StorageError
 from lidarsim.shards import MANIFEST_NAME
 from lidarsim.storage import read_regular_text, write_json_atomic
 
@@ -305,7 +304,7 @@ def read_run_record(run_dir: str | os.PathLike) -> RunRecord:
     path = Path(run_dir) / CONFIG
     try:
         raw = json.loads(read_regular_text(path))
-    except (StorageError, json.JSONDecodeError, RecursionError) as exc:
+    except (ValueError, RecursionError) as exc:  # StorageError and JSONDecodeError are ValueErrors
         raise HdNetError(f"{path}: unreadable run config ({exc}).") from exc
     return RunRecord.from_dict(raw, str(path))
 

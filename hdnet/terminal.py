@@ -105,11 +105,19 @@ def install_warning_format() -> None:
 
 
 def one_line(exc: BaseException) -> str:
-    """The message of an error as one line (a DataLoader worker's error carries its traceback)."""
+    """The message of an error as one line (a DataLoader worker's error carries its traceback); control
+    characters that a terminal would break the line at, or act on, which user text (a name, a path)
+    can carry into a message, are shown escaped (``\\r``)."""
     text = str(exc).strip()
     if "Original Traceback" in text:
         text = text.splitlines()[-1].split(": ", 1)[-1]
-    return " ".join(text.split()) if "\n" in text else text
+    if "\n" in text:
+        text = " ".join(text.split())
+    return text.translate(_ESCAPED_CONTROLS)
+
+
+# Every C0 and C1 control character, DEL and the Unicode line and paragraph separators, but the tab.
+_ESCAPED_CONTROLS = {c: ascii(chr(c))[1:-1] for c in (*range(0x20), *range(0x7F, 0xA0), 0x2028, 0x2029) if c != 0x09}
 
 
 def _close_progress_bars() -> None:
@@ -277,7 +285,7 @@ class HdGroup(click.Group):
             super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
         except click.UsageError as exc:
             hint = f" (see '{exc.ctx.command_path} --help')" if exc.ctx is not None else ""
-            click.echo(f"Error: {exc.format_message()}{hint}", err=True)
+            click.echo(f"Error: {one_line(Exception(exc.format_message()))}{hint}", err=True)
             sys.exit(exc.exit_code)
         except click.ClickException as exc:
             exc.show()

@@ -170,7 +170,7 @@ class CachedThreshold:
             return []
         try:
             record = json.loads(read_regular_bytes(self.path, max_bytes=MAX_FILE_BYTES).decode("utf-8"))
-        except (StorageError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+        except (ValueError, RecursionError) as exc:  # StorageError, decoding, JSON, digit limit
             if warn:
                 self._warn(f"unreadable threshold cache ({exc})")
             return []

@@ -505,7 +505,7 @@ def _recorded_settings(path: Path) -> dict[str, Any]:
     """``config_sha256`` and ``config`` recorded in a manifest or a build state file ({} if unreadable)."""
     try:
         record = json.loads(read_regular_text(path))
-    except (ValueError, json.JSONDecodeError, RecursionError):
+    except (ValueError, RecursionError):
         return {}
     return record if isinstance(record, dict) else {}
 

@@ -56,7 +56,7 @@ from typing import Any
 
 from lidarsim import defaults, limits
 from lidarsim.build import BuildConfig
-from lidarsim.errors import LidarsimError, RecipeError, StorageError
+from lidarsim.errors import LidarsimError, RecipeError
 from lidarsim.footprint import FootprintConfig
 from lidarsim.limits import Bound
 from lidarsim.noise import NoiseModel
@@ -296,7 +296,7 @@ class Recipe:
             return None
         try:
             recorded = json.loads(read_regular_bytes(path).decode("utf-8"))
-        except (StorageError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+        except (ValueError, RecursionError) as exc:  # StorageError, decoding, JSON, digit limit
             raise RecipeError(f"{path}: unreadable checksums ({exc})") from exc
         _check_checksums(recorded, path)
         return recorded
@@ -371,7 +371,7 @@ def load_recipe(path: str | os.PathLike) -> Recipe:
     path = find_recipe(path)
     try:
         data = tomllib.loads(read_regular_bytes(path).decode("utf-8"))
-    except (StorageError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+    except ValueError as exc:  # StorageError, decoding, TOML, digit limit
         raise RecipeError(f"{path}: not a valid TOML recipe ({exc})") from exc
     unknown_sections = set(data) - {"dataset", "build", "label"}
     if unknown_sections:

@@ -687,7 +687,7 @@ def read_json(path: str | os.PathLike, what: str = "file") -> Any:
         raise DamagedFileError(f"{p}: unreadable {what} (not UTF-8 text)") from exc
     try:
         return json.loads(text)
-    except json.JSONDecodeError as exc:
+    except ValueError as exc:  # JSONDecodeError, and an integer literal past Python's digit limit
         raise DamagedFileError(f"{p}: unreadable {what} ({exc})") from exc
     except RecursionError as exc:
         raise DamagedFileError(f"{p}: unreadable {what} (nested too deeply)") from exc

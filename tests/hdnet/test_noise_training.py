@@ -49,6 +49,7 @@ def test_levels_ranges_and_sweeps_parse_and_refuse_nonsense():
         ("0:0.1:0", "STEP"),
         ("0.1:0:0.01", "below"),
         ("0:0.5:1e-4", "at most"),
+        ("0:1e-12:1e-13", "finer than noise levels"),
     ]:
         with pytest.raises(HdNetError, match=needle):
             parse_sigma_sweep(bad)

@@ -113,6 +113,7 @@ def test_an_entry_of_another_key_is_never_used(tmp_path):
     ("damage", "why"),
     [
         ("not json", "unreadable threshold cache"),
+        ("huge integer", "unreadable threshold cache"),  # past Python's 4300 digits: a ValueError, not JSON's
         ("another schema", "not a threshold cache"),
         ("version 7", "unknown version 7"),
         ("too large", "more than the"),
@@ -125,6 +126,8 @@ def test_a_damaged_or_odd_cache_file_is_ignored_with_a_warning_and_never_blocks(
     path = tmp_path / CACHE_FILE
     if damage == "not json":
         path.write_text("{not json")
+    elif damage == "huge integer":
+        path.write_text('{"schema": "hd.threshold-cache", "schema_version": 2, "n": 1' + "0" * 5000 + "}")
     elif damage == "another schema":
         path.write_text(json.dumps({"schema": "hd.other", "entries": []}))
     elif damage == "version 7":

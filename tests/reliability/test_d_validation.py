@@ -238,8 +238,10 @@ EVAL = [
     ("nav-sigma-negative", ["--nav-sigma", "-1"], "--nav-sigma"),
     # Sweeps are checked, and their number of levels bounded, before anything is expanded or loaded.
     ("sigma-sweep-no-step", ["--sigma-sweep", "0:0.1"], "e.g. 0:0.1:0.01"),
-    ("sigma-sweep-subnormal-step", ["--sigma-sweep", "0:0.12:5e-324"], "more than 200 levels"),  # was OverflowError
-    ("sigma-sweep-tiny-step", ["--sigma-sweep", "0:0.12:5e-32"], "a STEP of at least 0.000603"),
+    ("sigma-sweep-subnormal-step", ["--sigma-sweep", "0:0.12:5e-324"], "finer than noise levels"),  # OverflowError
+    ("sigma-sweep-tiny-step", ["--sigma-sweep", "0:0.12:5e-32"], "finer than noise levels"),
+    ("sigma-sweep-repeated-levels", ["--sigma-sweep", "0:1e-12:1e-13"], "finer than noise levels"),  # 2 distinct
+    ("sigma-sweep-too-many-levels", ["--sigma-sweep", "0:0.12:0.0001"], "a STEP of at least 0.000603"),
     ("mc-samples-arabic-indic-digit", ["--mc-samples", "\u0668"], "'--mc-samples': '\u0668' is not"),
 ]
 
@@ -497,3 +499,18 @@ def test_partial_names_that_are_not_ascii_pids_are_not_hds(tmp_path):
     leftover.write_text("{")
     write_bytes_atomic(final, b"{}")
     assert final.read_bytes() == b"{}" and all(p.exists() for p in strangers) and not leftover.exists()
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["verify", "{data}", "--recipe", "no\rsuch"],  # a name in an hd error
+        ["verify", "{data}", "--recipe", "no\nsuch\x1b[2J"],
+        ["label", "{data}", "--lander", "x\ry"],  # a value in click's usage error
+    ],
+)
+def test_user_text_in_an_error_never_breaks_its_one_line(labelled, args):
+    result = invoke(*[str(labelled) if a == "{data}" else a for a in args])
+    last = assert_one_line_error(result)
+    assert "\r" not in result.output and "\x1b" not in result.output
+    assert "x\\ry" in last or "no\\rsuch" in last or "no such\\x1b[2J" in last, last

@@ -338,6 +338,9 @@ def test_side_files_are_read_whole_up_to_their_bound(tmp_path):
         storage.read_regular_bytes(path, max_bytes=7)
     with pytest.raises(StorageError, match=r"f\.missing"):
         storage.read_regular_bytes(tmp_path / "f.missing")
+    path.write_text('{"n": 1' + "0" * 5000 + "}")  # past Python's 4300-digit limit: ValueError, not JSON's
+    with pytest.raises(DamagedFileError, match="unreadable"):
+        storage.read_json(path)
     path.write_bytes(b"\xff\xfe")
     with pytest.raises(DamagedFileError, match="not UTF-8"):
         storage.read_regular_text(path)
