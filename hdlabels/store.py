@@ -342,14 +342,24 @@ class LabelShardReader:
         self.close()
 
 
+# A labelling's short names (aliases): its convention (``paper``, ``hd``), or its convention and truth
+# joined by ALIAS_JOIN (``paper+terrain``). A convention alone names its clean-scan labelling, the
+# paper's truth, when the convention has labellings of both truths.
+ALIAS_JOIN = "+"
+
+
 def find_labeling(directory: str | os.PathLike, name: str | None = None) -> dict[str, Any]:
     """The manifest entry of a labelling of the dataset (the only one, or the one called ``name``).
 
-    ``name`` may be short: a label convention (``paper``, ``hd``) or the beginning of a name, when
-    exactly one labelling matches it.
+    ``name`` is, in this order: a labelling's full name (an exact name always wins, also over
+    labellings whose names begin with it, e.g. a clean-scan labelling's over its ``-truth-terrain``
+    twin); an alias, case-insensitive: ``paper`` or ``hd`` (the convention's labelling; the
+    clean-scan one when the convention has both truths), ``paper+terrain``, ``hd+clean-scan``...
+    (the convention's labelling of that truth); or the beginning of one labelling's name.
 
     Raises:
-        LabelStoreError: no labelling, several and no ``name``, or unknown ``name``.
+        LabelStoreError: no labelling, several and no ``name``, an unknown ``name`` or one that fits
+            several labellings (the message lists the names and aliases the dataset has).
         StorageError: not a dataset (no readable manifest; ``FormatError``: an unknown schema).
     """
     manifest = read_manifest(directory)
@@ -370,22 +380,75 @@ def find_labeling(directory: str | os.PathLike, name: str | None = None) -> dict
     if name is None:
         if len(labelings) > 1:
             names = ", ".join(lab["name"] for lab in labelings)
-            raise LabelStoreError(f"{directory} has several labellings ({names}); choose one with --labels")
+            raise LabelStoreError(
+                f"{directory} has several labellings ({names}); choose one with --labels"
+                + _alias_hint(labelings, ": a name or an alias ({})")
+            )
         return _checked_entry(labelings[0], f"{directory}/{MANIFEST_NAME}: labelling {labelings[0]['name']}")
     for lab in labelings:
         if lab["name"] == name:
             return _checked_entry(lab, f"{directory}/{MANIFEST_NAME}: labelling {name}")
-    # A short name: the convention ("paper", "hd") or a unique beginning of one labelling's name.
-    short = [lab for lab in labelings if lab.get("convention", "hd") == name or str(lab["name"]).startswith(f"{name}")]
-    names = ", ".join(str(lab["name"]) for lab in labelings)
-    if len(short) == 1:
-        return _checked_entry(short[0], f"{directory}/{MANIFEST_NAME}: labelling {short[0]['name']}")
-    if short:
+    named = _alias_matches(labelings, name)
+    if named is None:  # not an alias: the beginning of one labelling's name
+        named = [lab for lab in labelings if str(lab["name"]).startswith(name)]
+    if len(named) == 1:
+        return _checked_entry(named[0], f"{directory}/{MANIFEST_NAME}: labelling {named[0]['name']}")
+    if named:
         raise LabelStoreError(
-            f"{directory}: {name!r} names {len(short)} labellings; give more of the name: "
-            + ", ".join(str(lab["name"]) for lab in short)
+            f"{directory}: {name!r} names {len(named)} labellings: "
+            + ", ".join(str(lab["name"]) for lab in named)
+            + "; give the full name"
+            + _alias_hint(labelings, " or an alias ({})")
         )
-    raise LabelStoreError(f"{directory} has no labelling named {name!r}; it has: {names}")
+    names = ", ".join(str(lab["name"]) for lab in labelings)
+    aliases = labeling_aliases(labelings)
+    raise LabelStoreError(
+        f"{directory} has no labelling named {name!r}; it has: {names}"
+        + (f" (aliases: {', '.join(aliases)})" if aliases else "")
+    )
+
+
+def _alias_matches(labelings: list[dict[str, Any]], alias: str) -> list[dict[str, Any]] | None:
+    """The labellings ``alias`` names (``CONVENTION`` or ``CONVENTION+TRUTH``, any case), or None when it
+    is no alias.
+
+    Raises:
+        LabelStoreError: a convention joined to something that is not a truth (``paper+rock``).
+    """
+    convention, joined, truth = alias.strip().lower().partition(ALIAS_JOIN)
+    if convention not in conventions.CONVENTIONS:
+        return None
+    if joined and truth not in defaults.TRUTHS:
+        raise LabelStoreError(
+            f"{alias!r} is not an alias: a convention is followed by {ALIAS_JOIN} and a truth, "
+            + " or ".join(f"{convention}{ALIAS_JOIN}{t}" for t in defaults.TRUTHS)
+        )
+    mine = [lab for lab in labelings if lab.get("convention", "hd") == convention]
+    if joined:
+        return [lab for lab in mine if labeling_truth(lab) == truth]
+    paper_truth = [lab for lab in mine if labeling_truth(lab) == defaults.TRUTH]
+    return paper_truth if len(paper_truth) == 1 else mine
+
+
+def labeling_aliases(labelings: list[dict[str, Any]]) -> dict[str, str]:
+    """Each alias that names exactly one of ``labelings`` (manifest entries), with that labelling's name,
+    shortest first per convention (``paper``, ``paper+clean-scan``, ``paper+terrain``, ``hd``, ...)."""
+    out: dict[str, str] = {}
+    for convention in conventions.CONVENTIONS:
+        for alias in (convention, *(f"{convention}{ALIAS_JOIN}{t}" for t in defaults.TRUTHS)):
+            named = _alias_matches(labelings, alias)
+            if named is not None and len(named) == 1:
+                out[alias] = str(named[0]["name"])
+    return out
+
+
+def _alias_hint(labelings: list[dict[str, Any]], form: str) -> str:
+    """``form`` filled with one alias per labelling that has one (``paper = NAME, paper+terrain = NAME``),
+    or '' when none has."""
+    first: dict[str, str] = {}
+    for alias, name in labeling_aliases(labelings).items():
+        first.setdefault(name, alias)
+    return form.format(", ".join(f"{alias} = {name}" for name, alias in first.items())) if first else ""
 
 
 def _checked_entry(labeling: dict[str, Any], where: str) -> dict[str, Any]:

@@ -259,3 +259,35 @@ def test_a_missing_procedural_terrain_is_regenerated_when_it_gives_the_recorded_
     with pytest.warns(HdWarning, match="was missing: regenerated from the build's seed 3"):
         summary = label_dataset(root, workers=1, truth="terrain")
     assert sha256_file(terrain) == recorded and summary.truth == "terrain" and 0.0 < summary.safe_fraction <= 1.0
+
+
+def test_a_labelling_is_chosen_by_its_name_or_an_alias_and_an_ambiguity_names_both(tmp_path):
+    """The clean-scan labelling's name is a prefix of its terrain twin's: the exact name wins, and the
+    aliases ``paper`` / ``paper+terrain`` (convention, then truth; the clean scan's by default) pick one
+    of the two; a name or alias that fits several is refused with the names and aliases there are."""
+    root = build(plane_dtm(tmp_path / "p.tif", 0.0), tmp_path / "d", n_scans=2)
+    clean = label_dataset(root, workers=1).name
+    terrain = label_dataset(root, workers=1, truth="terrain").name
+    assert terrain.startswith(clean)
+    assert find_labeling(root, clean)["name"] == clean  # exact beats the prefix of the terrain's name
+    assert find_labeling(root, terrain)["name"] == terrain
+    assert find_labeling(root, "paper")["name"] == clean  # the paper's own truth
+    assert find_labeling(root, "paper+clean-scan")["name"] == clean
+    assert find_labeling(root, "paper+terrain")["name"] == terrain
+    assert find_labeling(root, "PAPER+Terrain")["name"] == terrain
+    with pytest.raises(LabelStoreError, match="several labellings") as info:
+        find_labeling(root)
+    assert f"paper = {clean}" in str(info.value) and f"paper+terrain = {terrain}" in str(info.value)
+    with pytest.raises(LabelStoreError, match="no labelling named 'hd'") as info:
+        find_labeling(root, "hd")  # no hd-convention labelling here
+    assert "aliases: paper, paper+clean-scan, paper+terrain" in str(info.value)
+    with pytest.raises(LabelStoreError, match="names 2 labellings") as info:
+        find_labeling(root, clean[:12])  # a prefix of both
+    assert "paper+terrain" in str(info.value)
+    hd_clean = label_dataset(root, Lander(convention="hd"), DemSpec.for_convention("hd"), workers=1).name
+    hd_terrain = label_dataset(root, Lander(convention="hd"), DemSpec.for_convention("hd"), workers=1, truth="terrain")
+    assert find_labeling(root, "hd")["name"] == hd_clean
+    assert find_labeling(root, "hd+terrain")["name"] == hd_terrain.name
+    assert find_labeling(root, "paper")["name"] == clean  # still, among four
+    with pytest.raises(LabelStoreError, match="'paper\\+rock' is not an alias"):
+        find_labeling(root, "paper+rock")
