@@ -19,6 +19,7 @@ import dataclasses
 import math
 import numbers
 import os
+import re
 from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import Any, TypeVar
@@ -223,12 +224,26 @@ def _number(d: Described, value: Any) -> Any:
 
 
 # ------------------------------------------------------------------------------------ click options
+# A URL (``s3://bucket/x``, ``https://host/x``): a scheme (RFC 3986: a letter, then letters, digits,
+# "+", "-", ".") and "://". pathlib would read it as a path and collapse "//" into "/".
+_URL = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]*://")
+
+
 class NonEmptyPath(click.Path):
-    """click.Path that refuses an empty string (which click would turn into the current directory)."""
+    """click.Path that refuses an empty string (which click would turn into the current directory) and
+    a URL (no command reads one yet; as a path, ``s3://bucket/x`` would become ``s3:/bucket/x``).
+    Every path argument and option of ``hd`` is of this type."""
 
     def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
         if isinstance(value, str) and not value.strip():
             self.fail("must not be empty", param, ctx)
+        if isinstance(value, str) and _URL.match(value):
+            self.fail(
+                f"{value} is a URL; hd reads local files only (URLs are not read yet): copy it to a local "
+                "directory, or mount it, and give that path",
+                param,
+                ctx,
+            )
         return super().convert(value, param, ctx)
 
 

@@ -113,3 +113,32 @@ def test_eval_and_detect_offer_the_uncertainty_score(command):
     assert "[default: entropy]" in result.output.split("--uncertainty", 1)[1]
     bad = CliRunner().invoke(main, [command, "run", "--out", "out", "--uncertainty", "bald"])
     assert bad.exit_code != 0 and "'bald' is not one of 'entropy', 'mutual-information'" in bad.output
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["inspect", "s3://bucket/x"],
+        ["verify", "s3://bucket/x"],
+        ["eval", "s3://bucket/run", "--data", "DATA", "--out", "OUT"],
+        ["eval", "RUN", "--data", "https://host/data", "--out", "OUT"],
+        ["detect", "RUN", "--dtm", "gs://bucket/dtm.tif", "--out", "OUT"],
+        ["train", "s3://bucket/x", "--out", "OUT"],
+        ["label", "file:///data/x"],
+        ["build-dataset", "--out", "s3://bucket/new"],
+    ],
+)
+def test_a_url_is_refused_with_its_name_intact_never_read_as_a_path(tmp_path, monkeypatch, args):
+    """Every path argument is a NonEmptyPath: s3://bucket/x is not read as the local path s3:/bucket/x
+    (which build-dataset would create in the current directory)."""
+    monkeypatch.chdir(tmp_path)
+    for name in ("RUN", "DATA"):
+        (tmp_path / name).mkdir()
+    argv = [str(tmp_path / a) if a in ("RUN", "DATA", "OUT") else a for a in args]
+    result = CliRunner().invoke(main, argv)
+    url = next(a for a in args if "://" in a)
+    assert result.exit_code == 2, result.output
+    last = result.output.strip().splitlines()[-1]
+    assert f"{url} is a URL" in last and "URLs are not read yet" in last, result.output
+    assert url.replace("//", "/", 1) not in result.output.replace(url, "")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["DATA", "RUN"]  # nothing created
