@@ -178,7 +178,7 @@ def train_cmd(dataset: Path, run_dir: Path, **options: Any) -> None:
     _done(train_job(dataset, run_dir, options, (epoch_lines if OUTPUT.lines else True) if OUTPUT.progress else False))
 
 
-@main.command("eval", cls=SettingsCommand, settings=("hdnet.evaluate:EvalConfig", "hdnet.eval_job:SweepOption"))
+@main.command("eval", cls=SettingsCommand, settings=("hdnet.eval_settings:EvalConfig", "hdnet.eval_job:SweepOption"))
 @click.argument("run_dir", type=DIRECTORY)
 @click.option(
     "--data", "dataset", required=True, type=DIRECTORY, help="Labelled dataset to evaluate on (its test split)."

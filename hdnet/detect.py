@@ -80,6 +80,7 @@ from hdnet.inputs import InputSpec, to_dem_grid
 from hdnet.inputs import network_input as prepare_input
 from hdnet.model import BayesianSegNet
 from hdnet.noise_levels import TrainingNoise
+from hdnet.preflight import check_inputs
 from hdnet.report import json_plain
 from hdnet.results import SITE_COLUMNS, Site
 from hdnet.run_record import TrainingData, checkpoint_data
@@ -637,7 +638,8 @@ def detect(
         uncertainty=uncertainty,
     )  # each value's kind and range (its field's metadata)
     score = uncertainty_score(uncertainty)
-    _check_detect_options(settings, dtm, dataset)
+    settings.check_inputs(dtm, dataset)
+    check_inputs(run_dir, dataset, labels, dtm=dtm)  # the paths and the labelling, before the run is loaded
     output = output_dir(out_dir, {"the run": run_dir, "the DTM": dtm, "the dataset": dataset})
     output.check_place()  # a usable path that is no input, before the run is even loaded
     dev = torch.device(device) if device else torch.device("cuda" if torch.cuda.is_available() else "cpu")
@@ -713,20 +715,6 @@ def detect(
     return DetectResult(out, sites, h_t, counts, {k: round(v, 3) for k, v in timings.items()}, info)
 
 
-def _check_detect_options(
-    settings: DetectSettings, dtm: str | os.PathLike | None, dataset: str | os.PathLike | None
-) -> None:
-    """Step 1: the options alone (before the run is loaded or anything is written); each value's kind
-    and range were checked by :class:`~hdnet.detect_settings.DetectSettings`, here how they go together."""
-    scan = settings.scan
-    if (dtm is None) == (dataset is None):
-        raise HdNetError("give either a DTM (--dtm) or a dataset and a scan (--data with --scan).")
-    if dataset is not None and scan is None:
-        raise HdNetError("--data needs --scan: the index of the scan whose noisy DEM to use.")
-    if dtm is not None and scan is not None:
-        raise HdNetError("--scan goes with --data, not with --dtm.")
-
-
 def _open_terrain(
     run: DetectRun,
     dtm: str | os.PathLike | None,
@@ -743,7 +731,7 @@ def _open_terrain(
     own = run.training_datasets
     if dtm is not None:
         return _DtmTerrain(Path(dtm), run, upsample), own or (), run.labels
-    if dataset is None or scan is None:  # excluded by _check_detect_options
+    if dataset is None or scan is None:  # excluded by DetectSettings.check_inputs
         raise HdNetError("give either a DTM (--dtm) or a dataset and a scan (--data with --scan).")
     lab = labels if labels is not None else preferred_labeling(dataset, run.labels)
     terrain = _ScanTerrain(Path(dataset), scan, sigma_m, lab, run)

@@ -26,8 +26,15 @@ def detect_job(
     """Map ``dtm`` (or the scan ``settings.scan`` of ``dataset``) with the run ``run_dir`` into ``out_dir``.
 
     Raises:
-        HdNetError / TerrainError / StorageError: as ``hdnet.detect.detect``, before anything is written.
+        HdNetError / TerrainError / StorageError: as ``hdnet.detect.detect``, before anything is written;
+            a missing or misshapen run, dataset or DTM and an unknown labelling before anything is loaded.
     """
+    from hdnet.preflight import check_inputs
+
+    # The settings were checked as they were made; the inputs now, before PyTorch is imported.
+    settings.check_inputs(dtm, dataset)
+    check_inputs(run_dir, dataset, settings.labels, dtm=dtm)
+
     from hdnet.detect import detect
 
     result = detect(

@@ -1,12 +1,15 @@
 """The settings of ``hd detect``, described once (help, unit, default, range as field metadata: the
 command's options and checks are made from them).
 
-A leaf module: ``hdnet.detect`` takes its keywords from :class:`DetectSettings` and
-``hdnet.detect_job`` runs ``hdnet.detect.detect`` with them, without the two importing each other.
+A leaf module without PyTorch: ``hdnet.detect`` takes its keywords from :class:`DetectSettings` and
+``hdnet.detect_job`` runs ``hdnet.detect.detect`` with them, without the two importing each other;
+``hd detect`` reads and checks them (the threshold's form included) before anything heavy is
+imported or loaded.
 """
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 from hdnet import limits
@@ -20,6 +23,7 @@ from hdnet.shared_options import (
     threshold_setting,
     uncertainty_setting,
 )
+from hdnet.threshold_spec import parse_threshold_spec
 from lidarsim.setting import check, setting
 
 
@@ -64,9 +68,27 @@ class DetectSettings:
         "A DTM coarser than the run's DEM spacing (e.g. HiRISE at 2-4 m) is interpolated bilinearly to it "
         "(recorded in detect.json) instead of refused; it holds no rocks below its own resolution",
     )
-    labels: str | None = labels_setting("With --data: the labelling (when the dataset has several)")
+    labels: str | None = labels_setting(
+        "With --data: the labelling whose DEM of the scan to map (default: the one the run was trained on, when "
+        "the dataset has it; else the dataset's only one)"
+    )
     seed: int = seed_setting("MC dropout")
     batch_size: int = batch_size_setting("Tiles per inference batch")
 
     def __post_init__(self) -> None:
         check(self, HdNetError)
+        parse_threshold_spec(self.threshold)
+
+    def check_inputs(self, dtm: str | os.PathLike | None, dataset: str | os.PathLike | None) -> None:
+        """How the settings go with the inputs: a DTM, or a dataset and a scan (each value's kind and
+        range are checked as the settings are made).
+
+        Raises:
+            HdNetError: both or neither of ``dtm`` and ``dataset``, a dataset without a scan, a scan with a DTM.
+        """
+        if (dtm is None) == (dataset is None):
+            raise HdNetError("give either a DTM (--dtm) or a dataset and a scan (--data with --scan).")
+        if dataset is not None and self.scan is None:
+            raise HdNetError("--data needs --scan: the index of the scan whose noisy DEM to use.")
+        if dtm is not None and self.scan is not None:
+            raise HdNetError("--scan goes with --data, not with --dtm.")

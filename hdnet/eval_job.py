@@ -1,7 +1,8 @@
 """``hd eval``: a trained run scored on a labelled dataset's test split, its report written (or found current).
 
-The settings are :class:`hdnet.evaluate.EvalConfig`'s fields and :class:`SweepOption`'s (each
-described once, as field metadata); :func:`eval_job` makes the configuration and evaluates.
+The settings are :class:`hdnet.eval_settings.EvalConfig`'s fields and :class:`SweepOption`'s (each
+described once, as field metadata); :func:`eval_job` makes the configuration, checks the run and the
+datasets (``hdnet.preflight``) and only then imports the evaluation and evaluates.
 """
 
 from __future__ import annotations
@@ -52,10 +53,11 @@ def eval_job(
     ``options`` (EvalConfig's fields and SweepOption's), unless that report is current already.
 
     Raises:
-        HdNetError / StorageError: bad values, an output that is an input, and whatever ``evaluate`` refuses.
+        HdNetError / StorageError: bad values, an output that is an input, a missing or misshapen run or
+            dataset, an unknown labelling (all before anything is loaded), and whatever ``evaluate`` refuses.
     """
-    from hdnet.evaluate import EvalConfig, report_is_current
-    from hdnet.pipeline import evaluate_to_report, report_written_message
+    from hdnet.eval_settings import EvalConfig
+    from hdnet.preflight import check_inputs
     from lidarsim.storage import check_not_input
 
     calibrate_on = tuple(options.get("calibrate_on", ()))
@@ -63,6 +65,12 @@ def eval_job(
     sweep = settings_from_options(SweepOption, options).levels()
     options["calibrate_on"] = tuple(str(d) for d in calibrate_on)
     config = settings_from_options(EvalConfig, options, sigma_sweep=sweep)
+    # Every option is checked now; the inputs next, before PyTorch is imported and the run loaded.
+    check_inputs(run_dir, dataset, config.labels, calibration=config.calibrate_on)
+
+    from hdnet.evaluate import report_is_current
+    from hdnet.pipeline import evaluate_to_report, report_written_message
+
     if not overwrite and report_is_current(out_dir, run_dir, dataset, config):
         said = (
             f"{out_dir} already holds this evaluation's report (same checkpoint, dataset and settings): nothing to do"

@@ -37,8 +37,8 @@ import torch
 from hdlabels import defaults as label_defaults
 from hdlabels.alhat import safety_probability
 from hdlabels.defaults import TRUTHS
-from hdlabels.store import labeling_truth, labelings_by_truth
-from hdnet import defaults, limits
+from hdlabels.store import find_labeling, labeling_truth, labelings_by_truth
+from hdnet import defaults
 from hdnet.data import (
     HazardDataset,
     dataset_sigmas,
@@ -49,35 +49,25 @@ from hdnet.data import (
     stored_sigma_index,
 )
 from hdnet.errors import HdNetError
+from hdnet.eval_settings import EvalConfig
 from hdnet.infer import mc_dropout_predict
 from hdnet.inputs import InputSpec
-from hdnet.landing import NAV_SIGMAS_M
 from hdnet.landing_table import LandingSettings, landing_rows
 from hdnet.metrics import ConfusionAccumulator, SegmentationMetrics
 from hdnet.model import BayesianSegNet
-from hdnet.noise_levels import TrainingNoise, check_levels
+from hdnet.noise_levels import TrainingNoise
+from hdnet.preflight import check_inputs, check_run
 from hdnet.results import METHODS, EvaluationResult, LandingRow, ReliabilityBins, ReportRow, SplitInference
 from hdnet.run_record import checkpoint_data
-from hdnet.shared_options import (
-    batch_size_setting,
-    calibrate_setting,
-    labels_setting,
-    mc_samples_setting,
-    seed_setting,
-    threshold_setting,
-    uncertainty_setting,
-)
 from hdnet.thresholds import (
     EntropyCalibration,
     ThresholdSpec,
-    parse_threshold_spec,
     precision_threshold,
     select_threshold,
 )
-from hdnet.train import LAST, load_checkpoint, load_trained_model
-from hdnet.uncertainty import ENTROPY, UncertaintyScore, recorded_score, uncertainty_score, with_score
+from hdnet.train import load_checkpoint, load_trained_model
+from hdnet.uncertainty import ENTROPY, UncertaintyScore, recorded_score, with_score
 from lidarsim.errors import HdError
-from lidarsim.setting import DIRECTORY, check, setting
 from lidarsim.shards import MANIFEST_NAME, read_manifest, sha256_file
 from lidarsim.storage import read_regular_text
 
@@ -256,14 +246,10 @@ def checkpoint_path(run_dir: str | os.PathLike) -> Path:
     """The checkpoint of a run: ``RUN/last.pt`` for a run directory, else the path itself (a checkpoint file).
 
     Raises:
-        HdNetError: ``run_dir`` is a dataset (it holds ``manifest.json`` and no checkpoint).
+        HdNetError: as ``hdnet.preflight.check_run``: nothing there, a dataset, a run without a
+            checkpoint yet, a directory that is no run.
     """
-    path = Path(run_dir)
-    if path.is_dir() and (path / MANIFEST_NAME).is_file() and not (path / LAST).exists():
-        raise HdNetError(
-            f"{path} is a dataset, not a run: give the run directory `hd train --out` wrote (it holds {LAST})."
-        )
-    return path / LAST if path.is_dir() else path
+    return check_run(run_dir)
 
 
 def run_data(ckpt: dict[str, Any], path: Path) -> tuple[float, InputSpec, str | None]:
@@ -360,87 +346,6 @@ def _check_drop_pixels(drop_pixels: int, n_pixels: int) -> None:
         raise HdNetError(
             f"--drop-pixels must be an integer in [0, {n_pixels - 1}] for {n_pixels}-pixel DEMs, got {drop_pixels!r}."
         )
-
-
-@dataclass(frozen=True)
-class EvalConfig:
-    """How ``evaluate`` runs (the options of ``hd eval``).
-
-    ``mc_samples``: MC-dropout samples per DEM; ``drop_pixels``: dead pixels
-    per test DEM for Table 2 (0: no dead-pixel table); ``threshold``: ``mean``, ``quantile:Q`` or
-    ``risk:ALPHA``; ``labels``: the labelling to score against (None: the one the run was trained
-    on when the dataset has it, else the dataset's newest); ``uncertainty``: the score thresholded at
-    H_t (``entropy``, the paper's, or ``mutual-information``: ``hdnet.uncertainty``); ``seed``:
-    dropout masks and dead pixels;
-    ``batch_size``: DEMs per inference batch; ``nav_sigma_m``: the navigation dispersions (metres)
-    of the landing table (``hdnet.landing_table``); ``device``: a torch device
-    (None: CUDA when available, else the CPU); ``sigma_sweep``: noise levels (metres) the test
-    split is also scored at, made from the clean points where the dataset does not store them;
-    ``calibrate``: ``reference`` (H_t calibrated once, on the validation split at the run's
-    reference noise level, as the paper does) or ``each`` (H_t calibrated on the validation split
-    at each test noise level: the sensor's, which a flash LiDAR knows); ``calibrate_on``: the
-    datasets whose validation splits (together) calibrate H_t (empty: the run's own training data,
-    what a user of the run has, when every training dataset is present with the run's labelling;
-    else the evaluated dataset's validation split, said in the report).
-
-    Raises:
-        HdNetError: a value of the wrong kind or outside its range (each field's metadata,
-            ``lidarsim.setting``) or a bad threshold spec, checked here before any file is looked
-            at; the dropped pixels are checked against the DEM size by ``evaluate``.
-    """
-
-    mc_samples: int = mc_samples_setting()
-    drop_pixels: int = setting(
-        0,
-        f"Dead-pixel test: pixels dropped from each DEM and refilled (paper: {label_defaults.N_DEAD_PIXELS})",
-        bound=limits.DROP_PIXELS,
-    )
-    threshold: str = threshold_setting()
-    uncertainty: str = uncertainty_setting()
-    labels: str | None = labels_setting("Labelling to evaluate against (when the dataset has several)")
-    seed: int = seed_setting("MC dropout and dropped pixels")
-    batch_size: int = batch_size_setting("DEMs per inference batch")
-    device: str | None = setting(None, "A torch device (default: CUDA when available)", kind=str, cli=False)
-    sigma_sweep: tuple[float, ...] = setting(
-        (), "Noise levels the test split is also scored at", unit="metres", bound=limits.NOISE_SIGMA_M, cli=False
-    )
-    calibrate: str = calibrate_setting(
-        "Where the threshold is calibrated: once on the validation split at the run's reference noise level "
-        "(the paper), or at each test noise level (the sensor's, which a flash LiDAR knows)"
-    )
-    calibrate_on: tuple[str, ...] = setting(
-        (),
-        "Calibrate the threshold on this labelled dataset's validation split (repeat it to calibrate on several "
-        "together). Default: the run's own training data, what a user of the run has; --data's validation split "
-        "when that data is not present (the report says so)",
-        kind=Path,
-        click_type=DIRECTORY,
-    )
-
-    nav_sigma_m: tuple[float, ...] = setting(
-        NAV_SIGMAS_M,
-        "Navigation dispersion of the landing table, {unit} 1-sigma per horizontal axis: each method's best site "
-        "per test scene is landed on with it and scored against the truths the dataset has; repeat for several",
-        unit="metres",
-        bound=limits.NAV_SIGMA_M,
-        flag="--nav-sigma",
-    )
-
-    def __post_init__(self) -> None:
-        parse_threshold_spec(self.threshold)
-        object.__setattr__(self, "nav_sigma_m", tuple(sorted(set(self.nav_sigma_m))))
-        object.__setattr__(self, "sigma_sweep", check_levels(tuple(self.sigma_sweep), "a sweep sigma"))
-        check(self, HdNetError)
-
-    @property
-    def threshold_spec(self) -> ThresholdSpec:
-        """The parsed ``threshold``."""
-        return parse_threshold_spec(self.threshold)
-
-    @property
-    def uncertainty_score(self) -> UncertaintyScore:
-        """The score ``uncertainty`` names."""
-        return uncertainty_score(self.uncertainty)
 
 
 @dataclass(frozen=True)
@@ -695,9 +600,10 @@ class _Thresholds:
 
 
 def _open_evaluation(run_dir: str | os.PathLike, dataset_dir: str | os.PathLike, cfg: EvalConfig) -> _Setup:
-    """Step 0: the checks that need the dataset or the run, then the model and the labelling."""
-    open_labeling(dataset_dir, cfg.labels)  # the clear "no labels" error before anything else
-    ckpt_path = checkpoint_path(run_dir)
+    """Step 0: the checks that need the dataset or the run (before the model is loaded), then the model
+    and the labelling: ``cfg.labels``, else the one the run was trained on when the dataset has it."""
+    # The clear "no such dataset", "no labels" or "no labelling named" error before the model is loaded.
+    ckpt_path = check_inputs(run_dir, dataset_dir, cfg.labels, calibration=cfg.calibrate_on)
     dev = torch.device(cfg.device) if cfg.device else torch.device("cuda" if torch.cuda.is_available() else "cpu")
     model, ckpt = load_trained_model(ckpt_path, map_location=dev)
     train_sigma, input_spec, run_labels = run_data(ckpt, ckpt_path)
@@ -900,8 +806,8 @@ def report_is_current(
     report_dir: str | os.PathLike, run_dir: str | os.PathLike, dataset_dir: str | os.PathLike, cfg: EvalConfig
 ) -> bool:
     """True when ``report_dir`` holds the report this evaluation would write (``hd eval`` run again):
-    the same checkpoint bytes, dataset manifest, labelling request and evaluation settings (the
-    uncertainty score included)."""
+    the same checkpoint bytes, dataset manifest, labelling (the one asked for, by name or alias, else
+    the run's) and evaluation settings (the uncertainty score included)."""
     try:
         report = json.loads(read_regular_text(Path(report_dir) / "report.json"))
         run, th = report["run"], report["threshold"]
@@ -913,16 +819,18 @@ def report_is_current(
             and run.get("manifest_sha256") == sha256_file(Path(dataset_dir) / MANIFEST_NAME)
         )
         ckpt_data = load_checkpoint(ckpt)
+        run_labels = run_data(ckpt_data, ckpt)[2]
         calibration = list(
-            calibration_datasets(
-                ckpt_data, dataset_dir, cfg, str(run.get("labels")), run_data(ckpt_data, ckpt)[2]
-            ).datasets
+            calibration_datasets(ckpt_data, dataset_dir, cfg, str(run.get("labels")), run_labels).datasets
         )
+        # The labelling this evaluation would score against: asked for (a name or an alias), else the run's.
+        asked = cfg.labels if cfg.labels is not None else preferred_labeling(dataset_dir, run_labels)
+        labels = find_labeling(dataset_dir, asked)["name"]
     except (OSError, ValueError, KeyError, TypeError, HdNetError):
         return False
     return bool(
         same_inputs
-        and (cfg.labels is None or run.get("labels") == cfg.labels)
+        and run.get("labels") == labels
         and run.get("mc_samples") == cfg.mc_samples
         and run.get("drop_pixels") == cfg.drop_pixels
         and run.get("seed") == cfg.seed

@@ -38,6 +38,7 @@ from typing import Any
 from hdnet.errors import HdNetError
 from hdnet.inputs import InputSpec
 from hdnet.noise_levels import TrainingNoise
+from hdnet.run_files import CONFIG
 from lidarsim.shards import MANIFEST_NAME
 from lidarsim.storage import read_regular_text, write_json_atomic
 
@@ -55,7 +56,6 @@ __all__ = [
     "write_run_record",
 ]
 
-CONFIG = "config.json"
 RUN_SCHEMA = "hdnet.run"
 RUN_SCHEMA_VERSION = 2
 # Keys of extra_config that version 1 repeated from the input spec (dropped by ``migrate``).

@@ -98,9 +98,16 @@ def seed_setting(what: str) -> Any:
     return setting(lidar_defaults.SEED, f"Seed of {what}", bound=limits.SEED)
 
 
+# How a labelling is named on the command line (hdlabels.store.find_labeling), worded once.
+LABELS_FORMS = (
+    "a full name, or an alias: paper or hd (the convention's labelling, the clean scan's when it has both "
+    "truths), paper+terrain or hd+terrain (its terrain truth's)"
+)
+
+
 def labels_setting(what: str) -> Any:
-    """The labelling a command reads (None: the dataset's only or newest)."""
-    return setting(None, what, kind=str)
+    """The labelling a command reads: ``what``, then how it is named (None: the default the command says)."""
+    return setting(None, f"{what}: {LABELS_FORMS}", kind=str, metavar="NAME")
 
 
 # Where a threshold is calibrated: at the run's reference noise level, or at each noise level.

@@ -62,6 +62,7 @@ from hdnet._version import __version__
 from hdnet.errors import HdNetError
 from hdnet.model import MODEL_NAME, BayesianSegNet, ModelConfig
 from hdnet.profiles import TrainingProfile, profile_from_dict
+from hdnet.run_files import BEST, LAST, METRICS  # and CONFIG, the run record (hdnet.run_record)
 from hdnet.run_record import RunRecord, write_run_record
 from lidarsim.errors import HdWarning
 from lidarsim.storage import write_bytes_atomic
@@ -70,7 +71,6 @@ CHECKPOINT_SCHEMA = "hdnet.checkpoint"
 CHECKPOINT_VERSION = 2
 READABLE_CHECKPOINT_VERSIONS = (1, 2)  # 1: without content_sha256
 DIGEST_KEY = "content_sha256"
-LAST, BEST, METRICS = "last.pt", "best.pt", "metrics.csv"  # and CONFIG, the run record (hdnet.run_record)
 
 
 # --- process group ------------------------------------------------------------------------------

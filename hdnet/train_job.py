@@ -71,9 +71,12 @@ def train_job(
 
     Raises:
         HdNetError: options that exclude each other, bad values, and whatever ``fit`` refuses.
+        StorageError / LabelStoreError: no dataset, no labels, an unknown labelling (before anything
+            else is read or written).
     """
     from hdnet.fit import FitConfig, already_trained, fit
     from hdnet.pipeline import training_done_message
+    from hdnet.preflight import check_dataset
     from hdnet.run_summary import run_record
 
     if options.get("resume") and options.get("overwrite"):
@@ -81,6 +84,7 @@ def train_job(
     noise = settings_from_options(TrainingNoiseOptions, options).fit_settings()
     options["also"] = tuple(str(d) for d in options.get("also", ()))
     config = settings_from_options(FitConfig, options, progress=progress, **noise)
+    check_dataset(dataset, config.labels)  # the dataset and its labelling before any run or data is touched
     if already_trained(dataset, run_dir, config):
         n = config.epochs if config.epochs is not None else config.training_profile().epochs
         said = (

@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 import json
+import shutil
+import subprocess
+import sys
 from pathlib import Path
 
+import h5py
 import pytest
 from click.testing import CliRunner
 from hdnet_datasets import build_labelled
@@ -115,6 +119,102 @@ def test_eval_and_detect_offer_the_uncertainty_score(command):
     assert bad.exit_code != 0 and "'bald' is not one of 'entropy', 'mutual-information'" in bad.output
 
 
+# --- options and inputs checked before anything heavy; labellings by alias; URLs -------------------------
+ROOT = Path(__file__).resolve().parents[2]
+NO_TORCH = "import sys; sys.modules['torch'] = None; from cli import main; main(sys.argv[1:], prog_name='hd')"
+
+
+def hd_without_torch(*args: str) -> subprocess.CompletedProcess[str]:
+    """``hd ARGS`` in a process where importing PyTorch fails: what it refuses, it refuses before."""
+    return subprocess.run(
+        [sys.executable, "-c", NO_TORCH, *args], cwd=ROOT, capture_output=True, text=True, check=False, timeout=120
+    )
+
+
+def fake_run(path: Path) -> Path:
+    """A directory shaped like a run (a ``last.pt``), which no test may load."""
+    path.mkdir()
+    (path / "last.pt").write_bytes(b"not loaded")
+    return path
+
+
+@pytest.mark.parametrize("command", ["eval", "detect"])
+@pytest.mark.parametrize(("value", "needle"), [("quantil:0.9", "is not one of"), ("quantile:2", "must be in [0, 1]")])
+def test_a_threshold_typo_is_refused_before_the_network_library_is_imported(tmp_path, command, value, needle):
+    """hd eval and hd detect check --threshold as they read it: no PyTorch import, no run, no data read."""
+    run, data = tmp_path / "run", tmp_path / "data"  # neither exists: the option comes first
+    where = ["--data", str(data)] if command == "eval" else ["--dtm", str(tmp_path / "x.tif")]
+    result = hd_without_torch(command, str(run), *where, "--out", str(tmp_path / "o"), "--threshold", value)
+    assert result.returncode == 1 and "Traceback" not in result.stderr, result.stderr
+    last = result.stderr.strip().splitlines()[-1]
+    assert last.startswith(f"Error: threshold spec {value!r}") and needle in last, result.stderr
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["eval", "{run}", "--data", "{tmp}/nope"], "nope: no such dataset directory"),
+        (["eval", "{tmp}/empty", "--data", "{data}"], "is not an hd run (no config.json or last.pt)"),
+        (["eval", "{data}", "--data", "{data}"], "is a dataset, not a run"),
+        (["eval", "{run}", "--data", "{data}", "--labels", "nope"], "no labelling named 'nope'"),
+        (["eval", "{run}", "--data", "{data}", "--calibrate-on", "{tmp}/empty"], "not an hd dataset"),
+        (["detect", "{run}", "--data", "{tmp}/nope", "--scan", "1"], "nope: no such dataset directory"),
+        (["detect", "{run}", "--data", "{data}", "--scan", "1", "--labels", "nope"], "no labelling named 'nope'"),
+        (["detect", "{run}", "--dtm", "{tmp}/nope.tif"], "nope.tif: no such file"),
+    ],
+)
+def test_run_and_dataset_paths_are_checked_before_the_network_library_is_imported(dataset, tmp_path, args, needle):
+    (tmp_path / "empty").mkdir()
+    names = {"run": str(fake_run(tmp_path / "run")), "data": str(dataset), "tmp": str(tmp_path)}
+    result = hd_without_torch(*[a.format(**names) for a in args], "--out", str(tmp_path / "o"))
+    assert result.returncode == 1 and "Traceback" not in result.stderr, result.stderr
+    last = result.stderr.strip().splitlines()[-1]
+    assert last.startswith("Error: ") and needle in last, result.stderr
+    assert not (tmp_path / "o").exists()
+
+
+def test_eval_and_detect_check_their_inputs_before_the_run_is_loaded(dataset, tmp_path, monkeypatch):
+    """In the library too (hdnet.evaluate.evaluate, hdnet.detect.detect): a typo in a path or a labelling
+    is refused before the checkpoint is read."""
+    from hdnet import detect as detect_module
+    from hdnet import evaluate as evaluate_module
+
+    def never(*args, **kwargs):
+        raise AssertionError("the run was loaded before the inputs were checked")
+
+    monkeypatch.setattr(detect_module, "load_run", never)
+    monkeypatch.setattr(evaluate_module, "load_trained_model", never)
+    run = fake_run(tmp_path / "run")
+    cases = [
+        (["eval", run, "--data", dataset, "--calibrate-on", tmp_path / "nope"], "no such dataset directory"),
+        (["eval", run, "--data", dataset, "--labels", "nope"], "no labelling named 'nope'"),
+        (["detect", run, "--data", tmp_path / "nope", "--scan", "1"], "no such dataset directory"),
+        (["detect", run, "--data", dataset, "--scan", "1", "--labels", "nope"], "no labelling named 'nope'"),
+        (["detect", run, "--dtm", tmp_path / "nope.tif"], "no such file"),
+    ]
+    for args, needle in cases:
+        result = CliRunner().invoke(main, [*map(str, args), "--out", str(tmp_path / "o")])
+        assert result.exit_code == 1 and not isinstance(result.exception, AssertionError), result.output
+        assert result.output.strip().splitlines()[-1].startswith("Error: ") and needle in result.output
+    assert not (tmp_path / "o").exists()
+
+
+def test_train_checks_its_dataset_and_labelling_before_the_run_directory(dataset, tmp_path, monkeypatch):
+    """hd train refuses an unknown labelling, and takes an alias, before it looks at its run directory."""
+    from hdnet import fit as fit_module
+
+    def never(*args, **kwargs):
+        raise AssertionError("the run directory was prepared before the labelling was checked")
+
+    monkeypatch.setattr(fit_module, "prepare_run_dir", never)
+    result = CliRunner().invoke(main, ["train", str(dataset), "--out", str(tmp_path / "run"), "--labels", "nope"])
+    assert result.exit_code == 1 and not isinstance(result.exception, AssertionError), result.output
+    last = result.output.strip().splitlines()[-1]
+    assert last.startswith("Error: ") and "no labelling named 'nope'" in last and "(aliases: paper" in last
+    assert not (tmp_path / "run").exists()
+
+
 @pytest.mark.parametrize(
     "args",
     [
@@ -142,3 +242,55 @@ def test_a_url_is_refused_with_its_name_intact_never_read_as_a_path(tmp_path, mo
     assert f"{url} is a URL" in last and "URLs are not read yet" in last, result.output
     assert url.replace("//", "/", 1) not in result.output.replace(url, "")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["DATA", "RUN"]  # nothing created
+
+
+def split_scans(dataset: Path, labels: str, split: str) -> list[int]:
+    """The scan indices of one split of a labelling (0 train, 1 val, 2 test in the label shards)."""
+    from hdlabels.store import find_labeling, label_shard_paths
+
+    code = ("train", "val", "test").index(split)
+    scans: list[int] = []
+    for path in label_shard_paths(dataset, find_labeling(dataset, labels)):
+        with h5py.File(path) as f:
+            scans += [int(s) for s, k in zip(f["scan_index"][:], f["split"][:], strict=True) if k == code]
+    return scans
+
+
+@pytest.fixture(scope="module")
+def two_truths(dataset, tmp_path_factory):
+    """A copy of the dataset labelled twice by one lander: the clean scan's labelling (the run's) and
+    the terrain's, whose name the clean one's is a prefix of; and a run trained on the clean one."""
+    from hdlabels.labeling import label_dataset
+
+    root = tmp_path_factory.mktemp("two-truths")
+    copy = root / "data"
+    shutil.copytree(dataset, copy)
+    terrain = label_dataset(copy, workers=1, truth="terrain").name
+    run = root / "run"
+    result = CliRunner().invoke(main, ["train", str(dataset), "--out", str(run), "--profile", "tiny", "--epochs", "1"])
+    assert result.exit_code == 0, result.output
+    clean = json.loads((run / "config.json").read_text())["extra_config"]["labels"]
+    assert terrain.startswith(clean) and terrain != clean
+    return copy, run, clean, terrain
+
+
+def test_eval_defaults_to_the_runs_labelling_and_detect_takes_an_alias(two_truths, tmp_path):
+    """With the clean-scan and terrain labellings side by side, hd eval scores against the labelling
+    the run was trained on without --labels, and --labels paper+terrain picks the terrain's."""
+    data, run, clean, terrain = two_truths
+    report = tmp_path / "report"
+    result = CliRunner().invoke(
+        main, ["eval", str(run), "--data", str(data), "--out", str(report), "--mc-samples", "2"]
+    )
+    assert result.exit_code == 0, result.output
+    assert json.loads((report / "report.json").read_text())["run"]["labels"] == clean
+    again = CliRunner().invoke(
+        main, ["eval", str(run), "--data", str(data), "--out", str(report), "--mc-samples", "2", "--labels", "paper"]
+    )
+    assert again.exit_code == 0 and "already holds this evaluation's report" in again.output, again.output
+    out = tmp_path / "maps"
+    scan = split_scans(data, clean, "test")[0]
+    args = ["detect", str(run), "--data", str(data), "--scan", str(scan), "--out", str(out), "--mc-samples", "2"]
+    result = CliRunner().invoke(main, [*args, "--threshold", "nats:0.3", "--labels", "paper+terrain"])
+    assert result.exit_code == 0, result.output
+    assert json.loads((out / "detect.json").read_text())["input"]["labels"] == terrain
