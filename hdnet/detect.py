@@ -39,6 +39,7 @@ import io
 import math
 import os
 import time
+import warnings
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
@@ -83,7 +84,7 @@ from hdnet.noise_levels import TrainingNoise
 from hdnet.preflight import check_inputs
 from hdnet.report import json_plain
 from hdnet.results import SITE_COLUMNS, Site
-from hdnet.run_record import TrainingData, checkpoint_data
+from hdnet.run_record import TrainingData, checkpoint_data, unfinished_training
 from hdnet.sites import (
     SAFETY_INVALID,
     SAFETY_SAFE,
@@ -93,12 +94,12 @@ from hdnet.sites import (
     select_sites,
 )
 from hdnet.threshold_cache import CachedThreshold, cache_key
-from hdnet.thresholds import ThresholdSpec, parse_threshold_spec, uncertain_mask
+from hdnet.thresholds import ThresholdSpec, parse_threshold_spec, risk_reach, uncertain_mask, warn_if_unreachable
 from hdnet.tiling import TilePlan
 from hdnet.train import load_trained_model
 from hdnet.uncertainty import ENTROPY, UncertaintyScore, recorded_score, uncertainty_score, with_score
 from lidarsim.base_relief import resample_bilinear
-from lidarsim.errors import TerrainError
+from lidarsim.errors import HdError, HdWarning, TerrainError
 from lidarsim.procedural import geotiff_bytes, geotiff_profile
 from lidarsim.shards import MANIFEST_NAME, open_scan_shard, read_manifest, sha256_file
 from lidarsim.storage import (
@@ -439,6 +440,8 @@ class _ScanTerrain(_Terrain):
         }
         self.sigma_m = sigmas[k]
         self.labels = str(entry["name"])
+        self.dataset = Path(dataset)
+        self.source_sha256 = str(found[3].get("source_sha256", ""))
 
     def read(self, row0: int, col0: int, rows: int, cols: int) -> np.ndarray:
         out = np.full((rows, cols), np.nan, np.float64)
@@ -461,6 +464,30 @@ def _origin_map(dataset: Path, label_shard: dict[str, Any], scan: int) -> list[f
         if not rows.size:
             raise HdNetError(f"{source['path']}: holds no scan {scan}, which its label shard lists.")
         return [float(v) for v in reader.h5["origin_map"][int(rows[0])]]
+
+
+def trained_on(run: DetectRun, dataset: Path, source_sha256: str) -> bool:
+    """True when the run was trained on the scans of ``dataset`` whose scan shard has ``source_sha256``:
+    ``dataset`` is a training dataset of the run (the same directory, or the same manifest), or a
+    present training dataset lists a scan shard of those bytes (a copy or a rebuild of it)."""
+    data = run.data
+    recorded = data.datasets if data is not None else ((str(run.dataset),) if run.dataset is not None else ())
+    if str(dataset.resolve()) in {str(Path(d).resolve()) for d in recorded}:
+        return True
+    if data is not None:
+        sums = {data.manifest_sha256, *(a.manifest_sha256 for a in data.also)} - {None}
+        if sha256_file(dataset / MANIFEST_NAME) in sums:
+            return True
+    for d in recorded:
+        if not (Path(d) / MANIFEST_NAME).is_file():
+            continue
+        try:
+            shards = read_manifest(d)["shards"]
+        except HdError:  # a training dataset damaged since: it says nothing of this scan
+            continue
+        if any(entry.get("sha256") == source_sha256 for entry in shards):
+            return True
+    return False
 
 
 # --- options -----------------------------------------------------------------------------------------
@@ -566,6 +593,12 @@ class DetectResult:
             if self.sites
             else "; no site: no lander footprint is wholly safe and certain"
         )
+        th = self.info.get("threshold", {})
+        if th.get("unreachable"):  # risk:ALPHA below 1/(n+1): every cell uncertain by construction
+            t += (
+                f", {th.get('spec')} unreachable with {th.get('calibration_images')} validation images: "
+                f"it needs {th.get('needs_images')}"
+            )
         return (
             f"{self.out_dir}: {pct['safe']:.1f}% safe, {pct['unsafe']:.1f}% unsafe, {pct['uncertain']:.1f}% uncertain "
             f"of {valid} valid cells (H_t {t}; the ALHAT baseline calls {pct['baseline_safe']:.1f}% safe); "
@@ -644,12 +677,23 @@ def detect(
     output.check_place()  # a usable path that is no input, before the run is even loaded
     dev = torch.device(device) if device else torch.device("cuda" if torch.cuda.is_available() else "cpu")
     run = load_run(run_dir, dev)
+    unfinished = unfinished_training(run.checkpoint, int(run.ckpt.get("epoch", 0)))
+    if unfinished is not None:
+        warnings.warn(unfinished, HdWarning, stacklevel=2)
     output.add_inputs({"the checkpoint": run.checkpoint, "the run's dataset": run.dataset})
     out = output.check(overwrite)
     baseline_sigma = run.train_sigma_m if sigma_m is None else float(sigma_m)
     terrain, calib_dirs, calib_labels = _open_terrain(run, dtm, dataset, scan, labels, baseline_sigma, upsample)
     if isinstance(terrain, _ScanTerrain):
         baseline_sigma = terrain.sigma_m
+        if terrain.provenance["split"] == "train" and trained_on(run, Path(terrain.dataset), terrain.source_sha256):
+            terrain.provenance["seen_in_training"] = True
+            warnings.warn(
+                f"scan {scan} is in the training split of {dataset}, on which the run was trained: the network "
+                "has seen it, so its maps are not those of unseen terrain; map a scan of the test split (or a DTM)",
+                HdWarning,
+                stacklevel=2,
+            )
     try:
         if spec is not None and not calib_dirs:
             raise HdNetError(
@@ -683,6 +727,9 @@ def detect(
                 )
             # The record states the threshold the maps use, whatever its source (hdnet.threshold_cache).
             threshold_info = dict(threshold_info, value_nats=None if math.isinf(h_t) else h_t)
+            if spec is not None and spec.kind == "risk" and spec.value is not None:  # also a record cached before
+                threshold_info |= risk_reach(spec.value, int(threshold_info["calibration_images"]))
+                warn_if_unreachable(threshold_info)
             timings["calibration"] = time.perf_counter() - t0
             counts, map_timings = _write_maps(
                 tmp, terrain, run, plan, h_t, baseline_sigma, mc_samples, batch_size, seed, dev, progress, score

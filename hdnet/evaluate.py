@@ -26,6 +26,7 @@ import dataclasses
 import json
 import math
 import os
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -58,16 +59,18 @@ from hdnet.model import BayesianSegNet
 from hdnet.noise_levels import TrainingNoise
 from hdnet.preflight import check_inputs, check_run
 from hdnet.results import METHODS, EvaluationResult, LandingRow, ReliabilityBins, ReportRow, SplitInference
-from hdnet.run_record import checkpoint_data
+from hdnet.run_record import checkpoint_data, unfinished_training
 from hdnet.thresholds import (
     EntropyCalibration,
     ThresholdSpec,
     precision_threshold,
+    risk_reach,
     select_threshold,
+    warn_if_unreachable,
 )
 from hdnet.train import load_checkpoint, load_trained_model
 from hdnet.uncertainty import ENTROPY, UncertaintyScore, recorded_score, with_score
-from lidarsim.errors import HdError
+from lidarsim.errors import HdError, HdWarning
 from lidarsim.shards import MANIFEST_NAME, read_manifest, sha256_file
 from lidarsim.storage import read_regular_text
 
@@ -336,6 +339,8 @@ def validation_threshold(
         "calibration_images": cal.n_images,
         "calibration_pixels": int(val_scores.size),
     }
+    if spec.kind == "risk" and spec.value is not None:  # alpha < 1/(n+1) leaves every pixel uncertain: said
+        info |= risk_reach(spec.value, cal.n_images)
     return ValidationThreshold(h_t, with_score(info, uncertainty), cal, val)
 
 
@@ -456,6 +461,7 @@ def evaluate(
     # 1. threshold from the validation split at the reference sigma (and, with calibrate=each, at every test sigma)
     thresholds = _Thresholds(setup, dataset_dir, cfg, counter)
     th = thresholds.reference
+    warn_if_unreachable(th.info)  # before the test split is inferred
     # 2-3. every sigma: the three methods, the sweep, calibration
     tests, rows, sweep, cal_rows, achieved = _noise_table(setup, dataset_dir, cfg, thresholds)
     # 4. dead pixels
@@ -601,11 +607,15 @@ class _Thresholds:
 
 def _open_evaluation(run_dir: str | os.PathLike, dataset_dir: str | os.PathLike, cfg: EvalConfig) -> _Setup:
     """Step 0: the checks that need the dataset or the run (before the model is loaded), then the model
-    and the labelling: ``cfg.labels``, else the one the run was trained on when the dataset has it."""
+    and the labelling: ``cfg.labels``, else the one the run was trained on when the dataset has it.
+    An unfinished run is evaluated with a warning."""
     # The clear "no such dataset", "no labels" or "no labelling named" error before the model is loaded.
     ckpt_path = check_inputs(run_dir, dataset_dir, cfg.labels, calibration=cfg.calibrate_on)
     dev = torch.device(cfg.device) if cfg.device else torch.device("cuda" if torch.cuda.is_available() else "cpu")
     model, ckpt = load_trained_model(ckpt_path, map_location=dev)
+    unfinished = unfinished_training(ckpt_path, int(ckpt.get("epoch", 0)))
+    if unfinished is not None:
+        warnings.warn(unfinished, HdWarning, stacklevel=3)
     train_sigma, input_spec, run_labels = run_data(ckpt, ckpt_path)
     entry, paths = open_labeling(
         dataset_dir, cfg.labels if cfg.labels is not None else preferred_labeling(dataset_dir, run_labels)

@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from hdnet.paper_results import paper_row
+from hdnet.threshold_spec import unreachable_risk_words
 from hdnet.uncertainty import recorded_score
 from lidarsim.storage import (
     OutputDir,
@@ -172,6 +173,11 @@ def report_markdown(result: EvaluationResult, figures: list[str] | None = None) 
                 if th.get("calibrate") == "each"
                 else ""
             )
+        ),
+        *(
+            [f"- **unreachable risk level**: {_unreachable(th)}"]
+            if th.get("unreachable")  # risk:ALPHA below 1/(n+1): H_t = 0 whatever the network
+            else []
         ),
         "",
     ]
@@ -353,6 +359,11 @@ def _calibration_words(th: dict[str, Any], run: dict[str, Any]) -> str:
     if not datasets or datasets == [run.get("dataset")]:
         return ""
     return f" of the run's training data {names}" if source == "run" else f" of {names}"
+
+
+def _unreachable(th: dict[str, Any]) -> str:
+    """The sentence of a risk level its calibration images cannot reach (``hdnet.thresholds.risk_reach``)."""
+    return unreachable_risk_words(str(th["spec"]), int(th["calibration_images"]), int(th["needs_images"]))
 
 
 def _train_noise_words(noise: dict[str, Any]) -> str:

@@ -109,8 +109,15 @@ class EvaluationResult:
             )
         value = self.threshold.get("value_nats")
         on = recorded_score(self.threshold).qualifier
+        th = self.threshold
         lines.append(
-            f"threshold {self.threshold.get('spec', '')}{on}: {'unbounded' if value is None else f'{value:.4f} nats'}"
+            f"threshold {th.get('spec', '')}{on}: {'unbounded' if value is None else f'{value:.4f} nats'}"
+            + (
+                f" (unreachable with {th.get('calibration_images')} validation images: it needs "
+                f"{th.get('needs_images')})"
+                if th.get("unreachable")
+                else ""
+            )
         )
         return "\n".join(lines)
 

@@ -38,7 +38,8 @@ from typing import Any
 from hdnet.errors import HdNetError
 from hdnet.inputs import InputSpec
 from hdnet.noise_levels import TrainingNoise
-from hdnet.run_files import CONFIG
+from hdnet.run_files import CONFIG, LAST, METRICS
+from lidarsim.errors import StorageError
 from lidarsim.shards import MANIFEST_NAME
 from lidarsim.storage import read_regular_text, write_json_atomic
 
@@ -53,6 +54,7 @@ __all__ = [
     "checkpoint_data",
     "migrate",
     "read_run_record",
+    "unfinished_training",
     "write_run_record",
 ]
 
@@ -307,6 +309,35 @@ def read_run_record(run_dir: str | os.PathLike) -> RunRecord:
     except (ValueError, RecursionError) as exc:  # StorageError and JSONDecodeError are ValueErrors
         raise HdNetError(f"{path}: unreadable run config ({exc}).") from exc
     return RunRecord.from_dict(raw, str(path))
+
+
+def unfinished_training(checkpoint: str | os.PathLike, epoch: int) -> str | None:
+    """One sentence with the epochs done and planned when ``checkpoint`` (saved after ``epoch`` epochs)
+    belongs to a run whose training has not reached the epochs its ``config.json`` plans, else None
+    (a finished run, or a checkpoint outside a run directory, whose plan is not known); ``hd eval``
+    and ``hd detect`` warn with it.
+
+    The epochs done are the checkpoint's own for the run's ``last.pt``; for another checkpoint of the
+    run (``best.pt``) those of ``metrics.csv``, one row per epoch done, so that the best epoch of a
+    finished run is not called unfinished.
+    """
+    path = Path(checkpoint)
+    run = path.parent
+    if not (run / CONFIG).is_file():
+        return None
+    try:
+        planned = read_run_record(run).epochs
+        done = int(epoch)
+        if path.name != LAST and (run / METRICS).is_file():
+            done = max(done, len(read_regular_text(run / METRICS).splitlines()) - 1)
+    except (HdNetError, StorageError, TypeError, ValueError):
+        return None
+    if not 0 <= done < planned:
+        return None
+    return (
+        f"{run} is an unfinished run: {done} of its {planned} epochs trained (`hd train ... --resume` finishes "
+        f"it); {path.name} is the network of epoch {int(epoch)}, not the trained one"
+    )
 
 
 def write_run_record(run_dir: str | os.PathLike, record: RunRecord) -> None:

@@ -56,3 +56,14 @@ def parse_threshold_spec(spec: str) -> ThresholdSpec:
     if kind == "nats" and not value >= 0.0:
         raise HdNetError(f"threshold spec {spec!r}: the entropy threshold H must be >= 0 nats.")
     return ThresholdSpec(kind, value)  # type: ignore[arg-type]  # kind: one of KINDS, checked above
+
+
+def unreachable_risk_words(spec: str, n_images: int, needed: int) -> str:
+    """One sentence: the risk level of ``spec`` cannot be certified with ``n_images`` calibration
+    images and how many it needs (the console warning, the report and ``hd detect``'s summary)."""
+    return (
+        f"{spec} cannot be certified with {n_images} validation image(s): conformal risk control needs "
+        f"alpha >= 1/(n+1), i.e. at least {needed} validation images, so H_t = 0 nats and every pixel is "
+        f"uncertain (V/C 0 %); calibrate on more validation images or use alpha >= "
+        f"{1.0 / (n_images + 1):.3g}"
+    )

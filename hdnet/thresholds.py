@@ -24,20 +24,26 @@ Specs (``parse_threshold_spec``):
 
   which guarantees E[L_{n+1}(t)] <= alpha for a new image exchangeable with the validation images.
   If even t = 0 (every pixel uncertain, loss 0) fails, i.e. alpha < 1/(n+1), t = 0 is returned (the
-  only choice that keeps the guarantee). If no false-safe pixel ever limits it, t = +inf
-  (every pixel certain).
+  only choice that keeps the guarantee): such an alpha is *unreachable* with n images, whatever the
+  network, and needs at least ``risk_images_needed(alpha)`` = ceil(1/alpha) - 1 of them (19 for
+  alpha = 0.05). n counts images, not pixels. ``risk_reach`` gives the threshold record's
+  ``unreachable`` and ``needs_images``; ``hd eval`` and ``hd detect`` warn. If no false-safe pixel
+  ever limits it, t = +inf (every pixel certain).
 """
 
 from __future__ import annotations
 
 import math
+import warnings
+from typing import Any
 
 import numpy as np
 import torch
 
 from hdnet import defaults
 from hdnet.errors import HdNetError
-from hdnet.threshold_spec import SPEC_FORMS, ThresholdSpec, parse_threshold_spec
+from hdnet.threshold_spec import SPEC_FORMS, ThresholdSpec, parse_threshold_spec, unreachable_risk_words
+from lidarsim.errors import HdWarning
 
 __all__ = [
     "LOSS_BOUND",
@@ -46,11 +52,53 @@ __all__ = [
     "ThresholdSpec",
     "parse_threshold_spec",
     "precision_threshold",
+    "risk_images_needed",
+    "risk_reach",
     "select_threshold",
     "uncertain_mask",
+    "unreachable_risk_words",
+    "warn_if_unreachable",
 ]
 
 LOSS_BOUND = 1.0  # B: the false-safe rate is a fraction of pixels
+
+
+def risk_images_needed(alpha: float) -> int:
+    """The fewest calibration images n with which ``risk:alpha`` can certify any pixel.
+
+    Conformal risk control keeps H_t = 0 (every pixel uncertain) unless B/(n+1) <= alpha, whatever
+    the network does: even a network with no false-safe pixel adds the bound B = 1 of the unseen
+    image, weighted 1/(n+1). So n >= B/alpha - 1 (19 images for alpha = 0.05, 99 for 0.01); n counts
+    the calibration images, every image of the validation split(s) at the calibration noise level
+    (``EntropyCalibration.n_images``), not their pixels.
+    """
+    if not 0.0 < alpha < 1.0:
+        raise HdNetError(f"the risk level alpha must be in (0, 1), got {alpha}.")
+    n = max(1, math.ceil(LOSS_BOUND / alpha) - 1)
+    while LOSS_BOUND / (n + 1) > alpha:  # floating point: the exact condition decides
+        n += 1
+    while n > 1 and LOSS_BOUND / n <= alpha:
+        n -= 1
+    return n
+
+
+def risk_reach(alpha: float, n_images: int) -> dict[str, bool | int]:
+    """The reachability entries of a ``risk:alpha`` threshold's record calibrated on ``n_images``
+    images: ``unreachable`` (True when H_t is 0 by construction: alpha < B/(n+1)) and
+    ``needs_images`` (``risk_images_needed``)."""
+    needed = risk_images_needed(alpha)
+    return {"unreachable": n_images < needed, "needs_images": needed}
+
+
+def warn_if_unreachable(record: dict[str, Any]) -> None:
+    """A one-line ``HdWarning`` when the threshold record ``record`` (``report.json``'s and
+    ``detect.json``'s ``threshold``) is a risk level its calibration images cannot reach
+    (``unreachable``, from :func:`risk_reach`)."""
+    if record.get("unreachable"):
+        words = unreachable_risk_words(
+            str(record.get("spec")), int(record["calibration_images"]), int(record["needs_images"])
+        )
+        warnings.warn(words, HdWarning, stacklevel=2)
 
 
 class EntropyCalibration:
@@ -139,8 +187,7 @@ class EntropyCalibration:
         e, w = e[order], w[order]
         # cum[k] = Rhat just above the k-th smallest false-safe entropy (k+1 pixels certain).
         cum = np.cumsum(w) / n
-        ok0 = LOSS_BOUND / (n + 1) <= alpha
-        if not ok0:
+        if n < risk_images_needed(alpha):  # LOSS_BOUND / (n + 1) > alpha: even t = 0 is all it allows
             return 0.0
         feasible = n / (n + 1) * cum + LOSS_BOUND / (n + 1) <= alpha
         # Number of leading false-safe pixels that can be certain: first infeasible index.

@@ -861,3 +861,54 @@ def test_a_forged_cached_threshold_is_recalibrated_and_the_record_states_the_val
     again = detect(run, tmp_path / "c", dtm=dtm, mc_samples=2)
     assert again.threshold_nats == calibrated
     assert json.loads((tmp_path / "c" / "detect.json").read_text())["threshold"]["cached"] == str(cache)
+
+
+def split_scans(dataset: Path, split: str) -> list[int]:
+    """The scan indices of one split (0 train, 1 val, 2 test in the label shards)."""
+    import h5py
+
+    code = ("train", "val", "test").index(split)
+    scans: list[int] = []
+    for path in label_shard_paths(dataset, find_labeling(dataset)):
+        with h5py.File(path) as f:
+            scans += [int(s) for s, k in zip(f["scan_index"][:], f["split"][:], strict=True) if k == code]
+    return scans
+
+
+def test_a_training_scan_an_unfinished_run_and_an_unreachable_risk_level_are_said(trained, tmp_path):
+    """hd detect on a scan the run trained on, with a run stopped at epoch 1 of 10 and risk:0.05 on its
+    2 validation images: three one-line warnings, detect.json and the summary say it; a test scan of
+    a copy of the dataset is not called a training scan, a training scan of the copy is."""
+    import shutil
+
+    dataset, run_dir, _ = trained
+    partial = tmp_path / "run"
+    shutil.copytree(run_dir, partial)
+    config = json.loads((partial / "config.json").read_text())
+    config["epochs"] = 10
+    (partial / "config.json").write_text(json.dumps(config))
+    scan = split_scans(dataset, "train")[0]
+    runner = CliRunner()
+    args = ["detect", str(partial), "--data", str(dataset), "--scan", str(scan), "--out", str(tmp_path / "o")]
+    result = runner.invoke(main, [*args, "--mc-samples", "2", "--threshold", "risk:0.05"])
+    assert result.exit_code == 0, result.output
+    warnings = [line for line in result.output.splitlines() if line.startswith("Warning: ")]
+    assert any("1 of its 10 epochs trained" in w for w in warnings), result.output
+    assert any(f"scan {scan} is in the training split" in w and "not those of unseen terrain" in w for w in warnings)
+    assert any("risk:0.05 cannot be certified with 2 validation image(s)" in w for w in warnings)
+    assert "risk:0.05 unreachable with 2 validation images: it needs 19" in result.output
+    info = json.loads((tmp_path / "o" / "detect.json").read_text())
+    assert info["input"]["split"] == "train" and info["input"]["seen_in_training"] is True
+    assert info["threshold"]["unreachable"] is True and info["threshold"]["needs_images"] == 19
+    copy = tmp_path / "copy"
+    shutil.copytree(dataset, copy)
+    for split, seen in (("test", False), ("train", True)):
+        scan = split_scans(copy, split)[0]
+        out = tmp_path / f"copy-{split}"
+        args = ["detect", str(run_dir), "--data", str(copy), "--scan", str(scan), "--out", str(out)]
+        result = runner.invoke(main, [*args, "--mc-samples", "2", "--threshold", "nats:0.3"])
+        assert result.exit_code == 0, result.output
+        assert ("in the training split" in result.output) is seen and "Warning:" not in result.output.replace(
+            "Warning: scan", ""
+        )
+        assert json.loads((out / "detect.json").read_text())["input"].get("seen_in_training", False) is seen

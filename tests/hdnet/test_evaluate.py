@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 import subprocess
 import sys
+from pathlib import Path
 from typing import Any
 
 import h5py
@@ -22,7 +24,7 @@ from hdnet.evaluate import METHODS, EvalConfig, evaluate, reliability
 from hdnet.fit import FitConfig, fit
 from hdnet.pipeline import evaluate_to_report
 from hdnet.report import ROW_KEYS, report_dict
-from lidarsim.errors import OutputExistsError
+from lidarsim.errors import HdWarning, OutputExistsError
 
 
 @pytest.fixture(scope="module")
@@ -392,3 +394,38 @@ def test_the_report_names_the_mutual_information_and_the_default_report_is_uncha
 def test_an_unknown_uncertainty_score_is_refused():
     with pytest.raises(HdNetError, match="uncertainty"):
         EvalConfig(uncertainty="bald")
+
+
+def unfinished_copy(run: Path, dest: Path, planned: int) -> Path:
+    """A copy of a finished run whose config.json plans ``planned`` epochs: what an interrupted
+    training leaves (its checkpoint saved after fewer epochs than planned)."""
+    shutil.copytree(run, dest)
+    config = json.loads((dest / "config.json").read_text())
+    config["epochs"] = planned
+    (dest / "config.json").write_text(json.dumps(config))
+    return dest
+
+
+def test_an_unreachable_risk_level_and_an_unfinished_run_are_said(setup, tmp_path):
+    """risk:0.05 on 2 validation images (alpha < 1/(n+1) = 1/3) keeps every pixel uncertain whatever
+    the network: a warning, a line in report.md beside the threshold and report.json's threshold say
+    so with the 19 images it needs; a run stopped at epoch 1 of 10 is evaluated with a warning."""
+    dataset, run, _, _ = setup
+    partial = unfinished_copy(run, tmp_path / "run", planned=10)
+    out = tmp_path / "report"
+    with pytest.warns(HdWarning) as caught:
+        result = evaluate_to_report(
+            partial, dataset, out, EvalConfig(mc_samples=2, threshold="risk:0.05"), figures=False
+        )
+    said = [str(w.message) for w in caught if issubclass(w.category, HdWarning)]
+    assert any("1 of its 10 epochs trained" in m and "unfinished" in m for m in said), said
+    assert any("risk:0.05 cannot be certified with 2 validation image(s)" in m and "at least 19" in m for m in said)
+    th = json.loads((out / "report.json").read_text())["threshold"]
+    assert th["unreachable"] is True and th["needs_images"] == 19 and th["calibration_images"] == 2
+    assert th["value_nats"] == 0.0
+    md = (out / "report.md").read_text().splitlines()
+    at = next(i for i, line in enumerate(md) if line.startswith("- threshold `risk:0.05`"))
+    assert md[at + 1].startswith("- **unreachable risk level**: risk:0.05 cannot be certified") and "19" in md[at + 1]
+    assert "unreachable with 2 validation images: it needs 19" in result.summary()
+    reachable = EvalConfig(mc_samples=2, threshold="risk:0.5")
+    assert evaluate_to_report(run, dataset, tmp_path / "r2", reachable, figures=False).threshold["unreachable"] is False

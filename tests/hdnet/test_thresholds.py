@@ -148,3 +148,27 @@ def test_a_fixed_threshold_in_nats_is_a_spec_like_the_others():
     with pytest.raises(HdNetError, match="nats:H"):
         parse_threshold_spec("entropy:0.2")
     assert "nats:H" in SPEC_FORMS
+
+
+@pytest.mark.parametrize(("alpha", "needed"), [(0.05, 19), (0.01, 99), (0.1, 9), (0.3, 3), (1 / 3, 2), (0.5, 1)])
+def test_a_risk_level_below_one_over_n_plus_one_is_unreachable_and_says_how_many_images_it_needs(alpha, needed):
+    """With n calibration images, risk:ALPHA keeps every pixel uncertain whatever the network when
+    ALPHA < 1/(n+1): the images it needs are counted as the rule counts them (images, not pixels)."""
+    from hdnet.thresholds import risk_images_needed, risk_reach, unreachable_risk_words
+
+    assert risk_images_needed(alpha) == needed
+
+    def perfect(n: int) -> EntropyCalibration:  # n images of 4 pixels, never false-safe
+        cal = EntropyCalibration()
+        cal.update(
+            torch.full((n, 1, 4), 0.2), torch.ones(n, 1, 4, dtype=torch.long), torch.ones(n, 1, 4, dtype=torch.long)
+        )
+        return cal
+
+    assert select_threshold(f"risk:{alpha}", perfect(needed)) == math.inf  # reachable: every pixel certain
+    if needed > 1:
+        assert select_threshold(f"risk:{alpha}", perfect(needed - 1)) == 0.0  # one image short: nothing certain
+        assert risk_reach(alpha, needed - 1) == {"unreachable": True, "needs_images": needed}
+    assert risk_reach(alpha, needed) == {"unreachable": False, "needs_images": needed}
+    words = unreachable_risk_words("risk:0.05", 6, 19)
+    assert "6 validation image(s)" in words and "at least 19 validation images" in words and "0.143" in words
