@@ -52,7 +52,9 @@ from lidarsim.storage import (
     OutputTransaction,
     check_not_input,
     check_output_dir,
+    read_regular_bytes,
     read_regular_text,
+    sha256_bytes,
 )
 
 RUN_FILES = (LAST, BEST, METRICS, CONFIG)
@@ -105,6 +107,43 @@ def training_data(
 
 def _also_datasets(also: tuple[str | os.PathLike, ...]) -> tuple[AlsoDataset, ...]:
     return tuple(AlsoDataset(str(Path(d).resolve()), sha256_file(Path(d) / MANIFEST_NAME)) for d in also)
+
+
+def _manifest_sha256(dataset_dir: Path) -> str | None:
+    """The sha256 of a dataset's manifest; None when it has none (the dataset's readers say why).
+
+    Raises:
+        StorageError: a manifest that is not a regular file (a FIFO is never opened) or unreadable.
+    """
+    manifest = dataset_dir / MANIFEST_NAME
+    return sha256_bytes(read_regular_bytes(manifest)) if os.path.lexists(manifest) else None
+
+
+def check_distinct_datasets(dataset_dir: str | os.PathLike, also: tuple[str | os.PathLike, ...]) -> None:
+    """Refuse a mix (``--also``) that names the same data twice: two arguments that resolve to the
+    same directory (the dataset itself again, a symbolic link to it), or whose manifests are the same
+    bytes (a copy elsewhere: the manifest lists every file's sha256). Such a mix would train on the
+    same scans twice per epoch and record two datasets where there is one.
+
+    Raises:
+        HdNetError: naming the two arguments, as given, that are the same data.
+    """
+    seen: list[tuple[str, Path, str | None]] = []
+    for name, given in ((f"DATASET {dataset_dir}", dataset_dir), *((f"--also {d}", d) for d in also)):
+        root = Path(given).resolve()
+        digest = _manifest_sha256(root)
+        for earlier, earlier_root, earlier_digest in seen:
+            if root == earlier_root:
+                why = f"the same directory, {root}"
+            elif digest is not None and digest == earlier_digest:
+                why = f"byte-identical manifests, sha256 {digest[:12]}..."
+            else:
+                continue
+            raise HdNetError(
+                f"{earlier} and {name} are the same data ({why}): a mix would train on their scans twice; "
+                "give each dataset once."
+            )
+        seen.append((name, root, digest))
 
 
 def is_run_dir(run_dir: str | os.PathLike) -> bool:
@@ -351,12 +390,14 @@ def fit(dataset_dir: str | os.PathLike, run_dir: str | os.PathLike, config: FitC
     """Train a model on ``dataset_dir`` as ``config`` says (default: ``FitConfig()``); returns ``last.pt``.
 
     Raises:
-        HdNetError: a bad run directory (see ``prepare_run_dir``), a dataset without labels, a sigma
-            not in the dataset, an empty training or validation split, an unknown profile, or
-            anything ``hdnet.train.train`` refuses.
+        HdNetError: a bad run directory (see ``prepare_run_dir``), a mix that names the same data
+            twice (``check_distinct_datasets``), a dataset without labels, a sigma not in the dataset,
+            an empty training or validation split, an unknown profile, or anything
+            ``hdnet.train.train`` refuses.
     """
     cfg = config if config is not None else FitConfig()
     resume, overwrite, labels = cfg.resume, cfg.overwrite, cfg.labels
+    check_distinct_datasets(dataset_dir, cfg.also)
     if already_trained(dataset_dir, run_dir, cfg):
         return Path(run_dir).resolve() / LAST
     run_path, _ = prepare_run_dir(run_dir, resume, overwrite, dataset_dir)

@@ -74,7 +74,7 @@ def train_job(
         StorageError / LabelStoreError: no dataset, no labels, an unknown labelling (before anything
             else is read or written).
     """
-    from hdnet.fit import FitConfig, already_trained, fit
+    from hdnet.fit import FitConfig, already_trained, check_distinct_datasets, fit
     from hdnet.pipeline import training_done_message
     from hdnet.preflight import check_dataset
     from hdnet.run_summary import run_record
@@ -85,6 +85,7 @@ def train_job(
     options["also"] = tuple(str(d) for d in options.get("also", ()))
     config = settings_from_options(FitConfig, options, progress=progress, **noise)
     check_dataset(dataset, config.labels)  # the dataset and its labelling before any run or data is touched
+    check_distinct_datasets(dataset, config.also)
     if already_trained(dataset, run_dir, config):
         n = config.epochs if config.epochs is not None else config.training_profile().epochs
         said = (

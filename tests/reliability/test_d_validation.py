@@ -218,6 +218,52 @@ def test_train_refuses(case, args, needle, places, labelled, monkeypatch):
     assert _snapshot(places["tmp"]) == before
 
 
+def _other_data(labelled, place):
+    """A dataset of other data for the mix checks: a copy of ``labelled`` with its manifest written
+    in another layout (another sha256; the same scans, which these checks do not look at)."""
+    import json
+    import shutil
+
+    shutil.copytree(labelled, place)
+    manifest = place / "manifest.json"
+    manifest.write_text(json.dumps(json.loads(manifest.read_text()), indent=1))
+    return place
+
+
+MIXES = [
+    # (case, the --also arguments, the two arguments the error names)
+    ("dataset-again", ["{data}"], ("DATASET {data}", "--also {data}")),
+    ("link-to-dataset", ["{link}"], ("DATASET {data}", "--also {link}")),
+    ("copy-of-dataset", ["{copy}"], ("DATASET {data}", "--also {copy}")),
+    ("dataset-as-second-also", ["{other}", "{data}"], ("DATASET {data}", "--also {data}")),
+    ("same-also-twice", ["{other}", "{other}"], ("--also {other}", "--also {other}")),
+    ("link-to-an-also", ["{other}", "{other_link}"], ("--also {other}", "--also {other_link}")),
+]
+
+
+@pytest.mark.parametrize(("case", "also", "names"), MIXES, ids=[c[0] for c in MIXES])
+def test_train_refuses_a_mix_that_names_the_same_data_twice(case, also, names, labelled, tmp_path, monkeypatch):
+    """hd train DATASET --also DATASET (or a link to it, a byte-identical copy, the same --also twice)
+    trained on the same scans twice per epoch and recorded a mix of two datasets."""
+    import shutil
+
+    places = {"data": str(labelled), "link": str(tmp_path / "link"), "copy": str(tmp_path / "copy")}
+    places |= {"other": str(tmp_path / "other"), "other_link": str(tmp_path / "other-link")}
+    (tmp_path / "link").symlink_to(labelled)
+    shutil.copytree(labelled, tmp_path / "copy")
+    _other_data(labelled, tmp_path / "other")
+    (tmp_path / "other-link").symlink_to(tmp_path / "other")
+    _no_work(monkeypatch, ("hdnet.fit", "compute_normalisation"), ("hdnet.fit", "already_trained"))
+    argv = [x for a in also for x in ("--also", a.format(**places))]
+    before = _snapshot(tmp_path)
+    line = assert_one_line_error(
+        invoke("train", labelled, "--out", tmp_path / "run", "--profile", "tiny", *argv), "same data", "once"
+    )
+    for name in names:
+        assert name.format(**places) in line, (name, line)
+    assert _snapshot(tmp_path) == before
+
+
 EVAL = [
     ("out-under-proc", ["--out", "/proc/hd-report"], "/proc"),
     ("out-under-a-file", ["--out", "{file}/report"], "not a directory"),
