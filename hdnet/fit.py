@@ -15,6 +15,7 @@ not) and written under its writer lock, so two trainings never share a run direc
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import os
 import warnings
@@ -40,7 +41,7 @@ from hdnet.errors import HdNetError
 from hdnet.inputs import InputSpec, Normalisation
 from hdnet.noise_levels import TrainingNoise
 from hdnet.profiles import PROFILES, TrainingProfile, get_profile
-from hdnet.run_record import CONFIG, RUN_SCHEMA, AlsoDataset, TrainingData, read_run_record
+from hdnet.run_record import CONFIG, RUN_SCHEMA, AlsoDataset, TrainingData, checkpoint_data, read_run_record
 from hdnet.train import BEST, LAST, METRICS, load_checkpoint, train
 from lidarsim import limits as lidar_limits
 from lidarsim.errors import HdWarning
@@ -386,14 +387,56 @@ def _intact_last_epoch(path: Path) -> int | None:
     return epoch if isinstance(epoch, int) and not isinstance(epoch, bool) else None
 
 
+def _recorded_data(last: Path) -> TrainingData:
+    """The training data the checkpoint ``last`` records (its content checked first).
+
+    Raises:
+        HdNetError: a damaged checkpoint, or one that records no training data of ``hdnet.fit``.
+    """
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", HdWarning)  # said once, by the training that loads it next
+        ckpt = load_checkpoint(last)
+    return checkpoint_data(ckpt, last)
+
+
+def check_resumed_data(
+    run_dir: Path, dataset_dir: str | os.PathLike, entry: dict[str, Any], noise: TrainingNoise, also: tuple[str, ...]
+) -> None:
+    """Refuse to resume the run at ``run_dir`` on other data than its ``last.pt`` records, before any
+    data is read: the dataset (path and manifest sha256), the ``--also`` datasets, the labelling
+    (``entry``, its manifest entry) and the training noise. ``hdnet.train.train`` compares the whole
+    record (input preparation included) again when it loads the checkpoint.
+
+    Raises:
+        HdNetError: naming what differs, as recorded and as given, and what to do instead.
+    """
+    labels = entry.get("name")
+    for other in also:
+        open_labeling(other, labels)  # the clear "not a dataset" or "no such labelling" first
+    recorded = _recorded_data(run_dir / LAST)
+    root = Path(dataset_dir).resolve()
+    given = dataclasses.replace(
+        recorded,
+        dataset=str(root),
+        manifest_sha256=sha256_file(root / MANIFEST_NAME),
+        labels=labels,
+        labeling={k: v for k, v in entry.items() if k != "shards"},
+        train_noise=noise,
+        also=_also_datasets(also),
+    )
+    difference = recorded.difference(given)
+    if difference is not None:
+        raise HdNetError(difference.resume_refusal(run_dir))
+
+
 def fit(dataset_dir: str | os.PathLike, run_dir: str | os.PathLike, config: FitConfig | None = None) -> Path:
     """Train a model on ``dataset_dir`` as ``config`` says (default: ``FitConfig()``); returns ``last.pt``.
 
     Raises:
         HdNetError: a bad run directory (see ``prepare_run_dir``), a mix that names the same data
-            twice (``check_distinct_datasets``), a dataset without labels, a sigma not in the dataset,
-            an empty training or validation split, an unknown profile, or anything
-            ``hdnet.train.train`` refuses.
+            twice (``check_distinct_datasets``), a run resumed on other data than it was trained on
+            (``check_resumed_data``), a dataset without labels, a sigma not in the dataset, an empty
+            training or validation split, an unknown profile, or anything ``hdnet.train.train`` refuses.
     """
     cfg = config if config is not None else FitConfig()
     resume, overwrite, labels = cfg.resume, cfg.overwrite, cfg.labels
@@ -406,6 +449,8 @@ def fit(dataset_dir: str | os.PathLike, run_dir: str | os.PathLike, config: FitC
     profile = cfg.training_profile()
     entry, paths = open_labeling(dataset_dir, labels)  # the clear "no labels" error first
     noise = training_noise(cfg.train_noise, cfg.train_sigma_m, profile, dataset_sigmas(paths))
+    if resume and not overwrite and (run_path / LAST).exists():
+        check_resumed_data(run_path, dataset_dir, entry, noise, tuple(cfg.also))
     train_sigma_m = reference_sigma(noise, dataset_sigmas(paths))
     check_augment(profile.augment, lander_of(entry))
     normalisation = (

@@ -49,9 +49,12 @@ __all__ = [
     "RUN_SCHEMA",
     "RUN_SCHEMA_VERSION",
     "AlsoDataset",
+    "DataDifference",
     "RunRecord",
     "TrainingData",
     "checkpoint_data",
+    "extra_difference",
+    "json_difference",
     "migrate",
     "read_run_record",
     "unfinished_training",
@@ -119,6 +122,49 @@ class TrainingData:
         """The training datasets (:attr:`datasets`) that are not present any more (no manifest)."""
         return [d for d in self.datasets if not (Path(d) / MANIFEST_NAME).is_file()]
 
+    def difference(self, given: TrainingData) -> DataDifference | None:
+        """The first way ``given`` is not the training data this record names (None when it is).
+
+        In order: the dataset (its path, then its manifest's sha256), the ``--also`` datasets (the
+        same, in order: the order of a mix is its order of samples), the labelling (its name, then
+        its manifest entry), the training noise, the DEM shape, then the input preparation. Paths
+        are compared as recorded (absolute, resolved when the run was trained). A labelling entry
+        or DEM shape this record lacks (runs trained before they were recorded) is not a
+        difference: the dataset's manifest, compared first, fixes both.
+        """
+        if self.dataset != given.dataset:
+            return DataDifference("dataset", _or_none(self.dataset), _or_none(given.dataset))
+        if self.manifest_sha256 != given.manifest_sha256:
+            return DataDifference(
+                f"manifest of {self.dataset}", _sha(self.manifest_sha256), _sha(given.manifest_sha256)
+            )
+        if [a.dataset for a in self.also] != [a.dataset for a in given.also]:
+            return DataDifference("--also datasets", _also_text(self.also), _also_text(given.also))
+        for mine, theirs in zip(self.also, given.also, strict=True):
+            if mine.manifest_sha256 != theirs.manifest_sha256:
+                return DataDifference(
+                    f"manifest of --also {mine.dataset}", _sha(mine.manifest_sha256), _sha(theirs.manifest_sha256)
+                )
+        if self.labels != given.labels:
+            return DataDifference("labelling", _or_none(self.labels), _or_none(given.labels))
+        if self.train_noise != given.train_noise:
+            return DataDifference("training noise", self.train_noise.describe(), given.train_noise.describe())
+        if self.train_sigma_m != given.train_sigma_m:
+            return DataDifference(
+                "reference noise level", f"{self.train_sigma_m * 100:.4g} cm", f"{given.train_sigma_m * 100:.4g} cm"
+            )
+        mine_d, theirs_d = _plain_json(self.to_dict()), _plain_json(given.to_dict())
+        for key in ("labeling", "dem_shape"):
+            if mine_d.get(key) is None:
+                mine_d.pop(key, None)
+                theirs_d.pop(key, None)
+        names = {"labeling": "labelling's entry", "dem_shape": "DEM shape", "input": "input preparation"}
+        for key in sorted(set(mine_d) | set(theirs_d), key=lambda k: (k not in names, str(k))):
+            found = json_difference(mine_d.get(key), theirs_d.get(key), names.get(key, key))
+            if found is not None:
+                return found
+        return None
+
     def to_dict(self) -> dict[str, Any]:
         """The ``extra_config`` of schema version 2 (JSON types)."""
         out: dict[str, Any] = {
@@ -175,6 +221,75 @@ class TrainingData:
 
 def _optional_str(value: Any) -> str | None:
     return None if value is None else str(value)
+
+
+@dataclass(frozen=True)
+class DataDifference:
+    """One way two records of a run's training data differ: ``what`` differs (in words) and its
+    value in each record, as text (``recorded``: the run's; ``given``: the other one's)."""
+
+    what: str
+    recorded: str
+    given: str
+
+    def resume_refusal(self, run_dir: str | os.PathLike) -> str:
+        """The one line that refuses to continue the run at ``run_dir`` on the given data."""
+        return (
+            f"{run_dir} cannot be resumed on other data: {self.what}: recorded {self.recorded}, given "
+            f"{self.given}; the run's record would no longer say what it was trained on: train a new run "
+            "(another --out), or start this one again (--overwrite)."
+        )
+
+
+def _or_none(value: str | None) -> str:
+    return "(not recorded)" if value is None else value
+
+
+def _sha(value: str | None) -> str:
+    return f"sha256 {value[:12]}..." if value else "no sha256"
+
+
+def _also_text(also: tuple[AlsoDataset, ...]) -> str:
+    return " ".join(f"--also {a.dataset}" for a in also) if also else "no --also dataset"
+
+
+def _plain_json(value: Any) -> Any:
+    """``value`` as JSON reads it back (tuples as lists, every number as JSON writes it)."""
+    return json.loads(json.dumps(value, default=str))
+
+
+def _brief(value: Any, limit: int = 80) -> str:
+    text = json.dumps(value, sort_keys=True, default=str)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def json_difference(recorded: Any, given: Any, what: str) -> DataDifference | None:
+    """The first key (depth first, in sorted order) whose value differs between two JSON values
+    (None when they are equal); ``what`` names the whole value."""
+    if isinstance(recorded, dict) and isinstance(given, dict):
+        for key in sorted(set(recorded) | set(given), key=str):
+            found = json_difference(recorded.get(key), given.get(key), f"{what}'s {key}")
+            if found is not None:
+                return found
+        return None
+    if json.dumps(recorded, sort_keys=True, default=str) == json.dumps(given, sort_keys=True, default=str):
+        return None
+    return DataDifference(what, _brief(recorded), _brief(given))
+
+
+def extra_difference(recorded: Any, given: Any) -> DataDifference | None:
+    """The first way two runs' ``extra_config`` differ (None when they are the same), each read
+    through :func:`migrate`: as training data (:meth:`TrainingData.difference`) when both are records
+    of ``hdnet.fit``, else the first key whose value differs (``hdnet.train.train`` stores any JSON)."""
+    try:
+        mine = migrate({"extra_config": recorded})["extra_config"]
+        theirs = migrate({"extra_config": given})["extra_config"]
+    except HdNetError:
+        mine, theirs = recorded, given
+    try:
+        return TrainingData.from_dict(mine).difference(TrainingData.from_dict(theirs))
+    except HdNetError:
+        return json_difference(_plain_json(mine), _plain_json(theirs), "extra_config")
 
 
 @dataclass(frozen=True)

@@ -63,7 +63,7 @@ from hdnet.errors import HdNetError
 from hdnet.model import MODEL_NAME, BayesianSegNet, ModelConfig
 from hdnet.profiles import TrainingProfile, profile_from_dict
 from hdnet.run_files import BEST, LAST, METRICS  # and CONFIG, the run record (hdnet.run_record)
-from hdnet.run_record import RunRecord, write_run_record
+from hdnet.run_record import RunRecord, extra_difference, write_run_record
 from lidarsim.errors import HdWarning
 from lidarsim.storage import write_bytes_atomic
 
@@ -411,8 +411,10 @@ def train(
     """Train to ``epochs`` (default: the profile's) epochs in total; returns the path of ``last.pt``.
 
     ``train_ds``/``val_ds`` yield ``{"image": float32 (C, H, W), "mask": int64 (H, W)}`` (0 unsafe, 1 safe,
-    255 ignored). ``resume=True`` continues from ``run_dir/last.pt`` (from scratch if there is none);
-    without it an existing checkpoint in ``run_dir`` is an error. ``extra_config`` (JSON types) is
+    255 ignored). ``resume=True`` continues from ``run_dir/last.pt`` (from scratch if there is none)
+    when it was trained with the same model, profile and ``extra_config`` (the same data: the run
+    record is never rewritten to name other data); without it an existing checkpoint in ``run_dir``
+    is an error. ``extra_config`` (JSON types) is
     stored in config.json and in every checkpoint. ``class_weights`` (one per class) are used with
     ``profile.class_weighting == "balanced"``; without them they are counted from ``train_ds``.
     ``stop_after`` ends this call after that many completed epochs while the learning-rate schedule
@@ -427,7 +429,7 @@ def train(
     model_config = profile.model_config(in_channels)
     class_weights = _class_weights(profile, class_weights, train_ds, model_config.n_classes)
     last = run_dir / LAST
-    ckpt = _checkpoint_to_resume(run_dir, resume, model_config, profile, rank)
+    ckpt = _checkpoint_to_resume(run_dir, resume, model_config, profile, rank, extra)
     state = _start(profile, model_config, ckpt, class_weights, seed, rank, device, last)
     net: nn.Module = state.model
     if world > 1:
@@ -521,10 +523,16 @@ def _class_weights(
 
 
 def _checkpoint_to_resume(
-    run_dir: Path, resume: bool, model_config: ModelConfig, profile: TrainingProfile, rank: int
+    run_dir: Path,
+    resume: bool,
+    model_config: ModelConfig,
+    profile: TrainingProfile,
+    rank: int,
+    extra: dict[str, Any],
 ) -> dict[str, Any] | None:
-    """Step 3: the run's ``last.pt`` when resuming (None when there is none); refused without ``resume``
-    or when it was trained with another model or profile."""
+    """Step 3: the run's ``last.pt`` when resuming (None when there is none); refused without ``resume``,
+    when it was trained with another model or profile, or when its ``extra_config`` (the data it was
+    trained on) is not ``extra``: the run record written next would say it was trained on them."""
     last = run_dir / LAST
     if not last.exists():
         return None
@@ -539,6 +547,9 @@ def _checkpoint_to_resume(
     if checked_model_config(ckpt, last) != model_config or not same_profile:
         name = saved.get("name") if isinstance(saved, dict) else None
         raise HdNetError(f"checkpoint {last} was trained with another model or profile ({name!r}).")
+    difference = extra_difference(ckpt.get("extra_config") or {}, extra)
+    if difference is not None:
+        raise HdNetError(difference.resume_refusal(run_dir))
     _check_training_state(ckpt, last)
     if rank == 0:
         _reconcile_run(run_dir, ckpt)

@@ -92,6 +92,20 @@ def test_existing_run_without_resume_and_mismatched_profile_are_refused(tmp_path
         train(tmp_path / "r", tr, va, replace(PROFILE, width=1 / 8), epochs=2, resume=True, progress=False)
 
 
+def test_resume_with_another_extra_config_is_refused_and_the_record_kept(tmp_path: Path) -> None:
+    """train(resume=True) rewrote config.json with whatever extra_config it was given (the record of
+    what the run was trained on) and continued."""
+    tr, va = _datasets()
+    run = tmp_path / "r"
+    train(run, tr, va, PROFILE, epochs=1, progress=False, extra_config={"data": "a", "n": 1})
+    before = {p.name: p.read_bytes() for p in run.iterdir()}
+    with pytest.raises(HdNetError, match=r"extra_config's data: recorded \"a\", given \"b\"; .* train a new run"):
+        train(run, tr, va, PROFILE, epochs=2, resume=True, progress=False, extra_config={"data": "b", "n": 1})
+    assert {p.name: p.read_bytes() for p in run.iterdir()} == before
+    train(run, tr, va, PROFILE, epochs=2, resume=True, progress=False, extra_config={"n": 1, "data": "a"})
+    assert load_checkpoint(run / "last.pt")["epoch"] == 2
+
+
 def test_foreign_checkpoints_are_refused(tmp_path: Path) -> None:
     plain = tmp_path / "plain.pt"
     torch.save(BayesianSegNet(width=1 / 16).state_dict(), plain)

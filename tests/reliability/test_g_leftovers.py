@@ -201,3 +201,88 @@ def test_train_stopped_by_sigterm_is_clean_and_resumes(tmp_path, labelled, train
     b = torch.load(trained / "last.pt", weights_only=True)["model"]  # the same seed, uninterrupted
     assert all(torch.equal(a[k], b[k]) for k in a)
     assert [int(r["epoch"]) for r in _rows(run)] == [1]
+
+
+# ------------------------------------------------------------------------------------- a run's record stays true
+@pytest.fixture(scope="module")
+def mix(tmp_path_factory, labelled):
+    """Two labelled datasets of other data (the second: ``labelled`` with its manifest in another
+    layout, so another sha256) and a one-epoch tiny run on their mix."""
+    import json
+
+    root = tmp_path_factory.mktemp("mix")
+    other = root / "other"
+    shutil.copytree(labelled, other)
+    manifest = other / "manifest.json"
+    manifest.write_text(json.dumps(json.loads(manifest.read_text()), indent=1))
+    run = root / "run"
+    result = _train(labelled, run, "--also", other)
+    assert result.exit_code == 0, result.output
+    return other, run
+
+
+RESUMES = [
+    # (case, the run resumed: "mix" or "plain", the call's changes, what the error line names)
+    ("without-its-also", "mix", [], ["--also", "no --also dataset"]),
+    ("with-a-new-also", "plain", ["--also", "{other}"], ["--also", "{other}"]),
+    ("on-another-dataset", "plain", ["DATASET={other}"], ["dataset", "{other}", "{data}"]),
+    ("with-another-noise", "plain", ["--train-sigma", "0.05"], ["training noise", "1.67 cm", "5 cm"]),
+]
+
+
+@pytest.mark.parametrize(("case", "which", "changes", "needles"), RESUMES, ids=[c[0] for c in RESUMES])
+def test_resume_refuses_data_the_run_was_not_trained_on(
+    tmp_path, labelled, trained, mix, case, which, changes, needles
+):
+    """hd train --resume took whatever data it was given and rewrote config.json to say the whole
+    run was trained on them (and a finished run 'resumed' so was relabelled at no cost)."""
+    other, mixed = mix
+    run = tmp_path / "run"
+    shutil.copytree(mixed if which == "mix" else trained, run)
+    places = {"other": str(other), "data": str(labelled)}
+    data = other if "DATASET={other}" in changes else labelled
+    more = [c.format(**places) for c in changes if not c.startswith("DATASET=")]
+    before = _files(run)
+    line = assert_one_line_error(_train(data, run, "--resume", *more), "train a new run")
+    for needle in needles:
+        assert needle.format(**places) in line, (needle, line)
+    assert _files(run) == before
+
+
+def test_resume_refuses_a_dataset_changed_since(tmp_path, data_copy):
+    """The same dataset directory, its manifest no longer the one the run recorded."""
+    run = tmp_path / "run"
+    assert _train(data_copy, run).exit_code == 0
+    manifest = data_copy / "manifest.json"
+    manifest.write_text(manifest.read_text() + "\n")
+    before = _files(run)
+    line = assert_one_line_error(_train(data_copy, run, "--resume"), "manifest", "sha256", "train a new run")
+    assert str(data_copy) in line
+    assert _files(run) == before
+
+
+def test_resume_refuses_another_labelling(tmp_path, data_copy):
+    """A run trained on one labelling of a dataset, resumed with --labels naming another."""
+    result = invoke("label", data_copy, "--max-slope-deg", "8", "--workers", "1")
+    assert result.exit_code == 0, result.output
+    names = [p.name for p in sorted((data_copy / "labels").iterdir())]
+    assert len(names) == 2
+    run = tmp_path / "run"
+    assert _train(data_copy, run, "--labels", names[0]).exit_code == 0
+    before = _files(run)
+    line = assert_one_line_error(
+        _train(data_copy, run, "--resume", "--labels", names[1]), "labelling", "train a new run"
+    )
+    assert names[0] in line and names[1] in line
+    assert _files(run) == before
+
+
+def test_resume_on_the_runs_own_data_continues(tmp_path, labelled, mix):
+    other, mixed = mix
+    run = tmp_path / "run"
+    shutil.copytree(mixed, run)
+    result = invoke("train", labelled, "--out", run, "--profile", "tiny", "--epochs", "2", "--resume", "--also", other)
+    assert result.exit_code == 0, result.output
+    assert [int(r["epoch"]) for r in _rows(run)] == [1, 2]
+    assert invoke("inspect", run).exit_code == 0
+
