@@ -44,7 +44,7 @@ from hdnet.profiles import PROFILES, TrainingProfile, get_profile
 from hdnet.run_record import CONFIG, RUN_SCHEMA, AlsoDataset, TrainingData, checkpoint_data, read_run_record
 from hdnet.train import BEST, LAST, METRICS, load_checkpoint, train
 from lidarsim import limits as lidar_limits
-from lidarsim.errors import HdWarning
+from lidarsim.errors import HdWarning, StorageError
 from lidarsim.setting import DIRECTORY, check, setting
 from lidarsim.shards import MANIFEST_NAME, sha256_file
 from lidarsim.storage import (
@@ -53,6 +53,7 @@ from lidarsim.storage import (
     OutputTransaction,
     check_not_input,
     check_output_dir,
+    check_regular_file,
     read_regular_bytes,
     read_regular_text,
     sha256_bytes,
@@ -167,6 +168,8 @@ def prepare_run_dir(
         HdNetError: an unwritable place; a directory that is, holds or lies inside ``dataset``; a
             non-empty directory that is not an hd run (``overwrite`` or not: it replaces runs only);
             a run with a checkpoint and neither ``resume`` nor ``overwrite``.
+        StorageError: a run file (checkpoint, config.json, metrics.csv) that is not a regular file
+            (``overwrite`` or not).
     """
     path = check_output_dir(run_dir, "--out")
     check_not_input(run_dir, {"the dataset": dataset})
@@ -180,6 +183,12 @@ def prepare_run_dir(
             f"{path} is not empty and is not an hd run; choose another --out (--overwrite replaces an hd run, "
             "never other files)."
         )
+    for name in RUN_FILES:  # a FIFO, device or directory in a run file's place is not hd's: never opened nor replaced
+        if os.path.lexists(path / name):
+            try:
+                check_regular_file(path / name)
+            except StorageError as exc:
+                raise type(exc)(f"{exc}; move it away, or choose another --out") from exc
     if overwrite:
         return path, True
     if (path / LAST).exists() and not resume:

@@ -7,6 +7,7 @@ test compares what a resumed or repaired command leaves with them, byte for byte
 from __future__ import annotations
 
 import shutil
+import signal
 from pathlib import Path
 
 import pytest
@@ -64,3 +65,17 @@ def data_copy(tmp_path, labelled) -> Path:
     out = tmp_path / "copy"
     shutil.copytree(labelled, out)
     return out
+
+
+@pytest.fixture
+def no_hang():
+    """A read that blocks (a FIFO opened for reading waits for a writer) fails the test after 20 s."""
+
+    def _timeout(signum, frame):
+        raise TimeoutError("the read blocked")
+
+    previous = signal.signal(signal.SIGALRM, _timeout)
+    signal.alarm(20)
+    yield
+    signal.alarm(0)
+    signal.signal(signal.SIGALRM, previous)

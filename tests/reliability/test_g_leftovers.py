@@ -286,3 +286,15 @@ def test_resume_on_the_runs_own_data_continues(tmp_path, labelled, mix):
     assert [int(r["epoch"]) for r in _rows(run)] == [1, 2]
     assert invoke("inspect", run).exit_code == 0
 
+
+def test_resume_with_a_fifo_for_metrics_is_refused_at_once(tmp_path, labelled, trained, no_hang):
+    """A FIFO in the place of metrics.csv was replaced by a new file without a word."""
+    import os
+
+    run = tmp_path / "run"
+    shutil.copytree(trained, run)
+    (run / "metrics.csv").unlink()
+    os.mkfifo(run / "metrics.csv")
+    line = assert_one_line_error(_train(labelled, run, "--resume", "--epochs", "2"), "not a regular file")
+    assert "metrics.csv" in line
+    assert not (run / "metrics.csv").is_file() and (run / "metrics.csv").exists()  # the FIFO is left alone

@@ -288,20 +288,6 @@ def test_checksums_published_for_an_older_shard_schema_are_named_as_such(labelle
 
 
 # ---------------------------------------------------------------------------------------- not regular files
-@pytest.fixture
-def no_hang():
-    """A read that blocks (a FIFO opened for reading waits for a writer) fails the test after 20 s."""
-
-    def _timeout(signum, frame):
-        raise TimeoutError("the read blocked")
-
-    previous = signal.signal(signal.SIGALRM, _timeout)
-    signal.alarm(20)
-    yield
-    signal.alarm(0)
-    signal.signal(signal.SIGALRM, previous)
-
-
 @pytest.mark.parametrize("kind", ["fifo", "directory", "device", "socket"])
 def test_side_files_that_are_not_regular_files_are_refused_at_once(tmp_path, no_hang, kind):
     import socket
