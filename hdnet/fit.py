@@ -41,8 +41,9 @@ from hdnet.errors import HdNetError
 from hdnet.inputs import InputSpec, Normalisation
 from hdnet.noise_levels import TrainingNoise
 from hdnet.profiles import PROFILES, TrainingProfile, get_profile
-from hdnet.run_record import CONFIG, RUN_SCHEMA, AlsoDataset, TrainingData, checkpoint_data, read_run_record
-from hdnet.train import BEST, LAST, METRICS, load_checkpoint, train
+from hdnet.run_check import RUN_FILES, check_run
+from hdnet.run_record import CONFIG, RUN_SCHEMA, AlsoDataset, TrainingData, checkpoint_data
+from hdnet.train import LAST, load_checkpoint, train
 from lidarsim import limits as lidar_limits
 from lidarsim.errors import HdWarning, StorageError
 from lidarsim.setting import DIRECTORY, check, setting
@@ -58,8 +59,6 @@ from lidarsim.storage import (
     read_regular_text,
     sha256_bytes,
 )
-
-RUN_FILES = (LAST, BEST, METRICS, CONFIG)
 
 
 def input_spec_for(profile: TrainingProfile, spacing_m: float, normalisation: Normalisation | None) -> InputSpec:
@@ -355,45 +354,33 @@ def _mix(
 def already_trained(dataset_dir: str | os.PathLike, run_dir: str | os.PathLike, config: FitConfig) -> bool:
     """True when ``run_dir`` holds a finished run of exactly this training (``hd train`` run again):
     the same profile, epochs, seed, training noise, labelling and datasets (by manifest sha256), every
-    epoch done. ``--overwrite`` trains again; anything unreadable or different is not "the same"."""
+    epoch done, and its files intact and in step (``hdnet.run_check.check_run``). ``--overwrite``
+    trains again; anything unreadable, damaged, being trained or different is not "the same" (the
+    command then reads it and names the damage, or resumes it)."""
     if config.overwrite:
         return False
     run = Path(run_dir)
     try:
-        recorded = read_run_record(run)
-        data = recorded.data
-        epochs_done = len(read_regular_text(run / METRICS).splitlines()) - 1
+        checked = check_run(run)
         profile = config.training_profile()
         entry, paths = open_labeling(dataset_dir, config.labels)
         noise = training_noise(config.train_noise, config.train_sigma_m, profile, dataset_sigmas(paths))
     except (OSError, ValueError, HdNetError):
         return False
-    if not (run / LAST).is_file():
+    recorded, data = checked.record, checked.data
+    if data is None or checked.writer_pid is not None:
         return False
     epochs = profile.epochs if config.epochs is None else int(config.epochs)
     return (
         recorded.profile == json.loads(json.dumps(profile.to_dict()))
-        and recorded.epochs == epochs == epochs_done
+        and recorded.epochs == epochs == checked.epochs_done == len(checked.rows)
         and recorded.seed == config.seed
         and data.dataset == str(Path(dataset_dir).resolve())
         and data.manifest_sha256 == sha256_file(Path(dataset_dir) / MANIFEST_NAME)
         and data.labels == entry.get("name")
         and data.train_noise == noise
         and data.also == _also_datasets(tuple(config.also))
-        and _intact_last_epoch(run / LAST) == epochs
     )
-
-
-def _intact_last_epoch(path: Path) -> int | None:
-    """The epoch of a checkpoint that loads and matches its content checksum, else None (a damaged
-    ``last.pt`` is not a finished training: the command then reads it and names the damage)."""
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", HdWarning)  # a schema-1 checkpoint warns when it is used
-            epoch = load_checkpoint(path).get("epoch")
-    except HdNetError:
-        return None
-    return epoch if isinstance(epoch, int) and not isinstance(epoch, bool) else None
 
 
 def _recorded_data(last: Path) -> TrainingData:

@@ -1,13 +1,12 @@
 """What a run directory holds (``hd inspect RUN``): profile, training data and noise, epochs, metrics.
 
-Reads ``config.json`` (``hdnet.run_record``) and ``metrics.csv`` only (never the checkpoints' tensors), so it answers at
-once and works on a run whose checkpoints are being written.
+Every file is checked first (``hdnet.run_check.check_run``: config.json's schema, each checkpoint's
+content digest, metrics.csv against last.pt's history, the files against one another): a damaged or
+forged run is one error, never a summary.
 """
 
 from __future__ import annotations
 
-import csv
-import io
 import json
 import os
 from pathlib import Path
@@ -15,38 +14,25 @@ from typing import Any
 
 from hdnet.errors import HdNetError
 from hdnet.fit import is_run_dir
-from hdnet.run_record import CONFIG, TrainingData, read_run_record
-from hdnet.train import BEST, LAST, METRICS
-from lidarsim.storage import read_regular_text
+from hdnet.run_check import check_run
+from hdnet.run_record import CONFIG
+from hdnet.train import LAST
 
 __all__ = ["describe_run", "is_run_dir", "run_record"]
 
 
-def _metrics(path: Path) -> list[dict[str, float]]:
-    if not os.path.lexists(path):
-        return []
-    try:
-        text = read_regular_text(path)
-        return [{k: float(v) for k, v in row.items()} for row in csv.DictReader(io.StringIO(text, newline=""))]
-    except (OSError, ValueError, TypeError, csv.Error) as exc:
-        raise HdNetError(f"{path}: unreadable metrics ({exc}).") from exc
-
-
 def run_record(directory: str | os.PathLike) -> dict[str, Any]:
-    """A JSON-ready description of the run at ``directory``.
+    """A JSON-ready description of the run at ``directory``, every file checked first.
 
     Raises:
-        HdNetError: not a run, or an unreadable ``config.json``/``metrics.csv``.
+        HdNetError: not a run, or a damaged, forged or inconsistent run file (``check_run``).
+        StorageError: a run file that is not a regular file.
     """
     d = Path(directory)
     if not is_run_dir(d):
         raise HdNetError(f"{d} is not an hd run (no {CONFIG} or {LAST}).")
-    record = read_run_record(d)
-    try:
-        data: TrainingData | None = record.data
-    except HdNetError:  # a run of hdnet.train alone records no training data
-        data = None
-    rows = _metrics(d / METRICS)
+    run = check_run(d)
+    record, data, rows = run.record, run.data, run.rows
     best = min(rows, key=lambda r: r.get("val_loss", float("inf"))) if rows else None
     return {
         "run": str(d.resolve()),
@@ -55,9 +41,9 @@ def run_record(directory: str | os.PathLike) -> dict[str, Any]:
         "profile": record.profile_name,
         "model": record.model_config,
         "epochs_planned": record.epochs,
-        "epochs_done": len(rows),
-        "finished": bool(rows) and len(rows) >= record.epochs,
-        "checkpoints": [name for name in (LAST, BEST) if (d / name).is_file()],
+        "epochs_done": run.epochs_done,
+        "finished": run.epochs_done >= record.epochs,
+        "checkpoints": list(run.checkpoints),
         "dataset": None if data is None else data.dataset,
         "also": [] if data is None else [a.dataset for a in data.also],
         "labels": None if data is None else data.labels,
@@ -67,6 +53,7 @@ def run_record(directory: str | os.PathLike) -> dict[str, Any]:
         "input": None if data is None else data.input.to_dict(),
         "last_epoch": rows[-1] if rows else None,
         "best_epoch": best,
+        "writer_pid": run.writer_pid,
         "hd_version": record.hd_version,
         "torch_version": record.torch_version,
     }
@@ -82,7 +69,7 @@ def _noise_text(record: dict[str, Any]) -> str:
 
 
 def describe_run(directory: str | os.PathLike) -> str:
-    """A multi-line summary of the run at ``directory`` (``hd inspect RUN``)."""
+    """A multi-line summary of the run at ``directory`` (``hd inspect RUN``), every file checked first."""
     r = run_record(directory)
     lines = [
         f"run       {r['run']}",
@@ -99,8 +86,15 @@ def describe_run(directory: str | os.PathLike) -> str:
     for label, row in (("last", r["last_epoch"]), ("best", r["best_epoch"])):
         if row:
             lines.append(
-                f"{label:<9} epoch {int(row['epoch'])}: val loss {row['val_loss']:.4f}, val PA "
-                f"{row['val_pixel_accuracy']:.4f}, val mIoU {row['val_miou']:.4f}"
+                f"{label:<9} epoch {int(row['epoch'])}: val loss {_metric(row, 'val_loss')}, val PA "
+                f"{_metric(row, 'val_pixel_accuracy')}, val mIoU {_metric(row, 'val_miou')}"
             )
     lines.append(f"files     {', '.join(r['checkpoints']) or 'no checkpoint yet'}")
+    if r["writer_pid"] is not None:
+        lines.append(f"status    a training is at work in this run (PID {r['writer_pid']})")
     return "\n".join(lines)
+
+
+def _metric(row: dict[str, float], column: str) -> str:
+    """A validation metric to four decimals; ``n/a`` in a metrics.csv of an hd that did not write it."""
+    return f"{row[column]:.4f}" if column in row else "n/a"

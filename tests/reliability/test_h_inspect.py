@@ -92,3 +92,151 @@ def test_the_procedural_terrain_inside_a_dataset_is_checked(tmp_path):
         verify = invoke("verify", out)
         assert verify.exit_code == 1 and f"terrain/{tif.name}" in verify.output, damage
         assert_one_line_error(invoke("inspect", out), "damaged")
+
+
+# ------------------------------------------------------------------------------------- runs
+def _run_copy(trained, tmp_path):
+    run = tmp_path / "run"
+    shutil.copytree(trained, run)
+    return run
+
+
+def _reseal(path, change):
+    """Rewrite a checkpoint with ``change`` applied and its content digest made to match (a forgery)."""
+    import torch
+
+    from hdnet.train import checkpoint_digest
+
+    ckpt = torch.load(path, weights_only=True)
+    change(ckpt)
+    ckpt["content_sha256"] = checkpoint_digest({k: v for k, v in ckpt.items() if k != "content_sha256"})
+    torch.save(ckpt, path)
+
+
+def _edit_json(path, change):
+    record = json.loads(path.read_text())
+    change(record)
+    path.write_text(json.dumps(record))
+
+
+def _flip_weights(path):
+    import torch
+
+    ckpt = torch.load(path, weights_only=True)
+    raw = max(ckpt["model"].values(), key=lambda t: t.numel()).numpy().tobytes()
+    data = bytearray(path.read_bytes())
+    at = data.find(raw) + len(raw) // 2
+    data[at : at + 16] = bytes(b ^ 0x5A for b in data[at : at + 16])
+    path.write_bytes(bytes(data))
+
+
+def test_an_intact_run_is_summarised(trained):
+    result = invoke("inspect", trained)
+    assert result.exit_code == 0, result.output
+    assert "epochs    1 of 1 done" in result.output and "files     last.pt, best.pt" in result.output
+    record = json.loads(invoke("inspect", trained, "--json").output)
+    assert record["epochs_done"] == 1 and record["checkpoints"] == ["last.pt", "best.pt"]
+
+
+RUN_DAMAGE = [
+    # (file, damage, what the error line says besides the file's name)
+    ("last.pt", "truncated", "not a readable hdnet checkpoint"),
+    ("last.pt", "garbage", "not a readable hdnet checkpoint"),
+    ("last.pt", "flipped-weights", "checksum mismatch"),
+    ("last.pt", "digest-removed", "lacks its content_sha256"),
+    ("last.pt", "empty", "not a readable hdnet checkpoint"),
+    ("last.pt", "deleted", "missing"),
+    ("last.pt", "forged-dataset", "dataset"),
+    ("last.pt", "forged-model", "model"),
+    ("last.pt", "forged-epoch", "epoch"),
+    ("best.pt", "truncated", "not a readable hdnet checkpoint"),
+    ("best.pt", "garbage", "not a readable hdnet checkpoint"),
+    ("best.pt", "forged-dataset", "dataset"),
+    ("config.json", "forged-dataset", "dataset"),
+    ("config.json", "forged-labels", "labelling"),
+    ("config.json", "forged-profile", "profile"),
+    ("config.json", "input-garbage", "unreadable"),
+    ("config.json", "noise-garbage", "unreadable"),
+    ("config.json", "truncated", "unreadable run config"),
+    ("metrics.csv", "garbage", "metrics"),
+    ("metrics.csv", "text-garbage", "metrics"),
+    ("metrics.csv", "header-truncated", "metrics"),
+    ("metrics.csv", "row-truncated", "metrics"),
+    ("metrics.csv", "not-a-number", "metrics"),
+    ("metrics.csv", "forged-value", "val_loss"),
+    ("metrics.csv", "forged-extra-epoch", "epoch"),
+    ("metrics.csv", "emptied", "metrics"),
+]
+
+
+@pytest.mark.parametrize(("name", "damage", "needle"), RUN_DAMAGE, ids=[f"{f}-{d}" for f, d, _ in RUN_DAMAGE])
+def test_a_damaged_or_forged_run_is_never_summarised_as_normal(trained, tmp_path, name, damage, needle):
+    """hd inspect RUN read config.json and metrics.csv only: garbage, truncated and forged
+    checkpoints, a config.json that names other data than the checkpoints, and metrics.csv files
+    that are not the checkpoint's history were summarised with exit status 0."""
+    run = _run_copy(trained, tmp_path)
+    path = run / name
+    if damage == "truncated":
+        path.write_bytes(path.read_bytes()[: len(path.read_bytes()) // 2])
+    elif damage == "garbage":
+        path.write_bytes(os.urandom(4096))
+    elif damage == "empty":
+        path.write_bytes(b"")
+    elif damage == "deleted":
+        path.unlink()
+    elif damage == "flipped-weights":
+        _flip_weights(path)
+    elif damage == "digest-removed":
+        import torch
+
+        ckpt = torch.load(path, weights_only=True)
+        del ckpt["content_sha256"]
+        torch.save(ckpt, path)
+    elif name.endswith(".pt"):
+        _reseal(
+            path,
+            {
+                "forged-dataset": lambda c: c["extra_config"].update(dataset="/elsewhere/data"),
+                "forged-model": lambda c: c["model_config"].update(dropout_p=0.25),
+                "forged-epoch": lambda c: c.update(epoch=7),
+            }[damage],
+        )
+    elif name == "config.json":
+        _edit_json(
+            path,
+            {
+                "forged-dataset": lambda r: r["extra_config"].update(dataset="/elsewhere/data"),
+                "forged-labels": lambda r: r["extra_config"].update(labels="other-labels"),
+                "forged-profile": lambda r: r["profile"].update(name="paper"),
+                "input-garbage": lambda r: r["extra_config"].update(input="x"),
+                "noise-garbage": lambda r: r["extra_config"].update(train_noise={"levels_m": ["low"]}),
+            }[damage],
+        )
+    else:
+        text = path.read_text()
+        header, row = text.splitlines()
+        path.write_text(
+            {
+                "text-garbage": "garbage\n",
+                "header-truncated": header[:40] + "\n",
+                "row-truncated": header + "\n" + row[: len(row) // 2] + "\n",
+                "not-a-number": header + "\n" + row.replace(row.split(",")[2], "low", 1) + "\n",
+                "forged-value": header + "\n" + row.replace(row.split(",")[2], "0.001", 1) + "\n",
+                "forged-extra-epoch": text + row.replace("1,", "2,", 1) + "\n",
+                "emptied": "",
+            }[damage]
+        )
+    result = invoke("inspect", run)
+    line = assert_one_line_error(result, needle)
+    assert name in line, line
+    assert "profile   " not in result.output  # nothing of the summary is printed
+    assert_one_line_error(invoke("inspect", run, "--json"), needle)
+
+
+@pytest.mark.parametrize("name", ["config.json", "metrics.csv", "last.pt", "best.pt"])
+def test_a_fifo_in_a_run_is_refused_at_once(trained, tmp_path, no_hang, name):
+    run = _run_copy(trained, tmp_path)
+    (run / name).unlink()
+    os.mkfifo(run / name)
+    line = assert_one_line_error(invoke("inspect", run), "not a regular file")
+    assert name in line, line
