@@ -45,7 +45,12 @@ RUN_FILES = (LAST, BEST, METRICS, CONFIG)
 # What to do about each kind of damage (the end of the error line).
 REWRITE = "re-run the run's `hd train` command with --resume: it writes it again from last.pt"
 RESTORE = "restore the run from a copy, or train it again (`hd train ... --overwrite`)"
-MOVE_AWAY = "move it away (`hd train ... --resume` writes the run's own file again)"
+MOVE_AWAY = {
+    CONFIG: f"move it away, then {REWRITE}",
+    METRICS: f"move it away, then {REWRITE}",
+    LAST: f"move it away and {RESTORE}",
+    BEST: f"move it away and {RESTORE}",
+}
 
 
 @dataclass(frozen=True)
@@ -80,7 +85,7 @@ def check_run(directory: str | os.PathLike) -> CheckedRun:
             try:
                 check_regular_file(d / name)
             except StorageError as exc:
-                raise type(exc)(f"{exc}; {MOVE_AWAY}") from exc
+                raise type(exc)(f"{exc}; {MOVE_AWAY[name]}") from exc
     record, data = _read_record(d / CONFIG)
     rows = _read_metrics(d / METRICS)
     writer = lock_holder(d)
@@ -88,7 +93,7 @@ def check_run(directory: str | os.PathLike) -> CheckedRun:
     best = _read_checkpoint(d / BEST, record) if (d / BEST).exists() else None
     if last is None:
         if rows or best is not None:
-            held = f"{len(rows)} epoch(s) in {METRICS}" if rows else f"{BEST}"
+            held = f"{len(rows)} epoch(s) in {METRICS}" if rows else BEST
             raise HdNetError(f"{d / LAST} is missing, but the run holds {held}; {RESTORE}.")
         return CheckedRun(record, data, rows, 0, (), writer)
     _check_metrics(d / METRICS, rows, last, in_progress=writer is not None)
@@ -191,6 +196,8 @@ def _check_metrics(path: Path, rows: list[dict[str, float]], last: dict[str, Any
     with a training at work, one epoch more or less (it writes last.pt, then metrics.csv)."""
     epochs = int(last["epoch"])
     if len(rows) != epochs and not (in_progress and abs(len(rows) - epochs) <= 1):
+        if not os.path.lexists(path):
+            raise HdNetError(f"{path} is missing ({path.parent / LAST} holds {epochs} epoch(s)); {REWRITE}.")
         raise HdNetError(
             f"{path} lists {len(rows)} epoch(s), {path.parent / LAST} holds {epochs}: the run's files are out of "
             f"step; {REWRITE}."

@@ -298,3 +298,23 @@ def test_resume_with_a_fifo_for_metrics_is_refused_at_once(tmp_path, labelled, t
     line = assert_one_line_error(_train(labelled, run, "--resume", "--epochs", "2"), "not a regular file")
     assert "metrics.csv" in line
     assert not (run / "metrics.csv").is_file() and (run / "metrics.csv").exists()  # the FIFO is left alone
+
+
+@pytest.mark.parametrize("damage", ["forged-value", "missing"])
+def test_a_finished_run_with_damaged_metrics_is_not_already_done(tmp_path, labelled, trained, damage):
+    """The same hd train command took a finished run whose metrics.csv had as many lines as epochs for
+    done, whatever they held; now the damage is named and --resume writes the file again from last.pt."""
+    run = tmp_path / "run"
+    shutil.copytree(trained, run)
+    metrics = run / "metrics.csv"
+    if damage == "missing":
+        metrics.unlink()
+    else:
+        header, row = metrics.read_text().splitlines()
+        metrics.write_text(header + "\n" + row.replace(row.split(",")[2], "0.001", 1) + "\n")
+    assert_one_line_error(invoke("inspect", run), "metrics.csv", "--resume")
+    assert_one_line_error(_train(labelled, run), "already holds a checkpoint", "--resume")
+    result = _train(labelled, run, "--resume")
+    assert result.exit_code == 0, result.output
+    assert metrics.read_bytes() == (trained / "metrics.csv").read_bytes()
+    assert invoke("inspect", run).exit_code == 0
