@@ -28,7 +28,17 @@ from hdnet.shared_options import (
     scheduler_option,
     workers_option,
 )
-from hdnet.terminal import OUTPUT, HdGroup, ScanProgress, epoch_lines, friendly_errors, record, refuse_with_recipe, say
+from hdnet.terminal import (
+    OUTPUT,
+    HdGroup,
+    ScanProgress,
+    epoch_lines,
+    friendly_errors,
+    json_output,
+    record,
+    refuse_with_recipe,
+    say,
+)
 from lidarsim import limits
 from lidarsim._version import __version__
 from lidarsim.errors import LidarsimError
@@ -51,7 +61,10 @@ from lidarsim.setting import (
 @click.option("-q", "--quiet", is_flag=True, help="No progress and no summaries: errors and warnings only.")
 @click.option("--no-progress", is_flag=True, help="No progress bars (also: TQDM_DISABLE=1).")
 @click.option(
-    "--json", "as_json", is_flag=True, help="Each command's summary as one JSON object on stdout (for scripts)."
+    "--json",
+    "as_json",
+    is_flag=True,
+    help="Each command's summary as one JSON object on stdout (for scripts); a command without one refuses it.",
 )
 @click.pass_context
 def main(ctx: click.Context, quiet: bool = False, no_progress: bool = False, as_json: bool = False) -> None:
@@ -79,6 +92,7 @@ def main(ctx: click.Context, quiet: bool = False, no_progress: bool = False, as_
 @overwrite_option("Replace an existing dataset in --out.")
 @recipe_option("Build exactly the dataset of a recipe (datasets/<name>); the recipe fixes every content setting.")
 @click.pass_context
+@json_output
 @friendly_errors
 def build_dataset_cmd(ctx: click.Context, out_dir: Path | None, recipe: Path | None, **options: Any) -> None:
     """Simulate flash-LiDAR scans over a terrain and write clean and noisy point clouds as HDF5 shards."""
@@ -118,11 +132,12 @@ def _show(verdict: Verdict) -> None:
 @main.command("inspect")
 @click.argument("directory", type=DIRECTORY)
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as one JSON object (for scripts).")
+@json_output
 @friendly_errors
 def inspect_cmd(directory: Path, as_json: bool) -> None:
     """Summarise a dataset (scans, splits, noise levels, sensor, terrain, labels; every file checked) or a
     run (profile, training data and noise, epochs, metrics)."""
-    _show(inspect_directory(directory, as_json))
+    _show(inspect_directory(directory, as_json or OUTPUT.json))
 
 
 @main.command("verify")
@@ -144,6 +159,7 @@ def verify_cmd(directory: Path, recipe: Path | None) -> None:
 @scheduler_option()
 @recipe_option("Take the lander and DEM settings from a recipe's [label] section.")
 @click.pass_context
+@json_output
 @friendly_errors
 def label_cmd(ctx: click.Context, directory: Path, workers: int | None, recipe: Path | None, **options: Any) -> None:
     """Grid every scan into DEMs and add ALHAT labels and the baseline P(safe) to the dataset."""
@@ -170,6 +186,7 @@ def _done(done: Done) -> None:
 @main.command("train", cls=SettingsCommand, settings=("hdnet.fit:FitConfig", "hdnet.train_job:TrainingNoiseOptions"))
 @click.argument("dataset", type=DIRECTORY)
 @out_option("run_dir", "Run directory (checkpoints, metrics.csv, config.json).")
+@json_output
 @friendly_errors
 def train_cmd(dataset: Path, run_dir: Path, **options: Any) -> None:
     """Train the Bayesian SegNet on the noisy DEMs of a labelled dataset."""
@@ -185,6 +202,7 @@ def train_cmd(dataset: Path, run_dir: Path, **options: Any) -> None:
 )
 @out_option("out_dir", "Report directory (report.md, report.json, figures).")
 @overwrite_option("Replace an existing report (never other files, never an input).")
+@json_output
 @friendly_errors
 def eval_cmd(run_dir: Path, dataset: Path, out_dir: Path, overwrite: bool, **options: Any) -> None:
     """Evaluate a trained run: the paper's tables, threshold sweep, calibration, noise sweep and figures."""
@@ -201,6 +219,7 @@ def eval_cmd(run_dir: Path, dataset: Path, out_dir: Path, overwrite: bool, **opt
 @out_option("out_dir", "Output directory (maps, sites, overview, detect.json).", directory=False)
 @click_options(DetectSettings)
 @overwrite_option("Replace an earlier hd detect output in --out (never other files, never an input).")
+@json_output
 @friendly_errors
 def detect_cmd(
     run_dir: Path, out_dir: Path, dataset: Path | None, dtm_path: Path | None, overwrite: bool, **settings: Any
@@ -253,6 +272,7 @@ def reproduce_cmd(
     help="Scans to export: indices and ranges, e.g. 0,5,10-19 (default: every scan).",
 )
 @overwrite_option("Replace an earlier export in --out.")
+@json_output
 @friendly_errors
 def export_cmd(dataset: Path, out_dir: Path, scans_text: str | None, overwrite: bool, **options: Any) -> None:
     """Write scans as LAS 1.4 / LAZ point clouds for point-cloud tools (CloudCompare, PDAL), one file per scan,

@@ -131,18 +131,39 @@ def _close_progress_bars() -> None:
             bar.close()
 
 
+# The commands (their callbacks, as ``friendly_errors`` returns them) that honour ``hd --json``.
+_JSON_COMMANDS: set[Callable[..., Any]] = set()
+
+
+def json_output(command: Callable[..., Any]) -> Callable[..., Any]:
+    """Mark a command (above its ``@friendly_errors``) as one that prints its summary as JSON with
+    ``hd --json``; every other command refuses the flag."""
+    _JSON_COMMANDS.add(command)
+    return command
+
+
+def _refuse_json_unless(command: Callable[..., Any]) -> None:
+    """``hd --json`` with a command that has no JSON output: a usage error, never silently ignored."""
+    if OUTPUT.json and command not in _JSON_COMMANDS:
+        path = click.get_current_context().command_path
+        raise click.UsageError(f"{path} has no JSON output; run it without --json")
+
+
 def friendly_errors(func: Callable[..., Any]) -> Callable[..., Any]:
-    """Turn the packages' input errors into click errors: one line, exit status 1, no traceback."""
+    """Turn the packages' input errors into click errors: one line, exit status 1, no traceback.
+    ``hd --json`` is refused first unless the command is marked with :func:`json_output`."""
 
     @wraps(func)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
+        _refuse_json_unless(command)
         try:
             return func(*args, **kwargs)
         except BaseException:
             _close_progress_bars()
             raise
 
-    return _one_line_errors(wrapper)
+    command = _one_line_errors(wrapper)
+    return command
 
 
 def _one_line_errors(func: Callable[..., Any]) -> Callable[..., Any]:

@@ -126,3 +126,30 @@ def test_every_summary_comes_as_json_with_hd_json(data_and_run, tmp_path):
     assert trained["already_done"] is True and trained["epochs_done"] == 2
     evaluated = record("eval", str(run), "--data", str(data), "--out", str(tmp_path / "r"), "--mc-samples", "1")
     assert evaluated["command"] == "eval" and {r["method"] for r in evaluated["rows"]} >= {"uncertainty_aware"}
+
+
+def test_the_global_json_flag_is_honoured_by_inspect(data_and_run):
+    runner = CliRunner()
+    for directory, kind in zip(data_and_run, ("hd.dataset", "hd.run"), strict=True):
+        result = runner.invoke(main, ["--json", "inspect", str(directory)])
+        assert result.exit_code == 0, result.output
+        assert json.loads(result.stdout)["kind"] == kind
+
+
+@pytest.mark.parametrize("command", ["make-dtm", "verify", "card", "demo", "reproduce"])
+def test_the_global_json_flag_is_refused_by_a_command_without_json_output(data_and_run, tmp_path, command):
+    data, _ = data_and_run
+    args = {
+        "make-dtm": [str(tmp_path / "t.tif")],
+        "verify": [str(data)],
+        "card": [str(data), "--recipe", str(tmp_path)],
+        "demo": ["--out", str(tmp_path / "demo"), "--scans", "2"],  # settings refused quickly, were it to run
+        "reproduce": ["--out", str(tmp_path / "repro"), "--recipe", str(tmp_path)],
+    }[command]
+    result = CliRunner().invoke(main, ["--json", command, *args])
+    lines = result.output.strip().splitlines()
+    assert result.exit_code == 2 and len(lines) == 1, result.output
+    assert lines[0].startswith("Error: ") and f" {command} has no JSON output; run it without --json" in lines[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == []  # refused before anything is written
+    help_text = CliRunner().invoke(main, ["--json", command, "--help"])
+    assert help_text.exit_code == 0 and "Usage:" in help_text.output
