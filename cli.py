@@ -32,7 +32,7 @@ from hdnet.terminal import (
     OUTPUT,
     HdGroup,
     ScanProgress,
-    epoch_lines,
+    epoch_progress,
     friendly_errors,
     json_output,
     record,
@@ -192,7 +192,7 @@ def train_cmd(dataset: Path, run_dir: Path, **options: Any) -> None:
     """Train the Bayesian SegNet on the noisy DEMs of a labelled dataset."""
     from hdnet.train_job import train_job
 
-    _done(train_job(dataset, run_dir, options, (epoch_lines if OUTPUT.lines else True) if OUTPUT.progress else False))
+    _done(train_job(dataset, run_dir, options, epoch_progress()))
 
 
 @main.command("eval", cls=SettingsCommand, settings=("hdnet.eval_settings:EvalConfig", "hdnet.eval_job:SweepOption"))
@@ -238,7 +238,7 @@ def detect_cmd(
 @friendly_errors
 def demo_cmd(out_dir: Path, workers: int | None, **settings: Any) -> None:
     """The whole chain at demo scale on the built-in procedural Mars terrain (re-running resumes)."""
-    say(run_demo(out_dir, DemoSettings(**settings), workers, click.echo, ScanProgress))
+    say(run_demo(out_dir, DemoSettings(**settings), workers, click.echo, ScanProgress, epoch_progress()))
 
 
 @main.command("reproduce")
@@ -258,7 +258,9 @@ def reproduce_cmd(
     1000 scans, 800/100/100) and its labels, training at 1.67 cm, Table 1, Table 2 (10 dropped pixels), threshold
     sweep and panels, plus the risk-controlled threshold (alpha = 0.05). Each stage is resumable; finished stages
     are skipped."""
-    run_reproduce(out_dir, recipe, dtm_path, ReproduceSettings(**settings), workers, click.echo, ScanProgress)
+    run_reproduce(
+        out_dir, recipe, dtm_path, ReproduceSettings(**settings), workers, click.echo, ScanProgress, epoch_progress()
+    )
 
 
 @main.command("export", cls=SettingsCommand, settings=("lidarsim.export:ExportSettings",))

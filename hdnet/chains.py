@@ -17,6 +17,10 @@ from hdnet.errors import HdNetError
 from lidarsim import limits as lidar_limits
 from lidarsim.setting import check, setting
 
+# How a training shows its epochs: a bar (True), nothing (False), or a function given each finished
+# epoch's metrics row and the number of epochs (``hdnet.train.train``'s ``progress``).
+EpochProgress = bool | Callable[[dict[str, Any], int], None]
+
 # hd reproduce's recipe, one that comes with hd (lidarsim.recipe.shipped_recipe).
 PAPER_RECIPE = "mars-paper"
 
@@ -49,12 +53,19 @@ class ReproduceSettings:
 
 
 def run_demo(
-    out_dir: Path, settings: DemoSettings, workers: int | None, echo: Callable[[str], Any], progress: Any
+    out_dir: Path,
+    settings: DemoSettings,
+    workers: int | None,
+    echo: Callable[[str], Any],
+    progress: Any,
+    train_progress: EpochProgress = True,
 ) -> str:
-    """Run the demo chain into ``out_dir`` (re-running resumes); returns what to try next."""
+    """Run the demo chain into ``out_dir`` (re-running resumes); returns what to try next.
+    ``train_progress``: how the training shows its epochs (``hdnet.train.train``'s ``progress``)."""
     from hdnet.pipeline import demo_next_steps, demo_pipeline, run_pipeline
 
-    run_pipeline(demo_pipeline(out_dir, settings.scans, settings.epochs), workers, echo=echo, progress=progress)
+    pipeline = demo_pipeline(out_dir, settings.scans, settings.epochs)
+    run_pipeline(pipeline, workers, echo=echo, progress=progress, train_progress=train_progress)
     return demo_next_steps(out_dir)
 
 
@@ -66,11 +77,13 @@ def run_reproduce(
     workers: int | None,
     echo: Callable[[str], Any],
     progress: Any,
+    train_progress: EpochProgress = True,
 ) -> None:
-    """Reproduce the paper from ``recipe`` (default: the shipped mars-paper), optionally on ``dtm``."""
+    """Reproduce the paper from ``recipe`` (default: the shipped mars-paper), optionally on ``dtm``;
+    ``train_progress`` as :func:`run_demo`'s."""
     from hdnet.pipeline import reproduce_pipeline, run_pipeline
     from lidarsim.recipe import shipped_recipe
 
     recipe = recipe if recipe is not None else shipped_recipe(PAPER_RECIPE)
     pipeline = reproduce_pipeline(out_dir, recipe, settings.profile, settings.epochs, dtm)
-    run_pipeline(pipeline, workers, echo=echo, progress=progress)
+    run_pipeline(pipeline, workers, echo=echo, progress=progress, train_progress=train_progress)

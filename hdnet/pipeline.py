@@ -278,10 +278,18 @@ def _paper_build() -> BuildConfig:
     return BuildSettings(sigmas_m=lidar_defaults.PAPER_SIGMAS_M).to_config()
 
 
-def run_pipeline(pipeline: Pipeline, workers: int | None, echo: Echo, progress: ProgressFactory) -> dict[str, float]:
+def run_pipeline(
+    pipeline: Pipeline,
+    workers: int | None,
+    echo: Echo,
+    progress: ProgressFactory,
+    train_progress: bool | Callable[[dict[str, Any], int], None] = True,
+) -> dict[str, float]:
     """Check, then run every stage of ``pipeline`` (finished ones are skipped); returns the stage times, seconds.
 
-    ``echo`` prints one message (stage headers, summaries); ``progress`` makes a progress bar.
+    ``echo`` prints one message (stage headers, summaries); ``progress`` makes a progress bar;
+    ``train_progress`` shows the training's epochs as ``hd train`` does (``hdnet.train.train``'s
+    ``progress``: a bar, nothing, or a function given each epoch's metrics row, e.g. one log line).
     """
     pipeline.check()
     log = StageLog(pipeline.out_dir, echo)
@@ -292,7 +300,7 @@ def run_pipeline(pipeline: Pipeline, workers: int | None, echo: Echo, progress: 
     if pipeline.inspect:
         _inspect(pipeline.dataset_dir, echo)
     with log.stage("train", pipeline.train_what):
-        _train(pipeline, echo)
+        _train(pipeline, echo, train_progress)
     for evaluation in pipeline.evaluations:
         with log.stage(evaluation.stage, evaluation.what):
             _evaluate_unless_done(pipeline, evaluation, echo, progress)
@@ -367,7 +375,7 @@ def _inspect(directory: Path, echo: Echo) -> None:
     echo(INTACT_STATUS)
 
 
-def _train(pipeline: Pipeline, echo: Echo) -> None:
+def _train(pipeline: Pipeline, echo: Echo, progress: bool | Callable[[dict[str, Any], int], None]) -> None:
     from hdnet.fit import FitConfig, fit
 
     config = FitConfig(
@@ -376,7 +384,7 @@ def _train(pipeline: Pipeline, echo: Echo) -> None:
         train_sigma_m=pipeline.train_sigma_m,
         seed=pipeline.seed,
         resume=True,
-        progress=True,
+        progress=progress,
     )
     checkpoint = fit(pipeline.dataset_dir, pipeline.run_dir, config)
     echo(training_done_message(checkpoint, pipeline.run_dir))

@@ -235,6 +235,15 @@ def epoch_lines(row: dict[str, Any], total: int) -> None:
     )
 
 
+def epoch_progress() -> bool | Callable[[dict[str, Any], int], None]:
+    """How a training shows its epochs (``hd train`` and the training stage of ``hd demo`` and
+    ``hd reproduce``): a bar on a terminal, :func:`epoch_lines` in a log, nothing with ``-q`` or
+    ``--no-progress``."""
+    if not OUTPUT.progress:
+        return False
+    return epoch_lines if OUTPUT.lines else True
+
+
 def say(text: str) -> None:
     """A command's summary on stdout, unless ``hd -q`` or ``hd --json`` (whose record replaces it)."""
     if not (OUTPUT.quiet or OUTPUT.json):

@@ -43,6 +43,7 @@ import json
 import math
 import os
 import random
+import sys
 import time
 import warnings
 from collections.abc import Callable
@@ -420,7 +421,8 @@ def train(
     ``stop_after`` ends this call after that many completed epochs while the learning-rate schedule
     still spans ``epochs`` (a run split over several calls; ``resume=True`` continues it exactly).
     ``progress``: a progress bar (True), none (False), or a callable given each finished epoch's
-    metrics row and the total number of epochs (e.g. one log line per epoch).
+    metrics row and the total number of epochs (e.g. one log line per epoch). With either, a resumed
+    run first writes one line to standard error: where it resumes (:func:`resume_line`).
     """
     total_epochs = profile.epochs if epochs is None else int(epochs)
     extra, in_channels = _check_inputs(train_ds, val_ds, total_epochs, num_workers, extra_config)
@@ -455,11 +457,13 @@ def train(
 
     bar = None
     report = progress if callable(progress) and rank == 0 else None
+    end_epoch = total_epochs if stop_after is None else max(state.start_epoch, min(total_epochs, int(stop_after)))
+    if progress is not False and rank == 0 and 0 < state.start_epoch < end_epoch:
+        print(resume_line(state.start_epoch, total_epochs, last), file=sys.stderr, flush=True)
     if progress is True and rank == 0:
         from tqdm.auto import tqdm
 
         bar = tqdm(total=total_epochs, initial=state.start_epoch, desc=f"train {profile.name}", unit="epoch")
-    end_epoch = total_epochs if stop_after is None else max(state.start_epoch, min(total_epochs, int(stop_after)))
     for epoch in range(state.start_epoch, end_epoch):
         train_loss, seconds, rate = _train_epoch(net, train_loader, state, profile, epoch, total_epochs, device)
         val_loss, accuracy, miou = _validate(net, val_loader, state.memory_format, device)
@@ -490,6 +494,11 @@ def train(
     if bar is not None:
         bar.close()
     return last
+
+
+def resume_line(epochs_done: int, total_epochs: int, checkpoint: Path) -> str:
+    """What a resumed training says before its first epoch (``hd train --resume``, a re-run ``hd demo``)."""
+    return f"train: resuming at epoch {epochs_done + 1} of {total_epochs} ({epochs_done} done, from {checkpoint})"
 
 
 def _check_inputs(

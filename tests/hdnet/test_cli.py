@@ -294,3 +294,16 @@ def test_eval_defaults_to_the_runs_labelling_and_detect_takes_an_alias(two_truth
     result = CliRunner().invoke(main, [*args, "--threshold", "nats:0.3", "--labels", "paper+terrain"])
     assert result.exit_code == 0, result.output
     assert json.loads((out / "detect.json").read_text())["input"]["labels"] == terrain
+
+
+def test_train_resume_says_where_it_resumes_before_its_epoch_lines(dataset, tmp_path):
+    from hdnet.fit import FitConfig, fit
+
+    run = tmp_path / "run"
+    fit(dataset, run, FitConfig(profile="tiny", epochs=2, stop_after=1, progress=False))  # stopped after epoch 1
+    args = ["train", str(dataset), "--out", str(run), "--profile", "tiny", "--epochs", "2", "--resume"]
+    result = CliRunner().invoke(main, args)
+    assert result.exit_code == 0, result.output
+    lines = result.output.splitlines()
+    assert lines[0] == f"train: resuming at epoch 2 of 2 (1 done, from {run.resolve() / 'last.pt'})", result.output
+    assert lines[1].startswith("train: epoch 2/2, train loss ") and lines[2].startswith("training done: ")

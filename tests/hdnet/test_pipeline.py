@@ -130,3 +130,33 @@ def test_a_tiny_pipeline_runs_every_stage_then_skips_them(tmp_path):
     assert f"report {tmp_path / 'out' / 'report'} already written" in text
     runs = json.loads((tmp_path / "out" / "stages.json").read_text())["runs"]
     assert len(runs) == 2 and set(runs[1]) == {"build", "label", "train", "eval"}
+
+
+def _tiny_pipeline(tmp_path: Path, epochs: int) -> Pipeline:
+    dtm = hills_dtm(tmp_path / "hills.tif")
+    build = BuildSettings(sigmas_m=(0.0167,), scans=20, resolution=48, shard_size=10, dtm_path=str(dtm))
+    return Pipeline(tmp_path / "out", build.to_config(), LabelSettings(), "tiny", epochs, (), train_what="tiny")
+
+
+def test_demo_training_prints_hd_trains_epoch_lines_and_says_where_it_resumes(tmp_path, monkeypatch):
+    from click.testing import CliRunner
+
+    import hdnet.pipeline
+    from cli import main
+
+    pipe = _tiny_pipeline(tmp_path, epochs=2)
+
+    def ctrl_c_after_the_first_epoch(row: dict, total: int) -> None:
+        raise KeyboardInterrupt  # the checkpoint of epoch 1 is written before the epoch is reported
+
+    with pytest.raises(KeyboardInterrupt):
+        run_pipeline(pipe, 1, echo=print, progress=lambda d, u: _NoBar(), train_progress=ctrl_c_after_the_first_epoch)
+    assert (pipe.run_dir / "last.pt").is_file()
+    monkeypatch.setattr(hdnet.pipeline, "demo_pipeline", lambda out_dir, scans, epochs: pipe)
+    result = CliRunner().invoke(main, ["demo", "--out", str(pipe.out_dir), "--workers", "1"])
+    assert result.exit_code == 0, result.output
+    lines = result.output.splitlines()
+    resumed = [k for k, line in enumerate(lines) if line.startswith("train: resuming at epoch 2 of 2")]
+    epoch = [k for k, line in enumerate(lines) if line.startswith("train: epoch 2/2, train loss ")]
+    assert len(resumed) == 1 and len(epoch) == 1 and resumed[0] < epoch[0], result.output
+    assert not any(line.startswith("train: epoch 1/2") for line in lines)  # done before the interruption
