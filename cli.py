@@ -90,20 +90,32 @@ def main(ctx: click.Context, quiet: bool = False, no_progress: bool = False, as_
     "refused before any work. Not recorded in the dataset.",
 )
 @overwrite_option("Replace an existing dataset in --out.")
-@recipe_option("Build exactly the dataset of a recipe (datasets/<name>); the recipe fixes every content setting.")
+@recipe_option(
+    "Build the dataset of a recipe (datasets/<name>): the recipe fixes every content setting but the size; "
+    "--scans or --shard-size with it build a deviation from the recipe, recorded in the manifest."
+)
 @click.pass_context
 @json_output
 @friendly_errors
 def build_dataset_cmd(ctx: click.Context, out_dir: Path | None, recipe: Path | None, **options: Any) -> None:
     """Simulate flash-LiDAR scans over a terrain and write clean and noisy point clouds as HDF5 shards."""
     from lidarsim.build_job import build_job
+    from lidarsim.recipe_deviation import SIZE_OPTIONS, SIZE_SETTINGS
 
     workers, scheduler, overwrite = options.pop("workers"), options.pop("scheduler"), options.pop("overwrite")
     max_shards = options.pop("max_shards")
+    resized = None
     if recipe is not None:
-        refuse_with_recipe(ctx, set(options), "every content setting", LidarsimError)
+        sizes = set(SIZE_SETTINGS)
+        refuse_with_recipe(
+            ctx,
+            set(options) - sizes,
+            f"every content setting but the size ({', '.join(SIZE_OPTIONS.values())})",
+            LidarsimError,
+        )
+        resized = {k: options[k] for k in sizes if ctx.get_parameter_source(k) is ParameterSource.COMMANDLINE}
     with ScanProgress("scans") as progress:
-        _done(build_job(out_dir, options, recipe, workers, scheduler, overwrite, progress, say, max_shards))
+        _done(build_job(out_dir, options, recipe, workers, scheduler, overwrite, progress, say, max_shards, resized))
 
 
 @main.command("make-dtm")

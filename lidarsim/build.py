@@ -50,6 +50,7 @@ from lidarsim.shards import (
     MANIFEST_NAME,
     MANIFEST_SCHEMA,
     MANIFEST_SCHEMA_VERSION,
+    MANIFEST_SCHEMA_VERSION_DEVIATION,
     SCAN_SCHEMA,
     SCAN_SCHEMA_VERSION_PLAIN,
     SPLIT_NAMES,
@@ -519,19 +520,42 @@ def _flatten(value: Any, prefix: str = "") -> dict[str, Any]:
     return {prefix.rstrip("."): value}
 
 
+def _changes(before: dict[str, Any], after: dict[str, Any]) -> list[tuple[str, Any, Any]]:
+    """(dotted key, value before, value after) of every setting that differs (``"absent"`` for a missing one)."""
+    flat_before, flat_after = _flatten(before), _flatten(after)
+    keys = sorted(set(flat_before) | set(flat_after))
+    return [
+        (k, flat_before.get(k, "absent"), flat_after.get(k, "absent"))
+        for k in keys
+        if flat_before.get(k, "absent") != flat_after.get(k, "absent")
+    ]
+
+
 def settings_difference(recorded: dict[str, Any], config: BuildConfig, limit: int = 4) -> str:
     """The settings that differ between a recorded build (manifest or state) and ``config``, for messages:
     ``sigmas_m [0.0167] -> [0.07], trajectory.n_scans 20 -> 40``."""
     old = recorded.get("config")
     if not isinstance(old, dict):
         return "its settings are not recorded"
-    before, after = _flatten(old), _flatten(config.to_dict())
-    keys = [k for k in sorted(set(before) | set(after)) if before.get(k, "absent") != after.get(k, "absent")]
-    if not keys:
+    changes = _changes(old, config.to_dict())
+    if not changes:
         return "the same recorded settings, another settings hash (a build of another hd version)"
-    shown = [f"{k} {json.dumps(before.get(k, 'absent'))} -> {json.dumps(after.get(k, 'absent'))}" for k in keys[:limit]]
-    more = f" and {len(keys) - limit} more" if len(keys) > limit else ""
+    shown = [f"{k} {json.dumps(before)} -> {json.dumps(after)}" for k, before, after in changes[:limit]]
+    more = f" and {len(changes) - limit} more" if len(changes) > limit else ""
     return "; ".join(shown) + more
+
+
+def setting_changes(recorded: Any, config: BuildConfig) -> list[tuple[str, Any, Any]]:
+    """(setting, recorded value, value of ``config``) for every setting in which a recorded build
+    configuration (a manifest's ``config``) differs from ``config``: dotted keys of
+    ``BuildConfig.to_dict`` (``trajectory.n_scans``), the DTM named by its file name as the settings
+    hash names it. Nothing when ``recorded`` is not a configuration."""
+    if not isinstance(recorded, dict):
+        return []
+    before = dict(recorded)
+    if isinstance(before.get("dtm_path"), str):
+        before["dtm_path"] = Path(before["dtm_path"]).name
+    return _changes(before, config.canonical_dict())
 
 
 def finished_identical(out_dir: Path, config: BuildConfig) -> dict[str, Any] | None:
@@ -701,6 +725,7 @@ def build_dataset(
     overwrite: bool = False,
     progress: Callable[[int, int], None] | None = None,
     max_shards: int = limits.MAX_SHARD_FILES,
+    recipe_deviation: dict[str, Any] | None = None,
 ) -> BuildSummary:
     """Build (or finish building) a dataset of clean and noisy scans.
 
@@ -712,6 +737,8 @@ def build_dataset(
         overwrite: replace an existing dataset at ``out_dir``.
         progress: called with (scans done, scans total) as shards finish.
         max_shards: the most shard files the build may write (:func:`check_shard_files`).
+        recipe_deviation: a recipe built at another size: the manifest's record of it
+            (``lidarsim.recipe_deviation``; the manifest is then schema version 1.1).
 
     Raises:
         LidarsimError: bad input (DTM, sizes, existing output, more shard files than ``max_shards``);
@@ -766,7 +793,7 @@ def build_dataset(
                 write_bytes_atomic(terrain.path, terrain.data)
             terrain.data = None
         make_subdir(out_dir, SHARD_DIR)
-        return _build_locked(out_dir, config, resume, terrain, workers, scheduler, progress, t_start)
+        return _build_locked(out_dir, config, resume, terrain, workers, scheduler, progress, t_start, recipe_deviation)
 
 
 def _warn_weak_inputs(config: BuildConfig, terrain: _BuildTerrain) -> None:
@@ -836,6 +863,7 @@ def _build_locked(
     scheduler: str | None,
     progress: Callable[[int, int], None] | None,
     t_start: float,
+    recipe_deviation: dict[str, Any] | None = None,
 ) -> BuildSummary:
     """The part of ``build_dataset`` that writes (called with the writer lock held)."""
     fingerprint = config.fingerprint()
@@ -849,7 +877,7 @@ def _build_locked(
     t_work = time.perf_counter()
     _run_shards(pending, records, config.trajectory.n_scans, n_workers, scheduler, progress)
     t_end = time.perf_counter()
-    manifest = _write_manifest(out_dir, config, terrain, splits, records)
+    manifest = _write_manifest(out_dir, config, terrain, splits, records, recipe_deviation)
     (out_dir / BUILD_STATE_NAME).unlink(missing_ok=True)
     new_scans = sum(t.nadir_xy.shape[0] for t in pending)
     rays = new_scans * config.sensor.rows * config.sensor.cols * config.footprint.samples**2
@@ -920,13 +948,19 @@ def _run_shards(
 
 
 def _write_manifest(
-    out_dir: Path, config: BuildConfig, terrain: _BuildTerrain, splits: np.ndarray, records: dict[int, ShardRecord]
+    out_dir: Path,
+    config: BuildConfig,
+    terrain: _BuildTerrain,
+    splits: np.ndarray,
+    records: dict[int, ShardRecord],
+    recipe_deviation: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """Step 5: ``manifest.json``, written last: the dataset is complete once it exists."""
+    """Step 5: ``manifest.json``, written last: the dataset is complete once it exists. A recipe's
+    deviation (1.1) is recorded only when there is one: every other manifest stays 1.0."""
     dtm_path = terrain.path
     manifest: dict[str, Any] = {
         "schema": MANIFEST_SCHEMA,
-        "schema_version": MANIFEST_SCHEMA_VERSION,
+        "schema_version": MANIFEST_SCHEMA_VERSION if recipe_deviation is None else MANIFEST_SCHEMA_VERSION_DEVIATION,
         "kind": "lidar-scans",
         "software": "hd",
         "software_version": __version__,
@@ -942,6 +976,8 @@ def _write_manifest(
         "shards": [records[i].to_dict() for i in sorted(records)],
         "labelings": [],
     }
+    if recipe_deviation is not None:
+        manifest["recipe_deviation"] = recipe_deviation
     write_json_atomic(out_dir / MANIFEST_NAME, manifest)
     return manifest
 

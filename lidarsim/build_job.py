@@ -26,18 +26,25 @@ def build_job(
     progress: Callable[[int, int], None] | None,
     echo: Callable[[str], None],
     max_shards: int = limits.MAX_SHARD_FILES,
+    resized: dict[str, Any] | None = None,
 ) -> Done:
     """Build the dataset of ``settings`` (BuildSettings' fields), or of ``recipe``, into ``out_dir``
     (None: named after the recipe, the DTM or the procedural terrain; ``echo`` says which), writing
     at most ``max_shards`` shard files (``--max-shards``, a bound of this command only: the dataset
     records nothing of it).
 
+    ``resized``: the size settings given with ``recipe`` (``scans``, ``shard_size``); a value other
+    than the recipe's is a deviation from it, said here and recorded in the manifest
+    (``lidarsim.recipe_deviation``).
+
     Raises:
         LidarsimError: an unusable output directory or scheduler address, a bad recipe or value,
-            before anything is written; and whatever ``build_dataset`` refuses.
+            a recipe's DTM that is not there, before anything is written; and whatever
+            ``build_dataset`` refuses.
     """
     from lidarsim.build import build_dataset, default_out_dir
-    from lidarsim.recipe import BuildSettings, load_recipe
+    from lidarsim.recipe import BuildSettings, check_recipe_dtm, load_recipe
+    from lidarsim.recipe_deviation import deviate
     from lidarsim.storage import check_output_dir
 
     if out_dir is not None:
@@ -47,9 +54,17 @@ def build_job(
 
         check_scheduler_address(scheduler)
     name = None
+    deviation = None
     if recipe is not None:
         loaded = load_recipe(recipe)
-        config, name = loaded.build, loaded.name
+        check_recipe_dtm(loaded)
+        config, deviation = deviate(loaded, resized or {})
+        name = loaded.name if deviation is None else deviation.out_dir_name()
+        if deviation is not None:
+            echo(
+                f"this build deviates from the recipe {loaded.name}: {deviation.words()} (recorded in its manifest; "
+                "`hd verify --recipe` names it)"
+            )
     else:
         dtm = settings.get("dtm_path")
         config = BuildSettings(**{**settings, "dtm_path": str(dtm) if dtm is not None else None}).to_config()
@@ -65,5 +80,9 @@ def build_job(
         overwrite=overwrite,
         progress=progress,
         max_shards=max_shards,
+        recipe_deviation=None if deviation is None else deviation.to_dict(),
     )
-    return Done([summary.paragraph()], {"command": "build-dataset", **dataclasses.asdict(summary)})
+    record = {"command": "build-dataset", **dataclasses.asdict(summary)}
+    if deviation is not None:
+        record["recipe_deviation"] = deviation.to_dict()
+    return Done([summary.paragraph()], record)

@@ -16,11 +16,13 @@ file fails either way: its chunks are read (fletcher32) to compute its fingerpri
 
 from __future__ import annotations
 
+import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from lidarsim.build import BuildConfig, setting_changes
 from lidarsim.errors import RecipeError
 from lidarsim.fingerprint import (
     FINGERPRINT_SCHEMA,
@@ -35,6 +37,7 @@ from lidarsim.fingerprint import (
     h5_fingerprint,
 )
 from lidarsim.recipe import CHECKSUMS_FILE, load_recipe
+from lidarsim.recipe_deviation import recorded_deviation
 from lidarsim.shards import read_manifest
 from lidarsim.storage import DamagedFileError, FormatError, StorageError, confine
 
@@ -238,14 +241,19 @@ class _Comparer:
 
 
 def compare_with_published(
-    manifest: dict[str, Any], recorded: dict[str, Any], directory: str | os.PathLike | None = None
+    manifest: dict[str, Any],
+    recorded: dict[str, Any],
+    directory: str | os.PathLike | None = None,
+    recipe_config: BuildConfig | None = None,
 ) -> PublishedComparison:
     """Compare a dataset (its manifest, and its files under ``directory``) with a recipe's published
     build (the parsed ``checksums.json``).
 
     Without ``directory`` only the sha256 are compared. Published labellings are compared with the
     dataset's labelling of the same name; one the dataset lacks is noted, not a problem (label the
-    dataset with the recipe to compare it).
+    dataset with the recipe to compare it). A dataset built at another size than its recipe's
+    (``lidarsim.recipe_deviation``) is named as such and not compared; one built with other
+    settings has them named against ``recipe_config`` (the recipe's own), when given.
 
     Raises:
         RecipeError: malformed published checksums.
@@ -253,8 +261,19 @@ def compare_with_published(
             version (``lidarsim.fingerprint``'s own error, passed on).
     """
     out = PublishedComparison()
+    try:
+        deviation = recorded_deviation(manifest)
+    except FormatError as exc:
+        out.problems.append(str(exc))
+        return out
+    if deviation is not None:
+        out.problems.append(
+            f"the dataset deviates from its recipe {deviation.recipe} ({deviation.words()}): its files are not the "
+            "published build's, their checksums are not compared"
+        )
+        return out
     if manifest.get("config_sha256") != recorded.get("config_sha256"):
-        out.problems.append("the dataset was built with other settings than the recipe's published build")
+        out.problems.append(_other_settings(manifest, recorded, recipe_config))
         return out
     # Checksums published before shard schema 1.1 do not record it: they are of 1.0 shards.
     shard_schema = str(recorded.get("shard_schema_version", "1.0"))
@@ -308,6 +327,32 @@ def compare_with_published(
     return out
 
 
+# hd choice: the differing settings a message names, the others counted.
+SHOWN_SETTINGS = 6
+
+
+def _other_settings(manifest: dict[str, Any], recorded: dict[str, Any], recipe_config: BuildConfig | None) -> str:
+    """Why a dataset's settings hash is not the published build's, naming the settings that differ
+    (the dataset's value, then the recipe's) when the recipe's own configuration is known."""
+    vague = "the dataset was built with other settings than the recipe's published build"
+    if recipe_config is None:
+        return vague
+    if manifest.get("config_sha256") == recipe_config.fingerprint():
+        return (
+            "the recipe's settings are not those of its published build (its checksums were published for "
+            "other settings): publish them again with `hd card`"
+        )
+    changes = setting_changes(manifest.get("config"), recipe_config)
+    if not changes:
+        why = "not recorded" if not isinstance(manifest.get("config"), dict) else "the same, another settings hash"
+        return f"{vague} (the dataset's settings: {why})"
+    shown = ", ".join(
+        f"{key} {json.dumps(mine)} (recipe: {json.dumps(theirs)})" for key, mine, theirs in changes[:SHOWN_SETTINGS]
+    )
+    more = f" and {len(changes) - SHOWN_SETTINGS} more" if len(changes) > SHOWN_SETTINGS else ""
+    return f"the dataset was built with other settings than the recipe's: {shown}{more}"
+
+
 def compare_with_recipe(
     directory: str | os.PathLike, recipe_dir: str | os.PathLike, content: bool = True
 ) -> PublishedComparison:
@@ -324,7 +369,7 @@ def compare_with_recipe(
     recorded = recipe.checksums()
     if recorded is None:
         raise RecipeError(f"{recipe.path.parent}: the recipe has no published {CHECKSUMS_FILE}")
-    return compare_with_published(read_manifest(directory), recorded, directory if content else None)
+    return compare_with_published(read_manifest(directory), recorded, directory if content else None, recipe.build)
 
 
 # The keys of ``checksums.json`` that name the fingerprint format of its ``content`` entries.

@@ -280,7 +280,8 @@ class RecipeMeta:
 
 @dataclass(frozen=True)
 class Recipe:
-    """A parsed recipe: the build configuration and the label settings (raw, for hdlabels)."""
+    """A parsed recipe: the build configuration and the label settings (raw, for hdlabels); ``dtm``:
+    its ``[build] dtm`` as written (a relative path is read beside the recipe file)."""
 
     name: str
     path: Path
@@ -288,6 +289,7 @@ class Recipe:
     label: dict[str, Any] = field(default_factory=dict)
     description: str = ""
     version: int = 1
+    dtm: str = ""
 
     def checksums(self) -> dict[str, Any] | None:
         """The recorded checksums of the published build, or None when the recipe has none."""
@@ -393,6 +395,8 @@ def load_recipe(path: str | os.PathLike) -> Recipe:
             dtm_path = Path(dtm) if Path(dtm).is_absolute() else (path.parent / dtm)
             values["dtm_path"] = str(dtm_path.resolve())
             if dtm_sha256:
+                if not dtm_path.is_file():
+                    raise RecipeError(missing_dtm_message(path, str(dtm), dtm_path))
                 _check_dtm_sha256(path, dtm_path, dtm_sha256)
         elif dtm_sha256:
             raise RecipeError(f"{path}: [build] dtm_sha256 is given without a dtm")
@@ -411,7 +415,31 @@ def load_recipe(path: str | os.PathLike) -> Recipe:
         label=dict(label),
         description=meta.description,
         version=meta.version,
+        dtm=str(build.get("dtm", "")),
     )
+
+
+def missing_dtm_message(recipe_path: Path, written: str, dtm_path: Path) -> str:
+    """A recipe's DTM is not there: where it was looked for, and why there (a relative path is read
+    beside the recipe file, not in the current directory)."""
+    where = f"{recipe_path}: its DTM {dtm_path.resolve()} does not exist"
+    if Path(written).is_absolute():
+        return where
+    return (
+        f'{where} (a relative dtm is read beside the recipe: dtm = "{written}"); copy the DTM beside the recipe '
+        "or give its absolute path"
+    )
+
+
+def check_recipe_dtm(recipe: Recipe) -> None:
+    """The recipe's DTM is there to be built from (a recipe is also read without it: ``hd verify
+    --recipe`` needs only its checksums).
+
+    Raises:
+        RecipeError: naming the file looked for and the recipe's own words for it.
+    """
+    if recipe.build.dtm_path is not None and not Path(recipe.build.dtm_path).is_file():
+        raise RecipeError(missing_dtm_message(recipe.path, recipe.dtm, Path(recipe.build.dtm_path)))
 
 
 def _check_dtm_sha256(recipe_path: Path, dtm_path: Path, expected: object) -> None:

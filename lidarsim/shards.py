@@ -51,6 +51,7 @@ __all__ = [
     "MANIFEST_NAME",
     "MANIFEST_SCHEMA",
     "MANIFEST_SCHEMA_VERSION",
+    "MANIFEST_SCHEMA_VERSION_DEVIATION",
     "SCAN_SCHEMA",
     "SCAN_SCHEMA_VERSION",
     "SCAN_SCHEMA_VERSION_PLAIN",
@@ -97,6 +98,8 @@ STATUS_CODES_PLAIN = "0 return, 1 miss, 2 dead element, 3 damaged element"
 STATUS_CODES = STATUS_CODES_PLAIN + ", 4 weak (signal below the detection threshold)"
 MANIFEST_SCHEMA = "hd.dataset-manifest"
 MANIFEST_SCHEMA_VERSION = "1.0"
+# The manifest of a recipe built at another size: 1.0 plus its ``recipe_deviation`` record.
+MANIFEST_SCHEMA_VERSION_DEVIATION = "1.1"
 MANIFEST_NAME = "manifest.json"
 # Settings of a build in progress; present only until its manifest is written.
 BUILD_STATE_NAME = ".hd-build.json"

@@ -354,8 +354,8 @@ def test_build_from_a_recipe_and_verify_against_its_checksums(tmp_path, dtm):
     )
     out = tmp_path / "d"
     runner = CliRunner()
-    bad = runner.invoke(main, ["build-dataset", "--recipe", str(recipe), "--out", str(out), "--scans", "9"])
-    assert bad.exit_code != 0 and "--scans" in bad.output and not out.exists()
+    bad = runner.invoke(main, ["build-dataset", "--recipe", str(recipe), "--out", str(out), "--resolution", "16"])
+    assert bad.exit_code != 0 and "--resolution" in bad.output and not out.exists()
     ok = runner.invoke(main, ["build-dataset", "--recipe", str(recipe), "--out", str(out), "--workers", "1"])
     assert ok.exit_code == 0, ok.output
     bad = runner.invoke(main, ["label", str(out), "--recipe", str(recipe), "--max-slope-deg", "8"])
@@ -380,6 +380,35 @@ def test_build_from_a_recipe_and_verify_against_its_checksums(tmp_path, dtm):
     assert bad.exit_code != 0 and "differs from the recipe's published build" in bad.output
     bad = runner.invoke(main, ["build-dataset", "--recipe", str(tmp_path / "nope"), "--out", str(tmp_path / "x")])
     assert bad.exit_code != 0 and "no such recipe" in bad.output
+
+
+def test_a_copied_recipe_reads_its_relative_dtm_beside_it_and_says_so_when_it_is_missing(tmp_path, dtm, monkeypatch):
+    import shutil
+
+    from lidarsim.recipe import load_recipe
+
+    original = tmp_path / "a"
+    original.mkdir()
+    shutil.copy(dtm, original / "site.tif")
+    (original / "recipe.toml").write_text('[build]\nscans = 4\nresolution = 16\ndtm = "site.tif"\n')
+    copy = tmp_path / "elsewhere" / "b"
+    copy.mkdir(parents=True)
+    shutil.copy(original / "recipe.toml", copy / "recipe.toml")  # the recipe copied without its DTM
+    monkeypatch.chdir(original)  # a DTM of that name in the current directory is not the recipe's
+    assert load_recipe(copy).build.dtm_path == str((copy / "site.tif").resolve())  # read without it (verify)
+    result = CliRunner().invoke(main, ["build-dataset", "--recipe", str(copy), "--out", str(tmp_path / "x")])
+    assert result.exit_code == 1 and result.output.strip().splitlines() == [
+        (
+            f"Error: {(copy / 'recipe.toml').resolve()}: its DTM {(copy / 'site.tif').resolve()} does not exist (a "
+            'relative dtm is read beside the recipe: dtm = "site.tif"); copy the DTM beside the recipe or give its '
+            "absolute path"
+        )
+    ]
+    assert not (tmp_path / "x").exists()
+    shutil.copy(dtm, copy / "site.tif")
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    assert load_recipe("b").build.dtm_path == str((copy / "site.tif").resolve())
+    assert load_recipe(original / "recipe.toml").build.dtm_path == str((original / "site.tif").resolve())
 
 
 @pytest.mark.parametrize("altitude_m", [1e6, 1e9])

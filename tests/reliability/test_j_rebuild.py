@@ -17,7 +17,7 @@ from typing import Any
 import h5py
 import numpy as np
 import pytest
-from reliability_kit import BUILD_ARGS, LABEL_ARGS, REPO, invoke
+from reliability_kit import BUILD_ARGS, LABEL_ARGS, REPO, assert_one_line_error, invoke
 
 from lidarsim.shards import read_manifest, sha256_file
 
@@ -247,3 +247,48 @@ def test_a_rebuild_computed_as_on_another_cpu_passes_with_identical_scans(tmp_pa
         assert f"{entry['path']}: identical (sha256)\n" in out_text
     for entry in manifest["labelings"][0]["shards"]:  # label maps: the same bits or a few rounding steps
         assert f"{entry['path']}: identical (sha256)\n" in out_text or f"{entry['path']}: rebuilt: " in out_text
+
+
+def test_a_build_deviating_from_its_recipe_in_size_is_recorded_and_named_by_verify(recipe, tmp_path):
+    out = tmp_path / "small"
+    args = ("build-dataset", "--recipe", recipe, "--scans", "4", "--shard-size", "1", "--workers", "1")
+    built = invoke(*args, "--out", out)
+    assert built.exit_code == 0, built.output
+    deviation = "--scans 4 (recipe: 8), --shard-size 1 (recipe: 2)"
+    assert f"deviates from the recipe reference: {deviation}" in built.output
+    manifest = read_manifest(out)
+    assert manifest["schema_version"] == "1.1" and manifest["recipe_deviation"] == {
+        "recipe": "reference",
+        "recipe_version": 1,
+        "settings": [
+            {"setting": "scans", "option": "--scans", "recipe": 8, "used": 4},
+            {"setting": "shard_size", "option": "--shard-size", "recipe": 2, "used": 1},
+        ],
+    }
+    code, _, err = verify(out, recipe)
+    assert code == 1 and err.splitlines()[0] == (
+        f"the dataset deviates from its recipe reference ({deviation}): its files are not the published build's, "
+        "their checksums are not compared"
+    ), err
+    assert invoke("verify", out).exit_code == 0  # the dataset itself is intact
+    assert_one_line_error(invoke("card", out, "--recipe", recipe), "not built from")
+    again = invoke(*args, "--out", out)
+    assert again.exit_code == 0 and "already holds this dataset" in again.output
+    assert_one_line_error(invoke("build-dataset", "--recipe", recipe, "--sigma", "0.03"), "--sigma", "--recipe")
+    same = invoke("build-dataset", "--recipe", recipe, "--scans", "8", "--out", tmp_path / "same", "--workers", "1")
+    assert same.exit_code == 0 and "deviates" not in same.output  # the recipe's own value is no deviation
+    assert "recipe_deviation" not in read_manifest(tmp_path / "same")
+    assert verify(tmp_path / "same", recipe)[0] == 0
+
+
+def test_verify_names_the_settings_a_dataset_was_built_with_other_than_its_recipes(recipe, dtm, tmp_path):
+    values = dict(zip(BUILD_ARGS[::2], BUILD_ARGS[1::2], strict=True)) | {"--scans": "6", "--seed": "4"}
+    out = tmp_path / "other"
+    args = [a for pair in values.items() for a in pair]
+    built = invoke("build-dataset", *args, "--dtm", dtm, "--out", out, "--workers", "1")
+    assert built.exit_code == 0, built.output
+    code, _, err = verify(out, recipe)
+    assert code == 1 and err.splitlines()[0] == (
+        "the dataset was built with other settings than the recipe's: seed 4 (recipe: 3), trajectory.n_scans 6 "
+        "(recipe: 8)"
+    ), err
