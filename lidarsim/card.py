@@ -16,7 +16,7 @@ from typing import Any
 
 from lidarsim.errors import RecipeError
 from lidarsim.published import FINGERPRINT_KEYS, content_fingerprints
-from lidarsim.recipe import CHECKSUMS_FILE, Recipe, load_recipe
+from lidarsim.recipe import CHECKSUMS_FILE, Recipe, load_recipe, shipped_recipe_dirs
 from lidarsim.shards import read_manifest
 from lidarsim.storage import write_text_atomic
 
@@ -96,6 +96,19 @@ def checksums_text(record: dict[str, Any]) -> str:
 SOURCE_FILE = "SOURCE.md"
 
 
+def recipe_reference(recipe: Recipe) -> str:
+    """How a card names its recipe in its commands: ``datasets/<name>`` for a recipe that comes with hd
+    (its place in a source checkout, which ``--recipe`` also finds by name); any other recipe by its
+    directory, relative to the current directory when it lies below it, else absolute."""
+    directory = recipe.path.parent
+    if any(directory.parent == shipped.resolve() for shipped in shipped_recipe_dirs()):
+        return f"datasets/{directory.name}"
+    try:
+        return str(directory.relative_to(Path.cwd().resolve()))
+    except ValueError:
+        return str(directory)
+
+
 def render_card(directory: str | os.PathLike, recipe: Recipe, machine: str = "") -> str:
     """Markdown card of the dataset at ``directory`` built from ``recipe``."""
     directory = Path(directory)
@@ -126,6 +139,7 @@ def render_card(directory: str | os.PathLike, recipe: Recipe, machine: str = "")
         if cfg.get("dtm_path") is None
         else f"`{dtm.get('name')}` (sha256 {dtm.get('sha256')})"
     )
+    where = recipe_reference(recipe)
     licence = PROCEDURAL_LICENCE if cfg.get("dtm_path") is None else "that of the DTM you supplied (check its source)"
     if (recipe.path.parent / SOURCE_FILE).is_file():
         licence = f"see `{SOURCE_FILE}` beside this card (where the DTM comes from, its credit and licence)"
@@ -151,13 +165,10 @@ def render_card(directory: str | os.PathLike, recipe: Recipe, machine: str = "")
         "",
         "## How to rebuild and check it",
         "```bash",
-        f"hd build-dataset --recipe datasets/{recipe.path.parent.name} --out {recipe.name}",
-        f"hd label {recipe.name} --recipe datasets/{recipe.path.parent.name}",
-        *(
-            f"hd label {recipe.name} --recipe datasets/{recipe.path.parent.name} --truth {truth}"
-            for truth in _other_truths(m, recipe)
-        ),
-        f"hd verify {recipe.name} --recipe datasets/{recipe.path.parent.name}   # vs. the published build",
+        f"hd build-dataset --recipe {where} --out {recipe.name}",
+        f"hd label {recipe.name} --recipe {where}",
+        *(f"hd label {recipe.name} --recipe {where} --truth {truth}" for truth in _other_truths(m, recipe)),
+        f"hd verify {recipe.name} --recipe {where}   # vs. the published build",
         "```",
         f"`{CHECKSUMS_FILE}` beside this card holds the sha256 and the content fingerprint of every file of the "
         "published build"

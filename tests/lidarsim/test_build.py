@@ -365,7 +365,11 @@ def test_build_from_a_recipe_and_verify_against_its_checksums(tmp_path, dtm):
     assert read_manifest(out)["labelings"][0]["lander"]["max_roughness_m"] == 0.25
     card = runner.invoke(main, ["card", str(out), "--recipe", str(recipe)])
     assert card.exit_code == 0, card.output
-    assert "safe" in (recipe / "card.md").read_text()
+    card_text = (recipe / "card.md").read_text()
+    assert "safe" in card_text
+    # the recipe where it is, not a datasets/<name> of a checkout it is not in
+    assert f"hd build-dataset --recipe {recipe} --out tiny" in card_text and "datasets/r" not in card_text
+    assert f"hd verify tiny --recipe {recipe}" in card_text
     assert runner.invoke(main, ["verify", str(out), "--recipe", str(recipe)]).exit_code == 0
     sums = json.loads((recipe / "checksums.json").read_text())
     sums["shards"][1]["sha256"] = "0" * 64  # the published bytes differ, their content is this shard's
@@ -409,6 +413,14 @@ def test_a_copied_recipe_reads_its_relative_dtm_beside_it_and_says_so_when_it_is
     monkeypatch.chdir(tmp_path / "elsewhere")
     assert load_recipe("b").build.dtm_path == str((copy / "site.tif").resolve())
     assert load_recipe(original / "recipe.toml").build.dtm_path == str((original / "site.tif").resolve())
+
+
+def test_a_card_names_a_recipe_that_comes_with_hd_by_its_place_in_the_checkout():
+    from lidarsim.card import recipe_reference
+    from lidarsim.recipe import load_recipe
+
+    for name in ("mars-paper", "mars-jezero"):
+        assert recipe_reference(load_recipe(name)) == f"datasets/{name}"  # the published cards' words
 
 
 @pytest.mark.parametrize("altitude_m", [1e6, 1e9])
