@@ -101,11 +101,26 @@ HEADER = (
 )
 
 
-def _table(rows: list[ReportRow]) -> list[str]:
+def _trained_on(row: ReportRow, run: dict[str, Any]) -> str:
+    """A row's "Train noise 1σ": the run's training noise as recorded (one level, the levels, or the
+    range drawn from, ``0 to 10 cm``); ``--`` for the baseline, which is not trained."""
+    if row.train_sigma_m is None:
+        return "--"
+    noise = run.get("train_noise") or {}
+    if noise.get("range_m"):
+        lo, hi = noise["range_m"]
+        return f"{lo * 100:.3g} to {hi * 100:.3g} cm"
+    levels = noise.get("levels_m") or []
+    if len(levels) > 1:
+        return ", ".join(f"{s * 100:.3g}" for s in levels) + " cm"
+    return _cm(row.train_sigma_m)
+
+
+def _table(rows: list[ReportRow], run: dict[str, Any]) -> list[str]:
     return [
         HEADER,
         *(
-            f"| {METHOD_NAMES.get(r.method, r.method)} | {_cm(r.train_sigma_m)} | {_cm(r.test_sigma_m)} | "
+            f"| {METHOD_NAMES.get(r.method, r.method)} | {_trained_on(r, run)} | {_cm(r.test_sigma_m)} | "
             f"{_pct(r.vc_fraction)} | {_num(r.pixel_accuracy)} | {_num(r.miou)} | {_num(r.precision)} | "
             f"{_num(r.sensitivity)} |"
             for r in rows
@@ -194,7 +209,7 @@ def report_markdown(result: EvaluationResult, figures: list[str] | None = None) 
                 ),
                 "",
             ]
-        out += [*_table(rows), ""]
+        out += [*_table(rows, run), ""]
         paper = _paper_table(rows) if run.get("paper_dataset", True) else []
         if paper:
             which = "Table 1" if table == "noise" else "Table 2"

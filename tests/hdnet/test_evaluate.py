@@ -292,6 +292,25 @@ def test_the_report_says_which_truth_the_run_was_scored_against(setup):
     assert "scored against the terrain truth" in report_markdown(terrain)
 
 
+def test_table_1_gives_the_training_noise_the_run_was_trained_on(setup):
+    import dataclasses
+
+    from hdnet.report import report_markdown
+
+    *_, result = setup
+
+    def train_cells(run: dict) -> set[str]:
+        md = report_markdown(dataclasses.replace(result, run=run))
+        table = md.split("## Table 1: noise levels")[1].split("\n\n")[1]
+        return {line.split(" | ")[1] for line in table.splitlines()[2:]}
+
+    assert train_cells(result.run) == {"--", "1.67 cm"}  # the baseline is not trained
+    ranged = {**result.run, "train_noise": {"kind": "range", "levels_m": [], "range_m": [0.0, 0.1]}}
+    assert train_cells(ranged) == {"--", "0 to 10 cm"}  # not the reference level of the range
+    levels = {**result.run, "train_noise": {"kind": "levels", "levels_m": [0.0167, 0.03, 0.07], "range_m": None}}
+    assert train_cells(levels) == {"--", "1.67, 3, 7 cm"}
+
+
 # --- the uncertainty score: predictive entropy (the default) or mutual information ---------------------
 # The threshold record of a default report: exactly the keys reports had before the score was a choice.
 DEFAULT_THRESHOLD_KEYS = {
