@@ -334,6 +334,8 @@ def validation_threshold(
         "value_nats": _finite_or_none(h_t),
         "mean_nats": h_mean,
         "mean_quantile": float(np.mean(val_scores < h_mean)),
+        # where another rule's H_t lies among the validation scores (the threshold sweep's axis)
+        **({} if spec.kind == "mean" else {"value_quantile": cal.fraction_below(h_t)}),
         "calibration_split": "val",
         "calibration_sigma_m": val.sigma_m,
         "calibration_images": cal.n_images,
@@ -542,6 +544,7 @@ def guard_above_training(th: ValidationThreshold, sigma_m: float, noise: Trainin
     value = min(th.value_nats, guard)
     info = dict(th.info, guarded=True, guard_precision=PRECISION_GUARD, guard_nats=_finite_or_none(guard))
     info["value_nats"] = _finite_or_none(value)
+    info["value_quantile"] = th.calibration.fraction_below(value)
     return ValidationThreshold(value, info, th.calibration, th.inference)
 
 
@@ -599,6 +602,7 @@ class _Thresholds:
                 "calibration_sigma_m": s,
                 "value_nats": th.info["value_nats"],
                 "mean_nats": th.info["mean_nats"],
+                "value_quantile": th.info.get("value_quantile", th.info["mean_quantile"]),
                 "guarded": bool(th.info.get("guarded", False)),
             }
             for s, th in sorted(self._by_sigma.items())

@@ -64,11 +64,41 @@ def reliability_diagram(result: EvaluationResult, path: Path) -> None:
 
 
 def threshold_sweep(result: EvaluationResult, path: Path) -> None:
+    """:func:`threshold_sweep_figure` saved to ``path`` (PNG)."""
+    fig = threshold_sweep_figure(result)
+    fig.savefig(path, dpi=DPI)
+    plt.close(fig)
+
+
+def used_threshold(threshold: dict[str, Any], sigma_m: float) -> tuple[str, float] | None:
+    """The threshold that scored the test split at ``sigma_m`` metres, as (label, validation quantile):
+    the report's own rule (``mean-entropy threshold`` for the paper's, ``threshold risk:0.05``...), its
+    own calibration at that noise level with ``--calibrate each`` (``(guarded)`` when the precision
+    guard lowered it). None when the report does not record where a rule other than the mean lies
+    (reports written before ``value_quantile``)."""
+    spec, kind = str(threshold.get("spec", "mean")), threshold.get("kind", "mean")
+    entry: dict[str, Any] = threshold
+    for own in threshold.get("per_sigma") or []:
+        if math.isclose(float(own.get("calibration_sigma_m", math.nan)), sigma_m, abs_tol=1e-12):
+            entry = own
+    guarded = bool(entry.get("guarded", False))
+    quantile = entry.get("value_quantile")
+    if quantile is None and kind == "mean" and not guarded:
+        quantile = threshold.get("mean_quantile")
+    if quantile is None:
+        return None
+    if kind == "mean" and not guarded:
+        return f"mean-{recorded_score(threshold).short} threshold", float(quantile)
+    return f"threshold {spec}" + (" (guarded)" if guarded else ""), float(quantile)
+
+
+def threshold_sweep_figure(result: EvaluationResult) -> Figure:
     """Precision and sensitivity of the uncertainty-aware map vs the threshold's validation quantile.
 
-    One panel per test sigma; dashed line: the threshold at the mean validation score (entropy or
-    mutual information, ``hdnet.uncertainty``; as a validation quantile); dotted lines: the ALHAT
-    baseline's precision and sensitivity at that sigma.
+    One panel per test sigma; dashed line: the threshold the report used at that sigma, labelled with
+    its rule (:func:`used_threshold`; the mean validation score, entropy or mutual information,
+    ``hdnet.uncertainty``, for the paper's rule); dotted lines: the ALHAT baseline's precision and
+    sensitivity at that sigma.
     """
     short = recorded_score(result.threshold).short
     sigmas = sorted({row["test_sigma_m"] for row in result.sweep})
@@ -78,7 +108,9 @@ def threshold_sweep(result: EvaluationResult, path: Path) -> None:
         q = [r["quantile"] for r in pts]
         ax.plot(q, [r["precision"] for r in pts], "o-", color="tab:blue", label="precision")
         ax.plot(q, [r["sensitivity"] for r in pts], "s-", color="tab:orange", label="sensitivity")
-        ax.axvline(result.threshold["mean_quantile"], color="k", ls="--", lw=1, label=f"mean-{short} threshold")
+        used = used_threshold(result.threshold, sigma)
+        if used is not None:
+            ax.axvline(used[1], color="k", ls="--", lw=1, label=used[0])
         base = [
             r for r in result.rows if r.table == "noise" and r.method == "alhat_baseline" and r.test_sigma_m == sigma
         ]
@@ -95,16 +127,25 @@ def threshold_sweep(result: EvaluationResult, path: Path) -> None:
             title=f"test sigma {sigma_label(sigma)}",
         )
     axes[0][0].set_ylabel("fraction")
-    axes[0][-1].legend(fontsize=7, loc="lower right")
+    own = {str(used_threshold(result.threshold, sigma)) for sigma in sigmas}
+    for ax in axes[0] if len(own) > 1 else axes[0][-1:]:  # a legend per panel when their thresholds differ
+        ax.legend(fontsize=7, loc="lower right")
     fig.tight_layout()
+    return fig
+
+
+def noise_sweep(result: EvaluationResult, path: Path) -> None:
+    """:func:`noise_sweep_figure` saved to ``path`` (PNG)."""
+    fig = noise_sweep_figure(result)
     fig.savefig(path, dpi=DPI)
     plt.close(fig)
 
 
-def noise_sweep(result: EvaluationResult, path: Path) -> None:
+def noise_sweep_figure(result: EvaluationResult) -> Figure:
     """PA, precision, sensitivity and V/C % against the test noise level (``sigma_sweep`` rows) for
     the ALHAT baseline, the base net and the uncertainty-aware map; the training noise range shaded
-    (or its levels marked)."""
+    (or its levels marked). The legend names every line of every panel (a method whose accuracy is
+    undefined everywhere, every pixel uncertain, is still drawn in the V/C panel)."""
     rows = [r for r in result.rows if r.table == "sigma_sweep"]
     methods = [
         ("alhat_baseline", "ALHAT baseline", "tab:gray"),
@@ -131,12 +172,16 @@ def noise_sweep(result: EvaluationResult, path: Path) -> None:
             if pts:
                 ax.plot([s * 100 for s, _ in pts], [v for _, v in pts], "o-", ms=3, color=colour, label=label)
         ax.set(xlabel="test noise 1σ (cm)", title=title, ylim=(0, 1.02))
-    handles, labels = axes[0].get_legend_handles_labels()
-    unique = dict(zip(labels, handles, strict=True))
-    axes[-1].legend(unique.values(), unique.keys(), fontsize=7, loc="lower left")
+    unique: dict[str, Any] = {}
+    for ax in axes:
+        handles, labels = ax.get_legend_handles_labels()
+        for label, handle in zip(labels, handles, strict=True):
+            unique.setdefault(label, handle)
+    order = ["training range", "training level", *(label for _, label, _ in methods)]
+    names = sorted(unique, key=lambda name: order.index(name) if name in order else len(order))
+    axes[-1].legend([unique[n] for n in names], names, fontsize=7, loc="lower left")
     fig.tight_layout()
-    fig.savefig(path, dpi=DPI)
-    plt.close(fig)
+    return fig
 
 
 def safety_legend_handles() -> list[Patch]:

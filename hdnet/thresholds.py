@@ -165,6 +165,11 @@ class EntropyCalibration:
         """The q-quantile of the valid-pixel entropies (nats; linear interpolation)."""
         return float(np.quantile(self._all(), q))
 
+    def fraction_below(self, threshold_nats: float) -> float:
+        """The validation quantile of a threshold: the fraction of valid pixels with entropy < H_t
+        (the pixels it leaves certain; 1 for an unbounded H_t)."""
+        return float(np.mean(self._all() < threshold_nats))
+
     def _false_safe(self) -> tuple[np.ndarray, np.ndarray]:
         if self.n_images == 0:
             raise HdNetError("no image was added to the entropy calibration set.")

@@ -8,11 +8,20 @@ matplotlib.use("Agg")
 
 import matplotlib.pyplot as plt
 import numpy as np
+import pytest
 from matplotlib.patches import Patch
 
 from hdnet import defaults
-from hdnet.figures import SAFETY_HEX, SAFETY_NAMES, _safety_codes, qualitative_figure, qualitative_panel
-from hdnet.results import SplitInference
+from hdnet.figures import (
+    SAFETY_HEX,
+    SAFETY_NAMES,
+    _safety_codes,
+    noise_sweep_figure,
+    qualitative_figure,
+    qualitative_panel,
+    threshold_sweep_figure,
+)
+from hdnet.results import EvaluationResult, ReportRow, SplitInference
 
 
 def _inference(n: int = 2, size: int = 8) -> SplitInference:
@@ -55,3 +64,68 @@ def test_safety_codes_put_uncertain_over_the_prediction_and_invalid_over_both():
     uncertain = np.array([[False, True, True]])
     assert _safety_codes(safe, label, uncertain).tolist() == [[1, 2, 3]]
     assert _safety_codes(~safe, label).tolist() == [[0, 0, 3]]
+
+
+def _legend_labels(fig) -> list[str]:
+    return [t.get_text() for ax in fig.axes if ax.get_legend() for t in ax.get_legend().get_texts()]
+
+
+def test_the_noise_sweep_legend_names_every_line_drawn_also_one_missing_from_the_first_panel():
+    nan = float("nan")
+    rows = [
+        ReportRow("sigma_sweep", "alhat_baseline", None, s, None, 0.9, 0.8, 0.95, 0.7) for s in (0.0, 0.05, 0.1)
+    ] + [ReportRow("sigma_sweep", "base_net", 0.05, s, None, 0.9, 0.8, 0.9, 0.8) for s in (0.0, 0.05, 0.1)]
+    # every pixel uncertain (V/C 0): the uncertainty-aware map has no accuracy, only its V/C line
+    rows += [ReportRow("sigma_sweep", "uncertainty_aware", 0.05, s, 0.0, nan, nan, nan, nan) for s in (0.0, 0.05, 0.1)]
+    result = EvaluationResult(rows, {}, [], {}, run={"train_noise": {"range_m": [0.0, 0.1], "levels_m": []}})
+    fig = noise_sweep_figure(result)
+    try:
+        assert _legend_labels(fig) == ["training range", "ALHAT baseline", "base net", "uncertainty-aware"]
+    finally:
+        plt.close(fig)
+
+
+def _sweep_result(threshold: dict) -> EvaluationResult:
+    sweep = [
+        {"test_sigma_m": s, "quantile": q, "precision": 0.9, "sensitivity": 0.5}
+        for s in (0.0167, 0.07)
+        for q in defaults.QUANTILE_SWEEP
+    ]
+    return EvaluationResult([], {"mean_quantile": 0.62, **threshold}, sweep, {})
+
+
+def _threshold_lines(fig) -> list[tuple[str, float]]:
+    return [
+        (line.get_label(), float(line.get_xdata()[0]))
+        for ax in fig.axes
+        for line in ax.get_lines()
+        if "threshold" in line.get_label()
+    ]
+
+
+@pytest.mark.parametrize(
+    ("threshold", "expected"),
+    [
+        ({"spec": "mean", "kind": "mean"}, [("mean-entropy threshold", 0.62)] * 2),
+        ({"spec": "risk:0.05", "kind": "risk", "value_quantile": 0.97}, [("threshold risk:0.05", 0.97)] * 2),
+        (  # calibrated at each test noise level: each panel its own threshold
+            {
+                "spec": "quantile:0.68",
+                "kind": "quantile",
+                "value_quantile": 0.68,
+                "per_sigma": [
+                    {"calibration_sigma_m": 0.0167, "value_quantile": 0.68, "guarded": False},
+                    {"calibration_sigma_m": 0.07, "value_quantile": 0.31, "guarded": True},
+                ],
+            },
+            [("threshold quantile:0.68", 0.68), ("threshold quantile:0.68 (guarded)", 0.31)],
+        ),
+        ({"spec": "risk:0.05", "kind": "risk"}, []),  # a report made before the quantile was recorded
+    ],
+)
+def test_the_threshold_sweep_marks_the_threshold_of_the_rule_used(threshold, expected):
+    fig = threshold_sweep_figure(_sweep_result(threshold))
+    try:
+        assert _threshold_lines(fig) == expected
+    finally:
+        plt.close(fig)
