@@ -245,18 +245,22 @@ def epoch_progress() -> bool | Callable[[dict[str, Any], int], None]:
 
 
 def say(text: str) -> None:
-    """A command's summary on stdout, unless ``hd -q`` or ``hd --json`` (whose record replaces it)."""
+    """A command's summary on stdout, unless ``hd -q`` or ``hd --json`` (whose record replaces it);
+    a progress bar still open is ended first, so that the summary starts on its own line."""
     if not (OUTPUT.quiet or OUTPUT.json):
+        _close_progress_bars()
         click.echo(text)
 
 
 def record(record: dict[str, Any]) -> None:
-    """A command's summary as one JSON object on stdout, with ``hd --json`` (even with ``-q``)."""
+    """A command's summary as one JSON object on stdout, with ``hd --json`` (even with ``-q``), after
+    any progress bar still open is ended."""
     if OUTPUT.json:
         import json
 
         from hdnet.report import json_plain
 
+        _close_progress_bars()
         click.echo(json.dumps(json_plain(record), default=str))  # paths as strings
 
 

@@ -153,3 +153,19 @@ def test_the_global_json_flag_is_refused_by_a_command_without_json_output(data_a
     assert sorted(p.name for p in tmp_path.iterdir()) == []  # refused before anything is written
     help_text = CliRunner().invoke(main, ["--json", command, "--help"])
     assert help_text.exit_code == 0 and "Usage:" in help_text.output
+
+
+def test_a_summary_ends_a_live_progress_bar_before_it_is_printed(capsys, monkeypatch):
+    from hdnet import terminal
+
+    monkeypatch.delenv("TQDM_DISABLE", raising=False)
+    for name, value in (("progress", True), ("lines", False), ("quiet", False), ("json", False)):
+        monkeypatch.setattr(terminal.OUTPUT, name, value)
+    with terminal.ScanProgress("scans") as progress:  # a bar on a terminal, as hd build-dataset draws it
+        progress(3, 3)
+        assert not capsys.readouterr().err.endswith("\n")  # the bar's line is still open
+        terminal.say("Built 3 scans")
+        captured = capsys.readouterr()
+    assert captured.err.endswith("\n") and captured.out == "Built 3 scans\n"  # the bar ended first
+    progress(3, 3)  # a late update of the ended bar draws nothing
+    assert capsys.readouterr().err == ""
