@@ -43,7 +43,7 @@ from lidarsim import limits
 from lidarsim._version import __version__
 from lidarsim.errors import LidarsimError
 from lidarsim.make_dtm import DtmSettings
-from lidarsim.outcome import Done
+from lidarsim.outcome import Done, counted
 from lidarsim.setting import (
     DIRECTORY,
     FILE_OR_DIRECTORY,
@@ -313,7 +313,7 @@ def card_cmd(dataset: Path, recipe: Path, machine: str) -> None:
     from lidarsim.card import publish_card
 
     card = publish_card(dataset, recipe, machine)
-    say(f"wrote {card.card_path} and {card.checksums_path} ({card.n_shards} shards)")
+    say(f"wrote {card.card_path} and {card.checksums_path} ({counted(card.n_shards, 'shard')})")
 
 
 if __name__ == "__main__":

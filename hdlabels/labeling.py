@@ -48,6 +48,7 @@ from hdlabels.store import (
     labeling_truth,
 )
 from hdlabels.truth import check_build_terrain, open_build_dtm, terrain_dem
+from lidarsim.outcome import counted
 from lidarsim.parallel import run_tasks
 from lidarsim.shards import ShardFormatError, open_scan_shard, read_manifest, remove_partials, sha256_file
 from lidarsim.storage import OutputTransaction, check_h5_data
@@ -96,7 +97,7 @@ class LabelSummary:
         base = ", ".join(f"{_cm(k)}: {v * 100:.1f}%" for k, v in self.baseline_safe_fraction.items())
         verb = "already labelled" if self.reused else f"labelled in {self.seconds:.1f} s"
         return (
-            f"Labelling {self.name}: {self.n_scans} scans in {self.n_shards} label shards, {verb}. "
+            f"Labelling {self.name}: {self.n_scans} scans in {counted(self.n_shards, 'label shard')}, {verb}. "
             f"{self.safe_fraction * 100:.1f}% of labelled pixels are safe ({_TRUTH_WORDS[self.truth]}); the ALHAT "
             f"baseline "
             f"(P(safe) >= {defaults.SAFE_PROBABILITY_THRESHOLD:g}) calls safe {base} of them (sigma per noise level)."

@@ -33,6 +33,7 @@ from lidarsim.base_relief import rocks_on_base, rocky_geotiff_bytes
 from lidarsim.errors import HdWarning, LidarsimError, OutputExistsError
 from lidarsim.footprint import FootprintConfig
 from lidarsim.noise import NoiseModel
+from lidarsim.outcome import counted
 from lidarsim.parallel import probe_scheduler, run_tasks
 from lidarsim.procedural import MarsTerrainParams, generate_mars_terrain, geotiff_bytes, terrain_tags
 from lidarsim.scan import (
@@ -261,12 +262,17 @@ class BuildSummary:
         if self.already_built:
             return (
                 f"{self.out_dir} already holds this dataset, built with the same settings ({self.n_scans} scans in "
-                f"{self.n_shards} shards, sigma = {sig}; splits {splits}): nothing to do. Check it with "
+                f"{counted(self.n_shards, 'shard')}, sigma = {sig}; splits {splits}): nothing to do. Check it with "
                 f"`hd verify {self.out_dir}`; pass --overwrite to build it again."
             )
-        resumed = f" ({self.resumed_shards} shards were already complete and kept)" if self.resumed_shards else ""
+        kept = "was" if self.resumed_shards == 1 else "were"
+        resumed = (
+            f" ({counted(self.resumed_shards, 'shard')} {kept} already complete and kept)"
+            if self.resumed_shards
+            else ""
+        )
         return (
-            f"Built {self.n_scans} scans in {self.n_shards} shards at {self.out_dir} in {self.seconds:.1f} s"
+            f"Built {self.n_scans} scans in {counted(self.n_shards, 'shard')} at {self.out_dir} in {self.seconds:.1f} s"
             f"{resumed}: clean points plus noisy points at sigma = {sig}; splits {splits}; "
             f"{self.bytes_written / 1e6:.0f} MB on disk; {self.rays_per_second / 1e6:.2f} M rays/s end to end. "
             f"Inspect it with `hd inspect {self.out_dir}`, check it with `hd verify {self.out_dir}`."

@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from lidarsim.outcome import counted
 from lidarsim.shards import SPLIT_NAMES, open_scan_shard, read_manifest
 from lidarsim.storage import FormatError, StorageError, confine, lock_holder
 
@@ -43,7 +44,7 @@ def describe_dataset(directory: str | os.PathLike) -> str:
             f"schema    {manifest['schema']} {manifest['schema_version']} "
             f"(software {manifest.get('software_version', '?')})"
         ),
-        f"scans     {manifest['n_scans']} in {len(shards)} shards, {size / 1e6:.1f} MB",
+        f"scans     {manifest['n_scans']} in {counted(len(shards), 'shard')}, {size / 1e6:.1f} MB",
         "splits    " + ", ".join(f"{_mapping(manifest.get('splits')).get(k, '?')} {k}" for k in SPLIT_NAMES),
         "sigma     " + ", ".join(f"{s:g} m" for s in manifest["sigmas_m"]),
         f"seed      {manifest.get('seed', '?')}",

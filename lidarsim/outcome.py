@@ -13,3 +13,8 @@ class Done:
 
     lines: list[str] = field(default_factory=list)
     record: dict[str, Any] = field(default_factory=dict)
+
+
+def counted(n: int, noun: str) -> str:
+    """``n`` and ``noun`` in the singular or the plural (an ``s`` added): ``1 shard``, ``3 shards``."""
+    return f"{n} {noun}{'' if n == 1 else 's'}"

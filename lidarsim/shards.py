@@ -23,6 +23,7 @@ import numpy as np
 from lidarsim import defaults, limits
 from lidarsim._version import __version__
 from lidarsim.errors import LidarsimError
+from lidarsim.outcome import counted
 from lidarsim.storage import (
     CheckedH5File,
     DamagedFileError,
@@ -480,7 +481,7 @@ def _build_progress(directory: Path) -> str:
     except Exception:  # noqa: BLE001 - the state file is only informative here
         return ""
     done = sum(1 for p in (directory / "shards").glob("scans-*.h5")) if (directory / "shards").is_dir() else 0
-    return f" ({done} of {total} shards complete)"
+    return f" ({done} of {counted(total, 'shard')} complete)"
 
 
 def read_manifest(directory: str | os.PathLike) -> dict[str, Any]:

@@ -490,3 +490,18 @@ def test_the_settings_hash_names_the_dtm_by_its_content_not_where_it_lies(tmp_pa
         assert (tmp_path / "da" / name).read_bytes() == (tmp_path / "db" / name).read_bytes(), name
         with h5py.File(tmp_path / "da" / name) as f:
             assert str(tmp_path) not in f.attrs["config_json"]
+
+
+def test_one_shard_is_one_shard_in_every_summary(tmp_path, dtm):
+    runner = CliRunner()
+    out = tmp_path / "d"
+    args = ["build-dataset", "--dtm", str(dtm), "--out", str(out), "--scans", "3", "--shard-size", "3"]
+    built = runner.invoke(main, [*args, "--resolution", "16", "--workers", "1"])
+    assert built.exit_code == 0, built.output
+    assert "Built 3 scans in 1 shard at" in built.output
+    again = runner.invoke(main, [*args, "--resolution", "16", "--workers", "1"])
+    assert "(3 scans in 1 shard, sigma" in again.output
+    assert "scans     3 in 1 shard, " in runner.invoke(main, ["inspect", str(out)]).output
+    labelled = runner.invoke(main, ["label", str(out), "--workers", "1"])
+    assert labelled.exit_code == 0 and ": 3 scans in 1 label shard, labelled" in labelled.output, labelled.output
+    assert " shards" not in built.output + again.output + labelled.output
