@@ -99,6 +99,14 @@ def test_noisy_points_in_map_coordinates_carry_the_crs(dataset, tmp_path):
     assert CRS.from_wkt(vlr.string.rstrip("\x00")) == CRS.from_epsg(32610)
 
 
+def test_an_exported_laz_gives_its_crs_back_to_laspy(dataset, tmp_path):
+    """laspy reads a file's CRS with pyproj (``header.parse_crs``), which hd installs with laspy."""
+    export_scans(dataset, tmp_path / "map", ExportSettings(frame="map", scans=(0,)))
+    las = laspy.read(tmp_path / "map" / "scan-000000.laz")
+    crs = las.header.parse_crs()
+    assert crs is not None and crs.to_epsg() == 32610
+
+
 def test_bad_input_is_one_line_and_an_export_is_not_replaced_silently(dataset, tmp_path):
     runner = CliRunner()
     out = tmp_path / "o"
