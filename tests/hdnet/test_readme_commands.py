@@ -28,6 +28,16 @@ def test_the_readme_shows_the_workflow_in_order():
     assert "source .venv/bin/activate" in README.read_text()
 
 
+def test_the_readme_says_which_hd_before_its_first_hd_command():
+    """Outside the virtual environment ``hd`` is the system's hexdump, which answers ``hd --out`` with
+    "hd: unrecognized option '--out'": the README says so before the first ``hd`` line."""
+    text = README.read_text()
+    first = text.index("\n" + readme_commands()[0])
+    warning = text.index("hexdump")
+    assert warning < first and ".venv/bin/hd" in text[:first]
+    assert "unrecognized option '--out'" in text[warning - 300 : warning + 300]
+
+
 @pytest.mark.parametrize("line", readme_commands())
 def test_each_readme_command_parses(line: str):
     assert "|" not in line, "one command per line: a pipe would run the commands as a shell pipeline"
