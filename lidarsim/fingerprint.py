@@ -46,12 +46,14 @@ import hashlib
 import json
 import math
 import os
+import re
 from dataclasses import dataclass, field
 from typing import Any
 
 import h5py
 import numpy as np
 
+from lidarsim.limits import Bound
 from lidarsim.storage import CheckedDataset, FormatError, check_schema, open_h5
 
 __all__ = [
@@ -67,6 +69,7 @@ __all__ = [
     "attr_record",
     "check_fingerprint_schema",
     "compare_fingerprints",
+    "fingerprint_problem",
     "h5_fingerprint",
 ]
 
@@ -239,6 +242,163 @@ def h5_fingerprint(path: str | os.PathLike, what: str | None = None) -> dict[str
                 record["attrs"] = attrs
             arrays[name] = record
         return {"attrs": _attrs(f._f), "arrays": arrays}
+
+
+# A count of elements (NaN, inf, elements of one value) or an axis length: an integer >= 0.
+COUNT = Bound(0, integer=True)
+# Slack of the consistency bounds between a floating array's statistics (sums of absolute values
+# against the extremes and the element count): far above float64 rounding (1e-16 per addition),
+# far below any change a rebuild's tolerance would let through (1e-6).
+_CONSISTENCY_SLACK = 1e-9
+_HEX16 = re.compile(r"^[0-9a-f]{16}$")
+
+# One impossible value of a published fingerprint: (its field, relative to the record; the value; why).
+Problem = tuple[str, Any, str]
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def fingerprint_problem(record: Any) -> Problem | None:
+    """The first value of a published content fingerprint that no file can have, or None.
+
+    Checked against the format of the module docstring: every array's dtype (one numpy knows) and
+    shape (lengths >= 0); element counts (NaN, inf, per value) integers >= 0 that add up to at most
+    (per value: exactly) the array's size; sums and extremes finite numbers, the minimum at most the
+    maximum, both null exactly when no element is finite; and the statistics of a floating array
+    consistent with each other (``max(|min|, |max|) <= sum_abs <= n_finite * max(|min|, |max|)``,
+    ``|sum|`` and ``|wsum|`` at most ``sum_abs``): a published scale that is infinite, NaN or larger
+    than its elements allow would widen every tolerance until any rebuild passes.
+    An integer array's extremes lie in its dtype's range and its counts' values too.
+
+    Returns:
+        ``(field, value, why)``, ``field`` relative to the record (``arrays.label.counts.7``).
+    """
+    if not isinstance(record, dict):
+        return "", record, "a content fingerprint is a JSON object"
+    for key in ("attrs", "arrays"):
+        if not isinstance(record.get(key, {}), dict):
+            return key, record[key], "must be a JSON object"
+    for name, array in record.get("arrays", {}).items():
+        problem = _array_problem(array)
+        if problem is not None:
+            field, value, why = problem
+            return f"arrays.{name}{'.' if field else ''}{field}", value, why
+    return None
+
+
+def _array_problem(array: Any) -> Problem | None:
+    """:func:`fingerprint_problem` of one array's record."""
+    if not isinstance(array, dict):
+        return "", array, "an array's fingerprint is a JSON object"
+    try:
+        dtype = np.dtype(array["dtype"]) if isinstance(array.get("dtype"), str) else None
+    except TypeError:
+        dtype = None
+    if dtype is None:
+        return "dtype", array.get("dtype"), "not a numpy dtype"
+    shape = array.get("shape")
+    if not isinstance(shape, list) or not all(_is_int(n) and COUNT.contains(n) for n in shape):
+        return "shape", shape, "an array's shape is a list of lengths >= 0"
+    if not isinstance(array.get("attrs", {}), dict):
+        return "attrs", array["attrs"], "must be a JSON object"
+    size = math.prod(shape)
+    if dtype.kind == "f":
+        return _float_problem(array, size)
+    if dtype.kind in "iub":
+        return _int_problem(array, dtype, size)
+    digest = array.get("sha256")
+    return None if isinstance(digest, str) and _HEX16.match(digest) else ("sha256", digest, "16 hex digits")
+
+
+def _count_problem(value: Any, key: str, size: int) -> Problem | None:
+    if not _is_int(value) or not COUNT.contains(value) or value > size:
+        return key, value, f"a count of elements must be an integer in [0, {size}] (the array's size)"
+    return None
+
+
+def _float_problem(array: dict[str, Any], size: int) -> Problem | None:
+    """The statistics of a floating array (module docstring): counts, finite sums and extremes, consistent."""
+    values: dict[str, Any] = {k: array.get(k) for k in ("nan", "inf", "sum", "sum_abs", "wsum", "min", "max")}
+    for key in ("nan", "inf"):
+        if (problem := _count_problem(values[key], key, size)) is not None:
+            return problem
+    n_finite = size - int(values["nan"]) - int(values["inf"])
+    if n_finite < 0:
+        return "inf", values["inf"], f"NaN and infinite elements together exceed the array's size {size}"
+    for key in ("sum", "sum_abs", "wsum"):
+        if not _is_number(values[key]):
+            return key, values[key], "a sum must be a finite number"
+    total, total_abs, wsum = float(values["sum"]), float(values["sum_abs"]), float(values["wsum"])
+    if n_finite == 0:
+        for key in ("min", "max"):
+            if values[key] is not None:
+                return key, values[key], "must be null: the array has no finite element"
+        for key in ("sum", "sum_abs", "wsum"):
+            if values[key] != 0:
+                return key, values[key], "must be 0: the array has no finite element"
+        return None
+    for key in ("min", "max"):
+        if not _is_number(values[key]):
+            return key, values[key], "an extreme of finite elements must be a finite number"
+    lo, hi = float(values["min"]), float(values["max"])
+    if lo > hi:
+        return "min", values["min"], f"greater than the maximum {values['max']}"
+    largest = max(abs(lo), abs(hi))
+    low, high = largest * (1.0 - _CONSISTENCY_SLACK), n_finite * largest * (1.0 + _CONSISTENCY_SLACK)
+    if not low <= total_abs <= high:
+        why = f"the sum of {n_finite} absolute values of at most {largest:g} must lie in [{low:g}, {high:g}]"
+        return "sum_abs", values["sum_abs"], why
+    for key, value in (("sum", total), ("wsum", wsum)):
+        if abs(value) > total_abs * (1.0 + _CONSISTENCY_SLACK):
+            return key, values[key], f"larger in magnitude than the sum of absolute values {total_abs:g}"
+    return None
+
+
+def _int_problem(array: dict[str, Any], dtype: np.dtype, size: int) -> Problem | None:
+    """The statistics of an integer or boolean array: exact, within the dtype's range, counts adding up."""
+    first, last = (0, 1) if dtype.kind == "b" else (int(np.iinfo(dtype).min), int(np.iinfo(dtype).max))
+    values: dict[str, Any] = {k: array.get(k) for k in ("sum", "wsum", "min", "max")}
+    for key in ("sum", "wsum"):
+        if not _is_int(values[key]):
+            return key, values[key], "a sum of integers must be an integer"
+    lo: int | None = None
+    hi: int | None = None
+    if size == 0:
+        for key in ("min", "max"):
+            if values[key] is not None:
+                return key, values[key], "must be null: the array is empty"
+    else:
+        for key in ("min", "max"):
+            if not _is_int(values[key]) or not first <= values[key] <= last:
+                return key, values[key], f"an extreme of {dtype} elements must be an integer in [{first}, {last}]"
+        lo, hi = int(values["min"]), int(values["max"])
+        if lo > hi:
+            return "min", lo, f"greater than the maximum {hi}"
+        if not size * lo <= int(values["sum"]) <= size * hi:
+            return "sum", values["sum"], f"{size} elements in [{lo}, {hi}] cannot add up to it"
+    counts = array.get("counts")
+    if counts is None:
+        return None
+    if not isinstance(counts, dict):
+        return "counts", counts, "must be a JSON object of value: count"
+    for value, n in counts.items():
+        try:
+            number = int(value)
+        except ValueError:
+            return f"counts.{value}", n, "a value of the array must be an integer"
+        if lo is not None and hi is not None and not lo <= number <= hi:
+            return f"counts.{value}", n, f"the value {value} lies outside the array's extremes [{lo}, {hi}]"
+        if not _is_int(n) or not COUNT.contains(n):
+            return f"counts.{value}", n, "a count of elements must be an integer >= 0"
+    if sum(counts.values()) != size:
+        return "counts", counts, f"the counts add up to {sum(counts.values())}, not the array's size {size}"
+    return None
 
 
 def check_fingerprint_schema(recorded: dict[str, Any], where: str) -> None:

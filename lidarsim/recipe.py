@@ -48,7 +48,9 @@ Recipe layout (every key optional; defaults are the paper's)::
 from __future__ import annotations
 
 import json
+import math
 import os
+import re
 import tomllib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -57,13 +59,14 @@ from typing import Any
 from lidarsim import defaults, limits
 from lidarsim.build import BuildConfig
 from lidarsim.errors import LidarsimError, RecipeError
+from lidarsim.fingerprint import fingerprint_problem
 from lidarsim.footprint import FootprintConfig
 from lidarsim.limits import Bound
 from lidarsim.noise import NoiseModel
 from lidarsim.sensor import SensorConfig
 from lidarsim.setting import FILE_OR_DIRECTORY, check, from_mapping, setting
 from lidarsim.span import SpanType, parse_span
-from lidarsim.storage import read_regular_bytes
+from lidarsim.storage import is_sha256, read_regular_bytes
 from lidarsim.trajectory import TrajectoryConfig
 
 RECIPE_FILE = "recipe.toml"
@@ -459,20 +462,92 @@ def _check_dtm_sha256(recipe_path: Path, dtm_path: Path, expected: object) -> No
 
 
 def _check_checksums(recorded: Any, path: Path) -> None:
-    """The layout of a recipe's ``checksums.json``: an object whose ``shards`` (when given) are
-    entries with a ``path`` and a ``sha256`` string each.
+    """Every field of a recipe's ``checksums.json``, checked for its type and range when it is read:
+    digests are sha256 (64 lower-case hex digits), versions ``MAJOR.MINOR``, file paths relative
+    and inside the dataset, scan counts within ``limits.SCANS``, no number NaN or infinite, and each
+    ``content`` a fingerprint whose values a file can have (``lidarsim.fingerprint.fingerprint_problem``).
+    A file with impossible values would otherwise "verify": a NaN or infinite statistic widens a
+    tolerance until any rebuild passes, and the identical copy never looks at them.
 
     Raises:
-        RecipeError: naming the file and the faulty entry.
+        RecipeError: one line naming the file, the field, its value and what it must be.
     """
     if not isinstance(recorded, dict):
         raise RecipeError(f"{path}: not a JSON object of checksums")
+    field = _non_finite_field(recorded)
+    if field is not None:
+        raise RecipeError(f"{path}: {field[0]} is {field[1]}: a checksums file holds finite numbers only")
+    for key in ("software_version", "schema", "fingerprint_schema"):
+        if key in recorded and not isinstance(recorded[key], str):
+            _impossible(path, key, recorded[key], "must be a string")
+    for key in ("schema_version", "shard_schema_version", "fingerprint_schema_version"):
+        value = recorded.get(key)
+        if key in recorded and not (value is None and key == "shard_schema_version") and not _is_version(value):
+            _impossible(path, key, value, "a schema version is MAJOR.MINOR (1.2)")
+    if "config_sha256" in recorded and not is_sha256(recorded["config_sha256"]):
+        _impossible(path, "config_sha256", recorded["config_sha256"], "a sha256 is 64 lower-case hex digits")
     shards = recorded.get("shards", [])
     if not isinstance(shards, list):
         raise RecipeError(f"{path}: 'shards' must be a list")
     for i, entry in enumerate(shards):
-        if not isinstance(entry, dict) or not all(isinstance(entry.get(k), str) for k in ("path", "sha256")):
-            raise RecipeError(f"{path}: shards[{i}] must give a 'path' and a 'sha256' as strings")
+        _check_file_entry(entry, f"shards[{i}]", path)
+    labelings = recorded.get("labelings", [])
+    if not isinstance(labelings, list):
+        raise RecipeError(f"{path}: 'labelings' must be a list")
+    for i, lab in enumerate(labelings):
+        if not isinstance(lab, dict) or not isinstance(lab.get("name"), str) or not lab["name"]:
+            raise RecipeError(f"{path}: labelings[{i}] must give a 'name' as a non-empty string")
+        if not isinstance(lab.get("shards", []), list):
+            _impossible(path, f"labelings[{i}].shards", lab["shards"], "must be a list")
+        for j, entry in enumerate(lab.get("shards", [])):
+            _check_file_entry(entry, f"labelings[{i}].shards[{j}]", path)
+    if "dtm" in recorded:
+        _check_file_entry(recorded["dtm"], "dtm", path)
+
+
+def _check_file_entry(entry: Any, where: str, path: Path) -> None:
+    """One file of the published build: ``path``, ``sha256``, optional ``n_scans`` and ``content``."""
+    if not isinstance(entry, dict) or not all(isinstance(entry.get(k), str) for k in ("path", "sha256")):
+        raise RecipeError(f"{path}: {where} must give a 'path' and a 'sha256' as strings")
+    rel = entry["path"]
+    if not rel or Path(rel).is_absolute() or ".." in Path(rel).parts:
+        _impossible(path, f"{where}.path", rel, "a file of the dataset is named by a path relative to it, without ..")
+    if not is_sha256(entry["sha256"]):
+        _impossible(path, f"{where}.sha256", entry["sha256"], "a sha256 is 64 lower-case hex digits")
+    if "n_scans" in entry:
+        n = entry["n_scans"]
+        if isinstance(n, bool) or not isinstance(n, int) or not limits.SCANS.contains(n):
+            _impossible(path, f"{where}.n_scans", n, f"a scan count is an integer in {limits.SCANS.interval()}")
+    if "content" in entry:
+        problem = fingerprint_problem(entry["content"])
+        if problem is not None:
+            field, value, why = problem
+            _impossible(path, f"{where}.content{'.' if field else ''}{field}", value, why)
+
+
+def _impossible(path: Path, field: str, value: Any, why: str) -> None:
+    text = json.dumps(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else repr(value)
+    if len(text) > 80:
+        text = text[:77] + "..."
+    raise RecipeError(f"{path}: {field} is {text}: {why}")
+
+
+def _is_version(value: Any) -> bool:
+    return isinstance(value, str) and re.fullmatch(r"\d+\.\d+", value) is not None
+
+
+def _non_finite_field(tree: Any) -> tuple[str, str] | None:
+    """The first NaN or infinite number in a JSON tree: (its field, NaN/Infinity/-Infinity), or None
+    (walked without recursion: json.loads accepts trees nested deeper than a recursive walk could go)."""
+    todo: list[tuple[str, Any]] = [("", tree)]
+    while todo:
+        where, node = todo.pop()
+        if isinstance(node, float) and not math.isfinite(node):
+            return where, json.dumps(node)
+        items = list(node.items() if isinstance(node, dict) else enumerate(node) if isinstance(node, list) else ())
+        for key, value in reversed(items):
+            todo.append((f"{where}[{key}]" if isinstance(key, int) else f"{where}.{key}" if where else str(key), value))
+    return None
 
 
 def check_against_checksums(manifest: dict[str, Any], recorded: dict[str, Any]) -> list[str]:

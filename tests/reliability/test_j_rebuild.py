@@ -5,6 +5,7 @@ copy fails, naming the file and the array or attribute."""
 from __future__ import annotations
 
 import json
+import math
 import os
 import platform
 import shutil
@@ -292,3 +293,76 @@ def test_verify_names_the_settings_a_dataset_was_built_with_other_than_its_recip
         "the dataset was built with other settings than the recipe's: seed 4 (recipe: 3), trajectory.n_scans 6 "
         "(recipe: 8)"
     ), err
+
+
+def _set(tree: Any, path: tuple[Any, ...], value: Any) -> None:
+    for key in path[:-1]:
+        tree = tree[key]
+    tree[path[-1]] = value
+
+
+POINTS = ("shards", 0, "content", "arrays", "points_clean")
+LABELS = ("labelings", 0, "shards", 0, "content", "arrays", "label")
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "needle"),
+    [
+        (("config_sha256",), "not-a-digest", "config_sha256 is 'not-a-digest'"),
+        (("shards", 0, "sha256"), "xyz", "shards[0].sha256 is 'xyz'"),
+        (("labelings", 0, "shards", 1, "sha256"), "A" * 64, "labelings[0].shards[1].sha256"),
+        (("shards", 1, "n_scans"), -5, "shards[1].n_scans is -5"),
+        (("shards", 1, "n_scans"), 2.5, "shards[1].n_scans is 2.5"),
+        (("shards", 0, "path"), "../elsewhere.h5", "shards[0].path is '../elsewhere.h5'"),
+        (("shard_schema_version",), "one", "shard_schema_version is 'one'"),
+        ((*POINTS, "nan"), -1, "points_clean.nan is -1"),
+        ((*POINTS, "sum"), math.nan, "points_clean.sum is NaN"),
+        ((*POINTS, "sum_abs"), math.inf, "points_clean.sum_abs is Infinity"),
+        ((*POINTS, "sum_abs"), 1e300, "points_clean.sum_abs is 1e+300"),
+        ((*POINTS, "min"), 1e6, "points_clean.min is 1000000.0"),
+        ((*POINTS, "shape"), [-2, 32, 32, 3], "points_clean.shape is [-2, 32, 32, 3]"),
+        ((*POINTS, "dtype"), "float99", "points_clean.dtype is 'float99'"),
+        ((*LABELS, "counts", "0"), -3, "label.counts.0 is -3"),
+        ((*LABELS, "counts", "7"), 1, "label.counts"),
+        ((*LABELS, "max"), 300, "label.max is 300"),
+    ],
+    ids=lambda v: "-".join(map(str, v)) if isinstance(v, tuple) else None,
+)
+def test_checksums_with_impossible_values_are_refused_naming_the_field(
+    data_copy, recipe, tmp_path, field, value, needle
+):
+    """A published checksums.json whose values no build can have (negative counts, NaN or infinite
+    statistics, scales that make every rebuild pass, digests that are not sha256, paths out of the
+    dataset) is refused when it is read, with one line naming the field: the untouched copy verified
+    OK against it (its bytes are identical, so the content was never looked at)."""
+    bad = tmp_path / "bad"
+    shutil.copytree(recipe, bad)
+    published = json.loads((bad / "checksums.json").read_text())
+    _set(published, field, value)
+    (bad / "checksums.json").write_text(json.dumps(published))  # NaN and Infinity as Python's json writes them
+    last = assert_one_line_error(invoke("verify", data_copy, "--recipe", bad), "checksums.json", needle)
+    assert "problem(s) found" not in last
+
+
+def test_checksums_whose_scales_are_infinite_no_longer_pass_a_changed_rebuild(data_copy, recipe, tmp_path):
+    """An infinite published sum of absolute values and minimum made every tolerance infinite: a copy
+    whose points moved by half a metre was "rebuilt: equal to the published build within tolerance"."""
+    bad = tmp_path / "bad"
+    shutil.copytree(recipe, bad)
+    published = json.loads((bad / "checksums.json").read_text())
+    arrays = published["shards"][1]["content"]["arrays"]["points_clean"]
+    arrays["sum_abs"], arrays["min"] = math.inf, -math.inf
+    (bad / "checksums.json").write_text(json.dumps(published))
+    scans = data_copy / "shards" / "scans-00001.h5"
+    rewrite(scans, lambda name, data: data + np.float32(0.5) if name == "points_clean" else data)
+    reseal(data_copy)
+    assert_one_line_error(
+        invoke("verify", data_copy, "--recipe", bad), "shards[1].content.arrays.points_clean.sum_abs is Infinity"
+    )
+
+
+def test_every_published_checksums_file_has_possible_values():
+    from lidarsim.recipe import load_recipe
+
+    for published in sorted((REPO / "datasets").glob("*/checksums.json")):
+        assert load_recipe(published.parent).checksums() is not None, published
