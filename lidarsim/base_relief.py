@@ -42,7 +42,14 @@ from lidarsim.procedural import (
 from lidarsim.storage import write_bytes_atomic
 from lidarsim.terrain import DTM
 
-__all__ = ["RockyTerrain", "resample_bilinear", "rocks_on_base", "rocky_geotiff_bytes", "write_rocky_dtm"]
+__all__ = [
+    "RockyTerrain",
+    "check_relief",
+    "resample_bilinear",
+    "rocks_on_base",
+    "rocky_geotiff_bytes",
+    "write_rocky_dtm",
+]
 
 GENERATOR = "lidarsim.base_relief.rocks_on_base"
 # Largest output accepted (cells): 2**28 float32 cells = 1 GiB (16384^2, the procedural limit).
@@ -124,6 +131,32 @@ def _checked_spacing(spacing_m: float) -> float:
     return float(spacing_m)
 
 
+def check_relief(values: np.ndarray, path: str) -> None:
+    """Refuse a base DTM that has no relief to put rocks on, before any work is done with it.
+
+    ``values``: the base's heights (metres, NaN where invalid). Refused: every cell nodata; and
+    valid cells that never form a 2 x 2 block. Bilinear resampling (:func:`resample_bilinear`)
+    defines the relief only between four valid cell centres - an output cell next to an invalid
+    one is invalid - so such a base would give a terrain of nodata, with rocks stamped on NaN.
+
+    Raises:
+        TerrainError: one line naming the base and what it lacks.
+    """
+    valid = np.isfinite(values)
+    if not valid.any():
+        raise TerrainError(f"{path}: every cell is nodata; a base DTM needs relief to put the rocks on")
+    blocks = valid
+    if blocks.shape[0] > 1:
+        blocks = blocks[:-1] & blocks[1:]
+    if blocks.shape[1] > 1:
+        blocks = blocks[:, :-1] & blocks[:, 1:]
+    if not blocks.any():
+        raise TerrainError(
+            f"{path}: {int(valid.sum())} of {valid.size} cells are valid, none in a 2 x 2 block of valid cells: "
+            "resampled bilinearly, the base has no relief to put the rocks on; use a DTM with a valid area"
+        )
+
+
 def rocks_on_base(
     base_path: str | os.PathLike[str],
     params: MarsTerrainParams | None = None,
@@ -138,8 +171,8 @@ def rocks_on_base(
     base's resolution; None = the defaults). Its size and relief fields are not used: the base gives the relief.
 
     Raises:
-        TerrainError: an unreadable base, a spacing outside (0, 0.5] m, an output of more than
-            2**28 cells, or a negative seed.
+        TerrainError: an unreadable base, a base without relief (:func:`check_relief`), a spacing
+            outside (0, 0.5] m, an output of more than 2**28 cells, or a negative seed.
     """
     params = MarsTerrainParams() if params is None else params
     spacing_m = _checked_spacing(spacing_m)
@@ -159,6 +192,7 @@ def rocks_on_base(
                 "cut the base DTM into parts or choose a coarser --spacing"
             )
         values = base.read(0, 0, info.rows, info.cols)
+        check_relief(values, info.path)
         digest = base.sha256()
         t = info.transform
         origin = (float(t[2]), float(t[5]))

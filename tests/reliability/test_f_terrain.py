@@ -104,3 +104,49 @@ def test_detect_on_a_dtm_in_local_metres_prints_no_warning(tmp_path, trained, ge
     lines = [line for line in err.replace("\r", "\n").splitlines() if line.strip() and not line.startswith("tiles:")]
     assert lines == [], err
     assert (out / "detect.json").is_file()
+
+
+def _base(path, kind: str):
+    """A 20 x 20 base DTM of 1 m cells: all NaN, all its declared nodata value, or valid cells that
+    never form a 2 x 2 block (every other row and column)."""
+    if kind == "all-nan":
+        return write_geotiff(path, np.full((20, 20), np.nan, np.float32))
+    if kind == "all-nodata":
+        return write_geotiff(path, np.full((20, 20), -9999.0, np.float32), nodata=-9999.0)
+    z = np.full((20, 20), np.nan, np.float32)
+    z[::2, ::2] = 5.0
+    return write_geotiff(path, z)
+
+
+@pytest.mark.parametrize(
+    ("kind", "needle"),
+    [
+        ("all-nan", "every cell is nodata"),
+        ("all-nodata", "every cell is nodata"),
+        ("isolated", "100 of 400 cells are valid, none in a 2 x 2 block of valid cells"),
+    ],
+)
+def test_make_dtm_refuses_a_base_without_relief_before_any_work(tmp_path, monkeypatch, kind, needle):
+    """hd make-dtm --base wrote a terrain of rocks on NaN (a numpy RuntimeWarning, exit 0): nodata
+    everywhere, or valid cells so scattered that bilinear resampling leaves no relief."""
+    from lidarsim import base_relief
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("the base was resampled before it was checked")
+
+    monkeypatch.setattr(base_relief, "resample_bilinear", no_work)
+    base = _base(tmp_path / "base.tif", kind)
+    out = tmp_path / "rocky.tif"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        assert_one_line_error(invoke("make-dtm", out, "--base", base), "base.tif", needle)
+    assert not out.exists()
+
+
+def test_a_build_with_rocks_on_a_dtm_of_nodata_is_one_line(tmp_path):
+    base = _base(tmp_path / "base.tif", "all-nan")
+    out = tmp_path / "data"
+    result = invoke("build-dataset", "--out", out, "--dtm", base, "--rocks-on-dtm", "--workers", "1", *BUILD_ARGS)
+    last = assert_one_line_error(result, "base.tif", "every cell is nodata")
+    assert "RuntimeWarning" not in result.output and last == result.output.strip()
+    assert not out.exists()
