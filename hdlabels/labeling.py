@@ -14,6 +14,12 @@ only when every shard is complete. An interrupted run resumes; an existing label
 same settings is kept. A run holds the dataset's writer lock (one writer per dataset), checks
 every scan shard against the manifest's sha256 before reading it, and removes its partial files
 (and a labelling directory it created and left empty) when it fails.
+
+With the terrain truth, every label shard is made from the terrain the build recorded: the DTM is
+checked against the manifest's sha256 as each shard reads it (``hdlabels.truth.labelled_terrain``)
+and each shard records that sha256 (``truth_dtm_sha256``). A shard that records another terrain is
+damaged: it is never kept when a run resumes, and an existing labelling with such shards is
+labelled again (with a warning) instead of being reported as already labelled.
 """
 
 from __future__ import annotations
@@ -21,6 +27,7 @@ from __future__ import annotations
 import os
 import shutil
 import time
+import warnings
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -36,22 +43,34 @@ from hdlabels.grid import grid_points
 from hdlabels.lander import Lander, geometry
 from hdlabels.store import (
     LABEL_SCHEMA,
-    LABEL_SCHEMA_VERSION,
     LABELS_DIR,
     DemSpec,
     LabelShardReader,
     LabelShardWriter,
     LabelStoreError,
     add_labeling_to_manifest,
+    label_schema_version,
     label_shard_name,
     labeling_name,
     labeling_truth,
 )
+<<<<<<< HEAD
 from hdlabels.truth import check_build_terrain, open_build_dtm, terrain_dem
 from lidarsim.outcome import counted
+=======
+from hdlabels.truth import check_build_terrain, labelled_terrain, terrain_dem
+from lidarsim.errors import HdWarning, StorageError
+>>>>>>> d1e06ac (Terrain-truth labels are tied to their terrain: each label shard checks the DTM's sha256 against the build's record as it reads it (again after its scans when the file is no longer the one hashed), so a DTM replaced or rewritten during hd label --truth terrain stops it with one line and no shard; each shard records the sha256 (truth_dtm_sha256, label schema 1.2; clean-scan labellings stay 1.1, byte for byte); hd verify names a shard of another terrain as damaged, hd label labels it again instead of saying already labelled, and a resumed labelling never keeps one; a changed procedural terrain is regenerated when that gives the recorded sha256; tests)
 from lidarsim.parallel import run_tasks
-from lidarsim.shards import ShardFormatError, open_scan_shard, read_manifest, remove_partials, sha256_file
-from lidarsim.storage import OutputTransaction, check_h5_data
+from lidarsim.shards import (
+    TRUTH_DTM_SHA256_ATTR,
+    ShardFormatError,
+    open_scan_shard,
+    read_manifest,
+    remove_partials,
+    sha256_file,
+)
+from lidarsim.storage import OutputTransaction, check_h5_data, confine, open_h5
 from lidarsim.terrain import DTM
 
 
@@ -69,6 +88,7 @@ class LabelTask:
     truth: str = defaults.TRUTH
     dtm_path: str | None = None  # the terrain truth's DTM (checked by the parent), None for the clean scan
     dtm_scale: float = 1.0
+    dtm_sha256: str | None = None  # the build's record of that DTM, checked again as each shard reads it
 
 
 @dataclass(frozen=True)
@@ -197,7 +217,9 @@ def run_label_task(task: LabelTask) -> LabelRecord:
         }
         if task.truth != defaults.TRUTH:  # the clean-scan truth's shards keep their bytes: no attribute
             attrs.update(truth_attrs(task))
-        writer = LabelShardWriter(out, len(reader), len(sigmas), task.dem, attrs)
+        writer = LabelShardWriter(
+            out, len(reader), len(sigmas), task.dem, attrs, schema_version=label_schema_version(task.truth)
+        )
         try:
             f = reader.h5
             points_clean, points_noisy = f["points_clean"], f["points_noisy"]
@@ -228,11 +250,12 @@ def _terrain_truth(dem_clean: np.ndarray, *, origin_map: np.ndarray, dem: DemSpe
 
 @contextmanager
 def _truth_dtm(task: LabelTask) -> Iterator[DTM | None]:
-    """The DTM of the terrain truth, open while a shard is labelled (None for the clean-scan truth)."""
-    if task.truth == defaults.TRUTH or task.dtm_path is None:
+    """The DTM of the terrain truth, open while a shard is labelled and checked against the build's
+    sha256 as it is read (None for the clean-scan truth)."""
+    if task.truth == defaults.TRUTH or task.dtm_path is None or task.dtm_sha256 is None:
         yield None
         return
-    with open_build_dtm(task.dtm_path, task.dtm_scale) as dtm:
+    with labelled_terrain(task.dtm_path, task.dtm_sha256, task.dtm_scale, Path(task.dataset).name) as dtm:
         yield dtm
 
 
@@ -242,6 +265,7 @@ def truth_attrs(task: LabelTask) -> dict[str, Any]:
         "truth": task.truth,
         "truth_dtm": Path(task.dtm_path).name if task.dtm_path else "",
         "truth_dtm_scale": float(task.dtm_scale),
+        TRUTH_DTM_SHA256_ATTR: task.dtm_sha256 or "",
     }
 
 
@@ -253,7 +277,7 @@ def _record(task: LabelTask, sha256: str, n_scans: int, counts: np.ndarray, base
         "source_path": task.source_path,
         "source_sha256": task.source_sha256,
         "schema": LABEL_SCHEMA,
-        "schema_version": LABEL_SCHEMA_VERSION,
+        "schema_version": label_schema_version(task.truth),
     }
     return LabelRecord(
         entry=entry,
@@ -274,6 +298,8 @@ def _existing(task: LabelTask) -> LabelRecord | None:
                 return None
             if str(a.get("truth", defaults.TRUTH)) != task.truth:
                 return None
+            if task.truth != defaults.TRUTH and a.get(TRUTH_DTM_SHA256_ATTR) != task.dtm_sha256:
+                return None  # labelled from another terrain, or before shards recorded theirs
             lab = reader.h5["label"][:]
             p_safe = reader.h5["p_safe"][:]
             n = len(reader)
@@ -281,6 +307,23 @@ def _existing(task: LabelTask) -> LabelRecord | None:
     except (LabelStoreError, ShardFormatError, OSError, KeyError):
         return None
     return _record(task, sha256_file(out), n, label_counts(lab), baseline_safe_counts(lab, p_safe))
+
+
+def other_terrain_shards(root: Path, labeling: dict[str, Any], dtm_sha256: str) -> list[str]:
+    """The label shards of a labelling entry that record another terrain than ``dtm_sha256`` (the
+    build's), as ``PATH: truth_dtm_sha256 ABC...``. Shards that record none (written before shards
+    recorded their terrain) and shards that cannot be read (``hd verify`` names those) are not listed.
+    """
+    foreign: list[str] = []
+    for entry in labeling.get("shards", []):
+        try:
+            with open_h5(confine(root, entry["path"]), entry["path"]) as f:
+                recorded = f.attrs.get(TRUTH_DTM_SHA256_ATTR)
+        except (StorageError, OSError, KeyError, TypeError):
+            continue
+        if recorded is not None and recorded != dtm_sha256:
+            foreign.append(f"{entry['path']}: {TRUTH_DTM_SHA256_ATTR} {str(recorded)[:12]}...")
+    return foreign
 
 
 def _single_writer(func: Callable[..., LabelSummary]) -> Callable[..., LabelSummary]:
@@ -340,10 +383,21 @@ def label_dataset(
     if truth not in defaults.TRUTHS:
         raise LabelStoreError(f"unknown truth {truth!r}; use one of {', '.join(defaults.TRUTHS)}")
     name = labeling_name(lander, dem, truth)
-    dtm_path, dtm_scale = (None, 1.0) if truth == defaults.TRUTH else check_build_terrain(root, manifest)
+    dtm_path, dtm_sha256, dtm_scale = (
+        (None, None, 1.0) if truth == defaults.TRUTH else check_build_terrain(root, manifest)
+    )
     for lab in manifest.get("labelings", []):
         if lab["name"] == name:
-            return _summary_from_entry(lab, manifest, time.perf_counter() - t0, reused=True)
+            foreign = [] if dtm_sha256 is None else other_terrain_shards(root, lab, dtm_sha256)
+            if not foreign:
+                return _summary_from_entry(lab, manifest, time.perf_counter() - t0, reused=True)
+            warnings.warn(
+                HdWarning(
+                    f"{root.name}: {len(foreign)} label shard(s) of {name} were labelled from another terrain than "
+                    f"the one the scans were cast on ({foreign[0]}); damaged: labelling them again"
+                ),
+                stacklevel=2,
+            )
     out_dir = root / LABELS_DIR / name
     created = not out_dir.exists()
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -360,6 +414,7 @@ def label_dataset(
             truth=truth,
             dtm_path=None if dtm_path is None else str(dtm_path),
             dtm_scale=dtm_scale,
+            dtm_sha256=dtm_sha256,
         )
         for i, s in enumerate(manifest["shards"])
     ]
@@ -392,7 +447,7 @@ def label_dataset(
     entry = {
         "name": name,
         "schema": LABEL_SCHEMA,
-        "schema_version": LABEL_SCHEMA_VERSION,
+        "schema_version": label_schema_version(truth),
         "convention": lander.convention,
         "lander": lander.to_attrs(),
         "dem": dem.to_entry(),

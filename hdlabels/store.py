@@ -42,7 +42,11 @@ LABEL_SCHEMA = "hd.labels"
 # lander_convention, lander_baseline_combine, dem_gridding), and every dataset is chunked with a
 # fletcher32 checksum per chunk. 1.0 shards stay readable: the hd convention, the "min"
 # combination and linear gridding.
-LABEL_SCHEMA_VERSION = "1.1"
+# 1.2: a label shard of the terrain truth records the sha256 of the terrain it was labelled from
+# (truth_dtm_sha256). Only terrain-truth labellings are 1.2: the clean-scan truth still writes 1.1,
+# byte for byte as before (label_schema_version), so published checksums of its labels hold.
+LABEL_SCHEMA_VERSION = "1.2"
+LABEL_SCHEMA_VERSION_CLEAN_SCAN = "1.1"
 LABELS_DIR = "labels"
 
 
@@ -113,6 +117,12 @@ class DemSpec:
         )
 
 
+def label_schema_version(truth: str) -> str:
+    """The schema version of the label shards (and manifest entries) a labelling of ``truth`` writes:
+    1.2 for the terrain truth (it records its terrain's sha256), 1.1 for the clean scan's."""
+    return LABEL_SCHEMA_VERSION_CLEAN_SCAN if truth == defaults.TRUTH else LABEL_SCHEMA_VERSION
+
+
 def labeling_name(lander: Lander, dem: DemSpec, truth: str = defaults.TRUTH) -> str:
     """Directory name of a labelling, readable and unique per lander, convention, DEM settings and truth.
 
@@ -170,9 +180,20 @@ class LabeledScan:
 
 
 class LabelShardWriter:
-    """Writes one label shard: built in memory, written atomically by ``commit`` (``abort`` drops it)."""
+    """Writes one label shard: built in memory, written atomically by ``commit`` (``abort`` drops it).
 
-    def __init__(self, path: Path, n_scans: int, n_sigmas: int, dem: DemSpec, attrs: dict[str, Any]) -> None:
+    ``schema_version``: :func:`label_schema_version` of the labelling's truth (default: the clean scan's).
+    """
+
+    def __init__(
+        self,
+        path: Path,
+        n_scans: int,
+        n_sigmas: int,
+        dem: DemSpec,
+        attrs: dict[str, Any],
+        schema_version: str = LABEL_SCHEMA_VERSION_CLEAN_SCAN,
+    ) -> None:
         self.path = path
         self._image = H5Image(path)
         self._f = self._image.file
@@ -180,7 +201,7 @@ class LabelShardWriter:
             self._f,
             {
                 "schema": LABEL_SCHEMA,
-                "schema_version": LABEL_SCHEMA_VERSION,
+                "schema_version": schema_version,
                 "software": "hd",
                 "software_version": __version__,
                 "n_scans": n_scans,

@@ -21,14 +21,19 @@ module gives, for one scan, the DEM of the terrain under that scan's DEM grid:
 The dataset records its DTM in the manifest (``dtm``: path, sha256, scale in ``config.dtm_scale``):
 the procedural terrain inside the dataset (``terrain/``), a user's DTM by its absolute path. A DTM
 that is missing or whose bytes changed is refused with one line (:func:`check_build_terrain`),
-except a missing procedural terrain, which is regenerated from the build's seed and parameters
-when that gives the recorded sha256 (``lidarsim.build.restore_procedural_terrain``).
+except the procedural terrain, which is regenerated from the build's seed and parameters when that
+gives the recorded sha256 (``lidarsim.build.restore_procedural_terrain``). The terrain is checked
+again for every label shard, as it is read (:func:`labelled_terrain`): a DTM replaced or changed
+while a dataset is labelled stops the labelling before a shard of another terrain is written. Each
+shard records the sha256 it was labelled from (``truth_dtm_sha256``, ``docs/labels-format.md``).
 """
 
 from __future__ import annotations
 
 import math
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -38,7 +43,7 @@ from hdlabels import defaults
 from hdlabels.grid import cell_centres, grid_points
 from hdlabels.store import DemSpec, LabelStoreError
 from lidarsim.errors import HdError
-from lidarsim.storage import sha256_file
+from lidarsim.storage import confine, sha256_file
 from lidarsim.terrain import DTM
 
 # Griddings whose DEM value is the height at the cell centre when a sample lies there.
@@ -46,10 +51,12 @@ CENTRE_GRIDDINGS: tuple[str, ...] = ("nearest", "linear")
 
 
 def build_terrain_path(root: Path, manifest: dict[str, Any]) -> tuple[Path, str, float]:
-    """The DTM a dataset was built on: its path, recorded sha256 and the build's ``--dtm-scale``.
+    """The DTM a dataset was built on: its path (a relative one confined to the dataset), recorded
+    sha256 and the build's ``--dtm-scale``.
 
     Raises:
         LabelStoreError: the manifest records no DTM.
+        FormatError: a relative path that leaves the dataset.
     """
     dtm = manifest.get("dtm")
     if not isinstance(dtm, dict) or not isinstance(dtm.get("path"), str) or not isinstance(dtm.get("sha256"), str):
@@ -59,26 +66,28 @@ def build_terrain_path(root: Path, manifest: dict[str, Any]) -> tuple[Path, str,
     if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not 0.0 < scale <= 1.0:
         raise LabelStoreError(f"{root}: the manifest's config.dtm_scale {scale!r} is not a scale in (0, 1]")
     path = Path(dtm["path"])
-    return (path if path.is_absolute() else root / path), str(dtm["sha256"]), float(scale)
+    return (path if path.is_absolute() else confine(root, dtm["path"])), str(dtm["sha256"]), float(scale)
 
 
-def check_build_terrain(root: Path, manifest: dict[str, Any]) -> tuple[Path, float]:
-    """The DTM a dataset was built on, checked: present and the bytes the build read (sha256).
+def check_build_terrain(root: Path, manifest: dict[str, Any]) -> tuple[Path, str, float]:
+    """The DTM a dataset was built on, checked: present and the bytes the build read (sha256). The
+    procedural terrain, missing or changed, is first regenerated when that gives the recorded bytes.
 
     Returns:
-        ``(path, scale)``.
+        ``(path, sha256, scale)``: the sha256 the manifest records, which every label shard is
+        checked against as the terrain is read (:func:`labelled_terrain`) and records.
 
     Raises:
         LabelStoreError: one line naming the file: missing, unreadable or changed since the build.
-        LidarsimError: a missing procedural terrain that regenerates to other bytes than the build's.
+        LidarsimError: a procedural terrain that regenerates to other bytes than the build's.
     """
     path, recorded, scale = build_terrain_path(root, manifest)
-    if not path.is_file():
-        from lidarsim.build import restore_procedural_terrain
+    from lidarsim.build import restore_procedural_terrain
 
-        restored = restore_procedural_terrain(root, manifest)
-        if restored is not None:
-            return restored, scale
+    restored = restore_procedural_terrain(root, manifest)  # None: intact, or not the procedural terrain
+    if restored is not None:
+        return restored, recorded, scale
+    if not path.is_file():
         raise LabelStoreError(
             f"{path}: the terrain {root.name} was built on is missing; --truth terrain samples it (restore the "
             "file, or label with --truth clean-scan)"
@@ -92,7 +101,55 @@ def check_build_terrain(root: Path, manifest: dict[str, Any]) -> tuple[Path, flo
             f"{path}: the terrain changed since {root.name} was built (sha256 {digest[:12]}..., the manifest "
             f"says {recorded[:12]}...); --truth terrain needs the DTM the scans were cast on"
         )
-    return path, scale
+    return path, recorded, scale
+
+
+def _identity(path: str | os.PathLike, dataset: str) -> tuple[int, ...]:
+    """What tells one file from another and a file from its changed self: device, inode, size,
+    modification and change times (the change time is set by the kernel on every write)."""
+    try:
+        st = os.stat(path)
+    except OSError as exc:
+        raise LabelStoreError(
+            f"{path}: the terrain {dataset} was built on went missing while it was labelled ({exc.strerror}); "
+            "restore it and re-run the same command"
+        ) from exc
+    return (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
+
+
+def _check_digest(path: str | os.PathLike, sha256: str, dataset: str) -> None:
+    """Refuse the terrain file at ``path`` unless its bytes are the build's (``sha256``)."""
+    try:
+        digest = sha256_file(path)
+    except HdError as exc:
+        raise LabelStoreError(f"{path}: the terrain {dataset} was built on cannot be read ({exc})") from exc
+    if digest != sha256:
+        raise LabelStoreError(
+            f"{path}: the terrain changed while {dataset} was labelled (sha256 {digest[:12]}..., the manifest "
+            f"says {sha256[:12]}...); every label shard must come from the DTM the scans were cast on: restore "
+            "it and re-run the same command"
+        )
+
+
+@contextmanager
+def labelled_terrain(path: str | os.PathLike, sha256: str, scale: float, dataset: str) -> Iterator[DTM]:
+    """The build's DTM, open (at the build's scale) while one label shard is made, checked as it is read.
+
+    Its sha256 must be the build's record (``sha256``) before it is opened; when the shard's scans are
+    labelled and the file at ``path`` is no longer the one that was hashed (device, inode, size,
+    modification or change time differ: replaced, or written in place), it is hashed again and must
+    still be. A terrain replaced or changed during a labelling therefore stops it before a shard of
+    another terrain is written. ``dataset`` names the dataset in messages.
+
+    Raises:
+        LabelStoreError: one line naming the DTM: changed, missing or unreadable while labelled.
+    """
+    before = _identity(path, dataset)
+    _check_digest(path, sha256, dataset)
+    with DTM.open(path, scale=scale) as dtm:
+        yield dtm
+    if _identity(path, dataset) != before:
+        _check_digest(path, sha256, dataset)
 
 
 def samples_per_cell(dem_spacing_m: float, dtm_spacing_m: float, gridding: str = "mean") -> int:
@@ -173,8 +230,3 @@ def terrain_dem(origin_map: np.ndarray, dem_clean: np.ndarray, dem: DemSpec, dtm
     out = grid_points(points, (dem.rows, dem.cols), dem.spacing_m, method=dem.gridding)
     out[~np.isfinite(dem_clean)] = np.nan
     return out.astype(np.float32, copy=False)
-
-
-def open_build_dtm(path: str | os.PathLike, scale: float) -> DTM:
-    """The DTM at ``path`` opened at the build's scale (checked beforehand by :func:`check_build_terrain`)."""
-    return DTM.open(path, scale=scale)

@@ -639,12 +639,14 @@ def _procedural_terrain_bytes(params: MarsTerrainParams, seed: int, path: Path) 
 
 def restore_procedural_terrain(root: Path, manifest: dict[str, Any]) -> Path | None:
     """Write back the procedural terrain of the dataset at ``root`` when its file in ``terrain/`` is
-    gone: regenerated from the seed and terrain parameters the manifest records, and kept only if
-    its sha256 is the one the manifest records for the build's terrain (with a warning that says so).
+    gone or its bytes changed: regenerated from the seed and terrain parameters the manifest records,
+    and kept only if its sha256 is the one the manifest records for the build's terrain (with a
+    warning that says so).
 
     Returns:
-        The path written; None when the file is there or the dataset was not built on the
-        procedural terrain (a user's DTM, or rocks on one, cannot be regenerated from the manifest).
+        The path written; None when the file is intact (or is not a regular file), or the dataset
+        was not built on the procedural terrain (a user's DTM, or rocks on one, cannot be
+        regenerated from the manifest).
 
     Raises:
         LidarsimError: the regenerated terrain is not the one the build cast its rays on (another hd
@@ -657,7 +659,10 @@ def restore_procedural_terrain(root: Path, manifest: dict[str, Any]) -> Path | N
     if isinstance(seed, bool) or not isinstance(seed, int) or not isinstance(terrain, dict):
         return None
     path = root / TERRAIN_DIR / procedural_terrain_name(seed)
-    if path.exists() or dtm.get("path") != f"{TERRAIN_DIR}/{path.name}":
+    if dtm.get("path") != f"{TERRAIN_DIR}/{path.name}" or (os.path.lexists(path) and not path.is_file()):
+        return None
+    missing = not path.exists()
+    if not missing and sha256_file(path) == dtm.get("sha256"):
         return None
     try:
         params = MarsTerrainParams(**terrain)
@@ -665,9 +670,10 @@ def restore_procedural_terrain(root: Path, manifest: dict[str, Any]) -> Path | N
         return None  # parameters this version does not know: it cannot regenerate that terrain
     data = _procedural_terrain_bytes(params, seed, path)
     digest = sha256_bytes(data)
+    state = "is missing" if missing else "changed since the build"
     if digest != dtm.get("sha256"):
         raise LidarsimError(
-            f"{path}: the terrain {root.name} was built on is missing, and regenerating it from the build's seed "
+            f"{path}: the terrain {root.name} was built on {state}, and regenerating it from the build's seed "
             f"{seed} gives other bytes (sha256 {digest[:12]}..., the manifest says {str(dtm.get('sha256'))[:12]}...); "
             "restore the file"
         )
@@ -675,8 +681,8 @@ def restore_procedural_terrain(root: Path, manifest: dict[str, Any]) -> Path | N
     write_bytes_atomic(path, data)
     warnings.warn(
         HdWarning(
-            f"{path} was missing: regenerated from the build's seed {seed} and terrain parameters "
-            "(the sha256 the manifest records)"
+            f"{path} {'was missing' if missing else 'had changed since the build'}: regenerated from the build's "
+            f"seed {seed} and terrain parameters (the sha256 the manifest records)"
         ),
         stacklevel=2,
     )

@@ -57,6 +57,7 @@ __all__ = [
     "SCAN_SCHEMA_VERSION",
     "SCAN_SCHEMA_VERSION_PLAIN",
     "SPLIT_NAMES",
+    "TRUTH_DTM_SHA256_ATTR",
     "DamagedFileError",
     "Scan",
     "ScanShardReader",
@@ -105,6 +106,10 @@ MANIFEST_NAME = "manifest.json"
 # Settings of a build in progress; present only until its manifest is written.
 BUILD_STATE_NAME = ".hd-build.json"
 SPLIT_NAMES: tuple[str, str, str] = ("train", "val", "test")
+# The file attribute in which a label shard of the terrain truth records the sha256 of the terrain it
+# was labelled from (written by hdlabels, schema hd.labels 1.2): verify_dataset requires the
+# manifest's dtm.sha256, the terrain the scans were cast on.
+TRUTH_DTM_SHA256_ATTR = "truth_dtm_sha256"
 
 # Not a format this version reads, or a damaged file (the storage layer's FormatError).
 ShardFormatError = FormatError
@@ -541,7 +546,9 @@ def iter_scans(directory: str | os.PathLike, split: str | None = None) -> Iterat
 
 
 def verify_dataset(directory: str | os.PathLike, known_schemas: dict[str, str] | None = None) -> list[str]:
-    """Check every file listed in the manifest: confinement, presence, sha256, schema and scan count.
+    """Check every file listed in the manifest: confinement, presence, sha256, schema, scan count and,
+    for a label shard of the terrain truth, the terrain it was labelled from (``TRUTH_DTM_SHA256_ATTR``
+    must be the manifest's ``dtm.sha256``).
 
     Args:
         directory: the dataset directory.
@@ -594,6 +601,7 @@ def verify_dataset(directory: str | os.PathLike, known_schemas: dict[str, str] |
                     problems.append(
                         f"{rel}: holds {_py(f.attrs.get('n_scans'))} scans, manifest says {entry['n_scans']}"
                     )
+                problems += _terrain_digest_problems(rel, _py(f.attrs.get(TRUTH_DTM_SHA256_ATTR)), manifest)
         except (FormatError, StorageError) as exc:
             problems.append(str(exc))
         except (OSError, TypeError, ValueError):
@@ -623,6 +631,24 @@ def _entry_schema_problems(labelling: dict[str, Any], known: dict[str, str]) -> 
         except FormatError as exc:
             problems.append(str(exc))
     return problems
+
+
+def _terrain_digest_problems(rel: str, recorded: Any, manifest: dict[str, Any]) -> list[str]:
+    """A file that records the terrain it was made from (``TRUTH_DTM_SHA256_ATTR``; None: it records
+    none) against the terrain the manifest records: labels from another terrain are damage."""
+    if recorded is None:
+        return []
+    dtm = manifest.get("dtm")
+    build = dtm.get("sha256") if isinstance(dtm, dict) else None
+    if recorded == build:
+        return []
+    return [
+        (
+            f"{rel}: labelled from another terrain ({TRUTH_DTM_SHA256_ATTR} {str(recorded)[:12]}..., the manifest's "
+            f"terrain is {str(build)[:12]}...): the file is damaged; re-run the hd label --truth terrain command "
+            "that made it to label it again"
+        )
+    ]
 
 
 def _terrain_problems(directory: Path, manifest: dict[str, Any]) -> list[str]:

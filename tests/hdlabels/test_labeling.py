@@ -17,6 +17,7 @@ from hdlabels.labeling import label_dataset
 from hdlabels.lander import Lander
 from hdlabels.store import (
     LABEL_SCHEMA_VERSION,
+    LABEL_SCHEMA_VERSION_CLEAN_SCAN,
     DemSpec,
     LabelShardReader,
     LabelStoreError,
@@ -161,7 +162,9 @@ def test_unknown_label_schema_version_is_refused(dataset, tmp_path):
     with pytest.raises(FormatError, match=r"version 3\.0"):
         LabelShardReader(copy)
     manifest = json.loads((dataset / "manifest.json").read_text())
-    assert all(lab["schema_version"] == LABEL_SCHEMA_VERSION for lab in manifest["labelings"])
+    # the clean scan's labellings keep version 1.1 (their bytes); 1.2 is the newest version hd writes
+    assert all(lab["schema_version"] == LABEL_SCHEMA_VERSION_CLEAN_SCAN for lab in manifest["labelings"])
+    assert LABEL_SCHEMA_VERSION == "1.2"
 
 
 def test_convention_options_name_and_record_the_labelling(dataset):

@@ -7,19 +7,35 @@ returning, scan origins at finite heights.
 
 from __future__ import annotations
 
+import errno
+import json
+import os
+import shutil
 import warnings
+from collections.abc import Iterator
+from pathlib import Path
 
+import h5py
 import numpy as np
 import pytest
 import rasterio
+from click.testing import Result
 from rasterio.transform import from_origin
-from reliability_kit import BUILD_ARGS, assert_one_line_error, hd_process, hills, invoke
+from reliability_kit import (
+    BUILD_ARGS,
+    assert_one_line_error,
+    hd_process,
+    hills,
+    invoke,
+    partials,
+    shard_sums,
+)
 
 from lidarsim import limits
 from lidarsim.build import check_returns
 from lidarsim.errors import LidarsimError
 from lidarsim.scan import STATUS_DEAD, STATUS_MISS, STATUS_RETURN
-from lidarsim.shards import iter_scans
+from lidarsim.shards import iter_scans, read_manifest, sha256_file
 from tests.geotiff import write_geotiff
 
 
@@ -150,3 +166,160 @@ def test_a_build_with_rocks_on_a_dtm_of_nodata_is_one_line(tmp_path):
     last = assert_one_line_error(result, "base.tif", "every cell is nodata")
     assert "RuntimeWarning" not in result.output and last == result.output.strip()
     assert not out.exists()
+
+
+# ------------------------------------------------------------------ terrain-truth labels and their terrain
+@pytest.fixture(scope="module")
+def on_own_dtm(tmp_path_factory) -> tuple[Path, Path]:
+    """A dataset built on a DTM of its own (the manifest records the DTM's absolute path and sha256)."""
+    root = tmp_path_factory.mktemp("own")
+    dtm = hills(root / "own.tif")
+    data = root / "data"
+    result = invoke("build-dataset", "--out", data, "--dtm", dtm, "--workers", "1", *BUILD_ARGS)
+    assert result.exit_code == 0, result.output
+    return dtm, data
+
+
+@pytest.fixture
+def own(tmp_path, on_own_dtm) -> Iterator[tuple[Path, Path]]:
+    """A private copy of that dataset, and its DTM, whose bytes are put back after the test."""
+    dtm, data = on_own_dtm
+    original = dtm.read_bytes()
+    copy = tmp_path / "copy"
+    shutil.copytree(data, copy)
+    yield dtm, copy
+    dtm.unlink()
+    dtm.write_bytes(original)
+
+
+def reseal(dataset: Path) -> None:
+    """Record every file's sha256 in the manifest (a copy edited consistently)."""
+    m = read_manifest(dataset)
+    for e in m["shards"] + [e for lab in m["labelings"] for e in lab["shards"]]:
+        e["sha256"] = sha256_file(dataset / e["path"])
+    (dataset / "manifest.json").write_text(json.dumps(m))
+
+
+def terrain_label(data: Path) -> Result:
+    return invoke("label", data, "--truth", "terrain", "--workers", "1")
+
+
+@pytest.mark.parametrize("when", ["between-shards", "within-a-shard"])
+def test_a_terrain_replaced_while_labelled_stops_the_labelling(own, tmp_path, monkeypatch, when):
+    """The DTM was checked once, before the labelling: one replaced while the shards read it gave a
+    labelling of two terrains, with exit status 0. It is now checked as each shard reads it: in place
+    after the first shard, or as a new file under its name after a scan of the first shard."""
+    from hdlabels import labeling
+
+    dtm, data = own
+    other = hills(tmp_path / "other.tif", seed=4)
+    before = (data / "manifest.json").read_text()
+    if when == "between-shards":
+        real_task = labeling.run_label_task
+
+        def replaced_after(task):
+            record = real_task(task)
+            shutil.copyfile(other, dtm)  # the same file, other bytes
+            return record
+
+        monkeypatch.setattr(labeling, "run_label_task", replaced_after)
+    else:
+        real_scan = labeling.label_scan
+
+        def replaced_after_scan(*args, **kwargs):
+            arrays = real_scan(*args, **kwargs)
+            os.replace(shutil.copyfile(other, tmp_path / "swap.tif"), dtm)  # another file under its name
+            return arrays
+
+        monkeypatch.setattr(labeling, "label_scan", replaced_after_scan)
+    assert_one_line_error(terrain_label(data), "own.tif: the terrain changed while copy was labelled")
+    assert (data / "manifest.json").read_text() == before
+    assert not list(data.glob("labels/**/*.h5")) and partials(data) == []
+
+
+def test_a_label_shard_of_another_terrain_is_damage_to_verify_and_to_label(own, tmp_path, labelled):
+    """Each terrain-truth label shard records the sha256 of the terrain it was labelled from (schema
+    1.2); one that records another terrain made `hd verify` say OK and a second `hd label` say
+    "already labelled". Now verify names it, and label labels it again (with a warning)."""
+    dtm, data = own
+    assert terrain_label(data).exit_code == 0
+    manifest = read_manifest(data)
+    (lab,) = manifest["labelings"]
+    assert lab["schema_version"] == "1.2" and {e["schema_version"] for e in lab["shards"]} == {"1.2"}
+    for entry in lab["shards"]:
+        with h5py.File(data / entry["path"], "r") as f:
+            assert f.attrs["schema_version"] == "1.2"
+            assert f.attrs["truth_dtm_sha256"] == manifest["dtm"]["sha256"] == sha256_file(dtm)
+    for entry in read_manifest(labelled)["labelings"][0]["shards"]:  # the clean scan's: as before
+        with h5py.File(labelled / entry["path"], "r") as f:
+            assert f.attrs["schema_version"] == "1.1" and "truth_dtm_sha256" not in f.attrs
+    path = data / lab["shards"][1]["path"]
+    made = sha256_file(path)
+    with h5py.File(path, "r+") as f:  # as a shard labelled from another terrain records it
+        f.attrs["truth_dtm_sha256"] = sha256_file(hills(tmp_path / "other.tif", seed=4))
+    reseal(data)
+    checked = invoke("verify", data)
+    assert checked.exit_code == 1
+    assert f"{lab['shards'][1]['path']}: labelled from another terrain (truth_dtm_sha256 " in checked.stderr
+    again = terrain_label(data)
+    assert again.exit_code == 0 and "already labelled" not in again.output
+    assert "Warning: copy: 1 label shard(s) of " in again.stderr and "labelling them again" in again.stderr
+    assert sha256_file(path) == made and invoke("verify", data).exit_code == 0
+    assert "already labelled" in terrain_label(data).output
+
+
+def test_a_resumed_terrain_labelling_keeps_no_shard_of_another_terrain(own, tmp_path, monkeypatch):
+    """An interrupted labelling resumed with a complete shard on disk that records another terrain
+    (labelled before the DTM was put back): the shard is labelled again, not kept."""
+    from hdlabels import labeling
+
+    _, data = own
+    fresh = tmp_path / "fresh"
+    shutil.copytree(data, fresh)
+    assert terrain_label(fresh).exit_code == 0
+    real_task = labeling.run_label_task
+    calls: list[int] = []
+
+    def full_disk_after_one(task):
+        calls.append(1)
+        if len(calls) > 1:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), task.out_path)
+        return real_task(task)
+
+    monkeypatch.setattr(labeling, "run_label_task", full_disk_after_one)
+    assert terrain_label(data).exit_code == 1
+    monkeypatch.undo()
+    (left,) = data.glob("labels/*/labels-*.h5")
+    with h5py.File(left, "r+") as f:
+        f.attrs["truth_dtm_sha256"] = "0" * 64
+    assert terrain_label(data).exit_code == 0
+    assert shard_sums(data) == shard_sums(fresh)
+
+
+def test_a_changed_procedural_terrain_is_regenerated_for_the_terrain_truth(tmp_path):
+    """The procedural terrain is a function of the build's seed and parameters: a changed terrain/
+    file was refused; it is written back when it regenerates to the recorded sha256 (as a missing one)."""
+    from lidarsim.build import BuildConfig, build_dataset
+    from lidarsim.procedural import MarsTerrainParams
+    from lidarsim.sensor import SensorConfig
+    from lidarsim.trajectory import TrajectoryConfig
+
+    data = tmp_path / "data"
+    config = BuildConfig(
+        sigmas_m=(0.02,),
+        seed=3,
+        sensor=SensorConfig(rows=32, cols=32),
+        trajectory=TrajectoryConfig(n_scans=2),
+        terrain=MarsTerrainParams(size_m=256.0),
+        shard_size=2,
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the tiny terrain's overlap warning
+        build_dataset(data, config, workers=1)
+    terrain = data / "terrain" / "mars-procedural-seed3.tif"
+    recorded = read_manifest(data)["dtm"]["sha256"]
+    terrain.write_bytes(terrain.read_bytes()[:-64] + bytes(64))
+    result = terrain_label(data)
+    assert result.exit_code == 0, result.output
+    assert "had changed since the build: regenerated from the build's seed 3" in result.stderr
+    assert sha256_file(terrain) == recorded and invoke("verify", data).exit_code == 0
