@@ -54,6 +54,7 @@ import h5py
 import numpy as np
 
 from lidarsim.limits import Bound
+from lidarsim.shards import TRUTH_DTM_SHA256_ATTR
 from lidarsim.storage import CheckedDataset, FormatError, check_schema, open_h5
 
 __all__ = [
@@ -64,6 +65,7 @@ __all__ = [
     "FLOAT32_RTOL",
     "FLOAT64_RTOL",
     "MAX_INLINE_ATTR_CHARS",
+    "MINOR_VERSION_ATTRS",
     "Comparison",
     "array_fingerprint",
     "attr_record",
@@ -99,8 +101,16 @@ _WEIGHT_PRIME = 65521
 # Attribute values longer than this as canonical JSON are kept as a SHA-256 prefix.
 MAX_INLINE_ATTR_CHARS = 80
 # Attributes that hold the sha256 of another file of the dataset (scan shards: the terrain; label
-# shards: their scan shard): they change with those files' bytes, so a rebuild elsewhere has its own.
-FILE_DIGEST_ATTRS = frozenset({"dtm_sha256", "source_sha256"})
+# shards: their scan shard and, for the terrain truth, the terrain): they change with those files'
+# bytes, so a rebuild elsewhere has its own.
+FILE_DIGEST_ATTRS = frozenset({"dtm_sha256", "source_sha256", TRUTH_DTM_SHA256_ATTR})
+# Attributes that a minor version of a schema added, by (schema, version): a file written at that
+# version, compared with one published at an earlier minor version of the same schema (the same
+# content otherwise), holds them where the published one has none; they and the schema version
+# are not differences. hd.labels 1.2: a terrain-truth label shard's terrain (hdlabels.store).
+MINOR_VERSION_ATTRS: dict[tuple[str, str], frozenset[str]] = {
+    ("hd.labels", "1.2"): frozenset({TRUTH_DTM_SHA256_ATTR}),
+}
 
 
 def _plain(value: Any) -> Any:
@@ -427,20 +437,46 @@ class Comparison:
             ``|x|`` for sums and ``max(|min|, |max|)`` for extremes.
         n_arrays: arrays compared.
         n_attrs: attributes compared (file and arrays).
+        newer: when the file is of a newer minor schema version than the published one, what that
+            version adds and was therefore not compared (``MINOR_VERSION_ATTRS``); else "".
     """
 
     problems: list[str] = field(default_factory=list)
     worst: float = 0.0
     n_arrays: int = 0
     n_attrs: int = 0
+    newer: str = ""
 
 
 def _fmt(value: Any) -> str:
     return json.dumps(value)
 
 
-def _compare_attrs(published: dict[str, Any], rebuilt: dict[str, Any], where: str, out: Comparison) -> None:
+def _minor_version_additions(published: dict[str, Any], rebuilt: dict[str, Any]) -> frozenset[str]:
+    """The file attributes of ``rebuilt`` that its newer minor schema version added and ``published``
+    (an earlier minor version of the same schema) lacks, with ``schema_version``; empty otherwise."""
+    schema, old, new = rebuilt.get("schema"), published.get("schema_version"), rebuilt.get("schema_version")
+    if schema != published.get("schema") or not isinstance(old, str) or not isinstance(new, str):
+        return frozenset()
+    try:
+        (old_major, old_minor), (new_major, new_minor) = (tuple(int(p) for p in v.split(".")) for v in (old, new))
+    except ValueError:
+        return frozenset()
+    if old_major != new_major or old_minor >= new_minor:
+        return frozenset()
+    added: set[str] = set()
+    for minor in range(old_minor + 1, new_minor + 1):
+        added |= MINOR_VERSION_ATTRS.get((str(schema), f"{new_major}.{minor}"), frozenset())
+    added = {name for name in added if name in rebuilt and name not in published}
+    return frozenset(added | {"schema_version"}) if added else frozenset()
+
+
+def _compare_attrs(
+    published: dict[str, Any], rebuilt: dict[str, Any], where: str, out: Comparison, skip: frozenset[str] = frozenset()
+) -> None:
     for name in sorted(set(published) | set(rebuilt)):
+        if name in skip:
+            continue
         if name not in rebuilt:
             out.problems.append(f"{where}: attribute {name} of the published build is missing")
         elif name not in published:
@@ -509,7 +545,15 @@ def compare_fingerprints(published: dict[str, Any], rebuilt: dict[str, Any], whe
     """
     out = Comparison()
     try:
-        _compare_attrs(published.get("attrs", {}), rebuilt.get("attrs", {}), where, out)
+        pub_attrs, new_attrs = published.get("attrs", {}), rebuilt.get("attrs", {})
+        added = _minor_version_additions(pub_attrs, new_attrs)
+        if added:
+            names = ", ".join(sorted(added - {"schema_version"}))
+            out.newer = (
+                f"schema {new_attrs['schema_version']} of a file published as {pub_attrs['schema_version']}: "
+                f"{names}, added since, not compared"
+            )
+        _compare_attrs(pub_attrs, new_attrs, where, out, added)
         pub_arrays, new_arrays = published.get("arrays", {}), rebuilt.get("arrays", {})
         for name in sorted(set(pub_arrays) | set(new_arrays)):
             if name not in new_arrays:

@@ -37,8 +37,12 @@ from lidarsim.fingerprint import (
     h5_fingerprint,
 )
 from lidarsim.recipe import CHECKSUMS_FILE, load_recipe
+<<<<<<< HEAD
 from lidarsim.recipe_deviation import recorded_deviation
 from lidarsim.shards import read_manifest
+=======
+from lidarsim.shards import TRUTH_DTM_SHA256_ATTR, read_manifest
+>>>>>>> 7d914c4 (hd verify --recipe: terrain-truth label shards published as schema 1.1 (mars-landing, before shards recorded their terrain) are compared with a 1.2 rebuild without truth_dtm_sha256 and the schema version, which 1.2 added (lidarsim.fingerprint.MINOR_VERSION_ATTRS), and the verdict says so; a rebuilt shard's truth_dtm_sha256 must name this dataset's terrain or the published one; test)
 from lidarsim.storage import DamagedFileError, FormatError, StorageError, confine
 
 __all__ = [
@@ -215,10 +219,11 @@ class _Comparer:
             self.out.problems += problems
             return
         self.out.rebuilt += 1
+        newer = f"; {result.newer}" if result.newer else ""
         self.out.verdicts.append(
             f"{path}: rebuilt: equal to the published build within tolerance ({result.n_arrays} arrays, "
             f"{result.n_attrs} attributes; largest difference {result.worst:.2g} of its tolerance; "
-            f"tolerances: {_TOLERANCES})"
+            f"tolerances: {_TOLERANCES}{newer})"
         )
 
     def _digest_problems(self, path: str, attrs: dict[str, Any]) -> list[str]:
@@ -236,6 +241,14 @@ class _Comparer:
             problems.append(
                 f"{path}: dtm_sha256 names neither this dataset's terrain nor the published one: "
                 "the scans were made on another terrain"
+            )
+        dtm = self.manifest.get("dtm")
+        truth_digest = attrs.get(TRUTH_DTM_SHA256_ATTR)
+        own = dtm.get("sha256") if isinstance(dtm, dict) else None
+        if truth_digest not in (None, own, self.published_dtm):
+            problems.append(
+                f"{path}: {TRUTH_DTM_SHA256_ATTR} names neither this dataset's terrain nor the published one: "
+                "the labels were made from another terrain"
             )
         return problems
 

@@ -366,3 +366,35 @@ def test_every_published_checksums_file_has_possible_values():
 
     for published in sorted((REPO / "datasets").glob("*/checksums.json")):
         assert load_recipe(published.parent).checksums() is not None, published
+
+
+def test_terrain_labels_published_before_they_recorded_their_terrain_are_rebuilt_within_tolerance(
+    data_copy, recipe, tmp_path
+):
+    """Terrain-truth label shards are schema 1.2 since they record their terrain's sha256; a recipe
+    published before (1.1 shards without it, mars-landing) still verifies a rebuild: within tolerance,
+    saying what was not compared. Any other difference of the attributes is still one."""
+    assert invoke("label", data_copy, "--truth", "terrain", "--workers", "1").exit_code == 0
+    published_dir = tmp_path / "published"
+    published_dir.mkdir()
+    shutil.copy(recipe / "recipe.toml", published_dir)
+    assert invoke("card", data_copy, "--recipe", published_dir).exit_code == 0
+    published = json.loads((published_dir / "checksums.json").read_text())
+    (terrain,) = [lab for lab in published["labelings"] if lab["name"].endswith("-truth-terrain")]
+    for entry in terrain["shards"]:  # as hd wrote them before: version 1.1, no truth_dtm_sha256, other bytes
+        attrs = entry["content"]["attrs"]
+        assert attrs.pop("truth_dtm_sha256") == read_manifest(data_copy)["dtm"]["sha256"]
+        attrs["schema_version"] = "1.1"
+        entry["sha256"] = "0" * 64
+    (published_dir / "checksums.json").write_text(json.dumps(published))
+    code, out, err = verify(data_copy, published_dir)
+    assert code == 0, err
+    for entry in terrain["shards"]:
+        assert (
+            f"{entry['path']}: rebuilt: equal to the published build within tolerance (" in out
+            and "schema 1.2 of a file published as 1.1: truth_dtm_sha256, added since, not compared)" in out
+        )
+    del terrain["shards"][0]["content"]["attrs"]["truth_dtm"]
+    (published_dir / "checksums.json").write_text(json.dumps(published))
+    code, _, err = verify(data_copy, published_dir)
+    assert code == 1 and f"{terrain['shards'][0]['path']}: attribute truth_dtm is not in the published build" in err
