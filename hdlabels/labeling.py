@@ -54,13 +54,9 @@ from hdlabels.store import (
     labeling_name,
     labeling_truth,
 )
-<<<<<<< HEAD
-from hdlabels.truth import check_build_terrain, open_build_dtm, terrain_dem
-from lidarsim.outcome import counted
-=======
 from hdlabels.truth import check_build_terrain, labelled_terrain, terrain_dem
 from lidarsim.errors import HdWarning, StorageError
->>>>>>> d1e06ac (Terrain-truth labels are tied to their terrain: each label shard checks the DTM's sha256 against the build's record as it reads it (again after its scans when the file is no longer the one hashed), so a DTM replaced or rewritten during hd label --truth terrain stops it with one line and no shard; each shard records the sha256 (truth_dtm_sha256, label schema 1.2; clean-scan labellings stay 1.1, byte for byte); hd verify names a shard of another terrain as damaged, hd label labels it again instead of saying already labelled, and a resumed labelling never keeps one; a changed procedural terrain is regenerated when that gives the recorded sha256; tests)
+from lidarsim.outcome import counted
 from lidarsim.parallel import run_tasks
 from lidarsim.shards import (
     TRUTH_DTM_SHA256_ATTR,

@@ -37,12 +37,8 @@ from lidarsim.fingerprint import (
     h5_fingerprint,
 )
 from lidarsim.recipe import CHECKSUMS_FILE, load_recipe
-<<<<<<< HEAD
 from lidarsim.recipe_deviation import recorded_deviation
-from lidarsim.shards import read_manifest
-=======
 from lidarsim.shards import TRUTH_DTM_SHA256_ATTR, read_manifest
->>>>>>> 7d914c4 (hd verify --recipe: terrain-truth label shards published as schema 1.1 (mars-landing, before shards recorded their terrain) are compared with a 1.2 rebuild without truth_dtm_sha256 and the schema version, which 1.2 added (lidarsim.fingerprint.MINOR_VERSION_ATTRS), and the verdict says so; a rebuilt shard's truth_dtm_sha256 must name this dataset's terrain or the published one; test)
 from lidarsim.storage import DamagedFileError, FormatError, StorageError, confine
 
 __all__ = [
