@@ -152,6 +152,27 @@ def inspect_cmd(directory: Path, as_json: bool) -> None:
     _show(inspect_directory(directory, as_json or OUTPUT.json))
 
 
+@main.command("compare")
+@click.argument("reports", nargs=-1, metavar="REPORT...", type=click.Path(path_type=Path))
+@click.option(
+    "--format",
+    "fmt",
+    type=click.Choice(("table", "markdown", "json")),
+    default=None,
+    help="table (the terminal's, default), markdown, or json (as hd --json compare).",
+)
+@json_output
+@friendly_errors
+def compare_cmd(reports: tuple[Path, ...], fmt: str | None) -> None:
+    """The key rows of several hd eval reports side by side (Table 1, the threshold, P(safe landing)),
+    then the settings that differ. Each REPORT is an hd eval --out directory; nothing is written."""
+    from hdnet.compare import compare, render
+
+    if OUTPUT.json and fmt not in (None, "json"):
+        raise click.UsageError(f"hd --json prints JSON; drop --format {fmt} or --json")
+    click.echo(render(compare(list(reports)), "json" if OUTPUT.json else fmt or "table"))
+
+
 @main.command("verify")
 @click.argument("directory", type=DIRECTORY)
 @recipe_option("Also check the dataset against the checksums published with a recipe.")

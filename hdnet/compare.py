@@ -1,0 +1,394 @@
+"""``hd compare``: the key rows of several ``hd eval`` reports side by side, and the settings that differ.
+
+Each report is read from its ``report.json`` (``hdnet.report``: ``rows``, ``threshold``, ``run`` and,
+when the evaluation scored landings, ``landing`` and ``landing_settings``). The comparison shows, per
+report (a column named after its directory), Table 1's rows (PA, mIoU, precision, sensitivity and, for
+the uncertainty-aware map, V/C; fractions in [0, 1]), the threshold (its rule and H_t in nats) and the
+landing table's P(safe landing) per truth, method, noise level and navigation dispersion. Then every
+setting of the reports' ``run``, ``threshold`` and ``landing_settings`` records whose values are not
+all equal, with each report's value; the equal ones are counted. Nothing is written.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from hdnet.errors import HdNetError
+from hdnet.report import METHOD_WORDS, ROW_KEYS, json_plain
+from hdnet.run_files import CONFIG, LAST
+from hdnet.uncertainty import RECORD_KEY, recorded_score
+from lidarsim.storage import read_json
+
+REPORT = "report.json"
+FORMATS = ("table", "markdown", "json")
+
+# Table 1's metrics, in the paper's column order: (report.json row key, label).
+METRICS: tuple[tuple[str, str], ...] = (
+    ("vc_fraction", "V/C"),
+    ("pixel_accuracy", "PA"),
+    ("miou", "mIoU"),
+    ("precision", "precision"),
+    ("sensitivity", "sensitivity"),
+)
+# Entries of a threshold record that are what the calibration found, not how it was asked for: they
+# are compared as the threshold's rows (H_t), or not at all (the risk achieved, the quantiles).
+THRESHOLD_RESULTS = frozenset(
+    {
+        "value_nats",
+        "mean_nats",
+        "mean_quantile",
+        "value_quantile",
+        "calibration_pixels",
+        "achieved_risk",
+        "per_sigma",
+        "guarded",
+        "guard_nats",
+        "unreachable",
+        "needs_images",
+    }
+)
+ABSENT = "(absent)"  # a setting one report records and another does not
+DIGITS = 4  # decimals of the fractions and of H_t shown (the report's own, hdnet.report.DECIMALS)
+
+Value = float | int | str | None
+
+
+@dataclass(frozen=True)
+class LoadedReport:
+    """One report: its column name, the directory it was read from and the content of ``report.json``."""
+
+    name: str
+    directory: Path
+    content: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class Row:
+    """One compared quantity: its section (``Table 1``, ``Threshold``, ``Landing``), label and each
+    report's value (None where undefined or missing; fractions in [0, 1], H_t in nats)."""
+
+    section: str
+    label: str
+    values: tuple[Value, ...]
+
+
+@dataclass(frozen=True)
+class Setting:
+    """One setting (a dotted path into ``report.json``: ``run.mc_samples``) and each report's value
+    (``ABSENT`` where a report does not record it)."""
+
+    name: str
+    values: tuple[Any, ...]
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """What ``hd compare`` shows: the reports, the rows, the settings that differ and those equal."""
+
+    reports: tuple[LoadedReport, ...]
+    rows: tuple[Row, ...]
+    differing: tuple[Setting, ...]
+    equal: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The columns: each report's name."""
+        return tuple(r.name for r in self.reports)
+
+
+# ------------------------------------------------------------------------------------------- reading
+def read_report(path: str | os.PathLike) -> tuple[Path, dict[str, Any]]:
+    """The report directory of ``path`` (a report directory or its ``report.json``) and its content.
+
+    Raises:
+        HdNetError: a run directory (runs do not record their reports: ``hd eval`` it first), a
+            directory without ``report.json``, or a ``report.json`` that is not an ``hd eval`` report.
+        StorageError: an unreadable, damaged or non-regular ``report.json`` (``lidarsim.storage.read_json``).
+    """
+    p = Path(path)
+    if p.name == REPORT and not p.is_dir():
+        directory, file = p.parent, p
+    else:
+        directory, file = p, p / REPORT
+    if not directory.is_dir():
+        raise HdNetError(f"{directory}: no such report directory; give the --out directory of an hd eval")
+    if not file.exists() and not file.is_symlink():
+        if (directory / LAST).exists() or (directory / CONFIG).exists():
+            raise HdNetError(
+                f"{directory} is a run, and runs do not record their reports: run `hd eval {directory} --data "
+                "DATASET --out REPORT` first and compare REPORT"
+            )
+        raise HdNetError(f"{directory} holds no {REPORT}: give the --out directory of an hd eval (run `hd eval` first)")
+    content = read_json(file, "report")
+    _check_schema(file, content)
+    return directory, content
+
+
+def _check_schema(file: Path, content: Any) -> None:
+    """Refuse a ``report.json`` whose structure is not that of this hd's reports (``hdnet.report``)."""
+    fix = "re-run hd eval with this hd to write it again"
+    if not isinstance(content, dict):
+        raise HdNetError(f"{file}: not an hd eval report (a JSON {type(content).__name__}, not an object); {fix}")
+    for key, kind in (("rows", list), ("threshold", dict), ("run", dict)):
+        if not isinstance(content.get(key), kind):
+            raise HdNetError(f"{file}: not an hd eval report of this schema (no {key!r} {kind.__name__}); {fix}")
+    for i, row in enumerate(content["rows"]):
+        if not isinstance(row, dict) or set(row) != set(ROW_KEYS):
+            raise HdNetError(f"{file}: row {i} has other keys than this hd's reports ({', '.join(ROW_KEYS)}); {fix}")
+    for key in ("landing", "landing_settings"):
+        if key in content and not isinstance(content[key], list if key == "landing" else dict):
+            raise HdNetError(f"{file}: {key!r} is not of this hd's report schema; {fix}")
+
+
+def column_names(directories: list[Path]) -> list[str]:
+    """Each report's column name: its directory's name, with as many parent directories as make the
+    names distinct (``a/report``, ``b/report``); the same directory twice is numbered (``report (2)``)."""
+    paths = [d.resolve() for d in directories]
+    depth = 1
+    while True:
+        names = [str(Path(*p.parts[-depth:])) for p in paths]
+        if len(set(names)) == len(set(paths)) or all(depth >= len(p.parts) for p in paths):
+            break
+        depth += 1
+    seen: dict[str, int] = {}
+    out = []
+    for n in names:
+        seen[n] = seen.get(n, 0) + 1
+        out.append(n if seen[n] == 1 else f"{n} ({seen[n]})")
+    return out
+
+
+def load_reports(paths: list[str | os.PathLike]) -> list[LoadedReport]:
+    """The reports of ``paths`` (each a report directory or its ``report.json``), named for their columns.
+
+    Raises:
+        HdNetError: fewer than two paths, or a path that is not a report (``read_report``).
+        StorageError: an unreadable or damaged ``report.json``.
+    """
+    if len(paths) < 2:
+        raise HdNetError(
+            f"hd compare needs at least two reports (got {len(paths)}): give two or more hd eval --out directories"
+        )
+    read = [read_report(p) for p in paths]
+    names = column_names([d for d, _ in read])
+    return [LoadedReport(n, d, c) for n, (d, c) in zip(names, read, strict=True)]
+
+
+# ----------------------------------------------------------------------------------------- comparing
+def _cm(sigma_m: Any) -> str:
+    return f"{sigma_m * 100:.3g} cm" if isinstance(sigma_m, (int, float)) else str(sigma_m)
+
+
+def _number(x: Any) -> float | None:
+    """A finite number of a report, else None (report.json writes an undefined ratio as null)."""
+    return float(x) if isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) else None
+
+
+def _ordered(keys: list[Any]) -> list[Any]:
+    """``keys`` once each, in their first order."""
+    return list(dict.fromkeys(keys))
+
+
+def table1_rows(reports: list[LoadedReport]) -> list[Row]:
+    """Table 1 (``table == "noise"``): per method and test noise level, V/C (uncertainty-aware only),
+    PA, mIoU, precision and sensitivity of each report."""
+    index = [
+        {(r["method"], r["test_sigma_m"]): r for r in rep.content["rows"] if r.get("table") == "noise"}
+        for rep in reports
+    ]
+    keys = _ordered([k for rows in index for k in rows])
+    out = []
+    for method, sigma in keys:
+        for key, label in METRICS:
+            if key == "vc_fraction" and method != "uncertainty_aware":
+                continue
+            values = tuple(_number(rows[(method, sigma)][key]) if (method, sigma) in rows else None for rows in index)
+            out.append(Row("Table 1", f"{METHOD_WORDS.get(method, method)} {_cm(sigma)} {label}", values))
+    return out
+
+
+def threshold_rows(reports: list[LoadedReport]) -> list[Row]:
+    """The threshold: its rule (``mean``, ``quantile:Q``, ``risk:ALPHA``, ``nats:H``, with the score when
+    it is not the entropy) and H_t in nats (None: unbounded)."""
+    rules = []
+    for rep in reports:
+        th = rep.content["threshold"]
+        rules.append(f"{th.get('spec', '')}{recorded_score(th).qualifier}" if "spec" in th else None)
+    return [
+        Row("Threshold", "rule", tuple(rules)),
+        Row("Threshold", "H_t (nats)", tuple(_number(rep.content["threshold"].get("value_nats")) for rep in reports)),
+    ]
+
+
+def landing_rows(reports: list[LoadedReport]) -> list[Row]:
+    """The landing table's P(safe landing) per truth, method, test noise level and navigation dispersion
+    (None where the method chose no site); no rows when no report scored landings."""
+    index = []
+    for rep in reports:
+        rows = {}
+        for r in rep.content.get("landing") or []:
+            if isinstance(r, dict):
+                key = (r.get("truth"), r.get("method"), r.get("test_sigma_m"), r.get("nav_sigma_m"))
+                rows[key] = None if r.get("landed") == 0 else _number(r.get("p_safe"))
+        index.append(rows)
+    out = []
+    for truth, method, sigma, nav in _ordered([k for rows in index for k in rows]):
+        nav_words = f"{nav:g} m" if isinstance(nav, (int, float)) else str(nav)
+        label = f"P(safe landing) {truth} truth, {METHOD_WORDS.get(method, method)} {_cm(sigma)}, nav {nav_words}"
+        out.append(Row("Landing", label, tuple(rows.get((truth, method, sigma, nav)) for rows in index)))
+    return out
+
+
+def _flatten(prefix: str, value: Any, out: dict[str, Any]) -> None:
+    """Nested objects as dotted names (``run.train_noise.kind``); lists and scalars are values."""
+    if isinstance(value, dict) and value:
+        for k, v in value.items():
+            _flatten(f"{prefix}.{k}", v, out)
+    else:
+        out[prefix] = value
+
+
+def settings(content: dict[str, Any]) -> dict[str, Any]:
+    """A report's settings by dotted name: its ``run`` record, its threshold's settings (not what the
+    calibration found) and its ``landing_settings``; the uncertainty score always named."""
+    out: dict[str, Any] = {}
+    _flatten("run", content["run"], out)
+    th = {k: v for k, v in content["threshold"].items() if k not in THRESHOLD_RESULTS}
+    th[RECORD_KEY] = recorded_score(content["threshold"]).name
+    _flatten("threshold", th, out)
+    if content.get("landing_settings"):
+        _flatten("landing_settings", content["landing_settings"], out)
+    return out
+
+
+def compare_settings(reports: list[LoadedReport]) -> tuple[list[Setting], dict[str, Any]]:
+    """The settings whose values are not all equal (each report's value, ``ABSENT`` where it has none)
+    and the equal ones (name -> value)."""
+    each = [settings(rep.content) for rep in reports]
+    names = _ordered([k for s in each for k in s])
+    differing, equal = [], {}
+    for name in names:
+        values = tuple(s.get(name, ABSENT) for s in each)
+        if all(json.dumps(v, sort_keys=True) == json.dumps(values[0], sort_keys=True) for v in values):
+            equal[name] = values[0]
+        else:
+            differing.append(Setting(name, values))
+    return differing, equal
+
+
+def compare(paths: list[str | os.PathLike]) -> Comparison:
+    """Read the reports of ``paths`` and compare them (see the module's docstring).
+
+    Raises:
+        HdNetError: fewer than two reports, a path that is not a report, a report of another schema.
+        StorageError: an unreadable or damaged ``report.json``.
+    """
+    reports = load_reports(paths)
+    rows = [*table1_rows(reports), *threshold_rows(reports), *landing_rows(reports)]
+    differing, equal = compare_settings(reports)
+    return Comparison(tuple(reports), tuple(rows), tuple(differing), equal)
+
+
+# --------------------------------------------------------------------------------------------- output
+def _cell(value: Value) -> str:
+    """A row's value as shown: numbers with ``DIGITS`` decimals, ``--`` where undefined or missing."""
+    if value is None:
+        return "--"
+    if isinstance(value, float):
+        return f"{value:.{DIGITS}f}"
+    return str(value)
+
+
+def _setting_cell(value: Any) -> str:
+    """A setting's value as shown: strings as they are, anything else as compact JSON."""
+    if isinstance(value, str):
+        return value
+    return json.dumps(json_plain(value))
+
+
+def _equal_line(c: Comparison) -> str:
+    n = len(c.equal)
+    return f"{n} other setting{'' if n == 1 else 's'} equal in every report"
+
+
+def to_table(c: Comparison) -> str:
+    """The comparison as aligned text for a terminal."""
+    header = ["", *c.names]
+    body = [[f"{r.section}: {r.label}", *(_cell(v) for v in r.values)] for r in c.rows]
+    widths = [max(len(line[i]) for line in [header, *body]) for i in range(len(header))]
+
+    def line(cells: list[str]) -> str:
+        return "  ".join(
+            cell.ljust(w) if i == 0 else cell.rjust(w) for i, (cell, w) in enumerate(zip(cells, widths, strict=True))
+        ).rstrip()
+
+    out = [line(header), *(line(b) for b in body), ""]
+    if c.differing:
+        out.append(f"Settings that differ ({len(c.differing)}):")
+        width = max(len(n) for n in c.names)
+        for s in c.differing:
+            out.append(f"  {s.name}")
+            out += [f"    {n.ljust(width)}  {_setting_cell(v)}" for n, v in zip(c.names, s.values, strict=True)]
+    else:
+        out.append("Settings that differ: none")
+    out.append(_equal_line(c))
+    return "\n".join(out)
+
+
+def _md(text: str) -> str:
+    return text.replace("|", "\\|")
+
+
+def to_markdown(c: Comparison) -> str:
+    """The comparison as Markdown: one table of the rows, one of the settings that differ."""
+    out = [
+        "| Section | Row | " + " | ".join(_md(n) for n in c.names) + " |",
+        "|---|---|" + "---|" * len(c.names),
+        *(f"| {r.section} | {_md(r.label)} | " + " | ".join(_md(_cell(v)) for v in r.values) + " |" for r in c.rows),
+        "",
+    ]
+    if c.differing:
+        out += [
+            "Settings that differ:",
+            "",
+            "| Setting | " + " | ".join(_md(n) for n in c.names) + " |",
+            "|---|" + "---|" * len(c.names),
+            *(f"| `{s.name}` | " + " | ".join(_md(_setting_cell(v)) for v in s.values) + " |" for s in c.differing),
+            "",
+        ]
+    else:
+        out += ["Settings that differ: none", ""]
+    out.append(_equal_line(c) + ".")
+    return "\n".join(out)
+
+
+def to_record(c: Comparison) -> dict[str, Any]:
+    """The comparison as one JSON-ready object: the reports (name, directory), each row's values by
+    report name (the reports' own numbers), the settings that differ and those equal."""
+
+    def by_name(values: tuple[Any, ...]) -> dict[str, Any]:
+        return dict(zip(c.names, values, strict=True))
+
+    return json_plain(
+        {
+            "command": "compare",
+            "reports": [{"name": r.name, "directory": str(r.directory)} for r in c.reports],
+            "rows": [{"section": r.section, "row": r.label, "values": by_name(r.values)} for r in c.rows],
+            "settings_differ": {s.name: by_name(s.values) for s in c.differing},
+            "settings_equal": c.equal,
+        }
+    )
+
+
+def render(c: Comparison, fmt: str) -> str:
+    """The comparison in ``fmt`` (one of ``FORMATS``)."""
+    if fmt == "markdown":
+        return to_markdown(c)
+    if fmt == "json":
+        return json.dumps(to_record(c))
+    return to_table(c)
