@@ -448,3 +448,31 @@ def test_an_unreachable_risk_level_and_an_unfinished_run_are_said(setup, tmp_pat
     assert "unreachable with 2 validation images: it needs 19" in result.summary()
     reachable = EvalConfig(mc_samples=2, threshold="risk:0.5")
     assert evaluate_to_report(run, dataset, tmp_path / "r2", reachable, figures=False).threshold["unreachable"] is False
+
+
+def test_hd_compare_shows_two_real_reports_numbers_and_their_differing_settings(setup, mi_report):
+    """hd compare on two reports of the tiny run (entropy with 10 dead pixels; mutual information):
+    Table 1's numbers and H_t are the reports', and the settings that differ are named."""
+    from click.testing import CliRunner
+
+    from cli import main
+    from hdnet.report import METHOD_WORDS
+
+    entropy_dir, mi_dir = setup[2], mi_report[0]
+    result = CliRunner().invoke(main, ["--json", "compare", str(entropy_dir), str(mi_dir)])
+    assert result.exit_code == 0, result.output
+    record = json.loads(result.output)
+    names = [r["name"] for r in record["reports"]]
+    assert len(set(names)) == 2 and all(n.endswith("/report") for n in names)  # both are called report
+    shown = {r["row"]: r["values"] for r in record["rows"]}
+    for name, directory in zip(names, (entropy_dir, mi_dir), strict=True):
+        report = json.loads((directory / "report.json").read_text())
+        for r in (r for r in report["rows"] if r["table"] == "noise"):
+            prefix = f"{METHOD_WORDS[r['method']]} {r['test_sigma_m'] * 100:.3g} cm"
+            assert shown[f"{prefix} PA"][name] == r["pixel_accuracy"]
+            assert shown[f"{prefix} sensitivity"][name] == r["sensitivity"]
+        assert shown["H_t (nats)"][name] == report["threshold"]["value_nats"]
+    differ = record["settings_differ"]
+    assert differ["threshold.uncertainty"] == dict(zip(names, ("entropy", "mutual-information"), strict=True))
+    assert differ["run.drop_pixels"] == dict(zip(names, (10, 0), strict=True))
+    assert "run.checkpoint_sha256" not in differ and "run.checkpoint_sha256" in record["settings_equal"]
