@@ -26,6 +26,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
+import numpy as np
+
 from hdlabels import defaults as label_defaults
 from hdlabels.settings import LabelSettings
 from hdnet import defaults as net_defaults
@@ -33,7 +35,7 @@ from hdnet.noise_levels import parse_sigma_sweep
 from hdnet.profiles import ROBUST_THRESHOLD_SPEC, get_profile
 from lidarsim import defaults as lidar_defaults
 from lidarsim.build import BuildConfig
-from lidarsim.errors import LidarsimError
+from lidarsim.errors import HdError, LidarsimError
 from lidarsim.storage import read_regular_text
 
 if TYPE_CHECKING:
@@ -492,15 +494,37 @@ class StageLog:
         return self.times
 
 
+def first_test_scan(dataset_dir: Path) -> int | None:
+    """The index of the dataset's first test-split scan (one the network never trained on), or None:
+    no test scan, or a dataset that cannot be read (only the ``split`` and ``scan_index`` arrays are)."""
+    from lidarsim.shards import SPLIT_NAMES, read_manifest
+    from lidarsim.storage import confine, open_h5
+
+    test = SPLIT_NAMES.index("test")
+    try:
+        for entry in read_manifest(dataset_dir)["shards"]:
+            with open_h5(confine(dataset_dir, entry["path"])) as f:
+                split = np.asarray(f["split"][:])
+                if (split == test).any():
+                    return int(np.asarray(f["scan_index"][:])[np.argmax(split == test)])
+    except (HdError, OSError, KeyError, TypeError):
+        return None
+    return None
+
+
 def demo_next_steps(out_dir: Path) -> str:
-    """What to try after ``hd demo``: the hazard map of one scan and of a whole DTM."""
+    """What to try after ``hd demo``: the hazard map of one test scan (the first of the test split:
+    a scan of the training split would map ground the network has seen) and of a whole DTM."""
     import shutil
     import sys
 
     hd = "hd" if shutil.which("hd") else f"{Path(sys.executable).parent / 'hd'}"
+    scan = first_test_scan(out_dir / "dataset")
+    scan = 0 if scan is None else scan
     return (
-        "Next: map the hazards of one scan at 7 cm, or of a whole terrain:\n"
-        f"  {hd} detect {out_dir}/run --data {out_dir}/dataset --scan 0 --sigma 0.07 --out {out_dir}/detect-scan0\n"
+        "Next: map the hazards of a test scan at 7 cm, or of a whole terrain:\n"
+        f"  {hd} detect {out_dir}/run --data {out_dir}/dataset --scan {scan} --sigma 0.07 "
+        f"--out {out_dir}/detect-scan{scan}\n"
         f"  {hd} make-dtm {out_dir}/mars.tif && {hd} detect {out_dir}/run --dtm {out_dir}/mars.tif "
         f"--out {out_dir}/detect-mars"
     )

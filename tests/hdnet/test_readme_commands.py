@@ -80,6 +80,29 @@ def test_the_quick_start_runs_line_by_line_as_pasted(tmp_path):
     script = "set -e\n" + "\n".join(lines) + "\n"
     result = subprocess.run(["bash", "-c", script], cwd=tmp_path, env=env, capture_output=True, text=True)
     assert result.returncode == 0, result.stderr[-2000:]
-    for out in ("data", "run", "report", "scan17", "mars-detect"):
+    for out in ("data", "run", "report", "scan850", "mars-detect"):
         assert (tmp_path / out).is_dir(), out
     assert (tmp_path / "report" / "report.json").is_file() and (tmp_path / "mars-detect" / "detect.json").is_file()
+
+
+def test_the_demo_suggests_mapping_a_test_scan_not_a_training_scan(tmp_path):
+    from hdnet_datasets import build_labelled
+
+    from hdnet.pipeline import demo_next_steps, first_test_scan
+    from lidarsim.shards import iter_scans
+
+    dataset = build_labelled(tmp_path / "demo-out", label=False)
+    splits = {scan.scan_index: scan.split for scan in iter_scans(dataset)}
+    first = first_test_scan(dataset)
+    assert first is not None and splits[first] == "test"
+    assert all(split != "test" for index, split in splits.items() if index < first)
+    assert f"--scan {first} " in demo_next_steps(tmp_path / "demo-out")
+    assert first_test_scan(tmp_path / "nothing") is None
+
+
+def test_the_readme_maps_a_test_scan_of_its_own_build():
+    from lidarsim import defaults
+    from lidarsim.build import assign_splits
+
+    scan = int(re.search(r"--scan (\d+)", README.read_text()).group(1))  # type: ignore[union-attr]  # the README has one
+    assert assign_splits(defaults.N_SCANS, defaults.SEED)[scan] == 2  # the quick start builds 1000 scans, seed 0
