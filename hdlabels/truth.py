@@ -92,10 +92,7 @@ def check_build_terrain(root: Path, manifest: dict[str, Any]) -> tuple[Path, str
             f"{path}: the terrain {root.name} was built on is missing; --truth terrain samples it (restore the "
             "file, or label with --truth clean-scan)"
         )
-    try:
-        digest = sha256_file(path)
-    except HdError as exc:
-        raise LabelStoreError(f"{path}: the dataset's terrain cannot be read ({exc})") from exc
+    digest = _terrain_digest(path, root.name)
     if digest != recorded:
         raise LabelStoreError(
             f"{path}: the terrain changed since {root.name} was built (sha256 {digest[:12]}..., the manifest "
@@ -117,12 +114,21 @@ def _identity(path: str | os.PathLike, dataset: str) -> tuple[int, ...]:
     return (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
 
 
-def _check_digest(path: str | os.PathLike, sha256: str, dataset: str) -> None:
-    """Refuse the terrain file at ``path`` unless its bytes are the build's (``sha256``)."""
+def _terrain_digest(path: str | os.PathLike, dataset: str) -> str:
+    """The sha256 of the terrain file at ``path`` that the dataset ``dataset`` was built on.
+
+    Raises:
+        LabelStoreError: the file cannot be read.
+    """
     try:
-        digest = sha256_file(path)
+        return sha256_file(path)
     except HdError as exc:
         raise LabelStoreError(f"{path}: the terrain {dataset} was built on cannot be read ({exc})") from exc
+
+
+def _check_digest(path: str | os.PathLike, sha256: str, dataset: str) -> None:
+    """Refuse the terrain file at ``path`` unless its bytes are the build's (``sha256``)."""
+    digest = _terrain_digest(path, dataset)
     if digest != sha256:
         raise LabelStoreError(
             f"{path}: the terrain changed while {dataset} was labelled (sha256 {digest[:12]}..., the manifest "

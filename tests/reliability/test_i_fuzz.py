@@ -436,16 +436,21 @@ def _recipe_values() -> st.SearchStrategy[Any]:
     )
 
 
-@pytest.mark.parametrize("name", ["label", "verify"])
-def test_mutated_recipes(name, labelled, scratch):
-    manifest = read_manifest(labelled)
-    published = {
+def published_checksums(dataset: Path) -> dict[str, Any]:
+    """The ``checksums.json`` a recipe would publish for ``dataset`` (its settings hash, schemas and shards)."""
+    manifest = read_manifest(dataset)
+    return {
         "config_sha256": manifest["config_sha256"],
         "schema": manifest["schema"],
         "schema_version": manifest["schema_version"],
         "shard_schema_version": manifest["shards"][0]["schema_version"],
         "shards": [{k: e[k] for k in LABEL_FIELDS} for e in manifest["shards"]],
     }
+
+
+@pytest.mark.parametrize("name", ["label", "verify"])
+def test_mutated_recipes(name, labelled, scratch):
+    published = published_checksums(labelled)
 
     @fuzz_settings(examples(f"recipe/{name}"))
     @given(st.data())
@@ -1179,15 +1184,8 @@ def recipe_place(labelled, scratch) -> Path:
     place = scratch / "recipe-place"
     own = place / "fuzz-own"
     own.mkdir(parents=True)
-    manifest = read_manifest(labelled)
     (own / "recipe.toml").write_text(to_toml(RECIPE))
-    published = {
-        "config_sha256": manifest["config_sha256"],
-        "schema": manifest["schema"],
-        "schema_version": manifest["schema_version"],
-        "shard_schema_version": manifest["shards"][0]["schema_version"],
-        "shards": [{k: e[k] for k in LABEL_FIELDS} for e in manifest["shards"]],
-    }
+    published = published_checksums(labelled)
     (own / "checksums.json").write_text(json.dumps(published, indent=1))
     (place / "own-link").symlink_to(own)
     shutil.copytree(own, place / OWN_RECIPES[2])
