@@ -173,6 +173,31 @@ def compare_cmd(reports: tuple[Path, ...], fmt: str | None) -> None:
     click.echo(render(compare(list(reports)), "json" if OUTPUT.json else fmt or "table"))
 
 
+@main.command("view", cls=SettingsCommand, settings=("hdnet.view:ViewSettings",))
+@click.argument("directory", type=FILE_OR_DIRECTORY)
+@click.option(
+    "--out",
+    "out_path",
+    type=NonEmptyPath(dir_okay=False, path_type=Path),
+    default=None,
+    help="The page to write (default: DIRECTORY/view.html); an existing file is replaced only when it is an earlier "
+    "page of hd view.",
+)
+@dtm_option(
+    "With an hd detect output whose DTM has moved: the DTM it read (checked against detect.json's sha256), for the "
+    "hillshade."
+)
+@json_output
+@friendly_errors
+def view_cmd(directory: Path, out_path: Path | None, dtm_path: Path | None, **settings: Any) -> None:
+    """One self-contained HTML page (no network needed) of an hd detect output (hillshade, safety map, P(safe),
+    uncertainty and baseline as layers, the landing sites, the settings) or of an hd eval report (its tables,
+    figures and settings). DIRECTORY is an hd detect --out or hd eval --out directory."""
+    from hdnet.view import ViewSettings, view_job
+
+    _done(view_job(directory, out_path, ViewSettings(**settings), dtm_path))
+
+
 @main.command("verify")
 @click.argument("directory", type=DIRECTORY)
 @recipe_option("Also check the dataset against the checksums published with a recipe.")

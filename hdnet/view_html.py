@@ -1,0 +1,290 @@
+"""The HTML of ``hd view``: one self-contained page (its style, its script and its images inside it).
+
+Nothing on a page is fetched: images are ``data:`` URIs, the style and the script are inline, and
+the page's Content-Security-Policy (``default-src 'none'``) lets a browser load nothing else, so a
+page opened offline, mailed or archived shows all it has. Every text taken from a file is escaped
+(:func:`esc`). The page names its maker in ``<meta name="generator">`` (:data:`GENERATOR`), by
+which ``hd view`` recognises a page it may replace.
+
+Building blocks: :func:`page` (the document), :func:`table`, :func:`definitions` (name/value
+rows), :func:`data_uri`, and :func:`markdown_html`, which renders the Markdown that hd writes for a
+report (headings, bullet lists, pipe tables, paragraphs, images, ``code`` and ``**bold**``).
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import re
+from collections.abc import Iterable, Mapping, Sequence
+
+from hdnet._version import __version__
+
+GENERATOR = "hd view"
+CSP = (
+    "default-src 'none'; img-src data:; style-src 'unsafe-inline'; script-src 'unsafe-inline'; "
+    "base-uri 'none'; form-action 'none'"
+)
+
+STYLE = """
+:root { --fg: #1d2125; --muted: #5c6670; --line: #d5dae0; --band: #f4f6f8; --accent: #1f5fbf; }
+* { box-sizing: border-box; }
+body { font: 14px/1.45 system-ui, -apple-system, "Segoe UI", Roboto, sans-serif; color: var(--fg);
+  margin: 0 auto; padding: 16px 24px 48px; max-width: 1600px; }
+h1 { font-size: 22px; margin: 8px 0 4px; } h2 { font-size: 18px; margin: 28px 0 8px; border-bottom: 1px solid
+  var(--line); padding-bottom: 4px; } h3 { font-size: 15px; margin: 20px 0 6px; }
+.sub { color: var(--muted); margin: 0 0 12px; word-break: break-all; }
+.note { color: var(--muted); font-size: 13px; }
+.warning { background: #fff4e0; border: 1px solid #e0a040; padding: 8px 12px; border-radius: 4px; margin: 8px 0; }
+code, pre { font: 12.5px/1.4 ui-monospace, SFMono-Regular, Menlo, Consolas, monospace; }
+code { background: var(--band); padding: 0 3px; border-radius: 3px; word-break: break-all; }
+pre { background: var(--band); padding: 10px; overflow: auto; max-height: 480px; }
+table { border-collapse: collapse; margin: 6px 0 14px; font-size: 13px; }
+th, td { border: 1px solid var(--line); padding: 3px 8px; text-align: left; vertical-align: top; }
+th { background: var(--band); font-weight: 600; }
+td.num, th.num { text-align: right; font-variant-numeric: tabular-nums; }
+table.defs th { width: 16em; } table.defs td { word-break: break-all; }
+nav.toc { font-size: 13px; } nav.toc a { margin-right: 12px; }
+.layout { display: flex; gap: 16px; align-items: flex-start; }
+.controls { flex: 0 0 290px; position: sticky; top: 8px; }
+.controls fieldset { border: 1px solid var(--line); margin: 0 0 10px; padding: 6px 10px; }
+.layer-control { margin: 6px 0 10px; }
+.layer-control label { font-weight: 600; }
+.layer-control input[type=range] { width: 100%; margin: 2px 0; }
+.legend { font-size: 12px; color: var(--muted); }
+.bar { height: 10px; border: 1px solid var(--line); position: relative; margin-top: 2px; }
+.bar .tick { position: absolute; top: -3px; bottom: -3px; width: 2px; background: #000; }
+.bar-labels { display: flex; justify-content: space-between; }
+.swatch { display: inline-block; width: 11px; height: 11px; border: 1px solid #888; margin: 0 3px 0 8px;
+  vertical-align: -1px; }
+.map-scroll { flex: 1 1 auto; overflow: auto; max-height: 88vh; border: 1px solid var(--line); background: #fff; }
+.map { position: relative; width: 100%; }
+.map .layer { position: absolute; left: 0; top: 0; width: 100%; height: 100%; image-rendering: pixelated; }
+.map svg.layer { overflow: visible; }
+.site-marker { cursor: pointer; }
+.site-marker circle { fill: none; }
+.site-marker .halo { stroke: #000; stroke-width: 3px; } .site-marker .ring { stroke: #fff; stroke-width: 1.4px; }
+.site-marker.selected .ring { stroke: #ffd400; stroke-width: 2.5px; }
+.site-marker text { fill: #000; paint-order: stroke; stroke: #fff; stroke-width: 3px; font-weight: 700; }
+#readout { font: 12.5px ui-monospace, Menlo, Consolas, monospace; min-height: 1.4em; }
+button.zoom { margin-right: 4px; }
+tr.site-row { cursor: pointer; } tr.site-row:hover { background: #eef3fb; }
+tr.site-row.selected { background: #fff3b0; }
+figure { margin: 12px 0 20px; } figure img { max-width: 100%; height: auto; border: 1px solid var(--line); }
+figcaption { color: var(--muted); font-size: 13px; }
+"""
+
+# The page's behaviour: layer visibility and opacity, zoom, the pointer's map coordinates, and the
+# selection of a landing site (a table row and its marker together).
+SCRIPT = """
+(function () {
+  "use strict";
+  function each(selector, f) { Array.prototype.forEach.call(document.querySelectorAll(selector), f); }
+  each("input.layer-toggle", function (box) {
+    var layer = document.getElementById(box.dataset.layer);
+    function apply() { layer.style.display = box.checked ? "" : "none"; }
+    box.addEventListener("change", apply);
+    apply();
+  });
+  each("input.layer-opacity", function (slider) {
+    var layer = document.getElementById(slider.dataset.layer);
+    function apply() { layer.style.opacity = String(Number(slider.value) / 100); }
+    slider.addEventListener("input", apply);
+    apply();
+  });
+  var map = document.getElementById("map");
+  if (!map) { return; }
+  var d = map.dataset, px = Number(d.px);
+  each("button.zoom", function (button) {
+    button.addEventListener("click", function () {
+      var z = button.dataset.zoom;
+      map.style.width = z === "fit" ? "100%" : String(px * Number(z)) + "px";
+    });
+  });
+  var readout = document.getElementById("readout");
+  function fmt(v) { return v.toFixed(Math.abs(v) < 1e4 ? 2 : 1); }
+  map.addEventListener("mousemove", function (event) {
+    var r = map.getBoundingClientRect();
+    var fx = (event.clientX - r.left) / r.width, fy = (event.clientY - r.top) / r.height;
+    var x = Number(d.left) + fx * Number(d.width), y = Number(d.top) - fy * Number(d.height);
+    readout.textContent = "x " + fmt(x) + " m, y " + fmt(y) + " m";
+  });
+  map.addEventListener("mouseleave", function () { readout.textContent = ""; });
+  function select(rank, scroll) {
+    each(".site-marker, tr.site-row", function (el) {
+      el.classList.toggle("selected", el.dataset.rank === rank);
+    });
+    var target = document.querySelector(
+      (scroll === "row" ? "tr.site-row" : ".site-marker") + "[data-rank='" + rank + "']");
+    if (target && target.scrollIntoView) { target.scrollIntoView({block: "nearest", inline: "nearest"}); }
+  }
+  each("tr.site-row", function (row) {
+    row.addEventListener("click", function () { select(row.dataset.rank, "marker"); });
+  });
+  each(".site-marker", function (marker) {
+    marker.addEventListener("click", function () { select(marker.dataset.rank, "row"); });
+  });
+})();
+"""
+
+
+def esc(text: object) -> str:
+    """``text`` as HTML text or attribute value (``&``, ``<``, ``>`` and both quotes escaped)."""
+    return html.escape(str(text), quote=True)
+
+
+def data_uri(png: bytes) -> str:
+    """A ``data:`` URI of PNG bytes."""
+    return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
+
+
+def page(title: str, body: str, description: str = "") -> str:
+    """The whole HTML document: ``title`` (text) and ``body`` (HTML), with the style and script inline."""
+    return (
+        "<!DOCTYPE html>\n"
+        '<html lang="en">\n<head>\n<meta charset="utf-8">\n'
+        f'<meta name="generator" content="{GENERATOR} {esc(__version__)}">\n'
+        f'<meta http-equiv="Content-Security-Policy" content="{CSP}">\n'
+        '<meta name="viewport" content="width=device-width, initial-scale=1">\n'
+        + (f'<meta name="description" content="{esc(description)}">\n' if description else "")
+        + f"<title>{esc(title)}</title>\n<style>{STYLE}</style>\n</head>\n<body>\n{body}\n"
+        f"<script>{SCRIPT}</script>\n</body>\n</html>\n"
+    )
+
+
+def is_page(head: bytes) -> bool:
+    """True when ``head`` (the first bytes of a file) is the start of a page ``hd view`` wrote."""
+    text = head[:4096].decode("utf-8", errors="replace")
+    return text.startswith("<!DOCTYPE html>") and f'<meta name="generator" content="{GENERATOR} ' in text
+
+
+NUMERIC = ' class="num"'  # the attribute of a right-aligned number's cell
+
+
+def _numeric(cell: str) -> bool:
+    return bool(re.fullmatch(r"[-+]?(\d+(\.\d*)?|\.\d+)([eE][-+]?\d+)?( ?%)?|--", cell.strip()))
+
+
+def table(
+    header: Sequence[str],
+    rows: Iterable[Sequence[str]],
+    *,
+    table_id: str = "",
+    row_attrs: Sequence[Mapping[str, str]] | None = None,
+    header_titles: Sequence[str] | None = None,
+) -> str:
+    """An HTML table of text cells (escaped); numeric cells right-aligned. ``row_attrs``: each body
+    row's attributes (``class``, ``data-*``); ``header_titles``: each column's tooltip."""
+    attrs = list(row_attrs or [])
+    titles = list(header_titles or [])
+    head = "".join(
+        f"<th{f' title={_q(titles[i])}' if i < len(titles) and titles[i] else ''}>{esc(h)}</th>"
+        for i, h in enumerate(header)
+    )
+    body = []
+    for k, row in enumerate(rows):
+        extra = "".join(f" {esc(n)}={_q(v)}" for n, v in (attrs[k] if k < len(attrs) else {}).items())
+        cells = "".join(f"<td{NUMERIC if _numeric(c) else ''}>{esc(c)}</td>" for c in row)
+        body.append(f"<tr{extra}>{cells}</tr>")
+    ident = f" id={_q(table_id)}" if table_id else ""
+    return f"<table{ident}>\n<thead><tr>{head}</tr></thead>\n<tbody>\n" + "\n".join(body) + "\n</tbody>\n</table>"
+
+
+def definitions(items: Iterable[tuple[str, str]], table_id: str = "") -> str:
+    """A two-column table of names and values (both text, escaped)."""
+    rows = "\n".join(f"<tr><th>{esc(k)}</th><td>{esc(v)}</td></tr>" for k, v in items)
+    ident = f" id={_q(table_id)}" if table_id else ""
+    return f'<table class="defs"{ident}>\n<tbody>\n{rows}\n</tbody>\n</table>'
+
+
+def _q(value: str) -> str:
+    return f'"{esc(value)}"'
+
+
+def anchor(text: str) -> str:
+    """An element id made of a heading's text (``Table 1: noise levels`` -> ``table-1-noise-levels``)."""
+    return re.sub(r"[^a-z0-9]+", "-", text.lower()).strip("-") or "section"
+
+
+# --------------------------------------------------------------------------------------- Markdown
+_TABLE_RULE = re.compile(r"^\|(\s*:?-+:?\s*\|)+\s*$")
+_IMAGE = re.compile(r"^!\[([^\]]*)\]\(([^)\s]+)\)$")
+
+
+def _inline(text: str) -> str:
+    """Escaped text with hd's inline Markdown: ``code`` and **bold** (code spans first, verbatim)."""
+    out = []
+    for k, part in enumerate(re.split(r"`([^`]*)`", text)):
+        if k % 2:
+            out.append(f"<code>{esc(part)}</code>")
+        else:
+            out.append(re.sub(r"\*\*(.+?)\*\*", r"<strong>\1</strong>", esc(part)))
+    return "".join(out)
+
+
+def _cells(line: str) -> list[str]:
+    """The cells of a pipe-table row (``\\|`` is a pipe inside a cell)."""
+    inner = line.strip()[1:-1] if line.strip().endswith("|") else line.strip()[1:]
+    return [c.strip().replace("\\|", "|") for c in re.split(r"(?<!\\)\|", inner)]
+
+
+def markdown_html(markdown: str, images: Mapping[str, tuple[str, int, int]] | None = None) -> tuple[str, list[str]]:
+    """HTML of the Markdown hd writes, and the headings (level 2) in order, for a table of contents.
+
+    ``images``: an image's target (``reliability.png``) -> (data URI, width, height); an image line
+    whose target is not there is shown as its text.
+    """
+    figures = images or {}
+    lines = markdown.splitlines()
+    out: list[str] = []
+    headings: list[str] = []
+    i = 0
+    while i < len(lines):
+        line = lines[i]
+        stripped = line.strip()
+        if not stripped:
+            i += 1
+            continue
+        heading = re.match(r"^(#{1,4}) (.*)$", stripped)
+        if heading:
+            level, text = len(heading.group(1)), heading.group(2).strip()
+            if level == 2:
+                headings.append(text)
+            out.append(f"<h{level} id={_q(anchor(text))}>{_inline(text)}</h{level}>")
+            i += 1
+            continue
+        if stripped.startswith("|") and i + 1 < len(lines) and _TABLE_RULE.match(lines[i + 1].strip()):
+            header = _cells(stripped)
+            body = []
+            i += 2
+            while i < len(lines) and lines[i].strip().startswith("|"):
+                body.append(_cells(lines[i]))
+                i += 1
+            out.append(table(header, body))
+            continue
+        if stripped.startswith("- "):
+            items = []
+            while i < len(lines) and lines[i].strip().startswith("- "):
+                items.append(f"<li>{_inline(lines[i].strip()[2:])}</li>")
+                i += 1
+            out.append("<ul>\n" + "\n".join(items) + "\n</ul>")
+            continue
+        image = _IMAGE.match(stripped)
+        if image:
+            alt, target = image.groups()
+            if target in figures:
+                uri, w, h = figures[target]
+                out.append(
+                    f'<figure id={_q("figure-" + anchor(alt))}><img src="{uri}" width="{w}" height="{h}" '
+                    f"alt={_q(alt)}><figcaption>{esc(target)} ({w} x {h} px)</figcaption></figure>"
+                )
+            else:
+                out.append(f"<p>{_inline(stripped)}</p>")
+            i += 1
+            continue
+        para = []
+        while i < len(lines) and lines[i].strip() and not re.match(r"^(#{1,4} |\||- |!\[)", lines[i].strip()):
+            para.append(lines[i].strip())
+            i += 1
+        out.append(f"<p>{_inline(' '.join(para))}</p>")
+    return "\n".join(out), headings
