@@ -1,0 +1,772 @@
+"""hd view: the self-contained page of a detect output and of a report, parsed as HTML; bad input.
+
+The outputs are real: the tiny dataset (``hdnet_datasets``), a run trained one epoch on it, a
+*constant* run made from it (its classifier ignores the input and calls every cell safe with
+P(safe) = sigmoid(6), so that its detection has landing sites), a detection of the dataset's DTM
+with the constant run, one of a scan with the trained run, and an evaluation report with landing
+rows and a dead-pixel table. A larger detect output is made by hand (maps of hand-derivable values
+on a 2 m grid) for the reduction of maps that do not fit the image size.
+
+The browser test (slow) opens pages in headless Chromium through Selenium.
+"""
+
+from __future__ import annotations
+
+import base64
+import csv
+import hashlib
+import io
+import json
+import math
+import os
+import shutil
+import subprocess
+import sys
+import warnings
+from html.parser import HTMLParser
+from pathlib import Path
+from typing import Any
+
+import matplotlib.image
+import numpy as np
+import pytest
+import rasterio
+import torch
+from click.testing import CliRunner
+from hdnet_datasets import build_labelled
+
+from cli import main
+from hdnet import view_images
+from hdnet.detect import MAP_FILES, detect
+from hdnet.eval_settings import EvalConfig
+from hdnet.evaluate import evaluate
+from hdnet.fit import FitConfig, fit
+from hdnet.report import METHOD_NAMES, write_report
+from hdnet.results import SITE_COLUMNS
+from hdnet.sites import SAFETY_INVALID, SAFETY_SAFE, SAFETY_UNCERTAIN, SAFETY_UNSAFE
+from hdnet.train import save_checkpoint
+from hdnet.view import ViewSettings, view
+from hdnet.view_images import Reduction, colour_rgba, reduced_map, safety_rgba
+from lidarsim.errors import HdWarning, LockedError, OutputExistsError
+from lidarsim.storage import WriterLock
+from tests.geotiff import write_geotiff
+
+ROOT = Path(__file__).resolve().parents[2]
+LAYERS = ("hillshade", "safety", "p_safe", "entropy", "mutual_information", "baseline_p_safe", "sites")
+
+
+# ------------------------------------------------------------------------------------------ outputs
+@pytest.fixture(scope="module")
+def outputs(tmp_path_factory) -> dict[str, Path]:
+    root = tmp_path_factory.mktemp("view")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", HdWarning)  # the tiny dataset's held-out scans overlap its training scans
+        dataset = build_labelled(root / "data")
+        run = root / "run"
+        fit(dataset, run, FitConfig(profile="tiny", epochs=1, progress=False))
+        ckpt = torch.load(run / "last.pt", weights_only=True)
+        ckpt["model"]["classifier.weight"].zero_()
+        ckpt["model"]["classifier.bias"] = torch.tensor([-3.0, 3.0])  # P(safe) = sigmoid(6) everywhere
+        constant = root / "constant.pt"
+        save_checkpoint(constant, ckpt)
+        dtm = root / "data" / "hills.tif"
+        detect(constant, root / "detect", dtm=dtm, threshold="nats:0.5", mc_samples=1, n_sites=6)
+        test_scan = _test_scan(dataset)
+        detect(run, root / "scan", dataset=dataset, scan=test_scan, threshold="nats:0.3", mc_samples=2)
+        result = evaluate(run, dataset, EvalConfig(mc_samples=2, drop_pixels=3, nav_sigma_m=(0.0, 2.0)))
+        write_report(result, root / "report")
+    return {
+        "root": root,
+        "dataset": dataset,
+        "dtm": dtm,
+        "detect": root / "detect",
+        "scan": root / "scan",
+        "report": root / "report",
+    }
+
+
+def _test_scan(dataset: Path) -> int:
+    import h5py
+
+    for shard in sorted((dataset / "labels").rglob("*.h5")):
+        with h5py.File(shard, "r") as f:
+            test = np.flatnonzero(f["split"][:] == 2)
+            if test.size:
+                return int(f["scan_index"][int(test[0])])
+    raise AssertionError("the tiny dataset has no test scan")
+
+
+def copy_of(source: Path, tmp_path: Path, name: str = "copy") -> Path:
+    """A copy of an output without any earlier page (a test's own to view, damage or move)."""
+    out = tmp_path / name
+    shutil.copytree(source, out, ignore=shutil.ignore_patterns("view.html", ".hd-lock"))
+    return out
+
+
+def tree(path: Path) -> dict[str, str]:
+    """Every file under ``path`` and its sha256."""
+    return {
+        str(p.relative_to(path)): hashlib.sha256(p.read_bytes()).hexdigest() for p in path.rglob("*") if p.is_file()
+    }
+
+
+# ------------------------------------------------------------------------------------------- parsing
+VOID = {"meta", "img", "input", "br", "hr", "link", "source", "area", "base", "col", "embed", "param", "track", "wbr"}
+
+
+class Node:
+    def __init__(self, tag: str, attrs: dict[str, str], parent: Node | None) -> None:
+        self.tag, self.attrs, self.parent = tag, attrs, parent
+        self.children: list[Node] = []
+        self.parts: list[str] = []
+
+    def text(self) -> str:
+        return "".join(self.parts) + "".join(c.text() for c in self.children)
+
+    def walk(self):
+        yield self
+        for c in self.children:
+            yield from c.walk()
+
+    def find_all(self, tag: str | None = None, **attrs: str) -> list[Node]:
+        return [
+            n
+            for n in self.walk()
+            if (tag is None or n.tag == tag) and all(n.attrs.get(k.rstrip("_")) == v for k, v in attrs.items())
+        ]
+
+    def find(self, tag: str | None = None, **attrs: str) -> Node:
+        found = self.find_all(tag, **attrs)
+        assert len(found) == 1, (tag, attrs, len(found))
+        return found[0]
+
+
+class Page(HTMLParser):
+    """The page as a tree of elements (the standard library's parser; text in the element it is in)."""
+
+    def __init__(self, text: str) -> None:
+        super().__init__(convert_charrefs=True)
+        self.root = Node("#root", {}, None)
+        self.node = self.root
+        self.doctype = ""
+        self.feed(text)
+        self.close()
+
+    def handle_decl(self, decl: str) -> None:
+        self.doctype = decl
+
+    def handle_starttag(self, tag: str, attrs: list[tuple[str, str | None]]) -> None:
+        node = Node(tag, {k: v or "" for k, v in attrs}, self.node)
+        self.node.children.append(node)
+        if tag not in VOID:
+            self.node = node
+
+    def handle_startendtag(self, tag: str, attrs: list[tuple[str, str | None]]) -> None:
+        self.node.children.append(Node(tag, {k: v or "" for k, v in attrs}, self.node))
+
+    def handle_endtag(self, tag: str) -> None:
+        node = self.node
+        while node is not self.root and node.tag != tag:
+            node = node.parent  # type: ignore[assignment]  # a parent below the root is a Node
+        assert node is not self.root, f"</{tag}> closes nothing"
+        self.node = node.parent  # type: ignore[assignment]  # as above
+
+    def handle_data(self, data: str) -> None:
+        self.node.parts.append(data)
+
+    def table_rows(self, table: Node) -> list[list[str]]:
+        return [[td.text() for td in tr.find_all("td")] for tr in table.find("tbody").find_all("tr")]
+
+
+def parse(path: Path) -> Page:
+    return Page(path.read_text(encoding="utf-8"))
+
+
+def png_of(uri: str) -> np.ndarray:
+    """The pixels (uint8 RGBA, rows x cols x 4) of a PNG data URI."""
+    prefix = "data:image/png;base64,"
+    assert uri.startswith(prefix)
+    return matplotlib_pixels(base64.b64decode(uri[len(prefix) :], validate=True))
+
+
+def settings_of(page: Page) -> dict[str, str]:
+    """The page's settings table, name -> value."""
+    return {tr.find("th").text(): tr.find("td").text() for tr in page.root.find("table", id="settings").find_all("tr")}
+
+
+def matplotlib_pixels(data: bytes) -> np.ndarray:
+    """The pixels (uint8 RGBA) of PNG bytes, decoded."""
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    pixels = matplotlib.image.imread(io.BytesIO(data), format="png")
+    if pixels.shape[2] == 3:
+        pixels = np.concatenate([pixels, np.ones((*pixels.shape[:2], 1))], axis=2)
+    return np.round(pixels * 255).astype(np.uint8)
+
+
+def check_self_contained(page: Page, raw: str) -> None:
+    """Nothing on the page is fetched: data: images only, inline scripts and style, no network address."""
+    assert page.doctype.lower() == "doctype html"
+    csp = page.root.find("meta", **{"http-equiv": "Content-Security-Policy"}).attrs["content"]
+    assert "default-src 'none'" in csp and "img-src data:" in csp
+    assert page.root.find("meta", name="generator").attrs["content"].startswith("hd view ")
+    for node in page.root.walk():
+        assert node.tag not in ("link", "iframe", "object", "embed", "audio", "video", "source", "base", "frame")
+        assert "src" not in node.attrs or node.tag == "img", node.tag
+        if node.tag == "img":
+            assert node.attrs["src"].startswith("data:image/png;base64,")
+        for key, value in node.attrs.items():
+            assert not key.startswith("on"), f"inline handler {key} (the script binds its own)"
+            if key in ("href", "xlink:href"):
+                assert value.startswith("#"), value
+    for style in page.root.find_all("style"):
+        assert "@import" not in style.text() and "url(" not in style.text()
+    without_svg_namespace = raw.replace('xmlns="http://www.w3.org/2000/svg"', "")
+    assert "http://" not in without_svg_namespace and "https://" not in without_svg_namespace
+    assert "//" not in "".join(node.attrs.get("src", "")[:30] for node in page.root.walk())
+
+
+# ---------------------------------------------------------------------------------------- detect page
+def test_a_detect_page_holds_every_layer_the_sites_and_the_settings(outputs, tmp_path):
+    out = copy_of(outputs["detect"], tmp_path)
+    before = tree(out)
+    result = view(out)
+    assert result.path == out / "view.html" and result.kind == "detect"
+    assert tree(out) == {**before, "view.html": tree(out)["view.html"]}  # the inputs untouched, one file added
+    raw = result.path.read_text(encoding="utf-8")
+    page = Page(raw)
+    check_self_contained(page, raw)
+    # Every layer, each with its checkbox and opacity slider; the default view: hillshade, safety, sites.
+    for key in LAYERS:
+        layer = page.root.find(id=f"layer-{key}")
+        box = page.root.find("input", id=f"toggle-{key}")
+        assert box.attrs["data-layer"] == f"layer-{key}" and box.attrs["type"] == "checkbox"
+        assert page.root.find("input", id=f"opacity-{key}").attrs["data-layer"] == f"layer-{key}"
+        assert ("checked" in box.attrs) == (key in ("hillshade", "safety", "sites"))
+        if key != "sites":
+            pixels = png_of(layer.attrs["src"])
+            assert pixels.shape == (400, 400, 4) == (int(layer.attrs["height"]), int(layer.attrs["width"]), 4)
+    # The constant run: every valid cell safe, so the safety image is the safe colour where valid.
+    with rasterio.open(out / "safety.tif") as src:
+        safety = src.read(1)
+    np.testing.assert_array_equal(png_of(page.root.find(id="layer-safety").attrs["src"]), safety_rgba(safety))
+    assert set(np.unique(safety)) == {SAFETY_SAFE, SAFETY_INVALID}
+    with rasterio.open(out / "entropy.tif") as src:
+        entropy = src.read(1)
+    expected = colour_rgba(entropy, "viridis", 0.0, math.log(2))
+    np.testing.assert_array_equal(png_of(page.root.find(id="layer-entropy").attrs["src"]), expected)
+    # The site table is sites.csv, row for row, and each site has its marker.
+    rows = list(csv.reader((out / "sites.csv").open()))
+    table = page.root.find("table", id="sites")
+    assert [th.text() for th in table.find("thead").find_all("th")] == list(SITE_COLUMNS) == rows[0]
+    assert page.table_rows(table) == rows[1:] and len(rows) > 1
+    markers = page.root.find(id="layer-sites").find_all("g", class_="site-marker")
+    assert [m.attrs["data-rank"] for m in markers] == [r[0] for r in rows[1:]]
+    for marker, row in zip(markers, rows[1:], strict=True):
+        circle = marker.find_all("circle")[0]
+        assert float(circle.attrs["cx"]) == pytest.approx(float(row[1])) and float(circle.attrs["cy"]) == pytest.approx(
+            -float(row[2])
+        )
+        assert float(circle.attrs["r"]) == pytest.approx(5.0)  # the 10 m lander's footprint, to scale
+    # The map's extent: x 1000 to 1400 m, y 1600 to 2000 m (tests.geotiff's origin, 400 cells of 1 m).
+    m = page.root.find(id="map").attrs
+    assert (float(m["data-left"]), float(m["data-top"]), float(m["data-width"]), float(m["data-height"])) == (
+        1000.0,
+        2000.0,
+        400.0,
+        400.0,
+    )
+    assert page.root.find(id="extent").text().startswith("x 1000 to 1400 m, y 1600 to 2000 m")
+    assert "one pixel per cell" in page.root.find(id="resolution").text()
+    # The settings of the detection.
+    settings = settings_of(page)
+    info = json.loads((out / "detect.json").read_text())
+    assert settings["threshold"] == "nats:0.5: H_t = 0.5000 nats"
+    assert settings["input"] == f"DTM {outputs['dtm']}" and settings["navigation sigma"].startswith("0 m")
+    assert settings["sensor sigma (baseline, network input)"] == "1.67 cm (0.0167 m)"
+    assert settings["MC samples, seed"] == "1, 0" and info["run"]["checkpoint"] in settings["run"]
+    counts = {r[0]: r[1] for r in page.table_rows(page.root.find("table", id="counts"))}
+    assert counts["safe (certain)"] == str(info["counts"]["safe"])
+    assert json.loads(page.root.find("pre").text()) == info  # detect.json whole
+
+
+def test_a_scan_page_shades_the_scans_dem_and_names_its_split(outputs, tmp_path):
+    out = copy_of(outputs["scan"], tmp_path)
+    page = parse(view(out).path)
+    info = json.loads((out / "detect.json").read_text())
+    assert info["input"]["split"] == "test"
+    settings = settings_of(page)
+    assert settings["split"] == "test" and settings["input"].startswith(f"scan {info['input']['scan_index']} of ")
+    assert settings["scan's noise level"] == "1.67 cm (0.0167 m)"
+    hillshade = png_of(page.root.find(id="layer-hillshade").attrs["src"])
+    assert hillshade.shape == (100, 100, 4) and hillshade[..., 3].max() == 255
+    assert "scan frame" in page.root.find(id="extent").text()
+    assert page.root.find(id="no-sites").text().startswith("No site")  # a network of one epoch finds none
+    assert page.root.find("h1").text() == "hd detect: scan {} (test split)".format(info["input"]["scan_index"])
+
+
+def test_the_hillshade_needs_the_very_dtm_hd_detect_read(outputs, tmp_path):
+    out = copy_of(outputs["detect"], tmp_path)
+    info = json.loads((out / "detect.json").read_text())
+    moved = tmp_path / "moved.tif"
+    shutil.copy(outputs["dtm"], moved)
+    info["input"]["path"] = str(tmp_path / "gone.tif")
+    (out / "detect.json").write_text(json.dumps(info))
+    result = CliRunner().invoke(main, ["view", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "No hillshade: the DTM" in result.output and "give it with --dtm" in result.output
+    page = parse(out / "view.html")
+    assert not page.root.find_all(id="layer-hillshade")
+    assert "--dtm" in page.root.find(id="hillshade-note").text()
+    view(out, dtm=moved)  # the same bytes elsewhere: shaded again
+    assert parse(out / "view.html").root.find_all(id="layer-hillshade")
+    other = write_geotiff(tmp_path / "other.tif", np.zeros((400, 400)))
+    view(out, dtm=other)
+    note = parse(out / "view.html").root.find(id="hillshade-note").text()
+    assert "is not the DTM hd detect read" in note and info["input"]["sha256"][:12] in note
+
+
+# ------------------------------------------------------------------------------------ large maps
+def big_output(source: Path, tmp_path: Path, rows: int = 300, cols: int = 131) -> tuple[Path, dict[str, np.ndarray]]:
+    """A detect output of ``rows x cols`` cells of 2 m made by hand from ``source``'s detect.json: P(safe)
+    = column / cols, entropy = ln 2 * row / rows, one unsafe cell at (7, 7), uncertain rows 50-54, an
+    invalid border of 3 cells; its DTM a plane rising east."""
+    out = copy_of(source, tmp_path, "big")
+    for name in MAP_FILES:
+        (out / name).unlink()
+    r, c = np.mgrid[0:rows, 0:cols]
+    invalid = (r < 3) | (c < 3) | (r >= rows - 3) | (c >= cols - 3)
+    safety = np.full((rows, cols), SAFETY_SAFE, np.uint8)
+    safety[7, 7] = SAFETY_UNSAFE
+    safety[50:55] = SAFETY_UNCERTAIN
+    safety[invalid] = SAFETY_INVALID
+    maps: dict[str, np.ndarray] = {
+        "p_safe": np.where(invalid, np.nan, c / cols).astype(np.float32),
+        "entropy": np.where(invalid, np.nan, math.log(2) * r / rows).astype(np.float32),
+        "mutual_information": np.where(invalid, np.nan, 0.1).astype(np.float32),
+        "baseline_p_safe": np.where(invalid, np.nan, 0.5).astype(np.float32),
+        "safety": safety,
+    }
+    origin = (500.0, 900.0)
+    for key, values in maps.items():
+        dtype = "uint8" if key == "safety" else "float32"
+        write_geotiff(out / f"{key}.tif", values, 2.0, origin, dtype=dtype)
+    dtm = write_geotiff(tmp_path / "big-dtm.tif", 0.05 * c * 2.0, 2.0, origin)
+    info = json.loads((out / "detect.json").read_text())
+    transform = [2.0, 0, 500.0, 0, -2.0, 900.0]
+    info["grid"] = {"rows": rows, "cols": cols, "spacing_m": [2.0, 2.0], "transform": transform, "crs_wkt": ""}
+    info["input"].update(path=str(dtm), name="big-dtm.tif", sha256=hashlib.sha256(dtm.read_bytes()).hexdigest())
+    info["sites"] = []
+    (out / "detect.json").write_text(json.dumps(info))
+    (out / "sites.csv").write_text(",".join(SITE_COLUMNS) + "\n")
+    return out, maps
+
+
+def block_reference(values: np.ndarray, f: int) -> np.ndarray:
+    """Plain loops: each f x f block's mean of its finite cells (NaN when none)."""
+    rows, cols = math.ceil(values.shape[0] / f), math.ceil(values.shape[1] / f)
+    out = np.full((rows, cols), np.nan)
+    for i in range(rows):
+        for j in range(cols):
+            block = values[i * f : (i + 1) * f, j * f : (j + 1) * f]
+            if np.isfinite(block).any():
+                out[i, j] = np.nanmean(block)
+    return out
+
+
+def test_a_map_larger_than_the_image_is_reduced_by_blocks_and_the_page_says_so(outputs, tmp_path):
+    out, maps = big_output(outputs["detect"], tmp_path)
+    result = view(out, settings=ViewSettings(max_px=64))
+    assert result.info["cells_per_pixel"] == 5 and result.info["image_px"] == [27, 60]  # ceil(300/64); 131/5, 300/5
+    page = parse(result.path)
+    for key in LAYERS[:-1]:
+        img = page.root.find(id=f"layer-{key}")
+        assert png_of(img.attrs["src"]).shape == (60, 27, 4) and (img.attrs["width"], img.attrs["height"]) == (
+            "27",
+            "60",
+        )
+    note = page.root.find(id="resolution").text()
+    assert "300 x 131 cells of 2 m" in note and "60 x 27 pixels, one pixel per 5 x 5 cells (10 m)" in note
+    # The safety map: each block's worst class. Block (1, 1) holds the unsafe cell (7, 7); rows 50-54 are block row 10.
+    safety = png_of(page.root.find(id="layer-safety").attrs["src"])
+    colour = {code: tuple(safety_rgba(np.array([[code]], np.uint8))[0, 0]) for code in (0, 1, 2, 255)}
+    assert tuple(safety[1, 1]) == colour[SAFETY_UNSAFE] and tuple(safety[1, 2]) == colour[SAFETY_SAFE]
+    assert tuple(safety[10, 3]) == colour[SAFETY_UNCERTAIN] and tuple(safety[0, 0]) == colour[SAFETY_SAFE]
+    assert tuple(safety[59, 26]) == colour[SAFETY_INVALID]  # the last block: 1 column of map, the rest past it
+    # P(safe): block means of the valid cells, coloured.
+    p = png_of(page.root.find(id="layer-p_safe").attrs["src"])
+    np.testing.assert_array_equal(p, colour_rgba(block_reference(maps["p_safe"], 5), "RdYlGn", 0.0, 1.0))
+    # The hillshade of the plane: one grey wherever its blocks lie wholly on the DTM.
+    shade = png_of(page.root.find(id="layer-hillshade").attrs["src"])
+    assert shade.shape == (60, 27, 4) and (shade[..., 3] == 255).all() and np.ptp(shade[:, :25, 0]) <= 1
+    assert page.root.find(id="extent").text().startswith("x 500 to 762 m, y 300 to 900 m")
+
+
+@pytest.mark.parametrize(
+    ("shape", "factor", "strip_cells"), [((37, 23), 1, 1 << 22), ((37, 23), 4, 40), ((5, 90), 7, 1)]
+)
+def test_reduced_maps_equal_plain_block_loops_in_any_strips(tmp_path, monkeypatch, shape, factor, strip_cells):
+    rng = np.random.default_rng(7)
+    values = rng.random(shape).astype(np.float32)
+    values[rng.random(shape) < 0.3] = np.nan
+    codes = rng.choice(np.array([0, 1, 2, 255], np.uint8), size=shape)
+    write_geotiff(tmp_path / "p.tif", values)
+    write_geotiff(tmp_path / "s.tif", codes, dtype="uint8")
+    monkeypatch.setattr(view_images, "STRIP_CELLS", strip_cells)  # one image row per read, or all at once
+    reduction = Reduction(shape, factor, (math.ceil(shape[0] / factor), math.ceil(shape[1] / factor)))
+    np.testing.assert_allclose(reduced_map(tmp_path / "p.tif", reduction), block_reference(values, factor), rtol=1e-6)
+    got = reduced_map(tmp_path / "s.tif", reduction, categorical=True)
+    for i in range(reduction.shape[0]):
+        for j in range(reduction.shape[1]):
+            block = set(codes[i * factor : (i + 1) * factor, j * factor : (j + 1) * factor].ravel().tolist())
+            worst = next(c for c in (SAFETY_UNSAFE, SAFETY_UNCERTAIN, SAFETY_SAFE, SAFETY_INVALID) if c in block)
+            assert got[i, j] == worst
+
+
+def test_reduction_bounds_the_longer_side():
+    assert Reduction.of((400, 400), 2048) == Reduction((400, 400), 1, (400, 400))
+    assert Reduction.of((10000, 3000), 2048) == Reduction((10000, 3000), 5, (2000, 600))
+    assert Reduction.of((2049, 10), 2048) == Reduction((2049, 10), 2, (1025, 5))
+
+
+# ---------------------------------------------------------------------------------------- report page
+def _numbers(cell: str) -> list[float]:
+    import re
+
+    return [float(x) for x in re.findall(r"-?\d+(?:\.\d+)?", cell)]
+
+
+def _table_after(page: Page, heading_id: str) -> Node:
+    article = page.root.find("article", id="report")
+    kids = article.children
+    start = next(i for i, n in enumerate(kids) if n.attrs.get("id") == heading_id)
+    return next(n for n in kids[start + 1 :] if n.tag == "table")
+
+
+def test_a_report_page_shows_report_json_numbers_its_figures_and_settings(outputs, tmp_path):
+    out = copy_of(outputs["report"], tmp_path)
+    before = tree(out)
+    raw = view(out).path.read_text(encoding="utf-8")
+    assert set(tree(out)) == {*before, "view.html"} and {k: tree(out)[k] for k in before} == before
+    page = Page(raw)
+    check_self_contained(page, raw)
+    content = json.loads((out / "report.json").read_text())
+    for table_name, heading in (("noise", "table-1-noise-levels"), ("dead_pixels", "table-2-dead-pixels")):
+        rows = [r for r in content["rows"] if r["table"] == table_name]
+        cells = page.table_rows(_table_after(page, heading))
+        assert len(cells) == len(rows) > 0
+        for row, html_row in zip(rows, cells, strict=True):
+            assert html_row[0] == METHOD_NAMES[row["method"]]
+            assert _numbers(html_row[2]) == [pytest.approx(row["test_sigma_m"] * 100, abs=0.005)]
+            vc = row["vc_fraction"]
+            assert html_row[3] == "--" if vc is None else _numbers(html_row[3]) == [pytest.approx(100 * vc, abs=0.5)]
+            for k, key in enumerate(("pixel_accuracy", "miou", "precision", "sensitivity")):
+                value = row[key]
+                assert (
+                    html_row[4 + k] == "--"
+                    if value is None
+                    else float(html_row[4 + k]) == pytest.approx(value, abs=5e-5)
+                )
+    ece = page.table_rows(_table_after(page, "calibration-of-p-safe-15-bins"))
+    assert [float(r[1]) for r in ece] == [
+        pytest.approx(c["ece"], abs=5e-5) for c in content["calibration"]["per_sigma"]
+    ]
+    sweep = page.table_rows(_table_after(page, "threshold-sweep-uncertainty-aware"))
+    assert [float(r[2]) for r in sweep] == [pytest.approx(s["threshold_nats"], abs=5e-5) for s in content["sweep"]]
+    landing = page.table_rows(page.root.find("article", id="report").find_all("table")[2])
+    assert len(landing) == len(content["landing"])
+    for row, html_row in zip(content["landing"], landing, strict=True):
+        if row["landed"]:
+            assert _numbers(html_row[4]) == [
+                pytest.approx(row[k], abs=5e-5) for k in ("p_safe", "p_safe_low", "p_safe_high")
+            ]
+    # The figures report.md shows, inline, of their own size.
+    shown = [
+        line[line.index("(") + 1 : -1] for line in (out / "report.md").read_text().splitlines() if line.startswith("![")
+    ]
+    figures = page.root.find_all("figure")
+    assert len(figures) == len(shown) >= 4
+    for figure, name in zip(figures, shown, strict=True):
+        img = figure.find("img")
+        pixels = png_of(img.attrs["src"])
+        assert pixels.shape[:2] == (int(img.attrs["height"]), int(img.attrs["width"]))
+        assert np.array_equal(pixels, matplotlib_pixels((out / name).read_bytes()))
+    settings = settings_of(page)
+    assert settings["run.checkpoint"] == content["run"]["checkpoint"] and settings["threshold.spec"] == "mean"
+    assert settings["run.mc_samples"] == "2" and settings["landing_settings.nav_sigmas_m"] == "[0.0, 2.0]"
+    assert page.root.find("h1").text() == "hd eval report: copy"
+
+
+def test_text_from_files_is_escaped(outputs, tmp_path):
+    markup = '<script>alert("x")</script><img src=http://example.org/x.png>'
+    out = copy_of(outputs["detect"], tmp_path)
+    info = json.loads((out / "detect.json").read_text())
+    info["input"]["name"] = markup
+    info["run"]["profile"] = markup
+    (out / "detect.json").write_text(json.dumps(info))
+    raw = view(out, dtm=outputs["dtm"]).path.read_text(encoding="utf-8")
+    page = Page(raw)
+    assert len(page.root.find_all("script")) == 1 and not page.root.find("script").attrs  # the page's own only
+    assert (
+        page.root.find("h1").text() == f"hd detect: {markup}" and markup in page.root.find("head").find("title").text()
+    )
+    report = copy_of(outputs["report"], tmp_path, "report")
+    content = json.loads((report / "report.json").read_text())
+    content["run"]["labels"] = markup
+    (report / "report.json").write_text(json.dumps(content))
+    page = Page(view(report).path.read_text(encoding="utf-8"))
+    assert len(page.root.find_all("script")) == 1 and markup in page.root.find("article").text()
+    assert all(img.attrs["src"].startswith("data:") for img in page.root.find_all("img"))
+
+
+# ------------------------------------------------------------------------------------- bad input
+def _damage(kind: str, out: Path) -> None:
+    if kind == "detect.json cut short":
+        (out / "detect.json").write_bytes((out / "detect.json").read_bytes()[:50])
+    elif kind == "detect.json an array":
+        (out / "detect.json").write_text("[1, 2]")
+    elif kind == "detect.json without grid":
+        info = json.loads((out / "detect.json").read_text())
+        del info["grid"]
+        (out / "detect.json").write_text(json.dumps(info))
+    elif kind == "detect.json with odd values":
+        info = json.loads((out / "detect.json").read_text())
+        info["run"]["train_noise"] = {"range_m": "wide"}
+        (out / "detect.json").write_text(json.dumps(info))
+    elif kind == "detect.json with counts as text":
+        info = json.loads((out / "detect.json").read_text())
+        info["counts"]["safe"] = "many"
+        (out / "detect.json").write_text(json.dumps(info))
+    elif kind == "sites.csv missing":
+        (out / "sites.csv").unlink()
+    elif kind == "sites.csv of another site":
+        text = (out / "sites.csv").read_text().splitlines()
+        text[1] = text[1].replace(text[1].split(",")[1], "1.000", 1)
+        (out / "sites.csv").write_text("\n".join(text) + "\n")
+    elif kind == "sites.csv a row less":
+        (out / "sites.csv").write_text("\n".join((out / "sites.csv").read_text().splitlines()[:-1]) + "\n")
+    elif kind == "a map cut short":
+        (out / "p_safe.tif").write_bytes((out / "p_safe.tif").read_bytes()[:3000])
+    elif kind == "a map missing":
+        (out / "entropy.tif").unlink()
+    elif kind == "a map of another size":
+        write_geotiff(out / "baseline_p_safe.tif", np.zeros((40, 40)))
+    elif kind == "a safety code that is none":
+        write_geotiff(out / "safety.tif", np.full((400, 400), 7), dtype="uint8")
+    elif kind == "report.json cut short":
+        (out / "report.json").write_bytes((out / "report.json").read_bytes()[:80])
+    elif kind == "report.json of another schema":
+        content = json.loads((out / "report.json").read_text())
+        del content["calibration"]
+        (out / "report.json").write_text(json.dumps(content))
+    elif kind == "a figure missing":
+        (out / "reliability.png").unlink()
+    elif kind == "a figure damaged":
+        data = (out / "threshold_sweep.png").read_bytes()
+        (out / "threshold_sweep.png").write_bytes(data[: len(data) // 2])
+    elif kind == "report.md missing":
+        (out / "report.md").unlink()
+
+
+DAMAGE = [
+    ("detect", "detect.json cut short", "unreadable detect.json"),
+    ("detect", "detect.json an array", "not an hd detect output of this schema"),
+    ("detect", "detect.json without grid", "no 'grid' object"),
+    ("detect", "detect.json with odd values", "detect.json: not an hd detect output of this schema ("),
+    ("detect", "detect.json with counts as text", "cell counts"),
+    ("detect", "sites.csv missing", "sites.csv"),
+    ("detect", "sites.csv of another site", "is not detect.json's site 1"),
+    ("detect", "sites.csv a row less", "detect.json records"),
+    ("detect", "a map cut short", "p_safe.tif: unreadable"),
+    ("detect", "a map missing", "entropy.tif: missing"),
+    ("detect", "a map of another size", "not the one band of 400 x 400 cells"),
+    ("detect", "a safety code that is none", "is no safety code"),
+    ("report", "report.json cut short", "unreadable report"),
+    ("report", "report.json of another schema", "no 'calibration' dict"),
+    ("report", "a figure missing", "reliability.png: missing"),
+    ("report", "a figure damaged", "threshold_sweep.png: a damaged PNG"),
+    ("report", "report.md missing", "report.md"),
+]
+
+
+@pytest.mark.parametrize(("which", "kind", "needle"), DAMAGE)
+def test_a_damaged_output_is_one_line_and_nothing_is_written(outputs, tmp_path, which, kind, needle):
+    out = copy_of(outputs[which], tmp_path)
+    _damage(kind, out)
+    before = tree(out)
+    result = CliRunner().invoke(main, ["view", str(out)])
+    assert result.exit_code == 1 and "Traceback" not in result.output, result.output
+    lines = result.output.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("Error: ") and needle in lines[0], result.output
+    assert tree(out) == before and not list(out.glob(".*partial*"))
+
+
+def _other(root: Path) -> Path:
+    (root / "other").mkdir()
+    (root / "other" / "a.txt").write_text("x")
+    return root / "other"
+
+
+@pytest.mark.parametrize(
+    ("make", "needle"),
+    [
+        (lambda root: root / "missing", "no such directory"),
+        (lambda root: root.joinpath("empty").mkdir() or root / "empty", "is empty"),
+        (lambda root: _other(root), "holds neither detect.json (hd detect) nor report.json (hd eval)"),
+    ],
+)
+def test_what_is_neither_kind_is_refused_with_what_to_give(tmp_path, make, needle):
+    path = make(tmp_path)
+    result = CliRunner().invoke(main, ["view", str(path)])
+    assert result.exit_code == 1 and needle in result.output and "hd detect --out or hd eval --out" in result.output
+    assert not list(tmp_path.rglob("view.html"))
+
+
+def test_a_run_and_a_dataset_are_named_as_such(outputs):
+    runner = CliRunner()
+    result = runner.invoke(main, ["view", str(outputs["root"] / "run")])
+    assert result.exit_code == 1 and "is a run" in result.output and "hd detect" in result.output
+    result = runner.invoke(main, ["view", str(outputs["dataset"])])
+    assert result.exit_code == 1 and "is a dataset" in result.output and "hd inspect" in result.output
+    assert not (outputs["root"] / "run" / "view.html").exists() and not (outputs["dataset"] / "view.html").exists()
+
+
+def test_the_page_replaces_only_an_earlier_page_and_goes_where_out_says(outputs, tmp_path):
+    out = copy_of(outputs["report"], tmp_path)
+    runner = CliRunner()
+    assert runner.invoke(main, ["view", str(out)]).exit_code == 0
+    first = (out / "view.html").read_bytes()
+    assert runner.invoke(main, ["view", str(out / "report.json")]).exit_code == 0  # the marker file names it too
+    assert (out / "view.html").read_bytes() == first  # the same page again, replaced
+    mine = tmp_path / "notes.html"
+    mine.write_text("<html>mine</html>")
+    result = runner.invoke(main, ["view", str(out), "--out", str(mine)])
+    assert (
+        result.exit_code == 1
+        and "is not a page of hd view" in result.output
+        and mine.read_text() == "<html>mine</html>"
+    )
+    result = runner.invoke(main, ["view", str(out), "--out", str(out / "report.md")])
+    assert result.exit_code == 1 and "is not a page of hd view" in result.output
+    elsewhere = tmp_path / "pages" / "r.html"
+    elsewhere.parent.mkdir()
+    result = runner.invoke(main, ["--json", "view", str(out), "--out", str(elsewhere)])
+    assert result.exit_code == 0, result.output
+    record = json.loads(result.output)
+    assert record["command"] == "view" and record["kind"] == "report" and record["out"] == str(elsewhere.resolve())
+    assert record["bytes"] == elsewhere.stat().st_size and elsewhere.read_bytes() == first
+    os.mkfifo(tmp_path / "fifo")
+    result = runner.invoke(main, ["view", str(out), "--out", str(tmp_path / "fifo")])
+    assert result.exit_code == 1 and "is not a page of hd view" in result.output
+
+
+def test_a_directory_being_written_is_not_read(outputs, tmp_path):
+    out = copy_of(outputs["detect"], tmp_path)
+    with WriterLock(out, "detect"):
+        with pytest.raises(LockedError, match="another hd process"):
+            view(out)  # the page would go into it
+        with pytest.raises(LockedError, match="being written by another hd process"):
+            view(out, tmp_path / "elsewhere.html")
+    assert not (out / "view.html").exists() and not (tmp_path / "elsewhere.html").exists()
+    with pytest.raises(OutputExistsError, match="not a page of hd view"):
+        view(out, out / "sites.csv")
+
+
+def test_cli_view_says_what_it_wrote(outputs, tmp_path):
+    out = copy_of(outputs["detect"], tmp_path)
+    result = CliRunner().invoke(main, ["view", str(out), "--max-px", "100"])
+    assert result.exit_code == 0, result.output
+    assert result.output.startswith(f"wrote {out / 'view.html'} (") and "shown at 1 pixel per 4 x 4" in result.output
+    assert "6 site(s)" in result.output and "no network needed" in result.output
+    result = CliRunner().invoke(main, ["view", str(out), "--max-px", "10"])
+    assert result.exit_code == 2 and "64<=x<=8192" in result.output
+    result = CliRunner().invoke(main, ["view", str(outputs["report"]), "--dtm", str(outputs["dtm"])])
+    assert result.exit_code == 1 and "--dtm goes with an hd detect output" in result.output
+
+
+@pytest.mark.parametrize("which", ["detect", "scan", "report"])
+def test_hd_view_never_imports_the_network_library(outputs, tmp_path, which):
+    out = copy_of(outputs[which], tmp_path)
+    code = (
+        "import sys\nfrom cli import main\ntry:\n    main(['view', sys.argv[1]])\nexcept SystemExit as exc:\n"
+        "    assert exc.code == 0, exc.code\nassert 'torch' not in sys.modules, 'torch imported'\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code, str(out)], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert (out / "view.html").is_file()
+
+
+# ------------------------------------------------------------------------------------------ browser
+def _browser() -> Any:
+    """A headless Chromium driven by Selenium, or a skip saying what is missing."""
+    try:
+        from selenium import webdriver
+        from selenium.webdriver.chrome.service import Service
+    except ImportError:
+        pytest.skip("selenium is not installed (pip install selenium)")
+    binary = shutil.which("chromium") or shutil.which("chromium-browser") or shutil.which("google-chrome")
+    driver = shutil.which("chromedriver")
+    if binary is None or driver is None:
+        pytest.skip("Chromium or chromedriver is missing (Debian: apt-get install chromium chromium-driver)")
+    options = webdriver.ChromeOptions()
+    options.binary_location = binary
+    for arg in (
+        "--headless=new",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-dev-shm-usage",
+        "--window-size=1400,1000",
+    ):
+        options.add_argument(arg)
+    options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
+    return webdriver.Chrome(service=Service(driver), options=options)
+
+
+@pytest.mark.slow
+def test_pages_work_in_a_real_browser(outputs, tmp_path):
+    from selenium.webdriver.common.by import By
+
+    detect_dir = copy_of(outputs["detect"], tmp_path, "detect")
+    report_dir = copy_of(outputs["report"], tmp_path, "report")
+    detect_page, report_page = view(detect_dir).path, view(report_dir).path
+    n_sites = len((detect_dir / "sites.csv").read_text().splitlines()) - 1
+    browser = _browser()
+    try:
+        browser.get(detect_page.as_uri())
+        assert browser.execute_script("return document.readyState") == "complete"
+        for key in LAYERS[:-1]:  # every image decoded by the browser at its size
+            loaded = browser.execute_script(
+                "var i = document.getElementById(arguments[0]); return [i.complete, i.naturalWidth, i.naturalHeight];",
+                f"layer-{key}",
+            )
+            assert loaded == [True, 400, 400], key
+        layer = browser.find_element(By.ID, "layer-p_safe")
+        box = browser.find_element(By.ID, "toggle-p_safe")
+        assert not layer.is_displayed() and not box.is_selected()
+        box.click()
+        assert layer.is_displayed() and box.is_selected()
+        safety, toggle = browser.find_element(By.ID, "layer-safety"), browser.find_element(By.ID, "toggle-safety")
+        assert safety.is_displayed()
+        toggle.click()
+        assert not safety.is_displayed()
+        slider = browser.find_element(By.ID, "opacity-p_safe")
+        browser.execute_script("arguments[0].value = 30; arguments[0].dispatchEvent(new Event('input'));", slider)
+        assert float(layer.value_of_css_property("opacity")) == pytest.approx(0.3)
+        rows = browser.find_elements(By.CSS_SELECTOR, "#sites tbody tr")
+        assert len(rows) == n_sites > 0
+        rows[1].click()  # selects site 2: its row and its marker
+        marked = browser.find_elements(By.CSS_SELECTOR, ".site-marker.selected")
+        assert [m.get_attribute("data-rank") for m in marked] == ["2"] and "selected" in rows[1].get_attribute("class")
+        width = browser.find_element(By.ID, "map").size["width"]
+        browser.find_element(By.CSS_SELECTOR, "button.zoom[data-zoom='2']").click()
+        assert browser.find_element(By.ID, "map").size["width"] == 800 != width
+        assert [e for e in browser.get_log("browser") if e["level"] in ("SEVERE", "WARNING")] == []
+        browser.get(report_page.as_uri())
+        figures = browser.execute_script(
+            "return Array.prototype.map.call(document.querySelectorAll('figure img'), "
+            "function (i) { return i.complete && i.naturalWidth > 0; });"
+        )
+        assert figures and all(figures)
+        assert len(browser.find_elements(By.CSS_SELECTOR, "#report table")) >= 4
+        assert [e for e in browser.get_log("browser") if e["level"] in ("SEVERE", "WARNING")] == []
+    finally:
+        browser.quit()
