@@ -319,6 +319,7 @@ class _Layer:
     visible: bool
     opacity: int  # percent
     legend: str  # HTML
+    probe: str = ""  # the data-* attributes by which the page reads the layer's value under the pointer
 
 
 def _cm(sigma_m: Any) -> str:
@@ -348,10 +349,12 @@ def _layers(out: DetectOutput, settings: ViewSettings, dtm: Path | None) -> tupl
         Reduction,
         colour_rgba,
         colour_stops,
+        colour_table,
         hillshade_rgba,
         png_bytes,
         reduced_array,
         reduced_map,
+        safety_classes,
         safety_rgba,
         terrain_heights,
     )
@@ -392,6 +395,15 @@ def _layers(out: DetectOutput, settings: ViewSettings, dtm: Path | None) -> tupl
         put("hillshade", hillshade_rgba(heights, cell))
 
     prob_stops, unc_stops = colour_stops(PROBABILITY_CMAP), colour_stops(UNCERTAINTY_CMAP)
+
+    def probe(order: int, name: str, cmap: str, high: float, unit: str = "") -> str:
+        table = " ".join(colour_table(cmap))
+        return (
+            f' data-probe="{esc(name)}" data-order="{order}" data-lut="{table}" data-min="0" data-max="{high!r}" '
+            f'data-unit="{esc(unit)}"'
+        )
+
+    classes = esc(json.dumps(safety_classes()))
     ln2 = f"{UNCERTAINTY_MAX_NATS:.3f} nats (ln 2)"
 
     def score_tick(name: str) -> tuple[float | None, str]:
@@ -424,8 +436,17 @@ def _layers(out: DetectOutput, settings: ViewSettings, dtm: Path | None) -> tupl
             True,
             55,
             swatches + "; no colour: invalid (border band, nodata)",
+            f' data-probe="safety" data-order="0" data-classes="{classes}"',
         ),
-        _Layer("p_safe", "P(safe), network (MC-dropout mean)", images["p_safe"], False, 85, _bar(prob_stops, "0", "1")),
+        _Layer(
+            "p_safe",
+            "P(safe), network (MC-dropout mean)",
+            images["p_safe"],
+            False,
+            85,
+            _bar(prob_stops, "0", "1"),
+            probe(1, "P(safe)", PROBABILITY_CMAP, 1.0),
+        ),
         _Layer(
             "entropy",
             "Predictive entropy",
@@ -433,6 +454,7 @@ def _layers(out: DetectOutput, settings: ViewSettings, dtm: Path | None) -> tupl
             False,
             85,
             _bar(unc_stops, "0", ln2, *score_tick("entropy")),
+            probe(2, "entropy", UNCERTAINTY_CMAP, UNCERTAINTY_MAX_NATS, " nats"),
         ),
         _Layer(
             "mutual_information",
@@ -441,6 +463,7 @@ def _layers(out: DetectOutput, settings: ViewSettings, dtm: Path | None) -> tupl
             False,
             85,
             _bar(unc_stops, "0", ln2, *score_tick("mutual-information")),
+            probe(3, "MI", UNCERTAINTY_CMAP, UNCERTAINTY_MAX_NATS, " nats"),
         ),
         _Layer(
             "baseline_p_safe",
@@ -449,6 +472,7 @@ def _layers(out: DetectOutput, settings: ViewSettings, dtm: Path | None) -> tupl
             False,
             85,
             _bar(prob_stops, "0", "1") + f"at sensor σ {esc(_cm(sensor))}; safe where ≥ 0.5",
+            probe(4, "baseline P(safe)", PROBABILITY_CMAP, 1.0),
         ),
     ]
     if "hillshade" in images:
@@ -533,7 +557,8 @@ def _map_section(out: DetectOutput, layers: list[_Layer], facts: dict[str, Any])
         if shown is not None and shown.image is not None:
             uri, w, h = shown.image
             stack.append(
-                f'<img id="layer-{key}" class="layer" src="{uri}" width="{w}" height="{h}" alt="{esc(shown.title)}">'
+                f'<img id="layer-{key}" class="layer" src="{uri}" width="{w}" height="{h}" alt="{esc(shown.title)}"'
+                f"{shown.probe}>"
             )
     stack.append(_sites_svg(out, facts["extent"]))
     if reduction.reduced:
@@ -563,7 +588,10 @@ def _map_section(out: DetectOutput, layers: list[_Layer], facts: dict[str, Any])
         + f'</fieldset><div>Zoom: {zoom}</div><p class="note" id="extent">x {_m(m_left)} to {_m(m_right)} m, '
         + f"y {_m(m_bottom)} to {_m(m_top)} m"
         + f" ({esc(_crs_name(out.info['grid'].get('crs_wkt', ''), out))})</p>"
-        + '<div id="readout" aria-live="polite"></div></div>\n'
+        + '<div id="readout" aria-live="polite"></div>'
+        + '<p class="note">Under the pointer: its map coordinates, its class and the maps\' values, read back '
+        + f"from their colours (to 1/256 of each colour bar{'; block means' if reduction.reduced else ''}).</p>"
+        + "</div>\n"
         + f'<div class="map-scroll"><div id="map" class="map" style="aspect-ratio: {width_m:.6f} / {height_m:.6f}" '
         + f'data-left="{left!r}" data-top="{top!r}" data-width="{width_m!r}" data-height="{height_m!r}" '
         + f'data-px="{w_px}">\n'

@@ -103,11 +103,57 @@ SCRIPT = """
   });
   var readout = document.getElementById("readout");
   function fmt(v) { return v.toFixed(Math.abs(v) < 1e4 ? 2 : 1); }
+  // Each map image with data-probe: its pixels (read once decoded) and how a colour becomes a value.
+  var probes = [];
+  each("img.layer[data-probe]", function (img) {
+    var probe = {img: img, pixels: null, classes: null, index: null, n: 0};
+    if (img.dataset.classes) { probe.classes = JSON.parse(img.dataset.classes); }
+    if (img.dataset.lut) {
+      var table = img.dataset.lut.split(" ");
+      probe.index = new Map();
+      probe.n = table.length;
+      table.forEach(function (colour, i) { probe.index.set(colour, i); });
+    }
+    function grab() {
+      var canvas = document.createElement("canvas");
+      canvas.width = img.naturalWidth;
+      canvas.height = img.naturalHeight;
+      var context = canvas.getContext("2d", {willReadFrequently: true});
+      context.drawImage(img, 0, 0);
+      probe.pixels = context.getImageData(0, 0, canvas.width, canvas.height).data;
+    }
+    if (img.complete && img.naturalWidth) { grab(); } else { img.addEventListener("load", grab); }
+    probes.push(probe);
+  });
+  probes.sort(function (a, b) { return Number(a.img.dataset.order) - Number(b.img.dataset.order); });
+  function hex(p, k) {
+    return "#" + [p[k], p[k + 1], p[k + 2]].map(function (v) { return (v < 16 ? "0" : "") + v.toString(16); }).join("");
+  }
+  function values(fx, fy) {
+    var words = [];
+    probes.forEach(function (probe) {
+      var img = probe.img, w = img.naturalWidth, h = img.naturalHeight;
+      if (!probe.pixels) { return; }
+      var col = Math.min(w - 1, Math.floor(fx * w)), row = Math.min(h - 1, Math.floor(fy * h));
+      var k = 4 * (row * w + col), colour = hex(probe.pixels, k);
+      if (probe.pixels[k + 3] === 0) { return; }
+      if (probe.classes) {
+        if (colour in probe.classes) { words.push(probe.classes[colour]); }
+        return;
+      }
+      var i = probe.index.get(colour);
+      if (i === undefined) { return; }
+      var lo = Number(img.dataset.min), hi = Number(img.dataset.max);
+      words.push(img.dataset.probe + " ≈ " + (lo + (i + 0.5) / probe.n * (hi - lo)).toFixed(3) + img.dataset.unit);
+    });
+    return words.length ? ": " + words.join(", ") : " (no valid cell)";
+  }
   map.addEventListener("mousemove", function (event) {
     var r = map.getBoundingClientRect();
-    var fx = (event.clientX - r.left) / r.width, fy = (event.clientY - r.top) / r.height;
+    function within(v) { return Math.min(Math.max(v, 0), 0.999999); }
+    var fx = within((event.clientX - r.left) / r.width), fy = within((event.clientY - r.top) / r.height);
     var x = Number(d.left) + fx * Number(d.width), y = Number(d.top) - fy * Number(d.height);
-    readout.textContent = "x " + fmt(x) + " m, y " + fmt(y) + " m";
+    readout.textContent = "x " + fmt(x) + " m, y " + fmt(y) + " m" + values(fx, fy);
   });
   map.addEventListener("mouseleave", function () { readout.textContent = ""; });
   function select(rank, scroll) {

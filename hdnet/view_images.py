@@ -215,6 +215,27 @@ def safety_rgba(codes: np.ndarray) -> np.ndarray:
     return rgba
 
 
+def _hex(rgb: Any) -> str:
+    return "#{:02x}{:02x}{:02x}".format(*(int(v) for v in rgb[:3]))
+
+
+def colour_table(cmap: str) -> list[str]:
+    """Every colour of the matplotlib colour map ``cmap`` in order, as ``#rrggbb``: exactly the colours
+    :func:`colour_rgba` gives (entry ``i`` of ``n`` for a value in the ``i``-th ``n``-th of its range),
+    so that a page can read a value back from a pixel."""
+    colours = matplotlib.colormaps[cmap]
+    return [_hex(rgb) for rgb in colours(np.arange(colours.N), bytes=True)]
+
+
+SAFETY_WORDS = {SAFETY_UNSAFE: "unsafe", SAFETY_SAFE: "safe", SAFETY_UNCERTAIN: "uncertain"}
+
+
+def safety_classes() -> dict[str, str]:
+    """The colour (``#rrggbb``) of each safety class in :func:`safety_rgba`'s image -> its name."""
+    rgba = safety_rgba(np.array([list(SAFETY_WORDS)], np.uint8))[0]
+    return {_hex(px): SAFETY_WORDS[code] for code, px in zip(SAFETY_WORDS, rgba, strict=True)}
+
+
 def colour_stops(cmap: str, n: int = 11) -> list[str]:
     """``n`` evenly spaced colours of a matplotlib colour map, as ``#rrggbb`` (a legend's gradient)."""
     colours = matplotlib.colormaps[cmap](np.linspace(0.0, 1.0, n))
