@@ -19,6 +19,7 @@ import io
 import json
 import math
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -395,6 +396,18 @@ def test_a_map_larger_than_the_image_is_reduced_by_blocks_and_the_page_says_so(o
     # P(safe): block means of the valid cells, coloured.
     p = png_of(page.root.find(id="layer-p_safe").attrs["src"])
     np.testing.assert_array_equal(p, colour_rgba(block_reference(maps["p_safe"], 5), "RdYlGn", 0.0, 1.0))
+    # The page reads a value back from a pixel's colour: its index in the layer's colour table.
+    img = page.root.find(id="layer-p_safe")
+    table = img.attrs["data-lut"].split()
+    index = {colour: i for i, colour in enumerate(table)}  # a colour repeated: its last entry, as the page's script
+    assert len(table) == 256 and (img.attrs["data-min"], img.attrs["data-max"]) == ("0", "1.0")
+    reference = block_reference(maps["p_safe"], 5)
+    for row, col in ((5, 1), (5, 13), (30, 25), (59, 24)):
+        read = (index["#{:02x}{:02x}{:02x}".format(*p[row, col, :3])] + 0.5) / 256
+        assert abs(read - reference[row, col]) <= 1 / 256
+    classes = json.loads(page.root.find(id="layer-safety").attrs["data-classes"])
+    assert classes[("#{:02x}{:02x}{:02x}".format(*safety[1, 1, :3]))] == "unsafe"
+    assert sorted(classes.values()) == ["safe", "uncertain", "unsafe"]
     # The hillshade of the plane: one grey wherever its blocks lie wholly on the DTM.
     shade = png_of(page.root.find(id="layer-hillshade").attrs["src"])
     assert shade.shape == (60, 27, 4) and (shade[..., 3] == 255).all() and np.ptp(shade[:, :25, 0]) <= 1
@@ -430,8 +443,6 @@ def test_reduction_bounds_the_longer_side():
 
 # ---------------------------------------------------------------------------------------- report page
 def _numbers(cell: str) -> list[float]:
-    import re
-
     return [float(x) for x in re.findall(r"-?\d+(?:\.\d+)?", cell)]
 
 
@@ -756,6 +767,20 @@ def test_pages_work_in_a_real_browser(outputs, tmp_path):
         rows[1].click()  # selects site 2: its row and its marker
         marked = browser.find_elements(By.CSS_SELECTOR, ".site-marker.selected")
         assert [m.get_attribute("data-rank") for m in marked] == ["2"] and "selected" in rows[1].get_attribute("class")
+        # The pointer over site 1: its coordinates, class and values read back from the layers' colours.
+        x, y = (float(v) for v in (detect_dir / "sites.csv").read_text().splitlines()[1].split(",")[1:3])
+        readout = browser.execute_script(
+            "var m = document.getElementById('map'), r = m.getBoundingClientRect(), d = m.dataset;"
+            "var fx = (arguments[0] - Number(d.left)) / Number(d.width), fy = (Number(d.top) - arguments[1]) / "
+            "Number(d.height); m.dispatchEvent(new MouseEvent('mousemove', {clientX: r.left + fx * r.width, "
+            "clientY: r.top + fy * r.height, bubbles: true}));"
+            "return document.getElementById('readout').textContent;",
+            x,
+            y,
+        )
+        read_x, read_y = (float(v) for v in re.findall(r"[xy] (-?[\d.]+) m", readout))
+        assert abs(read_x - x) < 1.0 and abs(read_y - y) < 1.0, readout  # events land on whole CSS pixels
+        assert ": safe, P(safe) ≈ 0.998, entropy ≈ " in readout, readout
         width = browser.find_element(By.ID, "map").size["width"]
         browser.find_element(By.CSS_SELECTOR, "button.zoom[data-zoom='2']").click()
         assert browser.find_element(By.ID, "map").size["width"] == 800 != width
