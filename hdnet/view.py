@@ -9,10 +9,10 @@ refused with what to give instead.
 A detect output's page: the map (the terrain's hillshade, the safety map of the uncertainty-aware
 network, P(safe), entropy, mutual information and the ALHAT baseline's P(safe) as layers that can
 be switched on and off and made more or less opaque, the landing sites as numbered circles of the
-lander's size; zoom, the pointer's map coordinates), the table of sites (``sites.csv`` verbatim:
-clicking a row marks its site), the counts per class and the settings of the detection (run,
-input, sensor sigma, threshold, navigation sigma, split of a scan, lander, grid), with
-``detect.json`` whole. A map larger than ``max_px`` pixels a side is shown reduced
+lander's size; zoom; under the pointer its map coordinates, class and values), the table of
+sites (``sites.csv`` verbatim: clicking a row marks its site), the counts per class and the settings
+of the detection (run, input, sensor sigma, threshold, navigation sigma, split of a scan, lander,
+grid), with ``detect.json`` whole. A map larger than ``max_px`` pixels a side is shown reduced
 (``hdnet.view_images``), and the page says so. The hillshade is made from the terrain the detection
 read, when it is still there with the same bytes (the DTM's sha256, the dataset's manifest and the
 label shard's checksum): a DTM at another path can be given (``dtm``); without it the page says

@@ -74,7 +74,8 @@ figure { margin: 12px 0 20px; } figure img { max-width: 100%; height: auto; bord
 figcaption { color: var(--muted); font-size: 13px; }
 """
 
-# The page's behaviour: layer visibility and opacity, zoom, the pointer's map coordinates, and the
+# The page's behaviour: layer visibility and opacity, zoom, what is under the pointer (map coordinates,
+# the cell's class and the maps' values read back from the layers' colours), and the
 # selection of a landing site (a table row and its marker together).
 SCRIPT = """
 (function () {
