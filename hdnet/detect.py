@@ -99,7 +99,8 @@ from hdnet.tiling import TilePlan
 from hdnet.train import load_trained_model
 from hdnet.uncertainty import ENTROPY, UncertaintyScore, recorded_score, uncertainty_score, with_score
 from lidarsim.base_relief import resample_bilinear
-from lidarsim.errors import HdError, HdWarning, TerrainError
+from lidarsim.errors import HdError, HdWarning, LidarsimError, TerrainError
+from lidarsim.map_window import MapWindow, WindowCells, bounds_text, grid_bounds, window_cells
 from lidarsim.procedural import geotiff_bytes, geotiff_profile
 from lidarsim.shards import MANIFEST_NAME, open_scan_shard, read_manifest, sha256_file
 from lidarsim.storage import (
@@ -272,7 +273,10 @@ class _Terrain:
 
 
 class _DtmTerrain(_Terrain):
-    def __init__(self, path: Path, run: DetectRun, upsample: bool = False) -> None:
+    """A DTM file, or the cells of it that a window (``--window``, map metres) overlaps: then the grid
+    is those cells alone (reads outside them are NaN), as if the DTM had been cut to them."""
+
+    def __init__(self, path: Path, run: DetectRun, upsample: bool = False, window: MapWindow | None = None) -> None:
         with DTM.open(path) as probe:
             info = probe.info
         sx, sy = info.spacing_m
@@ -284,6 +288,7 @@ class _DtmTerrain(_Terrain):
         coarse = max(sx, sy)
         self.path = Path(info.path)
         self.upsampled: dict[str, Any] | None = None
+        self.window = window
         if coarse > run.spacing_m * (1.0 + SPACING_TOLERANCE):
             if not upsample:
                 raise TerrainError(
@@ -293,31 +298,52 @@ class _DtmTerrain(_Terrain):
                     "or map a finer DTM, e.g. one made by `hd make-dtm --base` (with rocks)"
                 )
             self.scale = 1.0
-            self.dtm = self._upsampled(path, info, run.spacing_m)
+            source = self._window_cells(info)  # the window's cells of the coarse DTM, upsampled alone
+            self.dtm = self._upsampled(path, info, run.spacing_m, source)
+            self.cells = WindowCells(0, 0, self.dtm.info.rows, self.dtm.info.cols, source.clipped)
         else:
             self.scale = min(1.0, coarse / run.spacing_m)  # spacing / scale = the run's spacing
             self.dtm = DTM.open(path, scale=self.scale)
         try:
+            if self.upsampled is None:
+                self.cells = self._window_cells(self.dtm.info)
             self._describe(info, run)
         except BaseException:
             self.dtm.close()
             raise
 
-    def _upsampled(self, path: Path, info: Any, spacing_m: float) -> DTM:
-        """The DTM at ``path`` interpolated bilinearly to ``spacing_m`` (metres/pixel), held in memory
-        as a GeoTIFF over the same extent (``lidarsim.base_relief.resample_bilinear``)."""
+    def _window_cells(self, info: Any) -> WindowCells:
+        """The cells of the grid ``info`` describes that the window overlaps (all of them without a
+        window), with a warning when the window reaches past the grid and is clipped to it."""
+        if self.window is None:
+            return WindowCells(0, 0, info.rows, info.cols)
+        cells = window_cells(self.window, info.transform, info.rows, info.cols, info.name)
+        if cells.clipped:
+            warnings.warn(
+                f"the window {self.window.text()} reaches past {info.name} "
+                f"({bounds_text(grid_bounds(info.transform, info.rows, info.cols))}): only the part inside it is "
+                f"mapped, {bounds_text(cells.bounds(info.transform))}",
+                HdWarning,
+                stacklevel=2,
+            )
+        return cells
+
+    def _upsampled(self, path: Path, info: Any, spacing_m: float, source: WindowCells) -> DTM:
+        """The cells ``source`` of the DTM at ``path`` (all of them without a window) interpolated
+        bilinearly to ``spacing_m`` (metres/pixel), held in memory as a GeoTIFF over the same extent
+        (``lidarsim.base_relief.resample_bilinear``)."""
         sx, sy = info.spacing_m
-        shape = (int(info.rows * sy / spacing_m + 1e-9), int(info.cols * sx / spacing_m + 1e-9))
+        shape = (max(1, int(source.rows * sy / spacing_m + 1e-9)), max(1, int(source.cols * sx / spacing_m + 1e-9)))
         if shape[0] * shape[1] > MAX_UPSAMPLED_CELLS:
             raise TerrainError(
                 f"{info.path}: upsampled to {spacing_m:g} m/px it would be {shape[0]} x {shape[1]} cells, more than "
-                f"hd's {MAX_UPSAMPLED_CELLS:,} for --upsample; cut it into parts (e.g. gdal_translate -srcwin)"
+                f"hd's {MAX_UPSAMPLED_CELLS:,} for --upsample; map it in parts (--window, or gdal_translate -srcwin)"
             )
         with DTM.open(path) as src:
-            values = src.read(0, 0, info.rows, info.cols)
+            values = src.read(source.row0, source.col0, source.rows, source.cols)
             digest = src.sha256()
         heights = resample_bilinear(values, (sx, sy), spacing_m, shape)
-        t = info.transform
+        t = source.transform(info.transform)
         data = geotiff_bytes(heights, spacing_m, (float(t[2]), float(t[5])), info.crs_wkt, name=str(info.path))
         self.upsampled = {
             "method": "bilinear between cell centres (lidarsim.base_relief.resample_bilinear)",
@@ -330,8 +356,8 @@ class _DtmTerrain(_Terrain):
     def _describe(self, info: Any, run: DetectRun) -> None:
         sx, sy = info.spacing_m
         i = self.dtm.info
-        self.shape = (i.rows, i.cols)
-        self.transform = Affine(*i.transform)
+        self.shape = (self.cells.rows, self.cells.cols)
+        self.transform = Affine(*self.cells.transform(i.transform))
         self.crs_wkt = i.crs_wkt
         self.spacing_xy_m = (float(i.spacing_m[0]), float(i.spacing_m[1]))
         self.scan_frame = False
@@ -348,6 +374,13 @@ class _DtmTerrain(_Terrain):
         }
         if self.upsampled is not None:
             self.provenance["upsampled"] = self.upsampled
+        if self.window is not None:
+            self.provenance["window"] = {
+                "requested": list(self.window),
+                "mapped": list(grid_bounds(tuple(self.transform)[:6], *self.shape)),
+                "clipped": self.cells.clipped,
+                "dtm_bounds": list(grid_bounds(info.transform, info.rows, info.cols)),
+            }
         self._check_fits(run)
 
     def _check_fits(self, run: DetectRun) -> None:
@@ -357,29 +390,50 @@ class _DtmTerrain(_Terrain):
         rows, cols = self.shape
         sx, sy = self.spacing_xy_m
         name = self.dtm.info.name
+        what, fix = "the DTM", "use a larger DTM"
+        if self.window is not None:
+            bounds = bounds_text(grid_bounds(self.provenance["source_transform"], *self.provenance["source_shape"]))
+            name = f"the window {self.window.text()} of {name}"
+            what, fix = "the window", f"widen the window (the DTM's bounds: {bounds})"
         if rows < need or cols < need:
             raise TerrainError(
                 f"{name} is too small for the lander footprint: a {run.lander.diameter_m:g} m lander needs "
-                f"{need} x {need} cells of valid terrain at {run.spacing_m:g} m/px, the DTM covers "
-                f"{cols * sx:.0f} m x {rows * sy:.0f} m ({rows} x {cols} cells); use a larger DTM"
+                f"{need} x {need} cells of valid terrain at {run.spacing_m:g} m/px, {what} covers "
+                f"{cols * sx:.0f} m x {rows * sy:.0f} m ({rows} x {cols} cells); {fix}"
             )
-        valid, _ = self.dtm.validity_overview(max(sx, sy))  # "every cell is nodata" from here
+        c = self.cells
+        # "every cell is nodata" from here (of the window's cells: only they are read)
+        valid, _ = self.dtm.validity_overview(
+            max(sx, sy), None if self.window is None else (c.row0, c.col0, rows, cols)
+        )
         fits = ndimage.binary_erosion(valid, structure=np.ones((need, need), bool), border_value=0)
         if not fits.any():
             raise TerrainError(
                 f"{name} is too small for the lander footprint: a {run.lander.diameter_m:g} m lander needs "
-                f"{need} x {need} cells of valid terrain at {run.spacing_m:g} m/px and the DTM has no such "
-                "valid square; use a larger DTM"
+                f"{need} x {need} cells of valid terrain at {run.spacing_m:g} m/px and {what} has no such "
+                f"valid square; {fix}"
             )
 
     def read(self, row0: int, col0: int, rows: int, cols: int) -> np.ndarray:
-        return self.dtm.read(row0, col0, rows, cols)
+        """Heights of cells of the grid (the window's own, without a window the DTM's); NaN outside it."""
+        out = np.full((rows, cols), np.nan, np.float64)
+        h, w = self.shape
+        r0, r1, c0, c1 = max(row0, 0), min(row0 + rows, h), max(col0, 0), min(col0 + cols, w)
+        if r0 < r1 and c0 < c1:
+            out[r0 - row0 : r1 - row0, c0 - col0 : c1 - col0] = self.dtm.read(
+                r0 + self.cells.row0, c0 + self.cells.col0, r1 - r0, c1 - c0
+            )
+        return out
 
     def hillshade_heights(self, max_px: int) -> tuple[np.ndarray, float]:
         rows, cols = self.shape
         factor = min(1.0, max_px / max(rows, cols))
         if factor >= 1.0:
-            return self.dtm.read(0, 0, rows, cols), float(np.mean(self.spacing_xy_m))
+            return self.read(0, 0, rows, cols), float(np.mean(self.spacing_xy_m))
+        if self.window is not None:  # the window's cells, decimated in one read
+            c = self.cells
+            heights = self.dtm.preview(max_px, c.row0, c.col0, rows, cols)
+            return heights, float(np.mean(self.spacing_xy_m)) * rows / heights.shape[0]
         with DTM.open(self.path, scale=self.scale * factor) as small:
             return small.read(0, 0, small.info.rows, small.info.cols), float(np.mean(small.info.spacing_m))
 
@@ -491,6 +545,18 @@ def trained_on(run: DetectRun, dataset: Path, source_sha256: str) -> bool:
 
 
 # --- options -----------------------------------------------------------------------------------------
+def _map_window(value: MapWindow | tuple[float, float, float, float] | str) -> MapWindow:
+    """The window of ``detect(window=...)``: a ``MapWindow``, four numbers or their text, checked.
+
+    Raises:
+        HdNetError: not four finite numbers with xmin < xmax and ymin < ymax.
+    """
+    try:
+        return MapWindow.of(value)
+    except LidarsimError as exc:
+        raise HdNetError(f"--window: {exc}") from exc
+
+
 def _fixed_threshold(spec: str) -> float | None:
     """H_t of a ``nats:H`` spec (H >= 0 nats, 'inf' allowed), or None for the calibrated specs."""
     parsed = parse_threshold_spec(spec)
@@ -627,11 +693,18 @@ def detect(
     calibrate: str = "reference",
     upsample: bool = False,
     uncertainty: str = ENTROPY.name,
+    window: MapWindow | tuple[float, float, float, float] | str | None = None,
 ) -> DetectResult:
     """Hazard maps and ranked landing sites of a DTM (``dtm``) or of one scan (``dataset`` + ``scan``).
 
     ``upsample``: a DTM coarser than the run's DEM spacing is interpolated bilinearly to it (recorded
-    in ``detect.json`` under ``terrain.upsampled``) instead of being refused.
+    in ``detect.json`` under ``input.upsampled``) instead of being refused.
+
+    ``window`` (with ``dtm``): the map rectangle ``(xmin, ymin, xmax, ymax)`` (metres in the DTM's
+    CRS; also its text ``"xmin,ymin,xmax,ymax"``) to map: the cells it overlaps
+    (``lidarsim.map_window``) are read and mapped as if they were the whole DTM (the maps' grid,
+    the tiling and the sites are the window's), and ``detect.json`` records it under
+    ``input.window``; a window reaching past the DTM is clipped to it with a warning.
 
     ``sigma_m`` (metres): the baseline's DEM noise (default: the run's training sigma); with a scan,
     also the noise level of the DEM taken. ``threshold``: ``mean``, ``quantile:Q``, ``risk:ALPHA``
@@ -665,6 +738,7 @@ def detect(
         n_sites=n_sites,
         nav_sigma_m=nav_sigma_m,
         upsample=upsample,
+        window=None if window is None else _map_window(window),
         labels=labels,
         seed=seed,
         batch_size=batch_size,
@@ -672,7 +746,8 @@ def detect(
     )  # each value's kind and range (its field's metadata)
     score = uncertainty_score(uncertainty)
     settings.check_inputs(dtm, dataset)
-    check_inputs(run_dir, dataset, labels, dtm=dtm)  # the paths and the labelling, before the run is loaded
+    # the paths, the labelling and the window, before the run is loaded
+    check_inputs(run_dir, dataset, labels, dtm=dtm, window=settings.window)
     output = output_dir(out_dir, {"the run": run_dir, "the DTM": dtm, "the dataset": dataset})
     output.check_place()  # a usable path that is no input, before the run is even loaded
     dev = torch.device(device) if device else torch.device("cuda" if torch.cuda.is_available() else "cpu")
@@ -683,7 +758,9 @@ def detect(
     output.add_inputs({"the checkpoint": run.checkpoint, "the run's dataset": run.dataset})
     out = output.check(overwrite)
     baseline_sigma = run.train_sigma_m if sigma_m is None else float(sigma_m)
-    terrain, calib_dirs, calib_labels = _open_terrain(run, dtm, dataset, scan, labels, baseline_sigma, upsample)
+    terrain, calib_dirs, calib_labels = _open_terrain(
+        run, dtm, dataset, scan, labels, baseline_sigma, upsample, settings.window
+    )
     if isinstance(terrain, _ScanTerrain):
         baseline_sigma = terrain.sigma_m
         if terrain.provenance["split"] == "train" and trained_on(run, Path(terrain.dataset), terrain.source_sha256):
@@ -770,14 +847,15 @@ def _open_terrain(
     labels: str | None,
     sigma_m: float,
     upsample: bool = False,
+    window: MapWindow | None = None,
 ) -> tuple[_Terrain, tuple[Path, ...], str]:
-    """Step 2: the terrain (a DTM, or one scan's noisy DEM at ``sigma_m`` metres), with the datasets
+    """Step 2: the terrain (a DTM or its ``window``, or one scan's noisy DEM at ``sigma_m`` metres), with the datasets
     and labelling the threshold is calibrated on: the run's own training data (every ``--also``
     dataset included), as ``hd eval`` does; for a scan whose run's data is not present any more, the
     scan's dataset; for a DTM then none (only a fixed threshold can be used)."""
     own = run.training_datasets
     if dtm is not None:
-        return _DtmTerrain(Path(dtm), run, upsample), own or (), run.labels
+        return _DtmTerrain(Path(dtm), run, upsample, window), own or (), run.labels
     if dataset is None or scan is None:  # excluded by DetectSettings.check_inputs
         raise HdNetError("give either a DTM (--dtm) or a dataset and a scan (--data with --scan).")
     lab = labels if labels is not None else preferred_labeling(dataset, run.labels)
@@ -1003,6 +1081,8 @@ def _overview(
     rows, cols = terrain.shape
     left, right, top, bottom = c, c + a * cols, f, f + e * rows
     name = terrain.provenance.get("name") or f"scan {terrain.provenance.get('scan_index')}"
+    if "window" in terrain.provenance:
+        name += f" (window {MapWindow(*terrain.provenance['window']['mapped']).text()})"
     t = "unbounded" if not math.isfinite(h_t) else f"{h_t:.3f} nats"
     t += uncertainty.qualifier
     title = (

@@ -27,13 +27,14 @@ def detect_job(
 
     Raises:
         HdNetError / TerrainError / StorageError: as ``hdnet.detect.detect``, before anything is written;
-            a missing or misshapen run, dataset or DTM and an unknown labelling before anything is loaded.
+            a missing or misshapen run, dataset or DTM, an unknown labelling and a window outside the
+            DTM before anything is loaded.
     """
     from hdnet.preflight import check_inputs
 
     # The settings were checked as they were made; the inputs now, before PyTorch is imported.
     settings.check_inputs(dtm, dataset)
-    check_inputs(run_dir, dataset, settings.labels, dtm=dtm)
+    check_inputs(run_dir, dataset, settings.labels, dtm=dtm, window=settings.window)
 
     from hdnet.detect import detect
 

@@ -24,6 +24,7 @@ from hdnet.shared_options import (
     uncertainty_setting,
 )
 from hdnet.threshold_spec import parse_threshold_spec
+from lidarsim.map_window import FORM, MAP_WINDOW, MapWindow
 from lidarsim.setting import check, setting
 
 
@@ -68,6 +69,16 @@ class DetectSettings:
         "A DTM coarser than the run's DEM spacing (e.g. HiRISE at 2-4 m) is interpolated bilinearly to it "
         "(recorded in detect.json) instead of refused; it holds no rocks below its own resolution",
     )
+    window: MapWindow | None = setting(
+        None,
+        "With --dtm: map only this rectangle of it, XMIN,YMIN,XMAX,YMAX in the DTM's CRS, {unit} (as a GIS shows "
+        "them): only its cells are read (the cells it overlaps; clipped to the DTM with a warning when it "
+        "reaches past it) and mapped as if they were the whole DTM, and the sites are chosen in it",
+        unit="metres",
+        kind=MapWindow,
+        click_type=MAP_WINDOW,
+        metavar=FORM,
+    )
     labels: str | None = labels_setting(
         "With --data: the labelling whose DEM of the scan to map (default: the one the run was trained on, when "
         "the dataset has it; else the dataset's only one)"
@@ -84,7 +95,8 @@ class DetectSettings:
         range are checked as the settings are made).
 
         Raises:
-            HdNetError: both or neither of ``dtm`` and ``dataset``, a dataset without a scan, a scan with a DTM.
+            HdNetError: both or neither of ``dtm`` and ``dataset``, a dataset without a scan, a scan
+                with a DTM, a window with a dataset.
         """
         if (dtm is None) == (dataset is None):
             raise HdNetError("give either a DTM (--dtm) or a dataset and a scan (--data with --scan).")
@@ -92,3 +104,5 @@ class DetectSettings:
             raise HdNetError("--data needs --scan: the index of the scan whose noisy DEM to use.")
         if dtm is not None and self.scan is not None:
             raise HdNetError("--scan goes with --data, not with --dtm.")
+        if dataset is not None and self.window is not None:
+            raise HdNetError("--window goes with --dtm (a window of a DTM's map coordinates), not with --data.")

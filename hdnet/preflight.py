@@ -11,7 +11,7 @@ The settings themselves (the threshold's form included) are checked as they are 
   without a checkpoint yet and a directory that is no run are each refused with their fix);
 * :func:`check_dataset`: a dataset directory with a readable manifest and labels, and the labelling
   ``--labels`` names, when given (a full name or an alias, ``hdlabels.store.find_labeling``);
-* :func:`check_dtm`: a DTM file that exists;
+* :func:`check_dtm`: a DTM file that exists (with ``--window``: a DTM the window overlaps);
 * :func:`check_inputs`: all of a command's inputs, in that order.
 """
 
@@ -24,6 +24,7 @@ from hdlabels.store import find_labeling
 from hdnet.errors import HdNetError
 from hdnet.run_files import CONFIG, LAST
 from lidarsim.errors import TerrainError
+from lidarsim.map_window import MapWindow, window_cells
 from lidarsim.shards import MANIFEST_NAME, read_manifest
 
 
@@ -72,14 +73,23 @@ def check_dataset(dataset: str | os.PathLike, labels: str | None = None) -> None
         find_labeling(dataset, labels)  # its errors: "no labels; run hd label", "no labelling named ..."
 
 
-def check_dtm(dtm: str | os.PathLike) -> None:
-    """A DTM file at ``dtm`` (its content is read, and checked, by ``lidarsim.terrain.DTM``).
+def check_dtm(dtm: str | os.PathLike, window: MapWindow | None = None) -> None:
+    """A DTM file at ``dtm`` (its content is read, and checked, by ``lidarsim.terrain.DTM``); with a
+    ``window`` (map metres), a raster that GDAL opens and that the window overlaps (its header
+    alone is read: ``lidarsim.map_window.window_cells``).
 
     Raises:
-        TerrainError: nothing there.
+        TerrainError: nothing there; with a window, a file that is no usable DTM or a window outside
+            its bounds (the message names them).
     """
     if not os.path.exists(dtm):
         raise TerrainError(f"{os.path.abspath(os.fspath(dtm))}: no such file")
+    if window is not None:
+        from lidarsim.terrain import DTM  # rasterio, imported only for a window
+
+        with DTM.open(dtm) as probe:
+            i = probe.info
+            window_cells(window, i.transform, i.rows, i.cols, i.name)
 
 
 def check_inputs(
@@ -89,10 +99,12 @@ def check_inputs(
     *,
     dtm: str | os.PathLike | None = None,
     calibration: tuple[str | os.PathLike, ...] = (),
+    window: MapWindow | None = None,
 ) -> Path:
     """Every input of ``hd eval`` or ``hd detect``, in the order a user reads the command: the run
     (:func:`check_run`), the dataset and its ``labels`` (:func:`check_dataset`), the DTM
-    (:func:`check_dtm`) and each ``calibration`` dataset (``--calibrate-on``); returns the checkpoint.
+    (:func:`check_dtm`, with its ``window``) and each ``calibration`` dataset (``--calibrate-on``);
+    returns the checkpoint.
 
     Raises:
         HdError: as the checks above, for the first input that fails.
@@ -101,7 +113,7 @@ def check_inputs(
     if dataset is not None:
         check_dataset(dataset, labels)
     if dtm is not None:
-        check_dtm(dtm)
+        check_dtm(dtm, window)
     for other in calibration:
         check_dataset(other)
     return checkpoint

@@ -40,13 +40,15 @@ class Described:
 
     ``help``: one sentence for ``--help``; ``unit``: of the value (``metres``, ``degrees``,
     ``metres/pixel``; empty for counts and names), appended to the help; ``bound``: its range;
-    ``choices``: the values a name may take; ``kind``: ``bool``, ``int``, ``float`` or ``str`` (of
-    each value when ``multiple``); ``multiple``: a tuple of values (a repeatable option, a TOML
-    list); ``optional``: None is allowed (the default is then worked out elsewhere); ``flag``: the
-    option's name when it is not the field's name dashed; ``cli``: whether the command line takes it;
-    ``click_type``: the option's type when it is not made from the kind (a path that must exist);
-    ``checked``: whether :func:`check` checks it (not for a value that may also be an object, e.g.
-    a training profile given by name or as itself, or one number or a range drawn per scan, which
+    ``choices``: the values a name may take; ``kind``: ``bool``, ``int``, ``float``, ``str`` (of
+    each value when ``multiple``) or a value type of its own, whose instances say what is wrong with
+    them (``problem()``: None, or what was expected; ``lidarsim.map_window.MapWindow``);
+    ``multiple``: a tuple of values (a repeatable option, a TOML list); ``optional``: None is
+    allowed (the default is then worked out elsewhere); ``flag``: the option's name when it is not
+    the field's name dashed; ``cli``: whether the command line takes it; ``click_type``: the
+    option's type when it is not made from the kind (a path that must exist); ``checked``: whether
+    :func:`check` checks it (not for a value that may also be an object, e.g. a training profile
+    given by name or as itself, or one number or a range drawn per scan, which
     ``lidarsim.trajectory`` checks with the range's own messages).
     """
 
@@ -93,6 +95,12 @@ class Described:
         elif self.kind is Path:
             ok = isinstance(value, str | os.PathLike)
             expected = "a path"
+        elif self.kind is not str:  # a value type of its own (lidarsim.map_window.MapWindow): its problem()
+            ok = isinstance(value, self.kind)
+            expected = f"a {self.kind.__name__}"
+            problem = value.problem() if ok and hasattr(value, "problem") else None
+            if problem is not None:
+                ok, expected = False, problem
         else:
             ok = isinstance(value, str)
             expected = "a string"

@@ -376,6 +376,37 @@ class DTM:
             values[spoiled] = sums[spoiled] / counts[spoiled]
         return values, bad
 
+    def preview(
+        self, max_px: int, row0: int = 0, col0: int = 0, rows: int | None = None, cols: int | None = None
+    ) -> np.ndarray:
+        """Heights of a window of the grid (default: all of it) decimated to at most ``max_px`` cells
+        per side, for figures: float64 metres, NaN where invalid, each preview cell the source cell
+        nearest its centre (nothing is averaged). One GDAL read with an output shape, so a DTM larger
+        than memory is never held at full resolution. The window (cells of the grid at the chosen
+        scale) must lie within the grid.
+
+        Raises:
+            TerrainError: a window outside the grid, or a failed read.
+        """
+        rows = self.info.rows - row0 if rows is None else rows
+        cols = self.info.cols - col0 if cols is None else cols
+        inside = row0 >= 0 and col0 >= 0 and rows > 0 and cols > 0
+        if not (inside and row0 + rows <= self.info.rows and col0 + cols <= self.info.cols):
+            raise TerrainError(
+                f"{self.info.path}: preview window {rows}x{cols} at ({row0}, {col0}) lies outside its "
+                f"{self.info.rows}x{self.info.cols} cells"
+            )
+        k = min(1.0, max_px / max(rows, cols))
+        shape = (max(1, round(rows * k)), max(1, round(cols * k)))
+        window = Window(col0 * self._fx, row0 * self._fy, cols * self._fx, rows * self._fy)
+        try:
+            raw = self._src.read(1, window=window, out_shape=shape, resampling=Resampling.nearest)
+        except RasterioError as exc:
+            raise TerrainError(f"{self.info.path}: read failed ({exc})") from exc
+        values = raw.astype(np.float64)
+        values[invalid_mask(raw, self.info.nodata)] = np.nan
+        return values
+
     # ------------------------------------------------------------------ coordinates
     def cell_center_xy(self, row: np.ndarray | float, col: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
         """Map coordinates (metres, float64) of the centres of cells (row, col) at the chosen scale."""
@@ -392,16 +423,21 @@ class DTM:
         return (yy - f) / e - 0.5, (xx - c) / a - 0.5
 
     # ------------------------------------------------------------------ validity
-    def validity_overview(self, cell_m: float) -> tuple[np.ndarray, tuple[float, ...]]:
+    def validity_overview(
+        self, cell_m: float, window: tuple[int, int, int, int] | None = None
+    ) -> tuple[np.ndarray, tuple[float, ...]]:
         """Coarse validity grid of ``cell_m``-metre cells and its GDAL geotransform.
 
         A coarse cell is True where every full-resolution DTM cell it overlaps is valid. The grid
         starts at the raster's top-left corner and covers the whole raster; coarse cells that
         extend past the raster edge are False (part of them is not terrain). Computed by streaming
-        row blocks, so a DTM larger than memory works.
+        row blocks, so a DTM larger than memory works. ``window`` = (row0, col0, rows, cols) of cells
+        of the grid at the chosen scale, within it: the full-resolution cells under it alone are
+        read, as if they were the raster (the coarse grid starts at their top-left corner; "every
+        cell is nodata" then means the window's).
 
         Raises:
-            TerrainError: ``cell_m`` not a positive finite number, or every DTM cell is invalid.
+            TerrainError: ``cell_m`` not a positive finite number, or every DTM cell (of the window) is invalid.
         """
         path = self.info.path
         try:
@@ -411,7 +447,14 @@ class DTM:
         if not (math.isfinite(cell) and cell > 0.0):
             raise TerrainError(f"{path}: overview cell size {cell_m!r} must be a positive number of metres")
         a, _, c, _, e, f = self._src_transform
-        height, width = self._src.height, self._src.width
+        if window is None:
+            row_off, col_off, height, width = 0, 0, self._src.height, self._src.width
+        else:  # the full-resolution cells under the window's cells
+            r_lo, r_hi = self._source_span(window[0], window[2], self._fy, self._src.height)
+            c_lo, c_hi = self._source_span(window[1], window[3], self._fx, self._src.width)
+            row_off, col_off = int(r_lo[0]), int(c_lo[0])
+            height, width = int(r_hi[-1]) - row_off, int(c_hi[-1]) - col_off
+        c, f = c + a * col_off, f + e * row_off
         fy = cell / abs(e)  # source rows per coarse cell
         fx = cell / abs(a)
         n_rows = max(1, math.ceil(height / fy - _EDGE_EPS))
@@ -430,14 +473,14 @@ class DTM:
             while j < n_rows and r_last[j] - r_first[i] <= rows_per_block:
                 j += 1
             s0, s1 = int(r_first[i]), int(r_last[j - 1])
-            raw = self._read_source(Window(0, s0, width, s1 - s0))
+            raw = self._read_source(Window(col_off, row_off + s0, width, s1 - s0))
             bad = invalid_mask(raw, self.info.nodata)
             any_valid = any_valid or not bool(bad.all())
             counts = _box_counts(bad, r_first[i:j] - s0, r_last[i:j] - s0, c_first, c_last)
             valid[i:j] = counts == 0
             i = j
         if not any_valid:
-            raise TerrainError(f"{path}: every cell is nodata")
+            raise TerrainError(f"{path}: every cell {'of the window ' if window is not None else ''}is nodata")
         valid &= row_complete[:, None] & col_complete[None, :]
         transform = (math.copysign(cell, a), 0.0, c, 0.0, math.copysign(cell, e), f)
         return valid, transform

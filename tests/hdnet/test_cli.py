@@ -9,11 +9,13 @@ import sys
 from pathlib import Path
 
 import h5py
+import numpy as np
 import pytest
 from click.testing import CliRunner
 from hdnet_datasets import build_labelled
 
 from cli import main
+from tests.geotiff import write_geotiff
 
 
 @pytest.fixture(scope="module")
@@ -169,6 +171,24 @@ def test_run_and_dataset_paths_are_checked_before_the_network_library_is_importe
     names = {"run": str(fake_run(tmp_path / "run")), "data": str(dataset), "tmp": str(tmp_path)}
     result = hd_without_torch(*[a.format(**names) for a in args], "--out", str(tmp_path / "o"))
     assert result.returncode == 1 and "Traceback" not in result.stderr, result.stderr
+    last = result.stderr.strip().splitlines()[-1]
+    assert last.startswith("Error: ") and needle in last, result.stderr
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize(
+    ("window", "code", "needle"),
+    [
+        ("1040,1960,1000,2000", 2, "XMIN 1040 must be less than XMAX 1000"),  # a usage error of --window
+        ("0,0,10,10", 1, "lies outside site.tif, whose bounds are x 1000 to 1040, y 1960 to 2000 (map metres)"),
+    ],
+)
+def test_a_window_is_checked_before_the_network_library_is_imported(tmp_path, window, code, needle):
+    """hd detect --window: its form as the option is read, whether it overlaps the DTM from the DTM's header."""
+    dtm = write_geotiff(tmp_path / "site.tif", np.zeros((40, 40)))  # top-left (1000, 2000), 1 m cells
+    run = fake_run(tmp_path / "run")
+    result = hd_without_torch("detect", str(run), "--dtm", str(dtm), "--window", window, "--out", str(tmp_path / "o"))
+    assert result.returncode == code and "Traceback" not in result.stderr, result.stderr
     last = result.stderr.strip().splitlines()[-1]
     assert last.startswith("Error: ") and needle in last, result.stderr
     assert not (tmp_path / "o").exists()

@@ -13,6 +13,7 @@ import dataclasses
 import json
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -505,6 +506,106 @@ def test_windowed_reads_only(trained, tmp_path, monkeypatch):
     assert all(s == (100, 100) for s in shapes[:9])
 
 
+# --- --window: a part of a large DTM ------------------------------------------------------------------
+def rough_hills(rows: int, cols: int, seed: int = 5) -> np.ndarray:
+    """Seeded hills with rocks and a tilt (metres): safe, unsafe and uncertain cells all occur."""
+    rng = np.random.default_rng(seed)
+    z = ndimage.gaussian_filter(rng.normal(0.0, 1.0, (rows, cols)), 6) * 25.0
+    rocks = np.zeros((rows, cols))
+    idx = rng.integers(0, min(rows, cols), (40, 2))
+    rocks[idx[:, 0], idx[:, 1]] = 1.0
+    return 40.0 + z + ndimage.gaussian_filter(rocks, 1.2) * 6.0 + 0.02 * np.arange(cols)[None, :]
+
+
+def maps_of(out: Path) -> dict[str, np.ndarray]:
+    return {name: read(out / name)[0] for name in MAP_FILES}
+
+
+@pytest.mark.parametrize(
+    ("window", "rows", "cols"),
+    [
+        ((1045.4, 1820.2, 1204.6, 1969.7), (30, 180), (45, 205)),  # 2 x 2 tiles
+        ((1045.0, 1890.0, 1125.0, 1954.0), (46, 110), (45, 125)),  # smaller than one tile: its reads reach past
+    ],
+)
+def test_a_window_maps_as_the_dtm_cut_to_it(trained, tmp_path, monkeypatch, window, rows, cols):
+    """The window's cells (edges inside cells snapped outwards) are mapped exactly as a GeoTIFF of
+    those cells alone: the tiles are laid on the window, and a window's reads stop at its edge (a
+    tile reaching past it gets NaN there, as past a DTM's edge), so every tile holds the same
+    heights, in the same order, under the same seed. The baseline, a local rule, also equals the
+    full map's away from the window's edge."""
+    _, run_dir, _ = trained
+    z = rough_hills(200, 240)
+    full = write_dtm(tmp_path / "full.tif", z, 1.0)  # top-left (1000, 2000): x 1000..1240, y 1800..2000
+    (r0, r1), (c0, c1) = rows, cols
+    corner = (1000.0 + c0, 2000.0 - r0)
+    crop = write_dtm(tmp_path / "crop.tif", z[r0:r1, c0:c1], 1.0, origin=corner)
+    kw: dict[str, Any] = {"threshold": "nats:inf", "mc_samples": 2, "n_sites": 5}  # all certain: sites by P(safe)
+    reads = []
+    original = detect_module.DTM.read
+
+    def spy(self, row0, col0, rows, cols):
+        reads.append((self.info.name, row0, col0, rows, cols))
+        return original(self, row0, col0, rows, cols)
+
+    monkeypatch.setattr(detect_module.DTM, "read", spy)
+    detect(run_dir, tmp_path / "win", dtm=full, window=window, **kw)
+    assert reads and all(r0 <= r and r + n <= r1 and c0 <= c and c + m <= c1 for _, r, c, n, m in reads)
+    monkeypatch.undo()
+    detect(run_dir, tmp_path / "crop", dtm=crop, **kw)
+    win, cut = maps_of(tmp_path / "win"), maps_of(tmp_path / "crop")
+    for name in MAP_FILES:
+        np.testing.assert_array_equal(win[name], cut[name], err_msg=name)
+        prof = profile_of(tmp_path / "win" / name)
+        assert prof["transform"] == from_origin(*corner, 1.0, 1.0) and prof["shape"] == (r1 - r0, c1 - c0)
+        assert prof["transform"] == profile_of(tmp_path / "crop" / name)["transform"]
+    # not trivial maps: P(safe) varies, the baseline calls both, and there are sites
+    assert np.nanstd(win["p_safe.tif"]) > 1e-3 and {0.0, 1.0} <= set(np.unique(win["baseline_p_safe.tif"]).tolist())
+    assert (tmp_path / "win" / "sites.csv").read_text() == (tmp_path / "crop" / "sites.csv").read_text()
+    info, other = (json.loads((tmp_path / d / "detect.json").read_text()) for d in ("win", "crop"))
+    assert info["input"]["window"] == {
+        "requested": list(window),
+        "mapped": [1000.0 + c0, 2000.0 - r1, 1000.0 + c1, 2000.0 - r0],
+        "clipped": False,
+        "dtm_bounds": [1000.0, 1800.0, 1240.0, 2000.0],
+    }
+    assert info["grid"] == other["grid"] and info["tiling"] == other["tiling"] and info["counts"] == other["counts"]
+    assert info["input"]["sha256"] == sha256_file(full) and "window" not in other["input"]
+    assert info["sites"]
+    for site in info["sites"]:
+        assert 1000.0 + c0 < site["x"] < 1000.0 + c1 and 2000.0 - r1 < site["y"] < 2000.0 - r0
+    # The baseline of the whole DTM, cut to the window, away from the window's edge (the border band):
+    # equal to float32 rounding (its arithmetic runs on each tile's own cells, placed elsewhere).
+    detect(run_dir, tmp_path / "all", dtm=full, **kw)
+    whole = read(tmp_path / "all" / "baseline_p_safe.tif")[0][r0:r1, c0:c1]
+    band = geometry(Lander(), 1.0).band_px
+    inner = (slice(band, -band), slice(band, -band))
+    np.testing.assert_allclose(win["baseline_p_safe.tif"][inner], whole[inner], rtol=0, atol=1e-5)
+
+
+def test_a_window_of_a_coarse_dtm_is_upsampled_alone_and_one_reaching_past_the_dtm_is_clipped(trained, tmp_path):
+    """--upsample --window interpolates the window's cells of the coarse DTM alone (as a GeoTIFF of
+    them would be); a window reaching past the DTM is mapped where they overlap, with a warning."""
+    _, _, constant = trained
+    z = rough_hills(60, 70, seed=9)
+    coarse = write_dtm(tmp_path / "coarse.tif", z, 2.0)  # 2 m cells: x 1000..1140, y 1880..2000
+    crop = write_dtm(tmp_path / "crop.tif", z[5:45, 10:60], 2.0, origin=(1020.0, 1990.0))
+    kw: dict[str, Any] = {"threshold": "nats:0.5", "mc_samples": 1, "upsample": True}
+    detect(constant, tmp_path / "win", dtm=coarse, window="1021,1910.5,1119,1990", **kw)
+    detect(constant, tmp_path / "crop", dtm=crop, **kw)
+    win, cut = maps_of(tmp_path / "win"), maps_of(tmp_path / "crop")
+    for name in MAP_FILES:
+        np.testing.assert_array_equal(win[name], cut[name], err_msg=name)
+    assert profile_of(tmp_path / "win" / "safety.tif")["transform"] == from_origin(1020.0, 1990.0, 1.0, 1.0)
+    assert win["safety.tif"].shape == (80, 100)
+    with pytest.warns(HdWarning, match=r"reaches past coarse.tif .*only the part inside it is mapped, x 1100 to 1140"):
+        detect(constant, tmp_path / "past", dtm=coarse, window=(1100.0, 1950.0, 1500.0, 2500.0), **kw)
+    info = json.loads((tmp_path / "past" / "detect.json").read_text())
+    assert info["input"]["window"]["clipped"] is True
+    assert info["input"]["window"]["mapped"] == [1100.0, 1950.0, 1140.0, 2000.0]
+    assert info["grid"]["rows"] == 50 and info["grid"]["cols"] == 40
+
+
 # --- sites by hand -------------------------------------------------------------------------------------
 def test_select_sites_ranks_by_p_safe_then_clearance_and_keeps_a_diameter_apart():
     lander = Lander()
@@ -643,6 +744,15 @@ BAD = [
     (["--data", "{dataset}"], "needs --scan"),
     (["--data", "{dataset}", "--scan", "999"], "scan 999 is not in"),
     (["--data", "{dataset}", "--scan", "0", "--sigma", "0.05"], "not in the dataset"),
+    (["--dtm", "{ok}", "--window", "1030,1970,1010,1990"], "XMIN 1030 must be less than XMAX 1010"),
+    (["--dtm", "{ok}", "--window", "1000,1990,1030,1970"], "YMIN 1990 must be less than YMAX 1970"),
+    (["--dtm", "{ok}", "--window", "1000,1960,1040"], "give four numbers separated by commas"),
+    (["--dtm", "{ok}", "--window", "1000,1960,1040,2000m"], "'2000m' is not a number"),
+    (["--dtm", "{ok}", "--window", "1000,1960,inf,2000"], "'inf' is not a finite number"),
+    (["--dtm", "{ok}", "--window", "0,0,100,100"], "lies outside ok.tif, whose bounds are x 1000 to 1040, y 1960"),
+    (["--dtm", "{ok}", "--window", "1000,1990,1006,2000"], "widen the window (the DTM's bounds: x 1000 to 1040"),
+    (["--dtm", "{striped}", "--window", "1000,1961,1040,1999"], "the window has no such valid square"),
+    (["--data", "{dataset}", "--scan", "0", "--window", "0,0,10,10"], "--window goes with --dtm"),
 ]
 
 

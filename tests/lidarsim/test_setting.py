@@ -10,6 +10,7 @@ from click.testing import CliRunner
 
 from lidarsim.errors import LidarsimError
 from lidarsim.limits import Bound
+from lidarsim.map_window import MAP_WINDOW, MapWindow
 from lidarsim.setting import (
     SettingsCommand,
     check,
@@ -53,6 +54,30 @@ class Toy:
 def test_a_wrong_value_is_refused_naming_its_option(field, value, needle):
     with pytest.raises(LidarsimError, match=needle):
         Toy(**{field: value})
+
+
+@dataclass(frozen=True)
+class Framed:
+    """A setting whose kind is a value type of its own (it says what is wrong with it)."""
+
+    window: MapWindow | None = setting(None, "Window", unit="metres", kind=MapWindow, click_type=MAP_WINDOW)
+
+    def __post_init__(self) -> None:
+        check(self, LidarsimError)
+
+
+@pytest.mark.parametrize(
+    ("value", "needle"),
+    [
+        ((1.0, 2.0, 3.0, 4.0), r"--window must be a MapWindow, got \(1.0"),  # a plain tuple is not one
+        (MapWindow(3.0, 2.0, 1.0, 4.0), "--window must be a window XMIN,YMIN,XMAX,YMAX with XMIN < XMAX"),
+        (MapWindow(1.0, 2.0, 3.0, float("nan")), "of four finite numbers"),
+    ],
+)
+def test_a_value_type_of_its_own_is_checked_by_its_problem(value, needle):
+    assert Framed().window is None and Framed(MapWindow(1.0, 2.0, 3.0, 4.0)).window == (1.0, 2.0, 3.0, 4.0)
+    with pytest.raises(LidarsimError, match=needle):
+        Framed(window=value)
 
 
 def test_right_values_pass_and_none_is_the_default_of_an_optional_setting():

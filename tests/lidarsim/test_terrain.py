@@ -211,6 +211,44 @@ def test_validity_overview_streams_in_blocks(nodata_tif: Path, monkeypatch: pyte
     assert not streamed[1, 1] and not streamed[2, 3] and streamed.sum() == streamed.size - 2
 
 
+def test_validity_overview_of_a_window_reads_its_cells_alone(nodata_tif: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Rows 1..6, columns 2..9 of the 10 x 12 grid (invalid cells at (2, 3) and (5, 7)), in 2 m cells."""
+    reads = []
+    with DTM.open(nodata_tif) as dtm:
+        original = dtm._read_source
+
+        def spy(window, *args):
+            reads.append(window)
+            return original(window, *args)
+
+        monkeypatch.setattr(dtm, "_read_source", spy)
+        valid, transform = dtm.validity_overview(2.0, window=(1, 2, 6, 8))
+    assert transform == (2.0, 0.0, 2.0, 0.0, -2.0, 9.0)  # the window's top-left corner
+    assert all(
+        w.col_off >= 2 and w.col_off + w.width <= 10 and w.row_off >= 1 and w.row_off + w.height <= 7 for w in reads
+    )
+    # (2, 3) is window cell (1, 1): coarse (0, 0); (5, 7) is window cell (4, 5): coarse (2, 2).
+    expected = np.ones((3, 4), bool)
+    expected[0, 0] = expected[2, 2] = False
+    np.testing.assert_array_equal(valid, expected)
+    with DTM.open(nodata_tif) as dtm, pytest.raises(TerrainError, match="every cell of the window is nodata"):
+        dtm.validity_overview(1.0, window=(2, 3, 1, 1))
+
+
+def test_preview_decimates_a_window_in_one_read(nodata_tif: Path) -> None:
+    """Value 10*row + col, nodata at (2, 3) and (5, 7): a preview cell is the source cell under its centre."""
+    with DTM.open(nodata_tif) as dtm:
+        whole = dtm.preview(100)
+        assert whole.shape == (10, 12) and whole[4, 5] == 45.0 and np.isnan(whole).sum() == 2
+        assert np.isnan(whole[2, 3]) and np.isnan(whole[5, 7])
+        third = dtm.preview(4, row0=1, rows=9)  # rows 1..9 and the 12 columns, 3 x 3 cells to one
+        expected = 10.0 * (3 * np.arange(3) + 2)[:, None] + (3 * np.arange(4) + 1)[None, :]
+        expected[1, 2] = np.nan  # source (5, 7)
+        np.testing.assert_array_equal(third, expected)
+        with pytest.raises(TerrainError, match="lies outside its 10x12 cells"):
+            dtm.preview(4, row0=5, rows=6)
+
+
 def test_all_nodata_is_refused(all_nodata_tif: Path) -> None:
     with DTM.open(all_nodata_tif) as dtm, pytest.raises(TerrainError, match="every cell is nodata") as err:
         dtm.validity_overview(1.0)
