@@ -549,12 +549,12 @@ def _map_window(value: MapWindow | tuple[float, float, float, float] | str) -> M
     """The window of ``detect(window=...)``: a ``MapWindow``, four numbers or their text, checked.
 
     Raises:
-        HdNetError: not four finite numbers with xmin < xmax and ymin < ymax.
+        LidarsimError: not four finite numbers with xmin < xmax and ymin < ymax.
     """
     try:
         return MapWindow.of(value)
     except LidarsimError as exc:
-        raise HdNetError(f"--window: {exc}") from exc
+        raise type(exc)(f"--window: {exc}") from exc
 
 
 def _fixed_threshold(spec: str) -> float | None:
