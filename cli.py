@@ -21,6 +21,7 @@ from hdnet.chains import PAPER_RECIPE, DemoSettings, ReproduceSettings, run_demo
 from hdnet.detect_settings import DetectSettings
 from hdnet.inspection import Verdict, inspect_directory, verify_directory
 from hdnet.shared_options import (
+    LABELS_FORMS,
     dtm_option,
     out_option,
     overwrite_option,
@@ -144,12 +145,27 @@ def _show(verdict: Verdict) -> None:
 @main.command("inspect")
 @click.argument("directory", type=DIRECTORY)
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as one JSON object (for scripts).")
+@click.option(
+    "--plot",
+    type=NonEmptyPath(dir_okay=False, path_type=Path),
+    default=None,
+    metavar="FILE",
+    help="Also draw the dataset at a glance into FILE (.png, .pdf or .svg; never inside the dataset): scan "
+    "footprints by split on the terrain, safe fraction per sigma and split, heights, altitudes.",
+)
+@click.option(
+    "--labels",
+    default=None,
+    metavar="NAME",
+    help=f"With --plot: the labelling to show (default: the dataset's only one): {LABELS_FORMS}.",
+)
+@overwrite_option("With --plot: replace an existing FILE.")
 @json_output
 @friendly_errors
-def inspect_cmd(directory: Path, as_json: bool) -> None:
+def inspect_cmd(directory: Path, as_json: bool, plot: Path | None, labels: str | None, overwrite: bool) -> None:
     """Summarise a dataset (scans, splits, noise levels, sensor, terrain, labels; every file checked) or a
-    run (profile, training data and noise, epochs, metrics)."""
-    _show(inspect_directory(directory, as_json or OUTPUT.json))
+    run (profile, training data and noise, epochs, metrics); --plot draws a dataset at a glance."""
+    _show(inspect_directory(directory, as_json or OUTPUT.json, plot, labels, overwrite))
 
 
 @main.command("compare")

@@ -9,6 +9,9 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
+
+from hdnet.errors import HdNetError
 
 
 @dataclass(frozen=True)
@@ -27,25 +30,60 @@ def known_schemas() -> dict[str, str]:
     return {LABEL_SCHEMA: LABEL_SCHEMA_VERSION}
 
 
-def inspect_directory(directory: Path, as_json: bool) -> Verdict:
+def inspect_directory(
+    directory: Path, as_json: bool, plot: Path | None = None, labels: str | None = None, overwrite: bool = False
+) -> Verdict:
     """A dataset's summary (scans, splits, noise levels, sensor, terrain, labels; every file checked)
-    or a run's (profile, training data and noise, epochs, metrics); as one JSON object with ``as_json``."""
+    or a run's (profile, training data and noise, epochs, metrics); as one JSON object with ``as_json``.
+
+    ``plot``: also draw the dataset at a glance into that file (``hdnet.dataset_figure``), with the
+    labelling ``labels`` names (default: the dataset's only one), replacing an existing file only
+    with ``overwrite``; written only when every file of the dataset is intact. The figure's path,
+    its labelling and the dataset are checked before anything is read.
+
+    Raises:
+        HdNetError / StorageError / LabelStoreError / OutputExistsError: ``labels`` or ``overwrite``
+            without ``plot``, ``plot`` for a run, a figure path that cannot be used (another
+            suffix, inside the dataset, an existing file), an unknown labelling; as the summaries
+            for a directory that is neither a dataset nor a run.
+    """
     from hdnet.run_summary import describe_run, is_run_dir, run_record
     from lidarsim.inspect import INTACT_STATUS, damaged_message, damaged_status, dataset_record, describe_dataset
     from lidarsim.shards import MANIFEST_NAME, verify_dataset
 
+    if plot is None and (labels is not None or overwrite):
+        raise HdNetError("--labels and --overwrite go with --plot FILE (the figure's labelling, and replacing it)")
     if is_run_dir(directory) and not (directory / MANIFEST_NAME).exists():
+        if plot is not None:
+            raise HdNetError(f"{directory} is a run: --plot draws a dataset at a glance; give a dataset directory")
         return Verdict([json.dumps(run_record(directory)) if as_json else describe_run(directory)])
+    labeling = None
+    if plot is not None:
+        from hdnet.dataset_figure import check_figure_path, chosen_labeling
+
+        labeling = chosen_labeling(directory, labels)  # a bad directory or labelling, refused first
+        check_figure_path(directory, plot, overwrite)
     summary = describe_dataset(directory)
     problems = verify_dataset(directory, known_schemas=known_schemas())
     failure = damaged_message(directory, problems) if problems else None
+    figure: dict[str, Any] | None = None
+    lines = [summary]
+    if plot is not None and not problems:
+        from hdnet.dataset_figure import dataset_overview, write_dataset_figure
+
+        overview = dataset_overview(directory, labeling)
+        write_dataset_figure(overview, plot)
+        figure = overview.record(plot)
+        lines.append(overview.summary(plot))
     if as_json:
-        return Verdict(
-            [json.dumps({**dataset_record(directory), "intact": not problems, "problems": problems})], [], failure
-        )
+        record = {**dataset_record(directory), "intact": not problems, "problems": problems}
+        if plot is not None:
+            record["figure"] = figure
+        return Verdict([json.dumps(record)], [], failure)
     if problems:
-        return Verdict([summary], damaged_status(problems), failure)
-    return Verdict([summary, INTACT_STATUS])
+        unwritten = [f"figure    not written ({plot}): the dataset is damaged"] if plot is not None else []
+        return Verdict([summary], damaged_status(problems) + unwritten, failure)
+    return Verdict([*lines, INTACT_STATUS])
 
 
 def verify_directory(directory: Path, recipe: Path | None) -> Verdict:

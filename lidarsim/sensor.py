@@ -126,6 +126,30 @@ def ray_directions(sensor: SensorConfig) -> np.ndarray:
     return d
 
 
+def footprint_corners(fov_x_deg: float, fov_y_deg: float, attitudes: np.ndarray, positions: np.ndarray) -> np.ndarray:
+    """Where the detector's four outer corners look on the scan frame's reference plane (z = 0):
+    each scan's ground footprint as a quadrilateral, metres in the scan frame.
+
+    The corner rays pass through the image-plane corners ``(±tan(fov_x/2), ±tan(fov_y/2), 1)``
+    (sensor frame), turned to the scan frame by each scan's ``attitudes`` (N, 3, 3) and cast from
+    its ``positions`` (N, 3), e.g. ``(0, 0, altitude)``. Over flat ground at nadir attitude this is
+    the square ``±altitude·tan(fov/2)``; tilt and jitter skew it. A corner ray that does not reach
+    the plane (pointing at or above the horizon) gives NaN.
+
+    Returns:
+        float64 (N, 4, 2): x, y of the corners in the order (−,−), (+,−), (+,+), (−,+) of the
+        image-plane axes, a closed ring when drawn in that order.
+    """
+    tx = math.tan(math.radians(fov_x_deg) / 2.0)
+    ty = math.tan(math.radians(fov_y_deg) / 2.0)
+    corners = np.array([[-tx, -ty, 1.0], [tx, -ty, 1.0], [tx, ty, 1.0], [-tx, ty, 1.0]])
+    rays = np.einsum("nij,kj->nki", np.asarray(attitudes, np.float64), corners)  # (N, 4, 3), scan frame
+    origin = np.asarray(positions, np.float64)[:, None, :]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(rays[..., 2] < 0.0, -origin[..., 2] / rays[..., 2], np.nan)
+    return origin[..., :2] + t[..., None] * rays[..., :2]
+
+
 def rotation_x(angle_rad: float) -> np.ndarray:
     """Right-handed rotation matrix about the x axis, angle in radians."""
     c, s = math.cos(angle_rad), math.sin(angle_rad)

@@ -11,7 +11,7 @@ import rasterio
 
 from lidarsim.errors import LidarsimError
 from lidarsim.scan import STATUS_DAMAGED, STATUS_DEAD, STATUS_MISS, TileScene, scan_geometry, simulate_scans
-from lidarsim.sensor import SensorConfig, footprint_half_width_m, ray_directions, sensor_attitude
+from lidarsim.sensor import SensorConfig, footprint_corners, footprint_half_width_m, ray_directions, sensor_attitude
 from lidarsim.terrain import DTM
 from lidarsim.trajectory import TrajectoryConfig, plan_scans
 from tests.geotiff import write_geotiff
@@ -69,6 +69,23 @@ def test_tilt_turns_the_boresight_north():
 
 def test_footprint_half_width_at_500m():
     assert footprint_half_width_m(SensorConfig(), 500.0) == pytest.approx(500 * math.tan(math.radians(6.0)))
+
+
+def test_footprint_corners_by_hand():
+    """A 30 x 20 degree detector 100 m above the plane: at nadir the rectangle ±100 tan 15°, ±100 tan 10°
+    (row 0 looks north); tilted 10° north, the north edge at 100 tan 20°, the south one below the sensor."""
+    tx, ty = 100.0 * math.tan(math.radians(15.0)), 100.0 * math.tan(math.radians(10.0))
+    attitudes = np.stack([sensor_attitude(), sensor_attitude(tilt_deg=10.0), sensor_attitude(tilt_deg=85.0)])
+    positions = np.array([[0.0, 0.0, 100.0], [5.0, -7.0, 100.0], [0.0, 0.0, 100.0]])
+    corners = footprint_corners(30.0, 20.0, attitudes, positions)
+    np.testing.assert_allclose(corners[0], [[-tx, ty], [tx, ty], [tx, -ty], [-tx, -ty]], atol=1e-9)
+    north = 100.0 * math.tan(math.radians(20.0))
+    np.testing.assert_allclose(corners[1][:, 1], [north - 7.0, north - 7.0, -7.0, -7.0], atol=1e-9)
+    # across track: the north corners' ray (tan 15°, sin 20°/cos 10°, -cos 20°/cos 10°) meets the plane at
+    # x = ±100 tan 15° cos 10°/cos 20°, the south corners' (tan 15°, 0, -1/cos 10°) at x = ±100 tan 15° cos 10°
+    cos10, cos20 = math.cos(math.radians(10.0)), math.cos(math.radians(20.0))
+    np.testing.assert_allclose(corners[1][:, 0] - 5.0, np.array([-1, 1, 1, -1]) * tx * cos10 / [cos20, cos20, 1, 1])
+    assert np.isnan(corners[2][:2]).all() and np.isfinite(corners[2][2:]).all()  # above the horizon: no corner
 
 
 def test_bad_sensor_is_refused():

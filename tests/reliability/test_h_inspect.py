@@ -37,6 +37,21 @@ def test_a_damaged_dataset_is_not_summarised_as_normal(data_copy, damage):
     assert "1 problem" in line and "DAMAGED" in result.output and path.name in result.output
 
 
+def test_a_damaged_dataset_gets_no_figure(data_copy, tmp_path):
+    """hd inspect --plot draws only an intact dataset: a damaged one is named as such and no figure
+    (not even a temporary file) is written."""
+    path = data_copy / "shards" / "scans-00001.h5"
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 1
+    path.write_bytes(bytes(data))
+    figure = tmp_path / "figures" / "glance.png"
+    figure.parent.mkdir()
+    result = invoke("inspect", data_copy, "--plot", figure)
+    assert_one_line_error(result, "damaged", "hd verify")
+    assert f"figure    not written ({figure}): the dataset is damaged" in result.output
+    assert list(figure.parent.iterdir()) == []
+
+
 def test_an_unfinished_build_is_named_as_such(tmp_path, dtm, monkeypatch):
     out = tmp_path / "data"
     calls: list[object] = []
