@@ -583,6 +583,27 @@ def test_a_window_maps_as_the_dtm_cut_to_it(trained, tmp_path, monkeypatch, wind
     np.testing.assert_allclose(win["baseline_p_safe.tif"][inner], whole[inner], rtol=0, atol=1e-5)
 
 
+def test_the_overview_of_a_large_window_is_decimated_from_the_window_alone(trained, tmp_path, monkeypatch):
+    """A window wider than the overview's pixels: its heights decimated in one read, none from outside it."""
+    import hdnet.figures
+
+    _, _, constant = trained
+    z = rough_hills(120, 140, seed=11)
+    dtm = write_dtm(tmp_path / "dtm.tif", z, 1.0)
+    drawn: dict[str, Any] = {}
+
+    def capture(heights, cell_m, safety, extent, *args):
+        drawn.update(heights=heights, cell_m=cell_m, safety=safety, extent=extent)
+
+    monkeypatch.setattr(detect_module, "OVERVIEW_MAX_PX", 20)
+    monkeypatch.setattr(hdnet.figures, "detect_overview", capture)
+    detect(constant, tmp_path / "out", dtm=dtm, window=(1030.0, 1900.0, 1110.0, 1960.0), threshold="nats:0.5")
+    assert drawn["heights"].shape == drawn["safety"].shape == (15, 20) and drawn["cell_m"] == 4.0
+    assert drawn["extent"] == (1030.0, 1110.0, 1900.0, 1960.0)  # left, right, bottom, top
+    inside = z[40:100, 30:110].astype(np.float32)  # rows 40..99, columns 30..109
+    assert np.isin(drawn["heights"].astype(np.float32), inside).all()
+
+
 def test_a_window_of_a_coarse_dtm_is_upsampled_alone_and_one_reaching_past_the_dtm_is_clipped(trained, tmp_path):
     """--upsample --window interpolates the window's cells of the coarse DTM alone (as a GeoTIFF of
     them would be); a window reaching past the DTM is mapped where they overlap, with a warning."""
