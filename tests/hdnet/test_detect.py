@@ -445,6 +445,14 @@ def test_a_run_at_another_spacing_resamples_to_its_own_and_refuses_coarser_dtms(
     safety = read(tmp_path / "out" / "safety.tif")[0]
     b = geometry(Lander(), 0.5).band_px  # the lander footprint in 0.5 m cells
     assert b == 10 and (safety[:b] == SAFETY_INVALID).all() and (safety[b:-b, b:-b] == SAFETY_SAFE).all()
+    # a window of the 0.25 m DTM: cells of the run's 0.5 m grid (edges inside a 0.5 m cell snapped outwards)
+    detect(
+        tmp_path / "half.pt", tmp_path / "win", dtm=fine, window=(1010.2, 1961.0, 1040.0, 1990.1), threshold="nats:0.5"
+    )
+    prof = profile_of(tmp_path / "win" / "safety.tif")
+    assert prof["shape"] == (59, 60) and prof["transform"] == from_origin(1010.0, 1990.5, 0.5, 0.5)  # rows 19..77
+    window = read(tmp_path / "win" / "safety.tif")[0]
+    assert (window[:b] == SAFETY_INVALID).all() and (window[b:-b, b:-b] == SAFETY_SAFE).all()
     coarse = write_dtm(tmp_path / "coarse.tif", tilted_plane(60, 1.0, 3.0), 1.0)
     with pytest.raises(TerrainError, match=r"coarser than the run's DEM spacing \(0.5 m/px\)"):
         detect(tmp_path / "half.pt", tmp_path / "out2", dtm=coarse, threshold="nats:0.5")
