@@ -167,7 +167,10 @@ def label_shard_name(index: int) -> str:
 
 @dataclass(frozen=True)
 class LabeledScan:
-    """The labels of one scan (DEM arrays are north-up, metres; P(safe) in [0, 1])."""
+    """The labels of one scan (DEM arrays are north-up, metres, in the scan frame; P(safe) in [0, 1]).
+
+    ``dem_noisy[k]`` and ``p_safe[k]`` are at the noise level ``sigmas_m[k]`` (metres, 1-sigma).
+    """
 
     scan_index: int
     split: str
@@ -177,6 +180,7 @@ class LabeledScan:
     slope_rad: np.ndarray  # float32 (H, W)
     roughness_m: np.ndarray  # float32 (H, W)
     p_safe: np.ndarray  # float32 (S, H, W)
+    sigmas_m: tuple[float, ...] = ()  # the S noise levels, metres (the shard's sigmas_m)
 
 
 class LabelShardWriter:
@@ -347,6 +351,7 @@ class LabelShardReader:
             slope_rad=f["slope_rad"][k],
             roughness_m=f["roughness_m"][k],
             p_safe=f["p_safe"][k],
+            sigmas_m=self.sigmas_m,
         )
 
     def __iter__(self) -> Iterator[LabeledScan]:
@@ -512,6 +517,33 @@ def open_label_shard(directory: str | os.PathLike, entry: dict[str, Any]) -> Lab
     what = f"{Path(directory) / entry['path']}"
     path = confine(directory, entry["path"], what)
     return LabelShardReader(path, sha256=entry["sha256"], what=what)
+
+
+def iter_labeled_scans(
+    directory: str | os.PathLike, labels: str | None = None, split: str | None = None
+) -> Iterator[LabeledScan]:
+    """Every labelled scan of a dataset (optionally one split: ``train``, ``val`` or ``test``), in scan order.
+
+    ``labels`` names the labelling as :func:`find_labeling` takes it (None: the dataset's only one).
+    Each label shard is checked against the manifest's sha256 before it is read; scans are read one
+    at a time (``lidarsim.shards.iter_scans`` reads the point clouds the same way).
+
+    Raises:
+        LabelStoreError: no labelling, or not the one ``labels`` names; an unknown ``split``.
+        FormatError: a label shard that is missing, damaged or of an unknown schema.
+    """
+    if split is not None and split not in SPLIT_NAMES:
+        raise LabelStoreError(f"unknown split {split!r}; use one of {', '.join(SPLIT_NAMES)}")
+    entry = find_labeling(directory, labels)  # its errors now, not at the first scan
+    return _labeled_scans(directory, entry, split)
+
+
+def _labeled_scans(directory: str | os.PathLike, entry: dict[str, Any], split: str | None) -> Iterator[LabeledScan]:
+    for shard in entry["shards"]:
+        with open_label_shard(directory, shard) as reader:
+            for scan in reader:
+                if split is None or scan.split == split:
+                    yield scan
 
 
 def add_labeling_to_manifest(directory: Path, entry: dict[str, Any]) -> None:

@@ -22,6 +22,7 @@ from hdlabels.store import (
     LabelShardReader,
     LabelStoreError,
     find_labeling,
+    iter_labeled_scans,
     label_shard_paths,
 )
 from lidarsim.build import BuildConfig, build_dataset
@@ -97,6 +98,30 @@ def test_label_shards_hold_the_maps_of_the_gridded_scans(dataset):
     # the same settings again: nothing recomputed, nothing duplicated
     again = label_dataset(dataset, workers=1)
     assert again.reused and len(read_manifest(dataset)["labelings"]) == 1
+
+
+def test_labelled_scans_are_read_back_in_scan_order_by_split_with_their_noise_levels(dataset):
+    """iter_labeled_scans reads every label shard's scans (the reader's own), one split or all, each
+    with its shard's noise levels; an unknown split or labelling is refused as it is called."""
+    name = label_dataset(dataset, workers=1).name
+    entry = find_labeling(dataset, name)
+    expected = []
+    for path in label_shard_paths(dataset, entry):
+        with LabelShardReader(path) as reader:
+            expected += list(reader)
+    every = list(iter_labeled_scans(dataset, name))
+    assert [s.scan_index for s in every] == list(range(6)) == [s.scan_index for s in expected]
+    for got, want in zip(every, expected, strict=True):
+        np.testing.assert_array_equal(got.dem_noisy, want.dem_noisy)
+        assert got.sigmas_m == (0.01, 0.07) and got.dem_noisy.shape == (2, 100, 100) and got.split == want.split
+    for split in ("train", "val", "test"):
+        assert [s.scan_index for s in iter_labeled_scans(dataset, name, split)] == [
+            s.scan_index for s in every if s.split == split
+        ]
+    with pytest.raises(LabelStoreError, match="unknown split 'tset'; use one of train, val, test"):
+        iter_labeled_scans(dataset, name, "tset")
+    with pytest.raises(LabelStoreError, match="no labelling named 'nope'"):
+        iter_labeled_scans(dataset, "nope")
 
 
 def test_other_lander_makes_a_second_labelling(dataset):
