@@ -137,12 +137,12 @@ class DetectRun:
     """
 
     checkpoint: Path
-    model: BayesianSegNet
+    model: BayesianSegNet = field(repr=False)
     ckpt: dict[str, Any] = field(repr=False)
     train_sigma_m: float
     input_spec: InputSpec
     labels: str
-    labeling: dict[str, Any]
+    labeling: dict[str, Any] = field(repr=False)
     lander: Lander
     dem_shape: tuple[int, int]
     spacing_m: float
@@ -175,16 +175,21 @@ class DetectRun:
         return None if self.data is None else self.data.dataset
 
 
-def load_run(run_dir: str | os.PathLike, device: torch.device) -> DetectRun:
-    """The run at ``run_dir`` (a run directory or a checkpoint file), ready for detection.
+def load_run(run_dir: str | os.PathLike, device: torch.device | str | None = None) -> DetectRun:
+    """The run at ``run_dir`` (a run directory or a checkpoint file), ready for detection, its model
+    on ``device`` (a torch device or its name; None: CUDA when available, else the CPU).
 
     The labelling entry comes from the run's config (runs trained since it is recorded) or, for
     older runs, from the manifest of the dataset the run was trained on.
+
+    Raises:
+        HdNetError: no such run, a checkpoint of another model or schema, an old run whose dataset
+            (which names its lander) is not present.
     """
     path = checkpoint_path(run_dir)
     if not Path(run_dir).exists():
         raise HdNetError(f"run {run_dir} does not exist.")
-    model, ckpt = load_trained_model(path, map_location=device)
+    model, ckpt = load_trained_model(path, map_location=_device(device))
     data = checkpoint_data(ckpt, path)
     labels = data.labels
     dataset = Path(data.dataset) if data.dataset else None
@@ -214,6 +219,20 @@ def load_run(run_dir: str | os.PathLike, device: torch.device) -> DetectRun:
         dataset,
         data,
     )
+
+
+def _warn_if_unfinished(run: DetectRun) -> None:
+    """Warn (``HdWarning``) when the run's training stopped before its last epoch."""
+    unfinished = unfinished_training(run.checkpoint, int(run.ckpt.get("epoch", 0)))
+    if unfinished is not None:
+        warnings.warn(unfinished, HdWarning, stacklevel=3)
+
+
+def _device(device: torch.device | str | None) -> torch.device:
+    """``device`` as a torch device; None: CUDA when available, else the CPU."""
+    if device is None:
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(device)
 
 
 def network_input(dem_m: np.ndarray, run: DetectRun, sigma_m: float | None = None) -> torch.Tensor:
@@ -385,34 +404,18 @@ class _DtmTerrain(_Terrain):
 
     def _check_fits(self, run: DetectRun) -> None:
         """Refuse a DTM with no lander-footprint-sized square of valid cells (as build-dataset does for scans)."""
-        b = geometry(run.lander, run.spacing_m).band_px
-        need = 2 * b + 1
-        rows, cols = self.shape
-        sx, sy = self.spacing_xy_m
         name = self.dtm.info.name
         what, fix = "the DTM", "use a larger DTM"
         if self.window is not None:
             bounds = bounds_text(grid_bounds(self.provenance["source_transform"], *self.provenance["source_shape"]))
             name = f"the window {self.window.text()} of {name}"
             what, fix = "the window", f"widen the window (the DTM's bounds: {bounds})"
-        if rows < need or cols < need:
-            raise TerrainError(
-                f"{name} is too small for the lander footprint: a {run.lander.diameter_m:g} m lander needs "
-                f"{need} x {need} cells of valid terrain at {run.spacing_m:g} m/px, {what} covers "
-                f"{cols * sx:.0f} m x {rows * sy:.0f} m ({rows} x {cols} cells); {fix}"
-            )
-        c = self.cells
+        c, coarse = self.cells, max(self.spacing_xy_m)
+        part = None if self.window is None else (c.row0, c.col0, *self.shape)
         # "every cell is nodata" from here (of the window's cells: only they are read)
-        valid, _ = self.dtm.validity_overview(
-            max(sx, sy), None if self.window is None else (c.row0, c.col0, rows, cols)
+        _check_footprint_fits(
+            run, name, what, fix, self.shape, self.spacing_xy_m, lambda: self.dtm.validity_overview(coarse, part)[0]
         )
-        fits = ndimage.binary_erosion(valid, structure=np.ones((need, need), bool), border_value=0)
-        if not fits.any():
-            raise TerrainError(
-                f"{name} is too small for the lander footprint: a {run.lander.diameter_m:g} m lander needs "
-                f"{need} x {need} cells of valid terrain at {run.spacing_m:g} m/px and {what} has no such "
-                f"valid square; {fix}"
-            )
 
     def read(self, row0: int, col0: int, rows: int, cols: int) -> np.ndarray:
         """Heights of cells of the grid (the window's own, without a window the DTM's); NaN outside it."""
@@ -441,7 +444,78 @@ class _DtmTerrain(_Terrain):
         self.dtm.close()
 
 
-class _ScanTerrain(_Terrain):
+def _check_footprint_fits(
+    run: DetectRun,
+    name: str,
+    what: str,
+    fix: str,
+    shape: tuple[int, int],
+    spacing_xy_m: tuple[float, float],
+    validity: Callable[[], np.ndarray],
+) -> None:
+    """Refuse a grid of ``shape`` cells (``spacing_xy_m`` metres) with no lander-footprint-sized square
+    of valid cells (as build-dataset does for scans); ``validity()`` gives its valid cells (bool, at
+    any resolution that keeps "no valid cell" true).
+
+    Raises:
+        TerrainError: naming ``name``, ``what`` it is ("the DTM", "the window", "the height array")
+            and ``fix``, what to do.
+    """
+    need = 2 * geometry(run.lander, run.spacing_m).band_px + 1
+    rows, cols = shape
+    sx, sy = spacing_xy_m
+    words = (
+        f"{name} is too small for the lander footprint: a {run.lander.diameter_m:g} m lander needs "
+        f"{need} x {need} cells of valid terrain at {run.spacing_m:g} m/px"
+    )
+    if rows < need or cols < need:
+        raise TerrainError(
+            f"{words}, {what} covers {cols * sx:.0f} m x {rows * sy:.0f} m ({rows} x {cols} cells); {fix}"
+        )
+    fits = ndimage.binary_erosion(validity(), structure=np.ones((need, need), bool), border_value=0)
+    if not fits.any():
+        raise TerrainError(f"{words} and {what} has no such valid square; {fix}")
+
+
+class _ArrayTerrain(_Terrain):
+    """Heights held in memory (metres, NaN invalid) on a grid of ``transform`` (cells of ``spacing_xy_m``)."""
+
+    def __init__(
+        self,
+        heights_m: np.ndarray,
+        transform: Affine,
+        scan_frame: bool,
+        provenance: dict[str, Any],
+        crs_wkt: str = "",
+    ) -> None:
+        self.dem = heights_m
+        self.shape = (int(heights_m.shape[0]), int(heights_m.shape[1]))
+        self.transform = transform
+        self.crs_wkt = crs_wkt
+        self.spacing_xy_m = (abs(float(transform.a)), abs(float(transform.e)))
+        self.scan_frame = scan_frame
+        self.provenance = provenance
+
+    def read(self, row0: int, col0: int, rows: int, cols: int) -> np.ndarray:
+        out = np.full((rows, cols), np.nan, np.float64)
+        h, w = self.shape
+        r0, r1, c0, c1 = max(row0, 0), min(row0 + rows, h), max(col0, 0), min(col0 + cols, w)
+        if r0 < r1 and c0 < c1:
+            out[r0 - row0 : r1 - row0, c0 - col0 : c1 - col0] = self.dem[r0:r1, c0:c1]
+        return out
+
+    def hillshade_heights(self, max_px: int) -> tuple[np.ndarray, float]:
+        return np.asarray(self.dem, np.float64), self.spacing_xy_m[0]
+
+
+def centred_transform(shape: tuple[int, int], spacing_m: float) -> Affine:
+    """The scan frame's transform of a grid of ``shape`` cells of ``spacing_m`` metres: origin at the
+    grid's centre, x east, y north (metres), row 0 north."""
+    h, w = shape
+    return Affine(spacing_m, 0.0, -w * spacing_m / 2.0, 0.0, -spacing_m, h * spacing_m / 2.0)
+
+
+class _ScanTerrain(_ArrayTerrain):
     """One scan's noisy DEM at one noise level (scan frame: origin at nadir, x east, y north, metres)."""
 
     def __init__(self, dataset: Path, scan: int, sigma_m: float, labels: str | None, run: DetectRun) -> None:
@@ -468,16 +542,10 @@ class _ScanTerrain(_Terrain):
         if found is None:
             span = f"scans {min(all_scans)}..{max(all_scans)}" if all_scans else "no scans"
             raise HdNetError(f"scan {scan} is not in {dataset} ({span}).")
-        self.dem = found[1]
-        h, w = self.dem.shape
-        self.shape = (h, w)
-        self.transform = Affine(spacing, 0.0, -w * spacing / 2.0, 0.0, -spacing, h * spacing / 2.0)
-        self.crs_wkt = ""
-        self.spacing_xy_m = (spacing, spacing)
-        self.scan_frame = True
+        dem = found[1]
         manifest = read_manifest(dataset)
         origin = _origin_map(dataset, found[3], scan)
-        self.provenance = {
+        provenance = {
             "kind": "scan",
             "dataset": str(Path(dataset).resolve()),
             "manifest_sha256": sha256_file(Path(dataset) / MANIFEST_NAME),
@@ -492,21 +560,11 @@ class _ScanTerrain(_Terrain):
                 "scan frame: origin at the nadir point on the reference height (origin_map); x east, y north; metres"
             ),
         }
+        super().__init__(dem, centred_transform(dem.shape, spacing), True, provenance)
         self.sigma_m = sigmas[k]
         self.labels = str(entry["name"])
         self.dataset = Path(dataset)
         self.source_sha256 = str(found[3].get("source_sha256", ""))
-
-    def read(self, row0: int, col0: int, rows: int, cols: int) -> np.ndarray:
-        out = np.full((rows, cols), np.nan, np.float64)
-        h, w = self.shape
-        r0, r1, c0, c1 = max(row0, 0), min(row0 + rows, h), max(col0, 0), min(col0 + cols, w)
-        if r0 < r1 and c0 < c1:
-            out[r0 - row0 : r1 - row0, c0 - col0 : c1 - col0] = self.dem[r0:r1, c0:c1]
-        return out
-
-    def hillshade_heights(self, max_px: int) -> tuple[np.ndarray, float]:
-        return self.dem.astype(np.float64), self.spacing_xy_m[0]
 
 
 def _origin_map(dataset: Path, label_shard: dict[str, Any], scan: int) -> list[float]:
@@ -672,6 +730,234 @@ class DetectResult:
         )
 
 
+@dataclass(frozen=True)
+class DetectMaps:
+    """The hazard maps and landing sites of one terrain, in memory (:func:`detect_dem`): what ``hd
+    detect`` writes as files, as arrays.
+
+    Every map is a (rows, cols) array on the grid of ``transform`` (cells of the run's DEM spacing),
+    NaN (``safety``: 255) where invalid, i.e. in the border band and where the lander footprint
+    touches a cell without height:
+
+    * ``p_safe``: float32, the MC-dropout mean P(safe), in [0, 1];
+    * ``entropy_nats``: float32, the predictive entropy, nats (0 certain, at most ln 2);
+    * ``mutual_information_nats``: float32, the MC-dropout samples' mutual information, nats;
+    * ``safety``: uint8, 0 unsafe, 1 safe, 2 uncertain (the score ``uncertainty`` at or above
+      ``threshold_nats``), 255 invalid (``hdnet.sites``);
+    * ``baseline_p_safe``: float32, the ALHAT P(safe) baseline at the noise level ``sigma_m``
+      (metres); the baseline calls a cell safe where it is >= 0.5.
+
+    ``sites``: the ranked landing sites (``select_sites``; x, y in the grid's coordinates, metres);
+    ``threshold_nats``: H_t, nats (inf: unbounded); ``uncertainty``: the score H_t applies to
+    (``entropy`` or ``mutual-information``); ``transform``: the grid's affine transform (column, row
+    of a cell corner -> x, y in metres); ``threshold``: how H_t was found (``detect.json``'s record).
+    """
+
+    p_safe: np.ndarray = field(repr=False)
+    entropy_nats: np.ndarray = field(repr=False)
+    mutual_information_nats: np.ndarray = field(repr=False)
+    safety: np.ndarray = field(repr=False)
+    baseline_p_safe: np.ndarray = field(repr=False)
+    sites: list[Site]
+    threshold_nats: float
+    uncertainty: str
+    sigma_m: float
+    transform: Affine
+    threshold: dict[str, Any] = field(default_factory=dict, repr=False)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(rows, cols) of every map."""
+        return (int(self.safety.shape[0]), int(self.safety.shape[1]))
+
+    @property
+    def spacing_m(self) -> float:
+        """Cell size, metres/pixel."""
+        return abs(float(self.transform.a))
+
+    @property
+    def valid(self) -> np.ndarray:
+        """Bool map of the valid cells (all but the invalid ones)."""
+        return self.safety != SAFETY_INVALID
+
+    @property
+    def safe_and_certain(self) -> np.ndarray:
+        """Bool map of the cells the network calls safe with an uncertainty below H_t (``safety == 1``)."""
+        return self.safety == SAFETY_SAFE
+
+    @property
+    def uncertain(self) -> np.ndarray:
+        """Bool map of the cells whose uncertainty is at or above H_t (``safety == 2``)."""
+        return self.safety == SAFETY_UNCERTAIN
+
+    @property
+    def baseline_safe(self) -> np.ndarray:
+        """Bool map of the cells the ALHAT baseline calls safe (P(safe) >= 0.5)."""
+        return np.nan_to_num(self.baseline_p_safe, nan=0.0) >= BASELINE_THRESHOLD
+
+    @property
+    def uncertainty_nats(self) -> np.ndarray:
+        """The score H_t applies to (``entropy_nats`` or ``mutual_information_nats``), nats."""
+        return uncertainty_score(self.uncertainty).of(self)
+
+    @property
+    def counts(self) -> dict[str, int]:
+        """Cells per safety code and those the baseline calls safe (``detect.json``'s ``counts``)."""
+        counts: dict[str, int] = {}
+        _add_counts(counts, self.safety, self.baseline_p_safe)
+        return counts
+
+    @property
+    def safe_fraction(self) -> float:
+        """Safe-and-certain cells over valid cells (0 when no cell is valid)."""
+        valid = int(self.valid.sum())
+        return int(self.safe_and_certain.sum()) / valid if valid else 0.0
+
+
+def detect_dem(
+    run: DetectRun | str | os.PathLike,
+    heights_m: np.ndarray,
+    *,
+    transform: Affine | tuple[float, ...] | None = None,
+    scan_frame: bool = False,
+    sigma_m: float | None = None,
+    mc_samples: int = defaults.MC_SAMPLES,
+    threshold: str = defaults.THRESHOLD_SPEC,
+    calibrate: str = "reference",
+    uncertainty: str = ENTROPY.name,
+    n_sites: int = 10,
+    nav_sigma_m: float = 0.0,
+    seed: int = 0,
+    batch_size: int = 8,
+    progress: Callable[[int, int], None] | None = None,
+) -> DetectMaps:
+    """Hazard maps and ranked landing sites of a height array, in memory: ``hd detect`` without files.
+
+    ``run``: a run loaded by :func:`load_run` (or its directory, loaded here). ``heights_m``: a 2-D
+    array of heights (metres, row 0 north, NaN or inf where there is no data) on the run's DEM grid
+    (``run.spacing_m`` metres/pixel), of any size: it is mapped in tiles of the run's DEM size, as
+    ``hd detect`` maps a DTM. ``transform``: the array's affine transform (column, row -> x, y in
+    metres; an ``Affine`` or its six numbers, as ``lidarsim.DTMInfo.transform``), whose cells must
+    be the run's spacing (within 2 %); None: the scan frame, origin at the array's centre, x east, y
+    north. ``scan_frame``: True for heights in a scan frame (a dataset's
+    DEMs, ``hdlabels.LabeledScan``), taken as they are; False for map heights (a DTM's), each tile
+    then taken relative to its mean height, as ``hd detect --dtm`` does.
+
+    The other keywords are those of :func:`detect` (``DetectSettings``): ``sigma_m`` (metres) the
+    sensor's noise level (default: the run's training sigma), for the baseline and the runs that
+    take it as an input; ``threshold`` a calibrated ``mean``, ``quantile:Q`` or ``risk:ALPHA``
+    (calibrated on the validation split of the run's own training data, cached in the run directory
+    like ``hd detect``'s) or a fixed ``nats:H``; ``uncertainty`` the score it applies to;
+    ``n_sites`` and ``nav_sigma_m`` (metres) for the sites; ``progress`` is called with (tiles
+    done, tiles total). The model runs on the device it was loaded on.
+
+    Raises:
+        HdNetError: a bad setting, an array that is not 2-D numbers, a transform of other cells than
+            the run's, a calibrated threshold whose data is not present.
+        TerrainError: no lander-footprint-sized square of valid cells.
+    """
+    settings = DetectSettings(
+        mc_samples=mc_samples,
+        threshold=threshold,
+        sigma_m=sigma_m,
+        calibrate=calibrate,
+        n_sites=n_sites,
+        nav_sigma_m=nav_sigma_m,
+        seed=seed,
+        batch_size=batch_size,
+        uncertainty=uncertainty,
+    )  # each value's kind and range, and the threshold's form, before the run is loaded
+    score = uncertainty_score(settings.uncertainty)
+    heights = _height_array(heights_m)
+    if not isinstance(run, DetectRun):
+        run = load_run(run)
+    _warn_if_unfinished(run)
+    grid = centred_transform(heights.shape, run.spacing_m) if transform is None else Affine(*list(transform)[:6])
+    _check_grid(grid, run)
+    terrain = _ArrayTerrain(heights, grid, scan_frame, {"kind": "array"})
+    _check_footprint_fits(
+        run,
+        "the height array",
+        "the height array",
+        "give a larger one",
+        terrain.shape,
+        terrain.spacing_xy_m,
+        lambda: np.isfinite(heights),
+    )
+    sigma = run.train_sigma_m if settings.sigma_m is None else float(settings.sigma_m)
+    dev = next(run.model.parameters()).device
+    h_t, threshold_info = _threshold(
+        run,
+        settings.threshold,
+        run.training_datasets or (),
+        run.labels,
+        settings.mc_samples,
+        settings.batch_size,
+        settings.seed,
+        dev,
+        settings.calibrate,
+        sigma,
+        score,
+    )
+    plan = TilePlan.make(terrain.shape, run.dem_shape, overlap_px(run.lander, run.spacing_m))
+    maps = _maps_in_memory(
+        terrain, run, plan, h_t, sigma, settings.mc_samples, settings.batch_size, settings.seed, dev, progress, score
+    )
+    sites = select_sites(
+        maps["safety"],
+        maps["p_safe"],
+        maps["entropy_nats"],
+        maps["baseline_p_safe"],
+        grid,
+        terrain.spacing_xy_m,
+        run.lander,
+        settings.n_sites,
+        settings.nav_sigma_m,
+    )
+    return DetectMaps(
+        **maps,
+        sites=sites,
+        threshold_nats=h_t,
+        uncertainty=score.name,
+        sigma_m=sigma,
+        transform=grid,
+        threshold=threshold_info,
+    )
+
+
+def _height_array(heights_m: Any) -> np.ndarray:
+    """``heights_m`` as a 2-D float array with NaN where it held NaN or inf.
+
+    Raises:
+        HdNetError: not a 2-D array of numbers.
+    """
+    heights = np.asarray(heights_m)
+    if heights.ndim != 2 or heights.dtype.kind not in "fiu":
+        raise HdNetError(
+            f"heights_m must be a 2-D array of heights in metres, got {heights.dtype} of shape {heights.shape}."
+        )
+    heights = heights.astype(np.float32 if heights.dtype == np.float32 else np.float64, copy=False)
+    if np.isinf(heights).any():
+        heights = np.where(np.isfinite(heights), heights, np.nan)
+    return heights
+
+
+def _check_grid(transform: Affine, run: DetectRun) -> None:
+    """Refuse a grid that is rotated or whose cells are not the run's DEM spacing (within 2 %).
+
+    Raises:
+        HdNetError: naming both spacings.
+    """
+    sx, sy = abs(float(transform.a)), abs(float(transform.e))
+    if transform.b != 0.0 or transform.d != 0.0:
+        raise HdNetError("the transform is rotated; give heights on a north-up grid (row 0 north).")
+    if max(abs(sx - run.spacing_m), abs(sy - run.spacing_m)) > SPACING_TOLERANCE * run.spacing_m:
+        raise HdNetError(
+            f"the heights' cells are {sx:g} m x {sy:g} m, the run's DEM spacing is {run.spacing_m:g} m/px; "
+            "resample them to it first (e.g. lidarsim.DTM.open(path, scale=...))."
+        )
+
+
 def detect(
     run_dir: str | os.PathLike,
     out_dir: str | os.PathLike,
@@ -750,11 +1036,9 @@ def detect(
     check_inputs(run_dir, dataset, labels, dtm=dtm, window=settings.window)
     output = output_dir(out_dir, {"the run": run_dir, "the DTM": dtm, "the dataset": dataset})
     output.check_place()  # a usable path that is no input, before the run is even loaded
-    dev = torch.device(device) if device else torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    dev = _device(device or None)
     run = load_run(run_dir, dev)
-    unfinished = unfinished_training(run.checkpoint, int(run.ckpt.get("epoch", 0)))
-    if unfinished is not None:
-        warnings.warn(unfinished, HdWarning, stacklevel=2)
+    _warn_if_unfinished(run)
     output.add_inputs({"the checkpoint": run.checkpoint, "the run's dataset": run.dataset})
     out = output.check(overwrite)
     baseline_sigma = run.train_sigma_m if sigma_m is None else float(sigma_m)
@@ -772,41 +1056,24 @@ def detect(
                 stacklevel=2,
             )
     try:
-        if spec is not None and not calib_dirs:
-            raise HdNetError(
-                f"the {spec} threshold is calibrated on the run's validation split, but its dataset "
-                f"{run.recorded_dataset} is not present; restore it or give "
-                "a fixed threshold, e.g. --threshold nats:0.3."
-            )
+        _check_calibration_data(run, spec, calib_dirs)
         plan = TilePlan.make(terrain.shape, run.dem_shape, overlap_px(run.lander, run.spacing_m))
         with output.open(overwrite) as tmp:
             timings: dict[str, float] = {}
             t0 = time.perf_counter()
-            if spec is not None and calib_dirs:
-                h_t, threshold_info = _calibrated_threshold(
-                    run,
-                    spec,
-                    calib_dirs,
-                    calib_labels,
-                    mc_samples,
-                    batch_size,
-                    seed,
-                    dev,
-                    calibrate,
-                    baseline_sigma,
-                    score,
-                )
-            else:
-                assert fixed is not None  # exactly one of fixed and spec is set
-                h_t = float(fixed)
-                threshold_info = with_score(
-                    {"spec": f"nats:{h_t:g}", "kind": "fixed", "parameter": h_t, "value_nats": h_t}, score
-                )
-            # The record states the threshold the maps use, whatever its source (hdnet.threshold_cache).
-            threshold_info = dict(threshold_info, value_nats=None if math.isinf(h_t) else h_t)
-            if spec is not None and spec.kind == "risk" and spec.value is not None:  # also a record cached before
-                threshold_info |= risk_reach(spec.value, int(threshold_info["calibration_images"]))
-                warn_if_unreachable(threshold_info)
+            h_t, threshold_info = _threshold(
+                run,
+                threshold,
+                calib_dirs,
+                calib_labels,
+                mc_samples,
+                batch_size,
+                seed,
+                dev,
+                calibrate,
+                baseline_sigma,
+                score,
+            )
             timings["calibration"] = time.perf_counter() - t0
             counts, map_timings = _write_maps(
                 tmp, terrain, run, plan, h_t, baseline_sigma, mc_samples, batch_size, seed, dev, progress, score
@@ -863,6 +1130,61 @@ def _open_terrain(
     if own is not None:
         return terrain, own, run.labels
     return terrain, (Path(dataset),), terrain.labels
+
+
+def _check_calibration_data(run: DetectRun, spec: ThresholdSpec | None, calib_dirs: tuple[Path, ...]) -> None:
+    """Refuse a calibrated threshold (``spec``; None: a fixed one) without a dataset to calibrate it on."""
+    if spec is not None and not calib_dirs:
+        raise HdNetError(
+            f"the {spec} threshold is calibrated on the run's validation split, but its dataset "
+            f"{run.recorded_dataset} is not present; restore it or give "
+            "a fixed threshold, e.g. --threshold nats:0.3."
+        )
+
+
+def _threshold(
+    run: DetectRun,
+    threshold: str,
+    calib_dirs: tuple[Path, ...],
+    calib_labels: str,
+    mc_samples: int,
+    batch_size: int,
+    seed: int,
+    dev: torch.device,
+    calibrate: str,
+    sensor_sigma_m: float,
+    uncertainty: UncertaintyScore,
+) -> tuple[float, dict[str, Any]]:
+    """Step 3: H_t (nats; inf: unbounded) of the spec ``threshold`` and its record: a fixed ``nats:H``,
+    or calibrated on ``calib_dirs`` (``_calibrated_threshold``); the record states the threshold the
+    maps use, whatever its source (``hdnet.threshold_cache``), and whether a ``risk:ALPHA`` is
+    reachable with the validation images it was calibrated on (a warning when not)."""
+    fixed = _fixed_threshold(threshold)
+    spec = parse_threshold_spec(threshold) if fixed is None else None
+    _check_calibration_data(run, spec, calib_dirs)
+    if spec is not None:
+        h_t, info = _calibrated_threshold(
+            run,
+            spec,
+            calib_dirs,
+            calib_labels,
+            mc_samples,
+            batch_size,
+            seed,
+            dev,
+            calibrate,
+            sensor_sigma_m,
+            uncertainty,
+        )
+    else:
+        assert fixed is not None  # exactly one of fixed and spec is set
+        h_t = float(fixed)
+        info = with_score({"spec": f"nats:{h_t:g}", "kind": "fixed", "parameter": h_t, "value_nats": h_t}, uncertainty)
+    info = dict(info, value_nats=None if math.isinf(h_t) else h_t)
+    if spec is not None and spec.kind == "risk" and spec.value is not None:  # also a record cached before
+        info |= risk_reach(spec.value, int(info["calibration_images"]))
+        warn_if_unreachable(info)
+    return h_t, info
 
 
 def _calibrated_threshold(
@@ -941,6 +1263,103 @@ def _read_map(path: Path) -> np.ndarray:
         return src.read(1)
 
 
+# The maps of a detection, by the name of their field in DetectMaps and of their file (MAP_FILES).
+MAP_FIELDS = dict(
+    zip(("p_safe", "entropy_nats", "mutual_information_nats", "safety", "baseline_p_safe"), MAP_FILES, strict=True)
+)
+MAP_TIMINGS = ("read", "network", "baseline")
+
+
+def _map_strips(
+    terrain: _Terrain,
+    run: DetectRun,
+    plan: TilePlan,
+    h_t: float,
+    sigma_m: float,
+    mc_samples: int,
+    batch_size: int,
+    seed: int,
+    dev: torch.device,
+    progress: Callable[[int, int], None] | None,
+    uncertainty: UncertaintyScore,
+    timings: dict[str, float],
+) -> Iterator[tuple[int, dict[str, np.ndarray]]]:
+    """Step 4: every row of tiles through the network and the baseline; yields, per row of tiles, the
+    first grid row it owns and its maps (``MAP_FIELDS``: owned rows, every column); a cell is
+    uncertain where the score ``uncertainty`` is >= ``h_t``. Adds the seconds spent to ``timings``
+    (``MAP_TIMINGS``). ``hd detect`` writes the strips to its GeoTIFFs, ``detect_dem`` keeps them."""
+    # The baseline, like the network, takes the cells as the run's: the grid is within 2 % of that
+    # spacing, and the lander's sampling (pads on grid nodes in the paper convention) is then exactly
+    # the one of the training labels.
+    spacing = run.spacing_m
+    done = 0
+    torch.manual_seed(seed)
+    if progress:
+        progress(0, plan.n_tiles)
+    for (r_lo, r_hi), tiles in plan.strips():
+        n_rows, n_cols = r_hi - r_lo, terrain.shape[1]
+        strip: dict[str, np.ndarray] = {
+            name: np.full((n_rows, n_cols), SAFETY_INVALID if name == "safety" else np.nan, _map_dtype(name))
+            for name in MAP_FIELDS
+        }
+        for start in range(0, len(tiles), batch_size):
+            batch = tiles[start : start + batch_size]
+            t0 = time.perf_counter()
+            dems = [terrain.read(t.row0, t.col0, t.rows, t.cols) for t in batch]
+            timings["read"] += time.perf_counter() - t0
+            live = [k for k, d in enumerate(dems) if np.isfinite(d).any()]
+            if live:
+                t0 = time.perf_counter()
+                x = torch.cat([network_input(_scan_frame(dems[k], terrain), run, sigma_m) for k in live]).to(dev)
+                out_grid = mc_dropout_predict(run.model, x, n_samples=mc_samples).on_grid(
+                    lambda t: network_output(t, run).cpu()
+                )
+                p_all = out_grid.mean_probs[:, defaults.CLASS_SAFE].numpy()
+                h_all = out_grid.entropy_nats.numpy()
+                mi_all = out_grid.mutual_information_nats.numpy()
+                u_all = uncertainty.of(out_grid).numpy()
+                safe_all = (out_grid.prediction == defaults.CLASS_SAFE).numpy()
+                timings["network"] += time.perf_counter() - t0
+            for j, k in enumerate(live):
+                tile = batch[k]
+                t0 = time.perf_counter()
+                base = baseline_p_safe(dems[k], spacing, sigma_m, run.labeling)
+                timings["baseline"] += time.perf_counter() - t0
+                crop = tile.crop
+                valid = np.isfinite(base[crop])
+                safety = np.where(safe_all[j][crop], SAFETY_SAFE, SAFETY_UNSAFE).astype(np.uint8)
+                safety[uncertain_mask(torch.from_numpy(u_all[j][crop]), h_t).numpy()] = SAFETY_UNCERTAIN
+                safety[~valid] = SAFETY_INVALID
+                out = (slice(None), slice(tile.own_cols[0], tile.own_cols[1]))
+                strip["p_safe"][out] = np.where(valid, p_all[j][crop], np.nan)
+                strip["entropy_nats"][out] = np.where(valid, h_all[j][crop], np.nan)
+                strip["mutual_information_nats"][out] = np.where(valid, mi_all[j][crop], np.nan)
+                strip["baseline_p_safe"][out] = base[crop]
+                strip["safety"][out] = safety
+            done += len(batch)
+            if progress:
+                progress(done, plan.n_tiles)
+        yield r_lo, strip
+
+
+def _map_dtype(name: str) -> type[np.generic]:
+    """The array type of the map ``name`` (``MAP_FIELDS``): uint8 codes for safety, float32 otherwise."""
+    return np.uint8 if name == "safety" else np.float32
+
+
+def _add_counts(counts: dict[str, int], safety: np.ndarray, baseline_p_safe: np.ndarray) -> None:
+    """Add the cells of each safety code, and those the baseline calls safe, of a map (or a strip of one)."""
+    for name, code in (
+        ("unsafe", SAFETY_UNSAFE),
+        ("safe", SAFETY_SAFE),
+        ("uncertain", SAFETY_UNCERTAIN),
+        ("invalid", SAFETY_INVALID),
+    ):
+        counts[name] = counts.get(name, 0) + int((safety == code).sum())
+    safe = int((np.nan_to_num(baseline_p_safe, nan=0.0) >= BASELINE_THRESHOLD).sum())
+    counts["baseline_safe"] = counts.get("baseline_safe", 0) + safe
+
+
 def _write_maps(
     tmp: Path,
     terrain: _Terrain,
@@ -955,89 +1374,59 @@ def _write_maps(
     progress: Callable[[int, int], None] | None,
     uncertainty: UncertaintyScore = ENTROPY,
 ) -> tuple[dict[str, int], dict[str, float]]:
-    """Step 4: every row of tiles through the network and the baseline, owned crops written to the five
-    maps; a cell is uncertain where the score ``uncertainty`` is >= ``h_t``."""
-    # The baseline, like the network, takes the cells as the run's: the grid is within 2 % of that
-    # spacing, and the lander's sampling (pads on grid nodes in the paper convention) is then exactly
-    # the one of the training labels.
-    spacing = run.spacing_m
+    """Step 4 (``hd detect``): the maps of ``_map_strips`` written strip by strip to the five GeoTIFFs;
+    returns the counts of cells per safety code and the timings (seconds)."""
     counts = {"safe": 0, "unsafe": 0, "uncertain": 0, "invalid": 0, "baseline_safe": 0}
-    t_read = t_net = t_base = t_write = 0.0
-    done = 0
-    torch.manual_seed(seed)
+    timings = dict.fromkeys((*MAP_TIMINGS, "write"), 0.0)
     profiles = {
-        name: geotiff_profile(
+        file: geotiff_profile(
             terrain.shape,
             terrain.transform,
             terrain.crs_wkt,
-            dtype=("uint8" if name == "safety.tif" else "float32"),
-            nodata=(SAFETY_INVALID if name == "safety.tif" else float("nan")),
+            dtype=np.dtype(_map_dtype(name)).name,
+            nodata=(SAFETY_INVALID if name == "safety" else float("nan")),
         )
-        for name in MAP_FILES
+        for name, file in MAP_FIELDS.items()
     }
+    strips = _map_strips(
+        terrain, run, plan, h_t, sigma_m, mc_samples, batch_size, seed, dev, progress, uncertainty, timings
+    )
     with _writers(tmp, profiles) as dst:
-        if progress:
-            progress(0, plan.n_tiles)
-        for (r_lo, r_hi), tiles in plan.strips():
-            n_rows, n_cols = r_hi - r_lo, terrain.shape[1]
-            strip: dict[str, np.ndarray] = {
-                "p": np.full((n_rows, n_cols), np.nan, np.float32),
-                "h": np.full((n_rows, n_cols), np.nan, np.float32),
-                "mi": np.full((n_rows, n_cols), np.nan, np.float32),
-                "b": np.full((n_rows, n_cols), np.nan, np.float32),
-                "s": np.full((n_rows, n_cols), SAFETY_INVALID, np.uint8),
-            }
-            for start in range(0, len(tiles), batch_size):
-                batch = tiles[start : start + batch_size]
-                t0 = time.perf_counter()
-                dems = [terrain.read(t.row0, t.col0, t.rows, t.cols) for t in batch]
-                t_read += time.perf_counter() - t0
-                live = [k for k, d in enumerate(dems) if np.isfinite(d).any()]
-                if live:
-                    t0 = time.perf_counter()
-                    x = torch.cat([network_input(_scan_frame(dems[k], terrain), run, sigma_m) for k in live]).to(dev)
-                    out_grid = mc_dropout_predict(run.model, x, n_samples=mc_samples).on_grid(
-                        lambda t: network_output(t, run).cpu()
-                    )
-                    p_all = out_grid.mean_probs[:, defaults.CLASS_SAFE].numpy()
-                    h_all = out_grid.entropy_nats.numpy()
-                    mi_all = out_grid.mutual_information_nats.numpy()
-                    u_all = uncertainty.of(out_grid).numpy()
-                    safe_all = (out_grid.prediction == defaults.CLASS_SAFE).numpy()
-                    t_net += time.perf_counter() - t0
-                for j, k in enumerate(live):
-                    tile = batch[k]
-                    t0 = time.perf_counter()
-                    base = baseline_p_safe(dems[k], spacing, sigma_m, run.labeling)
-                    t_base += time.perf_counter() - t0
-                    crop = tile.crop
-                    valid = np.isfinite(base[crop])
-                    safety = np.where(safe_all[j][crop], SAFETY_SAFE, SAFETY_UNSAFE).astype(np.uint8)
-                    safety[uncertain_mask(torch.from_numpy(u_all[j][crop]), h_t).numpy()] = SAFETY_UNCERTAIN
-                    safety[~valid] = SAFETY_INVALID
-                    out = (slice(None), slice(tile.own_cols[0], tile.own_cols[1]))
-                    strip["p"][out] = np.where(valid, p_all[j][crop], np.nan)
-                    strip["h"][out] = np.where(valid, h_all[j][crop], np.nan)
-                    strip["mi"][out] = np.where(valid, mi_all[j][crop], np.nan)
-                    strip["b"][out] = base[crop]
-                    strip["s"][out] = safety
-                done += len(batch)
-                if progress:
-                    progress(done, plan.n_tiles)
+        for r_lo, strip in strips:
             t0 = time.perf_counter()
-            window = Window(0, r_lo, n_cols, n_rows)
-            for name, key in zip(MAP_FILES, ("p", "h", "mi", "s", "b"), strict=True):
-                dst[name].write(strip[key], window)
-            t_write += time.perf_counter() - t0
-            for name, code in (
-                ("unsafe", SAFETY_UNSAFE),
-                ("safe", SAFETY_SAFE),
-                ("uncertain", SAFETY_UNCERTAIN),
-                ("invalid", SAFETY_INVALID),
-            ):
-                counts[name] += int((strip["s"] == code).sum())
-            counts["baseline_safe"] += int((np.nan_to_num(strip["b"], nan=0.0) >= BASELINE_THRESHOLD).sum())
-    return counts, {"read": t_read, "network": t_net, "baseline": t_base, "write": t_write}
+            window = Window(0, r_lo, terrain.shape[1], strip["safety"].shape[0])
+            for name, file in MAP_FIELDS.items():
+                dst[file].write(strip[name], window)
+            timings["write"] += time.perf_counter() - t0
+            _add_counts(counts, strip["safety"], strip["baseline_p_safe"])
+    return counts, timings
+
+
+def _maps_in_memory(
+    terrain: _Terrain,
+    run: DetectRun,
+    plan: TilePlan,
+    h_t: float,
+    sigma_m: float,
+    mc_samples: int,
+    batch_size: int,
+    seed: int,
+    dev: torch.device,
+    progress: Callable[[int, int], None] | None,
+    uncertainty: UncertaintyScore,
+) -> dict[str, np.ndarray]:
+    """Step 4 (``detect_dem``): the maps of ``_map_strips`` as whole arrays (``MAP_FIELDS``)."""
+    maps = {
+        name: np.full(terrain.shape, SAFETY_INVALID if name == "safety" else np.nan, _map_dtype(name))
+        for name in MAP_FIELDS
+    }
+    timings = dict.fromkeys(MAP_TIMINGS, 0.0)
+    for r_lo, strip in _map_strips(
+        terrain, run, plan, h_t, sigma_m, mc_samples, batch_size, seed, dev, progress, uncertainty, timings
+    ):
+        for name, values in strip.items():
+            maps[name][r_lo : r_lo + values.shape[0]] = values
+    return maps
 
 
 def _scan_frame(dem_m: np.ndarray, terrain: _Terrain) -> np.ndarray:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import importlib
 import json
 import math
 from pathlib import Path
@@ -28,8 +29,7 @@ from scipy import ndimage
 from cli import main
 from hdlabels.grid import cell_centres
 from hdlabels.lander import Lander, geometry
-from hdlabels.store import find_labeling, label_shard_paths
-from hdnet import detect as detect_module
+from hdlabels.store import find_labeling, iter_labeled_scans, label_shard_paths
 from hdnet.data import HazardDataset, lander_of, to_dem_grid
 from hdnet.detect import (
     MAP_FILES,
@@ -39,7 +39,9 @@ from hdnet.detect import (
     SAFETY_UNCERTAIN,
     SAFETY_UNSAFE,
     SITE_COLUMNS,
+    DetectMaps,
     detect,
+    detect_dem,
     load_run,
     network_input,
     overlap_px,
@@ -58,8 +60,10 @@ from lidarsim.errors import HdWarning, LockedError, OutputExistsError, TerrainEr
 from lidarsim.procedural import MarsTerrainParams, generate_mars_terrain, write_geotiff
 from lidarsim.shards import sha256_file
 from lidarsim.storage import PARTIAL_MARK, WriterLock
+from lidarsim.terrain import DTM
 from tests.geotiff import write_geotiff as write_test_geotiff
 
+detect_module = importlib.import_module("hdnet.detect")  # the module: hdnet.detect is the function
 REAL = Path("/work/shared/data/real-terrain")
 needs_real = pytest.mark.skipif(not REAL.is_dir(), reason=f"{REAL} (the shared real terrains) is not present")
 CPU = torch.device("cpu")
@@ -1051,3 +1055,112 @@ def test_a_training_scan_an_unfinished_run_and_an_unreachable_risk_level_are_sai
             "Warning: scan", ""
         )
         assert json.loads((out / "detect.json").read_text())["input"].get("seen_in_training", False) is seen
+
+
+# --- detect_dem: the maps in memory -------------------------------------------------------------------
+def assert_same_maps(maps: DetectMaps, out: Path) -> None:
+    """The arrays of ``maps`` are the files of the hd detect output ``out`` (NaN where NaN), its sites
+    and counts those of detect.json, its transform the files'."""
+    for name, file in (
+        ("p_safe", "p_safe.tif"),
+        ("entropy_nats", "entropy.tif"),
+        ("mutual_information_nats", "mutual_information.tif"),
+        ("safety", "safety.tif"),
+        ("baseline_p_safe", "baseline_p_safe.tif"),
+    ):
+        written = read(out / file)[0]
+        assert getattr(maps, name).dtype == written.dtype, name
+        np.testing.assert_array_equal(getattr(maps, name), written, err_msg=name)
+    info = json.loads((out / "detect.json").read_text())
+    uncached = {k: v for k, v in maps.threshold.items() if k != "cached"}  # the second calibration: from the cache
+    assert maps.counts == info["counts"] and uncached == info["threshold"]
+    assert [s.columns() for s in maps.sites] == info["sites"]
+    assert maps.transform == profile_of(out / "safety.tif")["transform"]
+
+
+def test_detect_dem_of_a_scans_dem_is_hd_detect_of_the_scan(trained, tmp_path):
+    """The noisy DEM of a test scan, read with hdlabels.iter_labeled_scans and mapped in memory, gives
+    the arrays, sites and counts hd detect --data --scan writes; the record says the same threshold."""
+    dataset, run_dir, _ = trained
+    scan = next(iter_labeled_scans(dataset, split="test"))
+    k = scan.sigmas_m.index(0.07)
+    out = tmp_path / "files"
+    options: dict[str, Any] = {"sigma_m": 0.07, "threshold": "mean", "mc_samples": 4, "seed": 3, "n_sites": 3}
+    result = detect(run_dir, out, dataset=dataset, scan=scan.scan_index, **options)
+    maps = detect_dem(load_run(run_dir, "cpu"), scan.dem_noisy[k], scan_frame=True, **options)
+    assert_same_maps(maps, out)
+    assert maps.threshold["cached"] == str(run_dir / "thresholds.json")  # calibrated once, by hd detect
+    assert maps.threshold_nats == result.threshold_nats and maps.shape == (100, 100) and maps.spacing_m == 1.0
+    assert maps.sigma_m == 0.07 and maps.uncertainty == "entropy" and maps.uncertainty_nats is maps.entropy_nats
+    valid = result.counts["safe"] + result.counts["unsafe"] + result.counts["uncertain"]
+    assert maps.safe_fraction == result.counts["safe"] / valid and int(maps.valid.sum()) == valid
+    assert not (tmp_path / "run-files").exists() and sorted(p.name for p in tmp_path.iterdir()) == ["files"]
+
+
+def test_detect_dem_of_a_dtms_heights_is_hd_detect_of_the_dtm(trained, tmp_path):
+    """A 150 x 150 DTM at the run's 1 m (four tiles, map heights): its heights and transform in memory
+    give what hd detect --dtm writes, sites in the DTM's coordinates included; the run can be a path."""
+    _, run_dir, _ = trained
+    rng = np.random.default_rng(5)
+    z = (tilted_plane(150, 1.0, 4.0) + ndimage.gaussian_filter(rng.normal(0, 1.0, (150, 150)), 3)).astype(np.float32)
+    z[60:70, 20:90] = np.nan
+    dtm = write_dtm(tmp_path / "t.tif", z, 1.0, origin=(1000.0, 2000.0))
+    out = tmp_path / "files"
+    options: dict[str, Any] = {"threshold": "nats:0.3", "mc_samples": 3, "seed": 1, "n_sites": 4}
+    options["uncertainty"] = "mutual-information"
+    detect(run_dir, out, dtm=dtm, **options)
+    with DTM.open(dtm) as src:  # the heights and the grid as lidarsim reads them
+        heights, grid = src.read(0, 0, 150, 150), src.info.transform
+    assert grid == tuple(from_origin(1000.0, 2000.0, 1.0, 1.0))[:6]
+    maps = detect_dem(run_dir, heights, transform=grid, **options)
+    assert_same_maps(maps, out)
+    assert maps.uncertainty_nats is maps.mutual_information_nats
+    assert maps.sites and all(1000.0 < s.x < 1150.0 and 1850.0 < s.y < 2000.0 for s in maps.sites)
+
+
+def test_detect_dem_with_a_constant_run_on_a_plane_by_hand(trained):
+    """A run that says 'safe' everywhere on a flat 100 x 100 plane with no threshold: every cell outside
+    the border band of the lander footprint is safe and certain, the baseline calls the same cells safe,
+    and the default grid is the scan frame centred on the array."""
+    _, _, constant = trained
+    maps = detect_dem(load_run(constant, "cpu"), np.zeros((100, 100)), threshold="nats:inf", mc_samples=2, n_sites=1)
+    b = geometry(Lander(), 1.0).band_px
+    inside = (100 - 2 * b) ** 2
+    counts = {"unsafe": 0, "safe": inside, "uncertain": 0, "invalid": 100 * 100 - inside, "baseline_safe": inside}
+    assert maps.counts == counts and int(maps.baseline_safe.sum()) == inside
+    assert maps.safe_fraction == 1.0 and math.isinf(maps.threshold_nats) and maps.threshold["value_nats"] is None
+    assert (maps.safe_and_certain == maps.valid).all() and not maps.uncertain.any()
+    np.testing.assert_allclose(maps.p_safe[maps.valid], 1 / (1 + math.exp(-6)), rtol=1e-6)
+    assert maps.transform @ (0, 0) == (-50.0, 50.0) and maps.transform @ (100, 100) == (50.0, -50.0)
+    # the clearest cells: the four round the centre; ties go north, then west (row 49, col 49)
+    assert (maps.sites[0].x, maps.sites[0].y) == (-0.5, 0.5)
+
+
+def test_detect_dem_says_when_the_run_is_unfinished(trained, tmp_path):
+    import shutil
+
+    _, run_dir, _ = trained
+    partial = tmp_path / "run"
+    shutil.copytree(run_dir, partial)
+    config = json.loads((partial / "config.json").read_text())
+    (partial / "config.json").write_text(json.dumps(config | {"epochs": 10}))
+    with pytest.warns(HdWarning, match="1 of its 10 epochs trained"):
+        detect_dem(load_run(partial, "cpu"), np.zeros((100, 100)), threshold="nats:0.5", mc_samples=1)
+
+
+@pytest.mark.parametrize(
+    ("heights", "keywords", "error", "needle"),
+    [
+        (np.zeros((2, 100, 100)), {}, HdNetError, "2-D array of heights in metres"),
+        (np.zeros((100, 100), bool), {}, HdNetError, "2-D array of heights in metres"),
+        (np.zeros((100, 100)), {"transform": from_origin(0.0, 0.0, 0.5, 0.5)}, HdNetError, "run's DEM spacing is 1 m"),
+        (np.zeros((10, 100)), {}, TerrainError, "too small for the lander footprint"),
+        (np.full((100, 100), np.inf), {}, TerrainError, "has no such valid square"),
+        (np.zeros((100, 100)), {"mc_samples": 0}, HdNetError, r"mc-samples must be an integer in \[1, "),
+        (np.zeros((100, 100)), {"threshold": "quantil:0.9"}, HdNetError, "is not one of"),
+    ],
+)
+def test_detect_dem_refuses_bad_input_with_one_line(trained, heights, keywords, error, needle):
+    _, _, constant = trained
+    with pytest.raises(error, match=needle):
+        detect_dem(constant, heights, threshold=keywords.pop("threshold", "nats:0.5"), **keywords)
