@@ -420,7 +420,7 @@ def check_report_dir(
 
 def write_report(
     result: EvaluationResult,
-    out_dir: Path,
+    out_dir: str | os.PathLike,
     figures: bool = True,
     overwrite: bool = False,
     inputs: dict[str, str | os.PathLike | None] | None = None,

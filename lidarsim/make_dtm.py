@@ -7,6 +7,7 @@ writes the file and returns its one-line summary.
 from __future__ import annotations
 
 import dataclasses
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -58,8 +59,9 @@ class DtmSettings:
         check(self, LidarsimError)
 
 
-def make_dtm(out_path: Path, settings: DtmSettings, overwrite: bool) -> str:
-    """Write the terrain of ``settings`` to ``out_path`` (a GeoTIFF); returns what was written.
+def make_dtm(out_path: str | os.PathLike, settings: DtmSettings | None = None, overwrite: bool = False) -> str:
+    """Write the terrain of ``settings`` (default: ``DtmSettings()``, the procedural terrain) to
+    ``out_path`` (a GeoTIFF, heights in metres); returns what was written, in one line.
 
     Raises:
         LidarsimError: an unusable ``out_path``, an existing file without ``overwrite``, options
@@ -68,6 +70,8 @@ def make_dtm(out_path: Path, settings: DtmSettings, overwrite: bool) -> str:
     from lidarsim.procedural import MarsTerrainParams, write_procedural_dtm
     from lidarsim.storage import check_not_input, check_output_file
 
+    out_path = Path(out_path)
+    settings = settings if settings is not None else DtmSettings()
     base_path, craters_below_m = settings.base_path, settings.craters_below_m
     check_output_file(out_path, "OUT_PATH")
     if base_path is not None:
