@@ -11,6 +11,7 @@ and one epoch of the tiny profile.
 from __future__ import annotations
 
 import dataclasses
+import importlib
 import json
 from pathlib import Path
 from typing import Any
@@ -19,18 +20,20 @@ import pytest
 from click.testing import CliRunner
 from hdnet_datasets import hills_dtm
 
-import hdnet.fit
 import lidarsim.build
 from cli import main
 from hdlabels import defaults as label_defaults
+from hdnet.fit import FitConfig
 from lidarsim import defaults as lidar_defaults
+
+FIT_MODULE = importlib.import_module("hdnet.fit")  # the module: hdnet.fit is the function (lidarsim.exports)
 
 
 @pytest.fixture
 def tiny_work(monkeypatch: pytest.MonkeyPatch) -> dict[str, list[Any]]:
     """Wrap build_dataset and fit: record what the command asked for, run it at tiny size."""
     seen: dict[str, list[Any]] = {"build": [], "fit": []}
-    real_build, real_fit = lidarsim.build.build_dataset, hdnet.fit.fit
+    real_build, real_fit = lidarsim.build.build_dataset, FIT_MODULE.fit
 
     def build(out_dir: Any, config: lidarsim.build.BuildConfig, **kwargs: Any) -> Any:
         seen["build"].append(config)
@@ -42,12 +45,12 @@ def tiny_work(monkeypatch: pytest.MonkeyPatch) -> dict[str, list[Any]]:
         )
         return real_build(out_dir, small, **{**kwargs, "workers": 1})
 
-    def fit(dataset_dir: Any, run_dir: Any, config: hdnet.fit.FitConfig) -> Path:
+    def fit(dataset_dir: Any, run_dir: Any, config: FitConfig) -> Path:
         seen["fit"].append(config)
         return real_fit(dataset_dir, run_dir, dataclasses.replace(config, profile="tiny", epochs=1, progress=False))
 
     monkeypatch.setattr(lidarsim.build, "build_dataset", build)
-    monkeypatch.setattr(hdnet.fit, "fit", fit)
+    monkeypatch.setattr(FIT_MODULE, "fit", fit)
     return seen
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import json
 import shutil
 import subprocess
@@ -197,8 +198,8 @@ def test_a_window_is_checked_before_the_network_library_is_imported(tmp_path, wi
 def test_eval_and_detect_check_their_inputs_before_the_run_is_loaded(dataset, tmp_path, monkeypatch):
     """In the library too (hdnet.evaluate.evaluate, hdnet.detect.detect): a typo in a path or a labelling
     is refused before the checkpoint is read."""
-    from hdnet import detect as detect_module
-    from hdnet import evaluate as evaluate_module
+    detect_module = importlib.import_module("hdnet.detect")  # the modules: hdnet.detect is the function
+    evaluate_module = importlib.import_module("hdnet.evaluate")
 
     def never(*args, **kwargs):
         raise AssertionError("the run was loaded before the inputs were checked")
@@ -222,7 +223,7 @@ def test_eval_and_detect_check_their_inputs_before_the_run_is_loaded(dataset, tm
 
 def test_train_checks_its_dataset_and_labelling_before_the_run_directory(dataset, tmp_path, monkeypatch):
     """hd train refuses an unknown labelling, and takes an alias, before it looks at its run directory."""
-    from hdnet import fit as fit_module
+    fit_module = importlib.import_module("hdnet.fit")  # the module: hdnet.fit is the function
 
     def never(*args, **kwargs):
         raise AssertionError("the run directory was prepared before the labelling was checked")

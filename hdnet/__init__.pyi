@@ -1,0 +1,33 @@
+"""The public names of hdnet (docs/api.md): imported on first use (``lidarsim.exports``)."""
+
+from hdnet._version import __version__ as __version__
+from hdnet.data import HazardDataset as HazardDataset
+from hdnet.detect import DetectMaps as DetectMaps
+from hdnet.detect import DetectResult as DetectResult
+from hdnet.detect import DetectRun as DetectRun
+from hdnet.detect import detect as detect
+from hdnet.detect import detect_dem as detect_dem
+from hdnet.detect import load_run as load_run
+from hdnet.detect_settings import DetectSettings as DetectSettings
+from hdnet.errors import HdNetError as HdNetError
+from hdnet.eval_settings import EvalConfig as EvalConfig
+from hdnet.evaluate import evaluate as evaluate
+from hdnet.fit import FitConfig as FitConfig
+from hdnet.fit import fit as fit
+from hdnet.infer import MCPrediction as MCPrediction
+from hdnet.infer import mc_dropout_predict as mc_dropout_predict
+from hdnet.inputs import InputSpec as InputSpec
+from hdnet.model import BayesianSegNet as BayesianSegNet
+from hdnet.model import ModelConfig as ModelConfig
+from hdnet.noise_levels import TrainingNoise as TrainingNoise
+from hdnet.pipeline import evaluate_to_report as evaluate_to_report
+from hdnet.profiles import CPU as CPU
+from hdnet.profiles import PAPER as PAPER
+from hdnet.profiles import PROFILES as PROFILES
+from hdnet.profiles import ROBUST as ROBUST
+from hdnet.profiles import TINY as TINY
+from hdnet.profiles import TrainingProfile as TrainingProfile
+from hdnet.report import write_report as write_report
+from hdnet.results import EvaluationResult as EvaluationResult
+from hdnet.results import Site as Site
+from hdnet.sites import select_sites as select_sites

@@ -1,0 +1,30 @@
+"""The public names of lidarsim (docs/api.md): imported on first use (``lidarsim.exports``)."""
+
+from lidarsim._version import __version__ as __version__
+from lidarsim.build import BuildConfig as BuildConfig
+from lidarsim.build import BuildSummary as BuildSummary
+from lidarsim.build import build_dataset as build_dataset
+from lidarsim.errors import HdError as HdError
+from lidarsim.errors import HdWarning as HdWarning
+from lidarsim.errors import LidarsimError as LidarsimError
+from lidarsim.errors import TerrainError as TerrainError
+from lidarsim.footprint import FootprintConfig as FootprintConfig
+from lidarsim.make_dtm import DtmSettings as DtmSettings
+from lidarsim.make_dtm import make_dtm as make_dtm
+from lidarsim.noise import NoiseModel as NoiseModel
+from lidarsim.procedural import MarsTerrainParams as MarsTerrainParams
+from lidarsim.procedural import generate_mars_terrain as generate_mars_terrain
+from lidarsim.procedural import write_geotiff as write_geotiff
+from lidarsim.recipe import BuildSettings as BuildSettings
+from lidarsim.recipe import Recipe as Recipe
+from lidarsim.recipe import load_recipe as load_recipe
+from lidarsim.sensor import SensorConfig as SensorConfig
+from lidarsim.shards import Scan as Scan
+from lidarsim.shards import ScanShardReader as ScanShardReader
+from lidarsim.shards import iter_scans as iter_scans
+from lidarsim.shards import open_scan_shard as open_scan_shard
+from lidarsim.shards import read_manifest as read_manifest
+from lidarsim.shards import verify_dataset as verify_dataset
+from lidarsim.terrain import DTM as DTM
+from lidarsim.terrain import DTMInfo as DTMInfo
+from lidarsim.trajectory import TrajectoryConfig as TrajectoryConfig
