@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import json
 import math
 import shutil
@@ -195,13 +196,13 @@ def test_evaluate_returns_the_result_and_the_caller_writes_the_report(setup, tmp
 
 
 def test_a_bad_report_directory_fails_before_the_evaluation(setup, tmp_path, monkeypatch):
-    import hdnet.evaluate
+    evaluate_module = importlib.import_module("hdnet.evaluate")  # the module: hdnet.evaluate is the function
 
     def no_work(*args: object, **kwargs: object) -> None:
         raise AssertionError("the evaluation ran")
 
     dataset, run, _, _ = setup
-    monkeypatch.setattr(hdnet.evaluate, "load_trained_model", no_work)
+    monkeypatch.setattr(evaluate_module, "load_trained_model", no_work)
     occupied = tmp_path / "occupied"
     occupied.mkdir()
     (occupied / "notes.txt").write_text("mine")

@@ -7,6 +7,7 @@ line ``Error: ...`` naming the problem, nothing created at the output path, and 
 
 from __future__ import annotations
 
+import importlib
 import math
 import re
 
@@ -97,8 +98,8 @@ def _no_work(monkeypatch, *targets):
     def refuse(*args, **kwargs):
         raise AssertionError("work started before the options were checked")
 
-    for module, name in targets:
-        monkeypatch.setattr(f"{module}.{name}", refuse)
+    for module, name in targets:  # the module itself: hdnet.fit, the package's attribute, is the function
+        monkeypatch.setattr(importlib.import_module(module), name, refuse)
 
 
 def _snapshot(tmp):
