@@ -32,6 +32,7 @@ from lidarsim._version import __version__
 from lidarsim.base_relief import rocks_on_base, rocky_geotiff_bytes
 from lidarsim.errors import HdWarning, LidarsimError, OutputExistsError
 from lidarsim.footprint import FootprintConfig
+from lidarsim.navigation import DescentNavErrors, descent_nav_errors
 from lidarsim.noise import NoiseModel
 from lidarsim.outcome import counted
 from lidarsim.parallel import probe_scheduler, run_tasks
@@ -41,6 +42,7 @@ from lidarsim.scan import (
     STATUS_DEAD,
     STATUS_RETURN,
     STATUS_WEAK,
+    ScanGeometry,
     TileScene,
     scan_geometry,
     simulate_scans,
@@ -51,10 +53,12 @@ from lidarsim.shards import (
     MANIFEST_NAME,
     MANIFEST_SCHEMA,
     MANIFEST_SCHEMA_VERSION,
+    MANIFEST_SCHEMA_VERSION_DESCENT,
     MANIFEST_SCHEMA_VERSION_DEVIATION,
     SCAN_SCHEMA,
     SCAN_SCHEMA_VERSION_PLAIN,
     SPLIT_NAMES,
+    DescentFrame,
     ScanShardReader,
     ScanShardWriter,
     ShardFormatError,
@@ -106,7 +110,8 @@ class BuildConfig:
         rocks_on_dtm: scan the DTM at ``dtm_path`` resampled to ``terrain.spacing_m`` with the
             procedural rock population of ``terrain`` and ``seed`` added (``lidarsim.base_relief``);
             the terrain made is written to ``terrain/``.
-        shard_size: scans per shard file.
+        shard_size: scans per shard file (a descent build's shards hold whole descents: see
+            ``scans_per_shard``).
         compression: HDF5 compression of the point arrays: gzip, lzf or none.
         footprint: the pixel footprint (sub-rays, spot profile, range estimator); the default is
             one ray through each pixel centre.
@@ -148,7 +153,7 @@ class BuildConfig:
         if self.compression not in defaults.COMPRESSIONS:
             raise LidarsimError(f"unknown compression {self.compression!r}; use {', '.join(defaults.COMPRESSIONS)}")
         per_scan = self.sensor.rows * self.sensor.cols * (4 * 3 * (1 + len(self.sigmas_m)) + 2)
-        scans = min(self.shard_size, self.trajectory.n_scans)
+        scans = min(self.scans_per_shard, self.trajectory.n_scans)
         if scans * per_scan > limits.MAX_SHARD_BYTES:
             raise LidarsimError(
                 f"a shard of {scans} scans of {self.sensor.rows}x{self.sensor.cols} px at {len(self.sigmas_m)} noise "
@@ -156,6 +161,13 @@ class BuildConfig:
                 f"{limits.MAX_SHARD_BYTES / 2**30:.0f} GiB); lower --shard-size to at most "
                 f"{max(1, limits.MAX_SHARD_BYTES // per_scan)}"
             )
+
+    @property
+    def scans_per_shard(self) -> int:
+        """Scans per shard file: ``shard_size``, rounded up to whole descents in a descent build (a
+        descent never straddles two shards)."""
+        k = self.trajectory.frames
+        return -(-self.shard_size // k) * k
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-friendly dictionary of the whole configuration."""
@@ -201,7 +213,8 @@ class BuildConfig:
 
 @dataclass(frozen=True)
 class ShardTask:
-    """One shard's work: scans ``first_scan .. first_scan + n - 1`` of the plan."""
+    """One shard's work: scans ``first_scan .. first_scan + n - 1`` of the plan (``nadir_xy`` and
+    ``tile_ij`` one row per scan: in a descent build each frame's row is its descent's target)."""
 
     out_dir: str
     shard_index: int
@@ -254,6 +267,8 @@ class BuildSummary:
     bytes_written: int
     rays_per_second: float
     already_built: bool = False
+    n_descents: int = 0
+    descent_frames: int = 0
 
     def paragraph(self) -> str:
         """A one-paragraph human summary."""
@@ -271,8 +286,12 @@ class BuildSummary:
             if self.resumed_shards
             else ""
         )
+        descents = ""
+        if self.n_descents:
+            descents = f" ({counted(self.n_descents, 'descent')} of {self.descent_frames} frames)"
         return (
-            f"Built {self.n_scans} scans in {counted(self.n_shards, 'shard')} at {self.out_dir} in {self.seconds:.1f} s"
+            f"Built {self.n_scans} scans{descents} in {counted(self.n_shards, 'shard')} at {self.out_dir} in "
+            f"{self.seconds:.1f} s"
             f"{resumed}: clean points plus noisy points at sigma = {sig}; splits {splits}; "
             f"{self.bytes_written / 1e6:.0f} MB on disk; {self.rays_per_second / 1e6:.2f} M rays/s end to end. "
             f"Inspect it with `hd inspect {self.out_dir}`, check it with `hd verify {self.out_dir}`."
@@ -287,6 +306,13 @@ def shard_name(index: int) -> str:
 def split_block_size(n_scans: int) -> int:
     """Scans per split block: consecutive scans share a split (at most 50, about 20 blocks)."""
     return max(1, min(50, n_scans // 20))
+
+
+def scan_splits(config: BuildConfig) -> np.ndarray:
+    """Split of every scan of a build: :func:`assign_splits` over its scans or, in a descent build,
+    over its descents (consecutive descents form the blocks), every frame taking its descent's."""
+    trajectory = config.trajectory
+    return np.repeat(assign_splits(trajectory.n_positions, config.seed), trajectory.frames)
 
 
 def assign_splits(
@@ -328,6 +354,7 @@ def run_shard(task: ShardTask) -> ShardRecord:
         attrs={**task.file_attrs, "shard_index": task.shard_index, "first_scan": task.first_scan},
         compression=cfg.compression,
     )
+    nav_errors: dict[int, DescentNavErrors] = {}
     with DTM.open(task.dtm_path, scale=cfg.dtm_scale) as dtm, writer:
         k = 0
         for tile, members in _group_by_tile(task.tile_ij):
@@ -356,6 +383,7 @@ def run_shard(task: ShardTask) -> ShardRecord:
                 ):
                     check_returns(result.status, scan_index, task.dtm_path)
                     g = result.geometry
+                    descent = _descent_frame(cfg, scan_index, g, nav_errors)
                     writer.write_scan(
                         m,
                         scan_index=scan_index,
@@ -368,11 +396,35 @@ def run_shard(task: ShardTask) -> ShardRecord:
                         status=result.status,
                         valid=((result.status == STATUS_RETURN) | (result.status == STATUS_DAMAGED)).astype(np.uint8),
                         noise_scale=result.noise_scale,
+                        descent=descent,
                     )
                     k += 1
         assert k == n
         digest = writer.commit()
     return _record(task, digest)
+
+
+def _descent_frame(
+    config: BuildConfig, scan_index: int, geometry: ScanGeometry, cache: dict[int, DescentNavErrors]
+) -> DescentFrame | None:
+    """A descent frame's record (None for a single scan): its descent and frame, the target (the
+    scan frame's origin) and the navigation estimate of its pose; ``cache`` keeps each descent's
+    errors for its other frames."""
+    descent = config.trajectory.descent
+    if descent is None:
+        return None
+    index, frame = divmod(scan_index, descent.frames)
+    errors = cache.get(index)
+    if errors is None:
+        errors = cache[index] = descent_nav_errors(descent.nav, config.seed, index, descent.frames)
+    position, attitude = errors.estimate(frame, geometry.sensor_position, geometry.attitude)
+    return DescentFrame(
+        descent_index=index,
+        frame_index=frame,
+        target_map=np.asarray(geometry.origin_map, dtype=np.float64),
+        nav_sensor_position=position,
+        nav_sensor_attitude=attitude,
+    )
 
 
 def check_returns(status: np.ndarray, scan_index: int, dtm_name: str) -> None:
@@ -701,7 +753,7 @@ def check_shard_files(config: BuildConfig, max_shards: int = limits.MAX_SHARD_FI
     it is recorded nowhere, so a dataset's bytes do not depend on it."""
     if isinstance(max_shards, bool) or not limits.SHARD_FILES.contains(max_shards):
         raise LidarsimError(f"--max-shards must be an integer in {limits.SHARD_FILES.interval()}, got {max_shards!r}")
-    scans, size = config.trajectory.n_scans, config.shard_size
+    scans, size = config.trajectory.n_scans, config.scans_per_shard
     files = math.ceil(scans / size)
     if files > max_shards:
         why = ": the default, against a --shard-size typed too small" if max_shards == limits.MAX_SHARD_FILES else ""
@@ -773,6 +825,8 @@ def build_dataset(
             bytes_written=0,
             rays_per_second=0.0,
             already_built=True,
+            n_descents=config.trajectory.n_descents,
+            descent_frames=config.trajectory.frames if config.trajectory.descent is not None else 0,
         )
     if scheduler is not None:
         probe_scheduler(scheduler)
@@ -813,12 +867,12 @@ def _warn_weak_inputs(config: BuildConfig, terrain: _BuildTerrain) -> None:
     spacing = terrain.attrs.get("dtm_spacing_m")
     if isinstance(spacing, (list, tuple)) and spacing:
         message = coarse_dtm_message(
-            terrain.path.name, float(max(spacing)), config.sensor, config.trajectory.altitude_m
+            terrain.path.name, float(max(spacing)), config.sensor, config.trajectory.min_altitude_m
         )
         if message:
             warnings.warn(message, HdWarning, stacklevel=3)
     plan = terrain.plan
-    splits = assign_splits(config.trajectory.n_scans, config.seed)
+    splits = assign_splits(config.trajectory.n_positions, config.seed)
     footprint = 2.0 * plan.half_width_m
     message = overlap_message(split_overlap(plan.nadir_xy, splits, footprint), plan.step_m, footprint)
     if message:
@@ -880,7 +934,7 @@ def _build_locked(
     """The part of ``build_dataset`` that writes (called with the writer lock held)."""
     fingerprint = config.fingerprint()
     remove_partials(out_dir / SHARD_DIR)
-    splits = assign_splits(config.trajectory.n_scans, config.seed)
+    splits = scan_splits(config)
     n_workers = max(1, workers if workers is not None else (os.cpu_count() or 1))
     tasks = _make_tasks(
         out_dir, terrain.plan, splits, str(terrain.path), config, _file_attrs(config, terrain), n_workers
@@ -904,6 +958,8 @@ def _build_locked(
         resumed_shards=len(tasks) - len(pending),
         bytes_written=size,
         rays_per_second=rays / max(t_end - t_work, 1e-9),
+        n_descents=config.trajectory.n_descents,
+        descent_frames=config.trajectory.frames if config.trajectory.descent is not None else 0,
     )
 
 
@@ -968,15 +1024,24 @@ def _write_manifest(
     recipe_deviation: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Step 5: ``manifest.json``, written last: the dataset is complete once it exists. A recipe's
-    deviation (1.1) is recorded only when there is one: every other manifest stays 1.0."""
+    deviation (1.1) and a descent build's ``n_descents`` and ``descent_frames`` (1.2) are recorded only
+    when there are some: every other manifest stays 1.0."""
     dtm_path = terrain.path
+    version = MANIFEST_SCHEMA_VERSION if recipe_deviation is None else MANIFEST_SCHEMA_VERSION_DEVIATION
+    if config.trajectory.descent is not None:
+        version = MANIFEST_SCHEMA_VERSION_DESCENT
     manifest: dict[str, Any] = {
         "schema": MANIFEST_SCHEMA,
-        "schema_version": MANIFEST_SCHEMA_VERSION if recipe_deviation is None else MANIFEST_SCHEMA_VERSION_DEVIATION,
+        "schema_version": version,
         "kind": "lidar-scans",
         "software": "hd",
         "software_version": __version__,
         "n_scans": config.trajectory.n_scans,
+        **(
+            {"n_descents": config.trajectory.n_descents, "descent_frames": config.trajectory.frames}
+            if config.trajectory.descent is not None
+            else {}
+        ),
         "sigmas_m": list(config.sigmas_m),
         "seed": config.seed,
         "config_sha256": config.fingerprint(),
@@ -1003,18 +1068,22 @@ def _make_tasks(
     file_attrs: dict[str, Any],
     n_workers: int,
 ) -> list[ShardTask]:
-    n = plan.nadir_xy.shape[0]
+    # one row per scan: a descent's frames share its target and tile
+    frames = config.trajectory.frames
+    nadir_xy, tile_ij = np.repeat(plan.nadir_xy, frames, axis=0), np.repeat(plan.tile_ij, frames, axis=0)
+    n = nadir_xy.shape[0]
     threads = max(1, (os.cpu_count() or 1) // n_workers)
     tasks = []
-    for shard_index, first in enumerate(range(0, n, config.shard_size)):
-        last = min(n, first + config.shard_size)
+    size = config.scans_per_shard
+    for shard_index, first in enumerate(range(0, n, size)):
+        last = min(n, first + size)
         tasks.append(
             ShardTask(
                 out_dir=str(out_dir),
                 shard_index=shard_index,
                 first_scan=first,
-                nadir_xy=plan.nadir_xy[first:last],
-                tile_ij=plan.tile_ij[first:last],
+                nadir_xy=nadir_xy[first:last],
+                tile_ij=tile_ij[first:last],
                 splits=splits[first:last],
                 dtm_path=dtm_path,
                 config=config,

@@ -147,6 +147,18 @@ def render_card(directory: str | os.PathLike, recipe: Recipe, machine: str = "")
     altitude = f"{trajectory['altitude_m']} m altitude"
     if trajectory.get("altitude_max_m") is not None:
         altitude = f"{trajectory['altitude_m']:g} to {trajectory['altitude_max_m']:g} m altitude drawn per scan"
+    descent = trajectory.get("descent")
+    if descent:
+        altitude = (
+            f"{m.get('n_descents')} descents of {descent['frames']} frames from {descent['altitude_start_m']:g} "
+            f"down to {descent['altitude_end_m']:g} m above their targets, "
+            + (
+                "vertical"
+                if not descent["approach_deg"]
+                else f"approaching at {descent['approach_deg']:g}° from the vertical"
+            )
+            + f", navigation error (1σ per axis) {_nav_words(descent['nav'])}"
+        )
     lines = [
         f"# Dataset card: {recipe.name} (recipe version {recipe.version})",
         "",
@@ -226,6 +238,15 @@ def _other_truths(manifest: dict[str, Any], recipe: Recipe) -> list[str]:
     own = str(recipe.label.get("truth", DEFAULT_TRUTH))
     made = {str(lab.get("truth", DEFAULT_TRUTH)) for lab in manifest.get("labelings", [])}
     return sorted(made - {own})
+
+
+def _nav_words(nav: dict[str, Any]) -> str:
+    """A descent's navigation error model in words: ``position 1 m + 0.1 m per frame, attitude 0.1° + 0°
+    per frame``."""
+    return (
+        f"position {nav['position_sigma_m']:g} m + {nav['position_walk_m']:g} m per frame, attitude "
+        f"{nav['attitude_sigma_deg']:g}° + {nav['attitude_walk_deg']:g}° per frame"
+    )
 
 
 def _sensor_realism(cfg: dict[str, Any]) -> list[str]:

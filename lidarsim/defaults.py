@@ -78,3 +78,18 @@ SNR_REF_RANGE_M: float = ALTITUDE_M
 SNR_REF: float = 100.0
 # A pixel whose signal-to-noise ratio is below this comes back with no return (status "weak").
 SNR_MIN: float = 5.0
+
+# --- Descents (hd choices; docs/lidarsim.md, "Descents") -------------------------------------------
+# Frames per descent: 0 builds single frames (the paper's scans).
+DESCENT_FRAMES: int = 0
+# Altitudes of a descent's first and last frames above the target's terrain, metres: from twice the
+# paper's 500 m down to half of it.
+DESCENT_ALTITUDE_START_M: float = 1000.0
+DESCENT_ALTITUDE_END_M: float = 250.0
+# Angle of the approach path from the vertical, degrees: a vertical descent.
+APPROACH_DEG: float = 0.0
+# Navigation error, 1-sigma per axis: none (perfect navigation).
+NAV_POSITION_SIGMA_M: float = 0.0
+NAV_POSITION_WALK_M: float = 0.0
+NAV_ATTITUDE_SIGMA_DEG: float = 0.0
+NAV_ATTITUDE_WALK_DEG: float = 0.0

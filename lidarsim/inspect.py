@@ -44,7 +44,7 @@ def describe_dataset(directory: str | os.PathLike) -> str:
             f"schema    {manifest['schema']} {manifest['schema_version']} "
             f"(software {manifest.get('software_version', '?')})"
         ),
-        f"scans     {manifest['n_scans']} in {counted(len(shards), 'shard')}, {size / 1e6:.1f} MB",
+        f"scans     {manifest['n_scans']}{_descents(manifest)} in {counted(len(shards), 'shard')}, {size / 1e6:.1f} MB",
         "splits    " + ", ".join(f"{_mapping(manifest.get('splits')).get(k, '?')} {k}" for k in SPLIT_NAMES),
         "sigma     " + ", ".join(f"{s:g} m" for s in manifest["sigmas_m"]),
         f"seed      {manifest.get('seed', '?')}",
@@ -60,11 +60,16 @@ def describe_dataset(directory: str | os.PathLike) -> str:
         try:
             with open_scan_shard(directory, shards[0]) as reader:
                 a = reader.attrs
+                pose = (
+                    "a descent's (below)"
+                    if "descent_frames" in a
+                    else f"altitude {_span(a, 'trajectory_altitude')}, tilt {_span(a, 'trajectory_tilt')}"
+                )
                 lines.append(
                     f"sensor    {a.get('sensor_rows')} x {a.get('sensor_cols')} px, FOV {a.get('sensor_fov_x_deg')} x "
-                    f"{a.get('sensor_fov_y_deg')} deg, altitude {_span(a, 'trajectory_altitude')}, tilt "
-                    f"{_span(a, 'trajectory_tilt')}, jitter {_span(a, 'trajectory_jitter')}"
+                    f"{a.get('sensor_fov_y_deg')} deg, {pose}, jitter {_span(a, 'trajectory_jitter')}"
                 )
+                lines += _descent_lines(a, manifest.get("n_descents"))
                 realism = _realism(a)
                 if realism:
                     lines.append(f"realism   {realism}")
@@ -118,7 +123,7 @@ def dataset_record(directory: str | os.PathLike) -> dict[str, Any]:
     manifest = read_manifest(directory)
     shards = manifest["shards"]
     dtm = _mapping(manifest.get("dtm"))
-    return {
+    record: dict[str, Any] = {
         "dataset": str(directory.resolve()),
         "kind": "hd.dataset",
         "schema": manifest.get("schema"),
@@ -146,6 +151,11 @@ def dataset_record(directory: str | os.PathLike) -> dict[str, Any]:
         ],
         "writer_pid": lock_holder(directory),
     }
+    if "descent_frames" in manifest:  # a descent build: its descents and their settings, navigation error included
+        record["n_descents"] = manifest.get("n_descents")
+        record["descent_frames"] = manifest.get("descent_frames")
+        record["descent"] = _mapping(_mapping(_mapping(manifest.get("config")).get("trajectory")).get("descent"))
+    return record
 
 
 def _mapping(value: object) -> dict:
@@ -159,6 +169,37 @@ def _span(attrs: dict[str, Any], key: str) -> str:
     unit = "m" if key.endswith("altitude") else "deg"
     low, high = attrs.get(f"{key}_{unit}"), attrs.get(f"{key}_max_{unit}")
     return f"{low} {unit}" if high is None else f"{low} to {high} {unit} per scan"
+
+
+def _descents(manifest: dict[str, Any]) -> str:
+    """`` (40 descents of 9 frames)`` of a descent build's manifest, else ``""``."""
+    if "descent_frames" not in manifest:
+        return ""
+    return f" ({manifest.get('n_descents')} descents of {manifest.get('descent_frames')} frames)"
+
+
+def _descent_lines(attrs: dict[str, Any], n_descents: object) -> list[str]:
+    """The descent and navigation error lines of a descent's shard (1.3; none for single scans)."""
+    if "descent_frames" not in attrs:
+        return []
+    approach = attrs.get("descent_approach_deg")
+    path = (
+        "vertical"
+        if approach == 0
+        else f"approach {approach} deg from the vertical, from a direction drawn per descent"
+    )
+    return [
+        (
+            f"descents  {n_descents if isinstance(n_descents, int) else '?'} of {attrs.get('descent_frames')} "
+            f"frames, {attrs.get('descent_altitude_start_m')} m down to {attrs.get('descent_altitude_end_m')} m "
+            f"above the target, {path}"
+        ),
+        (
+            f"nav error position {attrs.get('nav_position_sigma_m')} m bias + {attrs.get('nav_position_walk_m')} m "
+            f"walk per frame, attitude {attrs.get('nav_attitude_sigma_deg')} deg bias + "
+            f"{attrs.get('nav_attitude_walk_deg')} deg walk per frame (1-sigma per map axis)"
+        ),
+    ]
 
 
 def _realism(attrs: dict[str, Any]) -> str:

@@ -104,6 +104,20 @@ ALTITUDE_M = Bound(0.0, low_open=True)
 TILT_DEG = Bound(-60.0, 60.0, low_open=True, high_open=True)
 # 1-sigma attitude jitter per axis, degrees.
 JITTER_DEG = Bound(0.0, 5.0, high_open=True)
+# Frames per descent (hd build-dataset --descent-frames; 0 = single frames, else at least 2). hd choice:
+# 64 frames, far more than the few frames a hazard-detection pass takes (the docs' examples use 9); the
+# frames of a descent are held in one shard, so K also bounds a shard's size from below.
+MAX_DESCENT_FRAMES: int = 64
+DESCENT_FRAMES = _int_bound(0, MAX_DESCENT_FRAMES)
+# Angle of a descent's straight approach path from the vertical, degrees (the boresight is tilted by
+# it to look at the target; as --tilt, beyond 60 degrees the footprint grazes the terrain).
+APPROACH_DEG = Bound(0.0, 60.0, high_open=True)
+# Navigation error of a descent, 1-sigma per axis: position (metres) and attitude (degrees), the bias
+# of a descent and the increment of its random walk per frame. hd choice: at most 100 m, twice the
+# footprint of a 12-degree frame from 250 m (a larger error puts a frame's estimate off its own
+# terrain: almost always a value in the wrong unit), and 5 degrees, the bound of --jitter.
+NAV_POSITION_M = Bound(0.0, 100.0)
+NAV_ATTITUDE_DEG = Bound(0.0, 5.0, high_open=True)
 # Field of view per side, degrees (a pinhole detector cannot see 180 degrees).
 FOV_DEG = Bound(0.0, 170.0, low_open=True, high_open=True)
 # Resampling factor of a DTM (1 = full resolution; hd never invents detail by upsampling).

@@ -34,6 +34,13 @@ Recipe layout (every key optional; defaults are the paper's)::
     noise_model = "constant"     # or "snr" (lidarsim.noise.NoiseModel)
     snr_ref = 100.0
     snr_min = 5.0
+    descent_frames = 0           # K >= 2: descents of K frames, `scans` of them (lidarsim.descent)
+    descent_altitudes_m = "1000:250"  # or [1000, 250]: frame 0's and frame K-1's altitude
+    approach_deg = 0.0
+    nav_position_sigma_m = 0.0   # the navigation error (lidarsim.navigation), 1-sigma per axis
+    nav_position_walk_m = 0.0
+    nav_attitude_sigma_deg = 0.0
+    nav_attitude_walk_deg = 0.0
     [label]
     lander = "square"
     lander_diameter_m = 10.0
@@ -58,14 +65,16 @@ from typing import Any
 
 from lidarsim import defaults, limits
 from lidarsim.build import BuildConfig
+from lidarsim.descent import DescentConfig
 from lidarsim.errors import LidarsimError, RecipeError
 from lidarsim.fingerprint import fingerprint_problem
 from lidarsim.footprint import FootprintConfig
 from lidarsim.limits import Bound
+from lidarsim.navigation import NavigationError
 from lidarsim.noise import NoiseModel
 from lidarsim.sensor import SensorConfig
 from lidarsim.setting import FILE_OR_DIRECTORY, check, from_mapping, setting
-from lidarsim.span import SpanType, parse_span
+from lidarsim.span import DescendingPairType, SpanType, parse_pair, parse_span
 from lidarsim.storage import is_sha256, read_regular_bytes
 from lidarsim.trajectory import TrajectoryConfig
 
@@ -105,11 +114,13 @@ class BuildSettings:
         bound=limits.SIGMA_M,
         flag="--sigma",
     )
-    scans: int = setting(defaults.N_SCANS, "Number of scans", bound=limits.SCANS)
+    scans: int = setting(
+        defaults.N_SCANS, "Number of scans (with --descent-frames K: of descents, each K scans)", bound=limits.SCANS
+    )
     seed: int = setting(defaults.SEED, "Seed of every random stream of the build", bound=limits.SEED)
     altitude_m: float | tuple[float, float] | str = setting(
         defaults.ALTITUDE_M,
-        "Sensor altitude above the terrain, {unit}, in {bound}; LOW:HIGH draws it per scan (a descent: 250:1000).",
+        "Sensor altitude above the terrain, {unit}, in {bound}; LOW:HIGH draws it per scan (250:1000).",
         unit="metres",
         bound=limits.ALTITUDE_M,
         checked=False,  # one number or LOW:HIGH: lidarsim.trajectory checks it, with the range's own messages
@@ -210,6 +221,63 @@ class BuildSettings:
         "snr model: returns below this signal-to-noise ratio come back as no return (status weak)",
         bound=limits.SNR_MIN,
     )
+    descent_frames: int = setting(
+        defaults.DESCENT_FRAMES,
+        "Frames per descent: with K >= 2 the build flies descents instead of single scans, K frames each "
+        "from the first to the second of --descent-altitudes toward one target; --scans then counts descents, "
+        "the dataset holds scans x K frames (each a scan) and a shard whole descents (--shard-size rounded up "
+        "to a multiple of K); 0: single scans",
+        bound=limits.DESCENT_FRAMES,
+    )
+    descent_altitudes_m: tuple[float, float] | str = setting(
+        f"{defaults.DESCENT_ALTITUDE_START_M:g}:{defaults.DESCENT_ALTITUDE_END_M:g}",
+        "A descent's first and last frame altitudes above the target's terrain, {unit}, START:END with "
+        "START > END, each in {bound}; frame k of K flies at START + (END - START) k / (K - 1).",
+        unit="metres",
+        bound=limits.ALTITUDE_M,
+        checked=False,  # two numbers: lidarsim.descent checks them, with the descent's own messages
+        flag="--descent-altitudes",
+        metavar="START:END",
+        click_type=DescendingPairType(limits.ALTITUDE_M),
+    )
+    approach_deg: float = setting(
+        defaults.APPROACH_DEG,
+        "Angle from the vertical, {unit}, of a descent's straight approach path toward its target "
+        "(0: vertical); the boresight looks at the target, the direction the path comes from is drawn per descent.",
+        unit="degrees",
+        bound=limits.APPROACH_DEG,
+    )
+    nav_position_sigma_m: float = setting(
+        defaults.NAV_POSITION_SIGMA_M,
+        "A descent's navigation error: 1-sigma per map axis of its position bias, drawn once per descent",
+        unit="metres",
+        bound=limits.NAV_POSITION_M,
+        flag="--nav-position-sigma",
+    )
+    nav_position_walk_m: float = setting(
+        defaults.NAV_POSITION_WALK_M,
+        "A descent's navigation error: 1-sigma per map axis of the position increment added at each frame "
+        "after the first (a random walk)",
+        unit="metres",
+        bound=limits.NAV_POSITION_M,
+        flag="--nav-position-walk",
+    )
+    nav_attitude_sigma_deg: float = setting(
+        defaults.NAV_ATTITUDE_SIGMA_DEG,
+        "A descent's navigation error: 1-sigma per map axis of its attitude bias (a small rotation), drawn "
+        "once per descent",
+        unit="degrees",
+        bound=limits.NAV_ATTITUDE_DEG,
+        flag="--nav-attitude-sigma",
+    )
+    nav_attitude_walk_deg: float = setting(
+        defaults.NAV_ATTITUDE_WALK_DEG,
+        "A descent's navigation error: 1-sigma per map axis of the attitude increment at each frame after the "
+        "first (a random walk)",
+        unit="degrees",
+        bound=limits.NAV_ATTITUDE_DEG,
+        flag="--nav-attitude-walk",
+    )
 
     def __post_init__(self) -> None:
         check(self, LidarsimError)
@@ -223,6 +291,13 @@ class BuildSettings:
         altitude, altitude_max = parse_span("altitude_m", self.altitude_m)
         tilt, tilt_max = parse_span("tilt_deg", self.tilt_deg)
         jitter, jitter_max = parse_span("jitter_deg", self.jitter_deg)
+        descent = self._descent()
+        scans = int(self.scans) * (1 if descent is None else descent.frames)
+        if descent is not None and scans > limits.MAX_SCANS:
+            raise LidarsimError(
+                f"{self.scans} descents of {descent.frames} frames are {scans:,} scans, more than hd's maximum of "
+                f"{limits.MAX_SCANS:,}; ask for fewer --scans or --descent-frames"
+            )
         return BuildConfig(
             sigmas_m=tuple(float(s) for s in self.sigmas_m),
             seed=int(self.seed),
@@ -235,13 +310,14 @@ class BuildSettings:
                 damaged_elements=int(self.damaged_elements),
             ),
             trajectory=TrajectoryConfig(
-                n_scans=int(self.scans),
+                n_scans=scans,
                 altitude_m=altitude,
                 tilt_deg=tilt,
                 jitter_deg=jitter,
                 altitude_max_m=altitude_max,
                 tilt_max_deg=tilt_max,
                 jitter_max_deg=jitter_max,
+                descent=descent,
             ),
             dtm_path=self.dtm_path,
             dtm_scale=float(self.dtm_scale),
@@ -258,6 +334,38 @@ class BuildSettings:
             noise_model=NoiseModel(
                 kind=str(self.noise_model), snr_ref=float(self.snr_ref), snr_min=float(self.snr_min)
             ),
+        )
+
+    def _descent(self) -> DescentConfig | None:
+        """The descent of ``--descent-frames`` K >= 2 (None for 0: single scans, whose descent settings
+        must then be left at their defaults).
+
+        Raises:
+            LidarsimError: a descent setting without --descent-frames, K = 1, or bad altitudes.
+        """
+        start, end = parse_pair("--descent-altitudes", self.descent_altitudes_m)
+        nav = NavigationError(
+            position_sigma_m=float(self.nav_position_sigma_m),
+            position_walk_m=float(self.nav_position_walk_m),
+            attitude_sigma_deg=float(self.nav_attitude_sigma_deg),
+            attitude_walk_deg=float(self.nav_attitude_walk_deg),
+        )
+        if int(self.descent_frames) == 0:
+            given = (start, end, float(self.approach_deg))
+            if given != (defaults.DESCENT_ALTITUDE_START_M, defaults.DESCENT_ALTITUDE_END_M, defaults.APPROACH_DEG) or (
+                not nav.is_perfect
+            ):
+                raise LidarsimError(
+                    "--descent-altitudes, --approach-deg and the --nav-* errors describe descents: give "
+                    "--descent-frames K (K >= 2) with them"
+                )
+            return None
+        return DescentConfig(
+            frames=int(self.descent_frames),
+            altitude_start_m=start,
+            altitude_end_m=end,
+            approach_deg=float(self.approach_deg),
+            nav=nav,
         )
 
 

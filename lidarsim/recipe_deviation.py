@@ -75,12 +75,14 @@ class RecipeDeviation:
 
 
 def _value(config: BuildConfig, setting: str) -> int:
-    return int(config.trajectory.n_scans if setting == "scans" else config.shard_size)
+    """The recipe's value of a size setting as ``--scans`` counts it (a descent recipe: descents)."""
+    return int(config.trajectory.n_positions if setting == "scans" else config.shard_size)
 
 
 def _with(config: BuildConfig, setting: str, value: int) -> BuildConfig:
     if setting == "scans":
-        return dataclasses.replace(config, trajectory=dataclasses.replace(config.trajectory, n_scans=value))
+        scans = value * config.trajectory.frames
+        return dataclasses.replace(config, trajectory=dataclasses.replace(config.trajectory, n_scans=scans))
     return dataclasses.replace(config, shard_size=value)
 
 

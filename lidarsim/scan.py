@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
+from lidarsim.descent import frame_pose
 from lidarsim.footprint import FootprintConfig, pixel_ranges, spot_weights, subray_directions, subreturn_energy
 from lidarsim.noise import NoiseModel, noisy_points, points_at_ranges, scan_directions
 from lidarsim.sensor import SensorConfig, sensor_attitude
@@ -70,7 +71,8 @@ class ScanGeometry:
     """Pose of one scan.
 
     Attributes:
-        origin_map: (3,) map coordinates of the scan-frame origin (nadir x, y; reference height), metres.
+        origin_map: (3,) map coordinates of the scan-frame origin (nadir x, y, or a descent's target;
+            reference height), metres.
         sensor_position: (3,) sensor position in the scan frame, metres.
         attitude: (3, 3) rotation from the sensor frame to the scan frame.
     """
@@ -208,13 +210,23 @@ def scan_geometry(
     seed: int,
 ) -> ScanGeometry:
     """Pose of scan ``scan_index``: the sensor at its altitude (``TrajectoryConfig.scan_pose``) above
-    the mean terrain under its footprint, with its tilt and attitude jitter."""
+    the mean terrain under its footprint, with its tilt and attitude jitter.
+
+    In a descent build ``nadir_xy`` is the descent's target and the scan is frame ``scan_index mod
+    K`` of descent ``scan_index // K`` (``lidarsim.descent.frame_pose``): the scan frame's origin is
+    the target on the mean terrain height within ``footprint_half_width_m`` of it, the same for
+    every frame of the descent."""
     x, y = float(nadir_xy[0]), float(nadir_xy[1])
     z_ref = scene.mean_height(x, y, footprint_half_width_m)
     altitude_m, tilt_deg, jitter_deg = trajectory.scan_pose(seed, scan_index)
     jitter = (0.0, 0.0, 0.0)
     if jitter_deg > 0.0:
         jitter = tuple(np.radians(jitter_deg) * stream(seed, Purpose.ATTITUDE_JITTER, scan_index).standard_normal(3))
+    descent = trajectory.descent
+    if descent is not None:
+        descent_index, frame = divmod(scan_index, descent.frames)
+        position, attitude = frame_pose(descent, frame, descent.azimuth_deg(seed, descent_index), jitter)
+        return ScanGeometry(origin_map=np.array([x, y, z_ref]), sensor_position=position, attitude=attitude)
     return ScanGeometry(
         origin_map=np.array([x, y, z_ref]),
         sensor_position=np.array([0.0, 0.0, altitude_m]),

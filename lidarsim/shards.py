@@ -52,10 +52,12 @@ __all__ = [
     "MANIFEST_NAME",
     "MANIFEST_SCHEMA",
     "MANIFEST_SCHEMA_VERSION",
+    "MANIFEST_SCHEMA_VERSION_DESCENT",
     "MANIFEST_SCHEMA_VERSION_DEVIATION",
     "SCAN_SCHEMA",
     "SCAN_SCHEMA_VERSION",
     "SCAN_SCHEMA_VERSION_PLAIN",
+    "SCAN_SCHEMA_VERSION_REALISM",
     "SPLIT_NAMES",
     "TRUTH_DTM_SHA256_ATTR",
     "DamagedFileError",
@@ -68,6 +70,7 @@ __all__ = [
     "check_schema",
     "commit_file",
     "compression_kwargs",
+    "iter_descents",
     "iter_scans",
     "open_scan_shard",
     "partial_path",
@@ -86,8 +89,13 @@ SCAN_SCHEMA = "hd.lidar-scans"
 # 1.2: the sensor-realism attributes (footprint_*, noise_model, noise_*, the trajectory's range ends)
 # and status code 4 (weak). Only shards that use them are 1.2: the paper's sensor still writes 1.1
 # files, byte for byte as before (scan_schema_version).
-SCAN_SCHEMA_VERSION = "1.2"
+# 1.3: descents: the datasets descent_index, frame_index, target_map, nav_sensor_position and
+# nav_sensor_attitude and the descent_* and nav_* attributes; only a descent build's shards are 1.3.
+SCAN_SCHEMA_VERSION = "1.3"
+SCAN_SCHEMA_VERSION_REALISM = "1.2"
 SCAN_SCHEMA_VERSION_PLAIN = "1.1"
+# The file attribute whose presence makes a shard a descent's (version 1.3).
+DESCENT_ATTR = "descent_frames"
 # File attributes whose presence makes a shard version 1.2.
 REALISM_ATTR_PREFIXES: tuple[str, ...] = (
     "footprint_",
@@ -102,6 +110,8 @@ MANIFEST_SCHEMA = "hd.dataset-manifest"
 MANIFEST_SCHEMA_VERSION = "1.0"
 # The manifest of a recipe built at another size: 1.0 plus its ``recipe_deviation`` record.
 MANIFEST_SCHEMA_VERSION_DEVIATION = "1.1"
+# The manifest of a descent build: ``n_descents`` and ``descent_frames`` (and 1.1's record, if any).
+MANIFEST_SCHEMA_VERSION_DESCENT = "1.2"
 MANIFEST_NAME = "manifest.json"
 # Settings of a build in progress; present only until its manifest is written.
 BUILD_STATE_NAME = ".hd-build.json"
@@ -116,10 +126,13 @@ ShardFormatError = FormatError
 
 
 def scan_schema_version(attrs: dict[str, Any]) -> str:
-    """The schema version of a scan shard with these file attributes: 1.2 when it records any of
-    the sensor-realism settings, else 1.1 (the bytes every earlier hd wrote for the same settings)."""
+    """The schema version of a scan shard with these file attributes: 1.3 for a descent's, 1.2 when
+    it records any of the sensor-realism settings, else 1.1 (the bytes every earlier hd wrote for
+    the same settings)."""
+    if DESCENT_ATTR in attrs:
+        return SCAN_SCHEMA_VERSION
     realistic = any(key.startswith(REALISM_ATTR_PREFIXES) for key in attrs)
-    return SCAN_SCHEMA_VERSION if realistic else SCAN_SCHEMA_VERSION_PLAIN
+    return SCAN_SCHEMA_VERSION_REALISM if realistic else SCAN_SCHEMA_VERSION_PLAIN
 
 
 def _attr_value(value: Any) -> Any:
@@ -200,6 +213,9 @@ class ScanShardWriter:
         self._d["status"].attrs["codes"] = STATUS_CODES if realistic else STATUS_CODES_PLAIN
         if self.attrs.get("noise_model") == "snr":
             self._d["noise_scale"] = f.create_dataset("noise_scale", (n, r, c), np.float32, chunks=(1, r, c), **kw)
+        if DESCENT_ATTR in self.attrs:
+            for name, (dtype, tail) in DESCENT_DATASETS.items():
+                self._d[name] = f.create_dataset(name, (n, *tail), dtype, **whole(n, *tail))
         return self
 
     def write_scan(
@@ -215,9 +231,20 @@ class ScanShardWriter:
         status: np.ndarray,
         valid: np.ndarray,
         noise_scale: np.ndarray | None = None,
+        descent: DescentFrame | None = None,
     ) -> None:
-        """Write scan ``k`` (0-based within the shard); ``noise_scale`` only to a shard of the snr noise model."""
+        """Write scan ``k`` (0-based within the shard); ``noise_scale`` only to a shard of the snr noise
+        model, ``descent`` (the frame's place in its descent and its navigation estimate) only to a
+        descent's shard, and to every scan of it."""
         d = self._d
+        if "descent_index" in d:
+            if descent is None:
+                raise ValueError("a descent's shard needs each frame's descent record")
+            d["descent_index"][k] = descent.descent_index
+            d["frame_index"][k] = descent.frame_index
+            d["target_map"][k] = descent.target_map
+            d["nav_sensor_position"][k] = descent.nav_sensor_position
+            d["nav_sensor_attitude"][k] = descent.nav_sensor_attitude
         d["scan_index"][k] = scan_index
         d["split"][k] = split
         d["origin_map"][k] = origin_map
@@ -267,6 +294,37 @@ class Scan:
     status: np.ndarray
     valid: np.ndarray
     noise_scale: np.ndarray | None = None  # (rows, cols) factor on each sigma (1.2, snr noise model only)
+    descent: DescentFrame | None = None  # 1.3, a descent build's frames only: the descent and navigation estimate
+
+
+@dataclass(frozen=True)
+class DescentFrame:
+    """A frame's place in its descent and the navigation system's estimate of its pose (schema 1.3).
+
+    Attributes:
+        descent_index: the descent the frame belongs to (0-based, global).
+        frame_index: 0 .. K - 1 within its descent (0 the highest).
+        target_map: float64 (3,) the descent's target in map coordinates: x, y and the terrain's mean
+            height around it (the height the frames' altitudes are measured from), metres.
+        nav_sensor_position: float64 (3,) estimated sensor position in the frame's scan frame, metres.
+        nav_sensor_attitude: float64 (3, 3) estimated rotation from the sensor frame to the scan frame.
+    """
+
+    descent_index: int
+    frame_index: int
+    target_map: np.ndarray
+    nav_sensor_position: np.ndarray
+    nav_sensor_attitude: np.ndarray
+
+
+# The datasets of a descent's shard (1.3): dtype and shape after the scan axis.
+DESCENT_DATASETS: dict[str, tuple[type, tuple[int, ...]]] = {
+    "descent_index": (np.int64, ()),
+    "frame_index": (np.int64, ()),
+    "target_map": (np.float64, (3,)),
+    "nav_sensor_position": (np.float64, (3,)),
+    "nav_sensor_attitude": (np.float64, (3, 3)),
+}
 
 
 # Every array of a scan shard by its axes: named axes must agree across the arrays (docs/shard-format.md).
@@ -283,6 +341,10 @@ SCAN_ARRAYS: dict[str, tuple[int | str, ...]] = {
 }
 # Optional arrays: present only in the shards whose settings make them (1.2: the snr noise model).
 OPTIONAL_SCAN_ARRAYS: dict[str, tuple[int | str, ...]] = {"noise_scale": ("scan", "row", "col")}
+# The arrays of a descent's shard (1.3): all of them, or none.
+DESCENT_SCAN_ARRAYS: dict[str, tuple[int | str, ...]] = {
+    name: ("scan", *tail) for name, (_, tail) in DESCENT_DATASETS.items()
+}
 
 
 def check_arrays(f: CheckedH5File, layout: dict[str, tuple[int | str, ...]], what: str) -> dict[str, int]:
@@ -341,6 +403,9 @@ class ScanShardReader:
             self.attrs: dict[str, Any] = {k: _py(v) for k, v in attrs.items()}
             self.sigmas_m: tuple[float, ...] = tuple(float(s) for s in np.atleast_1d(attrs["sigmas_m"]))
             optional = {k: v for k, v in OPTIONAL_SCAN_ARRAYS.items() if k in self._f}
+            self.is_descent = any(name in self._f for name in DESCENT_SCAN_ARRAYS)
+            if self.is_descent:  # a descent's shard holds all its arrays: a missing one is named
+                optional |= DESCENT_SCAN_ARRAYS
             dims = check_arrays(self._f, SCAN_ARRAYS | optional, self.what)
             if dims["sigma"] != len(self.sigmas_m):
                 raise DamagedFileError(
@@ -378,6 +443,17 @@ class ScanShardReader:
             status=f["status"][k],
             valid=f["valid"][k].astype(bool),
             noise_scale=f["noise_scale"][k] if "noise_scale" in f else None,
+            descent=self._descent_frame(k) if self.is_descent else None,
+        )
+
+    def _descent_frame(self, k: int) -> DescentFrame:
+        f = self._f
+        return DescentFrame(
+            descent_index=int(f["descent_index"][k]),
+            frame_index=int(f["frame_index"][k]),
+            target_map=f["target_map"][k],
+            nav_sensor_position=f["nav_sensor_position"][k],
+            nav_sensor_attitude=f["nav_sensor_attitude"][k],
         )
 
     def __iter__(self) -> Iterator[Scan]:
@@ -455,6 +531,14 @@ def validate_manifest(data: Any, where: str) -> dict[str, Any]:
     held = sum(int(e["n_scans"]) for e in shards)
     if held != n_scans:
         raise FormatError(f"{where}: lists {n_scans} scans but its shards hold {held}")
+    if "n_descents" in data or "descent_frames" in data:
+        n_descents = require(data, "n_descents", int, where)
+        frames = require(data, "descent_frames", int, where)
+        if not 2 <= frames <= limits.MAX_DESCENT_FRAMES or n_descents * frames != n_scans:
+            raise FormatError(
+                f"{where}: {n_descents} descents of {frames} frames are not its {n_scans} scans "
+                f"(frames per descent: 2 to {limits.MAX_DESCENT_FRAMES})"
+            )
     splits = data.get("splits")
     if splits is not None and shards and all("split_counts" in e for e in shards):
         summed = {k: sum(int(e["split_counts"][k]) for e in shards) for k in SPLIT_NAMES}
@@ -482,6 +566,8 @@ def _build_progress(directory: Path) -> str:
     try:
         config = read_json(directory / BUILD_STATE_NAME)["config"]
         n_scans, size = int(config["trajectory"]["n_scans"]), int(config["shard_size"])
+        frames = int((config["trajectory"].get("descent") or {}).get("frames", 1))
+        size = -(-size // frames) * frames  # a descent build's shards hold whole descents
         total = -(-n_scans // size)
     except Exception:  # noqa: BLE001 - the state file is only informative here
         return ""
@@ -543,6 +629,45 @@ def iter_scans(directory: str | os.PathLike, split: str | None = None) -> Iterat
             for scan in reader:
                 if split is None or scan.split == split:
                     yield scan
+
+
+def iter_descents(directory: str | os.PathLike, split: str | None = None) -> Iterator[list[Scan]]:
+    """Iterate lazily over the descents of a descent build (optionally one split), in order: each a
+    list of its K frames, frame 0 (the highest) first. A descent never straddles two shards, and all
+    its frames share a split.
+
+    Raises:
+        ShardFormatError: not a descent build (its manifest records no ``descent_frames``), or a shard
+            whose frames are not whole descents in order.
+    """
+    manifest = read_manifest(directory)
+    frames = manifest.get("descent_frames")
+    if not isinstance(frames, int):
+        raise FormatError(f"{directory}: not a descent build (its manifest records no descent_frames)")
+    for entry in manifest["shards"]:
+        with open_scan_shard(directory, entry) as reader:
+            if not reader.is_descent or len(reader) % frames:
+                raise DamagedFileError(f"{reader.what}: does not hold whole descents of {frames} frames")
+            for first in range(0, len(reader), frames):
+                descent = [reader[first + k] for k in range(frames)]
+                if not _one_descent(descent):
+                    raise DamagedFileError(
+                        f"{reader.what}: scans {first} to {first + frames - 1} are not one descent's frames in order"
+                    )
+                if split is None or descent[0].split == split:
+                    yield descent
+
+
+def _one_descent(scans: list[Scan]) -> bool:
+    """True when ``scans`` are frames 0, 1, ... of one descent, all in one split."""
+    index = None
+    for k, scan in enumerate(scans):
+        if scan.descent is None or scan.descent.frame_index != k or scan.split != scans[0].split:
+            return False
+        index = scan.descent.descent_index if index is None else index
+        if scan.descent.descent_index != index:
+            return False
+    return True
 
 
 def verify_dataset(directory: str | os.PathLike, known_schemas: dict[str, str] | None = None) -> list[str]:

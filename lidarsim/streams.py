@@ -1,4 +1,4 @@
-"""Seeded random streams: one independent generator per (master seed, scan, purpose).
+"""Seeded random streams: one independent generator per (master seed, purpose, keys: a scan, a descent...).
 
 Every random draw of a build comes from ``stream(seed, purpose, *keys)``, so the output is the
 same whatever the number of workers, the shard size or the order in which shards run.
@@ -22,6 +22,9 @@ class Purpose(IntEnum):
     SPLIT = 6  # keys: none
     TRAINING_DRAW = 7  # keys: epoch, scan index (hdnet: the noise level and D4 draw of a training sample)
     SCAN_POSE = 8  # keys: scan index (altitude, tilt and jitter level drawn from their ranges)
+    NAV_BIAS = 9  # keys: descent index (the navigation error's bias: position, then attitude)
+    NAV_WALK = 10  # keys: descent index, frame index >= 1 (the random walk's increment at that frame)
+    DESCENT_AZIMUTH = 11  # keys: descent index (the direction the approach comes from)
 
 
 def stream(seed: int, purpose: Purpose, *keys: int) -> np.random.Generator:
