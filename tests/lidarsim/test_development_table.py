@@ -12,6 +12,7 @@ REPO = Path(__file__).resolve().parents[2]
 TOPICS = {
     "the noise model",
     "the sensor",
+    "a descent",
     "the terrain",
     "the gridding",
     "the label rule",

@@ -13,8 +13,8 @@ What is read from the docs:
   sentence speaks of one), and every "shard's attribute `NAME`".
 
 A name with ``*`` (``dtm_*``) stands for at least one attribute with that prefix. Names marked as
-optional in the docs (1.2 sensor realism, the terrain truth) are looked for in builds made with
-those settings too.
+optional in the docs (1.2 sensor realism, 1.3 descents, the terrain truth) are looked for in builds
+made with those settings too.
 """
 
 from __future__ import annotations
@@ -127,21 +127,23 @@ def _held(path: Path) -> set[str]:
 @pytest.fixture(scope="module")
 def shards(tmp_path_factory) -> dict[str, set[str]]:
     """The names held by the first scan and label shards of fresh tiny builds: the default sensor and
-    labels, a realistic sensor (shard schema 1.2), and a labelling of the terrain truth."""
+    labels, a realistic sensor (shard schema 1.2), a descent (1.3), and a labelling of the terrain truth."""
     root = tmp_path_factory.mktemp("names")
     runner = CliRunner()
     small = ["--scans", "3", "--shard-size", "3", "--resolution", "32", "--workers", "1"]
     realistic = ["--footprint-samples", "2", "--noise-model", "snr", "--altitude", "400:600", "--tilt", "0:1"]
+    descent = ["--descent-frames", "3", "--descent-altitudes", "600:400", "--nav-position-sigma", "1"]
     for args in (
         ["build-dataset", "--out", str(root / "plain"), *small],
         ["label", str(root / "plain"), "--workers", "1"],
         ["label", str(root / "plain"), "--workers", "1", "--truth", "terrain"],
         ["build-dataset", "--out", str(root / "realistic"), *small, *realistic, "--jitter", "0:0.01"],
+        ["build-dataset", "--out", str(root / "descent"), *small[2:], "--scans", "1", *descent],
     ):
         result = runner.invoke(main, args)
         assert result.exit_code == 0, result.output
     held: dict[str, set[str]] = {"scan": set(), "label": set()}
-    for data in (root / "plain", root / "realistic"):
+    for data in (root / "plain", root / "realistic", root / "descent"):
         manifest = read_manifest(data)
         held["scan"] |= _held(data / manifest["shards"][0]["path"])
         for lab in manifest["labelings"]:
