@@ -183,6 +183,8 @@ class BuildConfig:
         if self.noise_model.is_default:
             del d["noise_model"]
         d["trajectory"] = {k: v for k, v in d["trajectory"].items() if v is not None}
+        if self.trajectory.descent is not None:  # the descent's altitudes and approach replace these
+            del d["trajectory"]["altitude_m"], d["trajectory"]["tilt_deg"]
         return d
 
     @property

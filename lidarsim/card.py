@@ -144,10 +144,11 @@ def render_card(directory: str | os.PathLike, recipe: Recipe, machine: str = "")
     if (recipe.path.parent / SOURCE_FILE).is_file():
         licence = f"see `{SOURCE_FILE}` beside this card (where the DTM comes from, its credit and licence)"
     trajectory = cfg["trajectory"]
-    altitude = f"{trajectory['altitude_m']} m altitude"
-    if trajectory.get("altitude_max_m") is not None:
-        altitude = f"{trajectory['altitude_m']:g} to {trajectory['altitude_max_m']:g} m altitude drawn per scan"
     descent = trajectory.get("descent")
+    if not descent:
+        altitude = f"{trajectory['altitude_m']} m altitude"
+    if not descent and trajectory.get("altitude_max_m") is not None:
+        altitude = f"{trajectory['altitude_m']:g} to {trajectory['altitude_max_m']:g} m altitude drawn per scan"
     if descent:
         altitude = (
             f"{m.get('n_descents')} descents of {descent['frames']} frames from {descent['altitude_start_m']:g} "
@@ -171,7 +172,7 @@ def render_card(directory: str | os.PathLike, recipe: Recipe, machine: str = "")
             "with clean "
             f"points and noisy points at σ = {', '.join(f'{s:g}' for s in m['sigmas_m'])} m, split "
             f"{m['splits']['train']}/{m['splits']['val']}/{m['splits']['test']} (train/val/test, seeded blocks of "
-            "consecutive scans)."
+            f"consecutive {'descents' if descent else 'scans'})."
         ),
         *_sensor_realism(cfg),
         "",

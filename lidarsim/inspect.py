@@ -61,7 +61,7 @@ def describe_dataset(directory: str | os.PathLike) -> str:
             with open_scan_shard(directory, shards[0]) as reader:
                 a = reader.attrs
                 pose = (
-                    "a descent's (below)"
+                    "altitude and tilt: the descents' (below)"
                     if "descent_frames" in a
                     else f"altitude {_span(a, 'trajectory_altitude')}, tilt {_span(a, 'trajectory_tilt')}"
                 )

@@ -415,6 +415,8 @@ def test_the_paper_build_records_nothing_of_descents():
     plain = BuildSettings().to_config()
     assert plain.fingerprint() == BuildConfig().fingerprint()
     assert plain.trajectory.descent is None and "descent" not in plain.to_dict()["trajectory"]
+    described = BuildSettings(scans=2, descent_frames=3).to_config().to_dict()["trajectory"]
+    assert "altitude_m" not in described and "tilt_deg" not in described and described["descent"]["frames"] == 3
     attrs = plain.trajectory.to_attrs()
     assert "trajectory_altitude_m" in attrs and not any(k.startswith(("descent", "nav_")) for k in attrs)
     assert scan_schema_version(attrs) == "1.1" and plain.scans_per_shard == plain.shard_size
