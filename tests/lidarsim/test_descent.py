@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -20,6 +21,8 @@ from scipy.spatial.transform import Rotation
 from test_build import REPO, rough_dtm
 
 from cli import main
+from hdlabels.labeling import label_dataset
+from hdlabels.store import DemSpec
 from lidarsim.build import BuildConfig, assign_splits, build_dataset, scan_splits
 from lidarsim.descent import DescentConfig, frame_pose
 from lidarsim.errors import LidarsimError
@@ -28,7 +31,16 @@ from lidarsim.navigation import NavigationError, descent_nav_errors, estimated_m
 from lidarsim.recipe import BuildSettings, load_recipe
 from lidarsim.recipe_deviation import deviate
 from lidarsim.sensor import NADIR_ATTITUDE, SensorConfig, rotation_x, rotation_y, rotation_z
-from lidarsim.shards import iter_descents, iter_scans, read_manifest, scan_schema_version, verify_dataset
+from lidarsim.shards import (
+    DamagedFileError,
+    ScanShardReader,
+    ShardFormatError,
+    iter_descents,
+    iter_scans,
+    read_manifest,
+    scan_schema_version,
+    verify_dataset,
+)
 from lidarsim.trajectory import TrajectoryConfig
 
 SENSOR = SensorConfig(rows=32, cols=32)
@@ -269,6 +281,31 @@ def test_a_descent_build_stores_whole_descents_in_schema_1_3(built):
     assert [s.descent.frame_index for s in descents[2] if s.descent is not None] == [0, 1, 2]
     # a reader of a single-frame build sees no descent
     assert all(s.descent is None for s in iter_scans(REPO / "tests" / "data" / "golden"))
+
+
+def test_a_shard_missing_one_descent_array_or_a_dataset_of_single_scans_is_refused(built, tmp_path):
+    manifest = read_manifest(built)
+    copy = tmp_path / "damaged.h5"
+    shutil.copy(built / manifest["shards"][1]["path"], copy)
+    with h5py.File(copy, "r+") as f:
+        del f["nav_sensor_attitude"]
+    with pytest.raises(DamagedFileError, match="nav_sensor_attitude"):
+        ScanShardReader(copy)
+    with pytest.raises(ShardFormatError, match="not a descent build"):
+        next(iter_descents(REPO / "tests" / "data" / "golden"))
+
+
+def test_each_frame_of_a_descent_is_labelled_on_a_dem_centred_on_the_target(built, tmp_path):
+    data = tmp_path / "labelled"
+    shutil.copytree(built, data)
+    label_dataset(data, dem=DemSpec(rows=40, cols=40, spacing_m=1.0), workers=1)
+    lab = read_manifest(data)["labelings"][0]
+    with h5py.File(data / lab["shards"][0]["path"]) as f:
+        dem = f["dem_clean"][:]
+    # the frames look at the target, the DEM's centre: frame 0 (200 m, 42 m across) fills the 40 m DEM
+    # nearly, frame 2 (100 m) covers its centre; both see the centre cells
+    assert dem.shape == (6, 40, 40) and np.isfinite(dem[:, 18:22, 18:22]).all()
+    assert np.isfinite(dem[0]).mean() > np.isfinite(dem[2]).mean() > 0.2
 
 
 def test_hd_inspect_names_the_descents_and_the_navigation_error(built):
