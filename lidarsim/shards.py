@@ -213,9 +213,12 @@ class ScanShardWriter:
         self._d["status"].attrs["codes"] = STATUS_CODES if realistic else STATUS_CODES_PLAIN
         if self.attrs.get("noise_model") == "snr":
             self._d["noise_scale"] = f.create_dataset("noise_scale", (n, r, c), np.float32, chunks=(1, r, c), **kw)
+        # a descent's arrays are gathered here and written whole by commit(): one write each, not one per scan
+        self._descent: dict[str, np.ndarray] = {}
         if DESCENT_ATTR in self.attrs:
             for name, (dtype, tail) in DESCENT_DATASETS.items():
                 self._d[name] = f.create_dataset(name, (n, *tail), dtype, **whole(n, *tail))
+                self._descent[name] = np.zeros((n, *tail), dtype=dtype)
         return self
 
     def write_scan(
@@ -237,14 +240,11 @@ class ScanShardWriter:
         model, ``descent`` (the frame's place in its descent and its navigation estimate) only to a
         descent's shard, and to every scan of it."""
         d = self._d
-        if "descent_index" in d:
+        if self._descent:
             if descent is None:
                 raise ValueError("a descent's shard needs each frame's descent record")
-            d["descent_index"][k] = descent.descent_index
-            d["frame_index"][k] = descent.frame_index
-            d["target_map"][k] = descent.target_map
-            d["nav_sensor_position"][k] = descent.nav_sensor_position
-            d["nav_sensor_attitude"][k] = descent.nav_sensor_attitude
+            for name in DESCENT_DATASETS:
+                self._descent[name][k] = getattr(descent, name)
         d["scan_index"][k] = scan_index
         d["split"][k] = split
         d["origin_map"][k] = origin_map
@@ -265,6 +265,8 @@ class ScanShardWriter:
         Raises:
             StorageError: the disk is full or not writable (nothing is left at the temporary name).
         """
+        for name, values in self._descent.items():
+            self._d[name][...] = values
         return self._image.commit()
 
     def __exit__(
