@@ -18,6 +18,7 @@ TOPICS = {
     "the label rule",
     "the baseline",
     "the landing outcome",
+    "descent mosaics",
     "the network",
     "a training profile",
     "a threshold rule",
