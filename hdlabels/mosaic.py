@@ -39,6 +39,7 @@ from hdlabels.errors import HdLabelsError
 from hdlabels.grid import cell_centres, grid_points
 from hdlabels.store import DemSpec
 from hdlabels.truth import mesh_heights
+from lidarsim.shards import Scan
 from lidarsim.terrain import DTM
 
 Poses = Literal["true", "nav", "registered"]
@@ -341,3 +342,37 @@ def terrain_residual(
     placed = np.stack([xx, yy, np.asarray(heights, dtype=np.float64)], axis=-1) + np.asarray(target_map, float)
     true = apply(to_true, placed)
     return true[..., 2] - mesh_heights(dtm, true[..., 0], true[..., 1])
+
+
+def descent_frames(scans: Sequence[Scan], sigma_index: int | None) -> tuple[list[MosaicFrame], np.ndarray]:
+    """The frames of one descent as read from its shard (``lidarsim.shards.iter_descents``), and its target.
+
+    Args:
+        scans: the descent's K frames, frame 0 first (each with its ``descent`` record, schema 1.3).
+        sigma_index: which stored noise level's points (``points_noisy[sigma_index]``); None: the clean points.
+
+    Returns:
+        ``(frames, target_map)``: the frames with both poses, and the descent's target (3,), map metres.
+
+    Raises:
+        HdLabelsError: a scan without its descent record (not a descent build's).
+    """
+    frames = []
+    for scan in scans:
+        record = scan.descent
+        if record is None:
+            raise HdLabelsError(f"scan {scan.scan_index} is not a descent's frame (its shard has no descent record)")
+        points = scan.points_clean if sigma_index is None else scan.points_noisy[sigma_index]
+        frames.append(
+            MosaicFrame(
+                points=points,
+                origin_map=np.asarray(scan.origin_map, dtype=np.float64),
+                sensor_position=np.asarray(scan.sensor_position, dtype=np.float64),
+                attitude=np.asarray(scan.sensor_attitude, dtype=np.float64),
+                nav_sensor_position=np.asarray(record.nav_sensor_position, dtype=np.float64),
+                nav_attitude=np.asarray(record.nav_sensor_attitude, dtype=np.float64),
+            )
+        )
+    if not frames:
+        raise HdLabelsError("a descent without frames")
+    return frames, np.asarray(scans[0].descent.target_map, dtype=np.float64)  # type: ignore[union-attr]  # checked above
