@@ -52,11 +52,17 @@ POSES: tuple[Poses, ...] = ("true", "nav", "registered")
 ICP_VOXELS_M: tuple[float, ...] = (2.0, 1.0, 0.5, 0.25)
 ICP_MAX_DISTANCE_VOXELS = 3.0
 ICP_ITERATIONS = 30
+# hd choice: ICP stops at a scale when fitness and RMS change by less than this fraction.
+ICP_RELATIVE_CHANGE = 1e-6
+# hd choice: the source frames are downsampled to at least this voxel (metres), also at the finest
+# scale: their points only need the anchor's fine surface (and its normals) to slide onto.
+SOURCE_MIN_VOXEL_M = 0.5
 # hd choice: neighbours (at most) and radius (voxels) for the anchor's normals at each scale.
 NORMAL_MAX_NN = 30
 NORMAL_RADIUS_VOXELS = 3.0
-# hd choice: the area (half-width, metres, beyond the DEM's half-width) registered: points farther
-# from the target take no part in the ICP.
+# hd choice: the area registered: the anchor's returns within the DEM's half-width plus this margin
+# (metres) of the target, and the other frames' returns within the box those span, widened by the
+# coarsest correspondence distance (points farther out cannot have a correspondence).
 REGISTRATION_MARGIN_M = 10.0
 
 
@@ -235,9 +241,12 @@ def register_frames(clouds: Sequence[np.ndarray], half_width_m: float, anchor: i
     Returns:
         The corrections (the anchor's is the identity) and each frame's fit at the finest scale.
 
-    At each voxel size of ``ICP_VOXELS_M`` both clouds are voxel-downsampled, the anchor's normals
-    estimated (``NORMAL_RADIUS_VOXELS``, ``NORMAL_MAX_NN``), and ICP runs from the previous scale's
-    transform with correspondences up to ``ICP_MAX_DISTANCE_VOXELS`` voxels.
+    At each voxel size of ``ICP_VOXELS_M`` both clouds are voxel-downsampled (the source to at least
+    ``SOURCE_MIN_VOXEL_M``), the anchor's normals estimated (``NORMAL_RADIUS_VOXELS``,
+    ``NORMAL_MAX_NN``), and ICP runs from the previous scale's transform with correspondences up to
+    ``ICP_MAX_DISTANCE_VOXELS`` voxels, until fitness and RMS change by less than
+    ``ICP_RELATIVE_CHANGE`` (at most ``ICP_ITERATIONS`` iterations). Only returns where the anchor
+    has some take part (``REGISTRATION_MARGIN_M``).
     """
     import open3d as o3d  # Open3D loads in ~0.5 s: only registration needs it
 
@@ -253,6 +262,8 @@ def register_frames(clouds: Sequence[np.ndarray], half_width_m: float, anchor: i
     rmse = np.zeros(k_frames)
     if target_points.shape[0] < 3:
         raise HdLabelsError("the anchor frame has fewer than 3 returns near the target: nothing to register to")
+    widen = ICP_MAX_DISTANCE_VOXELS * max(ICP_VOXELS_M)
+    box_lo, box_hi = target_points[:, :2].min(axis=0) - widen, target_points[:, :2].max(axis=0) + widen
     target_full = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(target_points))
     targets = []
     for voxel in ICP_VOXELS_M:
@@ -261,12 +272,15 @@ def register_frames(clouds: Sequence[np.ndarray], half_width_m: float, anchor: i
             o3d.geometry.KDTreeSearchParamHybrid(radius=NORMAL_RADIUS_VOXELS * voxel, max_nn=NORMAL_MAX_NN)
         )
         targets.append(target)
-    criteria = reg.ICPConvergenceCriteria(relative_fitness=1e-7, relative_rmse=1e-7, max_iteration=ICP_ITERATIONS)
+    criteria = reg.ICPConvergenceCriteria(
+        relative_fitness=ICP_RELATIVE_CHANGE, relative_rmse=ICP_RELATIVE_CHANGE, max_iteration=ICP_ITERATIONS
+    )
     estimation = reg.TransformationEstimationPointToPlane()
     for k in range(k_frames):
         if k == anchor:
             continue
         source_points = _cloud(clouds[k], reach)
+        source_points = source_points[((source_points[:, :2] >= box_lo) & (source_points[:, :2] <= box_hi)).all(axis=1)]
         if source_points.shape[0] < 3:
             fitness[k], rmse[k] = 0.0, math.nan
             continue
@@ -274,7 +288,7 @@ def register_frames(clouds: Sequence[np.ndarray], half_width_m: float, anchor: i
         current = np.eye(4)
         result = None
         for voxel, target in zip(ICP_VOXELS_M, targets, strict=True):
-            source = source_full.voxel_down_sample(voxel)
+            source = source_full.voxel_down_sample(max(voxel, SOURCE_MIN_VOXEL_M))
             result = reg.registration_icp(
                 source, target, ICP_MAX_DISTANCE_VOXELS * voxel, current, estimation, criteria
             )

@@ -24,7 +24,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from hdlabels.mosaic import POSES, descent_frames, mosaic_frames, navigation_error, terrain_residual
+from hdlabels.mosaic import POSES, Poses, descent_frames, mosaic_frames, navigation_error, terrain_residual
 from hdlabels.store import DemSpec
 from hdlabels.truth import check_build_terrain
 from lidarsim.build import build_dataset
@@ -53,7 +53,7 @@ def build(out: Path, args: argparse.Namespace, position_m: float, attitude_deg: 
     return out
 
 
-def measure(dataset: Path, dem: DemSpec, poses: tuple[str, ...]) -> dict[tuple[str, str], dict[str, float]]:
+def measure(dataset: Path, dem: DemSpec, poses: tuple[Poses, ...]) -> dict[tuple[str, str], dict[str, float]]:
     """Per (sigma label, poses): RMS and p99 of |height error| (metres), mean frame residual and time per mosaic."""
     manifest = read_manifest(dataset)
     path, _, scale = check_build_terrain(dataset, manifest)
@@ -69,7 +69,7 @@ def measure(dataset: Path, dem: DemSpec, poses: tuple[str, ...]) -> dict[tuple[s
                 to_true = np.linalg.inv(navigation_error(frames[-1]))
                 for p in poses:
                     t0 = time.perf_counter()
-                    mosaic = mosaic_frames(frames, target, dem, p)  # type: ignore[arg-type]  # one of POSES
+                    mosaic = mosaic_frames(frames, target, dem, p)
                     seconds.setdefault((label, p), []).append(time.perf_counter() - t0)
                     r = terrain_residual(mosaic.heights, dem, target, np.eye(4) if p == "true" else to_true, dtm)
                     errors.setdefault((label, p), []).append(r[np.isfinite(r)])
@@ -99,16 +99,23 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2)
     args = parser.parse_args()
     dem = DemSpec(gridding="linear")
-    print(f"{args.descents} descents of {args.frames} frames, {args.altitudes} m; DEM {dem.rows}x{dem.cols} at {dem.spacing_m:g} m, {dem.gridding} gridding")
-    print("| nav error (bias; walk = bias/3 per frame) | sigma | poses | RMS (cm) | p99 (cm) | RMS / true | frames vs anchor (cm) | s per mosaic |")
+    print(
+        f"{args.descents} descents of {args.frames} frames, {args.altitudes} m; "
+        f"DEM {dem.rows}x{dem.cols} at {dem.spacing_m:g} m, {dem.gridding} gridding"
+    )
+    print(
+        "| nav error (bias; walk = bias/3 per frame) | sigma | poses | RMS (cm) | p99 (cm) | RMS / true "
+        "| frames vs anchor (cm) | s per mosaic |"
+    )
     print("|---|---|---|---:|---:|---:|---:|---:|")
     true_rms: dict[str, float] = {}
     for k, level in enumerate(args.levels):
         position_m, attitude_deg = (float(v) for v in level.split(":"))
         dataset = build(args.out / f"nav-{position_m:g}m-{attitude_deg:g}deg", args, position_m, attitude_deg)
-        poses = POSES if k == 0 else ("nav", "registered")  # the true poses do not depend on the error
+        # the true poses do not depend on the navigation error: measured once
+        poses: tuple[Poses, ...] = POSES if k == 0 else ("nav", "registered")
         rows = measure(dataset, dem, poses)
-        for (label, p), row in sorted(rows.items(), key=lambda kv: (kv[0][0], POSES.index(kv[0][1]))):  # type: ignore[arg-type]  # one of POSES
+        for (label, p), row in sorted(rows.items(), key=lambda kv: (kv[0][0], POSES.index(kv[0][1]))):
             if p == "true":
                 true_rms[label] = row["rms"]
             ratio = row["rms"] / true_rms[label]
