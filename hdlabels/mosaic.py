@@ -276,16 +276,17 @@ def register_frames(clouds: Sequence[np.ndarray], half_width_m: float, anchor: i
         relative_fitness=ICP_RELATIVE_CHANGE, relative_rmse=ICP_RELATIVE_CHANGE, max_iteration=ICP_ITERATIONS
     )
     estimation = reg.TransformationEstimationPointToPlane()
-    for k in range(k_frames):
-        if k == anchor:
-            continue
+    # From the anchor outwards: each frame starts from the correction of its neighbour nearer the
+    # anchor, whose navigation error differs from its own by one step of the random walk.
+    order = [*range(anchor - 1, -1, -1), *range(anchor + 1, k_frames)]
+    for k in order:
         source_points = _cloud(clouds[k], reach)
         source_points = source_points[((source_points[:, :2] >= box_lo) & (source_points[:, :2] <= box_hi)).all(axis=1)]
         if source_points.shape[0] < 3:
             fitness[k], rmse[k] = 0.0, math.nan
             continue
         source_full = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(source_points))
-        current = np.eye(4)
+        current = corrections[k + 1] if k < anchor else corrections[k - 1]
         result = None
         for voxel, target in zip(ICP_VOXELS_M, targets, strict=True):
             source = source_full.voxel_down_sample(max(voxel, SOURCE_MIN_VOXEL_M))
