@@ -39,6 +39,7 @@ from hdlabels.errors import HdLabelsError
 from hdlabels.grid import cell_centres, grid_points
 from hdlabels.store import DemSpec
 from hdlabels.truth import mesh_heights
+from lidarsim.navigation import estimated_map_points
 from lidarsim.shards import Scan
 from lidarsim.terrain import DTM
 
@@ -102,7 +103,8 @@ def apply(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 
 def navigation_error(frame: MosaicFrame) -> np.ndarray:
-    """The rigid map transform (4 x 4) taking a true map point to where the navigation estimate puts it.
+    """The rigid map transform (4 x 4) taking a true map point to where the navigation estimate puts it:
+    ``lidarsim.navigation.estimated_map_points`` as a matrix, so that it can be inverted.
 
     A return at true map point ``m`` was measured as range and direction from the sensor; the
     navigation system rebuilds it from its own pose, at
@@ -124,9 +126,20 @@ def placed_points(frame: MosaicFrame, target_map: np.ndarray, poses: Literal["tr
 
     ``poses="true"`` places them with the true pose, ``"nav"`` with the navigation estimate.
     """
-    true_map = frame.points.astype(np.float64) + frame.origin_map
-    error = np.eye(4) if poses == "true" else navigation_error(frame)
-    placed = true_map if np.array_equal(error, np.eye(4)) else apply(error, true_map)
+    perfect = np.array_equal(frame.nav_attitude, frame.attitude) and np.array_equal(
+        frame.nav_sensor_position, frame.sensor_position
+    )
+    if poses == "true" or perfect:
+        placed = frame.points.astype(np.float64) + frame.origin_map
+    else:
+        placed = estimated_map_points(
+            frame.points,
+            frame.origin_map,
+            frame.sensor_position,
+            frame.attitude,
+            frame.nav_sensor_position,
+            frame.nav_attitude,
+        )
     return placed - np.asarray(target_map, dtype=np.float64)
 
 

@@ -14,6 +14,7 @@ from hdlabels.mosaic import (
     POSES,
     MosaicFrame,
     apply,
+    descent_frames,
     mosaic_dem,
     mosaic_frames,
     navigation_error,
@@ -24,9 +25,13 @@ from hdlabels.mosaic import (
     terrain_residual,
 )
 from hdlabels.store import DemSpec
+from lidarsim.build import build_dataset
+from lidarsim.errors import HdWarning
 from lidarsim.noise import points_at_ranges, scan_directions
+from lidarsim.recipe import BuildSettings
 from lidarsim.scan import TileScene
 from lidarsim.sensor import SensorConfig, sensor_attitude
+from lidarsim.shards import iter_descents, iter_scans
 from lidarsim.terrain import DTM
 from tests.geotiff import write_geotiff
 
@@ -128,6 +133,17 @@ def test_navigation_poses_without_error_place_frames_as_the_true_poses(tmp_path:
     np.testing.assert_array_equal(nav.heights, true.heights)
 
 
+def test_the_error_transform_is_the_documented_placement(tmp_path: Path) -> None:
+    dtm = write_terrain(tmp_path / "hills.tif", hills())
+    offsets = [np.array([0.5, -0.3, 0.2])] * 3
+    frames, target = descent(dtm, position_errors=offsets, rotation_errors_deg=[np.array([0.2, -0.1, 0.3])] * 3)
+    f = frames[1]
+    true_map = f.points.astype(np.float64) + f.origin_map
+    np.testing.assert_allclose(
+        apply(navigation_error(f), true_map) - target, placed_points(f, target, "nav"), atol=1e-7, equal_nan=True
+    )
+
+
 def test_a_position_error_shifts_every_point_by_it(tmp_path: Path) -> None:
     dtm = write_terrain(tmp_path / "hills.tif", hills())
     offset = np.array([0.5, -0.3, 0.2])
@@ -216,3 +232,41 @@ def test_registration_needs_an_anchor_near_the_target() -> None:
     far[..., 0] = 500.0  # every return 500 m east of the target
     with pytest.raises(HdLabelsError, match="anchor frame has fewer than 3 returns"):
         register_frames([far, far], half_width_m=30.0)
+
+
+def test_frames_read_from_a_descent_build_mosaic_to_the_terrain(tmp_path: Path) -> None:
+    write_geotiff(tmp_path / "plane.tif", tilted_plane(), 1.0, (0.0, SIDE_M))
+    settings = BuildSettings(
+        scans=1,
+        descent_frames=3,
+        descent_altitudes_m="300:150",
+        resolution=64,
+        sigmas_m=(0.02,),
+        seed=2,
+        dtm_path=str(tmp_path / "plane.tif"),
+        nav_position_sigma_m=1.0,
+        nav_attitude_sigma_deg=0.1,
+    )
+    with pytest.warns(HdWarning, match="coarser than the LiDAR"):  # a plane has no rocks to miss
+        build_dataset(tmp_path / "ds", settings.to_config(), workers=1)
+    (scans,) = list(iter_descents(tmp_path / "ds"))
+    frames, target = descent_frames(scans, None)
+    assert len(frames) == 3 and [f.sensor_position[2] for f in frames] == pytest.approx([300.0, 225.0, 150.0])
+    dem = DemSpec(rows=40, cols=40, spacing_m=1.0, gridding="linear")
+    with DTM.open(tmp_path / "plane.tif") as dtm:
+        true = mosaic_frames(frames, target, dem, "true")
+        assert np.nanmax(np.abs(terrain_residual(true.heights, dem, target, np.eye(4), dtm))) < 2e-3
+        # the navigation error moved the frames: their placement is not the true one
+        nav = placed_points(frames[0], target, "nav") - placed_points(frames[0], target, "true")
+        assert np.nanmax(np.linalg.norm(nav, axis=-1)) > 0.1
+    noisy, _ = descent_frames(scans, 0)
+    assert not np.array_equal(noisy[0].points, frames[0].points, equal_nan=True)
+
+
+def test_a_scan_without_its_descent_record_is_refused(tmp_path: Path) -> None:
+    write_geotiff(tmp_path / "plane.tif", tilted_plane(), 1.0, (0.0, SIDE_M))
+    settings = BuildSettings(scans=2, resolution=16, sigmas_m=(0.02,), seed=2, dtm_path=str(tmp_path / "plane.tif"))
+    build_dataset(tmp_path / "ds", settings.to_config(), workers=1)
+    scans = list(iter_scans(tmp_path / "ds"))
+    with pytest.raises(HdLabelsError, match="not a descent's frame"):
+        descent_frames(scans, None)
