@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import re
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -270,3 +272,27 @@ def test_a_scan_without_its_descent_record_is_refused(tmp_path: Path) -> None:
     scans = list(iter_scans(tmp_path / "ds"))
     with pytest.raises(HdLabelsError, match="not a descent's frame"):
         descent_frames(scans, None)
+
+
+def test_the_user_guide_example_runs_as_printed(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    text = (Path(__file__).resolve().parents[2] / "docs" / "user-guide.md").read_text()
+    start = text.index("One DEM of a descent's target area")
+    code = re.search(r"```python\n(.*?)```", text[start:], re.S).group(1)  # type: ignore[union-attr]  # asserted by running it
+    write_geotiff(tmp_path / "hills.tif", hills(), 1.0, (0.0, SIDE_M))
+    settings = BuildSettings(
+        scans=10,
+        descent_frames=3,
+        descent_altitudes_m="300:150",
+        resolution=32,
+        sigmas_m=(0.01, 0.02, 0.03),
+        seed=1,
+        dtm_path=str(tmp_path / "hills.tif"),
+        nav_position_sigma_m=1.0,
+        nav_attitude_sigma_deg=0.1,
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", HdWarning)  # held-out descents share ground on a 600 m terrain
+        build_dataset(tmp_path / "descents", settings.to_config(), workers=1)
+    assert any(True for _ in iter_descents(tmp_path / "descents", split="test"))
+    monkeypatch.chdir(tmp_path)
+    exec(compile(code, "user-guide.md mosaic example", "exec"), {})
