@@ -395,7 +395,7 @@ REPORT_FILES = ("report.json", "report.md")
 def _is_report_file(name: str) -> bool:
     return (
         name in REPORT_FILES
-        or name in ("reliability.png", "threshold_sweep.png", "noise_sweep.png")
+        or name in ("reliability.png", "threshold_sweep.png", "noise_sweep.png", "landing.png")
         or (name.startswith("qualitative_") and name.endswith(".png"))
     )
 

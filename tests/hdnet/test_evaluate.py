@@ -477,3 +477,15 @@ def test_hd_compare_shows_two_real_reports_numbers_and_their_differing_settings(
     assert differ["threshold.uncertainty"] == dict(zip(names, ("entropy", "mutual-information"), strict=True))
     assert differ["run.drop_pixels"] == dict(zip(names, (10, 0), strict=True))
     assert "run.checkpoint_sha256" not in differ and "run.checkpoint_sha256" in record["settings_equal"]
+
+
+def test_overwriting_a_report_removes_a_landing_figure_the_new_report_does_not_have(setup, tmp_path):
+    from hdnet.report import write_report
+
+    _, _, _, result = setup
+    out = tmp_path / "report"
+    write_report(result, out)
+    assert not (out / "landing.png").exists()  # this evaluation has no landing rows
+    (out / "landing.png").write_bytes(b"\x89PNG from an earlier evaluation with --nav-sigma")
+    write_report(result, out, overwrite=True)
+    assert not (out / "landing.png").exists()
