@@ -480,12 +480,15 @@ def test_hd_compare_shows_two_real_reports_numbers_and_their_differing_settings(
 
 
 def test_overwriting_a_report_removes_a_landing_figure_the_new_report_does_not_have(setup, tmp_path):
+    import dataclasses
+
     from hdnet.report import write_report
 
     _, _, _, result = setup
+    assert result.landing  # the evaluation scores landings (against the clean scan): a landing figure
     out = tmp_path / "report"
     write_report(result, out)
-    assert not (out / "landing.png").exists()  # this evaluation has no landing rows
-    (out / "landing.png").write_bytes(b"\x89PNG from an earlier evaluation with --nav-sigma")
-    write_report(result, out, overwrite=True)
+    assert (out / "landing.png").read_bytes()[:4] == b"\x89PNG"
+    write_report(dataclasses.replace(result, landing=[]), out, overwrite=True)  # a report without landings
     assert not (out / "landing.png").exists()
+    assert "landing.png" not in (out / "report.md").read_text()
