@@ -10,7 +10,8 @@ per level, sigma and poses, the RMS and 99th percentile of |height error| over e
 ``registered``), the ratio to the true poses' RMS, the frames' mean RMS disagreement with the anchor,
 and the mean time per mosaic.
 
-Run: ``.venv/bin/python scripts/mosaic_errors.py --out /tmp/mosaics [--descents 20] [--levels 0.3:0.05 1:0.1 3:0.3]``
+Run: ``.venv/bin/python scripts/mosaic_errors.py --out /tmp/mosaics [--descents 20] [--levels 0.3:0.05 1:0.1 3:0.3]``,
+or ``--dataset DIR [--split test]`` to measure a built descent dataset (a recipe) at its own error.
 """
 
 from __future__ import annotations
@@ -53,7 +54,9 @@ def build(out: Path, args: argparse.Namespace, position_m: float, attitude_deg: 
     return out
 
 
-def measure(dataset: Path, dem: DemSpec, poses: tuple[Poses, ...]) -> dict[tuple[str, str], dict[str, float]]:
+def measure(
+    dataset: Path, dem: DemSpec, poses: tuple[Poses, ...], split: str | None = None
+) -> dict[tuple[str, str], dict[str, float]]:
     """Per (sigma label, poses): RMS and p99 of |height error| (metres), mean frame residual and time per mosaic."""
     manifest = read_manifest(dataset)
     path, _, scale = check_build_terrain(dataset, manifest)
@@ -63,7 +66,7 @@ def measure(dataset: Path, dem: DemSpec, poses: tuple[Poses, ...]) -> dict[tuple
     agreement: dict[tuple[str, str], list[float]] = {}
     seconds: dict[tuple[str, str], list[float]] = {}
     with DTM.open(path, scale) as dtm:
-        for scans in iter_descents(dataset):
+        for scans in iter_descents(dataset, split):
             for s, label in zip(sigmas, labels, strict=True):
                 frames, target = descent_frames(scans, s)
                 to_true = np.linalg.inv(navigation_error(frames[-1]))
@@ -86,9 +89,37 @@ def measure(dataset: Path, dem: DemSpec, poses: tuple[Poses, ...]) -> dict[tuple
     return out
 
 
+def measure_dataset(dataset: Path, split: str, dem: DemSpec) -> None:
+    """Print the table for one built descent dataset (its own navigation error), one split."""
+    manifest = read_manifest(dataset)
+    config = manifest["config"]["trajectory"]["descent"]
+    nav = config["nav"]
+    print(
+        f"{dataset.name}, {split} split: descents of {config['frames']} frames, {config['altitude_start_m']:g} to "
+        f"{config['altitude_end_m']:g} m, approach {config['approach_deg']:g} deg; navigation error "
+        f"{nav['position_sigma_m']:g} m + {nav['position_walk_m']:g} m/frame, {nav['attitude_sigma_deg']:g} deg + "
+        f"{nav['attitude_walk_deg']:g} deg/frame; DEM {dem.rows}x{dem.cols} at {dem.spacing_m:g} m, {dem.gridding}"
+    )
+    print("| sigma | poses | RMS (cm) | p99 (cm) | RMS / true | frames vs anchor (cm) | s per mosaic |")
+    print("|---|---|---:|---:|---:|---:|---:|")
+    rows = measure(dataset, dem, POSES, split)
+    true_rms = {label: row["rms"] for (label, p), row in rows.items() if p == "true"}
+    for (label, p), row in sorted(rows.items(), key=lambda kv: (kv[0][0], POSES.index(kv[0][1]))):
+        print(
+            f"| {label} | {p} | {100 * row['rms']:.2f} | {100 * row['p99']:.2f} | {row['rms'] / true_rms[label]:.2f} | "
+            f"{100 * row['agree']:.2f} | {row['seconds']:.2f} |"
+        )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--out", type=Path, required=True, help="work directory (datasets are kept and reused)")
+    parser.add_argument("--out", type=Path, help="work directory (datasets are kept and reused)")
+    parser.add_argument(
+        "--dataset",
+        type=Path,
+        help="instead: measure this descent dataset (a built recipe) at its own navigation error, --split only",
+    )
+    parser.add_argument("--split", default="test", help="with --dataset: the split measured (default test)")
     parser.add_argument("--descents", type=int, default=20)
     parser.add_argument("--frames", type=int, default=9)
     parser.add_argument("--altitudes", default="1000:250")
@@ -99,6 +130,11 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2)
     args = parser.parse_args()
     dem = DemSpec(gridding="linear")
+    if args.dataset is not None:
+        measure_dataset(args.dataset, args.split, dem)
+        return
+    if args.out is None:
+        parser.error("give --out (a work directory) or --dataset")
     print(
         f"{args.descents} descents of {args.frames} frames, {args.altitudes} m; "
         f"DEM {dem.rows}x{dem.cols} at {dem.spacing_m:g} m, {dem.gridding} gridding"
