@@ -17,7 +17,6 @@ directory first.
 from __future__ import annotations
 
 import argparse
-import platform
 import statistics
 import sys
 import tempfile
@@ -28,21 +27,13 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from machine import cpu_model
+
 from hdnet.data import HazardDataset
 from hdnet.fit import input_spec_for
 from hdnet.model import BayesianSegNet
 from hdnet.noise_levels import TrainingNoise
 from hdnet.profiles import ROBUST
-
-
-def _cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
 
 
 def _small_dataset(root: Path) -> Path:
@@ -100,7 +91,7 @@ def main() -> None:
             rounds["made"].append(_per_sample_ms(made, args.samples))
             rounds["step"].append(_step_ms(model, batch, target))
         med = {k: statistics.median(v) for k, v in rounds.items()}
-    print(f"CPU: {_cpu_model()}; torch {torch.__version__}, {torch.get_num_threads()} threads")
+    print(f"CPU: {cpu_model()}; torch {torch.__version__}, {torch.get_num_threads()} threads")
     print(f"stored DEM sample: {med['stored']:.2f} ms; made on the fly: {med['made']:.2f} ms")
     print(f"ratio made / stored: {med['made'] / med['stored']:.2f}x")
     print(
