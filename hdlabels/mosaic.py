@@ -87,6 +87,14 @@ class MosaicFrame:
     nav_sensor_position: np.ndarray
     nav_attitude: np.ndarray
 
+    @property
+    def navigation_is_perfect(self) -> bool:
+        """True when the navigation estimate is the true pose exactly (it then places the frame bit for bit
+        as the true pose does)."""
+        return np.array_equal(self.nav_attitude, self.attitude) and np.array_equal(
+            self.nav_sensor_position, self.sensor_position
+        )
+
 
 def rigid(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
     """The 4 x 4 homogeneous matrix of ``x -> rotation @ x + translation`` (metres)."""
@@ -111,9 +119,7 @@ def navigation_error(frame: MosaicFrame) -> np.ndarray:
     ``origin + s_nav + R_nav R^T (m - origin - s)`` (``s``, ``R``: the true pose; ``_nav``: the estimate).
     A frame whose estimate equals its true pose gets the identity exactly.
     """
-    if np.array_equal(frame.nav_attitude, frame.attitude) and np.array_equal(
-        frame.nav_sensor_position, frame.sensor_position
-    ):
+    if frame.navigation_is_perfect:
         return np.eye(4)
     r_err = frame.nav_attitude @ frame.attitude.T
     s_true = frame.origin_map + frame.sensor_position
@@ -126,10 +132,7 @@ def placed_points(frame: MosaicFrame, target_map: np.ndarray, poses: Literal["tr
 
     ``poses="true"`` places them with the true pose, ``"nav"`` with the navigation estimate.
     """
-    perfect = np.array_equal(frame.nav_attitude, frame.attitude) and np.array_equal(
-        frame.nav_sensor_position, frame.sensor_position
-    )
-    if poses == "true" or perfect:
+    if poses == "true" or frame.navigation_is_perfect:
         placed = frame.points.astype(np.float64) + frame.origin_map
     else:
         placed = estimated_map_points(
