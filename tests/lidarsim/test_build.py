@@ -114,6 +114,24 @@ def test_shard_round_trip_and_lazy_reader(tmp_path, dtm):
     assert np.nanmax(np.abs(z)) < 20
 
 
+def kill_after_two_shards(argv: list[str], out: Path) -> None:
+    """Run ``hd ARGV --out OUT`` in its own process and SIGKILL it once two shard files are written;
+    the build must not have finished (no manifest)."""
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    proc = subprocess.Popen(
+        [sys.executable, str(REPO / "cli.py"), *argv, "--out", str(out)],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    deadline = time.time() + 60
+    while time.time() < deadline and len(list((out / "shards").glob("scans-*.h5"))) < 2:
+        time.sleep(0.005)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert not (out / "manifest.json").exists(), "the build finished before it could be killed"
+
+
 def test_resume_after_kill_gives_the_uninterrupted_dataset(tmp_path, dtm):
     reference = tmp_path / "ref"
     argv = [
@@ -135,19 +153,7 @@ def test_resume_after_kill_gives_the_uninterrupted_dataset(tmp_path, dtm):
     ]
     assert CliRunner().invoke(main, [*argv, "--out", str(reference)]).exit_code == 0
     out = tmp_path / "killed"
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
-    proc = subprocess.Popen(
-        [sys.executable, str(REPO / "cli.py"), *argv, "--out", str(out)],
-        env=env,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
-    deadline = time.time() + 60
-    while time.time() < deadline and len(list((out / "shards").glob("scans-*.h5"))) < 2:
-        time.sleep(0.005)
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
-    assert not (out / "manifest.json").exists(), "the build finished before it could be killed"
+    kill_after_two_shards(argv, out)
     result = CliRunner().invoke(main, [*argv, "--out", str(out)])
     assert result.exit_code == 0, result.output
     assert "already complete" in result.output

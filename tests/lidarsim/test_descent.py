@@ -5,12 +5,7 @@ shards; the paper's build is untouched."""
 from __future__ import annotations
 
 import math
-import os
 import shutil
-import signal
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 import h5py
@@ -18,7 +13,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 from scipy.spatial.transform import Rotation
-from test_build import REPO, rough_dtm
+from test_build import REPO, kill_after_two_shards, rough_dtm
 
 from cli import main
 from hdlabels.labeling import label_dataset
@@ -353,19 +348,7 @@ def test_a_killed_descent_build_resumes_to_the_same_bytes(dtm, tmp_path):
     reference = tmp_path / "ref"
     assert CliRunner().invoke(main, [*argv, "--out", str(reference)]).exit_code == 0
     out = tmp_path / "killed"
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
-    proc = subprocess.Popen(
-        [sys.executable, str(REPO / "cli.py"), *argv, "--out", str(out)],
-        env=env,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
-    deadline = time.time() + 60
-    while time.time() < deadline and len(list((out / "shards").glob("scans-*.h5"))) < 2:
-        time.sleep(0.005)
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
-    assert not (out / "manifest.json").exists(), "the build finished before it could be killed"
+    kill_after_two_shards(argv, out)
     result = CliRunner().invoke(main, [*argv, "--out", str(out)])
     assert result.exit_code == 0, result.output
     assert "already complete" in result.output and "8 descents of 3 frames" in result.output
