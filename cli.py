@@ -250,6 +250,29 @@ def label_cmd(ctx: click.Context, directory: Path, workers: int | None, recipe: 
         _done(label_job(directory, options, recipe, workers, scheduler, progress, truth=truth))
 
 
+@main.command("mosaic", cls=SettingsCommand, settings=("hdlabels.mosaic_dataset:MosaicSettings",))
+@click.argument("source", type=DIRECTORY)
+@out_option("out_dir", "Mosaic dataset directory to create (one scan per descent).")
+@workers_option()
+@scheduler_option()
+@overwrite_option("Replace an existing mosaic dataset in --out.")
+@recipe_option("Take the DEM grid (size, spacing, convention, gridding) from a recipe's [label] section.")
+@click.pass_context
+@json_output
+@friendly_errors
+def mosaic_cmd(
+    ctx: click.Context, source: Path, out_dir: Path, workers: int | None, recipe: Path | None, **options: Any
+) -> None:
+    """Mosaic every descent of a descent build into one DEM: a dataset with one scan per descent."""
+    from hdlabels.mosaic_job import mosaic_job
+
+    scheduler, overwrite = options.pop("scheduler"), options.pop("overwrite")
+    if recipe is not None:
+        refuse_with_recipe(ctx, set(options) - {"poses"}, "the DEM grid", HdLabelsError)
+    with ScanProgress("descents") as progress:
+        _done(mosaic_job(source, out_dir, options, recipe, workers, scheduler, overwrite, progress))
+
+
 def _done(done: Done) -> None:
     """Print a job's summary (``say``) and its JSON record (``hd --json``)."""
     for line in done.lines:

@@ -41,6 +41,7 @@ from hdlabels import defaults
 from hdlabels.alhat import hazard_maps, safety_probability
 from hdlabels.grid import grid_points
 from hdlabels.lander import Lander, geometry
+from hdlabels.mosaic_dataset import check_mosaic_grid
 from hdlabels.store import (
     LABEL_SCHEMA,
     LABELS_DIR,
@@ -225,7 +226,8 @@ def run_label_task(task: LabelTask) -> LabelRecord:
                     truth = None
                     if dtm is not None:
                         origin = np.asarray(f["origin_map"][k], dtype=np.float64)
-                        truth = partial(_terrain_truth, origin_map=origin, dem=task.dem, dtm=dtm)
+                        to_map = np.asarray(f["frame_to_map"][k], dtype=np.float64) if reader.is_mosaic else None
+                        truth = partial(_terrain_truth, origin_map=origin, dem=task.dem, dtm=dtm, frame_to_map=to_map)
                     try:
                         arrays = label_scan(points_clean[k], points_noisy[k], sigmas, task.lander, task.dem, truth)
                     except LabelStoreError as exc:
@@ -240,8 +242,10 @@ def run_label_task(task: LabelTask) -> LabelRecord:
     return _record(task, sha256, n_scans, counts, baseline)
 
 
-def _terrain_truth(dem_clean: np.ndarray, *, origin_map: np.ndarray, dem: DemSpec, dtm: DTM) -> np.ndarray:
-    return terrain_dem(origin_map, dem_clean, dem, dtm)
+def _terrain_truth(
+    dem_clean: np.ndarray, *, origin_map: np.ndarray, dem: DemSpec, dtm: DTM, frame_to_map: np.ndarray | None
+) -> np.ndarray:
+    return terrain_dem(origin_map, dem_clean, dem, dtm, frame_to_map)
 
 
 @contextmanager
@@ -376,6 +380,7 @@ def label_dataset(
     if dem is None:
         dem = DemSpec.for_convention(lander.convention)
     check_lander_fits(lander, dem)
+    check_mosaic_grid(manifest, dem, str(root))
     if truth not in defaults.TRUTHS:
         raise LabelStoreError(f"unknown truth {truth!r}; use one of {', '.join(defaults.TRUTHS)}")
     name = labeling_name(lander, dem, truth)

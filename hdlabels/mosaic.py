@@ -31,7 +31,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -262,10 +262,22 @@ def register_frames(clouds: Sequence[np.ndarray], half_width_m: float, anchor: i
     ``NORMAL_MAX_NN``), and ICP runs from the previous scale's transform with correspondences up to
     ``ICP_MAX_DISTANCE_VOXELS`` voxels, until fitness and RMS change by less than
     ``ICP_RELATIVE_CHANGE`` (at most ``ICP_ITERATIONS`` iterations). Only returns where the anchor
-    has some take part (``REGISTRATION_MARGIN_M``).
+    has some take part (``REGISTRATION_MARGIN_M``). Open3D runs in one thread here: its parallel
+    sums are not reproducible to the last bit, and a mosaic must be the same bytes on every run
+    (``hd mosaic`` runs descents in parallel processes instead).
     """
     import open3d as o3d  # Open3D loads in ~0.5 s: only registration needs it
 
+    threads = o3d.utility.get_max_threads()
+    o3d.utility.set_max_threads(1)  # ICP's parallel sums differ in the last bits from run to run
+    try:
+        return _register(o3d, clouds, half_width_m, anchor)
+    finally:
+        o3d.utility.set_max_threads(threads)
+
+
+def _register(o3d: Any, clouds: Sequence[np.ndarray], half_width_m: float, anchor: int) -> Registration:
+    """:func:`register_frames` with Open3D loaded and set to one thread."""
     reg = o3d.pipelines.registration
     k_frames = len(clouds)
     if k_frames == 0:

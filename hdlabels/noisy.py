@@ -32,7 +32,7 @@ from lidarsim.errors import LidarsimError
 from lidarsim.noise import noisy_points, recover_ranges, scan_directions
 from lidarsim.scan import STATUS_DAMAGED
 from lidarsim.sensor import SensorConfig
-from lidarsim.shards import open_scan_shard, read_manifest
+from lidarsim.shards import MANIFEST_KIND_MOSAICS, open_scan_shard, read_manifest
 
 
 @dataclass(frozen=True)
@@ -73,6 +73,11 @@ class NoisyDems:
     def of_dataset(cls, dataset_dir: str | os.PathLike, dem: DemSpec) -> NoisyDems:
         """The maker for ``dataset_dir`` (sensor and seed read from its first scan shard)."""
         manifest = read_manifest(dataset_dir)
+        if manifest.get("kind") == MANIFEST_KIND_MOSAICS:
+            raise HdLabelsError(
+                f"{dataset_dir}: a mosaic dataset's noise levels cannot be made on the fly (its noisy mosaics come "
+                "from registering noisy frames): train on its stored noise levels"
+            )
         shards = manifest.get("shards") or []
         if not shards:
             raise HdLabelsError(f"{dataset_dir}: the manifest lists no scan shards.")

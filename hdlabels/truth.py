@@ -16,7 +16,10 @@ module gives, for one scan, the DEM of the terrain under that scan's DEM grid:
   height from such samples (the most central point; a vertex of the triangulation), so for them the
   centre alone is sampled (``n = 1``): the same DEM from ``n * n`` times fewer samples;
 * cells where the clean scan's DEM has no support (outside the scan's footprint) stay NaN, so the
-  truth covers the same ground as the clean-scan truth.
+  truth covers the same ground as the clean-scan truth;
+* a descent mosaic (``hd mosaic``) lies where the lowest frame's navigation estimate put it, not
+  where the ground is: its ``frame_to_map`` takes each sample point to the true map first, so that
+  a cell's truth is the ground a lander aiming at that cell would meet.
 
 The dataset records its DTM in the manifest (``dtm``: path, sha256, scale in ``config.dtm_scale``):
 the procedural terrain inside the dataset (``terrain/``), a user's DTM by its absolute path. A DTM
@@ -197,7 +200,9 @@ def mesh_heights(dtm: DTM, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return np.where(fu + fv <= 1.0, upper, lower)
 
 
-def sample_points(origin_map: np.ndarray, dem: DemSpec, n: int, dtm: DTM) -> np.ndarray:
+def sample_points(
+    origin_map: np.ndarray, dem: DemSpec, n: int, dtm: DTM, frame_to_map: np.ndarray | None = None
+) -> np.ndarray:
     """The DTM's surface under a scan's DEM grid at ``n x n`` points per cell: an organised point cloud.
 
     Args:
@@ -205,6 +210,10 @@ def sample_points(origin_map: np.ndarray, dem: DemSpec, n: int, dtm: DTM) -> np.
         dem: the DEM grid (rows, cols, spacing_m metres/pixel), centred at the nadir point.
         n: odd number of samples per cell along each axis.
         dtm: the open DTM (at the build's scale).
+        frame_to_map: 4 x 4 rigid transform from the grid's placement in the map to the true map (a
+            descent mosaic's, ``lidarsim.shards.MosaicRecord``), or None (the identity: a scan's grid
+            lies where it says). Each sample point, at the reference height, is taken to the true map
+            and the terrain's height is read there: the ground a lander aiming at that point meets.
 
     Returns:
         float64 (rows * n, cols * n, 3) points in the scan frame (x east, y north, z up, metres), row-major
@@ -216,13 +225,21 @@ def sample_points(origin_map: np.ndarray, dem: DemSpec, n: int, dtm: DTM) -> np.
     xs = (xc[:, None] + offsets[None, :]).ravel()  # west to east
     ys = (yc[:, None] - offsets[None, :]).ravel()  # north to south
     xx, yy = np.meshgrid(xs, ys)
-    z = mesh_heights(dtm, x0 + xx, y0 + yy) - z0
+    mx, my = x0 + xx, y0 + yy
+    if frame_to_map is not None:
+        t = np.asarray(frame_to_map, dtype=np.float64)
+        placed = np.stack([mx, my, np.full_like(mx, z0)], axis=-1)
+        true = placed @ t[:3, :3].T + t[:3, 3]
+        mx, my = true[..., 0], true[..., 1]
+    z = mesh_heights(dtm, mx, my) - z0
     points = np.stack([xx, yy, z], axis=-1)
     points[~np.isfinite(z)] = np.nan  # no surface there: no point, as a ray that misses
     return points
 
 
-def terrain_dem(origin_map: np.ndarray, dem_clean: np.ndarray, dem: DemSpec, dtm: DTM) -> np.ndarray:
+def terrain_dem(
+    origin_map: np.ndarray, dem_clean: np.ndarray, dem: DemSpec, dtm: DTM, frame_to_map: np.ndarray | None = None
+) -> np.ndarray:
     """The terrain-truth DEM of one scan (float32 metres, scan frame; NaN where ``dem_clean`` is NaN).
 
     Args:
@@ -230,9 +247,10 @@ def terrain_dem(origin_map: np.ndarray, dem_clean: np.ndarray, dem: DemSpec, dtm
         dem_clean: the clean scan's DEM on the same grid: its support is the scan's footprint.
         dem: the DEM grid and gridding.
         dtm: the open DTM the dataset was built on (at the build's scale).
+        frame_to_map: a descent mosaic's transform to the true map (:func:`sample_points`), or None.
     """
     n = samples_per_cell(dem.spacing_m, min(dtm.info.spacing_m), dem.gridding)
-    points = sample_points(origin_map, dem, n, dtm)
+    points = sample_points(origin_map, dem, n, dtm, frame_to_map)
     out = grid_points(points, (dem.rows, dem.cols), dem.spacing_m, method=dem.gridding)
     out[~np.isfinite(dem_clean)] = np.nan
     return out.astype(np.float32, copy=False)

@@ -50,6 +50,7 @@ from lidarsim.scan import (
 from lidarsim.sensor import SensorConfig
 from lidarsim.shards import (
     BUILD_STATE_NAME,
+    MANIFEST_KIND_SCANS,
     MANIFEST_NAME,
     MANIFEST_SCHEMA,
     MANIFEST_SCHEMA_VERSION,
@@ -1035,7 +1036,7 @@ def _write_manifest(
     manifest: dict[str, Any] = {
         "schema": MANIFEST_SCHEMA,
         "schema_version": version,
-        "kind": "lidar-scans",
+        "kind": MANIFEST_KIND_SCANS,
         "software": "hd",
         "software_version": __version__,
         "n_scans": config.trajectory.n_scans,

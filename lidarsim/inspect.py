@@ -60,15 +60,19 @@ def describe_dataset(directory: str | os.PathLike) -> str:
         try:
             with open_scan_shard(directory, shards[0]) as reader:
                 a = reader.attrs
+                if reader.is_mosaic:
+                    lines.append(_mosaic_line(a, _mapping(manifest.get("mosaic"))))
                 pose = (
                     "altitude and tilt: the descents' (below)"
                     if "descent_frames" in a
                     else f"altitude {_span(a, 'trajectory_altitude')}, tilt {_span(a, 'trajectory_tilt')}"
                 )
-                lines.append(
-                    f"sensor    {a.get('sensor_rows')} x {a.get('sensor_cols')} px, FOV {a.get('sensor_fov_x_deg')} x "
-                    f"{a.get('sensor_fov_y_deg')} deg, {pose}, jitter {_span(a, 'trajectory_jitter')}"
-                )
+                if not reader.is_mosaic:
+                    lines.append(
+                        f"sensor    {a.get('sensor_rows')} x {a.get('sensor_cols')} px, "
+                        f"FOV {a.get('sensor_fov_x_deg')} x {a.get('sensor_fov_y_deg')} deg, {pose}, "
+                        f"jitter {_span(a, 'trajectory_jitter')}"
+                    )
                 lines += _descent_lines(a, manifest.get("n_descents"))
                 realism = _realism(a)
                 if realism:
@@ -151,6 +155,8 @@ def dataset_record(directory: str | os.PathLike) -> dict[str, Any]:
         ],
         "writer_pid": lock_holder(directory),
     }
+    if isinstance(manifest.get("mosaic"), dict):  # a mosaic dataset: how its mosaics were made
+        record["mosaic"] = manifest["mosaic"]
     if "descent_frames" in manifest:  # a descent build: its descents and their settings, navigation error included
         record["n_descents"] = manifest.get("n_descents")
         record["descent_frames"] = manifest.get("descent_frames")
@@ -169,6 +175,17 @@ def _span(attrs: dict[str, Any], key: str) -> str:
     unit = "m" if key.endswith("altitude") else "deg"
     low, high = attrs.get(f"{key}_{unit}"), attrs.get(f"{key}_max_{unit}")
     return f"{low} {unit}" if high is None else f"{low} to {high} {unit} per scan"
+
+
+def _mosaic_line(attrs: dict[str, Any], mosaic: dict[str, Any]) -> str:
+    """The line of a mosaic dataset's shard (1.4): what each scan is and where it came from."""
+    source = _mapping(mosaic.get("source"))
+    return (
+        f"mosaics   one per descent of {attrs.get('mosaic_frames')} frames ({attrs.get('mosaic_poses')} poses), "
+        f"{attrs.get('mosaic_dem_rows')} x {attrs.get('mosaic_dem_cols')} cells of "
+        f"{attrs.get('mosaic_dem_spacing_m')} m "
+        f"({attrs.get('mosaic_dem_gridding')} gridding per frame), from {source.get('path', '?')}"
+    )
 
 
 def _descents(manifest: dict[str, Any]) -> str:

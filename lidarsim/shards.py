@@ -49,18 +49,23 @@ from lidarsim.storage import (
 
 __all__ = [
     "BUILD_STATE_NAME",
+    "MANIFEST_KIND_MOSAICS",
+    "MANIFEST_KIND_SCANS",
     "MANIFEST_NAME",
     "MANIFEST_SCHEMA",
     "MANIFEST_SCHEMA_VERSION",
     "MANIFEST_SCHEMA_VERSION_DESCENT",
     "MANIFEST_SCHEMA_VERSION_DEVIATION",
+    "MANIFEST_SCHEMA_VERSION_MOSAIC",
     "SCAN_SCHEMA",
     "SCAN_SCHEMA_VERSION",
+    "SCAN_SCHEMA_VERSION_DESCENT",
     "SCAN_SCHEMA_VERSION_PLAIN",
     "SCAN_SCHEMA_VERSION_REALISM",
     "SPLIT_NAMES",
     "TRUTH_DTM_SHA256_ATTR",
     "DamagedFileError",
+    "MosaicRecord",
     "Scan",
     "ScanShardReader",
     "ScanShardWriter",
@@ -91,11 +96,17 @@ SCAN_SCHEMA = "hd.lidar-scans"
 # files, byte for byte as before (scan_schema_version).
 # 1.3: descents: the datasets descent_index, frame_index, target_map, nav_sensor_position and
 # nav_sensor_attitude and the descent_* and nav_* attributes; only a descent build's shards are 1.3.
-SCAN_SCHEMA_VERSION = "1.3"
+# 1.4: descent mosaics (``hd mosaic``): one "scan" per descent, its points at the DEM's cell centres,
+# with the datasets frame_to_map, registration_correction, registration_fitness, registration_rmse_m
+# and frame_residual_m and the mosaic_* attributes; only a mosaic dataset's shards are 1.4.
+SCAN_SCHEMA_VERSION = "1.4"
+SCAN_SCHEMA_VERSION_DESCENT = "1.3"
 SCAN_SCHEMA_VERSION_REALISM = "1.2"
 SCAN_SCHEMA_VERSION_PLAIN = "1.1"
 # The file attribute whose presence makes a shard a descent's (version 1.3).
 DESCENT_ATTR = "descent_frames"
+# The file attribute whose presence makes a shard a mosaic dataset's (version 1.4).
+MOSAIC_ATTR = "mosaic_poses"
 # File attributes whose presence makes a shard version 1.2.
 REALISM_ATTR_PREFIXES: tuple[str, ...] = (
     "footprint_",
@@ -112,6 +123,10 @@ MANIFEST_SCHEMA_VERSION = "1.0"
 MANIFEST_SCHEMA_VERSION_DEVIATION = "1.1"
 # The manifest of a descent build: ``n_descents`` and ``descent_frames`` (and 1.1's record, if any).
 MANIFEST_SCHEMA_VERSION_DESCENT = "1.2"
+# The manifest of a mosaic dataset (``hd mosaic``): kind ``descent-mosaics`` and its ``mosaic`` record.
+MANIFEST_SCHEMA_VERSION_MOSAIC = "1.3"
+MANIFEST_KIND_SCANS = "lidar-scans"
+MANIFEST_KIND_MOSAICS = "descent-mosaics"
 MANIFEST_NAME = "manifest.json"
 # Settings of a build in progress; present only until its manifest is written.
 BUILD_STATE_NAME = ".hd-build.json"
@@ -126,11 +141,13 @@ ShardFormatError = FormatError
 
 
 def scan_schema_version(attrs: dict[str, Any]) -> str:
-    """The schema version of a scan shard with these file attributes: 1.3 for a descent's, 1.2 when
-    it records any of the sensor-realism settings, else 1.1 (the bytes every earlier hd wrote for
-    the same settings)."""
-    if DESCENT_ATTR in attrs:
+    """The schema version of a scan shard with these file attributes: 1.4 for a mosaic dataset's, 1.3
+    for a descent's, 1.2 when it records any of the sensor-realism settings, else 1.1 (the bytes every
+    earlier hd wrote for the same settings)."""
+    if MOSAIC_ATTR in attrs:
         return SCAN_SCHEMA_VERSION
+    if DESCENT_ATTR in attrs:
+        return SCAN_SCHEMA_VERSION_DESCENT
     realistic = any(key.startswith(REALISM_ATTR_PREFIXES) for key in attrs)
     return SCAN_SCHEMA_VERSION_REALISM if realistic else SCAN_SCHEMA_VERSION_PLAIN
 
@@ -219,6 +236,12 @@ class ScanShardWriter:
             for name, (dtype, tail) in DESCENT_DATASETS.items():
                 self._d[name] = f.create_dataset(name, (n, *tail), dtype, **whole(n, *tail))
                 self._descent[name] = np.zeros((n, *tail), dtype=dtype)
+        if MOSAIC_ATTR in self.attrs:
+            sizes = {"sigma": s, "frame": int(self.attrs["mosaic_frames"])}
+            for name, (dtype, axes) in MOSAIC_DATASETS.items():
+                tail = tuple(sizes[a] if isinstance(a, str) else a for a in axes)
+                self._d[name] = f.create_dataset(name, (n, *tail), dtype, **whole(n, *tail))
+                self._descent[name] = np.zeros((n, *tail), dtype=dtype)
         return self
 
     def write_scan(
@@ -235,16 +258,22 @@ class ScanShardWriter:
         valid: np.ndarray,
         noise_scale: np.ndarray | None = None,
         descent: DescentFrame | None = None,
+        mosaic: MosaicRecord | None = None,
     ) -> None:
         """Write scan ``k`` (0-based within the shard); ``noise_scale`` only to a shard of the snr noise
         model, ``descent`` (the frame's place in its descent and its navigation estimate) only to a
-        descent's shard, and to every scan of it."""
+        descent's shard, and to every scan of it; ``mosaic`` (how the mosaic was placed) to every scan
+        of a mosaic dataset's shard."""
         d = self._d
-        if self._descent:
-            if descent is None:
-                raise ValueError("a descent's shard needs each frame's descent record")
-            for name in DESCENT_DATASETS:
-                self._descent[name][k] = getattr(descent, name)
+        for record, names, what in (
+            (descent, DESCENT_DATASETS, "descent's shard needs each frame's descent record"),
+            (mosaic, MOSAIC_DATASETS, "mosaic dataset's shard needs each mosaic's record"),
+        ):
+            if next(iter(names)) in self._descent:
+                if record is None:
+                    raise ValueError(f"a {what}")
+                for name in names:
+                    self._descent[name][k] = getattr(record, name)
         d["scan_index"][k] = scan_index
         d["split"][k] = split
         d["origin_map"][k] = origin_map
@@ -297,6 +326,7 @@ class Scan:
     valid: np.ndarray
     noise_scale: np.ndarray | None = None  # (rows, cols) factor on each sigma (1.2, snr noise model only)
     descent: DescentFrame | None = None  # 1.3, a descent build's frames only: the descent and navigation estimate
+    mosaic: MosaicRecord | None = None  # 1.4, a mosaic dataset's only: how the descent's frames were placed
 
 
 @dataclass(frozen=True)
@@ -329,6 +359,45 @@ DESCENT_DATASETS: dict[str, tuple[type, tuple[int, ...]]] = {
 }
 
 
+@dataclass(frozen=True)
+class MosaicRecord:
+    """How one descent's mosaic was made (schema 1.4, a mosaic dataset's shards; ``hd mosaic``).
+
+    The mosaic's "scan" holds the DEM's cell centres (x east, y north, metres from the descent's
+    target) with the mosaic's heights; its frame is the lowest frame's navigation frame (the true
+    map for the ``true`` poses).
+
+    Attributes:
+        frame_to_map: float64 (4, 4) rigid transform taking a point of the mosaic, placed in the map
+            (``origin_map`` plus the point), to the true map point it shows: the inverse of the lowest
+            frame's navigation error (the identity for the ``true`` poses).
+        registration_correction: float64 (sigma, frame, 4, 4) the rigid correction registration
+            applied to each frame of each noise level's mosaic (identity where none was applied).
+        registration_fitness: float64 (sigma, frame) fraction of each frame's registered points with
+            a correspondence at the finest scale (1 where none was registered).
+        registration_rmse_m: float64 (sigma, frame) RMS distance of those correspondences, metres
+            (0 where none was registered; NaN for a frame with too few points near the target).
+        frame_residual_m: float64 (sigma, frame) RMS height difference of each frame to the lowest
+            frame where both cover the DEM, metres (NaN where they share no cell).
+    """
+
+    frame_to_map: np.ndarray
+    registration_correction: np.ndarray
+    registration_fitness: np.ndarray
+    registration_rmse_m: np.ndarray
+    frame_residual_m: np.ndarray
+
+
+# The datasets of a mosaic dataset's shard (1.4): dtype and axes after the scan axis.
+MOSAIC_DATASETS: dict[str, tuple[type, tuple[int | str, ...]]] = {
+    "frame_to_map": (np.float64, (4, 4)),
+    "registration_correction": (np.float64, ("sigma", "frame", 4, 4)),
+    "registration_fitness": (np.float64, ("sigma", "frame")),
+    "registration_rmse_m": (np.float64, ("sigma", "frame")),
+    "frame_residual_m": (np.float64, ("sigma", "frame")),
+}
+
+
 # Every array of a scan shard by its axes: named axes must agree across the arrays (docs/shard-format.md).
 SCAN_ARRAYS: dict[str, tuple[int | str, ...]] = {
     "scan_index": ("scan",),
@@ -346,6 +415,10 @@ OPTIONAL_SCAN_ARRAYS: dict[str, tuple[int | str, ...]] = {"noise_scale": ("scan"
 # The arrays of a descent's shard (1.3): all of them, or none.
 DESCENT_SCAN_ARRAYS: dict[str, tuple[int | str, ...]] = {
     name: ("scan", *tail) for name, (_, tail) in DESCENT_DATASETS.items()
+}
+# The arrays of a mosaic dataset's shard (1.4): all of them, or none.
+MOSAIC_SCAN_ARRAYS: dict[str, tuple[int | str, ...]] = {
+    name: ("scan", *axes) for name, (_, axes) in MOSAIC_DATASETS.items()
 }
 
 
@@ -408,6 +481,9 @@ class ScanShardReader:
             self.is_descent = any(name in self._f for name in DESCENT_SCAN_ARRAYS)
             if self.is_descent:  # a descent's shard holds all its arrays: a missing one is named
                 optional |= DESCENT_SCAN_ARRAYS
+            self.is_mosaic = any(name in self._f for name in MOSAIC_SCAN_ARRAYS)
+            if self.is_mosaic:
+                optional |= MOSAIC_SCAN_ARRAYS
             dims = check_arrays(self._f, SCAN_ARRAYS | optional, self.what)
             if dims["sigma"] != len(self.sigmas_m):
                 raise DamagedFileError(
@@ -446,6 +522,7 @@ class ScanShardReader:
             valid=f["valid"][k].astype(bool),
             noise_scale=f["noise_scale"][k] if "noise_scale" in f else None,
             descent=self._descent_frame(k) if self.is_descent else None,
+            mosaic=MosaicRecord(**{name: f[name][k] for name in MOSAIC_DATASETS}) if self.is_mosaic else None,
         )
 
     def _descent_frame(self, k: int) -> DescentFrame:

@@ -1,0 +1,528 @@
+"""A dataset of descent mosaics (``hd mosaic``): one DEM per descent, stored as one "scan" each.
+
+A descent build (``hd build-dataset --descent-frames K``) holds K frames per descent. ``hd mosaic``
+turns every descent into one mosaic DEM (``hdlabels.mosaic``) and writes a new dataset in which
+each descent is one scan, so that ``hd label`` (either truth), ``hd train``, ``hd eval`` and
+``hd detect --data`` work on mosaics exactly as they work on single frames:
+
+* a mosaic "scan" holds the DEM's cell centres (x east, y north, metres from the descent's target)
+  with the mosaic's heights: ``points_clean`` the clean mosaic, ``points_noisy[s]`` the mosaic of the
+  frames' noisy points at the s-th noise level; NaN where the mosaic has no height. Gridding such
+  points on the same grid (any gridding) gives the mosaic back, so the labelling's DEMs *are* the
+  mosaics;
+* the noisy mosaics are placed by the chosen poses (``true``, ``nav`` or ``registered``; the
+  registration runs on each noise level's noisy frames, as a lander registers what it measures);
+* the clean mosaic is the clean frames placed with their true relative poses and moved, all
+  together, by the lowest frame's navigation error: it lies where the noisy mosaics lie (the
+  lowest frame's navigation frame), so the clean-scan truth labels the same ground. Each mosaic's
+  ``frame_to_map`` (the inverse of that error) takes it to the true map: the terrain truth reads
+  the ground there (``hdlabels.truth``);
+* ``origin_map`` is the descent's target; ``sensor_position`` and ``sensor_attitude`` are the lowest
+  frame's, as its poses place it; the registration's corrections, fits and each frame's residual to
+  the lowest frame are stored per noise level (``lidarsim.shards.MosaicRecord``).
+
+The dataset's files: ``manifest.json`` (kind ``descent-mosaics``, schema 1.3, with its ``mosaic``
+record: the source dataset, poses, DEM grid and registration settings), ``mosaics-NNNNN.h5`` (scan
+shards of schema 1.4, one per source shard) and ``mosaic-terrain.tif``, a copy of the source's
+procedural terrain (a user DTM is recorded by its absolute path, as in the source). Splits are the
+descents'. The output is written like every hd output (``lidarsim.storage.OutputDir``): staged and
+moved into place with the manifest last, so an interrupted run leaves nothing half-written; an
+existing mosaic dataset is replaced only with ``overwrite``. Noise levels cannot be made on the fly
+for a mosaic dataset: its noisy mosaics come from registering noisy frames.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hdlabels import defaults, limits
+from hdlabels.errors import HdLabelsError
+from hdlabels.grid import cell_centres
+from hdlabels.mosaic import (
+    ICP_VOXELS_M,
+    POSES,
+    Mosaic,
+    MosaicFrame,
+    apply,
+    combine_grids,
+    descent_frames,
+    frame_grids,
+    mosaic_frames,
+    navigation_error,
+    placed_points,
+)
+from hdlabels.store import DemSpec
+from lidarsim._version import __version__
+from lidarsim.outcome import counted
+from lidarsim.parallel import run_tasks
+from lidarsim.setting import check, setting
+from lidarsim.shards import (
+    MANIFEST_KIND_MOSAICS,
+    MANIFEST_NAME,
+    MANIFEST_SCHEMA,
+    MANIFEST_SCHEMA_VERSION_MOSAIC,
+    MOSAIC_ATTR,
+    SPLIT_NAMES,
+    MosaicRecord,
+    Scan,
+    ScanShardWriter,
+    open_scan_shard,
+    read_manifest,
+    scan_schema_version,
+)
+from lidarsim.storage import OutputDir, confine, write_json_atomic
+
+MOSAIC_SHARD_PREFIX = "mosaics-"
+# The copy of a source's own (procedural) terrain in a mosaic dataset.
+MOSAIC_TERRAIN_NAME = "mosaic-terrain.tif"
+STATUS_RETURN, STATUS_MISS = 0, 1  # lidarsim.scan's codes: a cell with a height, one without
+
+
+@dataclass(frozen=True)
+class MosaicSettings:
+    """Settings of ``hd mosaic``, each described once as field metadata (options and checks)."""
+
+    poses: str = setting(
+        "registered",
+        "How the frames are placed: the navigation estimates corrected by registration to the lowest frame "
+        "(registered), the estimates alone (nav), or the true poses (true, the reference)",
+        choices=POSES,
+    )
+    dem_size: int = setting(defaults.DEM_ROWS, "Mosaic DEM side", unit="pixels", bound=limits.DEM_SIZE_PX)
+    dem_spacing_m: float = setting(
+        defaults.DEM_SPACING_M,
+        "Mosaic DEM spacing",
+        unit="metres/pixel",
+        bound=limits.DEM_SPACING_M,
+        flag="--dem-spacing",
+    )
+    convention: str = setting(
+        defaults.CONVENTION,
+        "Label convention whose gridding grids each frame (paper: nearest, hd: linear)",
+        choices=defaults.CONVENTIONS,
+    )
+    gridding: str | None = setting(
+        None, "Points to DEM for each frame (default: the convention's)", choices=defaults.GRIDDINGS
+    )
+
+    def __post_init__(self) -> None:
+        check(self, HdLabelsError)
+
+    def to_dem_spec(self) -> DemSpec:
+        """The mosaic's square grid, centred at the descent's target."""
+        return DemSpec.for_convention(self.convention, self.dem_size, self.dem_size, self.dem_spacing_m, self.gridding)
+
+
+@dataclass(frozen=True)
+class DescentMosaics:
+    """The mosaics of one descent, as one mosaic dataset scan (see the module docstring).
+
+    Attributes:
+        points_clean: float32 (rows, cols, 3) cell centres with the clean mosaic's heights, metres.
+        points_noisy: float32 (S, rows, cols, 3) the same for each noise level's mosaic.
+        origin_map: (3,) the descent's target, map metres.
+        sensor_position: (3,) the lowest frame's sensor in the mosaic frame, metres.
+        sensor_attitude: (3, 3) the lowest frame's attitude, as its poses place it.
+        record: how the mosaics were placed.
+    """
+
+    points_clean: np.ndarray
+    points_noisy: np.ndarray
+    origin_map: np.ndarray
+    sensor_position: np.ndarray
+    sensor_attitude: np.ndarray
+    record: MosaicRecord
+
+
+def in_mosaic_frame(transform: np.ndarray, target_map: np.ndarray) -> np.ndarray:
+    """A map transform (4 x 4, metres) as it acts on points given relative to ``target_map``."""
+    shift = np.eye(4)
+    shift[:3, 3] = np.asarray(target_map, dtype=np.float64)
+    back = np.eye(4)
+    back[:3, 3] = -shift[:3, 3]
+    return back @ transform @ shift
+
+
+def cell_points(heights: np.ndarray, spacing_m: float) -> np.ndarray:
+    """A DEM as an organised point cloud: float32 (rows, cols, 3) cell centres (x east, y north,
+    metres from the grid's centre) with their heights; all three NaN where the height is."""
+    rows, cols = heights.shape
+    xc, yc = cell_centres((rows, cols), spacing_m)
+    points = np.empty((rows, cols, 3), dtype=np.float32)
+    points[..., 0] = xc[None, :]
+    points[..., 1] = yc[:, None]
+    points[..., 2] = heights
+    points[~np.isfinite(heights)] = np.nan
+    return points
+
+
+def clean_mosaic(frames: list[MosaicFrame], target_map: np.ndarray, dem: DemSpec, error: np.ndarray) -> np.ndarray:
+    """The clean mosaic: the clean frames with their true relative poses, all moved by ``error`` (the
+    lowest frame's navigation error, a 4 x 4 map transform; the identity for the true poses), gridded
+    and combined as every mosaic is (float32 metres)."""
+    placed = [placed_points(f, target_map, "true") for f in frames]
+    if not np.array_equal(error, np.eye(4)):
+        moved = in_mosaic_frame(error, target_map)
+        placed = [apply(moved, p) for p in placed]
+    return combine_grids(*frame_grids(placed, dem))
+
+
+def descent_mosaics(scans: list[Scan], dem: DemSpec, poses: str) -> DescentMosaics:
+    """The clean mosaic and one mosaic per stored noise level of one descent's frames.
+
+    Raises:
+        HdLabelsError: a scan without its descent record, or frames that cannot be placed or registered.
+    """
+    clean, target = descent_frames(scans, None)
+    anchor = clean[-1]
+    error = np.eye(4) if poses == "true" else navigation_error(anchor)
+    heights_clean = clean_mosaic(clean, target, dem, error)
+    n_sigma, k = scans[0].points_noisy.shape[0], len(scans)
+    correction = np.tile(np.eye(4), (n_sigma, k, 1, 1))
+    fitness, rmse, residual = np.ones((n_sigma, k)), np.zeros((n_sigma, k)), np.zeros((n_sigma, k))
+    noisy = np.empty((n_sigma, dem.rows, dem.cols, 3), dtype=np.float32)
+    for s in range(n_sigma):
+        frames, _ = descent_frames(scans, s)
+        mosaic: Mosaic = mosaic_frames(frames, target, dem, poses)  # type: ignore[arg-type]  # checked by MosaicSettings
+        noisy[s] = cell_points(mosaic.heights, dem.spacing_m)
+        residual[s] = mosaic.frame_residual_m
+        if mosaic.registration is not None:
+            correction[s] = mosaic.registration.corrections
+            fitness[s], rmse[s] = mosaic.registration.fitness, mosaic.registration.rmse_m
+    use_nav = poses != "true"
+    position = anchor.nav_sensor_position if use_nav else anchor.sensor_position
+    return DescentMosaics(
+        points_clean=cell_points(heights_clean, dem.spacing_m),
+        points_noisy=noisy,
+        origin_map=target,
+        sensor_position=anchor.origin_map + position - target,
+        sensor_attitude=anchor.nav_attitude if use_nav else anchor.attitude,
+        record=MosaicRecord(
+            frame_to_map=np.linalg.inv(error) if use_nav else np.eye(4),
+            registration_correction=correction,
+            registration_fitness=fitness,
+            registration_rmse_m=rmse,
+            frame_residual_m=residual,
+        ),
+    )
+
+
+@dataclass(frozen=True)
+class MosaicTask:
+    """Mosaic every descent of one source shard into one mosaic shard."""
+
+    source: str  # the source dataset directory
+    entry: dict[str, Any]  # the source shard's manifest entry
+    out_file: str  # where to write the mosaic shard (in the staging directory)
+    frames: int  # frames per descent
+    poses: str
+    dem: DemSpec
+    attrs: dict[str, Any]  # file attributes of the mosaic shard
+
+
+@dataclass(frozen=True)
+class MosaicShardRecord:
+    """What one task wrote: the manifest entry of its shard (without its path) and its registration fit."""
+
+    entry: dict[str, Any]
+    corrections_m: np.ndarray  # (n_descents, S, K) translation of every frame's correction, metres
+
+
+def run_mosaic_task(task: MosaicTask) -> MosaicShardRecord:
+    """Mosaic one source shard (worker side): read its descents, write the mosaic shard."""
+    with open_scan_shard(task.source, task.entry) as reader:
+        if not reader.is_descent or len(reader) % task.frames:
+            raise HdLabelsError(f"{reader.what}: does not hold whole descents of {task.frames} frames")
+        n = len(reader) // task.frames
+        sigmas = reader.sigmas_m
+        splits = np.zeros(n, dtype=np.uint8)
+        moved = np.zeros((n, len(sigmas), task.frames))
+        first = None
+        with ScanShardWriter(Path(task.out_file), n, task.dem.rows, task.dem.cols, sigmas, task.attrs) as writer:
+            for d in range(n):
+                scans = [reader[d * task.frames + k] for k in range(task.frames)]
+                index = _descent_index(scans, reader.what, d * task.frames)
+                first = index if first is None else first
+                try:
+                    m = descent_mosaics(scans, task.dem, task.poses)
+                except HdLabelsError as exc:
+                    raise HdLabelsError(f"{reader.what} descent {index}: {exc}") from exc
+                finite = np.isfinite(m.points_clean[..., 2])
+                splits[d] = SPLIT_NAMES.index(scans[0].split)
+                writer.write_scan(
+                    d,
+                    index,
+                    int(splits[d]),
+                    m.origin_map,
+                    m.sensor_position,
+                    m.sensor_attitude,
+                    m.points_clean,
+                    m.points_noisy,
+                    np.where(finite, STATUS_RETURN, STATUS_MISS).astype(np.uint8),
+                    finite.astype(np.uint8),
+                    mosaic=m.record,
+                )
+                moved[d] = np.linalg.norm(m.record.registration_correction[..., :3, 3], axis=-1)
+            sha256 = writer.commit()
+    counts = {name: int((splits == i).sum()) for i, name in enumerate(SPLIT_NAMES)}
+    present = [name for name, c in counts.items() if c]
+    entry = {
+        "sha256": sha256,
+        "n_scans": n,
+        "first_scan": int(first or 0),
+        "split": present[0] if len(present) == 1 else "mixed",
+        "split_counts": counts,
+        "schema": "hd.lidar-scans",
+        "schema_version": scan_schema_version(task.attrs),
+    }
+    return MosaicShardRecord(entry, moved)
+
+
+def _descent_index(scans: list[Scan], what: str, row: int) -> int:
+    """The descent index of K scans that are frames 0..K-1 of one descent in one split."""
+    first = scans[0].descent
+    ok = first is not None and all(
+        s.descent is not None
+        and s.descent.frame_index == k
+        and s.descent.descent_index == first.descent_index
+        and s.split == scans[0].split
+        for k, s in enumerate(scans)
+    )
+    if not ok or first is None:
+        raise HdLabelsError(f"{what}: scans {row} to {row + len(scans) - 1} are not one descent's frames in order")
+    return int(first.descent_index)
+
+
+@dataclass(frozen=True)
+class MosaicSummary:
+    """What ``mosaic_dataset`` did."""
+
+    out: str
+    poses: str
+    n_mosaics: int
+    descent_frames: int
+    n_shards: int
+    sigmas_m: tuple[float, ...]
+    splits: dict[str, int]
+    coverage: float  # mean fraction of the DEM's cells with a clean mosaic height
+    median_correction_m: float | None  # registered poses: median translation of the frames' corrections
+    seconds: float
+
+    def paragraph(self) -> str:
+        reg = (
+            f"; registration moved the frames by {self.median_correction_m * 100:.0f} cm (median)"
+            if self.median_correction_m is not None
+            else ""
+        )
+        split = ", ".join(f"{v} {k}" for k, v in self.splits.items())
+        return (
+            f"Mosaicked {counted(self.n_mosaics, 'descent')} of {self.descent_frames} frames ({self.poses} poses) into "
+            f"{counted(self.n_shards, 'shard')} at {self.out} in {self.seconds:.1f} s: clean mosaics plus "
+            f"{counted(len(self.sigmas_m), 'noise level')}; splits {split}; {self.coverage * 100:.1f}% of the DEM "
+            f"cells have a height{reg}. Label it with `hd label {self.out}`."
+        )
+
+
+def is_mosaic_file(name: str) -> bool:
+    """Names a mosaic dataset's files take (its output: replaced together with ``overwrite``)."""
+    shard = name.startswith(MOSAIC_SHARD_PREFIX) and name.endswith(".h5")
+    return shard or name in (MANIFEST_NAME, MOSAIC_TERRAIN_NAME)
+
+
+def mosaic_dataset(
+    source: str | os.PathLike,
+    out: str | os.PathLike,
+    settings: MosaicSettings = MosaicSettings(),
+    *,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    overwrite: bool = False,
+    progress: Callable[[int, int], None] | None = None,
+) -> MosaicSummary:
+    """Write the mosaic dataset of the descent build ``source`` at ``out`` (see the module docstring).
+
+    Raises:
+        HdLabelsError: ``source`` is not a descent build; a descent that cannot be mosaicked.
+        StorageError / OutputExistsError: ``out`` is unusable, is the source, or holds anything but
+            an earlier mosaic dataset (replaced only with ``overwrite``).
+    """
+    t0 = time.perf_counter()
+    root = Path(source).resolve()
+    manifest = read_manifest(root)
+    frames = manifest.get("descent_frames")
+    if manifest.get("kind") == MANIFEST_KIND_MOSAICS:
+        raise HdLabelsError(f"{root}: already a mosaic dataset; hd mosaic reads a descent build (--descent-frames)")
+    if not isinstance(frames, int):
+        raise HdLabelsError(
+            f"{root}: not a descent build (its manifest records no descent_frames); build one with "
+            "`hd build-dataset --descent-frames K`"
+        )
+    dem = settings.to_dem_spec()
+    inputs: dict[str, str | os.PathLike | None] = {"the descent build": root}
+    output = OutputDir(out, what="mosaic", marker=MANIFEST_NAME, owns=is_mosaic_file, inputs=inputs)
+    out_dir = output.check(overwrite)
+    attrs = _file_attrs(manifest, settings, dem, frames)
+    records: dict[int, MosaicShardRecord] = {}
+    n_workers = max(1, workers if workers is not None else (os.cpu_count() or 1))
+    total = int(manifest["n_descents"])
+    with output.open(overwrite) as staging:
+        tasks = [
+            MosaicTask(
+                source=str(root),
+                entry=entry,
+                out_file=str(staging / _shard_name(i)),
+                frames=frames,
+                poses=settings.poses,
+                dem=dem,
+                attrs=attrs,
+            )
+            for i, entry in enumerate(manifest["shards"])
+        ]
+        done = 0
+        if progress:
+            progress(0, total)
+        for position, rec in run_tasks(run_mosaic_task, tasks, n_workers, scheduler):
+            records[position] = rec
+            done += int(rec.entry["n_scans"])
+            if progress:
+                progress(done, total)
+        dtm = _terrain_entry(root, manifest, staging)
+        new = _manifest(manifest, settings, dem, frames, records, dtm, str(root))
+        write_json_atomic(staging / MANIFEST_NAME, new)
+        output.commit()
+    coverage = _coverage(out_dir, new)
+    moved = np.concatenate([r.corrections_m.ravel() for r in records.values()]) if records else np.zeros(0)
+    moved = moved[moved > 0]
+    return MosaicSummary(
+        out=str(out_dir),
+        poses=settings.poses,
+        n_mosaics=int(new["n_scans"]),
+        descent_frames=frames,
+        n_shards=len(records),
+        sigmas_m=tuple(float(s) for s in manifest["sigmas_m"]),
+        splits=dict(new["splits"]),
+        coverage=coverage,
+        median_correction_m=float(np.median(moved)) if settings.poses == "registered" and moved.size else None,
+        seconds=time.perf_counter() - t0,
+    )
+
+
+def _shard_name(index: int) -> str:
+    return f"{MOSAIC_SHARD_PREFIX}{index:05d}.h5"
+
+
+def _file_attrs(manifest: dict[str, Any], settings: MosaicSettings, dem: DemSpec, frames: int) -> dict[str, Any]:
+    """The mosaic shards' file attributes: the source's seed and the mosaic's settings (schema 1.4)."""
+    return {
+        "seed": int(manifest.get("seed", 0)),
+        MOSAIC_ATTR: settings.poses,
+        "mosaic_frames": frames,
+        "mosaic_anchor_frame": frames - 1,
+        **{f"mosaic_{k}": v for k, v in dem.to_attrs().items()},
+        "mosaic_icp_voxels_m": np.asarray(ICP_VOXELS_M, dtype=np.float64),
+        "mosaic_frame_weight": "returns per square metre (1 / sample spacing squared)",
+    }
+
+
+def _terrain_entry(root: Path, manifest: dict[str, Any], staging: Path) -> dict[str, Any]:
+    """The source's ``dtm`` entry for the mosaic dataset: a DTM inside the source (its procedural
+    terrain) is copied beside the mosaics (hard-linked where the file system allows); a user's DTM
+    keeps its absolute path."""
+    dtm = dict(manifest.get("dtm") or {})
+    path = dtm.get("path")
+    if not isinstance(path, str) or os.path.isabs(path):
+        return dtm
+    src = confine(root, path)
+    try:
+        os.link(src, staging / MOSAIC_TERRAIN_NAME)
+    except OSError:
+        shutil.copyfile(src, staging / MOSAIC_TERRAIN_NAME)
+    return dtm | {"path": MOSAIC_TERRAIN_NAME}
+
+
+def _manifest(
+    source: dict[str, Any],
+    settings: MosaicSettings,
+    dem: DemSpec,
+    frames: int,
+    records: dict[int, MosaicShardRecord],
+    dtm: dict[str, Any],
+    source_dir: str,
+) -> dict[str, Any]:
+    shards = [{"path": _shard_name(i), **records[i].entry} for i in sorted(records)]
+    splits = {name: sum(int(s["split_counts"][name]) for s in shards) for name in SPLIT_NAMES}
+    return {
+        "schema": MANIFEST_SCHEMA,
+        "schema_version": MANIFEST_SCHEMA_VERSION_MOSAIC,
+        "kind": MANIFEST_KIND_MOSAICS,
+        "software": "hd",
+        "software_version": __version__,
+        "n_scans": sum(int(s["n_scans"]) for s in shards),
+        "sigmas_m": list(source["sigmas_m"]),
+        "seed": source.get("seed", 0),
+        "config_sha256": source.get("config_sha256"),
+        "config": source.get("config"),
+        "dtm": dtm,
+        "mosaic": {
+            "source": {
+                "path": source_dir,
+                "n_descents": source["n_descents"],
+                "descent_frames": frames,
+                "config_sha256": source.get("config_sha256"),
+                "shards_sha256": [s["sha256"] for s in source["shards"]],
+            },
+            "poses": settings.poses,
+            "anchor_frame": frames - 1,
+            "dem": dem.to_entry(),
+            "icp_voxels_m": list(ICP_VOXELS_M),
+        },
+        "splits": splits,
+        "shards": shards,
+        "labelings": [],
+    }
+
+
+def _coverage(out_dir: Path, manifest: dict[str, Any]) -> float:
+    """Mean fraction of DEM cells with a clean mosaic height."""
+    valid = cells = 0
+    for entry in manifest["shards"]:
+        with open_scan_shard(out_dir, entry) as reader:
+            v = reader.h5["valid"][:]
+            valid += int(v.sum())
+            cells += v.size
+    return valid / max(1, cells)
+
+
+def mosaic_dem_entry(manifest: dict[str, Any]) -> dict[str, Any] | None:
+    """The DEM grid a mosaic dataset was made on (its manifest's ``mosaic.dem``), None for a scan dataset."""
+    if manifest.get("kind") != MANIFEST_KIND_MOSAICS:
+        return None
+    mosaic = manifest.get("mosaic")
+    dem = mosaic.get("dem") if isinstance(mosaic, dict) else None
+    return dem if isinstance(dem, dict) else {}
+
+
+def check_mosaic_grid(manifest: dict[str, Any], dem: DemSpec, where: str) -> None:
+    """Refuse to grid a mosaic dataset on another grid than its own (its points are its cells' centres).
+
+    Raises:
+        HdLabelsError: another DEM side or spacing, naming both.
+    """
+    entry = mosaic_dem_entry(manifest)
+    if entry is None:
+        return
+    own = (entry.get("rows"), entry.get("cols"), entry.get("spacing_m"))
+    if own != (dem.rows, dem.cols, dem.spacing_m):
+        raise HdLabelsError(
+            f"{where} is a mosaic dataset made on {own[0]} x {own[1]} cells of {own[2]} m; its points are those "
+            f"cells' centres, so it is labelled on that grid only (asked: {dem.rows} x {dem.cols} cells of "
+            f"{dem.spacing_m:g} m; pass --dem-size {own[0]} --dem-spacing {own[2]})"
+        )
