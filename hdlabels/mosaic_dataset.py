@@ -61,6 +61,8 @@ from hdlabels.mosaic import (
 )
 from hdlabels.store import DemSpec
 from lidarsim._version import __version__
+from lidarsim.errors import LidarsimError
+from lidarsim.limits import parse_integer
 from lidarsim.outcome import counted
 from lidarsim.parallel import run_tasks
 from lidarsim.setting import check, setting
@@ -112,9 +114,39 @@ class MosaicSettings:
     gridding: str | None = setting(
         None, "Points to DEM for each frame (default: the convention's)", choices=defaults.GRIDDINGS
     )
+    frames: str | None = setting(
+        None,
+        "Frames of each descent to use: 8 (one frame alone), 4-8, 0,4,8 (frame 0 the highest; the last one "
+        "named is the anchor the others are registered to). Default: all",
+        kind=str,
+        metavar="LIST",
+    )
 
     def __post_init__(self) -> None:
         check(self, HdLabelsError)
+
+    def frame_indices(self, k: int) -> tuple[int, ...]:
+        """The frames used of a descent of ``k`` frames, ascending (all of them by default).
+
+        Raises:
+            HdLabelsError: a list that is not indices and ranges of frames 0 .. k - 1, naming it.
+        """
+        if self.frames is None:
+            return tuple(range(k))
+        where = f"--frames {self.frames!r}"
+        usage = f"use frame indices and ranges of 0..{k - 1}, e.g. {k - 1} or 0,{k // 2},{k - 1}"
+        used: set[int] = set()
+        for part in self.frames.split(","):
+            lo, sep, hi = part.strip().partition("-")
+            try:
+                first = parse_integer(lo, f"{where}: frame", hint=usage)
+                last = parse_integer(hi, f"{where}: frame", hint=usage) if sep else first
+            except LidarsimError as exc:
+                raise HdLabelsError(str(exc)) from exc
+            if not 0 <= first <= last < k:
+                raise HdLabelsError(f"{where}: {part.strip()} is not frames of a descent of {k} frames; {usage}")
+            used.update(range(first, last + 1))
+        return tuple(sorted(used))
 
     def to_dem_spec(self) -> DemSpec:
         """The mosaic's square grid, centred at the descent's target."""
@@ -222,7 +254,8 @@ class MosaicTask:
     source: str  # the source dataset directory
     entry: dict[str, Any]  # the source shard's manifest entry
     out_file: str  # where to write the mosaic shard (in the staging directory)
-    frames: int  # frames per descent
+    frames: int  # frames per descent in the source
+    used: tuple[int, ...]  # the frames mosaicked, ascending (the last is the anchor)
     poses: str
     dem: DemSpec
     attrs: dict[str, Any]  # file attributes of the mosaic shard
@@ -244,7 +277,7 @@ def run_mosaic_task(task: MosaicTask) -> MosaicShardRecord:
         n = len(reader) // task.frames
         sigmas = reader.sigmas_m
         splits = np.zeros(n, dtype=np.uint8)
-        moved = np.zeros((n, len(sigmas), task.frames))
+        moved = np.zeros((n, len(sigmas), len(task.used)))
         first = None
         with ScanShardWriter(Path(task.out_file), n, task.dem.rows, task.dem.cols, sigmas, task.attrs) as writer:
             for d in range(n):
@@ -252,7 +285,7 @@ def run_mosaic_task(task: MosaicTask) -> MosaicShardRecord:
                 index = _descent_index(scans, reader.what, d * task.frames)
                 first = index if first is None else first
                 try:
-                    m = descent_mosaics(scans, task.dem, task.poses)
+                    m = descent_mosaics([scans[k] for k in task.used], task.dem, task.poses)
                 except HdLabelsError as exc:
                     raise HdLabelsError(f"{reader.what} descent {index}: {exc}") from exc
                 finite = np.isfinite(m.points_clean[..., 2])
@@ -309,6 +342,7 @@ class MosaicSummary:
     poses: str
     n_mosaics: int
     descent_frames: int
+    frames: tuple[int, ...]  # the frames used
     n_shards: int
     sigmas_m: tuple[float, ...]
     splits: dict[str, int]
@@ -323,11 +357,12 @@ class MosaicSummary:
             else ""
         )
         split = ", ".join(f"{v} {k}" for k, v in self.splits.items())
+        used = "" if len(self.frames) == self.descent_frames else f", frames {','.join(map(str, self.frames))}"
         return (
-            f"Mosaicked {counted(self.n_mosaics, 'descent')} of {self.descent_frames} frames ({self.poses} poses) into "
-            f"{counted(self.n_shards, 'shard')} at {self.out} in {self.seconds:.1f} s: clean mosaics plus "
-            f"{counted(len(self.sigmas_m), 'noise level')}; splits {split}; {self.coverage * 100:.1f}% of the DEM "
-            f"cells have a height{reg}. Label it with `hd label {self.out}`."
+            f"Mosaicked {counted(self.n_mosaics, 'descent')} of {self.descent_frames} frames{used} "
+            f"({self.poses} poses) into {counted(self.n_shards, 'shard')} at {self.out} in {self.seconds:.1f} s: "
+            f"clean mosaics plus {counted(len(self.sigmas_m), 'noise level')}; splits {split}; "
+            f"{self.coverage * 100:.1f}% of the DEM cells have a height{reg}. Label it with `hd label {self.out}`."
         )
 
 
@@ -366,10 +401,11 @@ def mosaic_dataset(
             "`hd build-dataset --descent-frames K`"
         )
     dem = settings.to_dem_spec()
+    used = settings.frame_indices(frames)
     inputs: dict[str, str | os.PathLike | None] = {"the descent build": root}
     output = OutputDir(out, what="mosaic", marker=MANIFEST_NAME, owns=is_mosaic_file, inputs=inputs)
     out_dir = output.check(overwrite)
-    attrs = _file_attrs(manifest, settings, dem, frames)
+    attrs = _file_attrs(manifest, settings, dem, used)
     records: dict[int, MosaicShardRecord] = {}
     n_workers = max(1, workers if workers is not None else (os.cpu_count() or 1))
     total = int(manifest["n_descents"])
@@ -380,6 +416,7 @@ def mosaic_dataset(
                 entry=entry,
                 out_file=str(staging / _shard_name(i)),
                 frames=frames,
+                used=used,
                 poses=settings.poses,
                 dem=dem,
                 attrs=attrs,
@@ -395,7 +432,7 @@ def mosaic_dataset(
             if progress:
                 progress(done, total)
         dtm = _terrain_entry(root, manifest, staging)
-        new = _manifest(manifest, settings, dem, frames, records, dtm, str(root))
+        new = _manifest(manifest, settings, dem, frames, used, records, dtm, str(root))
         write_json_atomic(staging / MANIFEST_NAME, new)
         output.commit()
     coverage = _coverage(out_dir, new)
@@ -406,6 +443,7 @@ def mosaic_dataset(
         poses=settings.poses,
         n_mosaics=int(new["n_scans"]),
         descent_frames=frames,
+        frames=used,
         n_shards=len(records),
         sigmas_m=tuple(float(s) for s in manifest["sigmas_m"]),
         splits=dict(new["splits"]),
@@ -419,13 +457,16 @@ def _shard_name(index: int) -> str:
     return f"{MOSAIC_SHARD_PREFIX}{index:05d}.h5"
 
 
-def _file_attrs(manifest: dict[str, Any], settings: MosaicSettings, dem: DemSpec, frames: int) -> dict[str, Any]:
+def _file_attrs(
+    manifest: dict[str, Any], settings: MosaicSettings, dem: DemSpec, used: tuple[int, ...]
+) -> dict[str, Any]:
     """The mosaic shards' file attributes: the source's seed and the mosaic's settings (schema 1.4)."""
     return {
         "seed": int(manifest.get("seed", 0)),
         MOSAIC_ATTR: settings.poses,
-        "mosaic_frames": frames,
-        "mosaic_anchor_frame": frames - 1,
+        "mosaic_frames": len(used),
+        "mosaic_frame_indices": np.asarray(used, dtype=np.int64),
+        "mosaic_anchor_frame": used[-1],
         **{f"mosaic_{k}": v for k, v in dem.to_attrs().items()},
         "mosaic_icp_voxels_m": np.asarray(ICP_VOXELS_M, dtype=np.float64),
         "mosaic_frame_weight": "returns per square metre (1 / sample spacing squared)",
@@ -453,6 +494,7 @@ def _manifest(
     settings: MosaicSettings,
     dem: DemSpec,
     frames: int,
+    used: tuple[int, ...],
     records: dict[int, MosaicShardRecord],
     dtm: dict[str, Any],
     source_dir: str,
@@ -480,7 +522,8 @@ def _manifest(
                 "shards_sha256": [s["sha256"] for s in source["shards"]],
             },
             "poses": settings.poses,
-            "anchor_frame": frames - 1,
+            "frames": list(used),
+            "anchor_frame": used[-1],
             "dem": dem.to_entry(),
             "icp_voxels_m": list(ICP_VOXELS_M),
         },

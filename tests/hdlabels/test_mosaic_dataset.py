@@ -14,7 +14,8 @@ from click.testing import CliRunner
 from test_mosaic import SIDE_M, hills, tilted_plane
 
 from cli import main
-from hdlabels.mosaic import descent_frames, mosaic_frames, navigation_error, terrain_residual
+from hdlabels.grid import grid_points
+from hdlabels.mosaic import descent_frames, mosaic_frames, navigation_error, placed_points, terrain_residual
 from hdlabels.mosaic_dataset import MosaicSettings, cell_points, clean_mosaic, in_mosaic_frame, mosaic_dataset
 from hdlabels.store import DemSpec, iter_labeled_scans
 from hdlabels.truth import terrain_dem
@@ -192,3 +193,44 @@ def test_inspect_and_verify_describe_a_mosaic_dataset(built: tuple[Path, Path]) 
     assert record["mosaic"]["poses"] == "registered"
     verified = CliRunner().invoke(main, ["verify", str(out)])
     assert verified.exit_code == 0 and "OK" in verified.output
+
+
+def test_frames_picks_the_frames_and_one_frame_is_the_frame_as_its_navigation_places_it(
+    built: tuple[Path, Path], tmp_path: Path
+) -> None:
+    source, _ = built
+    result = CliRunner().invoke(main, ["mosaic", str(source), "--out", str(tmp_path / "low"), "--frames", "2", *GRID])
+    assert result.exit_code == 0, result.output
+    assert "4 descents of 3 frames, frames 2 (registered poses)" in result.output
+    assert "registration moved" not in result.output  # one frame: nothing to register
+    manifest = read_manifest(tmp_path / "low")
+    assert manifest["mosaic"]["frames"] == [2] and manifest["mosaic"]["anchor_frame"] == 2
+    for scans, m in zip(iter_descents(source), iter_scans(tmp_path / "low"), strict=True):
+        frames, target = descent_frames(scans, None)
+        placed = placed_points(frames[2], target, "nav")  # the lowest frame where its navigation puts it
+        alone = grid_points(placed, (DEM_SIDE, DEM_SIDE), 1.0, method="nearest")
+        np.testing.assert_allclose(m.points_clean[..., 2], alone, atol=1e-4)
+        assert m.mosaic is not None and m.mosaic.registration_correction.shape == (2, 1, 4, 4)
+    two = mosaic_dataset(source, tmp_path / "two", MosaicSettings(dem_size=DEM_SIDE, convention="paper", frames="0,2"))
+    assert two.frames == (0, 2)
+    with h5py.File(tmp_path / "two" / "mosaics-00000.h5") as f:
+        assert f.attrs["mosaic_frame_indices"].tolist() == [0, 2] and f.attrs["mosaic_anchor_frame"] == 2
+        assert f["registration_fitness"].shape == (4, 2, 2)
+
+
+@pytest.mark.parametrize(
+    ("frames", "words"),
+    [
+        ("3", "--frames '3': 3 is not frames of a descent of 3 frames; use frame indices and ranges of 0..2"),
+        ("2-1", "2-1 is not frames of a descent of 3 frames"),
+        ("x", "--frames 'x': frame"),
+        ("1,", "--frames '1,': frame"),
+    ],
+)
+def test_frames_outside_the_descent_are_refused_in_one_line(
+    built: tuple[Path, Path], tmp_path: Path, frames: str, words: str
+) -> None:
+    source, _ = built
+    result = CliRunner().invoke(main, ["mosaic", str(source), "--out", str(tmp_path / "m"), "--frames", frames, *GRID])
+    assert result.exit_code == 1 and words in result.output, result.output
+    assert len(result.output.strip().splitlines()) == 1 and not (tmp_path / "m").exists()
