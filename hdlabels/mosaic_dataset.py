@@ -43,7 +43,6 @@ from typing import Any
 
 import numpy as np
 
-from hdlabels import defaults, limits
 from hdlabels.errors import HdLabelsError
 from hdlabels.grid import cell_centres
 from hdlabels.mosaic import (
@@ -59,13 +58,14 @@ from hdlabels.mosaic import (
     navigation_error,
     placed_points,
 )
+from hdlabels.settings import LabelSettings
 from hdlabels.store import DemSpec
 from lidarsim._version import __version__
 from lidarsim.errors import LidarsimError
 from lidarsim.limits import parse_integer
 from lidarsim.outcome import counted
 from lidarsim.parallel import run_tasks
-from lidarsim.setting import check, setting
+from lidarsim.setting import check, described_as, setting
 from lidarsim.shards import (
     MANIFEST_KIND_MOSAICS,
     MANIFEST_NAME,
@@ -98,22 +98,10 @@ class MosaicSettings:
         "(registered), the estimates alone (nav), or the true poses (true, the reference)",
         choices=POSES,
     )
-    dem_size: int = setting(defaults.DEM_ROWS, "Mosaic DEM side", unit="pixels", bound=limits.DEM_SIZE_PX)
-    dem_spacing_m: float = setting(
-        defaults.DEM_SPACING_M,
-        "Mosaic DEM spacing",
-        unit="metres/pixel",
-        bound=limits.DEM_SPACING_M,
-        flag="--dem-spacing",
-    )
-    convention: str = setting(
-        defaults.CONVENTION,
-        "Label convention whose gridding grids each frame (paper: nearest, hd: linear)",
-        choices=defaults.CONVENTIONS,
-    )
-    gridding: str | None = setting(
-        None, "Points to DEM for each frame (default: the convention's)", choices=defaults.GRIDDINGS
-    )
+    dem_size: int = described_as(LabelSettings, "dem_size")
+    dem_spacing_m: float = described_as(LabelSettings, "dem_spacing_m")
+    convention: str = described_as(LabelSettings, "convention")
+    gridding: str | None = described_as(LabelSettings, "gridding")
     frames: str | None = setting(
         None,
         "Frames of each descent to use: 8 (one frame alone), 4-8, 0,4,8 (frame 0 the highest; the last one "
