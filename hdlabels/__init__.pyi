@@ -9,6 +9,9 @@ from hdlabels.grid import grid_points as grid_points
 from hdlabels.labeling import LabelSummary as LabelSummary
 from hdlabels.labeling import label_dataset as label_dataset
 from hdlabels.lander import Lander as Lander
+from hdlabels.mosaic_dataset import MosaicSettings as MosaicSettings
+from hdlabels.mosaic_dataset import MosaicSummary as MosaicSummary
+from hdlabels.mosaic_dataset import mosaic_dataset as mosaic_dataset
 from hdlabels.settings import LabelSettings as LabelSettings
 from hdlabels.store import DemSpec as DemSpec
 from hdlabels.store import LabeledScan as LabeledScan
