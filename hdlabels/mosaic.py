@@ -20,10 +20,13 @@ Three ways to place the frames, the *poses* of a mosaic:
 The mosaic frame is centred at the descent's target point (``target_map``: x east, y north, z up,
 metres, relative to the target and its reference height), so a mosaic DEM is gridded exactly like a
 single frame's DEM, centred at its origin. Each frame is gridded on its own by the labelling's
-gridding (``hdlabels.grid.grid_points``, which needs a frame's detector order), and a cell takes the
-mean of the frames' heights there weighted by each frame's density of returns (returns per square
-metre, ``1 / spacing**2``): the low frames' fine samples count most, the high frames fill the
-edges of the area that the low frames do not see (:func:`mosaic_dem`).
+gridding (``hdlabels.grid.grid_points``, which needs a frame's detector order). A cell takes the
+mean of the heights of the frames that *resolve* it (their returns no farther apart than the DEM's
+spacing), weighted by each frame's density of returns (returns per square metre,
+``1 / spacing**2``); the coarser frames fill, the same way, only the cells that no resolving frame
+covers: the edges of the area that the low frames do not see (:func:`combine_grids`). A coarse
+frame's cell is interpolated between returns a metre or more apart, which flattens the rocks the
+fine frames see: averaged in everywhere, it made a mosaic that calls rocky ground safe.
 """
 
 from __future__ import annotations
@@ -174,8 +177,8 @@ def frame_grids(clouds: Sequence[np.ndarray], dem: DemSpec) -> tuple[np.ndarray,
     return grids, weights
 
 
-def combine_grids(grids: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """The weighted mean of the frames' heights in each cell (float32 metres; NaN where none has one)."""
+def weighted_mean(grids: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """The weighted mean of the frames' heights in each cell (float64 metres; NaN where none has one)."""
     ok = np.isfinite(grids)
     w = np.where(ok, weights[:, None, None], 0.0)
     total = (w * np.where(ok, grids, 0.0)).sum(axis=0)
@@ -183,6 +186,30 @@ def combine_grids(grids: np.ndarray, weights: np.ndarray) -> np.ndarray:
     with np.errstate(invalid="ignore", divide="ignore"):
         out = total / weight
     out[weight == 0] = np.nan
+    return out
+
+
+def combine_grids(grids: np.ndarray, weights: np.ndarray, spacing_m: float) -> np.ndarray:
+    """One DEM from the frames' grids (float32 metres; NaN where no frame has a height).
+
+    Args:
+        grids: (K, rows, cols) each frame gridded alone, metres.
+        weights: (K,) each frame's returns per square metre (``1 / sample_spacing_m**2``).
+        spacing_m: the DEM's spacing, metres/pixel.
+
+    A cell takes the weighted mean (``weights``) of the frames that resolve it, those whose returns
+    are at most ``spacing_m`` apart (``weights >= 1 / spacing_m**2``); where none of them has a
+    height, the weighted mean of the coarser frames. When no frame resolves the grid, all are
+    averaged. (Measured on mars-descent's test descents against the terrain: averaging every frame
+    everywhere gave the clean mosaic's labels a precision of 0.852 for "safe", this rule 0.886, the
+    finest frame alone in each cell 0.894 with far lower sensitivity, docs/results.md.)
+    """
+    resolving = weights >= 1.0 / spacing_m**2 * (1.0 - 1e-9)
+    if resolving.all() or not resolving.any():
+        return weighted_mean(grids, weights).astype(np.float32)
+    out = weighted_mean(grids[resolving], weights[resolving])
+    gaps = np.isnan(out)
+    out[gaps] = weighted_mean(grids[~resolving], weights[~resolving])[gaps]
     return out.astype(np.float32)
 
 
@@ -194,10 +221,10 @@ def mosaic_dem(clouds: Sequence[np.ndarray], dem: DemSpec) -> np.ndarray:
             order (the ``linear`` gridding triangulates over it).
         dem: the grid (rows, cols, spacing_m metres/pixel, gridding), centred at the target.
 
-    Each frame is gridded alone; a cell takes the mean of the frames' heights weighted by each
-    frame's returns per square metre (``1 / sample_spacing_m**2``).
+    Each frame is gridded alone and the grids are combined by :func:`combine_grids` (the frames
+    that resolve a cell, weighted by their returns per square metre; coarser ones where none does).
     """
-    return combine_grids(*frame_grids(clouds, dem))
+    return combine_grids(*frame_grids(clouds, dem), dem.spacing_m)
 
 
 def anchor_residuals(grids: np.ndarray, anchor: int = -1) -> np.ndarray:
@@ -360,7 +387,7 @@ def mosaic_frames(frames: Sequence[MosaicFrame], target_map: np.ndarray, dem: De
             for t, p in zip(registration.corrections, placed, strict=True)
         ]
     grids, weights = frame_grids(placed, dem)
-    return Mosaic(combine_grids(grids, weights), poses, anchor_residuals(grids), registration)
+    return Mosaic(combine_grids(grids, weights, dem.spacing_m), poses, anchor_residuals(grids), registration)
 
 
 def terrain_residual(

@@ -192,7 +192,7 @@ def clean_mosaic(frames: list[MosaicFrame], target_map: np.ndarray, dem: DemSpec
     if not np.array_equal(error, np.eye(4)):
         moved = in_mosaic_frame(error, target_map)
         placed = [apply(moved, p) for p in placed]
-    return combine_grids(*frame_grids(placed, dem))
+    return combine_grids(*frame_grids(placed, dem), dem.spacing_m)
 
 
 def descent_mosaics(scans: list[Scan], dem: DemSpec, poses: str) -> DescentMosaics:

@@ -296,3 +296,21 @@ def test_the_user_guide_example_runs_as_printed(tmp_path: Path, monkeypatch: pyt
     assert any(True for _ in iter_descents(tmp_path / "descents", split="test"))
     monkeypatch.chdir(tmp_path)
     exec(compile(code, "user-guide.md mosaic example", "exec"), {})
+
+
+def test_coarse_frames_only_fill_the_cells_no_resolving_frame_covers() -> None:
+    def grid_frame(spacing: float, half_width: float, z: float) -> np.ndarray:
+        n = int(round(2 * half_width / spacing))
+        c = (np.arange(n) - (n - 1) / 2) * spacing
+        xx, yy = np.meshgrid(c, -c)
+        return np.stack([xx, yy, np.full_like(xx, z)], axis=-1)
+
+    coarse = grid_frame(2.0, 30.0, 0.0)  # returns 2 m apart: they do not resolve 1 m cells
+    fine = grid_frame(0.5, 10.0, 1.0)  # resolves the centre only
+    dem = DemSpec(rows=40, cols=40, spacing_m=1.0, gridding="linear")
+    out = mosaic_dem([coarse, fine], dem)
+    centre, edge = out[15:25, 15:25], out[:5, :5]
+    np.testing.assert_array_equal(centre, 1.0)  # the fine frame alone, the coarse one not averaged in
+    np.testing.assert_array_equal(edge, 0.0)  # the coarse frame fills where the fine one has nothing
+    both_coarse = mosaic_dem([coarse, grid_frame(4.0, 30.0, 1.0)], dem)  # none resolves: all averaged
+    np.testing.assert_allclose(both_coarse[10:30, 10:30], (0.25 * 0.0 + 0.0625 * 1.0) / 0.3125, atol=1e-6)
