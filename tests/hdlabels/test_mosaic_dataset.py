@@ -234,3 +234,55 @@ def test_frames_outside_the_descent_are_refused_in_one_line(
     result = CliRunner().invoke(main, ["mosaic", str(source), "--out", str(tmp_path / "m"), "--frames", frames, *GRID])
     assert result.exit_code == 1 and words in result.output, result.output
     assert len(result.output.strip().splitlines()) == 1 and not (tmp_path / "m").exists()
+
+
+def test_a_network_trains_evaluates_and_maps_on_mosaics(built: tuple[Path, Path], tmp_path: Path) -> None:
+    _, out = built
+    for truth in ("terrain", "clean-scan"):
+        labelled = CliRunner().invoke(main, ["label", str(out), *GRID, "--truth", truth])
+        assert labelled.exit_code == 0, labelled.output
+    run = tmp_path / "run"
+    trained = CliRunner().invoke(
+        main,
+        [
+            "train",
+            str(out),
+            "--profile",
+            "tiny",
+            "--epochs",
+            "1",
+            "--labels",
+            "paper+terrain",
+            "--train-sigma",
+            "0.02",
+            "--out",
+            str(run),
+        ],
+    )
+    assert trained.exit_code == 0, trained.output
+    report = tmp_path / "eval"
+    evaluated = CliRunner().invoke(
+        main, ["eval", str(run), "--data", str(out), "--out", str(report), "--nav-sigma", "1", "--mc-samples", "2"]
+    )
+    assert evaluated.exit_code == 0, evaluated.output
+    landing = json.loads((report / "report.json").read_text())["landing"]
+    assert {row["truth"] for row in landing} == {"terrain", "clean-scan"}  # both truths, on the test mosaic
+    assert {row["scenes"] for row in landing} == {1}  # one test descent: one scene per noise level
+    test = next(m for m in iter_scans(out) if m.split == "test")
+    detected = CliRunner().invoke(
+        main,
+        [
+            "detect",
+            str(run),
+            "--data",
+            str(out),
+            "--scan",
+            str(test.scan_index),
+            "--out",
+            str(tmp_path / "d"),
+            "--mc-samples",
+            "2",
+        ],
+    )
+    assert detected.exit_code == 0, detected.output
+    assert (tmp_path / "d" / "p_safe.tif").is_file()
