@@ -61,7 +61,6 @@ from hdlabels.mosaic import (
 from hdlabels.settings import LabelSettings
 from hdlabels.store import DemSpec
 from lidarsim._version import __version__
-from lidarsim.errors import LidarsimError
 from lidarsim.limits import parse_integer
 from lidarsim.outcome import counted
 from lidarsim.parallel import run_tasks
@@ -117,7 +116,8 @@ class MosaicSettings:
         """The frames used of a descent of ``k`` frames, ascending (all of them by default).
 
         Raises:
-            HdLabelsError: a list that is not indices and ranges of frames 0 .. k - 1, naming it.
+            HdLabelsError: indices or ranges outside frames 0 .. k - 1, naming the list.
+            LidarsimError: an entry that is not a whole number (``lidarsim.limits.parse_integer``).
         """
         if self.frames is None:
             return tuple(range(k))
@@ -126,11 +126,8 @@ class MosaicSettings:
         used: set[int] = set()
         for part in self.frames.split(","):
             lo, sep, hi = part.strip().partition("-")
-            try:
-                first = parse_integer(lo, f"{where}: frame", hint=usage)
-                last = parse_integer(hi, f"{where}: frame", hint=usage) if sep else first
-            except LidarsimError as exc:
-                raise HdLabelsError(str(exc)) from exc
+            first = parse_integer(lo, f"{where}: frame", hint=usage)
+            last = parse_integer(hi, f"{where}: frame", hint=usage) if sep else first
             if not 0 <= first <= last < k:
                 raise HdLabelsError(f"{where}: {part.strip()} is not frames of a descent of {k} frames; {usage}")
             used.update(range(first, last + 1))
