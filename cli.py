@@ -19,7 +19,7 @@ from hdlabels.errors import HdLabelsError
 from hdnet import terminal
 from hdnet.chains import PAPER_RECIPE, DemoSettings, ReproduceSettings, run_demo, run_reproduce
 from hdnet.detect_settings import DetectSettings
-from hdnet.inspection import Verdict, inspect_directory, verify_directory
+from hdnet.inspection import Verdict, inspect_directory, known_schemas, verify_directory
 from hdnet.shared_options import (
     LABELS_FORMS,
     dtm_option,
@@ -46,6 +46,7 @@ from lidarsim.errors import LidarsimError
 from lidarsim.make_dtm import DtmSettings
 from lidarsim.outcome import Done, counted
 from lidarsim.setting import (
+    DATASET_OR_URL,
     DIRECTORY,
     FILE_OR_DIRECTORY,
     NonEmptyPath,
@@ -143,7 +144,7 @@ def _show(verdict: Verdict) -> None:
 
 
 @main.command("inspect")
-@click.argument("directory", type=DIRECTORY)
+@click.argument("directory", type=DATASET_OR_URL)
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as one JSON object (for scripts).")
 @click.option(
     "--plot",
@@ -162,8 +163,9 @@ def _show(verdict: Verdict) -> None:
 @overwrite_option("With --plot: replace an existing FILE.")
 @json_output
 @friendly_errors
-def inspect_cmd(directory: Path, as_json: bool, plot: Path | None, labels: str | None, overwrite: bool) -> None:
-    """Summarise a dataset (scans, splits, noise levels, sensor, terrain, labels; every file checked) or a
+def inspect_cmd(directory: Path | str, as_json: bool, plot: Path | None, labels: str | None, overwrite: bool) -> None:
+    """Summarise a dataset (a directory or a URL: s3://bucket/prefix, https://host/path; scans, splits, noise
+    levels, sensor, terrain, labels; every file checked) or a
     run (profile, training data and noise, epochs, metrics); --plot draws a dataset at a glance."""
     _show(inspect_directory(directory, as_json or OUTPUT.json, plot, labels, overwrite))
 
@@ -215,11 +217,12 @@ def view_cmd(directory: Path, out_path: Path | None, dtm_path: Path | None, **se
 
 
 @main.command("verify")
-@click.argument("directory", type=DIRECTORY)
+@click.argument("directory", type=DATASET_OR_URL)
 @recipe_option("Also check the dataset against the checksums published with a recipe.")
 @friendly_errors
-def verify_cmd(directory: Path, recipe: Path | None) -> None:
-    """Check every file of a dataset against the manifest's checksums and the schema versions.
+def verify_cmd(directory: Path | str, recipe: Path | None) -> None:
+    """Check every file of a dataset (a directory or a URL, each byte read once) against the manifest's
+    checksums and the schema versions.
 
     With --recipe, also every file against the recipe's published build: identical (sha256), or
     rebuilt and equal to it within the tolerances of its content fingerprints (docs/shard-format.md).
@@ -399,6 +402,33 @@ def card_cmd(dataset: Path, recipe: Path, machine: str) -> None:
 
     card = publish_card(dataset, recipe, machine)
     say(f"wrote {card.card_path} and {card.checksums_path} ({counted(card.n_shards, 'shard')})")
+
+
+@main.command("publish")
+@click.argument("directory", type=DIRECTORY)
+@click.argument("url")
+@overwrite_option("Replace another dataset (or other files) at URL; without it they are kept and publish refuses.")
+@json_output
+@friendly_errors
+def publish_cmd(directory: Path, url: str, overwrite: bool) -> None:
+    """Upload a dataset to URL (s3://bucket/prefix, file:///path, ...): shards first, manifest.json last, so
+    a reader never sees a half-published dataset; re-run the same command to resume an interrupted one."""
+    from lidarsim.transfer import publish_dataset
+
+    _done(publish_dataset(directory, url, overwrite, known_schemas()))
+
+
+@main.command("pull")
+@click.argument("url")
+@click.argument("directory", type=DIRECTORY)
+@json_output
+@friendly_errors
+def pull_cmd(url: str, directory: Path) -> None:
+    """Copy the dataset at URL into DIRECTORY (new or empty): each file checked against the manifest's sha256,
+    the manifest written last, then every file verified; re-run the same command to resume."""
+    from lidarsim.transfer import pull_dataset
+
+    _done(pull_dataset(url, directory, known_schemas()))
 
 
 if __name__ == "__main__":

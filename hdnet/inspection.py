@@ -31,7 +31,7 @@ def known_schemas() -> dict[str, str]:
 
 
 def inspect_directory(
-    directory: Path, as_json: bool, plot: Path | None = None, labels: str | None = None, overwrite: bool = False
+    directory: Path | str, as_json: bool, plot: Path | None = None, labels: str | None = None, overwrite: bool = False
 ) -> Verdict:
     """A dataset's summary (scans, splits, noise levels, sensor, terrain, labels; every file checked)
     or a run's (profile, training data and noise, epochs, metrics); as one JSON object with ``as_json``.
@@ -49,14 +49,18 @@ def inspect_directory(
     """
     from hdnet.run_summary import describe_run, is_run_dir, run_record
     from lidarsim.inspect import INTACT_STATUS, damaged_message, damaged_status, dataset_record, describe_dataset
+    from lidarsim.location import is_url
     from lidarsim.shards import MANIFEST_NAME, verify_dataset
 
     if plot is None and (labels is not None or overwrite):
         raise HdNetError("--labels and --overwrite go with --plot FILE (the figure's labelling, and replacing it)")
-    if is_run_dir(directory) and not (directory / MANIFEST_NAME).exists():
+    if is_url(directory) and plot is not None:
+        raise HdNetError(f"{directory} is a URL: --plot draws a local dataset; `hd pull` copies it here first")
+    local = None if is_url(directory) else Path(directory)
+    if local is not None and is_run_dir(local) and not (local / MANIFEST_NAME).exists():
         if plot is not None:
             raise HdNetError(f"{directory} is a run: --plot draws a dataset at a glance; give a dataset directory")
-        return Verdict([json.dumps(run_record(directory)) if as_json else describe_run(directory)])
+        return Verdict([json.dumps(run_record(local)) if as_json else describe_run(local)])
     labeling = None
     if plot is not None:
         from hdnet.dataset_figure import check_figure_path, chosen_labeling
@@ -86,10 +90,11 @@ def inspect_directory(
     return Verdict([*lines, INTACT_STATUS])
 
 
-def verify_directory(directory: Path, recipe: Path | None) -> Verdict:
+def verify_directory(directory: Path | str, recipe: Path | None) -> Verdict:
     """Every file of a dataset against the manifest's checksums and the schema versions; with
     ``recipe``, also against the recipe's published build (identical, or equal within the
     tolerances of its content fingerprints)."""
+    from lidarsim.location import is_url
     from lidarsim.published import compare_with_recipe
     from lidarsim.shards import read_manifest, verify_dataset
 
@@ -97,7 +102,8 @@ def verify_directory(directory: Path, recipe: Path | None) -> Verdict:
     out: list[str] = []
     published = None
     if recipe is not None:
-        published = compare_with_recipe(directory, recipe, content=not problems)
+        # At a URL only the sha256 are compared (rebuilt files' fingerprints are read from a local copy).
+        published = compare_with_recipe(directory, recipe, content=not problems and not is_url(directory))
         out += published.verdicts
         problems += published.problems
     if problems:

@@ -2,19 +2,27 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from lidarsim.location import is_url, remote_dataset
 from lidarsim.outcome import counted
 from lidarsim.shards import SPLIT_NAMES, open_scan_shard, read_manifest
 from lidarsim.storage import FormatError, StorageError, confine, lock_holder
 
 
-def _size(directory: Path, entries: list[dict]) -> int:
+def _size(directory: Path | str, entries: list[dict]) -> int:
     total = 0
+    if isinstance(directory, str):  # a URL: the sizes its listing gives
+        remote = remote_dataset(directory)
+        for entry in entries:
+            with contextlib.suppress(FormatError):
+                total += remote.size(entry["path"]) or 0
+        return total
     for entry in entries:
         try:
             path = confine(directory, entry["path"])
@@ -34,7 +42,7 @@ def describe_dataset(directory: str | os.PathLike) -> str:
         ShardFormatError: not an hd dataset (an unfinished build is named as such), a malformed
             manifest, or a schema version this hd does not read.
     """
-    directory = Path(directory)
+    directory = str(directory).rstrip("/") if is_url(directory) else Path(directory)
     manifest = read_manifest(directory)
     shards = manifest["shards"]
     size = _size(directory, shards)
@@ -101,6 +109,8 @@ def describe_dataset(directory: str | os.PathLike) -> str:
     if not labelings:
         lines.append("labels    none (run `hd label`)")
     listed = {lab.get("name") for lab in labelings}
+    if isinstance(directory, str):  # a URL: no unfinished labelling or writer is looked for there
+        return "\n".join(lines)
     labels_dir = directory / "labels"
     if labels_dir.is_dir():
         for d in sorted(labels_dir.iterdir()):
@@ -123,12 +133,12 @@ def dataset_record(directory: str | os.PathLike) -> dict[str, Any]:
     Raises:
         ShardFormatError: as :func:`describe_dataset`.
     """
-    directory = Path(directory)
+    directory = str(directory).rstrip("/") if is_url(directory) else Path(directory)
     manifest = read_manifest(directory)
     shards = manifest["shards"]
     dtm = _mapping(manifest.get("dtm"))
     record: dict[str, Any] = {
-        "dataset": str(directory.resolve()),
+        "dataset": directory if isinstance(directory, str) else str(directory.resolve()),
         "kind": "hd.dataset",
         "schema": manifest.get("schema"),
         "schema_version": manifest.get("schema_version"),
@@ -153,7 +163,7 @@ def dataset_record(directory: str | os.PathLike) -> dict[str, Any]:
             for lab in manifest.get("labelings", [])
             if isinstance(lab, dict)
         ],
-        "writer_pid": lock_holder(directory),
+        "writer_pid": None if isinstance(directory, str) else lock_holder(directory),
     }
     if isinstance(manifest.get("mosaic"), dict):  # a mosaic dataset: how its mosaics were made
         record["mosaic"] = manifest["mosaic"]

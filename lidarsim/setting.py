@@ -239,19 +239,29 @@ _URL = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]*://")
 
 class NonEmptyPath(click.Path):
     """click.Path that refuses an empty string (which click would turn into the current directory) and
-    a URL (no command reads one yet; as a path, ``s3://bucket/x`` would become ``s3:/bucket/x``).
-    Every path argument and option of ``hd`` is of this type."""
+    a URL (as a path, ``s3://bucket/x`` would become ``s3:/bucket/x``): the arguments that read a
+    URL are :class:`DatasetOrUrl`. Every other path argument and option of ``hd`` is of this type."""
 
     def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
         if isinstance(value, str) and not value.strip():
             self.fail("must not be empty", param, ctx)
         if isinstance(value, str) and _URL.match(value):
             self.fail(
-                f"{value} is a URL; hd reads local files only (URLs are not read yet): copy it to a local "
-                "directory, or mount it, and give that path",
+                f"{value} is a URL; this argument takes a local path (hd inspect and hd verify read a URL, "
+                "hd pull URL DIR copies a dataset from one): give a local path",
                 param,
                 ctx,
             )
+        return super().convert(value, param, ctx)
+
+
+class DatasetOrUrl(NonEmptyPath):
+    """A dataset to read: a local directory (as :class:`NonEmptyPath` takes it, a ``Path``) or a URL
+    (``s3://bucket/prefix``, ``https://host/path``...), kept as the string, never read as a path."""
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        if isinstance(value, str) and _URL.match(value):
+            return value.rstrip("/")
         return super().convert(value, param, ctx)
 
 
@@ -312,6 +322,7 @@ def bounded(bound: Bound) -> click.ParamType:
 
 DIRECTORY = NonEmptyPath(file_okay=False, path_type=Path)
 FILE_OR_DIRECTORY = NonEmptyPath(path_type=Path)
+DATASET_OR_URL = DatasetOrUrl(file_okay=False, path_type=Path)
 
 
 def _option(name: str, d: Described, default: Any, help: str | None = None) -> tuple[list[str], dict[str, Any]]:

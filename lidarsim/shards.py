@@ -10,6 +10,9 @@ and name the file and the scan in every error.
 
 from __future__ import annotations
 
+import hashlib
+import io
+import json
 import os
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -23,6 +26,7 @@ import numpy as np
 from lidarsim import defaults, limits
 from lidarsim._version import __version__
 from lidarsim.errors import LidarsimError
+from lidarsim.location import PUBLISH_MARK, dataset_label, is_url, join, open_h5_at, remote_dataset
 from lidarsim.outcome import counted
 from lidarsim.storage import (
     CheckedH5File,
@@ -461,11 +465,11 @@ class ScanShardReader:
     """
 
     def __init__(self, path: str | os.PathLike, sha256: str | None = None, what: str | None = None) -> None:
-        self.path = Path(path)
+        self.path: Path | str = str(path) if is_url(path) else Path(path)
         self.what = what or str(self.path)
-        if sha256 is not None:
+        if sha256 is not None and not is_url(path):  # a URL is read lazily: hd verify checks its sha256
             verify_sha256(self.path, sha256, self.what)
-        self._f: CheckedH5File = open_h5(self.path, self.what)
+        self._f: CheckedH5File = open_h5_at(self.path, self.what)
         try:
             attrs = self._f.attrs
             check_schema(
@@ -662,6 +666,8 @@ def read_manifest(directory: str | os.PathLike) -> dict[str, Any]:
             unknown schema/major version, or a malformed manifest (missing keys, paths leaving
             the dataset, bad checksums).
     """
+    if is_url(directory):
+        return _read_remote_manifest(str(directory))
     directory = Path(directory)
     path = directory / MANIFEST_NAME
     if os.path.lexists(path):
@@ -685,11 +691,42 @@ def read_manifest(directory: str | os.PathLike) -> dict[str, Any]:
     return validate_manifest(read_json(path, "manifest"), str(path))
 
 
+def manifest_text(data: bytes, where: str) -> Any:
+    """The JSON of a manifest's bytes (``DamagedFileError`` naming ``where`` when it is not JSON)."""
+    try:
+        return json.loads(data.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError) as exc:
+        raise DamagedFileError(f"{where}: unreadable manifest ({exc})") from exc
+    except RecursionError as exc:
+        raise DamagedFileError(f"{where}: unreadable manifest (nested too deeply)") from exc
+
+
+def _read_remote_manifest(url: str) -> dict[str, Any]:
+    """``read_manifest`` of a dataset at a URL: what is there instead of a manifest is named."""
+    remote = remote_dataset(url)
+    where = remote.url_of(MANIFEST_NAME)
+    if remote.size(MANIFEST_NAME) is None:
+        if remote.size(PUBLISH_MARK) is not None:
+            raise FormatError(
+                f"{remote.url}: a dataset is being published there, or its publication was interrupted "
+                "(no manifest yet); wait for `hd publish` to finish, or re-run it"
+            )
+        held = remote.listing()
+        if not held:
+            raise FormatError(f"{remote.url}: no dataset there (nothing at that URL)")
+        raise FormatError(
+            f"{remote.url}: not an hd dataset (no {MANIFEST_NAME}; it holds {counted(len(held), 'other file')})"
+        )
+    return validate_manifest(manifest_text(remote.read_bytes(MANIFEST_NAME), where), where)
+
+
 def open_scan_shard(directory: str | os.PathLike, entry: dict[str, Any]) -> ScanShardReader:
     """Open the scan shard of a manifest entry: path confined to the dataset, sha256 checked first,
-    and its scan count compared with the entry's ``n_scans`` when the entry gives one."""
-    path = confine(directory, entry["path"])
-    reader = ScanShardReader(path, sha256=entry["sha256"], what=f"{Path(directory) / entry['path']}")
+    and its scan count compared with the entry's ``n_scans`` when the entry gives one. At a URL the
+    shard is read lazily and its sha256 is left to ``hd verify`` (its chunks' fletcher32 checks stay)."""
+    path = join(directory, entry["path"])
+    what = f"{dataset_label(directory)}/{entry['path']}" if is_url(directory) else f"{Path(directory) / entry['path']}"
+    reader = ScanShardReader(path, sha256=entry["sha256"], what=what)
     claimed = entry.get("n_scans")
     if isinstance(claimed, int) and not isinstance(claimed, bool) and claimed != len(reader):
         reader.close()
@@ -755,7 +792,8 @@ def verify_dataset(directory: str | os.PathLike, known_schemas: dict[str, str] |
     must be the manifest's ``dtm.sha256``).
 
     Args:
-        directory: the dataset directory.
+        directory: the dataset directory, or its URL (each file then read once, as a stream: its
+            sha256 and its attributes come from the same bytes).
         known_schemas: schema name -> version this reader understands (default: scan shards);
             other packages add theirs (label shards).
 
@@ -766,6 +804,8 @@ def verify_dataset(directory: str | os.PathLike, known_schemas: dict[str, str] |
         ShardFormatError: no readable, well-formed manifest.
     """
     known = {SCAN_SCHEMA: SCAN_SCHEMA_VERSION, **(known_schemas or {})}
+    if is_url(directory):
+        return _verify_remote(str(directory), known)
     directory = Path(directory)
     manifest = read_manifest(directory)
     problems: list[str] = []
@@ -793,24 +833,87 @@ def verify_dataset(directory: str | os.PathLike, known_schemas: dict[str, str] |
                 f"{rel}: checksum mismatch (sha256 {digest[:12]}..., manifest says {entry['sha256'][:12]}...)"
             )
             continue
+        problems += _file_problems(lambda p=path, r=rel: open_h5(p, r), rel, entry, known, manifest)
+    problems += _terrain_problems(directory, manifest)
+    return problems
+
+
+def _file_problems(
+    opener: Any, rel: str, entry: dict[str, Any], known: dict[str, str], manifest: dict[str, Any]
+) -> list[str]:
+    """The schema, scan count and terrain of one file whose sha256 matched (``opener()`` opens it)."""
+    problems: list[str] = []
+    try:
+        with opener() as f:
+            name = _py(f.attrs.get("schema", ""))
+            version = _py(f.attrs.get("schema_version", ""))
+            if name not in known:
+                return [f"{rel}: unknown schema {name!r}"]
+            check_schema(name, version, name, known[name], rel)
+            if int(_py(f.attrs.get("n_scans", -1))) != int(entry["n_scans"]):
+                problems.append(f"{rel}: holds {_py(f.attrs.get('n_scans'))} scans, manifest says {entry['n_scans']}")
+            problems += _terrain_digest_problems(rel, _py(f.attrs.get(TRUTH_DTM_SHA256_ATTR)), manifest)
+    except (FormatError, StorageError) as exc:
+        problems.append(str(exc))
+    except (OSError, TypeError, ValueError):
+        problems.append(f"{rel}: not a readable HDF5 file")
+    return problems
+
+
+def _stream_sha256(remote: Any, rel: str) -> tuple[str, bytes]:
+    """The sha256 and the bytes of a remote file, read once as a stream."""
+    h = hashlib.sha256()
+    buf = io.BytesIO()
+    for block in remote.stream(rel):
+        h.update(block)
+        buf.write(block)
+    return h.hexdigest(), buf.getvalue()
+
+
+def _verify_remote(url: str, known: dict[str, str]) -> list[str]:
+    """``verify_dataset`` of a dataset at a URL: each file streamed once (sha256), then its attributes
+    read from the same bytes in memory (one file at a time)."""
+    remote = remote_dataset(url)
+    manifest = read_manifest(url)
+    problems: list[str] = []
+    entries = list(manifest.get("shards", []))
+    for labelling in manifest.get("labelings", []):
+        entries.extend(labelling.get("shards", []))
+        problems += _entry_schema_problems(labelling, known)
+    for entry in entries:
+        rel = entry["path"]
         try:
-            with open_h5(path, rel) as f:
-                name = _py(f.attrs.get("schema", ""))
-                version = _py(f.attrs.get("schema_version", ""))
-                if name not in known:
-                    problems.append(f"{rel}: unknown schema {name!r}")
-                    continue
-                check_schema(name, version, name, known[name], rel)
-                if int(_py(f.attrs.get("n_scans", -1))) != int(entry["n_scans"]):
-                    problems.append(
-                        f"{rel}: holds {_py(f.attrs.get('n_scans'))} scans, manifest says {entry['n_scans']}"
-                    )
-                problems += _terrain_digest_problems(rel, _py(f.attrs.get(TRUTH_DTM_SHA256_ATTR)), manifest)
+            if remote.size(rel) is None:
+                problems.append(f"{rel}: missing")
+                continue
+            digest, data = _stream_sha256(remote, rel)
         except (FormatError, StorageError) as exc:
             problems.append(str(exc))
-        except (OSError, TypeError, ValueError):
-            problems.append(f"{rel}: not a readable HDF5 file")
-    problems += _terrain_problems(directory, manifest)
+            continue
+        if digest != entry["sha256"]:
+            problems.append(
+                f"{rel}: checksum mismatch (sha256 {digest[:12]}..., manifest says {entry['sha256'][:12]}...)"
+            )
+            continue
+
+        def opener(data: bytes = data, rel: str = rel) -> CheckedH5File:
+            return CheckedH5File(h5py.File(io.BytesIO(data), "r"), rel)
+
+        problems += _file_problems(opener, rel, entry, known, manifest)
+    dtm = manifest.get("dtm")
+    if isinstance(dtm, dict) and isinstance(dtm.get("path"), str) and not os.path.isabs(dtm["path"]):
+        rel, recorded = dtm["path"], dtm.get("sha256")
+        try:
+            if remote.size(rel) is None:
+                problems.append(f"{rel}: missing (the dataset's terrain)")
+            else:
+                digest, _ = _stream_sha256(remote, rel)
+                if is_sha256(recorded) and digest != recorded:
+                    problems.append(
+                        f"{rel}: checksum mismatch (sha256 {digest[:12]}..., manifest says {str(recorded)[:12]}...)"
+                    )
+        except (FormatError, StorageError) as exc:
+            problems.append(str(exc))
     return problems
 
 

@@ -1,0 +1,276 @@
+"""Where a dataset lies: a local directory, read by today's code unchanged, or a URL read through fsspec.
+
+The one seam between hd's readers and remote storage. A dataset or run is given either as a
+directory (every function here hands it to ``lidarsim.storage`` as before: same checks, same bytes)
+or as a URL (``s3://bucket/prefix``, ``https://host/path``, ``file:///abs/path``, or anything else
+fsspec reads): then
+
+* :func:`join` gives a manifest path's URL (the path checked as :func:`lidarsim.storage.confine`
+  checks a local one: relative, no ``..``);
+* :func:`read_remote_bytes` reads a side file (the manifest) whole, bounded like a local one;
+* :func:`open_h5_at` opens an HDF5 file lazily: h5py reads through an fsspec file object with a
+  block cache (``BLOCK_BYTES`` blocks, at most ``CACHE_BLOCKS`` of them), so one scan costs a few
+  range requests, never the whole shard;
+* :func:`remote_errors` turns what the protocol raises (an unreachable host, a missing bucket or
+  object, missing credentials, access denied) into one :class:`~lidarsim.errors.StorageError` line
+  naming the URL.
+
+Credentials come from each protocol's standard places (S3: ``AWS_*`` variables, profiles, the
+instance's role; HTTPS: none), never from hd options. fsspec and its protocol packages are the
+optional extra ``remote`` (docs/dependencies.md); without them a URL is refused in one line.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import os
+import re
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import h5py
+
+from lidarsim.errors import DamagedFileError, FormatError, LidarsimError, StorageError
+from lidarsim.storage import (
+    MAX_SIDE_FILE_BYTES,
+    CheckedH5File,
+    check_relative,
+    confine,
+    open_h5,
+)
+
+URL_PATTERN = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]*://")
+# hd choice: the block of an HDF5 file fetched per range request, bytes. A scan's chunk of a shard
+# (128 x 128 x 3 float32 points per noise level, deflated) is 50-200 kB: 2 MiB holds a few scans of
+# one array, and a read of scan k's arrays costs one request per array.
+BLOCK_BYTES = 2 << 20
+# hd choice: blocks kept per open file (64 MiB): a shard's metadata and the current scans stay cached.
+CACHE_BLOCKS = 32
+# hd choice: the block a whole-file stream (hd verify, hd pull) reads per request, bytes.
+STREAM_BYTES = 8 << 20
+INSTALL_HINT = "pip install 'hd[remote]'"
+# The mark ``hd publish`` leaves at a URL while it uploads (removed once the manifest is there): the
+# sha256 of the manifest it is publishing, so that a re-run resumes and a reader names the state.
+PUBLISH_MARK = ".hd-publish.json"
+
+
+def is_url(value: object) -> bool:
+    """True for a string that names a URL (``scheme://...``), False for a local path."""
+    return isinstance(value, str) and bool(URL_PATTERN.match(value))
+
+
+def _fsspec() -> Any:
+    try:
+        import fsspec
+    except ImportError as exc:
+        raise StorageError(f"reading a URL needs fsspec, which is not installed: {INSTALL_HINT}") from exc
+    return fsspec
+
+
+def remote_error(url: str, exc: BaseException) -> StorageError:
+    """One line for what reading or writing ``url`` raised: the host, the bucket, the credentials,
+    the object or the access named as the cause."""
+    kind = type(exc).__name__
+    names = {c.__name__ for c in type(exc).__mro__}
+    text = str(exc).strip().splitlines()[0] if str(exc).strip() else kind
+    scheme = url.split("://", 1)[0]
+    if names & {"NoCredentialsError", "PartialCredentialsError", "NoAuthTokenError"}:
+        return StorageError(
+            f"{url}: no credentials for {scheme}:// (set AWS_ACCESS_KEY_ID and AWS_SECRET_ACCESS_KEY, or "
+            "AWS_PROFILE naming a profile; for a public bucket, anonymous access is not tried)"
+        )
+    if "bucket does not exist" in text.lower() or "NoSuchBucket" in text:
+        bucket = url.split("://", 1)[1].split("/", 1)[0]
+        return StorageError(f"{url}: no such bucket {bucket!r}")
+    if isinstance(exc, FileNotFoundError):
+        return StorageError(f"{url}: not found")
+    if isinstance(exc, PermissionError) or "AccessDenied" in text or "Forbidden" in text:
+        return StorageError(f"{url}: access denied ({text})")
+    if names & {
+        "EndpointConnectionError",
+        "ConnectTimeoutError",
+        "ClientConnectorError",
+        "ClientConnectorDNSError",
+        "ServerDisconnectedError",
+        "ConnectionError",
+        "TimeoutError",
+        "ConnectionRefusedError",
+    }:
+        return StorageError(f"{url}: cannot reach the host ({text})")
+    if isinstance(exc, ValueError) and "protocol" in text.lower():
+        return StorageError(f"{url}: unknown URL scheme {scheme!r} ({text}); {INSTALL_HINT} installs s3 and https")
+    if isinstance(exc, ImportError):
+        return StorageError(f"{url}: {scheme}:// needs a package that is not installed ({text}); {INSTALL_HINT}")
+    return StorageError(f"{url}: {text}")
+
+
+@contextlib.contextmanager
+def remote_errors(url: str) -> Iterator[None]:
+    """Every exception of the block but hd's own becomes :func:`remote_error`'s one line."""
+    try:
+        yield
+    except LidarsimError:
+        raise
+    except Exception as exc:  # protocols raise their own classes (botocore, aiohttp): all become one line
+        raise remote_error(url, exc) from exc
+
+
+class RemoteDataset:
+    """A dataset (or run) at a URL: its file system and root, opened once per process.
+
+    Args:
+        url: ``scheme://...``; a trailing ``/`` is ignored.
+    """
+
+    def __init__(self, url: str) -> None:
+        self.url = url.rstrip("/")
+        fsspec = _fsspec()
+        with remote_errors(self.url):
+            self.fs, self.root = fsspec.core.url_to_fs(self.url)
+        self.root = str(self.root).rstrip("/")
+
+    def __str__(self) -> str:
+        return self.url
+
+    @property
+    def is_local(self) -> bool:
+        """True for a local file system (``file://``): files are written under a temporary name and renamed."""
+        protocol = self.fs.protocol
+        return bool({"file", "local"} & set((protocol,) if isinstance(protocol, str) else protocol))
+
+    def path_of(self, relative: str, where: str | None = None) -> str:
+        """The file system path of a manifest path (checked: relative, no ``..``)."""
+        check_relative(relative, where or f"{self.url}/{relative}")
+        return f"{self.root}/{relative}"
+
+    def url_of(self, relative: str) -> str:
+        """The URL of a manifest path (checked: relative, no ``..``)."""
+        check_relative(relative, f"{self.url}/{relative}")
+        return f"{self.url}/{relative}"
+
+    def exists(self, relative: str) -> bool:
+        """True when the file ``relative`` is there."""
+        with remote_errors(self.url_of(relative)):
+            return bool(self.fs.exists(self.path_of(relative)))
+
+    def size(self, relative: str) -> int | None:
+        """Size in bytes of the file ``relative`` (None when it is not there)."""
+        with remote_errors(self.url_of(relative)):
+            try:
+                info = self.fs.info(self.path_of(relative))
+            except FileNotFoundError as exc:
+                if "bucket" in str(exc).lower():
+                    raise
+                return None
+        size = info.get("size")
+        return int(size) if isinstance(size, int) and info.get("type", "file") == "file" else None
+
+    def read_bytes(self, relative: str, max_bytes: int = MAX_SIDE_FILE_BYTES) -> bytes:
+        """The bytes of the side file ``relative`` (at most ``max_bytes``).
+
+        Raises:
+            StorageError: not there, unreachable, no credentials. FormatError: larger than ``max_bytes``.
+        """
+        url = self.url_of(relative)
+        size = self.size(relative)
+        if size is None:
+            raise StorageError(f"{url}: not found")
+        if size > max_bytes:
+            raise FormatError(f"{url}: {size} bytes, more than the {max_bytes} this file can hold")
+        with remote_errors(url):
+            return bytes(self.fs.cat_file(self.path_of(relative)))
+
+    def stream(self, relative: str, block_bytes: int = STREAM_BYTES) -> Iterator[bytes]:
+        """The bytes of ``relative`` in blocks, read once from start to end (no cache)."""
+        url = self.url_of(relative)
+        with remote_errors(url), self.fs.open(self.path_of(relative), "rb", cache_type="none") as fh:
+            while block := fh.read(block_bytes):
+                yield block
+
+    def open_file(self, relative: str) -> Any:
+        """A read-only file object of ``relative`` with a block cache (``BLOCK_BYTES`` x ``CACHE_BLOCKS``)."""
+        with remote_errors(self.url_of(relative)):
+            return self.fs.open(
+                self.path_of(relative),
+                "rb",
+                block_size=BLOCK_BYTES,
+                cache_type="blockcache",
+                cache_options={"maxblocks": CACHE_BLOCKS},
+            )
+
+    def listing(self) -> list[str]:
+        """Every file under the root, as paths relative to it (empty when there is none)."""
+        with remote_errors(self.url):
+            try:
+                found = self.fs.find(self.root)
+            except FileNotFoundError as exc:
+                if "bucket" in str(exc).lower():
+                    raise
+                return []
+        prefix = self.root + "/"
+        return sorted(str(p)[len(prefix) :] for p in found if str(p).startswith(prefix))
+
+
+@functools.lru_cache(maxsize=16)
+def _remote(url: str, pid: int) -> RemoteDataset:
+    return RemoteDataset(url)
+
+
+def remote_dataset(url: str) -> RemoteDataset:
+    """The :class:`RemoteDataset` of ``url``, made once per process (a forked reader makes its own)."""
+    return _remote(url.rstrip("/"), os.getpid())
+
+
+def dataset_label(location: str | os.PathLike) -> str:
+    """How messages name a dataset: its URL as given, or its path."""
+    return str(location).rstrip("/") if is_url(location) else str(Path(location))
+
+
+def join(location: str | os.PathLike, relative: Any, where: str | None = None) -> Path | str:
+    """The file ``relative`` (a manifest path) of a dataset: a URL under a URL, else
+    :func:`lidarsim.storage.confine`'s checked path.
+
+    Raises:
+        FormatError: an absolute path, ``..``, or a link leading outside the dataset.
+    """
+    if is_url(location):
+        check_relative(relative, where or f"{str(location).rstrip('/')}/{relative}")
+        return f"{str(location).rstrip('/')}/{relative}"
+    return confine(location, relative, where)
+
+
+def split_url(url: str) -> tuple[RemoteDataset, str]:
+    """The folder and file name of a file URL (the folder's file system, made once per process)."""
+    base, _, name = url.rstrip("/").rpartition("/")
+    return remote_dataset(base), name
+
+
+def open_h5_at(path: str | os.PathLike, what: str | None = None) -> CheckedH5File:
+    """Open an HDF5 file read-only with checked reads: a local path as :func:`lidarsim.storage.open_h5`
+    opens it, a URL lazily through fsspec (block cache; see the module docstring).
+
+    Raises:
+        StorageError: unreachable or missing. DamagedFileError: not HDF5 or damaged metadata.
+    """
+    if not is_url(path):
+        return open_h5(path, what)
+    url = str(path)
+    name = what or url
+    remote, relative = split_url(url)
+    if remote.size(relative) is None:
+        raise DamagedFileError(f"{name}: missing (the manifest lists it); run `hd verify`")
+    fh = remote.open_file(relative)
+    try:
+        f = h5py.File(fh, "r")
+    except OSError as exc:
+        fh.close()
+        raise DamagedFileError(
+            f"{name}: cannot open as HDF5 ({str(exc).splitlines()[0] if str(exc) else type(exc).__name__}); "
+            "the file is damaged or not an hd file"
+        ) from exc
+    except Exception as exc:  # a protocol's own error while h5py reads (a lost connection)
+        fh.close()
+        raise remote_error(url, exc) from exc
+    return CheckedH5File(f, name)
