@@ -24,6 +24,7 @@ from hdlabels import conventions, defaults
 from hdlabels._version import __version__
 from hdlabels.errors import HdLabelsError, LabelStoreError
 from hdlabels.lander import Lander
+from lidarsim.location import dataset_label, is_url, join, open_h5_at
 from lidarsim.shards import (
     MANIFEST_NAME,
     SPLIT_NAMES,
@@ -35,7 +36,7 @@ from lidarsim.shards import (
     write_attrs,
     write_json_atomic,
 )
-from lidarsim.storage import CheckedH5File, H5Image, RowBlocks, confine, open_h5, verify_sha256
+from lidarsim.storage import CheckedH5File, H5Image, RowBlocks, verify_sha256
 
 LABEL_SCHEMA = "hd.labels"
 # 1.1: the label convention, the baseline's combination and the gridding are recorded (attributes
@@ -304,11 +305,11 @@ class LabelShardReader:
     """
 
     def __init__(self, path: str | os.PathLike, sha256: str | None = None, what: str | None = None) -> None:
-        self.path = Path(path)
+        self.path: Path | str = str(path) if is_url(path) else Path(path)
         self.what = what or str(self.path)
-        if sha256 is not None:
+        if sha256 is not None and not is_url(path):  # a URL is read lazily: hd verify checks its sha256
             verify_sha256(self.path, sha256, self.what)
-        self.h5: CheckedH5File = open_h5(self.path, self.what)
+        self.h5: CheckedH5File = open_h5_at(self.path, self.what)
         attrs = self.h5.attrs
         try:
             check_schema(
@@ -498,13 +499,13 @@ def _checked_entry(labeling: dict[str, Any], where: str) -> dict[str, Any]:
     return labeling
 
 
-def label_shard_paths(directory: str | os.PathLike, labeling: dict[str, Any]) -> list[Path]:
-    """Paths of a labelling's shards, in scan order (each confined to the dataset).
+def label_shard_paths(directory: str | os.PathLike, labeling: dict[str, Any]) -> list[Path | str]:
+    """Paths of a labelling's shards, in scan order (each confined to the dataset; URLs under a URL).
 
     Raises:
         FormatError: a path that leaves the dataset.
     """
-    return [confine(directory, entry["path"], f"{directory}/{entry['path']}") for entry in labeling["shards"]]
+    return [join(directory, entry["path"], f"{directory}/{entry['path']}") for entry in labeling["shards"]]
 
 
 def open_label_shard(directory: str | os.PathLike, entry: dict[str, Any]) -> LabelShardReader:
@@ -514,8 +515,8 @@ def open_label_shard(directory: str | os.PathLike, entry: dict[str, Any]) -> Lab
         FormatError: path outside the dataset, unknown schema (``DamagedFileError``: a missing or
             damaged file), as ``lidarsim.storage`` raises it.
     """
-    what = f"{Path(directory) / entry['path']}"
-    path = confine(directory, entry["path"], what)
+    what = f"{dataset_label(directory)}/{entry['path']}" if is_url(directory) else f"{Path(directory) / entry['path']}"
+    path = join(directory, entry["path"], what)
     return LabelShardReader(path, sha256=entry["sha256"], what=what)
 
 

@@ -82,7 +82,8 @@ from hdnet.inputs import (  # noqa: F401  (re-exported: the grid helpers belong 
 from hdnet.noise_levels import TrainingNoise, check_levels
 from hdnet.sample import DemSample
 from lidarsim.errors import LidarsimError
-from lidarsim.storage import CheckedH5File, open_h5
+from lidarsim.location import is_url, open_h5_at
+from lidarsim.storage import CheckedH5File
 from lidarsim.streams import Purpose, stream
 
 SPLITS: tuple[str, str, str] = ("train", "val", "test")  # split codes 0, 1, 2 of the label shards
@@ -94,13 +95,13 @@ DEAD_PIXEL_STREAM = 0xDEAD  # hd choice: stream key of the dead-pixel draws, (se
 
 
 # --- labelling and noise levels ----------------------------------------------------------------
-def open_labeling(dataset_dir: str | os.PathLike, labels: str | None = None) -> tuple[dict[str, Any], list[Path]]:
+def open_labeling(dataset_dir: str | os.PathLike, labels: str | None = None) -> tuple[dict[str, Any], list[Path | str]]:
     """The labelling entry of a dataset and its label shard paths (``LabelStoreError`` when there are no labels)."""
     entry = find_labeling(dataset_dir, labels)
     return entry, label_shard_paths(dataset_dir, entry)
 
 
-def dataset_sigmas(paths: list[Path]) -> tuple[float, ...]:
+def dataset_sigmas(paths: list[Path | str]) -> tuple[float, ...]:
     """Noise levels (metres) of a labelling, read from its first label shard."""
     if not paths:
         raise HdNetError("the labelling lists no label shards.")
@@ -226,7 +227,7 @@ class HazardDataset(Dataset):
             sigma_m, noise = noise.levels_m[0], None
         if (sigma_m is None) == (noise is None):
             raise HdNetError("give either one noise level (sigma_m) or training noise levels, not both.")
-        self.dataset_dir = Path(dataset_dir)
+        self.dataset_dir: Path | str = str(dataset_dir).rstrip("/") if is_url(dataset_dir) else Path(dataset_dir)
         self.split = split
         self.entry, self.paths = open_labeling(dataset_dir, labels)
         self.labels = str(self.entry["name"])
@@ -313,7 +314,7 @@ class HazardDataset(Dataset):
             self._files, self._pid = {}, os.getpid()
         f = self._files.get(k)
         if f is None:
-            f = self._files[k] = open_h5(self.paths[k])
+            f = self._files[k] = open_h5_at(self.paths[k])
         return f
 
     def close(self) -> None:

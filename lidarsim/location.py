@@ -167,6 +167,23 @@ class RemoteDataset:
         size = info.get("size")
         return int(size) if isinstance(size, int) and info.get("type", "file") == "file" else None
 
+    def probe(self, relative: str) -> bool:
+        """Ask for ``relative`` itself (not its listing or its size, which some protocols answer with
+        "not found" when the host cannot be reached): False when it is not there.
+
+        Raises:
+            StorageError: unreachable, no such bucket, no credentials.
+        """
+        url = self.url_of(relative)
+        with remote_errors(url):
+            try:
+                self.fs.cat_file(self.path_of(relative), start=0, end=1)
+            except FileNotFoundError as exc:
+                if "bucket" in str(exc).lower():
+                    raise
+                return False
+        return True
+
     def read_bytes(self, relative: str, max_bytes: int = MAX_SIDE_FILE_BYTES) -> bytes:
         """The bytes of the side file ``relative`` (at most ``max_bytes``).
 

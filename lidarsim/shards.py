@@ -713,6 +713,7 @@ def _read_remote_manifest(url: str) -> dict[str, Any]:
             )
         held = remote.listing()
         if not held:
+            remote.probe(MANIFEST_NAME)  # an unreachable host is named as such, not as "nothing there"
             raise FormatError(f"{remote.url}: no dataset there (nothing at that URL)")
         raise FormatError(
             f"{remote.url}: not an hd dataset (no {MANIFEST_NAME}; it holds {counted(len(held), 'other file')})"

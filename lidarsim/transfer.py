@@ -32,6 +32,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from lidarsim import storage
 from lidarsim.errors import DamagedFileError, FormatError, OutputExistsError, StorageError
 from lidarsim.location import PUBLISH_MARK, RemoteDataset, is_url, remote_dataset, remote_errors
 from lidarsim.outcome import Done, counted
@@ -254,13 +255,15 @@ def _download(remote: RemoteDataset, relative: str, final: Path, expected: str) 
     h = hashlib.sha256()
     size = 0
     with atomic_path(final) as tmp:
-        with open(tmp, "wb") as fh:
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o644)
+        try:
             for block in remote.stream(relative):
                 h.update(block)
-                fh.write(block)
+                storage._write_all(fd, block)  # the one writer of file contents (lidarsim.storage)
                 size += len(block)
-            fh.flush()
-            os.fsync(fh.fileno())
+            os.fsync(fd)
+        finally:
+            os.close(fd)
         digest = h.hexdigest()
         if digest != expected:
             raise DamagedFileError(

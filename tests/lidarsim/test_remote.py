@@ -1,0 +1,214 @@
+"""Datasets read where they lie: hd inspect and hd verify of a URL, against a real S3 API server
+(moto) and a real HTTP server with Range requests, give what they give for the local copy; the
+training read loop (``hdnet.data.HazardDataset``) reads the same arrays, bit for bit; bad URLs get
+one line.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import socket
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from cli import main
+from lidarsim.shards import read_manifest
+from tests.hdnet.hdnet_datasets import build_labelled
+from tests.remote_servers import http_server, make_bucket, s3_server, upload_tree
+
+
+def invoke(*args: object) -> tuple[int, str]:
+    result = CliRunner().invoke(main, [str(a) for a in args])
+    assert "Traceback" not in result.output, result.output
+    return result.exit_code, result.output
+
+
+def one_line_error(output: str) -> str:
+    last = output.strip().splitlines()[-1]
+    assert last.startswith("Error: "), output
+    return last
+
+
+def dataset_files(dataset: Path) -> list[str]:
+    m = read_manifest(dataset)
+    return [e["path"] for e in m["shards"]] + [e["path"] for lab in m["labelings"] for e in lab["shards"]]
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory) -> Path:
+    """A tiny labelled dataset: 20 scans of 48 x 48 px in 2 shards, two noise levels."""
+    return build_labelled(tmp_path_factory.mktemp("remote") / "b")
+
+
+@pytest.fixture(scope="module")
+def s3(dataset):
+    """The S3 server, holding the dataset at s3://hd-data/team/tiny (uploaded as `aws s3 sync` would)."""
+    with s3_server() as endpoint:
+        make_bucket("hd-data")
+        upload_tree(dataset, "hd-data", "team/tiny")
+        yield endpoint
+
+
+@pytest.fixture(scope="module")
+def http(dataset, tmp_path_factory):
+    """An HTTP server of the dataset's parent directory: the dataset at BASE/dataset."""
+    with http_server(dataset.parent) as (base, server):
+        yield f"{base}/dataset", server
+
+
+def without_dataset_line(text: str) -> list[str]:
+    return [line for line in text.splitlines() if not line.startswith("dataset ")]
+
+
+@pytest.mark.parametrize("where", ["s3", "http"])
+def test_inspect_and_verify_of_a_url_say_what_they_say_of_the_local_copy(dataset, s3, http, where):
+    url = "s3://hd-data/team/tiny" if where == "s3" else http[0]
+    code, local = invoke("inspect", dataset)
+    assert code == 0, local
+    code, remote = invoke("inspect", url)
+    assert code == 0, remote
+    assert f"dataset   {url}" in remote
+    assert without_dataset_line(remote) == without_dataset_line(local)
+    code, local_json = invoke("inspect", "--json", dataset)
+    code, remote_json = invoke("inspect", "--json", url + "/")  # a trailing slash is the same URL
+    assert code == 0, remote_json
+    a, b = json.loads(local_json), json.loads(remote_json)
+    assert b.pop("dataset") == url and a.pop("dataset") == str(dataset.resolve())
+    assert a == b
+    code, out = invoke("verify", url)
+    assert code == 0 and f"{url}: OK, 4 files match" in out, out
+
+
+def test_verify_of_a_url_reads_each_byte_once(dataset, http):
+    url, server = http
+    sizes = sum((dataset / rel).stat().st_size for rel in dataset_files(dataset))
+    manifest = (dataset / "manifest.json").stat().st_size
+    before = server.bytes_sent
+    code, out = invoke("verify", url)
+    assert code == 0, out
+    sent = server.bytes_sent - before
+    assert sizes <= sent <= sizes + 3 * manifest, (sent, sizes, manifest)  # the manifest is small and read twice
+
+
+def test_one_scan_of_a_url_is_read_without_the_whole_shard(dataset, http, monkeypatch):
+    from lidarsim import location
+    from lidarsim.shards import open_scan_shard
+
+    monkeypatch.setattr(location, "BLOCK_BYTES", 1 << 16)  # blocks of 64 kB: this shard is ~0.7 MB
+    url, server = http
+    entry = read_manifest(dataset)["shards"][0]
+    size = (dataset / entry["path"]).stat().st_size
+    before = server.bytes_sent
+    with open_scan_shard(url, entry) as remote, open_scan_shard(dataset, entry) as local:
+        scan = remote[3]
+        want = local[3]
+    assert np.array_equal(scan.points_noisy, want.points_noisy, equal_nan=True)
+    assert scan.scan_index == want.scan_index
+    read = server.bytes_sent - before
+    assert read < size / 2, (read, size)  # the block cache fetched the metadata and scan 3's chunks
+
+
+def test_the_training_read_loop_reads_a_url_bit_for_bit(dataset, s3):
+    from hdnet.data import HazardDataset
+
+    url = "s3://hd-data/team/tiny"
+    local = HazardDataset(dataset, "train", 0.0167, input_size=64)
+    remote = HazardDataset(url, "train", 0.0167, input_size=64)
+    assert remote.normalisation == local.normalisation and len(remote) == len(local) == 16
+    for i in range(len(local)):
+        a, b = local[i], remote[i]
+        assert a.keys() == b.keys()
+        for key in a:
+            assert np.array_equal(np.asarray(a[key]), np.asarray(b[key]), equal_nan=True), key
+    remote.close()
+    local.close()
+
+
+def test_a_damaged_shard_at_a_url_is_named_by_verify(dataset, s3, tmp_path):
+    copy = tmp_path / "copy"
+    shutil.copytree(dataset, copy)
+    shard = copy / read_manifest(copy)["shards"][1]["path"]
+    data = bytearray(shard.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    shard.write_bytes(bytes(data))
+    upload_tree(copy, "hd-data", "team/damaged")
+    code, out = invoke("verify", "s3://hd-data/team/damaged")
+    assert code == 1 and "scans-00001.h5: checksum mismatch" in out, out
+    assert one_line_error(out) == "Error: s3://hd-data/team/damaged: 1 problem(s) found"
+
+
+def test_a_manifest_naming_a_missing_shard_is_one_line(dataset, s3, tmp_path):
+    copy = tmp_path / "copy"
+    shutil.copytree(dataset, copy)
+    (copy / read_manifest(copy)["shards"][0]["path"]).unlink()
+    upload_tree(copy, "hd-data", "team/holes")
+    code, out = invoke("verify", "s3://hd-data/team/holes")
+    assert code == 1 and "shards/scans-00000.h5: missing" in out, out
+    code, out = invoke("inspect", "s3://hd-data/team/holes")
+    assert code == 1 and "shards/scans-00000.h5: missing" in out, out
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def test_bad_urls_get_one_line(s3, tmp_path, monkeypatch):
+    cases = {
+        "s3://no-such-bucket/x": "no such bucket 'no-such-bucket'",
+        "s3://hd-data/nothing/here": "no dataset there (nothing at that URL)",
+        f"http://127.0.0.1:{free_port()}/data": "cannot reach the host",
+    }
+    (tmp_path / "notes.txt").write_text("not a dataset")
+    with http_server(tmp_path) as (base, _):
+        cases[f"{base}/notes.txt"] = "no dataset there"  # a file, not a folder of one
+        upload_tree(tmp_path, "hd-data", "team/notes")
+        cases["s3://hd-data/team/notes"] = "not an hd dataset (no manifest.json; it holds 1 other file)"
+        for url, needle in cases.items():
+            code, out = invoke("verify", url)
+            last = one_line_error(out)
+            assert code == 1 and url in last and any(n in last for n in needle.split("|")), (url, out)
+
+
+def test_no_credentials_is_one_line(s3, monkeypatch):
+    monkeypatch.delenv("AWS_ACCESS_KEY_ID")
+    monkeypatch.delenv("AWS_SECRET_ACCESS_KEY")
+    from lidarsim import location
+
+    location._remote.cache_clear()  # a new process would make its file system anew
+    import fsspec
+
+    fsspec.filesystem("s3").clear_instance_cache()
+    code, out = invoke("inspect", "s3://hd-data/team/tiny")
+    last = one_line_error(out)
+    assert code == 1 and "no credentials for s3://" in last and "AWS_ACCESS_KEY_ID" in last, out
+    location._remote.cache_clear()
+    fsspec.filesystem("s3").clear_instance_cache()
+
+
+def test_an_unreachable_s3_endpoint_is_one_line(s3, monkeypatch):
+    monkeypatch.setenv("AWS_ENDPOINT_URL_S3", f"http://127.0.0.1:{free_port()}")
+    monkeypatch.setenv("AWS_MAX_ATTEMPTS", "1")
+    from lidarsim import location
+
+    location._remote.cache_clear()
+    import fsspec
+
+    fsspec.filesystem("s3").clear_instance_cache()
+    code, out = invoke("verify", "s3://hd-data/team/tiny")
+    last = one_line_error(out)
+    assert code == 1 and "cannot reach the host" in last, out
+    location._remote.cache_clear()
+    fsspec.filesystem("s3").clear_instance_cache()
+
+
+def test_a_url_where_a_local_path_is_needed_names_the_commands_that_read_urls(tmp_path):
+    code, out = invoke("build-dataset", "--out", "s3://bucket/new")
+    assert code == 2 and "s3://bucket/new is a URL" in out and "hd pull URL DIR" in out, out
+    assert not os.path.exists("s3:")
