@@ -397,11 +397,12 @@ def export_cmd(dataset: Path, out_dir: Path, scans_text: str | None, overwrite: 
 @click.option("--machine", default="", help="Where the published build was made (recorded in the card).")
 @friendly_errors
 def card_cmd(dataset: Path, recipe: Path, machine: str) -> None:
-    """Write the dataset card (card.md) and the published checksums (checksums.json) of a recipe."""
+    """Write the dataset card (card.md), the published checksums (checksums.json) and the Croissant 1.0
+    metadata (croissant.json) of a recipe."""
     from lidarsim.card import publish_card
 
     card = publish_card(dataset, recipe, machine)
-    say(f"wrote {card.card_path} and {card.checksums_path} ({counted(card.n_shards, 'shard')})")
+    say(f"wrote {card.card_path}, {card.checksums_path} and {card.croissant_path} ({counted(card.n_shards, 'shard')})")
 
 
 @main.command("publish")

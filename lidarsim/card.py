@@ -1,6 +1,7 @@
 """Dataset cards: a Markdown description of a dataset built from a recipe, and its checksums.
 
-``hd card DATASET --recipe datasets/<name>`` writes ``card.md`` and ``checksums.json`` into the
+``hd card DATASET --recipe datasets/<name>`` writes ``card.md``, ``checksums.json`` and
+``croissant.json`` (Croissant 1.0 metadata, ``lidarsim.croissant``) into the
 recipe directory (:func:`publish_card`): what the dataset is, every build setting, the software
 version, sizes, schema versions, class balance (from the manifest's labelling entries,
 ``docs/labels-format.md``), how to cite the paper and the terrain's licence.
@@ -14,6 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from lidarsim.croissant import CROISSANT_FILE, croissant_metadata
 from lidarsim.errors import RecipeError
 from lidarsim.published import FINGERPRINT_KEYS, content_fingerprints
 from lidarsim.recipe import CHECKSUMS_FILE, Recipe, load_recipe, shipped_recipe_dirs
@@ -109,6 +111,13 @@ def recipe_reference(recipe: Recipe) -> str:
         return str(directory)
 
 
+def terrain_licence(recipe: Recipe, config: dict[str, Any]) -> str:
+    """The licence of a recipe's terrain, as its card states it."""
+    if (recipe.path.parent / SOURCE_FILE).is_file():
+        return f"see `{SOURCE_FILE}` beside this card (where the DTM comes from, its credit and licence)"
+    return PROCEDURAL_LICENCE if config.get("dtm_path") is None else "that of the DTM you supplied (check its source)"
+
+
 def render_card(directory: str | os.PathLike, recipe: Recipe, machine: str = "") -> str:
     """Markdown card of the dataset at ``directory`` built from ``recipe``."""
     directory = Path(directory)
@@ -140,9 +149,7 @@ def render_card(directory: str | os.PathLike, recipe: Recipe, machine: str = "")
         else f"`{dtm.get('name')}` (sha256 {dtm.get('sha256')})"
     )
     where = recipe_reference(recipe)
-    licence = PROCEDURAL_LICENCE if cfg.get("dtm_path") is None else "that of the DTM you supplied (check its source)"
-    if (recipe.path.parent / SOURCE_FILE).is_file():
-        licence = f"see `{SOURCE_FILE}` beside this card (where the DTM comes from, its credit and licence)"
+    licence = terrain_licence(recipe, cfg)
     trajectory = cfg["trajectory"]
     descent = trajectory.get("descent")
     if not descent:
@@ -290,6 +297,7 @@ class PublishedCard:
     card_path: Path
     checksums_path: Path
     n_shards: int
+    croissant_path: Path
 
 
 def publish_card(dataset: str | os.PathLike, recipe_dir: str | os.PathLike, machine: str = "") -> PublishedCard:
@@ -306,4 +314,9 @@ def publish_card(dataset: str | os.PathLike, recipe_dir: str | os.PathLike, mach
     sums = checksums_of(dataset)
     write_text_atomic(directory / CHECKSUMS_FILE, checksums_text(sums))
     write_text_atomic(directory / CARD_FILE, render_card(dataset, recipe, machine))
-    return PublishedCard(directory / CARD_FILE, directory / CHECKSUMS_FILE, len(sums["shards"]))
+    licence = f"Terrain: {terrain_licence(recipe, manifest['config'])}. Simulated data: MIT, like hd."
+    croissant = croissant_metadata(dataset, recipe.name, recipe.description, recipe.version, licence, PAPER_CITATION)
+    write_text_atomic(directory / CROISSANT_FILE, json.dumps(croissant, indent=2, ensure_ascii=False) + "\n")
+    return PublishedCard(
+        directory / CARD_FILE, directory / CHECKSUMS_FILE, len(sums["shards"]), directory / CROISSANT_FILE
+    )

@@ -181,7 +181,7 @@ def test_unknown_label_schema_version_is_refused(dataset, tmp_path):
     label_dataset(dataset, workers=1)
     entry = find_labeling(dataset, read_manifest(dataset)["labelings"][0]["name"])
     copy = tmp_path / "copy.h5"
-    copy.write_bytes(label_shard_paths(dataset, entry)[0].read_bytes())
+    copy.write_bytes(Path(label_shard_paths(dataset, entry)[0]).read_bytes())
     with h5py.File(copy, "r+") as f:
         f.attrs["schema_version"] = "3.0"
     with pytest.raises(FormatError, match=r"version 3\.0"):

@@ -260,7 +260,7 @@ def test_a_url_is_refused_with_its_name_intact_never_read_as_a_path(tmp_path, mo
     url = next(a for a in args if "://" in a)
     assert result.exit_code == 2, result.output
     last = result.output.strip().splitlines()[-1]
-    assert f"{url} is a URL" in last and "URLs are not read yet" in last, result.output
+    assert f"{url} is a URL" in last and "this argument takes a local path" in last, result.output
     assert url.replace("//", "/", 1) not in result.output.replace(url, "")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["DATA", "RUN"]  # nothing created
 

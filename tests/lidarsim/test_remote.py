@@ -212,3 +212,16 @@ def test_a_url_where_a_local_path_is_needed_names_the_commands_that_read_urls(tm
     code, out = invoke("build-dataset", "--out", "s3://bucket/new")
     assert code == 2 and "s3://bucket/new is a URL" in out and "hd pull URL DIR" in out, out
     assert not os.path.exists("s3:")
+
+
+def test_the_user_guides_reader_without_hd_runs_against_s3(dataset, s3, capsys):
+    """The snippet of docs/user-guide.md ("Sharing a dataset"), as printed, with the test's URL."""
+    import re
+
+    guide = (Path(__file__).resolve().parents[2] / "docs" / "user-guide.md").read_text()
+    section = guide[guide.index("## Sharing a dataset") :]
+    code = re.findall(r"```python\n(.*?)```", section, re.S)[0]
+    assert 'url = "s3://team-bucket/hd/data"' in code
+    exec(code.replace("s3://team-bucket/hd/data", "s3://hd-data/team/tiny"), {})
+    printed = capsys.readouterr().out
+    assert printed.strip() == "hd.lidar-scans (10, 2, 48, 48, 3)", printed
