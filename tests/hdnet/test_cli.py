@@ -239,8 +239,6 @@ def test_train_checks_its_dataset_and_labelling_before_the_run_directory(dataset
 @pytest.mark.parametrize(
     "args",
     [
-        ["inspect", "s3://bucket/x"],
-        ["verify", "s3://bucket/x"],
         ["eval", "s3://bucket/run", "--data", "DATA", "--out", "OUT"],
         ["eval", "RUN", "--data", "https://host/data", "--out", "OUT"],
         ["detect", "RUN", "--dtm", "gs://bucket/dtm.tif", "--out", "OUT"],
