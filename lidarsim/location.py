@@ -26,6 +26,7 @@ import contextlib
 import functools
 import os
 import re
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -233,6 +234,21 @@ class RemoteDataset:
 @functools.lru_cache(maxsize=16)
 def _remote(url: str, pid: int) -> RemoteDataset:
     return RemoteDataset(url)
+
+
+def forget_remotes() -> None:
+    """Drop the file systems made so far (hd's and fsspec's instance caches), so that the next URL is
+    opened with the environment as it is now: for a long-lived process whose endpoint or credentials
+    change (a test session starting a new server)."""
+    _remote.cache_clear()
+    if "fsspec" in sys.modules:  # nothing was opened through fsspec otherwise
+        from fsspec.spec import AbstractFileSystem
+
+        pending: list[Any] = [AbstractFileSystem]
+        while pending:  # every file system class keeps its own cache of instances
+            cls = pending.pop()
+            cls.clear_instance_cache()
+            pending.extend(cls.__subclasses__())
 
 
 def remote_dataset(url: str) -> RemoteDataset:

@@ -15,6 +15,8 @@ from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any
 
+from lidarsim.location import forget_remotes
+
 # Credentials of the S3 server: moto accepts any; they are what a user would export.
 S3_ENV = {
     "AWS_ACCESS_KEY_ID": "hd-test-key",
@@ -35,6 +37,7 @@ def s3_server() -> Iterator[str]:
     from moto.server import ThreadedMotoServer
 
     logging.getLogger("werkzeug").setLevel(logging.ERROR)  # one line per request otherwise
+    forget_remotes()  # file systems opened for an earlier server point at its port
     server = ThreadedMotoServer(ip_address="127.0.0.1", port=0, verbose=False)
     server.start()
     host, port = server.get_host_and_port()
@@ -48,6 +51,7 @@ def s3_server() -> Iterator[str]:
         yield endpoint
     finally:
         server.stop()
+        forget_remotes()
         for k, v in saved.items():
             if v is None:
                 os.environ.pop(k, None)
