@@ -50,6 +50,7 @@ def raw_cast_rate(dtm_path: Path, config: BuildConfig) -> tuple[float, int]:
         elapsed, n_rays = 0.0, 0
         for tile, members in tiles.items():
             scene = TileScene(dtm, plan.tile_centre_xy(*tile), plan.tile_m / 2 + plan.half_width_m)
+            scene.focus(scene.full_window)  # the whole tile's mesh
             probe = o3d.core.Tensor(np.zeros((1, 6), np.float32))  # type: ignore[call-overload]  # stubs omit ndarray
             scene.scene.cast_rays(probe)  # builds the BVH
             rays = np.empty((len(members), *d.shape[:2], 6), np.float32)

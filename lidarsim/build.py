@@ -47,7 +47,7 @@ from lidarsim.scan import (
     scan_geometry,
     simulate_scans,
 )
-from lidarsim.sensor import SensorConfig
+from lidarsim.sensor import SensorConfig, corner_directions
 from lidarsim.shards import (
     BUILD_STATE_NAME,
     MANIFEST_KIND_SCANS,
@@ -358,53 +358,79 @@ def run_shard(task: ShardTask) -> ShardRecord:
         compression=cfg.compression,
     )
     nav_errors: dict[int, DescentNavErrors] = {}
+    realistic = not (cfg.footprint.is_default and cfg.noise_model.is_default)
     with DTM.open(task.dtm_path, scale=cfg.dtm_scale) as dtm, writer:
         k = 0
         for tile, members in _group_by_tile(task.tile_ij):
             scene = _scene_for(dtm, task, tile, half_extent)
-            for batch in _batches(members, CAST_BATCH_SCANS):
-                indices = [task.first_scan + m for m in batch]
-                geoms = [
-                    scan_geometry(scene, task.nadir_xy[m], task.first_scan + m, cfg.trajectory, footprint_hw, cfg.seed)
-                    for m in batch
-                ]
-                for m, scan_index, result in zip(
-                    batch,
-                    indices,
-                    simulate_scans(
-                        scene,
-                        geoms,
-                        indices,
-                        cfg.sensor,
-                        cfg.sigmas_m,
-                        cfg.seed,
-                        n_threads=task.n_threads,
-                        footprint=cfg.footprint,
-                        noise_model=cfg.noise_model,
-                    ),
-                    strict=True,
-                ):
-                    check_returns(result.status, scan_index, task.dtm_path)
-                    g = result.geometry
-                    descent = _descent_frame(cfg, scan_index, g, nav_errors)
-                    writer.write_scan(
-                        m,
-                        scan_index=scan_index,
-                        split=int(task.splits[m]),
-                        origin_map=g.origin_map,
-                        sensor_position=g.sensor_position,
-                        sensor_attitude=g.attitude,
-                        points_clean=result.points_clean,
-                        points_noisy=result.points_noisy,
-                        status=result.status,
-                        valid=((result.status == STATUS_RETURN) | (result.status == STATUS_DAMAGED)).astype(np.uint8),
-                        noise_scale=result.noise_scale,
-                        descent=descent,
-                    )
-                    k += 1
+            poses = {
+                m: scan_geometry(scene, task.nadir_xy[m], task.first_scan + m, cfg.trajectory, footprint_hw, cfg.seed)
+                for m in members
+            }
+            for window, group in _scene_groups(scene, [poses[m] for m in members], cfg.sensor, realistic):
+                scene.focus(window)
+                for batch in _batches([members[i] for i in group], CAST_BATCH_SCANS):
+                    k += _simulate_and_write(task, scene, batch, [poses[m] for m in batch], writer, nav_errors)
         assert k == n
         digest = writer.commit()
     return _record(task, digest)
+
+
+def _scene_groups(
+    scene: TileScene, geometries: list[ScanGeometry], sensor: SensorConfig, realistic: bool
+) -> list[tuple[tuple[int, int, int, int], list[int]]]:
+    """The tile's scans grouped by the terrain they can hit (``TileScene.plan``): each scan's reach
+    from its detector's corner rays, which bound every ray it casts. A realistic sensor's sub-rays
+    (``TileScene.cast_with_incidence``) take the whole window: one group."""
+    if not realistic:
+        windows = [
+            scene.reach((g.origin_map + g.sensor_position)[None, :], corner_directions(sensor, g.attitude)[None])
+            for g in geometries
+        ]
+        return scene.plan(windows)
+    return [(scene.full_window, list(range(len(geometries))))]  # incidence is cast against the whole window
+
+
+def _simulate_and_write(
+    task: ShardTask,
+    scene: TileScene,
+    batch: list[int],
+    geoms: list[ScanGeometry],
+    writer: ScanShardWriter,
+    nav_errors: dict[int, DescentNavErrors],
+) -> int:
+    """Cast one batch of the shard's scans (positions ``batch`` in the shard) and write them; returns the count."""
+    cfg = task.config
+    indices = [task.first_scan + m for m in batch]
+    results = simulate_scans(
+        scene,
+        geoms,
+        indices,
+        cfg.sensor,
+        cfg.sigmas_m,
+        cfg.seed,
+        n_threads=task.n_threads,
+        footprint=cfg.footprint,
+        noise_model=cfg.noise_model,
+    )
+    for m, scan_index, result in zip(batch, indices, results, strict=True):
+        check_returns(result.status, scan_index, task.dtm_path)
+        g = result.geometry
+        writer.write_scan(
+            m,
+            scan_index=scan_index,
+            split=int(task.splits[m]),
+            origin_map=g.origin_map,
+            sensor_position=g.sensor_position,
+            sensor_attitude=g.attitude,
+            points_clean=result.points_clean,
+            points_noisy=result.points_noisy,
+            status=result.status,
+            valid=((result.status == STATUS_RETURN) | (result.status == STATUS_DAMAGED)).astype(np.uint8),
+            noise_scale=result.noise_scale,
+            descent=_descent_frame(cfg, scan_index, g, nav_errors),
+        )
+    return len(batch)
 
 
 def _descent_frame(

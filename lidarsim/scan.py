@@ -15,6 +15,7 @@ stored as float32.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -107,8 +108,19 @@ def element_defects(sensor: SensorConfig, seed: int) -> np.ndarray:
     return status
 
 
+# A window of the tile's grid: rows row0 .. row1 - 1, columns col0 .. col1 - 1 (indices into its heights).
+Window = tuple[int, int, int, int]
+
+
 class TileScene:
-    """The Open3D scene of the terrain around one tile of scans.
+    """The terrain around one tile of scans, and the Open3D scenes its rays are cast against.
+
+    The tile's window of the DTM is read once; its mean height fixes the float32 frame's origin.
+    Rays are cast against a mesh of only the part of the window they can reach (:meth:`reach`,
+    :meth:`focus`): a sub-window of the same grid recentred at the same origin, so its vertices
+    and triangles are bit for bit those of the whole window's mesh, and every ray's first hit is
+    the same triangle at the same float32 range. Embree's BVH build, linear in the triangles, then
+    costs the ground the scans see rather than the whole tile (docs/benchmarks.md, "Large terrains").
 
     Args:
         dtm: an open DTM.
@@ -138,11 +150,95 @@ class TileScene:
         self.heights = heights
         self.x_centres = np.asarray(xs, dtype=np.float64)
         self.y_centres = np.asarray(ys, dtype=np.float64)
-        vertices, triangles = terrain_mesh(heights, self.x_centres, self.y_centres, tuple(self.origin))
+        # the lowest and highest terrain (map z, metres): a ray's hit lies between the two heights
+        self.z_range = (float(finite.min()), float(finite.max())) if finite.size else (z_ref, z_ref)
+        self.full_window: Window = (0, nrows, 0, ncols)
+        self.window: Window | None = None  # the window of the scene rays are cast against now
+        self.scene = o3d.t.geometry.RaycastingScene()
+        self.n_triangles = 0
+        self.triangles_built = 0  # triangles of every scene built so far (the BVH builds' work)
+
+    def reach(self, origins_map: np.ndarray, directions: np.ndarray) -> Window:
+        """The smallest window holding every triangle that rays from ``origins_map`` along
+        ``directions`` can hit, one cell beyond on every side.
+
+        A ray meets the terrain only between the window's highest and lowest heights, so its hit
+        lies, seen from above, on the segment between the points where it crosses those two
+        heights; the box of these segments, widened by a cell, holds every cell of a triangle the
+        ray can hit. A ray that does not descend may hit anything: the whole window.
+
+        Args:
+            origins_map: float64 (S, 3) ray origins (map coordinates), metres.
+            directions: float64 (S, ..., 3) unit directions of the rays from each origin; any rays
+                inside the pyramid they span may be cast (e.g. the detector's corner rays).
+        """
+        s = origins_map.shape[0]
+        d = np.asarray(directions, dtype=np.float64).reshape(s, -1, 3)
+        if not (d[..., 2] < -1e-9).all():
+            return self.full_window
+        o = np.asarray(origins_map, dtype=np.float64)[:, None, :]
+        window = self._box_window(o, d, self.z_range)
+        # Again with the heights of that window: the hit lies in it, hence between its own extremes.
+        r0, r1, c0, c1 = window
+        sub = self.heights[r0:r1, c0:c1]
+        finite = sub[np.isfinite(sub)]
+        if finite.size == 0:
+            return window
+        return self._box_window(o, d, (float(finite.min()), float(finite.max())))
+
+    def _box_window(self, o: np.ndarray, d: np.ndarray, z_range: tuple[float, float]) -> Window:
+        """The window of the box of the rays' segments between heights ``z_range`` (map z, metres), plus a cell."""
+        z_low, z_high = z_range
+        xs, ys = [], []
+        for z in (z_low, z_high):
+            t = np.maximum((z - o[..., 2]) / d[..., 2], 0.0)
+            xs.append(o[..., 0] + t * d[..., 0])
+            ys.append(o[..., 1] + t * d[..., 1])
+        x_min, x_max = min(float(x.min()) for x in xs), max(float(x.max()) for x in xs)
+        y_min, y_max = min(float(y.min()) for y in ys), max(float(y.max()) for y in ys)
+        nrows, ncols = self.heights.shape
+        if ncols < 2 or nrows < 2:
+            return self.full_window
+        dx = self.x_centres[1] - self.x_centres[0]
+        dy = self.y_centres[0] - self.y_centres[1]  # row 0 is north
+        col0 = math.floor((x_min - self.x_centres[0]) / dx) - 1
+        col1 = math.ceil((x_max - self.x_centres[0]) / dx) + 2
+        row0 = math.floor((self.y_centres[0] - y_max) / dy) - 1
+        row1 = math.ceil((self.y_centres[0] - y_min) / dy) + 2
+        clip = lambda v, n: min(max(v, 0), n)  # noqa: E731 - one line, used four times
+        return (clip(row0, nrows), clip(row1, nrows), clip(col0, ncols), clip(col1, ncols))
+
+    def focus(self, window: Window) -> None:
+        """Cast the next rays against the mesh of ``window`` (kept if the current one holds it)."""
+        if self.window is not None and _holds(self.window, window):
+            return
+        r0, r1, c0, c1 = window
+        vertices, triangles = terrain_mesh(
+            self.heights[r0:r1, c0:c1], self.x_centres[c0:c1], self.y_centres[r0:r1], tuple(self.origin)
+        )
+        self.window = window
         self.n_triangles = int(triangles.shape[0])
+        self.triangles_built += self.n_triangles
         self.scene = o3d.t.geometry.RaycastingScene()
         if self.n_triangles:
             self.scene.add_triangles(o3d.core.Tensor(vertices), o3d.core.Tensor(triangles))  # type: ignore[call-overload]  # stubs omit ndarray
+
+    def plan(self, windows: list[Window]) -> list[tuple[Window, list[int]]]:
+        """Group consecutive scans whose windows are cheaper built as one: ``(window, positions in
+        windows)`` in order. A scan joins the group before it when their joint window has no more
+        cells than the two apart; groups that together hold as many cells as the whole window
+        become one group of the whole window (a dense trajectory: one BVH per tile, as before)."""
+        groups: list[tuple[Window, list[int]]] = []
+        for k, w in enumerate(windows):
+            if groups:
+                joint = _union(groups[-1][0], w)
+                if _cells(joint) <= _cells(groups[-1][0]) + _cells(w):
+                    groups[-1] = (joint, [*groups[-1][1], k])
+                    continue
+            groups.append((w, [k]))
+        if sum(_cells(w) for w, _ in groups) >= _cells(self.full_window):
+            return [(self.full_window, list(range(len(windows))))]
+        return groups
 
     def mean_height(self, x: float, y: float, half_width_m: float) -> float:
         """Mean valid terrain height in the square of half-width ``half_width_m`` around (x, y), metres."""
@@ -163,6 +259,7 @@ class TileScene:
             float32 (S, rows, cols) ranges, NaN where the ray hits no terrain.
         """
         s, rows, cols, _ = directions.shape
+        self._focus_on(origins_map, directions)
         rays = np.empty((s, rows, cols, 6), dtype=np.float32)
         rays[..., :3] = (origins_map - self.origin)[:, None, None, :]
         rays[..., 3:] = directions
@@ -188,6 +285,9 @@ class TileScene:
             terrain, and float64 (...) ``|cos|`` of the angle between the ray and the hit triangle's normal.
         """
         shape = directions.shape[:-1]
+        # The whole window: a sub-ray through the edge two triangles share hits both at the same
+        # range, and which one Embree reports (its normal) depends on the BVH's order of traversal.
+        self.focus(self.full_window)
         if self.n_triangles == 0:
             return np.full(shape, np.nan, dtype=np.float32), np.zeros(shape)
         rays = np.empty((*shape, 6), dtype=np.float32)
@@ -199,6 +299,24 @@ class TileScene:
         cos = np.abs((normals * directions).sum(axis=-1))
         ranges = np.where(np.isfinite(t), t, np.float32(np.nan)).astype(np.float32, copy=False)
         return ranges, np.where(np.isfinite(t), cos, 0.0)
+
+    def _focus_on(self, origins_map: np.ndarray, directions: np.ndarray) -> None:
+        """Make sure the scene holds every triangle these rays can hit (a new one if the current does not)."""
+        need = self.reach(origins_map, directions)
+        if self.window is None or not _holds(self.window, need):
+            self.focus(need)
+
+
+def _holds(outer: Window, inner: Window) -> bool:
+    return outer[0] <= inner[0] and inner[1] <= outer[1] and outer[2] <= inner[2] and inner[3] <= outer[3]
+
+
+def _union(a: Window, b: Window) -> Window:
+    return (min(a[0], b[0]), max(a[1], b[1]), min(a[2], b[2]), max(a[3], b[3]))
+
+
+def _cells(w: Window) -> int:
+    return max(0, w[1] - w[0]) * max(0, w[3] - w[2])
 
 
 def scan_geometry(

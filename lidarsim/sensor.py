@@ -150,6 +150,17 @@ def footprint_corners(fov_x_deg: float, fov_y_deg: float, attitudes: np.ndarray,
     return origin[..., :2] + t[..., None] * rays[..., :2]
 
 
+def corner_directions(sensor: SensorConfig, attitude: np.ndarray) -> np.ndarray:
+    """Unit directions of the detector's four outer corners, turned by ``attitude`` (3, 3) to the
+    scan frame: float64 (4, 3). Every ray of the detector (a pixel centre or a footprint's sub-ray)
+    lies inside the pyramid they span."""
+    tx = math.tan(math.radians(sensor.fov_x_deg) / 2.0)
+    ty = math.tan(math.radians(sensor.fov_y_deg) / 2.0)
+    corners = np.array([[-tx, -ty, 1.0], [tx, -ty, 1.0], [tx, ty, 1.0], [-tx, ty, 1.0]])
+    corners /= np.linalg.norm(corners, axis=-1, keepdims=True)
+    return corners @ np.asarray(attitude, dtype=np.float64).T
+
+
 def rotation_x(angle_rad: float) -> np.ndarray:
     """Right-handed rotation matrix about the x axis, angle in radians."""
     c, s = math.cos(angle_rad), math.sin(angle_rad)
