@@ -368,7 +368,7 @@ def run_shard(task: ShardTask) -> ShardRecord:
                 for m in members
             }
             for window, group in _scene_groups(scene, [poses[m] for m in members], cfg.sensor, realistic):
-                scene.focus(window)
+                scene.focus(window, only_hits=len(group) <= CAST_BATCH_SCANS)  # one cast: its hit triangles
                 for batch in _batches([members[i] for i in group], CAST_BATCH_SCANS):
                     k += _simulate_and_write(task, scene, batch, [poses[m] for m in batch], writer, nav_errors)
         assert k == n

@@ -24,6 +24,7 @@ import open3d as o3d
 from lidarsim.descent import frame_pose
 from lidarsim.footprint import FootprintConfig, pixel_ranges, spot_weights, subray_directions, subreturn_energy
 from lidarsim.noise import NoiseModel, noisy_points, points_at_ranges, scan_directions
+from lidarsim.reach import candidate_triangles
 from lidarsim.sensor import SensorConfig, sensor_attitude
 from lidarsim.streams import Purpose, stream
 from lidarsim.terrain import DTM
@@ -38,7 +39,11 @@ STATUS_WEAK = 4  # no return: the signal was below the noise model's detection t
 
 
 def terrain_mesh(
-    heights: np.ndarray, x_centres: np.ndarray, y_centres: np.ndarray, origin: tuple[float, float, float]
+    heights: np.ndarray,
+    x_centres: np.ndarray,
+    y_centres: np.ndarray,
+    origin: tuple[float, float, float],
+    keep: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Triangle mesh of a gridded height window, recentred at ``origin``.
 
@@ -47,6 +52,9 @@ def terrain_mesh(
         x_centres: (cols,) map x of the cell centres, metres.
         y_centres: (rows,) map y of the cell centres, metres.
         origin: map coordinates (x, y, z) subtracted from every vertex, metres.
+        keep: optional bool (rows - 1, cols - 1) masks of the triangles to keep of each 2 x 2
+            block, ``(a, c, b)`` and ``(b, c, d)`` (``lidarsim.reach.candidate_triangles``); the
+            vertices are all kept.
 
     Returns:
         ``(vertices, triangles)``: float32 (rows*cols, 3) and uint32 (M, 3). Only triangles whose
@@ -62,8 +70,11 @@ def terrain_mesh(
     a, b = idx[:-1, :-1], idx[:-1, 1:]
     c, d = idx[1:, :-1], idx[1:, 1:]
     va, vb, vc, vd = valid[:-1, :-1], valid[:-1, 1:], valid[1:, :-1], valid[1:, 1:]
-    tri1 = np.stack([a, c, b], axis=-1)[va & vc & vb]
-    tri2 = np.stack([b, c, d], axis=-1)[vb & vc & vd]
+    ok1, ok2 = va & vc & vb, vb & vc & vd
+    if keep is not None:
+        ok1, ok2 = ok1 & keep[0], ok2 & keep[1]
+    tri1 = np.stack([a, c, b], axis=-1)[ok1]
+    tri2 = np.stack([b, c, d], axis=-1)[ok2]
     return vertices, np.concatenate([tri1, tri2]).astype(np.uint32)
 
 
@@ -154,6 +165,7 @@ class TileScene:
         self.z_range = (float(finite.min()), float(finite.max())) if finite.size else (z_ref, z_ref)
         self.full_window: Window = (0, nrows, 0, ncols)
         self.window: Window | None = None  # the window of the scene rays are cast against now
+        self.only_hits: Window | None = None  # the window whose hit triangles the next cast meshes
         self.scene = o3d.t.geometry.RaycastingScene()
         self.n_triangles = 0
         self.triangles_built = 0  # triangles of every scene built so far (the BVH builds' work)
@@ -208,15 +220,24 @@ class TileScene:
         clip = lambda v, n: min(max(v, 0), n)  # noqa: E731 - one line, used four times
         return (clip(row0, nrows), clip(row1, nrows), clip(col0, ncols), clip(col1, ncols))
 
-    def focus(self, window: Window) -> None:
-        """Cast the next rays against the mesh of ``window`` (kept if the current one holds it)."""
-        if self.window is not None and _holds(self.window, window):
+    def focus(self, window: Window, only_hits: bool = False) -> None:
+        """Cast the next rays against the mesh of ``window`` (kept if the current one holds it).
+
+        With ``only_hits``, the next :meth:`cast` builds a mesh of only the triangles of ``window``
+        its rays can hit first (``lidarsim.reach``), for that call alone: a scan whose rays are
+        cast in one call (a sparse trajectory) then costs a BVH of ~25,000 triangles, not ~94,000."""
+        self.only_hits = window if only_hits else None
+        if only_hits or (self.window is not None and _holds(self.window, window)):
             return
+        self._build(window)
+
+    def _build(self, window: Window, keep: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+        """A new scene of the mesh of ``window`` (only the triangles in ``keep``, if given)."""
         r0, r1, c0, c1 = window
         vertices, triangles = terrain_mesh(
-            self.heights[r0:r1, c0:c1], self.x_centres[c0:c1], self.y_centres[r0:r1], tuple(self.origin)
+            self.heights[r0:r1, c0:c1], self.x_centres[c0:c1], self.y_centres[r0:r1], tuple(self.origin), keep
         )
-        self.window = window
+        self.window = window if keep is None else None
         self.n_triangles = int(triangles.shape[0])
         self.triangles_built += self.n_triangles
         self.scene = o3d.t.geometry.RaycastingScene()
@@ -301,8 +322,20 @@ class TileScene:
         return ranges, np.where(np.isfinite(t), cos, 0.0)
 
     def _focus_on(self, origins_map: np.ndarray, directions: np.ndarray) -> None:
-        """Make sure the scene holds every triangle these rays can hit (a new one if the current does not)."""
+        """Make sure the scene holds every triangle these rays can hit first (a new one if the current does not)."""
         need = self.reach(origins_map, directions)
+        window, self.only_hits = self.only_hits, None
+        if window is not None and _holds(window, need):
+            r0, r1, c0, c1 = window
+            s = origins_map.shape[0]
+            d = directions.reshape(s, -1, 3)
+            o = np.broadcast_to(np.asarray(origins_map, dtype=np.float64)[:, None, :], d.shape)
+            keep = candidate_triangles(self.heights[r0:r1, c0:c1], self.x_centres[c0:c1], self.y_centres[r0:r1], o, d)
+            if keep is not None:
+                # the marked triangles, unless they are most of the window (rays crowding one spot)
+                dense = 2 * int(keep[0].sum() + keep[1].sum()) > 2 * (r1 - r0 - 1) * (c1 - c0 - 1)
+                self._build(window, None if dense else keep)
+                return
         if self.window is None or not _holds(self.window, need):
             self.focus(need)
 

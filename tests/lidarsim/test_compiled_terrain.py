@@ -1,6 +1,6 @@
 """The compiled rock stamping and bilinear resampling equal their NumPy forms bit for bit (the
-published terrains' sha256 rest on them), and a scan's mesh cut to what its rays can reach casts
-the ranges of the whole tile's mesh bit for bit."""
+published terrains' sha256 rest on them), and a scan's mesh cut to what its rays can reach, or to
+the triangles they can hit first, casts the ranges of the whole tile's mesh bit for bit."""
 
 from __future__ import annotations
 
@@ -11,10 +11,11 @@ import pytest
 from rocks_numpy import resample_bilinear_numpy, stamp_rocks_numpy
 
 from lidarsim.base_relief import resample_bilinear
+from lidarsim.noise import scan_directions
 from lidarsim.procedural import stamp_rocks
+from lidarsim.reach import candidate_triangles
 from lidarsim.scan import TileScene
 from lidarsim.sensor import SensorConfig, corner_directions, sensor_attitude
-from lidarsim.noise import scan_directions
 from lidarsim.terrain import DTM
 from tests.geotiff import write_geotiff
 
@@ -48,7 +49,11 @@ def test_a_non_contiguous_heights_array_is_refused():
 
 @pytest.mark.parametrize(
     ("src_shape", "src_spacing", "spacing", "shape"),
-    [((40, 50), (3.69, 3.69), 0.5, (290, 365)), ((7, 5), (2.0, 1.0), 0.25, (28, 40)), ((2, 2), (1.0, 1.0), 0.5, (4, 4))],
+    [
+        ((40, 50), (3.69, 3.69), 0.5, (290, 365)),
+        ((7, 5), (2.0, 1.0), 0.25, (28, 40)),
+        ((2, 2), (1.0, 1.0), 0.5, (4, 4)),
+    ],
 )
 def test_resampling_equals_the_numpy_form_bit_for_bit(src_shape, src_spacing, spacing, shape):
     rng = np.random.default_rng(5)
@@ -106,3 +111,32 @@ def test_scans_that_overlap_share_one_mesh_and_a_dense_tile_takes_the_whole_wind
         # windows that together hold as many cells as the tile: one mesh of the whole tile
         quarters = [(0, rows // 2 + 1, 0, cols), (rows // 2 - 1, rows, 0, cols)]
         assert scene.plan(quarters) == [((0, rows, 0, cols), [0, 1])]
+
+
+def test_a_ray_over_a_plane_marks_the_triangle_it_hits_by_hand():
+    heights = np.zeros((20, 20))  # vertices at x = 0, 0.5, ..; y = 10, 9.5, .. (row 0 north)
+    x, y = np.arange(20) * 0.5, 10.0 - np.arange(20) * 0.5
+    d = np.array([[0.01, 0.02, -1.0]]) / np.linalg.norm([0.01, 0.02, -1.0])
+    marked = candidate_triangles(heights, x, y, np.array([[2.03, -4.9, 500.0]]), d)
+    assert marked is not None
+    upper, lower = marked
+    # it meets z = 0 at x = 7.03, y = 5.1: block (9, 14), p = 0.06, q = 0.8: the upper-left triangle
+    assert np.argwhere(upper).tolist() == [[9, 14]] and not lower.any()
+    # a ray that does not descend may hit anything: no culling
+    assert candidate_triangles(heights, x, y, np.array([[2.0, 5.0, 1.0]]), np.array([[0.0, 0.6, 0.8]])) is None
+
+
+def test_only_the_hit_triangles_cast_the_whole_meshes_ranges_bit_for_bit(tmp_path):
+    sensor = SensorConfig(rows=64, cols=64)
+    with DTM.open(_rough_dtm(tmp_path / "rough.tif")) as dtm:
+        whole = TileScene(dtm, (1100.0, 1900.0), 95.0)
+        whole.focus(whole.full_window)
+        cut = TileScene(dtm, (1100.0, 1900.0), 95.0)
+        for x, y, tilt in ((1080.0, 1920.0, 0.0), (1115.0, 1880.0, 15.0), (1020.0, 1930.0, 0.0)):
+            attitude = sensor_attitude(tilt)
+            origin = np.array([[x, y, 120.0]])
+            cut.focus(cut.reach(origin, corner_directions(sensor, attitude)[None]), only_hits=True)
+            d = scan_directions(sensor, attitude)[None]
+            got = cut.cast(origin, d)
+            assert 0 < cut.n_triangles < 2.5 * 64 * 64  # about one triangle per ray (and the hole's misses)
+            assert np.array_equal(got.view(np.uint32), whole.cast(origin, d).view(np.uint32))
