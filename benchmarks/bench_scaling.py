@@ -18,7 +18,7 @@ km^2) and the log-log slope between neighbouring points (1 = linear), writes the
 log-log axes with a line of slope 1 through the first point, peak memory beside it).
 
     python benchmarks/bench_scaling.py [--full] [--sweeps scans noise area workers] [--workers 2]
-        [--json scaling.json] [--plots docs/figures]
+        [--scans 100 300 1000] [--areas 0.25 0.5 1] [--json scaling.json] [--plots docs/figures]
 
 The default sweep takes a few minutes on 2 cores (100 -> 1000 scans, 1 -> 8 noise levels at 200
 scans, 0.25 -> 1 km^2, 1 -> 4 Dask workers at 300 scans); ``--full`` runs 100 -> 10,000 scans,
@@ -28,6 +28,7 @@ scans, 0.25 -> 1 km^2, 1 -> 4 Dask workers at 300 scans); ``--full`` runs 100 ->
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import os
@@ -315,6 +316,9 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2, help="worker processes of build and label")
     parser.add_argument("--json", type=Path, default=None, help="write the measurements here")
     parser.add_argument("--plots", type=Path, default=None, help="write scaling_<sweep>.png here")
+    parser.add_argument("--scans", type=int, nargs="+", default=None, help="the scan counts of the scans sweep")
+    parser.add_argument("--areas", type=float, nargs="+", default=None, help="the areas (km^2) of the area sweep")
+    parser.add_argument("--replot", type=Path, default=None, help="only draw the figures of a --json file")
     parser.add_argument("command", nargs="*", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child == "run":
@@ -323,7 +327,14 @@ def main() -> None:
     if args.child == "detect":
         child_detect(args.area, args.tmp)
         return
+    if args.replot:
+        plot(json.loads(args.replot.read_text()), args.plots or Path("."))
+        return
     sizes = FULL if args.full else DEFAULT
+    if args.scans:
+        sizes = dataclasses.replace(sizes, scans=tuple(args.scans))
+    if args.areas:
+        sizes = dataclasses.replace(sizes, areas=tuple(args.areas))
     results: dict[str, Any] = {
         "cpu": cpu_model(),
         "cores": os.cpu_count(),
