@@ -153,7 +153,7 @@ def child_detect(area_km2: float, tmp: Path) -> None:
         },
     )
     t0 = time.perf_counter()
-    detect(ckpt, tmp / "out", dtm=crop, threshold="nats:0.35", mc_samples=8)
+    detect(ckpt, tmp / "out", dtm=crop, threshold="nats:0.35", mc_samples=8, upsample=True)
     wall = time.perf_counter() - t0
     km2 = (side * info.spacing_m[0]) ** 2 / 1e6
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
@@ -264,6 +264,7 @@ def _report(sweep: str, x: float, unit: str, rows: list[dict[str, Any]]) -> None
 def plot(results: dict[str, Any], folder: Path) -> None:
     """One figure per sweep: time (log-log, slope-1 reference through the first point), peak memory."""
     import matplotlib
+    import matplotlib.ticker
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -290,6 +291,8 @@ def plot(results: dict[str, Any], folder: Path) -> None:
             ax_m.semilogx(xs, [r[step]["peak_mib"] for r in rows], "o-", color=colour, label=step)
             loads += [r[step]["load_before"] for r in rows] + [r[step]["load_after"] for r in rows]
         for ax in (ax_t, ax_m):
+            ax.set_xticks(xs, [f"{x:.3g}" for x in xs], minor=False)
+            ax.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
             ax.set_xlabel(labels[sweep])
             ax.grid(True, which="both", alpha=0.3)
             ax.legend(fontsize=8)
@@ -298,7 +301,7 @@ def plot(results: dict[str, Any], folder: Path) -> None:
         ax_m.set_ylim(bottom=0)
         fig.suptitle(
             f"{results['cpu']}, {results['cores']} cores; load average {min(loads):.1f}-{max(loads):.1f}; "
-            f"{results['date']}",
+            f"{results['date'][:10]}",
             fontsize=9,
         )
         fig.tight_layout()
@@ -344,18 +347,19 @@ def main() -> None:
         "sweeps": {},
     }
     print(f"{results['cpu']}, {results['cores']} cores, load average {os.getloadavg()[0]:.1f}; {results['date']}")
+    if args.json and args.json.exists():  # sweeps run before: kept, those run now replaced
+        results["sweeps"] = json.loads(args.json.read_text()).get("sweeps", {})
+    sweeps = {
+        "scans": lambda tmp: sweep_scans(tmp, list(sizes.scans), args.workers),
+        "noise": lambda tmp: sweep_noise(tmp, sizes.noise_scans, list(sizes.levels), args.workers),
+        "area": lambda tmp: sweep_area(tmp, list(sizes.areas)),
+        "workers": lambda tmp: sweep_workers(tmp, sizes.worker_scans, WORKERS),
+    }
     with tempfile.TemporaryDirectory(prefix="hd-scaling-") as tmp_name:
-        tmp = Path(tmp_name)
-        if "scans" in args.sweeps:
-            results["sweeps"]["scans"] = sweep_scans(tmp, list(sizes.scans), args.workers)
-        if "noise" in args.sweeps:
-            results["sweeps"]["noise"] = sweep_noise(tmp, sizes.noise_scans, list(sizes.levels), args.workers)
-        if "area" in args.sweeps:
-            results["sweeps"]["area"] = sweep_area(tmp, list(sizes.areas))
-        if "workers" in args.sweeps:
-            results["sweeps"]["workers"] = sweep_workers(tmp, sizes.worker_scans, WORKERS)
-    if args.json:
-        args.json.write_text(json.dumps(results, indent=1))
+        for name in args.sweeps:
+            results["sweeps"][name] = sweeps[name](Path(tmp_name))
+            if args.json:  # after every sweep: a later failure keeps what was measured
+                args.json.write_text(json.dumps(results, indent=1))
     if args.plots:
         plot(results, args.plots)
 
