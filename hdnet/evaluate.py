@@ -64,7 +64,6 @@ from hdnet.thresholds import (
     EntropyCalibration,
     ThresholdSpec,
     precision_threshold,
-    risk_reach,
     select_threshold,
     warn_if_unreachable,
 )
@@ -335,14 +334,13 @@ def validation_threshold(
         "mean_nats": h_mean,
         "mean_quantile": float(np.mean(val_scores < h_mean)),
         # where another rule's H_t lies among the validation scores (the threshold sweep's axis)
-        **({} if spec.kind == "mean" else {"value_quantile": cal.fraction_below(h_t)}),
+        **spec.rule.quantile_entry(cal, h_t),
         "calibration_split": "val",
         "calibration_sigma_m": val.sigma_m,
         "calibration_images": cal.n_images,
         "calibration_pixels": int(val_scores.size),
     }
-    if spec.kind == "risk" and spec.value is not None:  # alpha < 1/(n+1) leaves every pixel uncertain: said
-        info |= risk_reach(spec.value, cal.n_images)
+    info |= spec.reach(cal.n_images)  # risk:ALPHA with alpha < 1/(n+1) leaves every pixel uncertain: said
     return ValidationThreshold(h_t, with_score(info, uncertainty), cal, val)
 
 
@@ -486,7 +484,7 @@ def evaluate(
         threshold_info["calibration_note"] = setup.calibration.note
     if cfg.calibrate == "each":
         threshold_info["per_sigma"] = thresholds.per_sigma_info()
-    if spec.kind == "risk":
+    if spec.rule.certifies_risk:
         threshold_info["alpha"] = spec.value
         threshold_info["achieved_risk"] = achieved
     val = th.inference
@@ -591,7 +589,7 @@ class _Thresholds:
         if self.cfg.calibrate == "reference":
             return self.reference
         th = self._calibrate(test_sigma_m)
-        if self.cfg.threshold_spec.kind != "nats":  # a fixed threshold stays what the user fixed
+        if self.cfg.threshold_spec.rule.calibrated:  # a fixed threshold stays what the user fixed
             th = guard_above_training(th, test_sigma_m, self.setup.train_noise)
         self._by_sigma[round(float(test_sigma_m), 12)] = th
         return th
@@ -689,7 +687,7 @@ def _noise_table(
                 "bin_safe_fraction": rel.safe_fraction.tolist(),
             }
         )
-        if cfg.threshold_spec.kind == "risk":
+        if cfg.threshold_spec.rule.certifies_risk:
             rate = false_safe_rate(inf, h_t, uncertainty)
             achieved.append({"test_sigma_m": sigma, "table": "noise", "false_safe_rate": rate})
     return tests, rows, sweep, cal_rows, achieved
@@ -716,7 +714,7 @@ def _dead_pixel_table(
             progress=thresholds.progress,
         )
         rows += method_rows(inf, "dead_pixels", val_sigma, h_t, cfg.uncertainty_score)
-        if cfg.threshold_spec.kind == "risk":
+        if cfg.threshold_spec.rule.certifies_risk:
             rate = false_safe_rate(inf, h_t, cfg.uncertainty_score)
             achieved.append({"test_sigma_m": sigma, "table": "dead_pixels", "false_safe_rate": rate})
     return rows, achieved
@@ -741,7 +739,7 @@ def _sigma_sweep(
             progress=thresholds.progress,
         )
         rows += method_rows(inf, "sigma_sweep", setup.train_sigma_m, h_t, cfg.uncertainty_score)
-        if cfg.threshold_spec.kind == "risk":
+        if cfg.threshold_spec.rule.certifies_risk:
             rate = false_safe_rate(inf, h_t, cfg.uncertainty_score)
             achieved.append({"test_sigma_m": inf.sigma_m, "table": "sigma_sweep", "false_safe_rate": rate})
     return rows, achieved

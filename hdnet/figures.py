@@ -22,6 +22,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
 from hdnet import defaults
+from hdnet.threshold_spec import RULES
 from hdnet.uncertainty import ENTROPY, UncertaintyScore, recorded_score
 
 if TYPE_CHECKING:
@@ -76,18 +77,19 @@ def used_threshold(threshold: dict[str, Any], sigma_m: float) -> tuple[str, floa
     own calibration at that noise level with ``--calibrate each`` (``(guarded)`` when the precision
     guard lowered it). None when the report does not record where a rule other than the mean lies
     (reports written before ``value_quantile``)."""
-    spec, kind = str(threshold.get("spec", "mean")), threshold.get("kind", "mean")
+    spec, rule = str(threshold.get("spec", "mean")), RULES.get(str(threshold.get("kind", "mean")))
+    by_mean = rule is not None and rule.is_mean  # the paper's rule: labelled by the score it averages
     entry: dict[str, Any] = threshold
     for own in threshold.get("per_sigma") or []:
         if math.isclose(float(own.get("calibration_sigma_m", math.nan)), sigma_m, abs_tol=1e-12):
             entry = own
     guarded = bool(entry.get("guarded", False))
     quantile = entry.get("value_quantile")
-    if quantile is None and kind == "mean" and not guarded:
+    if quantile is None and by_mean and not guarded:
         quantile = threshold.get("mean_quantile")
     if quantile is None:
         return None
-    if kind == "mean" and not guarded:
+    if by_mean and not guarded:
         return f"mean-{recorded_score(threshold).short} threshold", float(quantile)
     return f"threshold {spec}" + (" (guarded)" if guarded else ""), float(quantile)
 

@@ -15,7 +15,7 @@ import click
 
 from hdnet import defaults as net_defaults
 from hdnet import limits as net_limits
-from hdnet import uncertainty
+from hdnet import threshold_spec, uncertainty
 from lidarsim import defaults as lidar_defaults
 from lidarsim import limits
 from lidarsim.setting import DIRECTORY, FILE_OR_DIRECTORY, bounded, setting
@@ -64,11 +64,8 @@ def dtm_option(what: str) -> Decorator:
     return click.option("--dtm", "dtm_path", type=FILE_OR_DIRECTORY, default=None, help=what)
 
 
-# The threshold forms, worded once (hdnet.thresholds.parse_threshold_spec reads them).
-THRESHOLD_FORMS = (
-    "Uncertainty threshold: mean (the validation split's mean entropy, the paper's), quantile:Q, risk:ALPHA "
-    "(false-safe rate at most ALPHA), all calibrated on a validation split, or nats:H (fixed, in nats)."
-)
+# The threshold forms, written from the registered rules (hdnet.threshold_spec.RULES).
+THRESHOLD_FORMS = threshold_spec.help_text()
 
 
 # ----------------------------------------------------- settings that several settings classes share

@@ -42,13 +42,25 @@ import torch
 
 from hdnet import defaults
 from hdnet.errors import HdNetError
-from hdnet.threshold_spec import SPEC_FORMS, ThresholdSpec, parse_threshold_spec, unreachable_risk_words
+from hdnet.threshold_spec import (
+    LOSS_BOUND,
+    RULES,
+    SPEC_FORMS,
+    ThresholdRule,
+    ThresholdSpec,
+    parse_threshold_spec,
+    risk_images_needed,
+    risk_reach,
+    unreachable_risk_words,
+)
 from lidarsim.errors import HdWarning
 
 __all__ = [
     "LOSS_BOUND",
+    "RULES",
     "SPEC_FORMS",
     "EntropyCalibration",
+    "ThresholdRule",
     "ThresholdSpec",
     "parse_threshold_spec",
     "precision_threshold",
@@ -59,35 +71,6 @@ __all__ = [
     "unreachable_risk_words",
     "warn_if_unreachable",
 ]
-
-LOSS_BOUND = 1.0  # B: the false-safe rate is a fraction of pixels
-
-
-def risk_images_needed(alpha: float) -> int:
-    """The fewest calibration images n with which ``risk:alpha`` can certify any pixel.
-
-    Conformal risk control keeps H_t = 0 (every pixel uncertain) unless B/(n+1) <= alpha, whatever
-    the network does: even a network with no false-safe pixel adds the bound B = 1 of the unseen
-    image, weighted 1/(n+1). So n >= B/alpha - 1 (19 images for alpha = 0.05, 99 for 0.01); n counts
-    the calibration images, every image of the validation split(s) at the calibration noise level
-    (``EntropyCalibration.n_images``), not their pixels.
-    """
-    if not 0.0 < alpha < 1.0:
-        raise HdNetError(f"the risk level alpha must be in (0, 1), got {alpha}.")
-    n = max(1, math.ceil(LOSS_BOUND / alpha) - 1)
-    while LOSS_BOUND / (n + 1) > alpha:  # floating point: the exact condition decides
-        n += 1
-    while n > 1 and LOSS_BOUND / n <= alpha:
-        n -= 1
-    return n
-
-
-def risk_reach(alpha: float, n_images: int) -> dict[str, bool | int]:
-    """The reachability entries of a ``risk:alpha`` threshold's record calibrated on ``n_images``
-    images: ``unreachable`` (True when H_t is 0 by construction: alpha < B/(n+1)) and
-    ``needs_images`` (``risk_images_needed``)."""
-    needed = risk_images_needed(alpha)
-    return {"unreachable": n_images < needed, "needs_images": needed}
 
 
 def warn_if_unreachable(record: dict[str, Any]) -> None:
@@ -231,16 +214,10 @@ def precision_threshold(calibration: EntropyCalibration, precision: float) -> fl
 
 
 def select_threshold(spec: ThresholdSpec | str, calibration: EntropyCalibration) -> float:
-    """H_t (nats) for ``spec`` from a calibration (validation) set."""
+    """H_t (nats) for ``spec`` from a calibration (validation) set, by its rule (``ThresholdSpec.rule``)."""
     if isinstance(spec, str):
         spec = parse_threshold_spec(spec)
-    if spec.kind == "mean":
-        return calibration.mean()
-    if spec.kind == "nats":
-        return float(spec.value)  # type: ignore[arg-type]  # nats specs carry their value
-    if spec.kind == "quantile":
-        return calibration.quantile(float(spec.value))  # type: ignore[arg-type]  # quantile specs carry a value
-    return calibration.risk_control_threshold(float(spec.value))  # type: ignore[arg-type]  # risk specs carry one
+    return spec.select(calibration)
 
 
 def uncertain_mask(entropy_nats: torch.Tensor, threshold_nats: float) -> torch.Tensor:
