@@ -68,9 +68,7 @@ RANGE_ESTIMATOR: str = "centroid"
 PULSE_WIDTH_M: float = 0.75
 # Fraction of the waveform's peak at which the "first" estimator fires.
 RETURN_FRACTION: float = 0.5
-# Range-noise models: "constant" (one sigma everywhere, the paper's) or "snr" (sigma grows as the
-# returned signal falls: sigma = sigma_ref / sqrt(P), P = cos(incidence) (R_ref / R)^2).
-NOISE_MODELS: tuple[str, ...] = ("constant", "snr")
+# The range-noise model (lidarsim.noise.NOISE_KINDS): "constant" (one sigma everywhere, the paper's).
 NOISE_MODEL: str = "constant"
 # The "snr" model's reference: the --sigma levels are the 1-sigma at this range and normal
 # incidence (the paper's altitude), where the signal-to-noise ratio is SNR_REF.

@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from lidarsim.location import is_url, remote_dataset
+from lidarsim.noise import stored_kind
 from lidarsim.outcome import counted
 from lidarsim.shards import SPLIT_NAMES, open_scan_shard, read_manifest
 from lidarsim.storage import FormatError, StorageError, confine, lock_holder
@@ -238,11 +239,9 @@ def _realism(attrs: dict[str, Any]) -> str:
             f"footprint {k} x {k} sub-rays, {attrs.get('footprint_spot_profile')} spot, "
             f"{attrs.get('footprint_range_estimator')} range (pulse {attrs.get('footprint_pulse_width_m')} m)"
         )
-    if attrs.get("noise_model") == "snr":
-        parts.append(
-            f"snr noise (sigma at {attrs.get('noise_reference_range_m')} m, SNR {attrs.get('noise_snr_ref')}; "
-            f"no return below SNR {attrs.get('noise_snr_min')})"
-        )
+    noise_line = stored_kind(attrs).inspect_line(attrs)
+    if noise_line:
+        parts.append(noise_line)
     return "; ".join(parts)
 
 

@@ -16,7 +16,9 @@ seed, the stored noisy points bit for bit.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -27,6 +29,83 @@ from lidarsim.streams import Purpose, sigma_key, stream
 
 # How many float32 steps (ulps) around the first estimate recover_ranges searches for the exact range.
 _RECOVERY_ULPS = 3
+
+
+class NoiseKind:
+    """One range-noise model, as registered in ``NOISE_KINDS`` (``--noise-model``): what it means,
+    the settings it reads, the per-scan arrays it stores, how it scales sigma and detects a return,
+    and its line in ``hd inspect``. A new model is one subclass here (and its settings, if it reads
+    new ones, in ``lidarsim.recipe`` and ``lidarsim.limits``).
+
+    Attributes:
+        name: the model's word (``--noise-model``, the shards' ``noise_model`` attribute).
+        words: what it means, for the command-line help.
+        parameters: the ``NoiseModel`` fields it reads (the others are stored but unused).
+        stored_fields: the optional per-scan arrays a shard of this model holds (``lidarsim.shards``).
+        is_default: True for the paper's model.
+    """
+
+    name: ClassVar[str]
+    words: ClassVar[str]
+    parameters: ClassVar[tuple[str, ...]] = ()
+    stored_fields: ClassVar[tuple[str, ...]] = ()
+    is_default: ClassVar[bool] = False
+
+    def sigma_scale(self, model: NoiseModel, signal: np.ndarray) -> np.ndarray | None:
+        """Factor on the noise level's sigma for returns of relative signal ``signal`` (None: 1 everywhere)."""
+        return None
+
+    def detected(self, model: NoiseModel, signal: np.ndarray) -> np.ndarray:
+        """True where a return of relative signal ``signal`` is detected."""
+        return np.ones(np.shape(signal), dtype=bool)
+
+    def inspect_line(self, attrs: Mapping[str, Any]) -> str:
+        """The model in words for ``hd inspect`` from a shard's attributes ("" for nothing to say)."""
+        return ""
+
+
+class ConstantNoise(NoiseKind):
+    """The paper's: every return has the dataset's sigma, and every return is detected."""
+
+    name = "constant"
+    words = "one sigma everywhere"
+    is_default = True
+
+
+class SnrNoise(NoiseKind):
+    """Sigma of a return of relative signal P: ``sigma_ref / sqrt(P)``; SNR = snr_ref * P below snr_min: no return."""
+
+    name = "snr"
+    words = "--sigma at 500 m and normal incidence, growing as range / sqrt(cos incidence), weak returns dropped"
+    parameters = ("snr_ref", "snr_min", "reference_range_m")
+    stored_fields = ("noise_scale",)
+
+    def sigma_scale(self, model: NoiseModel, signal: np.ndarray) -> np.ndarray | None:
+        signal = np.asarray(signal, dtype=np.float64)
+        return 1.0 / np.sqrt(np.where(signal > 0.0, signal, 1.0))
+
+    def detected(self, model: NoiseModel, signal: np.ndarray) -> np.ndarray:
+        return model.snr_ref * np.asarray(signal, dtype=np.float64) >= model.snr_min
+
+    def inspect_line(self, attrs: Mapping[str, Any]) -> str:
+        return (
+            f"snr noise (sigma at {attrs.get('noise_reference_range_m')} m, SNR {attrs.get('noise_snr_ref')}; "
+            f"no return below SNR {attrs.get('noise_snr_min')})"
+        )
+
+
+# The registry: one instance per model, the paper's first.
+NOISE_KINDS: dict[str, NoiseKind] = {kind.name: kind for kind in (ConstantNoise(), SnrNoise())}
+
+
+def help_text() -> str:
+    """The command-line help of ``--noise-model``: every registered model and its meaning."""
+    return "; ".join(f"{kind.name}: {kind.words}" for kind in NOISE_KINDS.values())
+
+
+def stored_kind(attrs: Mapping[str, Any]) -> NoiseKind:
+    """The noise model a shard's attributes name (``noise_model``; the paper's when absent or unknown)."""
+    return NOISE_KINDS.get(str(attrs.get("noise_model", defaults.NOISE_MODEL)), NOISE_KINDS[defaults.NOISE_MODEL])
 
 
 @dataclass(frozen=True)
@@ -42,7 +121,7 @@ class NoiseModel:
     ``SNR < snr_min`` is not detected (status ``weak``, no range).
 
     Attributes:
-        kind: "constant" or "snr".
+        kind: a registered model (``NOISE_KINDS``): "constant" or "snr".
         snr_ref: signal-to-noise ratio of a whole pixel's return at the reference range, normal incidence.
         snr_min: detection threshold on the signal-to-noise ratio (0: every return is detected).
         reference_range_m: the reference range, metres.
@@ -54,8 +133,8 @@ class NoiseModel:
     reference_range_m: float = defaults.SNR_REF_RANGE_M
 
     def __post_init__(self) -> None:
-        if self.kind not in defaults.NOISE_MODELS:
-            raise LidarsimError(f"unknown noise model {self.kind!r}; use {', '.join(defaults.NOISE_MODELS)}")
+        if self.kind not in NOISE_KINDS:
+            raise LidarsimError(f"unknown noise model {self.kind!r}; use {', '.join(NOISE_KINDS)}")
         if not limits.SNR_REF.contains(self.snr_ref):
             raise LidarsimError(f"--snr-ref must be in {limits.SNR_REF.interval()}, got {self.snr_ref}")
         if not limits.SNR_MIN.contains(self.snr_min):
@@ -66,7 +145,12 @@ class NoiseModel:
     @property
     def is_default(self) -> bool:
         """True for the paper's constant sigma (whatever the unused SNR settings)."""
-        return self.kind == "constant"
+        return self.law.is_default
+
+    @property
+    def law(self) -> NoiseKind:
+        """The registered model ``kind`` names (``NOISE_KINDS``)."""
+        return NOISE_KINDS[self.kind]
 
     def to_attrs(self) -> dict[str, float | str]:
         """Flat attribute dictionary (HDF5/JSON friendly): ``noise_model`` and ``noise_*``."""
@@ -75,17 +159,11 @@ class NoiseModel:
     def sigma_scale(self, signal: np.ndarray) -> np.ndarray | None:
         """Factor on the noise level's sigma for returns of relative signal ``signal`` (None: 1 everywhere;
         1 where there is no signal, which has no range to add noise to)."""
-        if self.kind == "constant":
-            return None
-        signal = np.asarray(signal, dtype=np.float64)
-        return 1.0 / np.sqrt(np.where(signal > 0.0, signal, 1.0))
+        return self.law.sigma_scale(self, signal)
 
     def detected(self, signal: np.ndarray) -> np.ndarray:
         """True where a return of relative signal ``signal`` is detected (SNR >= snr_min)."""
-        signal = np.asarray(signal, dtype=np.float64)
-        if self.kind == "constant":
-            return np.ones(signal.shape, dtype=bool)
-        return self.snr_ref * signal >= self.snr_min
+        return self.law.detected(self, signal)
 
 
 def scan_directions(sensor: SensorConfig, attitude: np.ndarray) -> np.ndarray:

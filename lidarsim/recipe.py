@@ -63,7 +63,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from lidarsim import defaults, limits
+from lidarsim import defaults, limits, noise
 from lidarsim.build import BuildConfig
 from lidarsim.descent import DescentConfig
 from lidarsim.errors import LidarsimError, RecipeError
@@ -207,9 +207,8 @@ class BuildSettings:
     )
     noise_model: str = setting(
         defaults.NOISE_MODEL,
-        "constant: one sigma everywhere; snr: --sigma at 500 m and normal incidence, growing as "
-        "range / sqrt(cos incidence), weak returns dropped",
-        choices=defaults.NOISE_MODELS,
+        noise.help_text(),
+        choices=tuple(noise.NOISE_KINDS),
     )
     snr_ref: float = setting(
         defaults.SNR_REF,

@@ -27,6 +27,7 @@ from lidarsim import defaults, limits
 from lidarsim._version import __version__
 from lidarsim.errors import LidarsimError
 from lidarsim.location import PUBLISH_MARK, dataset_label, is_url, join, open_h5_at, remote_dataset
+from lidarsim.noise import stored_kind
 from lidarsim.outcome import counted
 from lidarsim.storage import (
     CheckedH5File,
@@ -232,7 +233,7 @@ class ScanShardWriter:
         self._d["points_noisy"].attrs["sigmas_m"] = np.asarray(self.sigmas_m, dtype=np.float64)
         realistic = scan_schema_version(self.attrs) != SCAN_SCHEMA_VERSION_PLAIN
         self._d["status"].attrs["codes"] = STATUS_CODES if realistic else STATUS_CODES_PLAIN
-        if self.attrs.get("noise_model") == "snr":
+        if "noise_scale" in stored_kind(self.attrs).stored_fields:
             self._d["noise_scale"] = f.create_dataset("noise_scale", (n, r, c), np.float32, chunks=(1, r, c), **kw)
         # a descent's arrays are gathered here and written whole by commit(): one write each, not one per scan
         self._descent: dict[str, np.ndarray] = {}
