@@ -41,7 +41,9 @@ class NoiseKind:
         name: the model's word (``--noise-model``, the shards' ``noise_model`` attribute).
         words: what it means, for the command-line help.
         parameters: the ``NoiseModel`` fields it reads (the others are stored but unused).
-        stored_fields: the optional per-scan arrays a shard of this model holds (``lidarsim.shards``).
+        stored_fields: the optional per-scan arrays a shard of this model holds (``lidarsim.shards``):
+            ``noise_scale`` for a model whose ``sigma_scale`` is not None, so that noise drawn later
+            from the shard (``hdlabels.noisy``) is the stored noise.
         is_default: True for the paper's model.
     """
 

@@ -172,3 +172,28 @@ def test_a_risk_level_below_one_over_n_plus_one_is_unreachable_and_says_how_many
     assert risk_reach(alpha, needed) == {"unreachable": False, "needs_images": needed}
     words = unreachable_risk_words("risk:0.05", 6, 19)
     assert "6 validation image(s)" in words and "at least 19 validation images" in words and "0.143" in words
+
+
+def test_each_registered_rule_parses_selects_and_is_in_the_help() -> None:
+    from hdnet.shared_options import THRESHOLD_FORMS
+    from hdnet.threshold_spec import RULES, SPEC_FORMS, ThresholdRule, parse_threshold_spec
+
+    assert list(RULES) == ["mean", "quantile", "risk", "nats"]
+    assert SPEC_FORMS == "'mean', 'quantile:Q', 'risk:ALPHA' or 'nats:H'"
+    cal = EntropyCalibration()
+    h = torch.tensor([[[0.1, 0.2], [0.3, 0.4]]])
+    cal.update(h, torch.ones(1, 2, 2, dtype=torch.long), torch.ones(1, 2, 2, dtype=torch.long))
+    by_hand = {"mean": 0.25, "quantile": 0.1 + 0.3 * 0.5, "risk": math.inf, "nats": 0.5}  # no false-safe pixel
+    for name, rule in RULES.items():
+        assert isinstance(rule, ThresholdRule) and rule.name == name
+        assert rule.form in THRESHOLD_FORMS and rule.words in THRESHOLD_FORMS
+        spec = parse_threshold_spec(name if not rule.takes_value else f"{name}:0.5")
+        assert spec.rule is rule
+        assert spec.select(cal) == pytest.approx(by_hand[name])
+    assert [n for n, r in RULES.items() if not r.calibrated] == ["nats"]
+    assert [n for n, r in RULES.items() if r.is_mean] == ["mean"]
+    assert [n for n, r in RULES.items() if r.certifies_risk] == ["risk"]
+    assert parse_threshold_spec("mean").rule.quantile_entry(cal, 0.25) == {}
+    assert parse_threshold_spec("quantile:0.5").rule.quantile_entry(cal, 0.25) == {"value_quantile": 0.5}
+    assert parse_threshold_spec("risk:0.05").reach(18) == {"unreachable": True, "needs_images": 19}
+    assert parse_threshold_spec("nats:0.3").reach(18) == {}

@@ -72,3 +72,24 @@ def test_damaged_elements_get_their_extra_error_from_their_own_stream():
     extra = stream(0, Purpose.DAMAGED_ERROR, 2, sigma_key(0.0)).standard_normal(5)
     assert np.allclose(a[0, :5] - ranges[0, :5], 5.0 * extra)
     assert np.array_equal(a[~damaged], ranges[~damaged], equal_nan=True)  # sigma 0: nothing else moves
+
+
+def test_each_registered_noise_model_knows_its_fields_help_and_inspect_line() -> None:
+    from lidarsim.noise import NOISE_KINDS, NoiseModel, help_text, stored_kind
+
+    assert list(NOISE_KINDS) == ["constant", "snr"]
+    assert all(f"{name}: " in help_text() for name in NOISE_KINDS)
+    signal = np.array([1.0, 0.25, 0.01, 0.0])
+    constant, snr = NoiseModel("constant"), NoiseModel("snr", snr_ref=100.0, snr_min=5.0)
+    assert constant.is_default and not snr.is_default
+    assert constant.sigma_scale(signal) is None
+    np.testing.assert_array_equal(snr.sigma_scale(signal), [1.0, 2.0, 10.0, 1.0])  # 1 / sqrt(P), 1 without signal
+    np.testing.assert_array_equal(constant.detected(signal), [True] * 4)
+    np.testing.assert_array_equal(snr.detected(signal), [True, True, False, False])  # SNR 100, 25, 1, 0 vs 5
+    assert stored_kind(snr.to_attrs()).stored_fields == ("noise_scale",)
+    assert stored_kind({}).stored_fields == () and stored_kind({}).inspect_line({}) == ""
+    assert stored_kind(snr.to_attrs()).inspect_line(snr.to_attrs()) == (
+        "snr noise (sigma at 500.0 m, SNR 100.0; no return below SNR 5.0)"
+    )
+    with pytest.raises(LidarsimError, match="unknown noise model 'gauss'; use constant, snr"):
+        NoiseModel("gauss")
