@@ -76,7 +76,7 @@ from hdnet.evaluate import (
     validation_threshold,
 )
 from hdnet.fit import is_run_dir
-from hdnet.infer import mc_dropout_predict
+from hdnet.infer import MCPrediction, mc_dropout_predict
 from hdnet.inputs import InputSpec, to_dem_grid
 from hdnet.inputs import network_input as prepare_input
 from hdnet.model import BayesianSegNet
@@ -94,7 +94,7 @@ from hdnet.sites import (
     select_sites,
 )
 from hdnet.threshold_cache import CachedThreshold, cache_key
-from hdnet.thresholds import ThresholdSpec, parse_threshold_spec, risk_reach, uncertain_mask, warn_if_unreachable
+from hdnet.thresholds import ThresholdSpec, parse_threshold_spec, uncertain_mask, warn_if_unreachable
 from hdnet.tiling import TilePlan
 from hdnet.train import load_trained_model
 from hdnet.uncertainty import ENTROPY, UncertaintyScore, recorded_score, uncertainty_score, with_score
@@ -113,7 +113,75 @@ from lidarsim.storage import (
 )
 from lidarsim.terrain import DTM
 
-MAP_FILES = ("p_safe.tif", "entropy.tif", "mutual_information.tif", "safety.tif", "baseline_p_safe.tif")
+
+@dataclass(frozen=True)
+class TileCells:
+    """One tile's outputs on the cells it owns (its centre crop ``crop``), from which every map is made.
+
+    Attributes:
+        mc: the MC-dropout prediction of the tile's batch on the run's grid (``hdnet.infer.MCPrediction``).
+        index: the tile's place in that batch.
+        crop: (rows, cols) slices of the owned cells in the tile.
+        baseline_p_safe: the ALHAT P(safe) baseline of the owned cells, float32, NaN where invalid.
+        uncertain: bool, the owned cells whose uncertainty score is >= H_t.
+    """
+
+    mc: MCPrediction
+    index: int
+    crop: tuple[slice, slice]
+    baseline_p_safe: np.ndarray
+    uncertain: np.ndarray
+
+    @property
+    def valid(self) -> np.ndarray:
+        """The owned cells with a baseline (a finite DEM around them): the others are every map's nodata."""
+        return np.isfinite(self.baseline_p_safe)
+
+    def cells(self, batch: torch.Tensor) -> np.ndarray:
+        """The owned cells of the tile in a (N, H, W) tensor of its batch (``mc``'s arrays)."""
+        return batch[self.index].numpy()[self.crop]
+
+    def masked(self, batch: torch.Tensor) -> np.ndarray:
+        """:meth:`cells`, NaN where invalid."""
+        return np.where(self.valid, self.cells(batch), np.nan)
+
+
+def _safety_codes(t: TileCells) -> np.ndarray:
+    """The safety map's uint8 codes of a tile's owned cells: safe/unsafe by the network, uncertain, invalid."""
+    safety = np.where(t.cells(t.mc.prediction) == defaults.CLASS_SAFE, SAFETY_SAFE, SAFETY_UNSAFE).astype(np.uint8)
+    safety[t.uncertain] = SAFETY_UNCERTAIN
+    safety[~t.valid] = SAFETY_INVALID
+    return safety
+
+
+@dataclass(frozen=True)
+class MapSpec:
+    """One map of ``hd detect``: its field (in ``DetectMaps`` and ``detect_dem``'s result), its
+    GeoTIFF, its array type, its nodata value, and how a tile's owned cells of it are computed."""
+
+    field: str
+    file: str
+    dtype: type[np.generic]
+    nodata: float
+    compute: Callable[[TileCells], np.ndarray]
+
+
+# The maps of a detection, in the order of their files: a new map is one entry here (and its field of
+# DetectMaps).
+MAPS: tuple[MapSpec, ...] = (
+    MapSpec("p_safe", "p_safe.tif", np.float32, math.nan, lambda t: t.masked(t.mc.mean_probs[:, defaults.CLASS_SAFE])),
+    MapSpec("entropy_nats", "entropy.tif", np.float32, math.nan, lambda t: t.masked(t.mc.entropy_nats)),
+    MapSpec(
+        "mutual_information_nats",
+        "mutual_information.tif",
+        np.float32,
+        math.nan,
+        lambda t: t.masked(t.mc.mutual_information_nats),
+    ),
+    MapSpec("safety", "safety.tif", np.uint8, SAFETY_INVALID, _safety_codes),
+    MapSpec("baseline_p_safe", "baseline_p_safe.tif", np.float32, math.nan, lambda t: t.baseline_p_safe),
+)
+MAP_FILES = tuple(spec.file for spec in MAPS)
 OUTPUT_FILES = (*MAP_FILES, "sites.csv", "sites.geojson", "overview.png", "detect.json")
 # The ALHAT baseline is safe where P(safe) >= this (paper, "Label generation"; one source: hdlabels.defaults).
 BASELINE_THRESHOLD = label_defaults.SAFE_PROBABILITY_THRESHOLD
@@ -618,7 +686,7 @@ def _map_window(value: MapWindow | tuple[float, float, float, float] | str) -> M
 def _fixed_threshold(spec: str) -> float | None:
     """H_t of a ``nats:H`` spec (H >= 0 nats, 'inf' allowed), or None for the calibrated specs."""
     parsed = parse_threshold_spec(spec)
-    return float(parsed.value) if parsed.kind == "nats" and parsed.value is not None else None
+    return None if parsed.rule.calibrated or parsed.value is None else float(parsed.value)
 
 
 def is_detect_file(name: str) -> bool:
@@ -1181,8 +1249,8 @@ def _threshold(
         h_t = float(fixed)
         info = with_score({"spec": f"nats:{h_t:g}", "kind": "fixed", "parameter": h_t, "value_nats": h_t}, uncertainty)
     info = dict(info, value_nats=None if math.isinf(h_t) else h_t)
-    if spec is not None and spec.kind == "risk" and spec.value is not None:  # also a record cached before
-        info |= risk_reach(spec.value, int(info["calibration_images"]))
+    if spec is not None and spec.rule.certifies_risk:  # also a record cached before
+        info |= spec.reach(int(info["calibration_images"]))
         warn_if_unreachable(info)
     return h_t, info
 
@@ -1264,9 +1332,7 @@ def _read_map(path: Path) -> np.ndarray:
 
 
 # The maps of a detection, by the name of their field in DetectMaps and of their file (MAP_FILES).
-MAP_FIELDS = dict(
-    zip(("p_safe", "entropy_nats", "mutual_information_nats", "safety", "baseline_p_safe"), MAP_FILES, strict=True)
-)
+MAP_FIELDS = {spec.field: spec.file for spec in MAPS}
 MAP_TIMINGS = ("read", "network", "baseline")
 
 
@@ -1298,10 +1364,7 @@ def _map_strips(
         progress(0, plan.n_tiles)
     for (r_lo, r_hi), tiles in plan.strips():
         n_rows, n_cols = r_hi - r_lo, terrain.shape[1]
-        strip: dict[str, np.ndarray] = {
-            name: np.full((n_rows, n_cols), SAFETY_INVALID if name == "safety" else np.nan, _map_dtype(name))
-            for name in MAP_FIELDS
-        }
+        strip = {spec.field: np.full((n_rows, n_cols), spec.nodata, spec.dtype) for spec in MAPS}
         for start in range(0, len(tiles), batch_size):
             batch = tiles[start : start + batch_size]
             t0 = time.perf_counter()
@@ -1314,11 +1377,7 @@ def _map_strips(
                 out_grid = mc_dropout_predict(run.model, x, n_samples=mc_samples).on_grid(
                     lambda t: network_output(t, run).cpu()
                 )
-                p_all = out_grid.mean_probs[:, defaults.CLASS_SAFE].numpy()
-                h_all = out_grid.entropy_nats.numpy()
-                mi_all = out_grid.mutual_information_nats.numpy()
                 u_all = uncertainty.of(out_grid).numpy()
-                safe_all = (out_grid.prediction == defaults.CLASS_SAFE).numpy()
                 timings["network"] += time.perf_counter() - t0
             for j, k in enumerate(live):
                 tile = batch[k]
@@ -1326,25 +1385,15 @@ def _map_strips(
                 base = baseline_p_safe(dems[k], spacing, sigma_m, run.labeling)
                 timings["baseline"] += time.perf_counter() - t0
                 crop = tile.crop
-                valid = np.isfinite(base[crop])
-                safety = np.where(safe_all[j][crop], SAFETY_SAFE, SAFETY_UNSAFE).astype(np.uint8)
-                safety[uncertain_mask(torch.from_numpy(u_all[j][crop]), h_t).numpy()] = SAFETY_UNCERTAIN
-                safety[~valid] = SAFETY_INVALID
+                uncertain = uncertain_mask(torch.from_numpy(u_all[j][crop]), h_t).numpy()
+                cells = TileCells(out_grid, j, crop, base[crop], uncertain)
                 out = (slice(None), slice(tile.own_cols[0], tile.own_cols[1]))
-                strip["p_safe"][out] = np.where(valid, p_all[j][crop], np.nan)
-                strip["entropy_nats"][out] = np.where(valid, h_all[j][crop], np.nan)
-                strip["mutual_information_nats"][out] = np.where(valid, mi_all[j][crop], np.nan)
-                strip["baseline_p_safe"][out] = base[crop]
-                strip["safety"][out] = safety
+                for spec in MAPS:
+                    strip[spec.field][out] = spec.compute(cells)
             done += len(batch)
             if progress:
                 progress(done, plan.n_tiles)
         yield r_lo, strip
-
-
-def _map_dtype(name: str) -> type[np.generic]:
-    """The array type of the map ``name`` (``MAP_FIELDS``): uint8 codes for safety, float32 otherwise."""
-    return np.uint8 if name == "safety" else np.float32
 
 
 def _add_counts(counts: dict[str, int], safety: np.ndarray, baseline_p_safe: np.ndarray) -> None:
@@ -1379,15 +1428,16 @@ def _write_maps(
     counts = {"safe": 0, "unsafe": 0, "uncertain": 0, "invalid": 0, "baseline_safe": 0}
     timings = dict.fromkeys((*MAP_TIMINGS, "write"), 0.0)
     profiles = {
-        file: geotiff_profile(
+        spec.file: geotiff_profile(
             terrain.shape,
             terrain.transform,
             terrain.crs_wkt,
-            dtype=np.dtype(_map_dtype(name)).name,
-            nodata=(SAFETY_INVALID if name == "safety" else float("nan")),
+            dtype=np.dtype(spec.dtype).name,
+            nodata=spec.nodata,
         )
-        for name, file in MAP_FIELDS.items()
+        for spec in MAPS
     }
+    file_of = {spec.field: spec.file for spec in MAPS}
     strips = _map_strips(
         terrain, run, plan, h_t, sigma_m, mc_samples, batch_size, seed, dev, progress, uncertainty, timings
     )
@@ -1395,8 +1445,8 @@ def _write_maps(
         for r_lo, strip in strips:
             t0 = time.perf_counter()
             window = Window(0, r_lo, terrain.shape[1], strip["safety"].shape[0])
-            for name, file in MAP_FIELDS.items():
-                dst[file].write(strip[name], window)
+            for name, values in strip.items():
+                dst[file_of[name]].write(values, window)
             timings["write"] += time.perf_counter() - t0
             _add_counts(counts, strip["safety"], strip["baseline_p_safe"])
     return counts, timings
@@ -1416,10 +1466,7 @@ def _maps_in_memory(
     uncertainty: UncertaintyScore,
 ) -> dict[str, np.ndarray]:
     """Step 4 (``detect_dem``): the maps of ``_map_strips`` as whole arrays (``MAP_FIELDS``)."""
-    maps = {
-        name: np.full(terrain.shape, SAFETY_INVALID if name == "safety" else np.nan, _map_dtype(name))
-        for name in MAP_FIELDS
-    }
+    maps = {spec.field: np.full(terrain.shape, spec.nodata, spec.dtype) for spec in MAPS}
     timings = dict.fromkeys(MAP_TIMINGS, 0.0)
     for r_lo, strip in _map_strips(
         terrain, run, plan, h_t, sigma_m, mc_samples, batch_size, seed, dev, progress, uncertainty, timings
