@@ -10,7 +10,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
 TOPICS = {
-    "the noise model",
+    "a noise model",
     "the sensor",
     "a descent",
     "the terrain",
@@ -23,7 +23,12 @@ TOPICS = {
     "a training profile",
     "a threshold rule",
     "an uncertainty score",
+    "a detect map",
+    "a CLI setting",
+    "a shard field",
 }
+# The worked examples: each kind's change and the code files it touches besides test and doc.
+EXAMPLES = ("A noise model", "A threshold rule", "A detect map")
 
 
 def _section() -> str:
@@ -80,3 +85,17 @@ def test_every_document_and_file_the_section_mentions_exists() -> None:
     files = set(re.findall(r"`([^`\s]+\.py)`", section))
     assert documents and files
     assert [p for p in sorted(documents | files) if not (REPO / p).is_file()] == []
+
+
+def test_each_worked_example_touches_at_most_two_code_files() -> None:
+    text = (REPO / "docs" / "development.md").read_text()
+    start = text.index("### Worked examples")
+    section = text[start : text.index("\n## ", start)]
+    for title in EXAMPLES:
+        block = section[section.index(f"**{title}**") :]
+        line = next(ln for ln in block.splitlines() if ln.startswith("code: "))
+        code = re.findall(r"`([^`\s]+\.py)`", line.split("; test:")[0])
+        tests = re.findall(r"`([^`\s]+\.py)`", line.split("; test:")[1])
+        assert 1 <= len(code) <= 2, (title, code)
+        assert all(not c.startswith("tests/") for c in code), (title, code)
+        assert [p for p in code + tests if not (REPO / p).is_file()] == [], title
