@@ -1437,7 +1437,6 @@ def _write_maps(
         )
         for spec in MAPS
     }
-    file_of = {spec.field: spec.file for spec in MAPS}
     strips = _map_strips(
         terrain, run, plan, h_t, sigma_m, mc_samples, batch_size, seed, dev, progress, uncertainty, timings
     )
@@ -1446,7 +1445,7 @@ def _write_maps(
             t0 = time.perf_counter()
             window = Window(0, r_lo, terrain.shape[1], strip["safety"].shape[0])
             for name, values in strip.items():
-                dst[file_of[name]].write(values, window)
+                dst[MAP_FIELDS[name]].write(values, window)
             timings["write"] += time.perf_counter() - t0
             _add_counts(counts, strip["safety"], strip["baseline_p_safe"])
     return counts, timings
