@@ -231,7 +231,7 @@ def verify_cmd(directory: Path | str, recipe: Path | None) -> None:
 
 
 @main.command("label", cls=SettingsCommand, settings=("hdlabels.settings:LabelSettings",))
-@click.argument("directory", type=DIRECTORY)
+@click.argument("directory", type=DATASET_OR_URL)
 @workers_option()
 @scheduler_option()
 @recipe_option("Take the lander and DEM settings from a recipe's [label] section.")
@@ -284,12 +284,13 @@ def _done(done: Done) -> None:
 
 
 @main.command("train", cls=SettingsCommand, settings=("hdnet.fit:FitConfig", "hdnet.train_job:TrainingNoiseOptions"))
-@click.argument("dataset", type=DIRECTORY)
+@click.argument("dataset", type=DATASET_OR_URL)
 @out_option("run_dir", "Run directory (checkpoints, metrics.csv, config.json).")
 @json_output
 @friendly_errors
-def train_cmd(dataset: Path, run_dir: Path, **options: Any) -> None:
-    """Train the Bayesian SegNet on the noisy DEMs of a labelled dataset."""
+def train_cmd(dataset: Path | str, run_dir: Path, **options: Any) -> None:
+    """Train the Bayesian SegNet on the noisy DEMs of a labelled dataset (a directory or a URL:
+    s3://bucket/prefix, https://host/path; the run is written locally)."""
     from hdnet.train_job import train_job
 
     _done(train_job(dataset, run_dir, options, epoch_progress()))
@@ -298,13 +299,17 @@ def train_cmd(dataset: Path, run_dir: Path, **options: Any) -> None:
 @main.command("eval", cls=SettingsCommand, settings=("hdnet.eval_settings:EvalConfig", "hdnet.eval_job:SweepOption"))
 @click.argument("run_dir", type=DIRECTORY)
 @click.option(
-    "--data", "dataset", required=True, type=DIRECTORY, help="Labelled dataset to evaluate on (its test split)."
+    "--data",
+    "dataset",
+    required=True,
+    type=DATASET_OR_URL,
+    help="Labelled dataset to evaluate on (its test split): a directory or a URL.",
 )
 @out_option("out_dir", "Report directory (report.md, report.json, figures).")
 @overwrite_option("Replace an existing report (never other files, never an input).")
 @json_output
 @friendly_errors
-def eval_cmd(run_dir: Path, dataset: Path, out_dir: Path, overwrite: bool, **options: Any) -> None:
+def eval_cmd(run_dir: Path, dataset: Path | str, out_dir: Path, overwrite: bool, **options: Any) -> None:
     """Evaluate a trained run: the paper's tables, threshold sweep, calibration, noise sweep and figures."""
     from hdnet.eval_job import eval_job
 
@@ -315,14 +320,16 @@ def eval_cmd(run_dir: Path, dataset: Path, out_dir: Path, overwrite: bool, **opt
 @main.command("detect")
 @click.argument("run_dir", type=FILE_OR_DIRECTORY)
 @dtm_option("Terrain to map: any GDAL raster in metres (GeoTIFF, HiRISE PDS3 .IMG), any size.")
-@click.option("--data", "dataset", type=DIRECTORY, help="Instead of --dtm: a labelled dataset, with --scan.")
+@click.option(
+    "--data", "dataset", type=DATASET_OR_URL, help="Instead of --dtm: a labelled dataset (a directory or a URL), with --scan."
+)
 @out_option("out_dir", "Output directory (maps, sites, overview, detect.json).", directory=False)
 @click_options(DetectSettings)
 @overwrite_option("Replace an earlier hd detect output in --out (never other files, never an input).")
 @json_output
 @friendly_errors
 def detect_cmd(
-    run_dir: Path, out_dir: Path, dataset: Path | None, dtm_path: Path | None, overwrite: bool, **settings: Any
+    run_dir: Path, out_dir: Path, dataset: Path | str | None, dtm_path: Path | None, overwrite: bool, **settings: Any
 ) -> None:
     """Hazard maps and ranked landing sites of a DTM (or of one scan) from a trained run."""
     from hdnet.detect_job import detect_job

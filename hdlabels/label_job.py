@@ -15,8 +15,31 @@ from typing import Any
 from lidarsim.outcome import Done
 
 
+def refuse_url(directory: Path | str) -> None:
+    """Refuse to label a dataset at a URL: labels are written into the dataset (label shards and its
+    manifest), and hd writes nothing at a URL but through ``hd publish``. The URL's manifest is read
+    first, so that a URL that holds no dataset is named as such.
+
+    Raises:
+        HdLabelsError: one line with the three commands that label it (pull, label, publish).
+        StorageError: the URL holds no dataset, is unreachable, has no credentials.
+    """
+    from hdlabels.errors import HdLabelsError
+    from lidarsim.location import is_url
+    from lidarsim.shards import read_manifest
+
+    if not is_url(directory):
+        return
+    read_manifest(directory)
+    raise HdLabelsError(
+        f"{directory}: hd label writes the labels into the dataset, and a URL is never written to but by "
+        f"hd publish; label a local copy: hd pull {directory} DIR, hd label DIR, then hd publish DIR "
+        f"{directory} --overwrite to share the labels"
+    )
+
+
 def label_job(
-    directory: Path,
+    directory: Path | str,
     settings: dict[str, Any],
     recipe: Path | None,
     workers: int | None,
@@ -29,12 +52,13 @@ def label_job(
     recipe's truth, so that one recipe's lander and DEM can be labelled against either truth.
 
     Raises:
-        HdLabelsError: a bad value or lander, an unreachable scheduler, before anything is written;
-            and whatever ``label_dataset`` refuses.
+        HdLabelsError: a dataset at a URL (:func:`refuse_url`), a bad value or lander, an unreachable
+            scheduler, before anything is written; and whatever ``label_dataset`` refuses.
     """
     from hdlabels.labeling import label_dataset
     from hdlabels.settings import LabelSettings
 
+    refuse_url(directory)
     if recipe is not None:
         from lidarsim.recipe import load_recipe
 

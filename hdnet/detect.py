@@ -102,6 +102,7 @@ from lidarsim.base_relief import resample_bilinear
 from lidarsim.errors import HdError, HdWarning, LidarsimError, TerrainError
 from lidarsim.map_window import MapWindow, WindowCells, bounds_text, grid_bounds, window_cells
 from lidarsim.procedural import geotiff_bytes, geotiff_profile
+from lidarsim.location import dataset_at, dataset_key, has_manifest, manifest_sha256
 from lidarsim.shards import MANIFEST_NAME, open_scan_shard, read_manifest, sha256_file
 from lidarsim.storage import (
     GeoTiffWriter,
@@ -214,7 +215,7 @@ class DetectRun:
     lander: Lander
     dem_shape: tuple[int, int]
     spacing_m: float
-    dataset: Path | None
+    dataset: Path | str | None
     data: TrainingData | None = field(default=None, repr=False)
 
     @property
@@ -228,14 +229,14 @@ class DetectRun:
         return self.data.train_noise if self.data is not None else TrainingNoise.single(self.train_sigma_m)
 
     @property
-    def training_datasets(self) -> tuple[Path, ...] | None:
+    def training_datasets(self) -> tuple[Path | str, ...] | None:
         """Every dataset the run was trained on (its dataset and each ``--also`` one), or None when
         one of them is not present any more."""
         if self.data is None:  # a run made in code: its dataset alone
             return None if self.dataset is None else (self.dataset,)
         if not self.data.datasets or self.data.missing_datasets():
             return None
-        return tuple(Path(d) for d in self.data.datasets)
+        return tuple(dataset_at(d) for d in self.data.datasets)
 
     @property
     def recorded_dataset(self) -> str | None:
@@ -260,8 +261,8 @@ def load_run(run_dir: str | os.PathLike, device: torch.device | str | None = Non
     model, ckpt = load_trained_model(path, map_location=_device(device))
     data = checkpoint_data(ckpt, path)
     labels = data.labels
-    dataset = Path(data.dataset) if data.dataset else None
-    if dataset is not None and not (dataset / MANIFEST_NAME).is_file():
+    dataset = dataset_at(data.dataset) if data.dataset else None
+    if dataset is not None and not has_manifest(dataset, MANIFEST_NAME):
         dataset = None
     labeling = data.labeling
     if labeling is None:
@@ -586,7 +587,7 @@ def centred_transform(shape: tuple[int, int], spacing_m: float) -> Affine:
 class _ScanTerrain(_ArrayTerrain):
     """One scan's noisy DEM at one noise level (scan frame: origin at nadir, x east, y north, metres)."""
 
-    def __init__(self, dataset: Path, scan: int, sigma_m: float, labels: str | None, run: DetectRun) -> None:
+    def __init__(self, dataset: Path | str, scan: int, sigma_m: float, labels: str | None, run: DetectRun) -> None:
         entry, paths = open_labeling(dataset, labels)
         sigmas = dataset_sigmas(paths)
         k = sigma_index(sigmas, sigma_m)
@@ -615,8 +616,8 @@ class _ScanTerrain(_ArrayTerrain):
         origin = _origin_map(dataset, found[3], scan)
         provenance = {
             "kind": "scan",
-            "dataset": str(Path(dataset).resolve()),
-            "manifest_sha256": sha256_file(Path(dataset) / MANIFEST_NAME),
+            "dataset": dataset_key(dataset),
+            "manifest_sha256": manifest_sha256(dataset, MANIFEST_NAME),
             "labels": str(entry["name"]),
             "scan_index": scan,
             "split": ("train", "val", "test")[found[2]],
@@ -631,11 +632,11 @@ class _ScanTerrain(_ArrayTerrain):
         super().__init__(dem, centred_transform(dem.shape, spacing), True, provenance)
         self.sigma_m = sigmas[k]
         self.labels = str(entry["name"])
-        self.dataset = Path(dataset)
+        self.dataset = dataset_at(dataset)
         self.source_sha256 = str(found[3].get("source_sha256", ""))
 
 
-def _origin_map(dataset: Path, label_shard: dict[str, Any], scan: int) -> list[float]:
+def _origin_map(dataset: Path | str, label_shard: dict[str, Any], scan: int) -> list[float]:
     """Map coordinates (metres) of a scan's frame origin, from the scan shard behind its label shard
     (through the storage layer: checksum first; damage is an error naming the file and the scan)."""
     source = {"path": label_shard["source_path"], "sha256": label_shard["source_sha256"]}
@@ -646,20 +647,20 @@ def _origin_map(dataset: Path, label_shard: dict[str, Any], scan: int) -> list[f
         return [float(v) for v in reader.h5["origin_map"][int(rows[0])]]
 
 
-def trained_on(run: DetectRun, dataset: Path, source_sha256: str) -> bool:
+def trained_on(run: DetectRun, dataset: Path | str, source_sha256: str) -> bool:
     """True when the run was trained on the scans of ``dataset`` whose scan shard has ``source_sha256``:
     ``dataset`` is a training dataset of the run (the same directory, or the same manifest), or a
     present training dataset lists a scan shard of those bytes (a copy or a rebuild of it)."""
     data = run.data
     recorded = data.datasets if data is not None else ((str(run.dataset),) if run.dataset is not None else ())
-    if str(dataset.resolve()) in {str(Path(d).resolve()) for d in recorded}:
+    if dataset_key(dataset) in {dataset_key(d) for d in recorded}:
         return True
     if data is not None:
         sums = {data.manifest_sha256, *(a.manifest_sha256 for a in data.also)} - {None}
-        if sha256_file(dataset / MANIFEST_NAME) in sums:
+        if manifest_sha256(dataset, MANIFEST_NAME) in sums:
             return True
     for d in recorded:
-        if not (Path(d) / MANIFEST_NAME).is_file():
+        if not has_manifest(d, MANIFEST_NAME):
             continue
         try:
             shards = read_manifest(d)["shards"]
@@ -1115,7 +1116,7 @@ def detect(
     )
     if isinstance(terrain, _ScanTerrain):
         baseline_sigma = terrain.sigma_m
-        if terrain.provenance["split"] == "train" and trained_on(run, Path(terrain.dataset), terrain.source_sha256):
+        if terrain.provenance["split"] == "train" and trained_on(run, terrain.dataset, terrain.source_sha256):
             terrain.provenance["seen_in_training"] = True
             warnings.warn(
                 f"scan {scan} is in the training split of {dataset}, on which the run was trained: the network "
@@ -1183,7 +1184,7 @@ def _open_terrain(
     sigma_m: float,
     upsample: bool = False,
     window: MapWindow | None = None,
-) -> tuple[_Terrain, tuple[Path, ...], str]:
+) -> tuple[_Terrain, tuple[Path | str, ...], str]:
     """Step 2: the terrain (a DTM or its ``window``, or one scan's noisy DEM at ``sigma_m`` metres), with the datasets
     and labelling the threshold is calibrated on: the run's own training data (every ``--also``
     dataset included), as ``hd eval`` does; for a scan whose run's data is not present any more, the
@@ -1194,13 +1195,13 @@ def _open_terrain(
     if dataset is None or scan is None:  # excluded by DetectSettings.check_inputs
         raise HdNetError("give either a DTM (--dtm) or a dataset and a scan (--data with --scan).")
     lab = labels if labels is not None else preferred_labeling(dataset, run.labels)
-    terrain = _ScanTerrain(Path(dataset), scan, sigma_m, lab, run)
+    terrain = _ScanTerrain(dataset_at(dataset), scan, sigma_m, lab, run)
     if own is not None:
         return terrain, own, run.labels
-    return terrain, (Path(dataset),), terrain.labels
+    return terrain, (dataset_at(dataset),), terrain.labels
 
 
-def _check_calibration_data(run: DetectRun, spec: ThresholdSpec | None, calib_dirs: tuple[Path, ...]) -> None:
+def _check_calibration_data(run: DetectRun, spec: ThresholdSpec | None, calib_dirs: tuple[Path | str, ...]) -> None:
     """Refuse a calibrated threshold (``spec``; None: a fixed one) without a dataset to calibrate it on."""
     if spec is not None and not calib_dirs:
         raise HdNetError(
@@ -1213,7 +1214,7 @@ def _check_calibration_data(run: DetectRun, spec: ThresholdSpec | None, calib_di
 def _threshold(
     run: DetectRun,
     threshold: str,
-    calib_dirs: tuple[Path, ...],
+    calib_dirs: tuple[Path | str, ...],
     calib_labels: str,
     mc_samples: int,
     batch_size: int,
@@ -1258,7 +1259,7 @@ def _threshold(
 def _calibrated_threshold(
     run: DetectRun,
     spec: ThresholdSpec,
-    calib_dirs: tuple[Path, ...],
+    calib_dirs: tuple[Path | str, ...],
     calib_labels: str,
     mc_samples: int,
     batch_size: int,
@@ -1298,8 +1299,8 @@ def _calibrated_threshold(
     info = dict(
         th.info,
         calibrate=calibrate,
-        calibration_dataset=str(Path(calib_dirs[0]).resolve()),
-        calibration_datasets=[str(Path(d).resolve()) for d in calib_dirs],
+        calibration_dataset=dataset_key(calib_dirs[0]),
+        calibration_datasets=[dataset_key(d) for d in calib_dirs],
         calibration_labels=calib_labels,
     )
     if cache is not None:

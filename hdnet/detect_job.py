@@ -18,7 +18,7 @@ def detect_job(
     run_dir: Path,
     out_dir: Path,
     dtm: Path | None,
-    dataset: Path | None,
+    dataset: Path | str | None,
     settings: DetectSettings,
     overwrite: bool,
     progress: Callable[[int, int], None] | None = None,

@@ -43,7 +43,7 @@ class SweepOption:
 
 def eval_job(
     run_dir: Path,
-    dataset: Path,
+    dataset: Path | str,
     out_dir: Path,
     options: dict[str, Any],
     overwrite: bool,

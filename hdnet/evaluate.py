@@ -70,7 +70,8 @@ from hdnet.thresholds import (
 from hdnet.train import load_checkpoint, load_trained_model
 from hdnet.uncertainty import ENTROPY, UncertaintyScore, recorded_score, with_score
 from lidarsim.errors import HdError, HdWarning
-from lidarsim.shards import MANIFEST_NAME, read_manifest, sha256_file
+from lidarsim.location import dataset_key, manifest_sha256
+from lidarsim.shards import read_manifest, sha256_file
 from lidarsim.storage import read_regular_text
 
 # Where H_t is calibrated: once at the run's reference noise level (the paper), or at each test level.
@@ -413,10 +414,10 @@ def calibration_datasets(
     datasets (its ``dataset`` and every ``--also`` one) when all are present with the run's labelling
     ``run_labels``; else the evaluated dataset ``dataset_dir`` (labelling ``labels``), with the reason."""
     if cfg.calibrate_on:
-        return Calibration(tuple(str(Path(d).resolve()) for d in cfg.calibrate_on), labels, "calibrate-on")
+        return Calibration(tuple(dataset_key(d) for d in cfg.calibrate_on), labels, "calibrate-on")
     data = checkpoint_data(ckpt, "the run")
     recorded = data.datasets
-    evaluated = str(Path(dataset_dir).resolve())
+    evaluated = dataset_key(dataset_dir)
     note = "the run does not record its training data"
     if recorded:
         missing = data.missing_datasets()
@@ -428,7 +429,7 @@ def calibration_datasets(
             except HdError:
                 note = f"the run's training data {recorded[0]} lacks the run's labelling"
         if not note:
-            resolved = tuple(str(Path(d).resolve()) for d in recorded)
+            resolved = tuple(dataset_key(d) for d in recorded)
             return Calibration(resolved, run_labels or labels, "run")
     return Calibration((evaluated,), labels, "evaluated", note)
 
@@ -784,7 +785,8 @@ def _run_info(
     val: SplitInference,
 ) -> dict[str, Any]:
     """Step 5: the ``run`` entry of the report: checkpoint, run settings, dataset and evaluation settings."""
-    root = Path(dataset_dir).resolve()
+    root = dataset_key(dataset_dir)
+    digest = manifest_sha256(dataset_dir)
     ckpt = setup.ckpt
     data = checkpoint_data(ckpt, setup.ckpt_path)
     return {
@@ -799,11 +801,11 @@ def _run_info(
         "sigma_sweep_m": list(cfg.sigma_sweep),
         "input_size": setup.input_spec.input_size,
         "input": setup.input_spec.to_dict(),
-        "dataset": str(root),
-        "manifest_sha256": sha256_file(root / MANIFEST_NAME),
+        "dataset": root,
+        "manifest_sha256": digest,
         "labels": setup.labels,
         "truth": labeling_truth(open_labeling(root, setup.labels)[0]),
-        "same_dataset_as_training": data.manifest_sha256 == sha256_file(root / MANIFEST_NAME),
+        "same_dataset_as_training": data.manifest_sha256 == digest,
         "sigmas_m": list(setup.sigmas_m),
         "mc_samples": cfg.mc_samples,
         "drop_pixels": cfg.drop_pixels,
@@ -827,8 +829,8 @@ def report_is_current(
         ckpt = checkpoint_path(run_dir)
         same_inputs = (
             run.get("checkpoint_sha256") == sha256_file(ckpt)
-            and run.get("dataset") == str(Path(dataset_dir).resolve())
-            and run.get("manifest_sha256") == sha256_file(Path(dataset_dir) / MANIFEST_NAME)
+            and run.get("dataset") == dataset_key(dataset_dir)
+            and run.get("manifest_sha256") == manifest_sha256(dataset_dir)
         )
         ckpt_data = load_checkpoint(ckpt)
         run_labels = run_data(ckpt_data, ckpt)[2]

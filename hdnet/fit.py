@@ -47,7 +47,8 @@ from hdnet.train import LAST, load_checkpoint, train
 from lidarsim import limits as lidar_limits
 from lidarsim.errors import HdWarning, StorageError
 from lidarsim.setting import DIRECTORY, check, setting
-from lidarsim.shards import MANIFEST_NAME, sha256_file
+from lidarsim.location import dataset_key, has_manifest, is_url, manifest_sha256
+from lidarsim.shards import MANIFEST_NAME
 from lidarsim.storage import (
     LOCK_NAME,
     PARTIAL_MARK,
@@ -92,10 +93,9 @@ def training_data(
     ``noise``: the training noise levels (default: ``sigma_m`` alone, metres), ``sigma_m`` the
     reference level (``reference_sigma``); ``also``: further training datasets.
     """
-    root = Path(dataset_dir).resolve()
     return TrainingData(
-        dataset=str(root),
-        manifest_sha256=sha256_file(root / MANIFEST_NAME),
+        dataset=dataset_key(dataset_dir),
+        manifest_sha256=manifest_sha256(dataset_dir),
         labels=labels,
         labeling={k: v for k, v in (labeling or {}).items() if k != "shards"},
         train_sigma_m=float(sigma_m),
@@ -107,16 +107,19 @@ def training_data(
 
 
 def _also_datasets(also: tuple[str | os.PathLike, ...]) -> tuple[AlsoDataset, ...]:
-    return tuple(AlsoDataset(str(Path(d).resolve()), sha256_file(Path(d) / MANIFEST_NAME)) for d in also)
+    return tuple(AlsoDataset(dataset_key(d), manifest_sha256(d)) for d in also)
 
 
-def _manifest_sha256(dataset_dir: Path) -> str | None:
-    """The sha256 of a dataset's manifest; None when it has none (the dataset's readers say why).
+def _manifest_sha256(dataset_dir: str | os.PathLike) -> str | None:
+    """The sha256 of a dataset's manifest (a directory's or a URL's); None when it has none (the
+    dataset's readers say why).
 
     Raises:
         StorageError: a manifest that is not a regular file (a FIFO is never opened) or unreadable.
     """
-    manifest = dataset_dir / MANIFEST_NAME
+    if is_url(dataset_dir):
+        return manifest_sha256(dataset_dir) if has_manifest(dataset_dir) else None
+    manifest = Path(dataset_dir) / MANIFEST_NAME
     return sha256_bytes(read_regular_bytes(manifest)) if os.path.lexists(manifest) else None
 
 
@@ -129,10 +132,10 @@ def check_distinct_datasets(dataset_dir: str | os.PathLike, also: tuple[str | os
     Raises:
         HdNetError: naming the two arguments, as given, that are the same data.
     """
-    seen: list[tuple[str, Path, str | None]] = []
+    seen: list[tuple[str, str, str | None]] = []
     for name, given in ((f"DATASET {dataset_dir}", dataset_dir), *((f"--also {d}", d) for d in also)):
-        root = Path(given).resolve()
-        digest = _manifest_sha256(root)
+        root = dataset_key(given)
+        digest = _manifest_sha256(given)
         for earlier, earlier_root, earlier_digest in seen:
             if root == earlier_root:
                 why = f"the same directory, {root}"
@@ -375,8 +378,8 @@ def already_trained(dataset_dir: str | os.PathLike, run_dir: str | os.PathLike, 
         recorded.profile == json.loads(json.dumps(profile.to_dict()))
         and recorded.epochs == epochs == checked.epochs_done == len(checked.rows)
         and recorded.seed == config.seed
-        and data.dataset == str(Path(dataset_dir).resolve())
-        and data.manifest_sha256 == sha256_file(Path(dataset_dir) / MANIFEST_NAME)
+        and data.dataset == dataset_key(dataset_dir)
+        and data.manifest_sha256 == manifest_sha256(dataset_dir)
         and data.labels == entry.get("name")
         and data.train_noise == noise
         and data.also == _also_datasets(tuple(config.also))
@@ -410,11 +413,10 @@ def check_resumed_data(
     for other in also:
         open_labeling(other, labels)  # the clear "not a dataset" or "no such labelling" first
     recorded = _recorded_data(run_dir / LAST)
-    root = Path(dataset_dir).resolve()
     given = dataclasses.replace(
         recorded,
-        dataset=str(root),
-        manifest_sha256=sha256_file(root / MANIFEST_NAME),
+        dataset=dataset_key(dataset_dir),
+        manifest_sha256=manifest_sha256(dataset_dir),
         labels=labels,
         labeling={k: v for k, v in entry.items() if k != "shards"},
         train_noise=noise,

@@ -40,6 +40,7 @@ from hdnet.inputs import InputSpec
 from hdnet.noise_levels import TrainingNoise
 from hdnet.run_files import CONFIG, LAST, METRICS
 from lidarsim.errors import StorageError
+from lidarsim.location import has_manifest
 from lidarsim.shards import MANIFEST_NAME
 from lidarsim.storage import read_regular_text, write_json_atomic
 
@@ -120,7 +121,7 @@ class TrainingData:
 
     def missing_datasets(self) -> list[str]:
         """The training datasets (:attr:`datasets`) that are not present any more (no manifest)."""
-        return [d for d in self.datasets if not (Path(d) / MANIFEST_NAME).is_file()]
+        return [d for d in self.datasets if not has_manifest(d, MANIFEST_NAME)]
 
     def difference(self, given: TrainingData) -> DataDifference | None:
         """The first way ``given`` is not the training data this record names (None when it is).

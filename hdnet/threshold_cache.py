@@ -39,6 +39,7 @@ from typing import Any
 
 from hdnet.uncertainty import ENTROPY, UncertaintyScore, uncertainty_score, with_score
 from lidarsim.errors import HdWarning
+from lidarsim.location import manifest_sha256
 from lidarsim.shards import MANIFEST_NAME, sha256_file
 from lidarsim.storage import StorageError, read_regular_bytes, write_json_atomic
 
@@ -100,7 +101,7 @@ def cache_key(
     ``uncertainty``."""
     return ThresholdKey(
         checkpoint_sha256=sha256_file(checkpoint),
-        manifest_sha256=",".join(sha256_file(Path(d) / MANIFEST_NAME) for d in calib_dirs),
+        manifest_sha256=",".join(manifest_sha256(d, MANIFEST_NAME) for d in calib_dirs),
         labels=labels,
         sigma_m=round(float(sigma_m), 12),
         spec=spec,

@@ -61,7 +61,7 @@ class TrainingNoiseOptions:
 
 
 def train_job(
-    dataset: Path,
+    dataset: Path | str,
     run_dir: Path,
     options: dict[str, Any],
     progress: bool | Callable[[dict[str, Any], int], None],

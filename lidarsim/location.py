@@ -40,6 +40,8 @@ from lidarsim.storage import (
     check_relative,
     confine,
     open_h5,
+    read_regular_bytes,
+    sha256_bytes,
 )
 
 URL_PATTERN = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]*://")
@@ -259,6 +261,39 @@ def remote_dataset(url: str) -> RemoteDataset:
 def dataset_label(location: str | os.PathLike) -> str:
     """How messages name a dataset: its URL as given, or its path."""
     return str(location).rstrip("/") if is_url(location) else str(Path(location))
+
+
+def dataset_at(location: str | os.PathLike) -> Path | str:
+    """A dataset given as a string or a path: a URL kept as the string (``Path`` would collapse its
+    ``//``), anything else as a ``Path``."""
+    return str(location).rstrip("/") if is_url(location) else Path(location)
+
+
+def dataset_key(location: str | os.PathLike) -> str:
+    """How a run, an eval report or a detect output records the dataset it read: its URL as given
+    (without a trailing ``/``), or its resolved path."""
+    return str(location).rstrip("/") if is_url(location) else str(Path(location).resolve())
+
+
+def manifest_sha256(location: str | os.PathLike, name: str = "manifest.json") -> str:
+    """The sha256 of a dataset's manifest (a directory's or a URL's): the identity runs record.
+
+    Raises:
+        StorageError: no manifest there, unreachable, no credentials.
+    """
+    if is_url(location):
+        return sha256_bytes(remote_dataset(str(location)).read_bytes(name))
+    return sha256_bytes(read_regular_bytes(Path(location) / name))
+
+
+def has_manifest(location: str | os.PathLike, name: str = "manifest.json") -> bool:
+    """True when a dataset's manifest is there (a URL is asked; a lost host is False, as a missing file)."""
+    if is_url(location):
+        try:
+            return remote_dataset(str(location)).size(name) is not None
+        except (LidarsimError, ValueError):
+            return False
+    return (Path(location) / name).is_file()
 
 
 def join(location: str | os.PathLike, relative: Any, where: str | None = None) -> Path | str:

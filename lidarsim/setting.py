@@ -247,8 +247,9 @@ class NonEmptyPath(click.Path):
             self.fail("must not be empty", param, ctx)
         if isinstance(value, str) and _URL.match(value):
             self.fail(
-                f"{value} is a URL; this argument takes a local path (hd inspect and hd verify read a URL, "
-                "hd pull URL DIR copies a dataset from one): give a local path",
+                f"{value} is a URL; this argument takes a local path (a dataset is read from a URL by hd "
+                "inspect, verify, train, eval --data and detect --data; hd pull URL DIR copies one here): "
+                "give a local path",
                 param,
                 ctx,
             )

@@ -814,8 +814,8 @@ def check_not_input(out: str | os.PathLike, inputs: dict[str, str | os.PathLike 
     """
     target = Path(os.path.realpath(os.path.abspath(out)))
     for what, value in inputs.items():
-        if value is None:
-            continue
+        if value is None or re.match(r"^[A-Za-z][A-Za-z0-9+.-]*://", str(value)):
+            continue  # a URL is never where a local output lies
         source = Path(os.path.realpath(os.path.abspath(value)))
         if target == source:
             relation = "is"

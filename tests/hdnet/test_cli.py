@@ -240,10 +240,9 @@ def test_train_checks_its_dataset_and_labelling_before_the_run_directory(dataset
     "args",
     [
         ["eval", "s3://bucket/run", "--data", "DATA", "--out", "OUT"],
-        ["eval", "RUN", "--data", "https://host/data", "--out", "OUT"],
+        ["eval", "RUN", "--data", "DATA", "--out", "https://host/report"],
         ["detect", "RUN", "--dtm", "gs://bucket/dtm.tif", "--out", "OUT"],
-        ["train", "s3://bucket/x", "--out", "OUT"],
-        ["label", "file:///data/x"],
+        ["train", "DATA", "--out", "s3://bucket/run"],
         ["build-dataset", "--out", "s3://bucket/new"],
     ],
 )
