@@ -321,7 +321,10 @@ def eval_cmd(run_dir: Path, dataset: Path | str, out_dir: Path, overwrite: bool,
 @click.argument("run_dir", type=FILE_OR_DIRECTORY)
 @dtm_option("Terrain to map: any GDAL raster in metres (GeoTIFF, HiRISE PDS3 .IMG), any size.")
 @click.option(
-    "--data", "dataset", type=DATASET_OR_URL, help="Instead of --dtm: a labelled dataset (a directory or a URL), with --scan."
+    "--data",
+    "dataset",
+    type=DATASET_OR_URL,
+    help="Instead of --dtm: a labelled dataset (a directory or a URL), with --scan.",
 )
 @out_option("out_dir", "Output directory (maps, sites, overview, detect.json).", directory=False)
 @click_options(DetectSettings)

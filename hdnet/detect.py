@@ -100,10 +100,10 @@ from hdnet.train import load_trained_model
 from hdnet.uncertainty import ENTROPY, UncertaintyScore, recorded_score, uncertainty_score, with_score
 from lidarsim.base_relief import resample_bilinear
 from lidarsim.errors import HdError, HdWarning, LidarsimError, TerrainError
+from lidarsim.location import dataset_at, dataset_key, has_manifest, manifest_sha256
 from lidarsim.map_window import MapWindow, WindowCells, bounds_text, grid_bounds, window_cells
 from lidarsim.procedural import geotiff_bytes, geotiff_profile
-from lidarsim.location import dataset_at, dataset_key, has_manifest, manifest_sha256
-from lidarsim.shards import MANIFEST_NAME, open_scan_shard, read_manifest, sha256_file
+from lidarsim.shards import MANIFEST_NAME, open_scan_shard, read_manifest
 from lidarsim.storage import (
     GeoTiffWriter,
     OutputDir,

@@ -46,8 +46,8 @@ from hdnet.run_record import CONFIG, RUN_SCHEMA, AlsoDataset, TrainingData, chec
 from hdnet.train import LAST, load_checkpoint, train
 from lidarsim import limits as lidar_limits
 from lidarsim.errors import HdWarning, StorageError
-from lidarsim.setting import DIRECTORY, check, setting
 from lidarsim.location import dataset_key, has_manifest, is_url, manifest_sha256
+from lidarsim.setting import DIRECTORY, check, setting
 from lidarsim.shards import MANIFEST_NAME
 from lidarsim.storage import (
     LOCK_NAME,

@@ -86,7 +86,7 @@ class ThresholdKey:
 
 def cache_key(
     checkpoint: Path,
-    calib_dirs: Sequence[Path],
+    calib_dirs: Sequence[Path | str],
     labels: str,
     sigma_m: float,
     spec: str,

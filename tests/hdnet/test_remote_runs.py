@@ -204,3 +204,19 @@ def test_bad_urls_get_one_line_from_train_eval_and_detect(dataset, s3, local_run
     last = one_line_error(out)
     assert code == 1 and Path(label_shard).name in last and "missing" in last, out
     assert not (tmp_path / "run").exists()
+
+
+def test_no_credentials_for_train_is_one_line(s3, tmp_path, monkeypatch):
+    from lidarsim.location import forget_remotes
+
+    monkeypatch.delenv("AWS_ACCESS_KEY_ID")
+    monkeypatch.delenv("AWS_SECRET_ACCESS_KEY")
+    forget_remotes()  # a new process would make its file system anew
+    try:
+        code, out = invoke("train", S3_URL, "--out", tmp_path / "run", "--profile", "tiny", "--epochs", "1")
+    finally:
+        monkeypatch.undo()
+        forget_remotes()
+    last = one_line_error(out)
+    assert code == 1 and "no credentials for s3://" in last and "AWS_ACCESS_KEY_ID" in last, out
+    assert not (tmp_path / "run").exists()
