@@ -400,17 +400,21 @@ def export_cmd(dataset: Path, out_dir: Path, scans_text: str | None, overwrite: 
 
 
 @main.command("card")
-@click.argument("dataset", type=DIRECTORY)
+@click.argument("dataset", type=DIRECTORY, required=False)
 @recipe_option(
     "Recipe directory the dataset was built from; card.md and checksums.json are written there.", required=True
 )
 @click.option("--machine", default="", help="Where the published build was made (recorded in the card).")
 @friendly_errors
-def card_cmd(dataset: Path, recipe: Path, machine: str) -> None:
+def card_cmd(dataset: Path | None, recipe: Path, machine: str) -> None:
     """Write the dataset card (card.md), the published checksums (checksums.json) and the Croissant 1.0
-    metadata (croissant.json) of a recipe."""
-    from lidarsim.card import publish_card
+    metadata (croissant.json) of a recipe. Without DATASET: croissant.json alone, from the recipe and
+    its published checksums (no build; the files are listed without their sizes)."""
+    from lidarsim.card import publish_card, publish_recipe_croissant
 
+    if dataset is None:
+        say(f"wrote {publish_recipe_croissant(recipe)} (from the recipe's checksums.json, no build)")
+        return
     card = publish_card(dataset, recipe, machine)
     say(f"wrote {card.card_path}, {card.checksums_path} and {card.croissant_path} ({counted(card.n_shards, 'shard')})")
 

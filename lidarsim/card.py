@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from lidarsim.croissant import CROISSANT_FILE, croissant_metadata
+from lidarsim.croissant import CROISSANT_FILE, croissant_metadata, recipe_croissant
 from lidarsim.errors import RecipeError
 from lidarsim.published import FINGERPRINT_KEYS, content_fingerprints
 from lidarsim.recipe import CHECKSUMS_FILE, Recipe, load_recipe, shipped_recipe_dirs
@@ -320,3 +320,19 @@ def publish_card(dataset: str | os.PathLike, recipe_dir: str | os.PathLike, mach
     return PublishedCard(
         directory / CARD_FILE, directory / CHECKSUMS_FILE, len(sums["shards"]), directory / CROISSANT_FILE
     )
+
+
+def publish_recipe_croissant(recipe_dir: str | os.PathLike) -> Path:
+    """Write ``croissant.json`` into a recipe's directory from its ``recipe.toml`` and published
+    ``checksums.json`` alone (``lidarsim.croissant.recipe_croissant``: no build; no file sizes, no
+    manifest); returns its path.
+
+    Raises:
+        RecipeError: no recipe, or no readable checksums.json beside it.
+    """
+    recipe = load_recipe(recipe_dir)
+    licence = f"Terrain: {terrain_licence(recipe, recipe.build.to_dict())}. Simulated data: MIT, like hd."
+    path = recipe.path.parent / CROISSANT_FILE
+    data = recipe_croissant(recipe.path.parent, licence, PAPER_CITATION)
+    write_text_atomic(path, json.dumps(data, indent=2, ensure_ascii=False) + "\n")
+    return path

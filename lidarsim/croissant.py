@@ -14,6 +14,7 @@ the files hold. Validated with the ``mlcroissant`` library in the tests.
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -96,39 +97,67 @@ def _data_type(dtype: np.dtype) -> str:
     return "sc:Text"
 
 
-def _fields(path: Path, set_id: str, file_set: str) -> list[dict[str, Any]]:
-    """One field per array of the HDF5 file at ``path`` (its rows are the scans)."""
-    fields = []
+Arrays = dict[str, tuple[str, tuple[int, ...]]]  # HDF5 dataset name -> (numpy dtype name, shape)
+
+
+def _arrays(path: Path) -> Arrays:
+    """The arrays (non-scalar datasets) of the HDF5 file at ``path``."""
     with h5py.File(path, "r") as f:
-        for name in sorted(f):
-            ds = f[name]
-            if not isinstance(ds, h5py.Dataset) or not ds.shape:
-                continue
-            shape = " x ".join(str(n) for n in ds.shape[1:]) or "a scalar"
-            fields.append(
-                {
-                    "@type": "cr:Field",
-                    "@id": f"{set_id}/{name}",
-                    "name": name,
-                    "description": f"HDF5 dataset {name!r}, {ds.dtype} per scan: {shape} (docs/shard-format.md)",
-                    "dataType": _data_type(ds.dtype),
-                    "source": {"fileSet": {"@id": file_set}, "extract": {"column": name}},
-                }
-            )
+        return {n: (str(f[n].dtype), tuple(f[n].shape)) for n in f if isinstance(f[n], h5py.Dataset) and f[n].shape}
+
+
+def _fields(arrays: Arrays, set_id: str, file_set: str) -> list[dict[str, Any]]:
+    """One field per array of a shard (its rows are the scans)."""
+    fields = []
+    for name in sorted(arrays):
+        dtype, full = arrays[name]
+        shape = " x ".join(str(n) for n in full[1:]) or "a scalar"
+        fields.append(
+            {
+                "@type": "cr:Field",
+                "@id": f"{set_id}/{name}",
+                "name": name,
+                "description": f"HDF5 dataset {name!r}, {dtype} per scan: {shape} (docs/shard-format.md)",
+                "dataType": _data_type(np.dtype(dtype)),
+                "source": {"fileSet": {"@id": file_set}, "extract": {"column": name}},
+            }
+        )
     return fields
+
+
+def _file_entry(rel: str, sha256: str, size: int | None) -> dict[str, Any]:
+    entry: dict[str, Any] = {"@type": "cr:FileObject", "@id": rel, "name": rel, "contentUrl": rel}
+    if size is not None:
+        entry["contentSize"] = f"{size} B"
+    entry["encodingFormat"] = "application/json" if rel.endswith(".json") else HDF5_FORMAT
+    entry["sha256"] = sha256
+    return entry
 
 
 def _file_object(directory: Path, rel: str, sha256: str | None = None) -> dict[str, Any]:
     path = directory / rel
-    return {
-        "@type": "cr:FileObject",
-        "@id": rel,
-        "name": rel,
-        "contentUrl": rel,
-        "contentSize": f"{path.stat().st_size} B",
-        "encodingFormat": "application/json" if rel.endswith(".json") else HDF5_FORMAT,
-        "sha256": sha256 if sha256 is not None else sha256_file(path),
-    }
+    return _file_entry(rel, sha256 if sha256 is not None else sha256_file(path), path.stat().st_size)
+
+
+@dataclass(frozen=True)
+class Described:
+    """What a croissant.json says of a dataset's files and build.
+
+    Attributes:
+        manifest: the manifest's file object (None: not listed).
+        shards: the scan shards' file objects; ``shard_arrays`` the arrays of the first one.
+        labelings: per labelling, (name, label schema, file objects, arrays of the first shard).
+        config: the build settings (``BuildConfig.to_dict``); ``sigmas_m`` the noise levels, metres;
+        dtm_name: the DTM's file name.
+    """
+
+    manifest: dict[str, Any] | None
+    shards: list[dict[str, Any]]
+    shard_arrays: Arrays | None
+    labelings: list[tuple[str, str | None, list[dict[str, Any]], Arrays | None]]
+    config: dict[str, Any]
+    sigmas_m: list[float]
+    dtm_name: str
 
 
 def croissant_metadata(
@@ -143,12 +172,79 @@ def croissant_metadata(
     """
     root = Path(directory)
     m = read_manifest(root)
-    cfg = m.get("config", {})
+    described = Described(
+        manifest=_file_object(root, MANIFEST_NAME),
+        shards=[_file_object(root, e["path"], e["sha256"]) for e in m["shards"]],
+        shard_arrays=_arrays(root / m["shards"][0]["path"]) if m["shards"] else None,
+        labelings=[
+            (
+                lab["name"],
+                lab.get("schema"),
+                [_file_object(root, e["path"], e["sha256"]) for e in lab["shards"]],
+                _arrays(root / lab["shards"][0]["path"]) if lab["shards"] else None,
+            )
+            for lab in m.get("labelings", [])
+        ],
+        config=m.get("config", {}),
+        sigmas_m=list(m["sigmas_m"]),
+        dtm_name=str(m.get("dtm", {}).get("name", "?")),
+    )
+    return _metadata(described, name, description, version, licence, citation)
+
+
+def recipe_croissant(recipe_dir: str | os.PathLike, licence: str, citation: str) -> dict[str, Any]:
+    """The Croissant 1.0 record of a published recipe's dataset, from its ``recipe.toml`` and
+    ``checksums.json`` alone (no build): every shard with its sha256, the arrays as the content
+    fingerprints record them (name, dtype, shape). The checksums hold no file sizes and no manifest
+    (which is written anew by each build), so the files have no ``contentSize`` and ``manifest.json``
+    is not listed; :func:`croissant_metadata` of the built dataset has both.
+
+    Raises:
+        RecipeError: no recipe or no checksums.json there, or checksums.json unreadable.
+    """
+    import json
+
+    from lidarsim.errors import RecipeError
+    from lidarsim.recipe import CHECKSUMS_FILE, load_recipe
+
+    recipe = load_recipe(recipe_dir)
+    path = recipe.path.parent / CHECKSUMS_FILE
+    try:
+        sums = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise RecipeError(f"{path}: cannot read the published checksums ({exc})") from exc
+
+    def arrays(entries: list[dict[str, Any]]) -> Arrays | None:
+        if not entries:
+            return None
+        found = entries[0].get("content", {}).get("arrays", {})
+        return {n: (str(a["dtype"]), tuple(int(k) for k in a["shape"])) for n, a in found.items() if a["shape"]}
+
+    labelings = []
+    for lab in sums.get("labelings", []):
+        attrs = lab["shards"][0].get("content", {}).get("attrs", {}) if lab["shards"] else {}
+        files = [_file_entry(e["path"], e["sha256"], None) for e in lab["shards"]]
+        labelings.append((str(lab["name"]), attrs.get("schema"), files, arrays(lab["shards"])))
+    config = recipe.build.to_dict()
+    described = Described(
+        manifest=None,
+        shards=[_file_entry(e["path"], e["sha256"], None) for e in sums["shards"]],
+        shard_arrays=arrays(sums["shards"]),
+        labelings=labelings,
+        config=config,
+        sigmas_m=[float(v) for v in config["sigmas_m"]],
+        dtm_name=Path(str(config.get("dtm_path") or sums.get("dtm", {}).get("path", "?"))).name,
+    )
+    return _metadata(described, recipe.name, recipe.description, recipe.version, licence, citation)
+
+
+def _metadata(d: Described, name: str, description: str, version: int, licence: str, citation: str) -> dict[str, Any]:
+    """The Croissant record of what ``d`` describes."""
+    cfg = d.config
     sensor = cfg.get("sensor", {}) if isinstance(cfg, dict) else {}
-    dtm = m.get("dtm", {})
-    terrain = "hd's procedural Mars terrain" if not cfg.get("dtm_path") else f"the DTM {dtm.get('name', '?')}"
-    distribution: list[dict[str, Any]] = [_file_object(root, MANIFEST_NAME)]
-    distribution += [_file_object(root, e["path"], e["sha256"]) for e in m["shards"]]
+    terrain = "hd's procedural Mars terrain" if not cfg.get("dtm_path") else f"the DTM {d.dtm_name}"
+    distribution: list[dict[str, Any]] = [d.manifest] if d.manifest is not None else []
+    distribution += d.shards
     distribution.append(
         {
             "@type": "cr:FileSet",
@@ -160,40 +256,40 @@ def croissant_metadata(
         }
     )
     record_sets: list[dict[str, Any]] = []
-    if m["shards"]:
+    if d.shard_arrays is not None:
         record_sets.append(
             {
                 "@type": "cr:RecordSet",
                 "@id": "scans",
                 "name": "scans",
                 "description": "One record per scan: the rows of the scan shards' arrays.",
-                "field": _fields(root / m["shards"][0]["path"], "scans", "scan-shards"),
+                "field": _fields(d.shard_arrays, "scans", "scan-shards"),
             }
         )
-    for k, lab in enumerate(m.get("labelings", [])):
+    for k, (lab_name, schema, files, lab_arrays) in enumerate(d.labelings):
         set_id = f"labels-{k}"
-        distribution += [_file_object(root, e["path"], e["sha256"]) for e in lab["shards"]]
+        distribution += files
         distribution.append(
             {
                 "@type": "cr:FileSet",
                 "@id": f"{set_id}-shards",
                 "name": f"{set_id}-shards",
-                "description": f"The label shards of the labelling {lab['name']} (HDF5, schema {lab.get('schema')}).",
+                "description": f"The label shards of the labelling {lab_name} (HDF5, schema {schema}).",
                 "encodingFormat": HDF5_FORMAT,
-                "includes": f"labels/{lab['name']}/*.h5",
+                "includes": f"labels/{lab_name}/*.h5",
             }
         )
-        if lab["shards"]:
+        if lab_arrays is not None:
             record_sets.append(
                 {
                     "@type": "cr:RecordSet",
                     "@id": set_id,
                     "name": set_id,
-                    "description": f"One record per scan: DEMs and labels of the labelling {lab['name']}.",
-                    "field": _fields(root / lab["shards"][0]["path"], set_id, f"{set_id}-shards"),
+                    "description": f"One record per scan: DEMs and labels of the labelling {lab_name}.",
+                    "field": _fields(lab_arrays, set_id, f"{set_id}-shards"),
                 }
             )
-    sigmas = ", ".join(f"{s:g}" for s in m["sigmas_m"])
+    sigmas = ", ".join(f"{s:g}" for s in d.sigmas_m)
     return {
         "@context": CONTEXT,
         "@type": "sc:Dataset",

@@ -75,3 +75,46 @@ def test_croissant_names_every_file_and_every_array(carded):
         noisy = next(fl for fl in scans["field"] if fl["name"] == "points_noisy")
         assert noisy["dataType"] == "sc:Float" and "1 x 32 x 32 x 3" in noisy["description"]
     assert croissant_metadata(dataset, "tiny", "A tiny test set.", 3, data["license"], data["citeAs"]) == data
+
+
+def test_a_recipes_croissant_from_its_checksums_is_the_built_datasets_without_sizes(carded):
+    """recipe_croissant reads no build: the recipe and checksums.json give the same record as the built
+    dataset, less what the checksums do not hold (file sizes, the manifest)."""
+    from lidarsim.croissant import recipe_croissant
+
+    _, recipe = carded
+    built = json.loads((recipe / "croissant.json").read_text())
+    from_sums = recipe_croissant(recipe, built["license"], built["citeAs"])
+    expected = dict(built)
+    expected["distribution"] = [
+        {k: v for k, v in d.items() if k != "contentSize"} for d in built["distribution"] if d["@id"] != "manifest.json"
+    ]
+    assert from_sums == expected
+    assert len(from_sums["distribution"]) == len(built["distribution"]) - 1
+
+
+SHIPPED = sorted(p.parent for p in (Path(__file__).resolve().parents[2] / "datasets").glob("*/checksums.json"))
+
+
+@pytest.mark.parametrize("recipe", SHIPPED, ids=[p.name for p in SHIPPED])
+def test_every_published_recipe_ships_a_croissant_that_mlcroissant_validates(recipe, caplog):
+    """datasets/NAME/croissant.json is the one `hd card --recipe datasets/NAME` writes from the checksums
+    (in step with them: every shard with its published sha256), and valid Croissant 1.0."""
+    import mlcroissant as mlc
+
+    from lidarsim.card import PAPER_CITATION
+
+    path = recipe / "croissant.json"
+    shipped = json.loads(path.read_text())
+    sums = json.loads((recipe / "checksums.json").read_text())
+    from lidarsim.croissant import recipe_croissant
+
+    assert shipped == recipe_croissant(recipe, shipped["license"], PAPER_CITATION)
+    files = {d["contentUrl"]: d["sha256"] for d in shipped["distribution"] if d["@type"] == "cr:FileObject"}
+    published = sums["shards"] + [e for lab in sums.get("labelings", []) for e in lab["shards"]]
+    assert files == {e["path"]: e["sha256"] for e in published}
+    with caplog.at_level(logging.WARNING):
+        metadata = mlc.Dataset(jsonld=path).metadata
+    assert not metadata.ctx.issues.errors, metadata.ctx.issues.report()
+    labelings = sums.get("labelings", [])
+    assert [r.name for r in metadata.record_sets] == ["scans", *(f"labels-{k}" for k in range(len(labelings)))]
