@@ -33,6 +33,7 @@ from hdnet.data import HazardDataset
 from hdnet.fit import input_spec_for
 from hdnet.inspection import known_schemas
 from hdnet.profiles import CPU
+from lidarsim import location
 from lidarsim.shards import read_manifest, verify_dataset
 from lidarsim.transfer import dataset_files, publish_dataset
 from tests.remote_servers import http_server, make_bucket, s3_server
@@ -63,6 +64,20 @@ def _epoch_s(location: str | Path, sigma_m: float) -> float:
     return time.perf_counter() - start
 
 
+def _remote_epoch_s(url: str, sigma_m: float, whole_file_blocks: int, kept: bool = False) -> float:
+    """:func:`_epoch_s` of a URL, files of at most ``whole_file_blocks`` blocks fetched whole (0: none):
+    a first epoch (no file kept from an earlier one; the S3 session is kept, as in a training run),
+    or with ``kept`` a later epoch of the same process (the whole files kept in memory)."""
+    saved = location.WHOLE_FILE_BLOCKS
+    if not kept:
+        location._WHOLE.clear()
+    location.WHOLE_FILE_BLOCKS = whole_file_blocks
+    try:
+        return _epoch_s(url, sigma_m)
+    finally:
+        location.WHOLE_FILE_BLOCKS = saved
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("dataset", nargs="?", type=Path)
@@ -79,16 +94,25 @@ def main() -> None:
             make_bucket("bench")
             url = "s3://bench/data"
             publish_dataset(dataset, url, known_schemas=known_schemas())
-            local_s, remote_s = [], []
-            _epoch_s(dataset, sigma)  # warm-up: imports, page cache
-            _epoch_s(url, sigma)
+            local_s: list[float] = []
+            blocks = location.WHOLE_FILE_BLOCKS
+            variants = {
+                "block cache only (2 MiB blocks)": (0, False),
+                f"files <= {blocks} blocks fetched whole, first epoch": (blocks, False),
+                f"files <= {blocks} blocks fetched whole, later epoch": (blocks, True),
+            }
+            remote_s: dict[str, list[float]] = {name: [] for name in variants}
+            _epoch_s(dataset, sigma)  # warm-up: imports, page cache, the S3 session
+            _remote_epoch_s(url, sigma, blocks)
             for _ in range(args.rounds):
                 local_s.append(_epoch_s(dataset, sigma))
-                remote_s.append(_epoch_s(url, sigma))
-        local, remote = statistics.median(local_s), statistics.median(remote_s)
-        print(f"epoch of the cpu profile's reads, local disk:     {local:.3f} s (median of {args.rounds})")
-        print(f"epoch of the cpu profile's reads, local S3 (moto): {remote:.3f} s")
-        print(f"ratio S3 / disk: {remote / local:.2f} (target <= 1.5)")
+                for name, (n, kept) in variants.items():
+                    remote_s[name].append(_remote_epoch_s(url, sigma, n, kept))
+        local = statistics.median(local_s)
+        print(f"epoch of the cpu profile's reads, local disk: {local:.3f} s (median of {args.rounds})")
+        for name, times in remote_s.items():
+            remote = statistics.median(times)
+            print(f"  local S3 (moto), {name}: {remote:.3f} s, ratio S3 / disk {remote / local:.2f} (target <= 1.5)")
         with http_server(dataset.parent) as (base, server):
             problems = verify_dataset(f"{base}/{dataset.name}", known_schemas())
             sent = server.bytes_sent  # type: ignore[attr-defined]  # counted by tests.remote_servers

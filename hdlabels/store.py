@@ -309,7 +309,7 @@ class LabelShardReader:
         self.what = what or str(self.path)
         if sha256 is not None and not is_url(path):  # a URL is read lazily: hd verify checks its sha256
             verify_sha256(self.path, sha256, self.what)
-        self.h5: CheckedH5File = open_h5_at(self.path, self.what)
+        self.h5: CheckedH5File = open_h5_at(self.path, self.what, sha256)
         attrs = self.h5.attrs
         try:
             check_schema(

@@ -22,8 +22,10 @@ optional extra ``remote`` (docs/dependencies.md); without them a URL is refused 
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import functools
+import io
 import os
 import re
 import sys
@@ -51,6 +53,12 @@ URL_PATTERN = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]*://")
 BLOCK_BYTES = 2 << 20
 # hd choice: blocks kept per open file (64 MiB): a shard's metadata and the current scans stay cached.
 CACHE_BLOCKS = 32
+# hd choice: an HDF5 file of at most this many blocks is fetched whole, in one request, and kept in
+# memory for the process (a label shard of 50 scans is 2-10 MB, opened several times as a dataset is set
+# up and then read entirely by an epoch): per-request and per-open costs, not bytes, dominate remote reads.
+WHOLE_FILE_BLOCKS = 8
+# hd choice: the whole files kept per process, bytes (least recently opened dropped first).
+WHOLE_CACHE_BYTES = 256 << 20
 # hd choice: the block a whole-file stream (hd verify, hd pull) reads per request, bytes.
 STREAM_BYTES = 8 << 20
 INSTALL_HINT = "pip install 'hd[remote]'"
@@ -233,6 +241,42 @@ class RemoteDataset:
         return sorted(str(p)[len(prefix) :] for p in found if str(p).startswith(prefix))
 
 
+_WHOLE: collections.OrderedDict[tuple[str, str], bytes] = collections.OrderedDict()
+
+
+def _whole_key(url: str, sha256: str | None, size: int | None) -> tuple[str, str]:
+    return (url, f"sha256:{sha256}" if sha256 is not None else f"size:{size}")
+
+
+def _whole_file(remote: RemoteDataset, relative: str, size: int, sha256: str | None, name: str) -> bytes:
+    """The bytes of the file ``relative`` (``size`` bytes), fetched in one request the first time and
+    kept (at most ``WHOLE_CACHE_BYTES`` in all). With ``sha256`` (the manifest's) the bytes are checked
+    against it, in memory, and kept under it; without, under their size.
+
+    Raises:
+        DamagedFileError: the bytes are not the manifest's. StorageError: unreachable, or a file that
+            changed while read.
+    """
+    url = remote.url_of(relative)
+    key = _whole_key(url, sha256, size)
+    if key in _WHOLE:
+        _WHOLE.move_to_end(key)
+        return _WHOLE[key]
+    with remote_errors(url):
+        data = bytes(remote.fs.cat_file(remote.path_of(relative)))
+    if len(data) != size:
+        raise StorageError(f"{url}: {len(data)} bytes read, {size} expected (the file changed while read)")
+    if sha256 is not None and (digest := sha256_bytes(data)) != sha256:
+        raise DamagedFileError(
+            f"{name}: checksum mismatch (sha256 {digest[:12]}..., the manifest says {sha256[:12]}...): "
+            "the file is damaged or was replaced; run `hd verify`"
+        )
+    _WHOLE[key] = data
+    while sum(len(v) for v in _WHOLE.values()) > WHOLE_CACHE_BYTES and len(_WHOLE) > 1:
+        _WHOLE.popitem(last=False)
+    return data
+
+
 @functools.lru_cache(maxsize=16)
 def _remote(url: str, pid: int) -> RemoteDataset:
     return RemoteDataset(url)
@@ -243,6 +287,7 @@ def forget_remotes() -> None:
     opened with the environment as it is now: for a long-lived process whose endpoint or credentials
     change (a test session starting a new server)."""
     _remote.cache_clear()
+    _WHOLE.clear()
     if "fsspec" in sys.modules:  # nothing was opened through fsspec otherwise
         from fsspec.spec import AbstractFileSystem
 
@@ -315,9 +360,11 @@ def split_url(url: str) -> tuple[RemoteDataset, str]:
     return remote_dataset(base), name
 
 
-def open_h5_at(path: str | os.PathLike, what: str | None = None) -> CheckedH5File:
+def open_h5_at(path: str | os.PathLike, what: str | None = None, sha256: str | None = None) -> CheckedH5File:
     """Open an HDF5 file read-only with checked reads: a local path as :func:`lidarsim.storage.open_h5`
-    opens it, a URL lazily through fsspec (block cache; see the module docstring).
+    opens it, a URL lazily through fsspec (block cache; see the module docstring); a file of at most
+    ``WHOLE_FILE_BLOCKS`` blocks is fetched whole once per process and, given the manifest's
+    ``sha256``, checked against it (then opened again without a request).
 
     Raises:
         StorageError: unreachable or missing. DamagedFileError: not HDF5 or damaged metadata.
@@ -327,9 +374,15 @@ def open_h5_at(path: str | os.PathLike, what: str | None = None) -> CheckedH5Fil
     url = str(path)
     name = what or url
     remote, relative = split_url(url)
-    if remote.size(relative) is None:
-        raise DamagedFileError(f"{name}: missing (the manifest lists it); run `hd verify`")
-    fh = remote.open_file(relative)
+    kept = _WHOLE.get(_whole_key(url, sha256, None)) if sha256 is not None else None
+    if kept is not None:
+        fh: Any = io.BytesIO(kept)
+    else:
+        size = remote.size(relative)
+        if size is None:
+            raise DamagedFileError(f"{name}: missing (the manifest lists it); run `hd verify`")
+        small = size <= WHOLE_FILE_BLOCKS * BLOCK_BYTES
+        fh = io.BytesIO(_whole_file(remote, relative, size, sha256, name)) if small else remote.open_file(relative)
     try:
         f = h5py.File(fh, "r")
     except OSError as exc:

@@ -470,7 +470,7 @@ class ScanShardReader:
         self.what = what or str(self.path)
         if sha256 is not None and not is_url(path):  # a URL is read lazily: hd verify checks its sha256
             verify_sha256(self.path, sha256, self.what)
-        self._f: CheckedH5File = open_h5_at(self.path, self.what)
+        self._f: CheckedH5File = open_h5_at(self.path, self.what, sha256)
         try:
             attrs = self._f.attrs
             check_schema(
