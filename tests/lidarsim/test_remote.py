@@ -225,3 +225,26 @@ def test_the_user_guides_reader_without_hd_runs_against_s3(dataset, s3, capsys):
     exec(code.replace("s3://team-bucket/hd/data", "s3://hd-data/team/tiny"), {})
     printed = capsys.readouterr().out
     assert printed.strip() == "hd.lidar-scans (10, 2, 48, 48, 3)", printed
+
+
+def test_a_small_shard_at_a_url_is_fetched_once_and_checked_against_the_manifest(dataset, http):
+    """A file of at most WHOLE_FILE_BLOCKS blocks is fetched whole, once per process however often it
+    is opened, and its sha256 checked in memory: altered bytes are named, never read."""
+    from hdlabels.store import open_label_shard
+    from lidarsim import location
+    from lidarsim.errors import DamagedFileError
+
+    url, server = http
+    location.forget_remotes()
+    entry = read_manifest(dataset)["labelings"][0]["shards"][0]
+    size = (dataset / entry["path"]).stat().st_size
+    assert size <= location.WHOLE_FILE_BLOCKS * location.BLOCK_BYTES
+    before = server.bytes_sent
+    for _ in range(3):
+        with open_label_shard(url, entry) as remote, open_label_shard(dataset, entry) as local:
+            assert np.array_equal(remote.h5["label"][2], local.h5["label"][2])
+    assert server.bytes_sent - before == size  # one request for the whole file; the re-opens cost none
+    location.forget_remotes()
+    wrong = dict(entry, sha256="0" * 64)
+    with pytest.raises(DamagedFileError, match=r"checksum mismatch .* the manifest says 000000000000"):
+        open_label_shard(url, wrong)
