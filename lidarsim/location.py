@@ -10,7 +10,8 @@ fsspec reads): then
 * :func:`read_remote_bytes` reads a side file (the manifest) whole, bounded like a local one;
 * :func:`open_h5_at` opens an HDF5 file lazily: h5py reads through an fsspec file object with a
   block cache (``BLOCK_BYTES`` blocks, at most ``CACHE_BLOCKS`` of them), so one scan costs a few
-  range requests, never the whole shard;
+  range requests, never the whole shard; a file of at most ``WHOLE_FILE_BLOCKS`` blocks is fetched
+  whole in one request instead, checked against the manifest's sha256 and kept for the process;
 * :func:`remote_errors` turns what the protocol raises (an unreachable host, a missing bucket or
   object, missing credentials, access denied) into one :class:`~lidarsim.errors.StorageError` line
   naming the URL.
