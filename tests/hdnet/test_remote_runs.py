@@ -21,7 +21,7 @@ from cli import main
 from lidarsim.shards import read_manifest
 from tests.remote_servers import http_server, make_bucket, s3_server, upload_tree
 
-S3_URL = "s3://hd-data/team/tiny"
+S3_URL = "s3://hd-data/runs/tiny"
 
 
 def invoke(*args: object) -> tuple[int, str]:
@@ -47,7 +47,7 @@ def s3(dataset):
     """The S3 server, holding the dataset at S3_URL (uploaded as `aws s3 sync` would)."""
     with s3_server() as endpoint:
         make_bucket("hd-data")
-        upload_tree(dataset, "hd-data", "team/tiny")
+        upload_tree(dataset, "hd-data", "runs/tiny")
         yield endpoint
 
 
@@ -180,14 +180,14 @@ def test_bad_urls_get_one_line_from_train_eval_and_detect(dataset, s3, local_run
     shutil.copytree(dataset, copy)
     label_shard = read_manifest(copy)["labelings"][0]["shards"][0]["path"]
     (copy / label_shard).unlink()  # the DEMs training reads
-    upload_tree(copy, "hd-data", "team/holes")
+    upload_tree(copy, "hd-data", "runs/holes")
     (tmp_path / "notes" / "x").mkdir(parents=True)
     (tmp_path / "notes" / "x" / "notes.txt").write_text("not a dataset")
-    upload_tree(tmp_path / "notes", "hd-data", "team/notes")
+    upload_tree(tmp_path / "notes", "hd-data", "runs/notes")
     cases = {
         "s3://no-such-bucket/x": "no such bucket 'no-such-bucket'",
         f"http://127.0.0.1:{free_port()}/data": "cannot reach the host",
-        "s3://hd-data/team/notes/x": "not an hd dataset",
+        "s3://hd-data/runs/notes/x": "not an hd dataset",
         "s3://hd-data/nothing/here": "no dataset there",
     }
     for url, needle in cases.items():
@@ -200,7 +200,7 @@ def test_bad_urls_get_one_line_from_train_eval_and_detect(dataset, s3, local_run
             last = one_line_error(out)
             assert code == 1 and needle in last, (argv, out)
         assert not (tmp_path / "run").exists() and not (tmp_path / "report").exists()
-    code, out = invoke("train", "s3://hd-data/team/holes", "--out", tmp_path / "run", "--profile", "tiny")
+    code, out = invoke("train", "s3://hd-data/runs/holes", "--out", tmp_path / "run", "--profile", "tiny")
     last = one_line_error(out)
     assert code == 1 and Path(label_shard).name in last and "missing" in last, out
     assert not (tmp_path / "run").exists()
