@@ -101,12 +101,22 @@ def open_labeling(dataset_dir: str | os.PathLike, labels: str | None = None) -> 
     return entry, label_shard_paths(dataset_dir, entry)
 
 
-def dataset_sigmas(paths: list[Path | str]) -> tuple[float, ...]:
-    """Noise levels (metres) of a labelling, read from its first label shard."""
+def dataset_sigmas(paths: list[Path | str], sha256: str | None = None) -> tuple[float, ...]:
+    """Noise levels (metres) of a labelling, read from its first label shard.
+
+    ``sha256``: the manifest's checksum of that shard; at a URL, a shard this process has fetched and
+    checked already is then read again without a request (a local file is not hashed for it).
+    """
     if not paths:
         raise HdNetError("the labelling lists no label shards.")
-    with LabelShardReader(paths[0]) as reader:
+    with LabelShardReader(paths[0], sha256=sha256 if is_url(paths[0]) else None) as reader:
         return reader.sigmas_m
+
+
+def first_sha256(entry: dict[str, Any]) -> str | None:
+    """The manifest's sha256 of a labelling's first label shard (None when it lists none)."""
+    shards = entry.get("shards") or []
+    return str(shards[0]["sha256"]) if shards else None
 
 
 def format_sigmas(sigmas_m: tuple[float, ...]) -> str:
@@ -167,7 +177,7 @@ def split_labels(dataset_dir: str | os.PathLike, split: str, labels: str) -> dic
 def compute_normalisation(dataset_dir: str | os.PathLike, sigma_m: float, labels: str | None = None) -> Normalisation:
     """Min and max (metres) of the finite noisy-DEM heights at ``sigma_m`` over the training split only."""
     entry, paths = open_labeling(dataset_dir, labels)
-    s = sigma_index(dataset_sigmas(paths), sigma_m)
+    s = sigma_index(dataset_sigmas(paths, first_sha256(entry)), sigma_m)
     lo, hi = math.inf, -math.inf
     for shard in entry["shards"]:
         with _open_verified(dataset_dir, shard) as reader:
@@ -231,7 +241,7 @@ class HazardDataset(Dataset):
         self.split = split
         self.entry, self.paths = open_labeling(dataset_dir, labels)
         self.labels = str(self.entry["name"])
-        self.sigmas_m = dataset_sigmas(self.paths)
+        self.sigmas_m = dataset_sigmas(self.paths, first_sha256(self.entry))
         self.noise = noise
         self.sigma_index: int | None = None
         if sigma_m is not None:
@@ -314,7 +324,8 @@ class HazardDataset(Dataset):
             self._files, self._pid = {}, os.getpid()
         f = self._files.get(k)
         if f is None:
-            f = self._files[k] = open_h5_at(self.paths[k])
+            # the manifest's sha256: at a URL, the shard checked as the dataset was made is read without a request
+            f = self._files[k] = open_h5_at(self.paths[k], sha256=self.entry["shards"][k]["sha256"])
         return f
 
     def close(self) -> None:

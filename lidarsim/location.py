@@ -7,7 +7,8 @@ fsspec reads): then
 
 * :func:`join` gives a manifest path's URL (the path checked as :func:`lidarsim.storage.confine`
   checks a local one: relative, no ``..``);
-* :func:`read_remote_bytes` reads a side file (the manifest) whole, bounded like a local one;
+* :meth:`RemoteDataset.read_bytes` reads a side file (the manifest) whole, bounded like a local one,
+  and keeps it for the process while the server reports the same version of it (its ETag);
 * :func:`open_h5_at` opens an HDF5 file lazily: h5py reads through an fsspec file object with a
   block cache (``BLOCK_BYTES`` blocks, at most ``CACHE_BLOCKS`` of them), so one scan costs a few
   range requests, never the whole shard; a file of at most ``WHOLE_FILE_BLOCKS`` blocks is fetched
@@ -60,6 +61,8 @@ CACHE_BLOCKS = 32
 WHOLE_FILE_BLOCKS = 8
 # hd choice: the whole files kept per process, bytes (least recently opened dropped first).
 WHOLE_CACHE_BYTES = 256 << 20
+# hd choice: the side files (manifests) kept per process with their version (least recently read dropped first).
+SIDE_CACHE_FILES = 32
 # hd choice: the block a whole-file stream (hd verify, hd pull) reads per request, bytes.
 STREAM_BYTES = 8 << 20
 INSTALL_HINT = "pip install 'hd[remote]'"
@@ -197,19 +200,75 @@ class RemoteDataset:
         return True
 
     def read_bytes(self, relative: str, max_bytes: int = MAX_SIDE_FILE_BYTES) -> bytes:
-        """The bytes of the side file ``relative`` (at most ``max_bytes``).
+        """The bytes of the side file ``relative`` (at most ``max_bytes``), as :meth:`read_if_there` reads them.
 
         Raises:
             StorageError: not there, unreachable, no credentials. FormatError: larger than ``max_bytes``.
         """
+        data = self.read_if_there(relative, max_bytes)
+        if data is None:
+            raise StorageError(f"{self.url_of(relative)}: not found")
+        return data
+
+    def read_if_there(self, relative: str, max_bytes: int = MAX_SIDE_FILE_BYTES) -> bytes | None:
+        """The bytes of the side file ``relative`` (at most ``max_bytes``; None when it is not there).
+
+        One request asks for the file's size and version (its strong ETag, or the protocol's content
+        hash or generation); bytes read earlier in the process at the same URL, size and version are
+        given again without reading them (a dataset set up once per epoch costs one request per manifest
+        read), and a file replaced at the URL is read anew. A file whose protocol names no version is
+        read every time.
+
+        Raises:
+            StorageError: unreachable, no credentials. FormatError: larger than ``max_bytes``.
+        """
         url = self.url_of(relative)
-        size = self.size(relative)
-        if size is None:
-            raise StorageError(f"{url}: not found")
+        info = self._fresh_info(relative)
+        if info is None:
+            return None
+        size, version = int(info["size"]), content_version(info)
         if size > max_bytes:
             raise FormatError(f"{url}: {size} bytes, more than the {max_bytes} this file can hold")
-        with remote_errors(url):
-            return bytes(self.fs.cat_file(self.path_of(relative)))
+        kept = _SIDE.get(url)
+        if version is not None and kept is not None and kept[:2] == (size, version):
+            _SIDE.move_to_end(url)
+            return kept[2]
+        data = self.fetch(relative, size)
+        _SIDE.pop(url, None)
+        if len(data) != size:  # replaced while read: read as it is now, and not kept
+            with remote_errors(url):
+                return bytes(self.fs.cat_file(self.path_of(relative)))
+        if version is not None:
+            after = self._fresh_info(relative)  # unchanged while read: the bytes are this version's
+            if after is not None and (int(after["size"]), content_version(after)) == (size, version):
+                _SIDE[url] = (size, version, data)
+                while len(_SIDE) > SIDE_CACHE_FILES:
+                    _SIDE.popitem(last=False)
+        return data
+
+    def fetch(self, relative: str, size: int) -> bytes:
+        """The bytes of the file ``relative``, whose size was just reported as ``size`` bytes, in one
+        request: asked for as the range of ``size + 1`` bytes from the start (the protocol then does not
+        ask for the size once more), so that a file that changed size since gives another length."""
+        path = self.path_of(relative)
+        with remote_errors(self.url_of(relative)):  # an empty file has no range to ask for
+            return bytes(self.fs.cat_file(path, start=0, end=size + 1) if size > 0 else self.fs.cat_file(path))
+
+    def _fresh_info(self, relative: str) -> dict[str, Any] | None:
+        """The file system's details of the file ``relative``, asked of the server (not of a listing
+        cached earlier); None when it is not there, as :meth:`size` says."""
+        path = self.path_of(relative)
+        with remote_errors(self.url_of(relative)):
+            self.fs.invalidate_cache(path)
+            try:
+                info = self.fs.info(path)
+            except FileNotFoundError as exc:
+                if "bucket" in str(exc).lower():
+                    raise
+                return None
+        if not isinstance(info.get("size"), int) or info.get("type", "file") != "file":
+            return None
+        return dict(info)
 
     def stream(self, relative: str, block_bytes: int = STREAM_BYTES) -> Iterator[bytes]:
         """The bytes of ``relative`` in blocks, read once from start to end (no cache)."""
@@ -243,6 +302,24 @@ class RemoteDataset:
 
 
 _WHOLE: collections.OrderedDict[tuple[str, str], bytes] = collections.OrderedDict()
+# The side files (manifests) read at URLs: URL -> (size in bytes, version, bytes), see ``read_if_there``.
+_SIDE: collections.OrderedDict[str, tuple[int, str, bytes]] = collections.OrderedDict()
+# What identifies a file's content in fsspec's ``info()``: S3's ETag (most HTTP servers send one too),
+# Azure's etag, GCS's md5Hash and generation, a versioned store's VersionId.
+VERSION_FIELDS = ("ETag", "etag", "md5Hash", "generation", "VersionId", "version_id")
+
+
+def content_version(info: dict[str, Any]) -> str | None:
+    """The version of a file's content in fsspec's ``info()`` of it: its version fields joined (a weak
+    ``W/`` ETag, which may stay when the bytes change, is none); None when it has none (a local file,
+    an HTTP server that sends only Last-Modified, of a second's resolution)."""
+    found = []
+    for field in VERSION_FIELDS:
+        value = info.get(field)
+        if value is None or value == "" or (isinstance(value, str) and value.startswith("W/")):
+            continue
+        found.append(f"{field}={value}")
+    return " ".join(found) or None
 
 
 def _whole_key(url: str, sha256: str | None, size: int | None) -> tuple[str, str]:
@@ -263,8 +340,7 @@ def _whole_file(remote: RemoteDataset, relative: str, size: int, sha256: str | N
     if key in _WHOLE:
         _WHOLE.move_to_end(key)
         return _WHOLE[key]
-    with remote_errors(url):
-        data = bytes(remote.fs.cat_file(remote.path_of(relative)))
+    data = remote.fetch(relative, size)
     if len(data) != size:
         raise StorageError(f"{url}: {len(data)} bytes read, {size} expected (the file changed while read)")
     if sha256 is not None and (digest := sha256_bytes(data)) != sha256:
@@ -289,6 +365,7 @@ def forget_remotes() -> None:
     change (a test session starting a new server)."""
     _remote.cache_clear()
     _WHOLE.clear()
+    _SIDE.clear()
     if "fsspec" in sys.modules:  # nothing was opened through fsspec otherwise
         from fsspec.spec import AbstractFileSystem
 

@@ -706,7 +706,8 @@ def _read_remote_manifest(url: str) -> dict[str, Any]:
     """``read_manifest`` of a dataset at a URL: what is there instead of a manifest is named."""
     remote = remote_dataset(url)
     where = remote.url_of(MANIFEST_NAME)
-    if remote.size(MANIFEST_NAME) is None:
+    data = remote.read_if_there(MANIFEST_NAME)  # one request when the process has read this version already
+    if data is None:
         if remote.size(PUBLISH_MARK) is not None:
             raise FormatError(
                 f"{remote.url}: a dataset is being published there, or its publication was interrupted "
@@ -719,7 +720,7 @@ def _read_remote_manifest(url: str) -> dict[str, Any]:
         raise FormatError(
             f"{remote.url}: not an hd dataset (no {MANIFEST_NAME}; it holds {counted(len(held), 'other file')})"
         )
-    return validate_manifest(manifest_text(remote.read_bytes(MANIFEST_NAME), where), where)
+    return validate_manifest(manifest_text(data, where), where)
 
 
 def open_scan_shard(directory: str | os.PathLike, entry: dict[str, Any]) -> ScanShardReader:

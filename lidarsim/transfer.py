@@ -114,7 +114,7 @@ def _upload_manifest(remote: RemoteDataset, source: Path) -> None:
 
 
 def _remote_manifest(remote: RemoteDataset) -> bytes | None:
-    return remote.read_bytes(MANIFEST_NAME) if remote.size(MANIFEST_NAME) is not None else None
+    return remote.read_if_there(MANIFEST_NAME)
 
 
 def _publication_state(remote: RemoteDataset, manifest_bytes: bytes, overwrite: bool) -> tuple[str, list[str]]:
