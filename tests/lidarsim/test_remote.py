@@ -248,3 +248,91 @@ def test_a_small_shard_at_a_url_is_fetched_once_and_checked_against_the_manifest
     wrong = dict(entry, sha256="0" * 64)
     with pytest.raises(DamagedFileError, match=r"checksum mismatch .* the manifest says 000000000000"):
         open_label_shard(url, wrong)
+
+
+@pytest.fixture
+def s3_requests(s3, monkeypatch):
+    """The requests the S3 server answers from now on: (method, object name, ranged) of each."""
+    from moto.moto_server.werkzeug_app import DomainDispatcherApplication
+
+    seen: list[tuple[str, str, bool]] = []
+    answer = DomainDispatcherApplication.__call__
+
+    def counting(self, environ, start_response):
+        seen.append((environ["REQUEST_METHOD"], environ["PATH_INFO"].rsplit("/", 1)[-1], "HTTP_RANGE" in environ))
+        return answer(self, environ, start_response)
+
+    monkeypatch.setattr(DomainDispatcherApplication, "__call__", counting)
+    return seen
+
+
+def put_manifest(prefix: str, data: bytes) -> None:
+    """Replace the manifest at s3://hd-data/PREFIX as another writer would (not through hd's file system)."""
+    import boto3
+
+    boto3.client("s3", endpoint_url=os.environ["AWS_ENDPOINT_URL_S3"]).put_object(
+        Bucket="hd-data", Key=f"{prefix}/manifest.json", Body=data
+    )
+
+
+def test_a_dataset_set_up_again_asks_only_whether_its_manifest_changed(dataset, s3, s3_requests):
+    """The manifest and the label shards are fetched by the first set-up; a second set-up in the same
+    process sends one HEAD per manifest read and nothing else."""
+    from hdnet.data import HazardDataset
+    from lidarsim import location
+
+    upload_tree(dataset, "hd-data", "team/again")
+    url = "s3://hd-data/team/again"
+    location.forget_remotes()
+    first = HazardDataset(url, "train", 0.0167, input_size=64)
+    a = first[0]
+    first.close()
+    fetched = [r for r in s3_requests if r[0] == "GET"]
+    assert sorted(name for _, name, _ in fetched) == ["labels-00000.h5", "labels-00001.h5", "manifest.json"]
+    del s3_requests[:]
+    again = HazardDataset(url, "train", 0.0167, input_size=64)  # finds the labelling, normalises, reads
+    b = again[0]
+    again.close()
+    assert s3_requests and set(s3_requests) == {("HEAD", "manifest.json", False)}, s3_requests
+    assert len(s3_requests) == 2  # the dataset's manifest read, and compute_normalisation's
+    assert all(np.array_equal(np.asarray(a[k]), np.asarray(b[k]), equal_nan=True) for k in a)
+
+
+def test_a_manifest_replaced_at_the_url_is_read_by_the_next_set_up(dataset, s3, s3_requests):
+    """Kept manifest bytes are given again only while the server reports the same size and ETag: a
+    manifest replaced by another writer, also by one of the same size, is read anew."""
+    from hdlabels.store import LabelStoreError
+    from hdnet.data import HazardDataset
+    from lidarsim.location import manifest_sha256
+    from lidarsim.storage import sha256_bytes
+
+    upload_tree(dataset, "hd-data", "team/replaced")
+    url = "s3://hd-data/team/replaced"
+    original = (dataset / "manifest.json").read_bytes()
+    assert manifest_sha256(url) == sha256_bytes(original)
+    HazardDataset(url, "train", 0.0167, input_size=64).close()
+    same_size = original[:-1] + (b" " if original[-1:] != b" " else b"\n")  # one byte other, as long
+    assert len(same_size) == len(original) and same_size != original
+    put_manifest("team/replaced", same_size)
+    assert manifest_sha256(url) == sha256_bytes(same_size)
+    unlabelled = json.loads(original)
+    unlabelled["labelings"] = []
+    put_manifest("team/replaced", json.dumps(unlabelled).encode())
+    del s3_requests[:]
+    with pytest.raises(LabelStoreError, match="the dataset has no labels"):
+        HazardDataset(url, "train", 0.0167, input_size=64)
+    assert ("GET", "manifest.json", True) in s3_requests
+    put_manifest("team/replaced", original)
+    HazardDataset(url, "train", 0.0167, input_size=64).close()  # labelled again
+
+
+def test_the_version_of_a_file_is_its_strong_etag_or_content_hash():
+    from lidarsim.location import content_version
+
+    assert content_version({"size": 3, "ETag": '"9a0364b9e99bb480dd25e1f0284c8555"'}) is not None
+    s3 = {"size": 3, "ETag": '"a"', "LastModified": "2026-01-01"}
+    assert content_version(s3) != content_version(dict(s3, ETag='"b"'))
+    assert content_version({"size": 3, "md5Hash": "x", "generation": 7}) == "md5Hash=x generation=7"
+    assert content_version({"size": 3, "ETag": 'W/"a"'}) is None  # weak: may stay as the bytes change
+    assert content_version({"size": 3, "Last-Modified": "Thu, 03 Dec 2026 08:00:00 GMT"}) is None
+    assert content_version({"size": 3, "mtime": 1.5, "type": "file"}) is None  # a local file: read each time
