@@ -177,7 +177,15 @@ def split_labels(dataset_dir: str | os.PathLike, split: str, labels: str) -> dic
 def compute_normalisation(dataset_dir: str | os.PathLike, sigma_m: float, labels: str | None = None) -> Normalisation:
     """Min and max (metres) of the finite noisy-DEM heights at ``sigma_m`` over the training split only."""
     entry, paths = open_labeling(dataset_dir, labels)
-    s = sigma_index(dataset_sigmas(paths, first_sha256(entry)), sigma_m)
+    return labeling_normalisation(dataset_dir, entry, dataset_sigmas(paths, first_sha256(entry)), sigma_m)
+
+
+def labeling_normalisation(
+    dataset_dir: str | os.PathLike, entry: dict[str, Any], sigmas_m: tuple[float, ...], sigma_m: float
+) -> Normalisation:
+    """:func:`compute_normalisation` of a labelling entry already read from the manifest (with its
+    noise levels ``sigmas_m``, metres): the manifest is not read again."""
+    s = sigma_index(sigmas_m, sigma_m)
     lo, hi = math.inf, -math.inf
     for shard in entry["shards"]:
         with _open_verified(dataset_dir, shard) as reader:
@@ -282,7 +290,7 @@ class HazardDataset(Dataset):
             norm = (
                 normalisation
                 if normalisation is not None
-                else compute_normalisation(dataset_dir, self.nearest_stored_sigma_m, labels)
+                else labeling_normalisation(dataset_dir, self.entry, self.sigmas_m, self.nearest_stored_sigma_m)
             )
             input_spec = InputSpec(
                 heights="minmax", normalisation=norm, input_size=input_size, spacing_m=self.spacing_m

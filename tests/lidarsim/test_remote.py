@@ -294,7 +294,7 @@ def test_a_dataset_set_up_again_asks_only_whether_its_manifest_changed(dataset, 
     b = again[0]
     again.close()
     assert s3_requests and set(s3_requests) == {("HEAD", "manifest.json", False)}, s3_requests
-    assert len(s3_requests) == 2  # the dataset's manifest read, and compute_normalisation's
+    assert len(s3_requests) == 1  # the labelling's entry, read once, also gives the normalisation
     assert all(np.array_equal(np.asarray(a[k]), np.asarray(b[k]), equal_nan=True) for k in a)
 
 
