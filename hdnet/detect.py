@@ -62,6 +62,7 @@ from hdnet._version import __version__
 from hdnet.data import (
     dataset_sigmas,
     dem_spacing_m,
+    first_sha256,
     lander_of,
     open_labeling,
     sigma_index,
@@ -589,7 +590,7 @@ class _ScanTerrain(_ArrayTerrain):
 
     def __init__(self, dataset: Path | str, scan: int, sigma_m: float, labels: str | None, run: DetectRun) -> None:
         entry, paths = open_labeling(dataset, labels)
-        sigmas = dataset_sigmas(paths)
+        sigmas = dataset_sigmas(paths, first_sha256(entry))
         k = sigma_index(sigmas, sigma_m)
         spacing = dem_spacing_m(entry)
         if abs(spacing - run.spacing_m) > SPACING_TOLERANCE * run.spacing_m:

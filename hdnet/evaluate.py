@@ -44,6 +44,7 @@ from hdnet.data import (
     HazardDataset,
     dataset_sigmas,
     dem_spacing_m,
+    first_sha256,
     lander_of,
     open_labeling,
     split_labels,
@@ -626,7 +627,7 @@ def _open_evaluation(run_dir: str | os.PathLike, dataset_dir: str | os.PathLike,
     dem = entry.get("dem", {})
     n_pixels = int(dem.get("rows", defaults.DEM_SIZE_PX)) * int(dem.get("cols", defaults.DEM_SIZE_PX))
     _check_drop_pixels(cfg.drop_pixels, n_pixels)
-    sigmas = dataset_sigmas(paths)
+    sigmas = dataset_sigmas(paths, first_sha256(entry))
     stored_sigma_index(sigmas, train_sigma)  # stored, or a level the noisy DEMs are made at from the clean points
     labels = str(entry["name"])
     calibration = calibration_datasets(ckpt, dataset_dir, cfg, labels, run_labels)

@@ -34,6 +34,7 @@ from hdnet.data import (
     compute_normalisation,
     dataset_sigmas,
     dem_spacing_m,
+    first_sha256,
     lander_of,
     open_labeling,
 )
@@ -367,7 +368,8 @@ def already_trained(dataset_dir: str | os.PathLike, run_dir: str | os.PathLike, 
         checked = check_run(run)
         profile = config.training_profile()
         entry, paths = open_labeling(dataset_dir, config.labels)
-        noise = training_noise(config.train_noise, config.train_sigma_m, profile, dataset_sigmas(paths))
+        sigmas = dataset_sigmas(paths, first_sha256(entry))
+        noise = training_noise(config.train_noise, config.train_sigma_m, profile, sigmas)
     except (OSError, ValueError, HdNetError):
         return False
     recorded, data = checked.record, checked.data
@@ -446,13 +448,13 @@ def fit(dataset_dir: str | os.PathLike, run_dir: str | os.PathLike, config: FitC
         prepare_run_dir(run_dir, resume, overwrite, other)
     profile = cfg.training_profile()
     entry, paths = open_labeling(dataset_dir, labels)  # the clear "no labels" error first
-    noise = training_noise(cfg.train_noise, cfg.train_sigma_m, profile, dataset_sigmas(paths))
+    noise = training_noise(cfg.train_noise, cfg.train_sigma_m, profile, dataset_sigmas(paths, first_sha256(entry)))
     if resume and not overwrite and (run_path / LAST).exists():
         check_resumed_data(run_path, dataset_dir, entry, noise, tuple(cfg.also))
-    train_sigma_m = reference_sigma(noise, dataset_sigmas(paths))
+    train_sigma_m = reference_sigma(noise, dataset_sigmas(paths, first_sha256(entry)))
     check_augment(profile.augment, lander_of(entry))
     normalisation = (
-        compute_normalisation(dataset_dir, nearest_stored(noise, dataset_sigmas(paths)), labels)
+        compute_normalisation(dataset_dir, nearest_stored(noise, dataset_sigmas(paths, first_sha256(entry))), labels)
         if profile.heights == "minmax"
         else None
     )
