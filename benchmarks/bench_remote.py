@@ -66,11 +66,13 @@ def _epoch_s(location: str | Path, sigma_m: float) -> float:
 
 def _remote_epoch_s(url: str, sigma_m: float, whole_file_blocks: int, kept: bool = False) -> float:
     """:func:`_epoch_s` of a URL, files of at most ``whole_file_blocks`` blocks fetched whole (0: none):
-    a first epoch (no file kept from an earlier one; the S3 session is kept, as in a training run),
-    or with ``kept`` a later epoch of the same process (the whole files kept in memory)."""
+    a first epoch (no file and no manifest kept from an earlier one; the S3 session is kept, as in a
+    training run), or with ``kept`` a later epoch of the same process (the whole files and the manifest
+    kept in memory)."""
     saved = location.WHOLE_FILE_BLOCKS
     if not kept:
         location._WHOLE.clear()
+        location._SIDE.clear()
     location.WHOLE_FILE_BLOCKS = whole_file_blocks
     try:
         return _epoch_s(url, sigma_m)
