@@ -88,6 +88,34 @@ def _run(profile: TrainingProfile, width: float, dem: np.ndarray) -> DetectRun:
     return DetectRun(Path("-"), model, {}, 0.0167, spec, LABELING["name"], LABELING, Lander(), (100, 100), 1.0, None)
 
 
+def untrained_checkpoint(path: Path, dem: np.ndarray) -> Path:
+    """A checkpoint of the cpu profile's network, untrained (timing needs no training), at ``path``:
+    what ``hd detect`` loads, labelled as :data:`LABELING` on 100 x 100 DEMs at 1.67 cm."""
+    run = _run(CPU, CPU.width, dem)
+    save_checkpoint(
+        path,
+        {
+            "schema": CHECKPOINT_SCHEMA,
+            "schema_version": CHECKPOINT_VERSION,
+            "model_name": "bayesian_segnet",
+            "model_config": run.model.config.to_dict(),
+            "profile": CPU.to_dict(),
+            "epoch": 0,
+            "model": run.model.state_dict(),
+            "extra_config": {
+                "train_sigma_m": 0.0167,
+                "input": run.input_spec.to_dict(),
+                "normalisation": None,
+                "input_size": None,
+                "labels": LABELING["name"],
+                "dem_shape": [100, 100],
+                "labeling": LABELING,
+            },
+        },
+    )
+    return path
+
+
 def _frame_seconds(run: DetectRun, dem: np.ndarray, samples: int, batch: int, repeats: int, warmups: int = 2) -> float:
     def once() -> None:
         x = torch.cat([network_input(dem, run) for _ in range(batch)])
@@ -172,29 +200,7 @@ def main() -> None:
             big = generate_mars_terrain(MarsTerrainParams(size_m=args.dtm_size), seed=2)
             dtm = Path(tmp) / "mars.tif"
             write_geotiff(dtm, big, 0.5, origin_xy=(0.0, args.dtm_size))
-            run = _run(CPU, CPU.width, dem)
-            ckpt = Path(tmp) / "run.pt"
-            save_checkpoint(
-                ckpt,
-                {
-                    "schema": CHECKPOINT_SCHEMA,
-                    "schema_version": CHECKPOINT_VERSION,
-                    "model_name": "bayesian_segnet",
-                    "model_config": run.model.config.to_dict(),
-                    "profile": CPU.to_dict(),
-                    "epoch": 0,
-                    "model": run.model.state_dict(),
-                    "extra_config": {
-                        "train_sigma_m": 0.0167,
-                        "input": run.input_spec.to_dict(),
-                        "normalisation": None,
-                        "input_size": None,
-                        "labels": LABELING["name"],
-                        "dem_shape": [100, 100],
-                        "labeling": LABELING,
-                    },
-                },
-            )
+            ckpt = untrained_checkpoint(Path(tmp) / "run.pt", dem)
             t0 = time.perf_counter()
             result = detect(ckpt, Path(tmp) / "out", dtm=dtm, threshold="nats:0.35", mc_samples=args.samples)
             total = time.perf_counter() - t0

@@ -111,11 +111,9 @@ def child_detect(area_km2: float, tmp: Path) -> None:
     import resource
 
     import numpy as np
-    from bench_detect import LABELING, _run
+    from bench_detect import untrained_checkpoint
 
     from hdnet.detect import detect
-    from hdnet.profiles import CPU
-    from hdnet.train import CHECKPOINT_SCHEMA, CHECKPOINT_VERSION, save_checkpoint
     from lidarsim.procedural import write_geotiff
     from lidarsim.terrain import DTM
 
@@ -129,29 +127,7 @@ def child_detect(area_km2: float, tmp: Path) -> None:
     crop = tmp / "crop.tif"
     write_geotiff(crop, heights.astype(np.float32), info.spacing_m[0], origin_xy=origin, crs_wkt=info.crs_wkt)
     dem = np.zeros((100, 100))
-    run = _run(CPU, CPU.width, dem)
-    ckpt = tmp / "run.pt"
-    save_checkpoint(
-        ckpt,
-        {
-            "schema": CHECKPOINT_SCHEMA,
-            "schema_version": CHECKPOINT_VERSION,
-            "model_name": "bayesian_segnet",
-            "model_config": run.model.config.to_dict(),
-            "profile": CPU.to_dict(),
-            "epoch": 0,
-            "model": run.model.state_dict(),
-            "extra_config": {
-                "train_sigma_m": 0.0167,
-                "input": run.input_spec.to_dict(),
-                "normalisation": None,
-                "input_size": None,
-                "labels": LABELING["name"],
-                "dem_shape": [100, 100],
-                "labeling": LABELING,
-            },
-        },
-    )
+    ckpt = untrained_checkpoint(tmp / "run.pt", dem)
     t0 = time.perf_counter()
     detect(ckpt, tmp / "out", dtm=crop, threshold="nats:0.35", mc_samples=8, upsample=True)
     wall = time.perf_counter() - t0
