@@ -209,8 +209,9 @@ def main() -> None:
         density_t = float("inf")
         if args.density_quantile > 0:
             train_ds = split_dataset(args.home, "train", sigma, labels=args.labels, input_spec=spec)
-            train_inf_valid = np.stack([~train_ds.dem_sample(i).ignore for i in range(len(train_ds))])
-            train_labels = np.stack([train_ds.dem_sample(i).label for i in range(len(train_ds))])
+            train_samples = [train_ds.dem_sample(i) for i in range(len(train_ds))]
+            train_inf_valid = np.stack([~s.ignore for s in train_samples])
+            train_labels = np.stack([s.label for s in train_samples])
             fitted = FeatureDensity(
                 pixel_features(model, train_ds, args.feature_layer), train_labels, train_inf_valid, 64, 0
             )
