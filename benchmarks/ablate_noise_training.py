@@ -55,6 +55,15 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
         "+ width 3/4 (the robust profile)",
         {"extra_channels": ("slope", "highpass", "sigma"), "width": 0.75},
     ),
+    "width075_sigma_bf16_fastmasks": (
+        "the robust profile with bfloat16 autocast and fast dropout masks (its training speed-up)",
+        {
+            "extra_channels": ("slope", "highpass", "sigma"),
+            "width": 0.75,
+            "precision": "bfloat16",
+            "fast_dropout": True,
+        },
+    ),
     "width1_sigma": ("+ width 1", {"extra_channels": ("slope", "highpass", "sigma"), "width": 1.0}),
     "depth3_sigma": ("+ three pooling stages", {"extra_channels": ("slope", "highpass", "sigma"), "depth": 3}),
 }
@@ -131,6 +140,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--variants", default=",".join(VARIANTS))
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--labels", default=None, help="the labelling to train on (when the dataset has several)")
     parser.add_argument("--report", action="store_true", help="only rewrite ablation.md from results.json")
     args = parser.parse_args()
     if args.report:
@@ -143,7 +153,11 @@ def main() -> None:
     for name in args.variants.split(","):
         profile = replace(CPU, name=f"noise-{name}", **VARIANTS[name][1])
         run = args.out / "runs" / name
-        fit(args.dataset, run, FitConfig(profile=profile, train_noise=noise, resume=True, progress=False))
+        fit(
+            args.dataset,
+            run,
+            FitConfig(profile=profile, train_noise=noise, resume=True, progress=False, labels=args.labels),
+        )
         results[name] = summarise(run, args.dataset)
         with OutputTransaction(args.out, "ablation"):
             write_json_atomic(path, results)

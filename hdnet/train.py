@@ -628,6 +628,8 @@ def _start(
     model = BayesianSegNet(model_config).to(device)
     memory_format = torch.channels_last if profile.channels_last else torch.contiguous_format
     model = model.to(memory_format=memory_format)  # type: ignore[call-overload]  # the stubs omit memory_format
+    for module in model.dropout_modules():
+        module.fast_masks = profile.fast_dropout
     weight = None
     if class_weights is not None and profile.class_weighting == "balanced":
         weight = torch.tensor(class_weights, dtype=torch.float32, device=device)
@@ -721,7 +723,9 @@ def _train_epoch(
             group["lr"] = profile.learning_rate(epoch + b / n_batches, total_epochs)
         x = batch["image"].to(device, non_blocking=True).contiguous(memory_format=memory_format)
         y = batch["mask"].to(device, non_blocking=True).long()
-        loss_sum, norm = _sum_loss(net(x), y, state.weight)
+        with torch.autocast(device.type, dtype=torch.bfloat16, enabled=profile.precision == "bfloat16"):
+            logits = net(x)
+        loss_sum, norm = _sum_loss(logits.float(), y, state.weight)
         optimizer.zero_grad(set_to_none=True)
         (loss_sum / norm.clamp(min=1e-12)).backward()
         optimizer.step()

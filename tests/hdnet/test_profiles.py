@@ -5,7 +5,7 @@ from typing import Any
 import pytest
 
 from hdnet.errors import HdNetError
-from hdnet.profiles import CPU, PAPER, TINY, get_profile, profile_from_dict
+from hdnet.profiles import CPU, PAPER, ROBUST, TINY, get_profile, profile_from_dict
 
 
 def test_paper_profile_matches_the_paper() -> None:
@@ -62,15 +62,24 @@ def test_new_fields_default_to_the_papers_choices_and_old_profiles_load() -> Non
 def test_every_profile_round_trips_through_json() -> None:
     import json
 
-    for p in (PAPER, CPU, TINY):
+    for p in (PAPER, CPU, ROBUST, TINY):
         back = profile_from_dict(json.loads(json.dumps(p.to_dict())))
         assert back == p and isinstance(back.extra_channels, tuple)
+
+
+def test_training_arithmetic_fields_are_saved_only_off_their_defaults() -> None:
+    # A profile saved before precision and fast_dropout existed reads back as float32 with torch's masks,
+    # and the profiles that keep those defaults save the same dictionary as before.
+    assert "precision" not in CPU.to_dict() and "fast_dropout" not in PAPER.to_dict()
+    assert (CPU.precision, CPU.fast_dropout) == ("float32", False)
+    assert ROBUST.to_dict()["precision"] == "bfloat16" and ROBUST.to_dict()["fast_dropout"] is True
 
 
 def test_invalid_fields_are_refused() -> None:
     from dataclasses import replace
 
     for field, value in (
+        ("precision", "float16"),
         ("lr_schedule", "step"),
         ("augment", "mixup"),
         ("class_weighting", "focal"),

@@ -221,3 +221,22 @@ def test_cpu_levers_train_and_resume_exactly(tmp_path: Path) -> None:
         and len(ckpt["timing"]) == 2
         and ckpt["history"][1]["lr"] == pytest.approx(profile.learning_rate(1, 2))
     )
+
+
+def test_bfloat16_and_fast_masks_train_resume_exactly_and_differ_from_float32(tmp_path: Path) -> None:
+    tr, va = _datasets()
+    fast = replace(PROFILE, dropout_p=0.2, precision="bfloat16", fast_dropout=True)
+    straight = train(tmp_path / "a", tr, va, fast, epochs=2, seed=5, progress=False)
+    train(tmp_path / "b", tr, va, fast, epochs=2, seed=5, progress=False, stop_after=1)
+    torch.manual_seed(999)  # a new process: other RNG states before resuming
+    resumed = train(tmp_path / "b", tr, va, fast, epochs=2, seed=5, resume=True, progress=False)
+    a, b = _weights(straight), _weights(resumed)
+    assert all(torch.equal(a[k], b[k]) for k in a)  # the masks' seeds follow PyTorch's checkpointed RNG
+    assert all(v.dtype != torch.bfloat16 for v in a.values())  # autocast: the weights stay float32
+    slow = _weights(train(tmp_path / "c", tr, va, replace(PROFILE, dropout_p=0.2), epochs=2, seed=5, progress=False))
+    assert not all(torch.equal(a[k], slow[k]) for k in a)
+    config = json.loads((tmp_path / "a" / "config.json").read_text())
+    assert config["profile"]["precision"] == "bfloat16" and config["profile"]["fast_dropout"] is True
+    # A loaded model draws nn.Dropout's masks: MC-dropout inference is the same whatever the training.
+    model, _ = load_trained_model(straight)
+    assert not any(m.fast_masks for m in model.dropout_modules())
