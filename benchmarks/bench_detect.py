@@ -88,10 +88,11 @@ def _run(profile: TrainingProfile, width: float, dem: np.ndarray) -> DetectRun:
     return DetectRun(Path("-"), model, {}, 0.0167, spec, LABELING["name"], LABELING, Lander(), (100, 100), 1.0, None)
 
 
-def untrained_checkpoint(path: Path, dem: np.ndarray) -> Path:
-    """A checkpoint of the cpu profile's network, untrained (timing needs no training), at ``path``:
-    what ``hd detect`` loads, labelled as :data:`LABELING` on 100 x 100 DEMs at 1.67 cm."""
-    run = _run(CPU, CPU.width, dem)
+def untrained_checkpoint(path: Path, dem: np.ndarray, profile: TrainingProfile = CPU) -> Path:
+    """A checkpoint of ``profile``'s network (default: the cpu profile's), untrained (timing needs no
+    training), at ``path``: what ``hd detect`` loads, labelled as :data:`LABELING` on 100 x 100 DEMs
+    at 1.67 cm."""
+    run = _run(profile, profile.width, dem)
     save_checkpoint(
         path,
         {
@@ -99,7 +100,7 @@ def untrained_checkpoint(path: Path, dem: np.ndarray) -> Path:
             "schema_version": CHECKPOINT_VERSION,
             "model_name": "bayesian_segnet",
             "model_config": run.model.config.to_dict(),
-            "profile": CPU.to_dict(),
+            "profile": profile.to_dict(),
             "epoch": 0,
             "model": run.model.state_dict(),
             "extra_config": {
