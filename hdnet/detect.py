@@ -68,6 +68,7 @@ from hdnet.data import (
     sigma_index,
 )
 from hdnet.detect_settings import DetectSettings
+from hdnet.engine import inference_model, laid_out
 from hdnet.errors import HdNetError
 from hdnet.evaluate import (
     checkpoint_path,
@@ -900,6 +901,7 @@ def detect_dem(
     seed: int = 0,
     batch_size: int = 8,
     progress: Callable[[int, int], None] | None = None,
+    layout: str = "channels-last",
 ) -> DetectMaps:
     """Hazard maps and ranked landing sites of a height array, in memory: ``hd detect`` without files.
 
@@ -936,6 +938,7 @@ def detect_dem(
         seed=seed,
         batch_size=batch_size,
         uncertainty=uncertainty,
+        layout=layout,
     )  # each value's kind and range, and the threshold's form, before the run is loaded
     score = uncertainty_score(settings.uncertainty)
     heights = _height_array(heights_m)
@@ -971,7 +974,18 @@ def detect_dem(
     )
     plan = TilePlan.make(terrain.shape, run.dem_shape, overlap_px(run.lander, run.spacing_m))
     maps = _maps_in_memory(
-        terrain, run, plan, h_t, sigma, settings.mc_samples, settings.batch_size, settings.seed, dev, progress, score
+        terrain,
+        run,
+        plan,
+        h_t,
+        sigma,
+        settings.mc_samples,
+        settings.batch_size,
+        settings.seed,
+        dev,
+        progress,
+        score,
+        layout=settings.layout,
     )
     sites = select_sites(
         maps["safety"],
@@ -1050,6 +1064,7 @@ def detect(
     upsample: bool = False,
     uncertainty: str = ENTROPY.name,
     window: MapWindow | tuple[float, float, float, float] | str | None = None,
+    layout: str = "channels-last",
 ) -> DetectResult:
     """Hazard maps and ranked landing sites of a DTM (``dtm``) or of one scan (``dataset`` + ``scan``).
 
@@ -1099,6 +1114,7 @@ def detect(
         seed=seed,
         batch_size=batch_size,
         uncertainty=uncertainty,
+        layout=layout,
     )  # each value's kind and range (its field's metadata)
     score = uncertainty_score(uncertainty)
     settings.check_inputs(dtm, dataset)
@@ -1146,7 +1162,19 @@ def detect(
             )
             timings["calibration"] = time.perf_counter() - t0
             counts, map_timings = _write_maps(
-                tmp, terrain, run, plan, h_t, baseline_sigma, mc_samples, batch_size, seed, dev, progress, score
+                tmp,
+                terrain,
+                run,
+                plan,
+                h_t,
+                baseline_sigma,
+                mc_samples,
+                batch_size,
+                seed,
+                dev,
+                progress,
+                score,
+                layout=settings.layout,
             )
             timings |= map_timings
             t0 = time.perf_counter()
@@ -1351,16 +1379,21 @@ def _map_strips(
     progress: Callable[[int, int], None] | None,
     uncertainty: UncertaintyScore,
     timings: dict[str, float],
+    *,
+    layout: str = "channels-last",
 ) -> Iterator[tuple[int, dict[str, np.ndarray]]]:
     """Step 4: every row of tiles through the network and the baseline; yields, per row of tiles, the
     first grid row it owns and its maps (``MAP_FIELDS``: owned rows, every column); a cell is
     uncertain where the score ``uncertainty`` is >= ``h_t``. Adds the seconds spent to ``timings``
-    (``MAP_TIMINGS``). ``hd detect`` writes the strips to its GeoTIFFs, ``detect_dem`` keeps them."""
+    (``MAP_TIMINGS``). ``hd detect`` writes the strips to its GeoTIFFs, ``detect_dem`` keeps them.
+    ``layout``: the network's memory layout (``hdnet.engine``: the same draws, the same maps within
+    round-off)."""
     # The baseline, like the network, takes the cells as the run's: the grid is within 2 % of that
     # spacing, and the lander's sampling (pads on grid nodes in the paper convention) is then exactly
     # the one of the training labels.
     spacing = run.spacing_m
     done = 0
+    model = inference_model(run.model, layout)
     torch.manual_seed(seed)
     if progress:
         progress(0, plan.n_tiles)
@@ -1376,7 +1409,7 @@ def _map_strips(
             if live:
                 t0 = time.perf_counter()
                 x = torch.cat([network_input(_scan_frame(dems[k], terrain), run, sigma_m) for k in live]).to(dev)
-                out_grid = mc_dropout_predict(run.model, x, n_samples=mc_samples).on_grid(
+                out_grid = mc_dropout_predict(model, laid_out(x, layout), n_samples=mc_samples).on_grid(
                     lambda t: network_output(t, run).cpu()
                 )
                 u_all = uncertainty.of(out_grid).numpy()
@@ -1424,6 +1457,8 @@ def _write_maps(
     dev: torch.device,
     progress: Callable[[int, int], None] | None,
     uncertainty: UncertaintyScore = ENTROPY,
+    *,
+    layout: str = "channels-last",
 ) -> tuple[dict[str, int], dict[str, float]]:
     """Step 4 (``hd detect``): the maps of ``_map_strips`` written strip by strip to the five GeoTIFFs;
     returns the counts of cells per safety code and the timings (seconds)."""
@@ -1440,7 +1475,19 @@ def _write_maps(
         for spec in MAPS
     }
     strips = _map_strips(
-        terrain, run, plan, h_t, sigma_m, mc_samples, batch_size, seed, dev, progress, uncertainty, timings
+        terrain,
+        run,
+        plan,
+        h_t,
+        sigma_m,
+        mc_samples,
+        batch_size,
+        seed,
+        dev,
+        progress,
+        uncertainty,
+        timings,
+        layout=layout,
     )
     with _writers(tmp, profiles) as dst:
         for r_lo, strip in strips:
@@ -1465,12 +1512,26 @@ def _maps_in_memory(
     dev: torch.device,
     progress: Callable[[int, int], None] | None,
     uncertainty: UncertaintyScore,
+    *,
+    layout: str = "channels-last",
 ) -> dict[str, np.ndarray]:
     """Step 4 (``detect_dem``): the maps of ``_map_strips`` as whole arrays (``MAP_FIELDS``)."""
     maps = {spec.field: np.full(terrain.shape, spec.nodata, spec.dtype) for spec in MAPS}
     timings = dict.fromkeys(MAP_TIMINGS, 0.0)
     for r_lo, strip in _map_strips(
-        terrain, run, plan, h_t, sigma_m, mc_samples, batch_size, seed, dev, progress, uncertainty, timings
+        terrain,
+        run,
+        plan,
+        h_t,
+        sigma_m,
+        mc_samples,
+        batch_size,
+        seed,
+        dev,
+        progress,
+        uncertainty,
+        timings,
+        layout=layout,
     ):
         for name, values in strip.items():
             maps[name][r_lo : r_lo + values.shape[0]] = values

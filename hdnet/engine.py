@@ -15,15 +15,13 @@ tests/hdnet/test_engine.py). ``"nchw"`` returns the model itself: the reference 
 from __future__ import annotations
 
 import copy
-from typing import Final
 
 import torch
 from torch import nn
 
+from hdnet.detect_settings import LAYOUTS
 from hdnet.errors import HdNetError
 from hdnet.model import MCDropout
-
-LAYOUTS: Final = ("channels-last", "nchw")
 
 
 class NCHWDrawDropout(MCDropout):

@@ -1,0 +1,106 @@
+"""hdnet.engine: the channels-last network draws PyTorch's MC-dropout masks, and hd detect's maps with
+it equal the reference (NCHW) maps within float round-off."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from scipy import ndimage
+
+from hdlabels.lander import Lander
+from hdnet.detect import DetectRun, detect_dem
+from hdnet.detect_settings import LAYOUTS, DetectSettings
+from hdnet.engine import NCHWDrawDropout, inference_model, laid_out
+from hdnet.errors import HdNetError
+from hdnet.fit import input_spec_for
+from hdnet.infer import mc_dropout_predict
+from hdnet.model import BayesianSegNet, MCDropout
+from hdnet.profiles import ROBUST
+
+LABELING = {"name": "l", "lander": Lander().to_attrs(), "dem": {"rows": 100, "cols": 100, "spacing_m": 1.0}}
+
+
+def _model(width: float = 0.25) -> BayesianSegNet:
+    """An untrained robust-profile network (narrow: seconds), BatchNorm statistics away from 0 / 1."""
+    torch.manual_seed(0)
+    spec = input_spec_for(ROBUST, 1.0, None)
+    model = BayesianSegNet(replace(ROBUST, width=width).model_config(spec.n_channels)).eval()
+    gen = torch.Generator().manual_seed(1)
+    for m in model.modules():
+        if isinstance(m, torch.nn.BatchNorm2d):
+            m.running_mean.uniform_(-0.5, 0.5, generator=gen)
+            m.running_var.uniform_(0.5, 2.0, generator=gen)
+    return model
+
+
+def test_nchw_draw_dropout_draws_torch_dropouts_mask_in_either_layout():
+    """For the same seed the mask of a channels-last input is torch.dropout's of the contiguous one,
+    bit for bit, and the output keeps the input's layout; in inference mode the input comes back."""
+    x = torch.randn(3, 5, 7, 9)
+    torch.manual_seed(4)
+    reference = torch.dropout(x, 0.2, True)
+    drop = NCHWDrawDropout(0.2).train()
+    torch.manual_seed(4)
+    out = drop(x.contiguous(memory_format=torch.channels_last))
+    assert torch.equal(out, reference) and out.is_contiguous(memory_format=torch.channels_last)
+    assert ((out == 0) | torch.isclose(out, x / 0.8)).all()  # kept cells scaled by 1 / (1 - p)
+    assert drop.eval()(x) is x
+
+
+def test_inference_model_layouts():
+    """nchw: the model itself; channels-last: a copy whose dropouts are NCHWDrawDropout (still
+    MCDropout, so MC-dropout mode finds them) and whose weights are channels-last; others refused."""
+    model = _model()
+    assert inference_model(model, "nchw") is model
+    fast = inference_model(model, "channels-last")
+    drops = [m for m in fast.modules() if isinstance(m, MCDropout)]
+    assert fast is not model and drops and all(isinstance(m, NCHWDrawDropout) for m in drops)
+    assert len(drops) == len([m for m in model.modules() if isinstance(m, MCDropout)])
+    conv = next(m for m in fast.modules() if isinstance(m, torch.nn.Conv2d))
+    assert conv.weight.is_contiguous(memory_format=torch.channels_last)
+    assert not any(isinstance(m, NCHWDrawDropout) for m in model.modules())  # the original is untouched
+    with pytest.raises(HdNetError, match="unknown network layout"):
+        inference_model(model, "nhwc")
+    with pytest.raises(HdNetError):
+        DetectSettings(layout="nhwc")
+    assert LAYOUTS == ("channels-last", "nchw") and DetectSettings().layout == "channels-last"
+
+
+def test_mc_dropout_with_channels_last_equals_nchw():
+    """The same seed gives the same MC samples: mean softmax and entropies within 1e-5."""
+    model = _model()
+    x = torch.randn(3, model.config.in_channels, 40, 40)
+    torch.manual_seed(7)
+    ref = mc_dropout_predict(model, x, n_samples=5)
+    fast = inference_model(model, "channels-last")
+    torch.manual_seed(7)
+    out = mc_dropout_predict(fast, laid_out(x, "channels-last"), n_samples=5)
+    torch.testing.assert_close(out.mean_probs, ref.mean_probs, rtol=0, atol=1e-5)
+    torch.testing.assert_close(out.entropy_nats, ref.entropy_nats, rtol=0, atol=1e-5)
+    torch.testing.assert_close(out.expected_entropy_nats, ref.expected_entropy_nats, rtol=0, atol=1e-5)
+    torch.manual_seed(8)  # another seed: other samples (the masks matter at this tolerance)
+    other = mc_dropout_predict(fast, laid_out(x, "channels-last"), n_samples=5)
+    assert (other.mean_probs - ref.mean_probs).abs().max() > 1e-3
+
+
+def test_detect_maps_with_channels_last_equal_the_reference_maps():
+    """detect_dem of a 150 x 150 DTM (four tiles, a nodata hole) with either layout: the same valid
+    cells, P(safe), entropy, mutual information and baseline within 1e-3 (float round-off: ~1e-6)."""
+    model = _model()
+    spec = input_spec_for(ROBUST, 1.0, None)
+    run = DetectRun(Path("-"), model, {}, 0.0167, spec, "l", LABELING, Lander(), (100, 100), 1.0, None)
+    rng = np.random.default_rng(5)
+    z = ndimage.gaussian_filter(rng.normal(0, 1.0, (150, 150)), 3)
+    z[60:70, 20:90] = np.nan
+    options = {"threshold": "nats:0.3", "mc_samples": 4, "seed": 1, "n_sites": 2, "batch_size": 3}
+    ref = detect_dem(run, z, layout="nchw", **options)
+    fast = detect_dem(run, z, layout="channels-last", **options)
+    assert np.array_equal(ref.valid, fast.valid) and ref.valid.sum() > 10_000
+    for name in ("p_safe", "entropy_nats", "mutual_information_nats", "baseline_p_safe"):
+        a, b = getattr(ref, name), getattr(fast, name)
+        assert np.nanmax(np.abs(a - b)) < 1e-3, name
+    assert np.nanstd(ref.p_safe) > 1e-3  # the maps vary: the comparison can fail
