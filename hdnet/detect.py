@@ -68,7 +68,7 @@ from hdnet.data import (
     sigma_index,
 )
 from hdnet.detect_settings import DetectSettings
-from hdnet.engine import inference_model, laid_out
+from hdnet.engine import inference_model, predict
 from hdnet.errors import HdNetError
 from hdnet.evaluate import (
     checkpoint_path,
@@ -78,7 +78,7 @@ from hdnet.evaluate import (
     validation_threshold,
 )
 from hdnet.fit import is_run_dir
-from hdnet.infer import MCPrediction, mc_dropout_predict
+from hdnet.infer import MCPrediction
 from hdnet.inputs import InputSpec, to_dem_grid
 from hdnet.inputs import network_input as prepare_input
 from hdnet.model import BayesianSegNet
@@ -1409,9 +1409,7 @@ def _map_strips(
             if live:
                 t0 = time.perf_counter()
                 x = torch.cat([network_input(_scan_frame(dems[k], terrain), run, sigma_m) for k in live]).to(dev)
-                out_grid = mc_dropout_predict(model, laid_out(x, layout), n_samples=mc_samples).on_grid(
-                    lambda t: network_output(t, run).cpu()
-                )
+                out_grid = predict(model, x, mc_samples, layout).on_grid(lambda t: network_output(t, run).cpu())
                 u_all = uncertainty.of(out_grid).numpy()
                 timings["network"] += time.perf_counter() - t0
             for j, k in enumerate(live):

@@ -28,7 +28,7 @@ from lidarsim.map_window import FORM, MAP_WINDOW, MapWindow
 from lidarsim.setting import check, setting
 
 # The network's memory layouts on the CPU (``hdnet.engine``): the fast one first, the reference last.
-LAYOUTS = ("channels-last", "nchw")
+LAYOUTS = ("channels-last", "channels-last-per-tile", "nchw")
 
 
 @dataclass(frozen=True)
@@ -91,7 +91,8 @@ class DetectSettings:
     layout: str = setting(
         "channels-last",
         "The network's memory layout on the CPU: channels-last (faster; the same MC-dropout draws, maps equal "
-        "to nchw's within float round-off, ~1e-5) or nchw (PyTorch's default, the reference)",
+        "to nchw's within float round-off, ~1e-4), channels-last-per-tile (the same, each tile's samples "
+        "through the network alone with its rows of the batch's masks) or nchw (PyTorch's default, the reference)",
         choices=LAYOUTS,
     )
 

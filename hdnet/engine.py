@@ -8,8 +8,11 @@ dropout does for a contiguous (NCHW) tensor of the same shape: one ``bernoulli_(
 logical NCHW order, divided by ``1 - p``. ``torch.dropout`` on a channels-last tensor draws in memory
 order instead, which would give other masks, so other samples and other maps; with the masks drawn
 in NCHW order the samples are today's draws and the maps differ from the NCHW network's only by the
-convolutions' round-off (float32: of order 1e-6 in P(safe) and entropy; pinned within 1e-3 by
-tests/hdnet/test_engine.py). ``"nchw"`` returns the model itself: the reference path.
+convolutions' round-off (float32; pinned within 1e-3 by tests/hdnet/test_engine.py).
+
+``"channels-last-per-tile"`` also runs each tile's M samples through the network alone
+(``predict_tile_by_tile``) with its rows of the masks drawn for the whole batch: the same draws
+again, M maps per pass instead of M * N. ``"nchw"`` is the model itself: the reference path.
 """
 
 from __future__ import annotations
@@ -21,23 +24,40 @@ from torch import nn
 
 from hdnet.detect_settings import LAYOUTS
 from hdnet.errors import HdNetError
-from hdnet.model import MCDropout
+from hdnet.infer import MCPrediction, mc_dropout_mode, mc_dropout_predict, predictive_entropy
+from hdnet.model import MCDropout, PrefixState
 
 
 class NCHWDrawDropout(MCDropout):
     """Element-wise dropout whose mask is drawn in the logical NCHW order whatever the input's memory
-    layout: the same draws as ``torch.dropout`` on a contiguous tensor of the input's shape."""
+    layout: the same draws as ``torch.dropout`` on a contiguous tensor of the input's shape.
+
+    ``predict_tile_by_tile`` drives it in two more ways: ``shapes`` (a list) records the module and
+    its input's shape, in the order they are applied, without drawing or dropping; ``mask`` (a
+    tensor) is applied instead of a fresh draw."""
+
+    def __init__(self, p: float) -> None:
+        super().__init__(p)
+        self.shapes: list[tuple[NCHWDrawDropout, torch.Size]] | None = None
+        self.mask: torch.Tensor | None = None
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """``x`` times the mask over ``1 - p`` while sampling; ``x`` itself in inference mode."""
+        if self.shapes is not None:
+            self.shapes.append((self, x.shape))
+            return x
         if not self.training or self.p == 0.0:
             return x
-        keep = 1.0 - self.p
-        noise = torch.empty(x.shape, dtype=x.dtype, device=x.device).bernoulli_(keep)
-        noise.div_(keep)
+        noise = self.mask if self.mask is not None else self.draw(x.shape, x.dtype, x.device)
         if x.is_contiguous(memory_format=torch.channels_last):
             noise = noise.contiguous(memory_format=torch.channels_last)  # the product stays channels-last
         return x * noise
+
+    def draw(self, shape: torch.Size | tuple[int, ...], dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+        """torch.dropout's noise for a contiguous tensor of ``shape``: Bernoulli(1 - p) over 1 - p."""
+        keep = 1.0 - self.p
+        noise = torch.empty(shape, dtype=dtype, device=device).bernoulli_(keep)
+        return noise.div_(keep)
 
 
 def _swap_dropouts(module: nn.Module) -> None:
@@ -59,7 +79,7 @@ def inference_model(model: nn.Module, layout: str) -> nn.Module:
     """
     if layout == "nchw":
         return model
-    if layout != "channels-last":
+    if layout not in LAYOUTS:
         raise HdNetError(f"unknown network layout {layout!r}: one of {', '.join(LAYOUTS)}.")
     net = copy.deepcopy(model)
     _swap_dropouts(net)
@@ -68,4 +88,64 @@ def inference_model(model: nn.Module, layout: str) -> nn.Module:
 
 def laid_out(x: torch.Tensor, layout: str) -> torch.Tensor:
     """The network input ``x`` (N, C, H, W) in ``layout``'s memory format (values unchanged)."""
-    return x.contiguous(memory_format=torch.channels_last) if layout == "channels-last" else x
+    return x if layout == "nchw" else x.contiguous(memory_format=torch.channels_last)
+
+
+def predict(model: nn.Module, x: torch.Tensor, n_samples: int, layout: str) -> MCPrediction:
+    """MC dropout of ``x`` (N, in_channels, H, W) with ``inference_model(..., layout)``'s ``model``:
+    ``predict_tile_by_tile`` for ``channels-last-per-tile``, else ``hdnet.infer.mc_dropout_predict``."""
+    x = laid_out(x, layout)
+    if layout == "channels-last-per-tile":
+        return predict_tile_by_tile(model, x, n_samples)
+    return mc_dropout_predict(model, x, n_samples=n_samples)
+
+
+def _dropouts(net: nn.Module) -> list[NCHWDrawDropout]:
+    drops = [m for m in net.modules() if isinstance(m, NCHWDrawDropout)]
+    if not drops:
+        raise HdNetError("tile-by-tile MC dropout needs a model made by inference_model(model, 'channels-last').")
+    return drops
+
+
+def _tiles(state: PrefixState, lo: int, hi: int) -> PrefixState:
+    return PrefixState(state.features[lo:hi], tuple(i[lo:hi] for i in state.indices), state.sizes, state.input_hw)
+
+
+@torch.no_grad()
+def predict_tile_by_tile(model: nn.Module, x: torch.Tensor, n_samples: int) -> MCPrediction:
+    """``hdnet.infer.mc_dropout_predict(model, x, n_samples)``'s samples, computed one input at a time.
+
+    The batch's masks are drawn first, layer by layer in the order the suffix applies them and with
+    the shapes of the whole sample-major batch (M * N, C, H, W): the draws ``mc_dropout_predict``
+    makes, so the same samples. Then each input's M samples go through the suffix alone, with its
+    rows of the masks: M maps per pass instead of M * N, whose activations stay in the CPU's caches
+    (docs/benchmarks.md, "Detection": a batch of 8 costs 2x per frame). ``model``: from
+    ``inference_model(model, "channels-last")``; ``x``: (N, in_channels, H, W).
+    """
+    with mc_dropout_mode(model) as net:
+        drops = _dropouts(net)
+        state = net.prefix(x)
+        n = x.shape[0]
+        recorded: list[tuple[NCHWDrawDropout, torch.Size]] = []
+        try:
+            for drop in drops:
+                drop.shapes = recorded
+            net.suffix(_tiles(state, 0, 1))  # the dropouts' input shapes, nothing drawn
+        finally:
+            for drop in drops:
+                drop.shapes = None
+        applied = [drop for drop, _ in recorded]
+        masks = [drop.draw((n_samples * n, *shape[1:]), x.dtype, x.device) for drop, shape in recorded]
+        parts = []
+        try:
+            for k in range(n):
+                for drop, mask in zip(applied, masks, strict=True):
+                    drop.mask = mask.view(n_samples, n, *mask.shape[1:])[:, k]
+                probs = torch.softmax(net.suffix(_tiles(state, k, k + 1).repeat(n_samples)), dim=1)
+                parts.append((probs.sum(dim=0), predictive_entropy(probs.float(), dim=1).sum(dim=0)))
+        finally:
+            for drop in drops:
+                drop.mask = None
+        mean_probs = torch.stack([p for p, _ in parts]) / n_samples
+        entropy = torch.stack([e for _, e in parts]) / n_samples
+        return MCPrediction(mean_probs, mean_probs.argmax(dim=1), predictive_entropy(mean_probs), entropy)

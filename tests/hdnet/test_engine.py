@@ -14,7 +14,7 @@ from scipy import ndimage
 from hdlabels.lander import Lander
 from hdnet.detect import DetectRun, detect_dem
 from hdnet.detect_settings import LAYOUTS, DetectSettings
-from hdnet.engine import NCHWDrawDropout, inference_model, laid_out
+from hdnet.engine import NCHWDrawDropout, inference_model, laid_out, predict_tile_by_tile
 from hdnet.errors import HdNetError
 from hdnet.fit import input_spec_for
 from hdnet.infer import mc_dropout_predict
@@ -67,7 +67,9 @@ def test_inference_model_layouts():
         inference_model(model, "nhwc")
     with pytest.raises(HdNetError):
         DetectSettings(layout="nhwc")
-    assert LAYOUTS == ("channels-last", "nchw") and DetectSettings().layout == "channels-last"
+    assert LAYOUTS == ("channels-last", "channels-last-per-tile", "nchw") and DetectSettings().layout == "channels-last"
+    with pytest.raises(HdNetError, match="inference_model"):
+        predict_tile_by_tile(model, torch.zeros(1, model.config.in_channels, 8, 8), 2)
 
 
 def test_mc_dropout_with_channels_last_equals_nchw():
@@ -82,13 +84,19 @@ def test_mc_dropout_with_channels_last_equals_nchw():
     torch.testing.assert_close(out.mean_probs, ref.mean_probs, rtol=0, atol=1e-5)
     torch.testing.assert_close(out.entropy_nats, ref.entropy_nats, rtol=0, atol=1e-5)
     torch.testing.assert_close(out.expected_entropy_nats, ref.expected_entropy_nats, rtol=0, atol=1e-5)
+    torch.manual_seed(7)
+    per_tile = predict_tile_by_tile(fast, laid_out(x, "channels-last"), 5)  # each input alone, the batch's masks
+    torch.testing.assert_close(per_tile.mean_probs, ref.mean_probs, rtol=0, atol=1e-5)
+    torch.testing.assert_close(per_tile.entropy_nats, ref.entropy_nats, rtol=0, atol=1e-5)
+    torch.testing.assert_close(per_tile.expected_entropy_nats, ref.expected_entropy_nats, rtol=0, atol=1e-5)
+    assert torch.equal(per_tile.prediction, per_tile.mean_probs.argmax(dim=1))
     torch.manual_seed(8)  # another seed: other samples (the masks matter at this tolerance)
     other = mc_dropout_predict(fast, laid_out(x, "channels-last"), n_samples=5)
     assert (other.mean_probs - ref.mean_probs).abs().max() > 1e-3
 
 
 def test_detect_maps_with_channels_last_equal_the_reference_maps():
-    """detect_dem of a 150 x 150 DTM (four tiles, a nodata hole) with either layout: the same valid
+    """detect_dem of a 150 x 150 DTM (four tiles, a nodata hole) with each layout: the same valid
     cells, P(safe), entropy, mutual information and baseline within 1e-3 (float round-off: ~1e-6)."""
     model = _model()
     spec = input_spec_for(ROBUST, 1.0, None)
@@ -98,9 +106,10 @@ def test_detect_maps_with_channels_last_equal_the_reference_maps():
     z[60:70, 20:90] = np.nan
     options = {"threshold": "nats:0.3", "mc_samples": 4, "seed": 1, "n_sites": 2, "batch_size": 3}
     ref = detect_dem(run, z, layout="nchw", **options)
-    fast = detect_dem(run, z, layout="channels-last", **options)
-    assert np.array_equal(ref.valid, fast.valid) and ref.valid.sum() > 10_000
-    for name in ("p_safe", "entropy_nats", "mutual_information_nats", "baseline_p_safe"):
-        a, b = getattr(ref, name), getattr(fast, name)
-        assert np.nanmax(np.abs(a - b)) < 1e-3, name
+    for layout in ("channels-last", "channels-last-per-tile"):
+        fast = detect_dem(run, z, layout=layout, **options)
+        assert np.array_equal(ref.valid, fast.valid) and ref.valid.sum() > 10_000
+        for name in ("p_safe", "entropy_nats", "mutual_information_nats", "baseline_p_safe"):
+            a, b = getattr(ref, name), getattr(fast, name)
+            assert np.nanmax(np.abs(a - b)) < 1e-3, (layout, name)
     assert np.nanstd(ref.p_safe) > 1e-3  # the maps vary: the comparison can fail
