@@ -1,11 +1,12 @@
-"""hd detect at area scale: today's network layout (NCHW) against channels-last on the same Jezero crop.
+"""hd detect at area scale: today's network layout (NCHW) against channels-last on one Jezero crop.
 
 Prints, measured side by side in one run on one square crop of the Jezero DTM (datasets/mars-jezero,
 3.69 m posts interpolated to the run's 1 m, as ``hd detect --upsample`` does; default 1 km^2) with
 the robust profile's network (width 3/4, untrained weights: speed does not depend on training), a
 fixed threshold and M = 8:
 
-* for each layout (``DetectSettings.layout``): seconds end to end, s/km^2, and where they went
+* for each layout (``DetectSettings.layout``: nchw, today's path; channels-last; channels-last with
+  each tile's samples through the network alone): seconds end to end, s/km^2, and where they went
   (``detect.json``'s timings: network, baseline, read, write, sites, overview);
 * max |delta P(safe)|, max |delta entropy| and max |delta mutual information| between the two
   layouts' maps (the same MC-dropout draws: round-off only), and whether the valid cells agree;
@@ -14,7 +15,7 @@ fixed threshold and M = 8:
 * the CPU model, torch's threads and the load average before and after (other jobs share the cores:
   read the ratio, measured in the same run).
 
-Usage: python benchmarks/bench_detect_area.py [--area 1.0] [--samples 8] [--order nchw,channels-last]
+Usage: python benchmarks/bench_detect_area.py [--area 1.0] [--samples 8] [--order nchw,channels-last,...]
 """
 
 from __future__ import annotations
@@ -70,7 +71,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--area", type=float, default=1.0, help="crop of the Jezero DTM, km^2")
     parser.add_argument("--samples", type=int, default=8)
-    parser.add_argument("--order", default="nchw,channels-last", help="the layouts, in the order they run")
+    parser.add_argument(
+        "--order",
+        default="nchw,channels-last,channels-last-per-tile",
+        help="the layouts, in the order they run; the first is the reference the others are compared with",
+    )
     args = parser.parse_args()
     layouts = args.order.split(",")
     load_before = os.getloadavg()
@@ -99,14 +104,14 @@ def main() -> None:
             results[layout] = {"seconds": time.perf_counter() - t0, **result.timings_s}
             n_tiles = result.info["tiling"]["n_tiles"]
         print(f"\nJezero crop {km2:.2f} km^2 at 1 m ({n_tiles} tiles of 100 x 100)")
-        print(f"{'layout':15s} {'s':>7s} {'s/km^2':>7s} {'network':>8s} {'baseline':>9s} {'read':>5s} {'write':>6s}")
+        print(f"{'layout':22s} {'s':>7s} {'s/km^2':>7s} {'network':>8s} {'baseline':>9s} {'read':>5s} {'write':>6s}")
         for layout, r in results.items():
             print(
-                f"{layout:15s} {r['seconds']:7.1f} {r['seconds'] / km2:7.1f} {r['network']:8.1f} {r['baseline']:9.1f} "
+                f"{layout:22s} {r['seconds']:7.1f} {r['seconds'] / km2:7.1f} {r['network']:8.1f} {r['baseline']:9.1f} "
                 f"{r['read']:5.1f} {r['write']:6.1f}   (sites {r['sites']:.1f}, overview {r['overview']:.1f})"
             )
-        ref, new = layouts[0], layouts[-1]
-        if ref != new:
+        ref = layouts[0]
+        for new in layouts[1:]:
             print(f"\n{new} against {ref}, the same draws:")
             for name in MAPS:
                 a, b = _read(tmp / ref, name), _read(tmp / new, name)
@@ -119,7 +124,7 @@ def main() -> None:
     print(f"\nthe {FLOOR_KM2} km^2 Jezero floor, extrapolated linearly in area (target {TARGET_S:.0f} s):")
     for layout, r in results.items():
         floor = r["seconds"] / km2 * FLOOR_KM2
-        print(f"  {layout:15s} {floor:7.0f} s = {floor / TARGET_S:.1f}x the target")
+        print(f"  {layout:22s} {floor:7.0f} s = {floor / TARGET_S:.1f}x the target")
     load_after = os.getloadavg()
     print(f"\nload average after {load_after[0]:.1f} / {load_after[1]:.1f} (1 / 5 min)")
 
