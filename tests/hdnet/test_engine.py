@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -32,6 +33,7 @@ def _model(width: float = 0.25) -> BayesianSegNet:
     gen = torch.Generator().manual_seed(1)
     for m in model.modules():
         if isinstance(m, torch.nn.BatchNorm2d):
+            assert m.running_mean is not None and m.running_var is not None
             m.running_mean.uniform_(-0.5, 0.5, generator=gen)
             m.running_var.uniform_(0.5, 2.0, generator=gen)
     return model
@@ -104,7 +106,7 @@ def test_detect_maps_with_channels_last_equal_the_reference_maps():
     rng = np.random.default_rng(5)
     z = ndimage.gaussian_filter(rng.normal(0, 1.0, (150, 150)), 3)
     z[60:70, 20:90] = np.nan
-    options = {"threshold": "nats:0.3", "mc_samples": 4, "seed": 1, "n_sites": 2, "batch_size": 3}
+    options: dict[str, Any] = {"threshold": "nats:0.3", "mc_samples": 4, "seed": 1, "n_sites": 2, "batch_size": 3}
     ref = detect_dem(run, z, layout="nchw", **options)
     for layout in ("channels-last", "channels-last-per-tile"):
         fast = detect_dem(run, z, layout=layout, **options)
