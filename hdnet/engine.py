@@ -118,8 +118,9 @@ def predict_tile_by_tile(model: nn.Module, x: torch.Tensor, n_samples: int) -> M
     The batch's masks are drawn first, layer by layer in the order the suffix applies them and with
     the shapes of the whole sample-major batch (M * N, C, H, W): the draws ``mc_dropout_predict``
     makes, so the same samples. Then each input's M samples go through the suffix alone, with its
-    rows of the masks: M maps per pass instead of M * N, whose activations stay in the CPU's caches
-    (docs/benchmarks.md, "Detection": a batch of 8 costs 2x per frame). ``model``: from
+    rows of the masks: M maps per pass instead of M * N, the batch shape "Detection" in
+    docs/benchmarks.md found cheaper per frame at width 1/2 (at width 3/4 it measured slower:
+    "Detection at area scale"). ``model``: from
     ``inference_model(model, "channels-last")``; ``x``: (N, in_channels, H, W).
     """
     with mc_dropout_mode(model) as net:
