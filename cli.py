@@ -338,7 +338,9 @@ def detect_cmd(
     from hdnet.detect_job import detect_job
 
     with ScanProgress("tiles", unit="tile") as progress:
-        _done(detect_job(run_dir, out_dir, dtm_path, dataset, DetectSettings(**settings), overwrite, progress))
+        _done(
+            detect_job(run_dir, out_dir, dtm_path, dataset, DetectSettings(**settings, overwrite=overwrite), progress)
+        )
 
 
 @main.command("demo")

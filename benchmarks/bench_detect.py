@@ -50,6 +50,7 @@ from hdnet.detect import (
     network_output,
     select_sites,
 )
+from hdnet.detect_settings import DetectSettings
 from hdnet.fit import input_spec_for
 from hdnet.infer import mc_dropout_predict, predictive_entropy
 from hdnet.inputs import Normalisation, network_shape
@@ -203,7 +204,9 @@ def main() -> None:
             write_geotiff(dtm, big, 0.5, origin_xy=(0.0, args.dtm_size))
             ckpt = untrained_checkpoint(Path(tmp) / "run.pt", dem)
             t0 = time.perf_counter()
-            result = detect(ckpt, Path(tmp) / "out", dtm=dtm, threshold="nats:0.35", mc_samples=args.samples)
+            result = detect(
+                ckpt, Path(tmp) / "out", DetectSettings(threshold="nats:0.35", mc_samples=args.samples), dtm=dtm
+            )
             total = time.perf_counter() - t0
             n = result.info["tiling"]["n_tiles"]
             km2 = (args.dtm_size / 1000.0) ** 2

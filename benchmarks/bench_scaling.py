@@ -114,6 +114,7 @@ def child_detect(area_km2: float, tmp: Path) -> None:
     from bench_detect import untrained_checkpoint
 
     from hdnet.detect import detect
+    from hdnet.detect_settings import DetectSettings
     from lidarsim.procedural import write_geotiff
     from lidarsim.terrain import DTM
 
@@ -129,7 +130,7 @@ def child_detect(area_km2: float, tmp: Path) -> None:
     dem = np.zeros((100, 100))
     ckpt = untrained_checkpoint(tmp / "run.pt", dem)
     t0 = time.perf_counter()
-    detect(ckpt, tmp / "out", dtm=crop, threshold="nats:0.35", mc_samples=8, upsample=True)
+    detect(ckpt, tmp / "out", DetectSettings(threshold="nats:0.35", mc_samples=8, upsample=True), dtm=crop)
     wall = time.perf_counter() - t0
     km2 = (side * info.spacing_m[0]) ** 2 / 1e6
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024

@@ -101,7 +101,7 @@ from hdnet.tiling import TilePlan
 from hdnet.train import load_trained_model
 from hdnet.uncertainty import ENTROPY, UncertaintyScore, recorded_score, uncertainty_score, with_score
 from lidarsim.base_relief import resample_bilinear
-from lidarsim.errors import HdError, HdWarning, LidarsimError, TerrainError
+from lidarsim.errors import HdError, HdWarning, TerrainError
 from lidarsim.location import dataset_at, dataset_key, has_manifest, manifest_sha256
 from lidarsim.map_window import MapWindow, WindowCells, bounds_text, grid_bounds, window_cells
 from lidarsim.procedural import geotiff_bytes, geotiff_profile
@@ -674,18 +674,6 @@ def trained_on(run: DetectRun, dataset: Path | str, source_sha256: str) -> bool:
 
 
 # --- options -----------------------------------------------------------------------------------------
-def _map_window(value: MapWindow | tuple[float, float, float, float] | str) -> MapWindow:
-    """The window of ``detect(window=...)``: a ``MapWindow``, four numbers or their text, checked.
-
-    Raises:
-        LidarsimError: not four finite numbers with xmin < xmax and ymin < ymax.
-    """
-    try:
-        return MapWindow.of(value)
-    except LidarsimError as exc:
-        raise type(exc)(f"--window: {exc}") from exc
-
-
 def _fixed_threshold(spec: str) -> float | None:
     """H_t of a ``nats:H`` spec (H >= 0 nats, 'inf' allowed), or None for the calibrated specs."""
     parsed = parse_threshold_spec(spec)
@@ -1045,162 +1033,140 @@ def _check_grid(transform: Affine, run: DetectRun) -> None:
 def detect(
     run_dir: str | os.PathLike,
     out_dir: str | os.PathLike,
+    settings: DetectSettings | None = None,
     *,
     dtm: str | os.PathLike | None = None,
     dataset: str | os.PathLike | None = None,
-    scan: int | None = None,
-    mc_samples: int = defaults.MC_SAMPLES,
-    threshold: str = defaults.THRESHOLD_SPEC,
-    sigma_m: float | None = None,
-    n_sites: int = 10,
-    nav_sigma_m: float = 0.0,
-    overwrite: bool = False,
-    seed: int = 0,
-    batch_size: int = 8,
-    labels: str | None = None,
-    device: str | None = None,
     progress: Callable[[int, int], None] | None = None,
-    calibrate: str = "reference",
-    upsample: bool = False,
-    uncertainty: str = ENTROPY.name,
-    window: MapWindow | tuple[float, float, float, float] | str | None = None,
-    layout: str = "channels-last",
 ) -> DetectResult:
-    """Hazard maps and ranked landing sites of a DTM (``dtm``) or of one scan (``dataset`` + ``scan``).
+    """Hazard maps and ranked landing sites of a DTM (``dtm``) or of one scan (``dataset`` + ``settings.scan``)
+    as ``settings`` says (default: ``DetectSettings()``; each field's meaning, unit and range are its metadata,
+    ``hdnet.detect_settings``).
 
-    ``upsample``: a DTM coarser than the run's DEM spacing is interpolated bilinearly to it (recorded
+    ``settings.upsample``: a DTM coarser than the run's DEM spacing is interpolated bilinearly to it (recorded
     in ``detect.json`` under ``input.upsampled``) instead of being refused.
 
-    ``window`` (with ``dtm``): the map rectangle ``(xmin, ymin, xmax, ymax)`` (metres in the DTM's
-    CRS; also its text ``"xmin,ymin,xmax,ymax"``) to map: the cells it overlaps
-    (``lidarsim.map_window``) are read and mapped as if they were the whole DTM (the maps' grid,
-    the tiling and the sites are the window's), and ``detect.json`` records it under
-    ``input.window``; a window reaching past the DTM is clipped to it with a warning.
+    ``settings.window`` (with ``dtm``): the map rectangle (metres in the DTM's CRS) to map: the cells it
+    overlaps (``lidarsim.map_window``) are read and mapped as if they were the whole DTM (the maps' grid,
+    the tiling and the sites are the window's), and ``detect.json`` records it under ``input.window``; a
+    window reaching past the DTM is clipped to it with a warning.
 
-    ``sigma_m`` (metres): the baseline's DEM noise (default: the run's training sigma); with a scan,
-    also the noise level of the DEM taken. ``threshold``: ``mean``, ``quantile:Q``, ``risk:ALPHA``
-    (calibrated on the validation split at the training sigma of the run's dataset, or of
-    ``dataset`` with a scan, as ``hd eval`` does) or ``nats:H`` (fixed); ``calibrate``: ``reference``
-    (at the run's reference noise level) or ``each`` (at the sensor's ``sigma_m``, guarded above the
-    run's training levels; ``hd eval --calibrate``); ``uncertainty``: the score H_t applies to
-    (``entropy``, the paper's, or ``mutual-information``: ``hdnet.uncertainty``; calibrated on that
-    score of the validation split; ``mutual_information.tif`` is written either way). ``progress``
-    is called with (tiles done, tiles total). Runs that take the noise level as an input receive
-    ``sigma_m``. ``nav_sigma_m`` (metres, 1-sigma per horizontal axis): the navigation dispersion the
-    sites are ranked with (``select_sites``; recorded in ``detect.json`` under ``site_rule``).
+    ``settings.sigma_m`` (metres): the baseline's DEM noise (default: the run's training sigma); with a scan,
+    also the noise level of the DEM taken. ``settings.threshold``: ``mean``, ``quantile:Q``, ``risk:ALPHA``
+    (calibrated on the validation split at the training sigma of the run's dataset, or of ``dataset`` with a
+    scan, as ``hd eval`` does) or ``nats:H`` (fixed); ``settings.calibrate``: ``reference`` (at the run's
+    reference noise level) or ``each`` (at the sensor's ``sigma_m``, guarded above the run's training levels;
+    ``hd eval --calibrate``); ``settings.uncertainty``: the score H_t applies to (``entropy``, the paper's, or
+    ``mutual-information``: ``hdnet.uncertainty``; calibrated on that score of the validation split;
+    ``mutual_information.tif`` is written either way). ``progress`` is called with (tiles done, tiles total).
+    Runs that take the noise level as an input receive ``sigma_m``. ``settings.nav_sigma_m`` (metres, 1-sigma
+    per horizontal axis): the navigation dispersion the sites are ranked with (``select_sites``; recorded in
+    ``detect.json`` under ``site_rule``).
 
-    Raises:
-        HdNetError / TerrainError: bad options, a missing or foreign run, an unusable DTM (geographic
-        CRS, coarser than the run's spacing, smaller than one lander footprint, all nodata), a scan
-        not in the dataset. Nothing is written then.
-        StorageError / OutputExistsError: an ``out_dir`` that is, holds or lies inside an input (the
-        run, its checkpoint or dataset, the DTM, the dataset), that holds an earlier output without
-        ``overwrite`` or anything else, or that another process is writing.
+        Raises:
+            HdNetError / TerrainError: bad options, a missing or foreign run, an unusable DTM (geographic
+            CRS, coarser than the run's spacing, smaller than one lander footprint, all nodata), a scan
+            not in the dataset. Nothing is written then.
+            StorageError / OutputExistsError: an ``out_dir`` that is, holds or lies inside an input (the
+            run, its checkpoint or dataset, the DTM, the dataset), that holds an earlier output without
+            ``overwrite`` or anything else, or that another process is writing.
     """
     t_start = time.perf_counter()
-    fixed = _fixed_threshold(threshold)
-    spec = parse_threshold_spec(threshold) if fixed is None else None
-    settings = DetectSettings(
-        scan=scan,
-        mc_samples=mc_samples,
-        threshold=threshold,
-        sigma_m=sigma_m,
-        calibrate=calibrate,
-        n_sites=n_sites,
-        nav_sigma_m=nav_sigma_m,
-        upsample=upsample,
-        window=None if window is None else _map_window(window),
-        labels=labels,
-        seed=seed,
-        batch_size=batch_size,
-        uncertainty=uncertainty,
-        layout=layout,
-    )  # each value's kind and range (its field's metadata)
-    score = uncertainty_score(uncertainty)
+    settings = settings if settings is not None else DetectSettings()
+    spec = parse_threshold_spec(settings.threshold) if _fixed_threshold(settings.threshold) is None else None
     settings.check_inputs(dtm, dataset)
     # the paths, the labelling and the window, before the run is loaded
-    check_inputs(run_dir, dataset, labels, dtm=dtm, window=settings.window)
+    check_inputs(run_dir, dataset, settings.labels, dtm=dtm, window=settings.window)
     output = output_dir(out_dir, {"the run": run_dir, "the DTM": dtm, "the dataset": dataset})
     output.check_place()  # a usable path that is no input, before the run is even loaded
-    dev = _device(device or None)
+    dev = _device(settings.device or None)
     run = load_run(run_dir, dev)
     _warn_if_unfinished(run)
     output.add_inputs({"the checkpoint": run.checkpoint, "the run's dataset": run.dataset})
-    out = output.check(overwrite)
-    baseline_sigma = run.train_sigma_m if sigma_m is None else float(sigma_m)
+    out = output.check(settings.overwrite)
+    baseline_sigma = run.train_sigma_m if settings.sigma_m is None else float(settings.sigma_m)
     terrain, calib_dirs, calib_labels = _open_terrain(
-        run, dtm, dataset, scan, labels, baseline_sigma, upsample, settings.window
+        run, dtm, dataset, settings.scan, settings.labels, baseline_sigma, settings.upsample, settings.window
     )
     if isinstance(terrain, _ScanTerrain):
         baseline_sigma = terrain.sigma_m
-        if terrain.provenance["split"] == "train" and trained_on(run, terrain.dataset, terrain.source_sha256):
-            terrain.provenance["seen_in_training"] = True
-            warnings.warn(
-                f"scan {scan} is in the training split of {dataset}, on which the run was trained: the network "
-                "has seen it, so its maps are not those of unseen terrain; map a scan of the test split (or a DTM)",
-                HdWarning,
-                stacklevel=2,
-            )
+        _warn_if_seen(run, terrain, settings.scan, dataset)
     try:
         _check_calibration_data(run, spec, calib_dirs)
         plan = TilePlan.make(terrain.shape, run.dem_shape, overlap_px(run.lander, run.spacing_m))
-        with output.open(overwrite) as tmp:
-            timings: dict[str, float] = {}
-            t0 = time.perf_counter()
-            h_t, threshold_info = _threshold(
-                run,
-                threshold,
-                calib_dirs,
-                calib_labels,
-                mc_samples,
-                batch_size,
-                seed,
-                dev,
-                calibrate,
-                baseline_sigma,
-                score,
+        with output.open(settings.overwrite) as tmp:
+            result = _detect_into(
+                tmp, out, run, terrain, plan, settings, (calib_dirs, calib_labels), baseline_sigma, dev, progress
             )
-            timings["calibration"] = time.perf_counter() - t0
-            counts, map_timings = _write_maps(
-                tmp,
-                terrain,
-                run,
-                plan,
-                h_t,
-                baseline_sigma,
-                mc_samples,
-                batch_size,
-                seed,
-                dev,
-                progress,
-                score,
-                layout=settings.layout,
-            )
-            timings |= map_timings
-            t0 = time.perf_counter()
-            sites = _write_sites(tmp, terrain, run, n_sites, nav_sigma_m)
-            timings["sites"] = time.perf_counter() - t0
-            t0 = time.perf_counter()
-            _overview(tmp, terrain, sites, run, h_t, baseline_sigma, score)
-            timings["overview"] = time.perf_counter() - t0
-            timings["total"] = time.perf_counter() - t_start
-            info = _info(
-                run,
-                terrain,
-                plan,
-                threshold_info,
-                baseline_sigma,
-                mc_samples,
-                seed,
-                counts,
-                sites,
-                timings,
-                nav_sigma_m,
-            )
-            write_json_atomic(tmp / "detect.json", json_plain(info))
+            result.timings_s["total"] = round(time.perf_counter() - t_start, 3)
+            result.info["timings_s"]["total"] = result.timings_s["total"]
+            write_json_atomic(tmp / "detect.json", json_plain(result.info))
             output.commit()
     finally:
         terrain.close()
+    return result
+
+
+def _warn_if_seen(run: DetectRun, terrain: _ScanTerrain, scan: int | None, dataset: str | os.PathLike | None) -> None:
+    """Step 2b: mark (and warn about) a scan of the training split of the data the run was trained on."""
+    if terrain.provenance["split"] == "train" and trained_on(run, terrain.dataset, terrain.source_sha256):
+        terrain.provenance["seen_in_training"] = True
+        warnings.warn(
+            f"scan {scan} is in the training split of {dataset}, on which the run was trained: the network "
+            "has seen it, so its maps are not those of unseen terrain; map a scan of the test split (or a DTM)",
+            HdWarning,
+            stacklevel=3,
+        )
+
+
+def _detect_into(
+    tmp: Path,
+    out: Path,
+    run: DetectRun,
+    terrain: _Terrain,
+    plan: TilePlan,
+    settings: DetectSettings,
+    calibration: tuple[tuple[Path | str, ...], str],
+    baseline_sigma: float,
+    dev: torch.device,
+    progress: Callable[[int, int], None] | None,
+) -> DetectResult:
+    """Step 3: the threshold, the maps, the sites and the overview written into ``tmp`` (the output's
+    temporary directory), with the record of ``detect.json`` (its total time filled in by the caller)."""
+    s = settings
+    score = uncertainty_score(s.uncertainty)
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    h_t, threshold_info = _threshold(
+        run, s.threshold, *calibration, s.mc_samples, s.batch_size, s.seed, dev, s.calibrate, baseline_sigma, score
+    )
+    timings["calibration"] = time.perf_counter() - t0
+    counts, map_timings = _write_maps(
+        tmp,
+        terrain,
+        run,
+        plan,
+        h_t,
+        baseline_sigma,
+        s.mc_samples,
+        s.batch_size,
+        s.seed,
+        dev,
+        progress,
+        score,
+        layout=s.layout,
+    )
+    timings |= map_timings
+    t0 = time.perf_counter()
+    sites = _write_sites(tmp, terrain, run, s.n_sites, s.nav_sigma_m)
+    timings["sites"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    _overview(tmp, terrain, sites, run, h_t, baseline_sigma, score)
+    timings["overview"] = time.perf_counter() - t0
+    info = _info(
+        run, terrain, plan, threshold_info, baseline_sigma, s.mc_samples, s.seed, counts, sites, timings, s.nav_sigma_m
+    )
+    info["network_layout"] = s.layout  # hdnet.engine: the same draws; the maps within round-off of nchw's
     return DetectResult(out, sites, h_t, counts, {k: round(v, 3) for k, v in timings.items()}, info)
 
 

@@ -6,7 +6,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Callable
 from pathlib import Path
 
@@ -20,7 +19,6 @@ def detect_job(
     dtm: Path | None,
     dataset: Path | str | None,
     settings: DetectSettings,
-    overwrite: bool,
     progress: Callable[[int, int], None] | None = None,
 ) -> Done:
     """Map ``dtm`` (or the scan ``settings.scan`` of ``dataset``) with the run ``run_dir`` into ``out_dir``.
@@ -38,14 +36,6 @@ def detect_job(
 
     from hdnet.detect import detect
 
-    result = detect(
-        run_dir,
-        out_dir,
-        dtm=dtm,
-        dataset=dataset,
-        overwrite=overwrite,
-        progress=progress,
-        **dataclasses.asdict(settings),
-    )
+    result = detect(run_dir, out_dir, settings, dtm=dtm, dataset=dataset, progress=progress)
     lines = [result.summary(), f"maps, sites.csv, sites.geojson, overview.png and detect.json in {out_dir}"]
     return Done(lines, {"command": "detect", "out": str(out_dir), **result.info})

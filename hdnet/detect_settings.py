@@ -1,8 +1,8 @@
 """The settings of ``hd detect``, described once (help, unit, default, range as field metadata: the
 command's options and checks are made from them).
 
-A leaf module without PyTorch: ``hdnet.detect`` takes its keywords from :class:`DetectSettings` and
-``hdnet.detect_job`` runs ``hdnet.detect.detect`` with them, without the two importing each other;
+A leaf module without PyTorch: ``hdnet.detect.detect`` takes a :class:`DetectSettings` and
+``hdnet.detect_job`` runs it with the command's, without the two importing each other;
 ``hd detect`` reads and checks them (the threshold's form included) before anything heavy is
 imported or loaded.
 """
@@ -24,6 +24,7 @@ from hdnet.shared_options import (
     uncertainty_setting,
 )
 from hdnet.threshold_spec import parse_threshold_spec
+from lidarsim.errors import LidarsimError
 from lidarsim.map_window import FORM, MAP_WINDOW, MapWindow
 from lidarsim.setting import check, setting
 
@@ -33,7 +34,8 @@ LAYOUTS = ("channels-last", "channels-last-per-tile", "nchw")
 
 @dataclass(frozen=True)
 class DetectSettings:
-    """How ``hd detect`` maps a terrain (the keywords of :func:`hdnet.detect.detect`)."""
+    """How ``hd detect`` maps a terrain (the settings of :func:`hdnet.detect.detect`; ``window`` may also be
+    given as four numbers or their text ``"xmin,ymin,xmax,ymax"``, made a checked ``MapWindow``)."""
 
     scan: int | None = setting(
         None, "With --data: the scan whose noisy DEM to map (scan frame)", bound=limits.SCAN_INDEX
@@ -95,8 +97,19 @@ class DetectSettings:
         "through the network alone with its rows of the batch's masks) or nchw (PyTorch's default, the reference)",
         choices=LAYOUTS,
     )
+    overwrite: bool = setting(
+        False,
+        "Replace an earlier hd detect output in the output directory (never other files, never an input)",
+        cli=False,
+    )
+    device: str | None = setting(None, "A torch device (default: CUDA when available)", kind=str, cli=False)
 
     def __post_init__(self) -> None:
+        if self.window is not None and not isinstance(self.window, MapWindow):  # four numbers or their text
+            try:
+                object.__setattr__(self, "window", MapWindow.of(self.window))
+            except LidarsimError as exc:
+                raise type(exc)(f"--window: {exc}") from exc
         check(self, HdNetError)
         parse_threshold_spec(self.threshold)
 

@@ -47,6 +47,7 @@ from hdnet.detect import (
     overlap_px,
     select_sites,
 )
+from hdnet.detect_settings import DetectSettings
 from hdnet.errors import HdNetError
 from hdnet.evaluate import EvalConfig, evaluate, validation_threshold
 from hdnet.fit import FitConfig, fit
@@ -57,6 +58,7 @@ from hdnet.thresholds import parse_threshold_spec
 from hdnet.train import save_checkpoint
 from hdnet.uncertainty import MUTUAL_INFORMATION
 from lidarsim.errors import HdWarning, LockedError, OutputExistsError, TerrainError
+from lidarsim.map_window import MapWindow
 from lidarsim.procedural import MarsTerrainParams, generate_mars_terrain, write_geotiff
 from lidarsim.shards import sha256_file
 from lidarsim.storage import PARTIAL_MARK, WriterLock
@@ -221,7 +223,12 @@ def test_scan_mode_is_the_evaluation_path(trained, tmp_path):
         scan, k_sigma = int(f["scan_index"][3]), 1
         stored_p = f["p_safe"][3, k_sigma]
     out = tmp_path / "scan"
-    result = detect(run_dir, out, dataset=dataset, scan=scan, sigma_m=0.07, threshold="nats:0.5", mc_samples=4, seed=3)
+    result = detect(
+        run_dir,
+        out,
+        DetectSettings(scan=scan, sigma_m=0.07, threshold="nats:0.5", mc_samples=4, seed=3),
+        dataset=dataset,
+    )
     assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUT_FILES)
     run = load_run(run_dir, CPU)
     ds = next(
@@ -257,7 +264,10 @@ def test_mutual_information_map_and_a_threshold_on_it(trained, tmp_path):
     scan = ds.scan_indices[1]
     out = tmp_path / "mi"
     result = detect(
-        run_dir, out, dataset=dataset, scan=scan, sigma_m=0.07, mc_samples=4, seed=3, uncertainty="mutual-information"
+        run_dir,
+        out,
+        DetectSettings(scan=scan, sigma_m=0.07, mc_samples=4, seed=3, uncertainty="mutual-information"),
+        dataset=dataset,
     )
     assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUT_FILES) and "mutual_information.tif" in OUTPUT_FILES
     mi_profile, h_profile = profile_of(out / "mutual_information.tif"), profile_of(out / "entropy.tif")
@@ -299,7 +309,7 @@ def test_threshold_is_calibrated_as_hd_eval_does(trained, tmp_path):
     dataset, run_dir, _ = trained
     report = evaluate(run_dir, dataset, EvalConfig(mc_samples=3, threshold="quantile:0.3", seed=5, batch_size=8))
     dtm = write_dtm(tmp_path / "hill.tif", tilted_plane(40, 1.0, 3.0), 1.0)
-    result = detect(run_dir, tmp_path / "out", dtm=dtm, mc_samples=3, threshold="quantile:0.3", seed=5)
+    result = detect(run_dir, tmp_path / "out", DetectSettings(mc_samples=3, threshold="quantile:0.3", seed=5), dtm=dtm)
     info = json.loads((tmp_path / "out" / "detect.json").read_text())["threshold"]
     assert result.threshold_nats == pytest.approx(report.threshold["value_nats"], rel=0, abs=0)
     for key in (
@@ -321,7 +331,9 @@ def test_real_terrain_maps_cover_the_input_with_its_crs(trained, tmp_path, name,
     _, run_dir, _ = trained
     out = tmp_path / "out"
     calls = []
-    result = detect(run_dir, out, dtm=REAL / name, mc_samples=2, progress=lambda d, t: calls.append((d, t)))
+    result = detect(
+        run_dir, out, DetectSettings(mc_samples=2), dtm=REAL / name, progress=lambda d, t: calls.append((d, t))
+    )
     assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUT_FILES)
     src = profile_of(REAL / name)
     with rasterio.open(REAL / name) as s:
@@ -368,7 +380,7 @@ def test_procedural_terrain_constant_run_sites_by_hand(trained, tmp_path):
     dtm = tmp_path / "mars.tif"
     write_geotiff(dtm, heights, 0.5, origin_xy=(0.0, 160.0))
     out = tmp_path / "out"
-    result = detect(constant, out, dtm=dtm, threshold="nats:0.5", mc_samples=2, n_sites=6)
+    result = detect(constant, out, DetectSettings(threshold="nats:0.5", mc_samples=2, n_sites=6), dtm=dtm)
     maps = check_consistent_maps(out, 0.5)
     safety = maps["safety.tif"]
     assert set(np.unique(safety)) == {SAFETY_SAFE, SAFETY_INVALID} and safety.shape == (160, 160)
@@ -393,7 +405,9 @@ def test_nav_sigma_ranks_sites_by_the_touchdown_and_records_the_rule(trained, tm
     dtm = tmp_path / "mars.tif"
     write_geotiff(dtm, heights, 0.5, origin_xy=(0.0, 160.0))
     out = tmp_path / "nav"
-    result = detect(constant, out, dtm=dtm, threshold="nats:0.5", mc_samples=2, n_sites=4, nav_sigma_m=3.0)
+    result = detect(
+        constant, out, DetectSettings(threshold="nats:0.5", mc_samples=2, n_sites=4, nav_sigma_m=3.0), dtm=dtm
+    )
     rows = check_sites(out, Lander())
     maps = check_consistent_maps(out, 0.5)
     ok = np.where(maps["safety.tif"] == SAFETY_SAFE, maps["p_safe.tif"], 0.0)
@@ -412,7 +426,7 @@ def test_nav_sigma_ranks_sites_by_the_touchdown_and_records_the_rule(trained, tm
     rule = json.loads((out / "detect.json").read_text())["site_rule"]
     assert rule["nav_sigma_m"] == 3.0 and rule["rank_by"] == SITE_RANK_RULES["touchdown"]
     assert f"P(safe) at the touchdown {result.sites[0].touchdown_p_safe:.3f} (navigation 1σ 3 m)" in result.summary()
-    plain = detect(constant, tmp_path / "aim", dtm=dtm, threshold="nats:0.5", mc_samples=2, n_sites=4)
+    plain = detect(constant, tmp_path / "aim", DetectSettings(threshold="nats:0.5", mc_samples=2, n_sites=4), dtm=dtm)
     rule = json.loads((tmp_path / "aim" / "detect.json").read_text())["site_rule"]
     assert rule["nav_sigma_m"] == 0.0 and rule["rank_by"] == SITE_RANK_RULES["aim"]
     assert all(s.touchdown_p_safe == pytest.approx(1 / (1 + math.exp(-6)), rel=1e-6) for s in plain.sites)
@@ -424,7 +438,7 @@ def test_tilted_plane_baseline_is_all_safe_below_10_degrees_and_all_unsafe_above
     n = 150  # two tiles per axis
     dtm = write_dtm(tmp_path / "plane.tif", tilted_plane(n, 1.0, slope_deg), 1.0)
     out = tmp_path / "out"
-    detect(constant, out, dtm=dtm, threshold="nats:0.5", mc_samples=1, sigma_m=0.03)
+    detect(constant, out, DetectSettings(threshold="nats:0.5", mc_samples=1, sigma_m=0.03), dtm=dtm)
     base = read(out / "baseline_p_safe.tif")[0]
     b = geometry(Lander(), 1.0).band_px
     inner = base[b : n - b, b : n - b]
@@ -443,7 +457,7 @@ def test_a_run_at_another_spacing_resamples_to_its_own_and_refuses_coarser_dtms(
     ckpt["extra_config"]["labeling"]["dem"]["spacing_m"] = 0.5
     save_checkpoint(tmp_path / "half.pt", ckpt)
     fine = write_dtm(tmp_path / "fine.tif", tilted_plane(240, 0.25, 3.0), 0.25)
-    detect(tmp_path / "half.pt", tmp_path / "out", dtm=fine, threshold="nats:0.5", mc_samples=1)
+    detect(tmp_path / "half.pt", tmp_path / "out", DetectSettings(threshold="nats:0.5", mc_samples=1), dtm=fine)
     prof = profile_of(tmp_path / "out" / "safety.tif")
     assert prof["shape"] == (120, 120) and prof["transform"].a == 0.5
     safety = read(tmp_path / "out" / "safety.tif")[0]
@@ -451,7 +465,10 @@ def test_a_run_at_another_spacing_resamples_to_its_own_and_refuses_coarser_dtms(
     assert b == 10 and (safety[:b] == SAFETY_INVALID).all() and (safety[b:-b, b:-b] == SAFETY_SAFE).all()
     # a window of the 0.25 m DTM: cells of the run's 0.5 m grid (edges inside a 0.5 m cell snapped outwards)
     detect(
-        tmp_path / "half.pt", tmp_path / "win", dtm=fine, window=(1010.2, 1961.0, 1040.0, 1990.1), threshold="nats:0.5"
+        tmp_path / "half.pt",
+        tmp_path / "win",
+        DetectSettings(window=MapWindow(1010.2, 1961.0, 1040.0, 1990.1), threshold="nats:0.5"),
+        dtm=fine,
     )
     prof = profile_of(tmp_path / "win" / "safety.tif")
     assert prof["shape"] == (59, 60) and prof["transform"] == from_origin(1010.0, 1990.5, 0.5, 0.5)  # rows 19..77
@@ -459,11 +476,16 @@ def test_a_run_at_another_spacing_resamples_to_its_own_and_refuses_coarser_dtms(
     assert (window[:b] == SAFETY_INVALID).all() and (window[b:-b, b:-b] == SAFETY_SAFE).all()
     coarse = write_dtm(tmp_path / "coarse.tif", tilted_plane(60, 1.0, 3.0), 1.0)
     with pytest.raises(TerrainError, match=r"coarser than the run's DEM spacing \(0.5 m/px\)"):
-        detect(tmp_path / "half.pt", tmp_path / "out2", dtm=coarse, threshold="nats:0.5")
+        detect(tmp_path / "half.pt", tmp_path / "out2", DetectSettings(threshold="nats:0.5"), dtm=coarse)
     assert not (tmp_path / "out2").exists()
     # --upsample: the coarse plane interpolated to 0.5 m is the same plane (a plane is exact under
     # bilinear interpolation inside the outer cell centres), the source named in detect.json.
-    detect(tmp_path / "half.pt", tmp_path / "out3", dtm=coarse, threshold="nats:0.5", mc_samples=1, upsample=True)
+    detect(
+        tmp_path / "half.pt",
+        tmp_path / "out3",
+        DetectSettings(threshold="nats:0.5", mc_samples=1, upsample=True),
+        dtm=coarse,
+    )
     prof = profile_of(tmp_path / "out3" / "safety.tif")
     assert prof["shape"] == (120, 120) and prof["transform"].a == 0.5 and prof["transform"].c == 1000.0
     info = json.loads((tmp_path / "out3" / "detect.json").read_text())
@@ -487,7 +509,7 @@ def test_hirise_pds3_at_1_01_m_keeps_its_mars_crs(trained, tmp_path):
     z = tilted_plane(60, 1.01, 2.0).astype(np.float32) - 2000.0
     z[20:24, 30:33] = np.float32(terrain_files.HIRISE_NULL)
     dtm = terrain_files.write_pds3(tmp_path / "DTEEC_TEST.IMG", z)
-    detect(trained[2], tmp_path / "out", dtm=dtm, threshold="nats:0.5", mc_samples=1, n_sites=4)
+    detect(trained[2], tmp_path / "out", DetectSettings(threshold="nats:0.5", mc_samples=1, n_sites=4), dtm=dtm)
     with rasterio.open(dtm) as src:
         crs, transform = src.crs, src.transform
     prof = profile_of(tmp_path / "out" / "safety.tif")
@@ -511,7 +533,7 @@ def test_windowed_reads_only(trained, tmp_path, monkeypatch):
         return original(self, row0, col0, rows, cols)
 
     monkeypatch.setattr(detect_module.DTM, "read", spy)
-    detect(constant, tmp_path / "out", dtm=dtm, threshold="nats:0.5", mc_samples=1, n_sites=3)
+    detect(constant, tmp_path / "out", DetectSettings(threshold="nats:0.5", mc_samples=1, n_sites=3), dtm=dtm)
     tiles = json.loads((tmp_path / "out" / "detect.json").read_text())["tiling"]
     assert tiles["tiles"] == [3, 3] and tiles["min_overlap_px"] == overlap_px(Lander(), 1.0) == 20
     assert shapes.count((100, 100)) == 9  # every network input is one window of the training size
@@ -561,10 +583,10 @@ def test_a_window_maps_as_the_dtm_cut_to_it(trained, tmp_path, monkeypatch, wind
         return original(self, row0, col0, rows, cols)
 
     monkeypatch.setattr(detect_module.DTM, "read", spy)
-    detect(run_dir, tmp_path / "win", dtm=full, window=window, **kw)
+    detect(run_dir, tmp_path / "win", DetectSettings(window=window, **kw), dtm=full)
     assert reads and all(r0 <= r and r + n <= r1 and c0 <= c and c + m <= c1 for _, r, c, n, m in reads)
     monkeypatch.undo()
-    detect(run_dir, tmp_path / "crop", dtm=crop, **kw)
+    detect(run_dir, tmp_path / "crop", DetectSettings(**kw), dtm=crop)
     win, cut = maps_of(tmp_path / "win"), maps_of(tmp_path / "crop")
     for name in MAP_FILES:
         np.testing.assert_array_equal(win[name], cut[name], err_msg=name)
@@ -588,7 +610,7 @@ def test_a_window_maps_as_the_dtm_cut_to_it(trained, tmp_path, monkeypatch, wind
         assert 1000.0 + c0 < site["x"] < 1000.0 + c1 and 2000.0 - r1 < site["y"] < 2000.0 - r0
     # The baseline of the whole DTM, cut to the window, away from the window's edge (the border band):
     # equal to float32 rounding (its arithmetic runs on each tile's own cells, placed elsewhere).
-    detect(run_dir, tmp_path / "all", dtm=full, **kw)
+    detect(run_dir, tmp_path / "all", DetectSettings(**kw), dtm=full)
     whole = read(tmp_path / "all" / "baseline_p_safe.tif")[0][r0:r1, c0:c1]
     band = geometry(Lander(), 1.0).band_px
     inner = (slice(band, -band), slice(band, -band))
@@ -609,7 +631,12 @@ def test_the_overview_of_a_large_window_is_decimated_from_the_window_alone(train
 
     monkeypatch.setattr(detect_module, "OVERVIEW_MAX_PX", 20)
     monkeypatch.setattr(hdnet.figures, "detect_overview", capture)
-    detect(constant, tmp_path / "out", dtm=dtm, window=(1030.0, 1900.0, 1110.0, 1960.0), threshold="nats:0.5")
+    detect(
+        constant,
+        tmp_path / "out",
+        DetectSettings(window=MapWindow(1030.0, 1900.0, 1110.0, 1960.0), threshold="nats:0.5"),
+        dtm=dtm,
+    )
     assert drawn["heights"].shape == drawn["safety"].shape == (15, 20) and drawn["cell_m"] == 4.0
     assert drawn["extent"] == (1030.0, 1110.0, 1900.0, 1960.0)  # left, right, bottom, top
     inside = z[40:100, 30:110].astype(np.float32)  # rows 40..99, columns 30..109
@@ -624,15 +651,20 @@ def test_a_window_of_a_coarse_dtm_is_upsampled_alone_and_one_reaching_past_the_d
     coarse = write_dtm(tmp_path / "coarse.tif", z, 2.0)  # 2 m cells: x 1000..1140, y 1880..2000
     crop = write_dtm(tmp_path / "crop.tif", z[5:45, 10:60], 2.0, origin=(1020.0, 1990.0))
     kw: dict[str, Any] = {"threshold": "nats:0.5", "mc_samples": 1, "upsample": True}
-    detect(constant, tmp_path / "win", dtm=coarse, window="1021,1910.5,1119,1990", **kw)
-    detect(constant, tmp_path / "crop", dtm=crop, **kw)
+    detect(constant, tmp_path / "win", DetectSettings(window=MapWindow.of("1021,1910.5,1119,1990"), **kw), dtm=coarse)
+    detect(constant, tmp_path / "crop", DetectSettings(**kw), dtm=crop)
     win, cut = maps_of(tmp_path / "win"), maps_of(tmp_path / "crop")
     for name in MAP_FILES:
         np.testing.assert_array_equal(win[name], cut[name], err_msg=name)
     assert profile_of(tmp_path / "win" / "safety.tif")["transform"] == from_origin(1020.0, 1990.0, 1.0, 1.0)
     assert win["safety.tif"].shape == (80, 100)
     with pytest.warns(HdWarning, match=r"reaches past coarse.tif .*only the part inside it is mapped, x 1100 to 1140"):
-        detect(constant, tmp_path / "past", dtm=coarse, window=(1100.0, 1950.0, 1500.0, 2500.0), **kw)
+        detect(
+            constant,
+            tmp_path / "past",
+            DetectSettings(window=MapWindow(1100.0, 1950.0, 1500.0, 2500.0), **kw),
+            dtm=coarse,
+        )
     info = json.loads((tmp_path / "past" / "detect.json").read_text())
     assert info["input"]["window"]["clipped"] is True
     assert info["input"]["window"]["mapped"] == [1100.0, 1950.0, 1140.0, 2000.0]
@@ -825,7 +857,7 @@ def test_overwrite_replaces_only_a_detect_output_and_a_failure_leaves_it_whole(
 ):
     _, _, constant = trained
     out = tmp_path / "out"
-    detect(constant, out, dtm=terrains["ok"], threshold="nats:0.5", mc_samples=1)
+    detect(constant, out, DetectSettings(threshold="nats:0.5", mc_samples=1), dtm=terrains["ok"])
     (out / "notes.txt").write_text("mine")  # a user's file beside an output stays
     before = {name: (out / name).read_bytes() for name in OUTPUT_FILES}
 
@@ -834,15 +866,15 @@ def test_overwrite_replaces_only_a_detect_output_and_a_failure_leaves_it_whole(
 
     monkeypatch.setattr(detect_module, "select_sites", boom)
     with pytest.raises(RuntimeError, match="disk full"):
-        detect(constant, out, dtm=terrains["ok"], threshold="nats:0.7", mc_samples=1, overwrite=True)
+        detect(constant, out, DetectSettings(threshold="nats:0.7", mc_samples=1, overwrite=True), dtm=terrains["ok"])
     assert {name: (out / name).read_bytes() for name in OUTPUT_FILES} == before  # untouched
     assert sorted(p.name for p in out.iterdir()) == sorted([*OUTPUT_FILES, "notes.txt"])  # no staging left
     monkeypatch.undo()
     empty = tmp_path / "empty"
     empty.mkdir()  # an empty directory needs no --overwrite
-    detect(constant, empty, dtm=terrains["ok"], threshold="nats:0.5", mc_samples=1)
+    detect(constant, empty, DetectSettings(threshold="nats:0.5", mc_samples=1), dtm=terrains["ok"])
     assert sorted(p.name for p in empty.iterdir()) == sorted(OUTPUT_FILES)
-    detect(constant, out, dtm=terrains["ok"], threshold="nats:0.7", mc_samples=1, overwrite=True)
+    detect(constant, out, DetectSettings(threshold="nats:0.7", mc_samples=1, overwrite=True), dtm=terrains["ok"])
     assert sorted(p.name for p in out.iterdir()) == sorted([*OUTPUT_FILES, "notes.txt"])
     assert json.loads((out / "detect.json").read_text())["threshold"]["value_nats"] == 0.7
     assert (out / "notes.txt").read_text() == "mine"
@@ -915,15 +947,15 @@ def test_a_second_writer_is_refused_and_a_killed_ones_staging_is_removed(trained
     out = tmp_path / "out"
     out.mkdir()
     with WriterLock(out, "detect"), pytest.raises(LockedError, match="another hd process"):  # another writer
-        detect(constant, out, dtm=terrains["ok"], threshold="nats:0.5", mc_samples=1)
+        detect(constant, out, DetectSettings(threshold="nats:0.5", mc_samples=1), dtm=terrains["ok"])
     assert list(out.iterdir()) == []
     killed = out / f".detect{PARTIAL_MARK}999999"  # the staging directory of a detect killed by SIGKILL
     killed.mkdir()
     (killed / "p_safe.tif").write_bytes(b"half")
-    detect(constant, out, dtm=terrains["ok"], threshold="nats:0.5", mc_samples=1)
+    detect(constant, out, DetectSettings(threshold="nats:0.5", mc_samples=1), dtm=terrains["ok"])
     assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUT_FILES)
     with pytest.raises(OutputExistsError, match="--overwrite"):  # a finished output is not replaced silently
-        detect(constant, out, dtm=terrains["ok"], threshold="nats:0.5", mc_samples=1)
+        detect(constant, out, DetectSettings(threshold="nats:0.5", mc_samples=1), dtm=terrains["ok"])
 
 
 def test_a_run_without_its_dataset_needs_a_fixed_threshold(trained, terrains, tmp_path):
@@ -934,7 +966,9 @@ def test_a_run_without_its_dataset_needs_a_fixed_threshold(trained, terrains, tm
     with pytest.raises(HdNetError, match="nats:"):
         detect(tmp_path / "portable.pt", tmp_path / "a", dtm=terrains["ok"])
     assert not (tmp_path / "a").exists()
-    result = detect(tmp_path / "portable.pt", tmp_path / "b", dtm=terrains["ok"], threshold="nats:0.2", mc_samples=2)
+    result = detect(
+        tmp_path / "portable.pt", tmp_path / "b", DetectSettings(threshold="nats:0.2", mc_samples=2), dtm=terrains["ok"]
+    )
     assert result.threshold_nats == 0.2 and (tmp_path / "b" / "detect.json").is_file()
 
 
@@ -959,7 +993,7 @@ def test_the_calibrated_threshold_is_cached_in_the_run_and_keyed_on_what_it_depe
     cache.unlink(missing_ok=True)
 
     def threshold(out: str, **kw) -> dict:
-        detect(run, tmp_path / out, dtm=dtm, mc_samples=2, **kw)
+        detect(run, tmp_path / out, DetectSettings(mc_samples=2, **kw), dtm=dtm)
         return json.loads((tmp_path / out / "detect.json").read_text())["threshold"]
 
     first = threshold("a")
@@ -979,7 +1013,7 @@ def test_the_calibrated_threshold_is_cached_in_the_run_and_keyed_on_what_it_depe
     with pytest.warns(HdWarning, match="unreadable threshold cache"):
         assert "cached" not in threshold("d")
     assert json.loads(cache.read_text())["schema"] == "hd.threshold-cache"
-    detect(constant, tmp_path / "e", dtm=dtm, mc_samples=2)
+    detect(constant, tmp_path / "e", DetectSettings(mc_samples=2), dtm=dtm)
     assert not (constant.parent / "thresholds.json").exists()
 
 
@@ -989,19 +1023,19 @@ def test_a_forged_cached_threshold_is_recalibrated_and_the_record_states_the_val
     dtm = write_dtm(tmp_path / "site.tif", tilted_plane(60, 1.0, 3.0), 1.0)
     cache = run / "thresholds.json"
     cache.unlink(missing_ok=True)
-    detect(run, tmp_path / "a", dtm=dtm, mc_samples=2)
+    detect(run, tmp_path / "a", DetectSettings(mc_samples=2), dtm=dtm)
     calibrated = json.loads((tmp_path / "a" / "detect.json").read_text())["threshold"]["value_nats"]
     record = json.loads(cache.read_text())
     record["entries"][0]["value_nats"] = forged  # "H_t unbounded" (None) or beyond any entropy (5.0)
     cache.write_text(json.dumps(record))
     with pytest.warns(HdWarning, match="calibrated again"):
-        result = detect(run, tmp_path / "b", dtm=dtm, mc_samples=2)
+        result = detect(run, tmp_path / "b", DetectSettings(mc_samples=2), dtm=dtm)
     info = json.loads((tmp_path / "b" / "detect.json").read_text())["threshold"]
     assert "cached" not in info and info["value_nats"] == calibrated == result.threshold_nats
     with rasterio.open(tmp_path / "a" / "safety.tif") as a, rasterio.open(tmp_path / "b" / "safety.tif") as b:
         assert np.array_equal(a.read(1), b.read(1))
     # The entry is replaced by the calibrated one, which the next call uses.
-    again = detect(run, tmp_path / "c", dtm=dtm, mc_samples=2)
+    again = detect(run, tmp_path / "c", DetectSettings(mc_samples=2), dtm=dtm)
     assert again.threshold_nats == calibrated
     assert json.loads((tmp_path / "c" / "detect.json").read_text())["threshold"]["cached"] == str(cache)
 
@@ -1086,7 +1120,7 @@ def test_detect_dem_of_a_scans_dem_is_hd_detect_of_the_scan(trained, tmp_path):
     k = scan.sigmas_m.index(0.07)
     out = tmp_path / "files"
     options: dict[str, Any] = {"sigma_m": 0.07, "threshold": "mean", "mc_samples": 4, "seed": 3, "n_sites": 3}
-    result = detect(run_dir, out, dataset=dataset, scan=scan.scan_index, **options)
+    result = detect(run_dir, out, DetectSettings(scan=scan.scan_index, **options), dataset=dataset)
     maps = detect_dem(load_run(run_dir, "cpu"), scan.dem_noisy[k], scan_frame=True, **options)
     assert_same_maps(maps, out)
     assert maps.threshold["cached"] == str(run_dir / "thresholds.json")  # calibrated once, by hd detect
@@ -1108,7 +1142,7 @@ def test_detect_dem_of_a_dtms_heights_is_hd_detect_of_the_dtm(trained, tmp_path)
     out = tmp_path / "files"
     options: dict[str, Any] = {"threshold": "nats:0.3", "mc_samples": 3, "seed": 1, "n_sites": 4}
     options["uncertainty"] = "mutual-information"
-    detect(run_dir, out, dtm=dtm, **options)
+    detect(run_dir, out, DetectSettings(**options), dtm=dtm)
     with DTM.open(dtm) as src:  # the heights and the grid as lidarsim reads them
         heights, grid = src.read(0, 0, 150, 150), src.info.transform
     assert grid == tuple(from_origin(1000.0, 2000.0, 1.0, 1.0))[:6]

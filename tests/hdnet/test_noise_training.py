@@ -181,11 +181,12 @@ def test_the_sweep_scores_every_level_and_the_report_shows_it(dataset, range_run
 
 def test_detect_gives_the_sensor_sigma_to_the_network_and_calibrates_there(dataset, range_run, tmp_path):
     from hdnet.detect import detect
+    from hdnet.detect_settings import DetectSettings
 
     info = {}
     for sigma in SIGMAS_M:
         out = tmp_path / f"d{sigma}"
-        detect(range_run, out, dataset=dataset, scan=0, sigma_m=sigma, mc_samples=2, calibrate="each")
+        detect(range_run, out, DetectSettings(scan=0, sigma_m=sigma, mc_samples=2, calibrate="each"), dataset=dataset)
         info[sigma] = json.loads((out / "detect.json").read_text())
     for sigma in SIGMAS_M:
         assert info[sigma]["sensor_sigma_m"] == sigma and info[sigma]["threshold"]["calibration_sigma_m"] == sigma

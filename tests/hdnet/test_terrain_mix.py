@@ -179,6 +179,7 @@ def test_a_report_on_another_dataset_sets_no_paper_numbers_beside_it(two, mixed_
 
 def test_detect_calibrates_on_the_runs_own_training_data_as_eval_does(two, mixed_run, tmp_path):
     from hdnet.detect import detect
+    from hdnet.detect_settings import DetectSettings
     from tests.geotiff import write_geotiff
 
     a, b = two
@@ -187,8 +188,9 @@ def test_detect_calibrates_on_the_runs_own_training_data_as_eval_does(two, mixed
     x = np.arange(60, dtype=np.float32)
     dtm = write_geotiff(tmp_path / "plane.tif", np.tile(x * 0.05, (60, 1)), 1.0)
     own = [str(a.resolve()), str(b.resolve())]
-    for out, where in (("dtm", {"dtm": dtm}), ("scan", {"dataset": b, "scan": 0})):
-        detect(mixed_run, tmp_path / out, mc_samples=2, threshold="quantile:0.5", batch_size=4, **where)
+    for out, where, scan in (("dtm", {"dtm": dtm}, None), ("scan", {"dataset": b}, 0)):
+        settings = DetectSettings(scan=scan, mc_samples=2, threshold="quantile:0.5", batch_size=4)
+        detect(mixed_run, tmp_path / out, settings, **where)
         info = json.loads((tmp_path / out / "detect.json").read_text())["threshold"]
         assert info["calibration_datasets"] == own, out
         assert info["value_nats"] == reference["value_nats"], out

@@ -39,6 +39,7 @@ from hdnet_datasets import build_labelled
 from cli import main
 from hdnet import view_images
 from hdnet.detect import MAP_FILES, detect
+from hdnet.detect_settings import DetectSettings
 from hdnet.eval_settings import EvalConfig
 from hdnet.evaluate import evaluate
 from hdnet.fit import FitConfig, fit
@@ -71,9 +72,9 @@ def outputs(tmp_path_factory) -> dict[str, Path]:
         constant = root / "constant.pt"
         save_checkpoint(constant, ckpt)
         dtm = root / "data" / "hills.tif"
-        detect(constant, root / "detect", dtm=dtm, threshold="nats:0.5", mc_samples=1, n_sites=6)
+        detect(constant, root / "detect", DetectSettings(threshold="nats:0.5", mc_samples=1, n_sites=6), dtm=dtm)
         test_scan = _test_scan(dataset)
-        detect(run, root / "scan", dataset=dataset, scan=test_scan, threshold="nats:0.3", mc_samples=2)
+        detect(run, root / "scan", DetectSettings(scan=test_scan, threshold="nats:0.3", mc_samples=2), dataset=dataset)
         result = evaluate(run, dataset, EvalConfig(mc_samples=2, drop_pixels=3, nav_sigma_m=(0.0, 2.0)))
         write_report(result, root / "report")
     return {
