@@ -68,13 +68,11 @@ def label_job(
             label = dataclasses.replace(label, truth=truth)
     else:
         label = LabelSettings(**settings)
-    lander = label.to_lander()
+    label.to_lander()  # an invalid lander, before the scheduler is probed
     if scheduler is not None:
         from lidarsim.parallel import probe_scheduler
 
         probe_scheduler(scheduler)  # a malformed or unreachable address, before anything is written
-    grid = label.to_dem_spec()
-    summary = label_dataset(
-        directory, lander, grid, workers=workers, scheduler=scheduler, progress=progress, truth=label.truth
-    )
+    label.to_dem_spec()  # an invalid grid, before anything is written
+    summary = label_dataset(directory, label, workers=workers, scheduler=scheduler, progress=progress)
     return Done([summary.paragraph()], {"command": "label", **dataclasses.asdict(summary)})

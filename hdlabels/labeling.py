@@ -42,6 +42,7 @@ from hdlabels.alhat import hazard_maps, safety_probability
 from hdlabels.grid import grid_points
 from hdlabels.lander import Lander, geometry
 from hdlabels.mosaic_dataset import check_mosaic_grid
+from hdlabels.settings import LabelSettings
 from hdlabels.store import (
     LABEL_SCHEMA,
     LABELS_DIR,
@@ -357,52 +358,40 @@ def _single_writer(func: Callable[..., LabelSummary]) -> Callable[..., LabelSumm
 @_single_writer
 def label_dataset(
     directory: str | os.PathLike,
-    lander: Lander = Lander(),
-    dem: DemSpec | None = None,
+    settings: LabelSettings | None = None,
+    *,
     workers: int | None = None,
     scheduler: str | None = None,
     progress: Callable[[int, int], None] | None = None,
-    truth: str = defaults.TRUTH,
 ) -> LabelSummary:
-    """Label every scan of the dataset at ``directory`` with ``lander`` on ``dem`` grids.
+    """Label every scan of the dataset at ``directory`` as ``settings`` says (default: ``LabelSettings()``:
+    the lander, its convention, the DEM grid, 100 x 100 cells of 1 m made with the convention's gridding,
+    and the truth; each field's meaning, unit and range are its metadata, ``hdlabels.settings``).
 
-    ``dem`` defaults to 100 x 100 cells of 1 m made with the lander's convention's gridding.
-    ``truth``: ``"clean-scan"`` (the deterministic labels of the clean scan's DEM, the paper's) or
+    ``settings.truth``: ``"clean-scan"`` (the deterministic labels of the clean scan's DEM, the paper's) or
     ``"terrain"`` (of the DTM the dataset was built on, sampled on each scan's DEM grid; ``hdlabels.truth``).
+    ``workers``/``scheduler``: how the shards are labelled in parallel; ``progress`` is called with (scans
+    labelled, scans in all).
 
     Raises:
-        LabelStoreError: not an hd dataset, a lander too large for the DEM, an all-NaN DEM, an
-            unknown truth, a terrain truth whose DTM is missing or changed.
+        HdLabelsError: an invalid lander (``LabelSettings.to_lander``).
+        LabelStoreError: not an hd dataset, a lander too large for the DEM, an all-NaN DEM, a terrain truth
+            whose DTM is missing or changed.
     """
     t0 = time.perf_counter()
+    label = settings if settings is not None else LabelSettings()
+    lander, dem, truth = label.to_lander(), label.to_dem_spec(), label.truth
     root = Path(directory).resolve()
     manifest = read_manifest(root)
-    if dem is None:
-        dem = DemSpec.for_convention(lander.convention)
     check_lander_fits(lander, dem)
     check_mosaic_grid(manifest, dem, str(root))
-    if truth not in defaults.TRUTHS:
-        raise LabelStoreError(f"unknown truth {truth!r}; use one of {', '.join(defaults.TRUTHS)}")
     name = labeling_name(lander, dem, truth)
     dtm_path, dtm_sha256, dtm_scale = (
         (None, None, 1.0) if truth == defaults.TRUTH else check_build_terrain(root, manifest)
     )
-    for lab in manifest.get("labelings", []):
-        if lab["name"] == name:
-            foreign = [] if dtm_sha256 is None else other_terrain_shards(root, lab, dtm_sha256)
-            if not foreign:
-                return _summary_from_entry(lab, manifest, time.perf_counter() - t0, reused=True)
-            warnings.warn(
-                HdWarning(
-                    f"{root.name}: {len(foreign)} label shard(s) of {name} were labelled from another terrain than "
-                    f"the one the scans were cast on ({foreign[0]}); damaged: labelling them again"
-                ),
-                stacklevel=2,
-            )
-    out_dir = root / LABELS_DIR / name
-    created = not out_dir.exists()
-    out_dir.mkdir(parents=True, exist_ok=True)
-    remove_partials(out_dir)
+    earlier = _current_labeling(root, manifest, name, dtm_sha256)
+    if earlier is not None:
+        return _summary_from_entry(earlier, manifest, time.perf_counter() - t0, reused=True)
     tasks = [
         LabelTask(
             dataset=str(root),
@@ -419,6 +408,44 @@ def label_dataset(
         )
         for i, s in enumerate(manifest["shards"])
     ]
+    records = _label_shards(root / LABELS_DIR / name, tasks, int(manifest["n_scans"]), workers, scheduler, progress)
+    entry = _labeling_entry(name, lander, dem, truth, records, manifest)
+    add_labeling_to_manifest(root, entry)
+    return _summary_from_entry(entry, manifest, time.perf_counter() - t0, reused=False)
+
+
+def _current_labeling(root: Path, manifest: dict[str, Any], name: str, dtm_sha256: str | None) -> dict[str, Any] | None:
+    """Step 1: the manifest's entry of the labelling ``name`` when it is there and whole (every shard labelled
+    from the terrain the scans were cast on), else None (a foreign shard: warned, labelled again)."""
+    for lab in manifest.get("labelings", []):
+        if lab["name"] == name:
+            foreign = [] if dtm_sha256 is None else other_terrain_shards(root, lab, dtm_sha256)
+            if not foreign:
+                return dict(lab)
+            warnings.warn(
+                HdWarning(
+                    f"{root.name}: {len(foreign)} label shard(s) of {name} were labelled from another terrain than "
+                    f"the one the scans were cast on ({foreign[0]}); damaged: labelling them again"
+                ),
+                stacklevel=3,
+            )
+    return None
+
+
+def _label_shards(
+    out_dir: Path,
+    tasks: list[LabelTask],
+    total: int,
+    workers: int | None,
+    scheduler: str | None,
+    progress: Callable[[int, int], None] | None,
+) -> list[LabelRecord]:
+    """Step 2: the record of each task's shard, in the tasks' order: those complete on disk counted from
+    their files, the others labelled (``workers`` processes, or ``scheduler``); a new ``out_dir`` is
+    removed again when labelling fails."""
+    created = not out_dir.exists()
+    out_dir.mkdir(parents=True, exist_ok=True)
+    remove_partials(out_dir)
     records: dict[int, LabelRecord] = {}
     pending = []
     for i, task in enumerate(tasks):
@@ -427,7 +454,6 @@ def label_dataset(
             pending.append((i, task))
         else:
             records[i] = rec
-    total = int(manifest["n_scans"])
     done = sum(r.entry["n_scans"] for r in records.values())
     if progress:
         progress(done, total)
@@ -443,7 +469,14 @@ def label_dataset(
         if created:
             shutil.rmtree(out_dir, ignore_errors=True)
         raise
-    counts = np.sum([r.counts for r in records.values()], axis=0)
+    return [records[i] for i in sorted(records)]
+
+
+def _labeling_entry(
+    name: str, lander: Lander, dem: DemSpec, truth: str, records: list[LabelRecord], manifest: dict[str, Any]
+) -> dict[str, Any]:
+    """Step 3: the manifest's entry of the labelling (its counts summed over the shards' ``records``)."""
+    counts = np.sum([r.counts for r in records], axis=0)
     safe_fraction = float(counts[1] / max(1, counts[0] + counts[1]))
     entry = {
         "name": name,
@@ -459,13 +492,12 @@ def label_dataset(
         },
         "label_counts": {"unsafe": int(counts[0]), "safe": int(counts[1]), "invalid": int(counts[2])},
         "safe_fraction": safe_fraction,
-        "baseline_safe_fraction": _baseline_fractions(list(records.values()), manifest),
-        "shards": [records[i].entry for i in sorted(records)],
+        "baseline_safe_fraction": _baseline_fractions(records, manifest),
+        "shards": [r.entry for r in records],
     }
     if truth != defaults.TRUTH:  # absent: the clean scan's (entries as before the terrain truth existed)
         entry["truth"] = truth
-    add_labeling_to_manifest(root, entry)
-    return _summary_from_entry(entry, manifest, time.perf_counter() - t0, reused=False)
+    return entry
 
 
 def _baseline_fractions(records: list[LabelRecord], manifest: dict[str, Any]) -> dict[str, float]:

@@ -351,14 +351,7 @@ def _label(pipeline: Pipeline, workers: int | None, echo: Echo, progress: Progre
     from hdlabels.labeling import label_dataset
 
     with _closing(progress("labels", "scan")) as bar:
-        summary = label_dataset(
-            pipeline.dataset_dir,
-            pipeline.label.to_lander(),
-            pipeline.label.to_dem_spec(),
-            workers=workers,
-            progress=bar,
-            truth=pipeline.label.truth,
-        )
+        summary = label_dataset(pipeline.dataset_dir, pipeline.label, workers=workers, progress=bar)
     echo(summary.paragraph())
 
 

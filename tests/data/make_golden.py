@@ -66,7 +66,7 @@ def make_golden(out_dir: Path) -> Path:
 
     settings = label_settings()
     build_dataset(out_dir, build_config(), workers=1)
-    label_dataset(out_dir, settings.to_lander(), settings.to_dem_spec(), workers=1)
+    label_dataset(out_dir, settings, workers=1)
     return out_dir
 
 

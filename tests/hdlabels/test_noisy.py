@@ -9,6 +9,7 @@ from scipy import ndimage
 
 from hdlabels.labeling import label_dataset
 from hdlabels.noisy import NoisyDems
+from hdlabels.settings import LabelSettings
 from hdlabels.store import DemSpec, find_labeling
 from lidarsim.build import BuildConfig, build_dataset
 from lidarsim.errors import LidarsimError
@@ -47,7 +48,7 @@ def dataset(request, tmp_path_factory):
     )
     out = root / "data"
     build_dataset(out, config, workers=1)
-    label_dataset(out, dem=DemSpec(rows=50, cols=50, spacing_m=1.0, gridding=gridding), workers=1)
+    label_dataset(out, LabelSettings(dem_size=50, dem_spacing_m=1.0, gridding=gridding), workers=1)
     return out
 
 

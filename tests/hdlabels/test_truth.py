@@ -13,7 +13,6 @@ from cli import main
 from hdlabels.errors import HdLabelsError
 from hdlabels.grid import grid_points
 from hdlabels.labeling import label_dataset
-from hdlabels.lander import Lander
 from hdlabels.settings import LabelSettings
 from hdlabels.store import (
     DemSpec,
@@ -141,10 +140,9 @@ def test_sampled_surface_is_the_plane_in_the_scan_frame(tmp_path):
 @pytest.mark.parametrize("convention", ["paper", "hd"])
 def test_on_a_plane_the_terrain_truth_equals_the_clean_scan_truth(tmp_path, slope_deg, tilt_deg, convention):
     root = build(plane_dtm(tmp_path / "p.tif", slope_deg), tmp_path / "d", tilt_deg=tilt_deg)
-    lander = Lander(convention=convention)
-    grid = DemSpec.for_convention(convention)
-    clean = label_dataset(root, lander, grid, workers=1)
-    terrain = label_dataset(root, lander, grid, workers=1, truth="terrain")
+    grid = LabelSettings(convention=convention).to_dem_spec()
+    clean = label_dataset(root, LabelSettings(convention=convention), workers=1)
+    terrain = label_dataset(root, LabelSettings(convention=convention, truth="terrain"), workers=1)
     assert terrain.name == f"{clean.name}-truth-terrain" and terrain.truth == "terrain" and clean.truth == "clean-scan"
     assert terrain.safe_fraction == clean.safe_fraction == (0.0 if slope_deg > 10 else 1.0)
     for a, b in zip(labelled(root, clean.name), labelled(root, terrain.name), strict=True):
@@ -174,9 +172,8 @@ def test_rocks_smaller_than_a_pixel_are_seen_by_the_terrain_truth(tmp_path):
     unsafe pixels, never fewer (hd convention, linear gridding)."""
     dtm_path, height = rock_field(tmp_path / "rocks.tif")
     root = build(dtm_path, tmp_path / "d", n_scans=2)
-    lander, grid = Lander(convention="hd"), DemSpec.for_convention("hd")
-    clean = label_dataset(root, lander, grid, workers=1)
-    terrain = label_dataset(root, lander, grid, workers=1, truth="terrain")
+    clean = label_dataset(root, LabelSettings(convention="hd"), workers=1)
+    terrain = label_dataset(root, LabelSettings(convention="hd", truth="terrain"), workers=1)
     n_unsafe = {"clean": 0, "terrain": 0}
     for a, b in zip(labelled(root, clean.name), labelled(root, terrain.name), strict=True):
         ground = np.nanmedian(b.dem_clean)  # the scan frame's heights are relative to its reference height
@@ -193,7 +190,7 @@ def test_rocks_smaller_than_a_pixel_are_seen_by_the_terrain_truth(tmp_path):
 def test_the_label_store_records_the_truth(tmp_path):
     root = build(plane_dtm(tmp_path / "p.tif", 0.0), tmp_path / "d", n_scans=2)
     clean = label_dataset(root, workers=1)
-    terrain = label_dataset(root, workers=1, truth="terrain")
+    terrain = label_dataset(root, LabelSettings(truth="terrain"), workers=1)
     manifest = read_manifest(root)
     by_name = {lab["name"]: lab for lab in manifest["labelings"]}
     assert "truth" not in by_name[clean.name]  # the clean scan's entries are as before
@@ -208,7 +205,7 @@ def test_the_label_store_records_the_truth(tmp_path):
     lines = {line.split(":")[0]: line for line in shown.output.splitlines() if line.startswith("labels")}
     assert "truth: terrain" in lines[f"labels    {terrain.name}"]
     assert "truth: clean scan" in lines[f"labels    {clean.name}"]
-    again = label_dataset(root, workers=1, truth="terrain")
+    again = label_dataset(root, LabelSettings(truth="terrain"), workers=1)
     assert again.reused
 
 
@@ -218,7 +215,7 @@ def test_a_missing_or_changed_terrain_is_one_line(tmp_path):
     before = (root / "manifest.json").read_text()
     plane_dtm(dtm_path, 1.0)  # other heights, the same name
     with pytest.raises(LabelStoreError, match=r"p\.tif: the terrain changed since d was built"):
-        label_dataset(root, workers=1, truth="terrain")
+        label_dataset(root, LabelSettings(truth="terrain"), workers=1)
     dtm_path.unlink()
     result = CliRunner().invoke(main, ["label", str(root), "--truth", "terrain", "--workers", "1"])
     assert result.exit_code != 0 and "Traceback" not in result.output
@@ -253,11 +250,11 @@ def test_a_missing_procedural_terrain_is_regenerated_when_it_gives_the_recorded_
     with pytest.raises(
         LidarsimError, match=r"mars-procedural-seed3\.tif: .* is missing, and regenerating it .* other bytes"
     ):
-        label_dataset(root, workers=1, truth="terrain")
+        label_dataset(root, LabelSettings(truth="terrain"), workers=1)
     assert not terrain.exists() and not list(root.glob("labels/**/*.h5"))
     monkeypatch.setattr(build_module, "_procedural_terrain_bytes", real)
     with pytest.warns(HdWarning, match="was missing: regenerated from the build's seed 3"):
-        summary = label_dataset(root, workers=1, truth="terrain")
+        summary = label_dataset(root, LabelSettings(truth="terrain"), workers=1)
     assert sha256_file(terrain) == recorded and summary.truth == "terrain" and 0.0 < summary.safe_fraction <= 1.0
 
 
@@ -267,7 +264,7 @@ def test_a_labelling_is_chosen_by_its_name_or_an_alias_and_an_ambiguity_names_bo
     of the two; a name or alias that fits several is refused with the names and aliases there are."""
     root = build(plane_dtm(tmp_path / "p.tif", 0.0), tmp_path / "d", n_scans=2)
     clean = label_dataset(root, workers=1).name
-    terrain = label_dataset(root, workers=1, truth="terrain").name
+    terrain = label_dataset(root, LabelSettings(truth="terrain"), workers=1).name
     assert terrain.startswith(clean)
     assert find_labeling(root, clean)["name"] == clean  # exact beats the prefix of the terrain's name
     assert find_labeling(root, terrain)["name"] == terrain
@@ -284,8 +281,8 @@ def test_a_labelling_is_chosen_by_its_name_or_an_alias_and_an_ambiguity_names_bo
     with pytest.raises(LabelStoreError, match="names 2 labellings") as info:
         find_labeling(root, clean[:12])  # a prefix of both
     assert "paper+terrain" in str(info.value)
-    hd_clean = label_dataset(root, Lander(convention="hd"), DemSpec.for_convention("hd"), workers=1).name
-    hd_terrain = label_dataset(root, Lander(convention="hd"), DemSpec.for_convention("hd"), workers=1, truth="terrain")
+    hd_clean = label_dataset(root, LabelSettings(convention="hd"), workers=1).name
+    hd_terrain = label_dataset(root, LabelSettings(convention="hd", truth="terrain"), workers=1)
     assert find_labeling(root, "hd")["name"] == hd_clean
     assert find_labeling(root, "hd+terrain")["name"] == hd_terrain.name
     assert find_labeling(root, "paper")["name"] == clean  # still, among four

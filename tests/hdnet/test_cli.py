@@ -279,11 +279,12 @@ def two_truths(dataset, tmp_path_factory):
     """A copy of the dataset labelled twice by one lander: the clean scan's labelling (the run's) and
     the terrain's, whose name the clean one's is a prefix of; and a run trained on the clean one."""
     from hdlabels.labeling import label_dataset
+    from hdlabels.settings import LabelSettings
 
     root = tmp_path_factory.mktemp("two-truths")
     copy = root / "data"
     shutil.copytree(dataset, copy)
-    terrain = label_dataset(copy, workers=1, truth="terrain").name
+    terrain = label_dataset(copy, LabelSettings(truth="terrain"), workers=1).name
     run = root / "run"
     result = CliRunner().invoke(main, ["train", str(dataset), "--out", str(run), "--profile", "tiny", "--epochs", "1"])
     assert result.exit_code == 0, result.output

@@ -95,11 +95,11 @@ def test_d4_is_refused_for_a_triangle_lander(tmp_path):
     from hdnet_datasets import build_labelled as build
 
     from hdlabels.labeling import label_dataset
-    from hdlabels.lander import Lander
+    from hdlabels.settings import LabelSettings
     from hdnet.profiles import TINY
 
     data = build(tmp_path / "tri", n_scans=20, label=False)
-    label_dataset(data, Lander(layout="triangle"), workers=1)
+    label_dataset(data, LabelSettings(lander="triangle"), workers=1)
     with pytest.raises(HdNetError, match="triangle"):
         fit(data, tmp_path / "run", FitConfig(profile=replace(TINY, augment="d4"), epochs=1, progress=False))
     assert not (tmp_path / "run").exists()

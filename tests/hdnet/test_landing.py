@@ -14,6 +14,7 @@ from scipy.special import ndtri
 
 from hdlabels.labeling import label_dataset
 from hdlabels.lander import Lander
+from hdlabels.settings import LabelSettings
 from hdlabels.store import find_labeling, labelings_by_truth
 from hdnet.data import split_labels
 from hdnet.errors import HdNetError
@@ -296,7 +297,7 @@ def test_method_maps_use_the_baseline_band_as_invalid():
 def two_truths(tmp_path_factory):
     root = tmp_path_factory.mktemp("landing")
     dataset = build_labelled(root / "data")
-    label_dataset(dataset, workers=1, truth="terrain")
+    label_dataset(dataset, LabelSettings(truth="terrain"), workers=1)
     run = root / "run"
     names = labelings_by_truth(dataset, find_labeling(dataset, _clean_name(dataset)))
     fit(dataset, run, FitConfig(profile="tiny", epochs=1, progress=False, labels=names["terrain"]))

@@ -17,7 +17,7 @@ from test_build import REPO, kill_after_two_shards, rough_dtm
 
 from cli import main
 from hdlabels.labeling import label_dataset
-from hdlabels.store import DemSpec
+from hdlabels.settings import LabelSettings
 from lidarsim.build import BuildConfig, assign_splits, build_dataset, scan_splits
 from lidarsim.descent import DescentConfig, frame_pose
 from lidarsim.errors import LidarsimError
@@ -293,7 +293,7 @@ def test_a_shard_missing_one_descent_array_or_a_dataset_of_single_scans_is_refus
 def test_each_frame_of_a_descent_is_labelled_on_a_dem_centred_on_the_target(built, tmp_path):
     data = tmp_path / "labelled"
     shutil.copytree(built, data)
-    label_dataset(data, dem=DemSpec(rows=40, cols=40, spacing_m=1.0), workers=1)
+    label_dataset(data, LabelSettings(dem_size=40, dem_spacing_m=1.0), workers=1)
     lab = read_manifest(data)["labelings"][0]
     with h5py.File(data / lab["shards"][0]["path"]) as f:
         dem = f["dem_clean"][:]

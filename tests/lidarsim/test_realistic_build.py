@@ -16,7 +16,7 @@ from test_build import rough_dtm
 from cli import main
 from hdlabels.grid import grid_points
 from hdlabels.labeling import label_dataset
-from hdlabels.store import DemSpec
+from hdlabels.settings import LabelSettings
 from lidarsim.build import BuildConfig, build_dataset
 from lidarsim.errors import LidarsimError
 from lidarsim.footprint import FootprintConfig
@@ -139,7 +139,7 @@ def test_a_realistic_build_records_its_sensor_and_stores_weak_returns_as_no_retu
 
 
 def test_a_realistic_build_is_labelled(realistic):
-    label_dataset(realistic, dem=DemSpec(rows=16, cols=16, spacing_m=1.0), workers=1)
+    label_dataset(realistic, LabelSettings(dem_size=16, dem_spacing_m=1.0), workers=1)
     manifest = json.loads((realistic / "manifest.json").read_text())
     assert manifest["labelings"]
 
