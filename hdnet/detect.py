@@ -933,59 +933,20 @@ def detect_dem(
     if not isinstance(run, DetectRun):
         run = load_run(run)
     _warn_if_unfinished(run)
-    grid = centred_transform(heights.shape, run.spacing_m) if transform is None else Affine(*list(transform)[:6])
-    _check_grid(grid, run)
-    terrain = _ArrayTerrain(heights, grid, scan_frame, {"kind": "array"})
-    _check_footprint_fits(
-        run,
-        "the height array",
-        "the height array",
-        "give a larger one",
-        terrain.shape,
-        terrain.spacing_xy_m,
-        lambda: np.isfinite(heights),
-    )
-    sigma = run.train_sigma_m if settings.sigma_m is None else float(settings.sigma_m)
+    terrain, grid = _array_terrain(run, heights, transform, scan_frame)
+    s = settings
+    sigma = run.train_sigma_m if s.sigma_m is None else float(s.sigma_m)
     dev = next(run.model.parameters()).device
+    own = (run.training_datasets or (), run.labels)  # calibrated on the run's own training data
     h_t, threshold_info = _threshold(
-        run,
-        settings.threshold,
-        run.training_datasets or (),
-        run.labels,
-        settings.mc_samples,
-        settings.batch_size,
-        settings.seed,
-        dev,
-        settings.calibrate,
-        sigma,
-        score,
+        run, s.threshold, *own, s.mc_samples, s.batch_size, s.seed, dev, s.calibrate, sigma, score
     )
     plan = TilePlan.make(terrain.shape, run.dem_shape, overlap_px(run.lander, run.spacing_m))
     maps = _maps_in_memory(
-        terrain,
-        run,
-        plan,
-        h_t,
-        sigma,
-        settings.mc_samples,
-        settings.batch_size,
-        settings.seed,
-        dev,
-        progress,
-        score,
-        layout=settings.layout,
+        terrain, run, plan, h_t, sigma, s.mc_samples, s.batch_size, s.seed, dev, progress, score, layout=s.layout
     )
-    sites = select_sites(
-        maps["safety"],
-        maps["p_safe"],
-        maps["entropy_nats"],
-        maps["baseline_p_safe"],
-        grid,
-        terrain.spacing_xy_m,
-        run.lander,
-        settings.n_sites,
-        settings.nav_sigma_m,
-    )
+    layers = (maps["safety"], maps["p_safe"], maps["entropy_nats"], maps["baseline_p_safe"])
+    sites = select_sites(*layers, grid, terrain.spacing_xy_m, run.lander, s.n_sites, s.nav_sigma_m)
     return DetectMaps(
         **maps,
         sites=sites,
@@ -995,6 +956,24 @@ def detect_dem(
         transform=grid,
         threshold=threshold_info,
     )
+
+
+def _array_terrain(
+    run: DetectRun, heights: np.ndarray, transform: Affine | tuple[float, ...] | None, scan_frame: bool
+) -> tuple[_ArrayTerrain, Affine]:
+    """Step 1 of ``detect_dem``: the height array as a terrain on its grid (``transform``, default the scan
+    frame centred on it), checked: cells of the run's spacing, room for one lander footprint.
+
+    Raises:
+        HdNetError: a transform of other cells than the run's.
+        TerrainError: no lander-footprint-sized square of valid cells.
+    """
+    grid = centred_transform(heights.shape, run.spacing_m) if transform is None else Affine(*list(transform)[:6])
+    _check_grid(grid, run)
+    terrain = _ArrayTerrain(heights, grid, scan_frame, {"kind": "array"})
+    where = ("the height array", "the height array", "give a larger one")
+    _check_footprint_fits(run, *where, terrain.shape, terrain.spacing_xy_m, lambda: np.isfinite(heights))
+    return terrain, grid
 
 
 def _height_array(heights_m: Any) -> np.ndarray:

@@ -156,6 +156,19 @@ DECIMALS = 4
 
 def report_markdown(result: EvaluationResult, figures: list[str] | None = None) -> str:
     """The content of ``report.md``."""
+    out = _header_lines(result)
+    out += _table_sections(result)
+    out += _sweep_section(result)
+    out += _landing_section(result)
+    out += _risk_section(result)
+    out += _sweep_and_calibration_sections(result)
+    if figures:
+        out += ["", "## Figures", ""] + [f"![{Path(f).stem}]({Path(f).name})" for f in figures]
+    return "\n".join(out) + "\n"
+
+
+def _header_lines(result: EvaluationResult) -> list[str]:
+    """Step 1 of ``report_markdown``: the title and the run's, the data's and the threshold's lines."""
     run, th = result.run, result.threshold
     score = recorded_score(th)
     out = ["# hd evaluation report", ""]
@@ -196,6 +209,13 @@ def report_markdown(result: EvaluationResult, figures: list[str] | None = None) 
         ),
         "",
     ]
+    return out
+
+
+def _table_sections(result: EvaluationResult) -> list[str]:
+    """Step 2 of ``report_markdown``: the noise and dead-pixel tables, with the paper's rows beside them."""
+    run = result.run
+    out: list[str] = []
     for table in ("noise", "dead_pixels"):
         rows = [r for r in result.rows if r.table == table]
         if not rows:
@@ -214,8 +234,14 @@ def report_markdown(result: EvaluationResult, figures: list[str] | None = None) 
         if paper:
             which = "Table 1" if table == "noise" else "Table 2"
             out += [f"The paper's values for the same rows (Tomita et al., {which}):", "", *paper, ""]
-    out += _sweep_section(result)
-    out += _landing_section(result)
+    return out
+
+
+def _risk_section(result: EvaluationResult) -> list[str]:
+    """Step 3 of ``report_markdown``: ``## Risk control`` (a ``risk:ALPHA`` threshold's achieved false-safe
+    rates), or nothing."""
+    th = result.threshold
+    out: list[str] = []
     if th.get("achieved_risk"):
         out += [
             "## Risk control",
@@ -232,6 +258,12 @@ def report_markdown(result: EvaluationResult, figures: list[str] | None = None) 
             f"| {a['table']} | {_cm(a['test_sigma_m'])} | {_num(a['false_safe_rate'])} |" for a in th["achieved_risk"]
         ]
         out.append("")
+    return out
+
+
+def _sweep_and_calibration_sections(result: EvaluationResult) -> list[str]:
+    """Step 4 of ``report_markdown``: the threshold sweep and the calibration of P(safe) (ECE)."""
+    out: list[str] = []
     out += [
         "## Threshold sweep (uncertainty-aware)",
         "",
@@ -251,9 +283,7 @@ def report_markdown(result: EvaluationResult, figures: list[str] | None = None) 
         "|---|---|",
     ]
     out += [f"| {_cm(c['test_sigma_m'])} | {_num(c['ece'])} |" for c in result.calibration["per_sigma"]]
-    if figures:
-        out += ["", "## Figures", ""] + [f"![{Path(f).stem}]({Path(f).name})" for f in figures]
-    return "\n".join(out) + "\n"
+    return out
 
 
 def _sweep_section(result: EvaluationResult) -> list[str]:

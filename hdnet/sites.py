@@ -76,7 +76,6 @@ def select_sites(
     """
     sx, sy = spacing_xy_m
     disk = body_disk(lander, float(np.sqrt(sx * sy)))
-    rd = disk.shape[0] // 2
     clear = safety == SAFETY_SAFE
     candidate = ndimage.binary_erosion(clear, structure=disk, border_value=0)
     if not candidate.any():
@@ -106,22 +105,39 @@ def select_sites(
         r, c = divmod(k, w)
         if key[r, c] == -np.inf:
             break
-        window = (slice(r - rd, r + rd + 1), slice(c - rd, c + rd + 1))
-        x, y = transform @ (c + 0.5, r + 0.5)
-        sites.append(
-            Site(
-                len(sites) + 1,
-                float(x),
-                float(y),
-                float(np.mean(np.asarray(p_safe[window], np.float64)[disk])),
-                float(np.max(np.asarray(entropy[window])[disk])),
-                float(clearance[r, c]),
-                float(np.asarray(baseline[r : r + 1, c : c + 1])[0, 0]),
-                r,
-                c,
-                float(touchdown[r, c]),
-            )
-        )
+        sites.append(_site(len(sites) + 1, r, c, disk, transform, p_safe, entropy, baseline, clearance, touchdown))
         r0, r1, c0, c1 = max(r - ri, 0), min(r + ri + 1, h), max(c - rj, 0), min(c + rj + 1, w)
         key[r0:r1, c0:c1][too_close[r0 - r + ri : r1 - r + ri, c0 - c + rj : c1 - c + rj]] = -np.inf
     return sites
+
+
+def _site(
+    rank: int,
+    r: int,
+    c: int,
+    disk: np.ndarray,
+    transform: Affine,
+    p_safe: np.ndarray,
+    entropy: Any,
+    baseline: Any,
+    clearance: np.ndarray,
+    touchdown: np.ndarray,
+) -> Site:
+    """Step 2 of ``select_sites``: the site of rank ``rank`` at cell (``r``, ``c``): its map position (the
+    cell centre through ``transform``), the disk-mean P(safe), the disk's largest entropy, its clearance
+    (metres), the baseline and the touchdown P(safe) at the cell."""
+    rd = disk.shape[0] // 2
+    window = (slice(r - rd, r + rd + 1), slice(c - rd, c + rd + 1))
+    x, y = transform @ (c + 0.5, r + 0.5)
+    return Site(
+        rank,
+        float(x),
+        float(y),
+        float(np.mean(np.asarray(p_safe[window], np.float64)[disk])),
+        float(np.max(np.asarray(entropy[window])[disk])),
+        float(clearance[r, c]),
+        float(np.asarray(baseline[r : r + 1, c : c + 1])[0, 0]),
+        r,
+        c,
+        float(touchdown[r, c]),
+    )

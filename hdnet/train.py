@@ -439,21 +439,10 @@ def train(
             state.model, device_ids=[device.index] if device.type == "cuda" else None
         )
     train_loader, val_loader = _loaders(train_ds, val_ds, profile, world, rank, seed, num_workers, device)
-    record = RunRecord(
-        model_name=MODEL_NAME,
-        model_config=model_config.to_dict(),
-        profile=profile.to_dict(),
-        epochs=total_epochs,
-        seed=seed,
-        world_size=world,
-        hd_version=__version__,
-        torch_version=torch.__version__,
-        extra_config=extra,
-        class_weights=None if state.weight is None or class_weights is None else [float(w) for w in class_weights],
-    )
     if rank == 0:
         run_dir.mkdir(parents=True, exist_ok=True)
-        write_run_record(run_dir, record)
+        weights = None if state.weight is None or class_weights is None else [float(w) for w in class_weights]
+        write_run_record(run_dir, _run_record(model_config, profile, total_epochs, seed, world, extra, weights))
 
     bar = None
     report = progress if callable(progress) and rank == 0 else None
@@ -478,22 +467,58 @@ def train(
         state.timing.append({"epoch": epoch + 1, "train_seconds": seconds, "train_images_per_s": rate})
         state.history.append(row)
         _save_epoch(run_dir, state, model_config, profile, epoch, seed, extra, world, rank)
-        if bar is not None:
-            bar.update(1)
-            bar.set_postfix(
-                train_loss=f"{row['train_loss']:.4f}",
-                val_loss=f"{row['val_loss']:.4f}",
-                val_acc=f"{row['val_pixel_accuracy']:.3f}",
-                val_miou=f"{row['val_miou']:.3f}",
-                img_s=f"{state.timing[-1]['train_images_per_s']:.1f}",
-            )
-        if report is not None:
-            report({**row, "train_images_per_s": state.timing[-1]["train_images_per_s"]}, total_epochs)
+        _show_epoch(bar, report, row, state.timing[-1]["train_images_per_s"], total_epochs)
         if world > 1:
             dist.barrier()
     if bar is not None:
         bar.close()
     return last
+
+
+def _run_record(
+    model_config: ModelConfig,
+    profile: TrainingProfile,
+    total_epochs: int,
+    seed: int,
+    world: int,
+    extra: dict[str, Any],
+    class_weights: list[float] | None,
+) -> RunRecord:
+    """Step 1 of ``train``: the run record (``config.json``) of this training."""
+    return RunRecord(
+        model_name=MODEL_NAME,
+        model_config=model_config.to_dict(),
+        profile=profile.to_dict(),
+        epochs=total_epochs,
+        seed=seed,
+        world_size=world,
+        hd_version=__version__,
+        torch_version=torch.__version__,
+        extra_config=extra,
+        class_weights=class_weights,
+    )
+
+
+def _show_epoch(
+    bar: Any,
+    report: Callable[[dict[str, Any], int], None] | None,
+    row: dict[str, Any],
+    images_per_s: float,
+    total_epochs: int,
+) -> None:
+    """Step 2 of ``train``, after each epoch: the progress bar moved on with the epoch's losses, or
+    ``report`` given the epoch's metrics row (with its training speed, images/s)."""
+    if bar is not None:
+        bar.update(1)
+        bar.set_postfix(
+            train_loss=f"{row['train_loss']:.4f}",
+            val_loss=f"{row['val_loss']:.4f}",
+            val_acc=f"{row['val_pixel_accuracy']:.3f}",
+            val_miou=f"{row['val_miou']:.3f}",
+            img_s=f"{images_per_s:.1f}",
+        )
+    if report is not None:
+        report({**row, "train_images_per_s": images_per_s}, total_epochs)
 
 
 def resume_line(epochs_done: int, total_epochs: int, checkpoint: Path) -> str:
