@@ -41,7 +41,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -71,6 +71,9 @@ from lidarsim.storage import (
     sha256_file,
     write_text_atomic,
 )
+
+if TYPE_CHECKING:  # hdnet.view_images imports matplotlib: only where the page is drawn
+    from hdnet.view_images import Reduction
 
 VIEW_NAME = "view.html"
 DETECT_MARKER = "detect.json"
@@ -341,29 +344,43 @@ def _bar(stops: list[str], low: str, high: str, tick: float | None = None, tick_
 
 def _layers(out: DetectOutput, settings: ViewSettings, dtm: Path | None) -> tuple[list[_Layer], dict[str, Any]]:
     """The map layers (images reduced and coloured) and what the page says of them."""
-    from hdnet.figures import SAFETY_HEX
+    from hdnet.view_images import Reduction
+
+    reduction = Reduction.of((out.rows, out.cols), settings.max_px)
+    h, w = reduction.shape
+    images, extent, note = _layer_images(out, reduction, dtm)
+    layers = _map_layers(out, images, extent)
+    if "hillshade" in images:
+        layers.append(_Layer("hillshade", "Hillshade of the terrain", images["hillshade"], True, 100, "sun NW, 45°"))
+    facts = {
+        "reduction": reduction,
+        "extent": extent,
+        "hillshade_note": note,
+        "image_px": (w, h),
+    }
+    return layers, facts
+
+
+def _layer_images(
+    out: DetectOutput, reduction: Reduction, dtm: Path | None
+) -> tuple[dict[str, tuple[str, int, int]], tuple[float, float, float, float], str]:
+    """Step 1 of ``_layers``: each map reduced and coloured as a PNG data URI (with its width and height,
+    pixels), the hillshade's among them when its terrain is found; the images' map extent (left, right,
+    bottom, top, metres) and what the page says of the hillshade's source."""
     from hdnet.view_images import (
         PROBABILITY_CMAP,
         UNCERTAINTY_CMAP,
         UNCERTAINTY_MAX_NATS,
-        Reduction,
         colour_rgba,
-        colour_stops,
-        colour_table,
         hillshade_rgba,
         png_bytes,
         reduced_array,
         reduced_map,
-        safety_classes,
         safety_rgba,
         terrain_heights,
     )
 
-    reduction = Reduction.of((out.rows, out.cols), settings.max_px)
     h, w = reduction.shape
-    th = out.info["threshold"]
-    score = recorded_score(th)
-    h_t = th.get("value_nats")
     images: dict[str, tuple[str, int, int]] = {}
 
     def put(key: str, rgba: np.ndarray) -> None:
@@ -394,41 +411,79 @@ def _layers(out: DetectOutput, settings: ViewSettings, dtm: Path | None) -> tupl
     if heights is not None:
         put("hillshade", hillshade_rgba(heights, cell))
 
-    prob_stops, unc_stops = colour_stops(PROBABILITY_CMAP), colour_stops(UNCERTAINTY_CMAP)
+    return images, extent, note
 
-    def probe(order: int, name: str, cmap: str, high: float, unit: str = "") -> str:
-        table = " ".join(colour_table(cmap))
-        return (
-            f' data-probe="{esc(name)}" data-order="{order}" data-lut="{table}" data-min="0" data-max="{high!r}" '
-            f'data-unit="{esc(unit)}"'
-        )
+
+def _probe(order: int, name: str, cmap: str, high: float, unit: str = "") -> str:
+    """The attributes by which the page reads a map's value under the pointer: its colour table
+    (``cmap`` from 0 to ``high``), name and ``unit``."""
+    from hdnet.view_images import colour_table
+
+    table = " ".join(colour_table(cmap))
+    return (
+        f' data-probe="{esc(name)}" data-order="{order}" data-lut="{table}" data-min="0" data-max="{high!r}" '
+        f'data-unit="{esc(unit)}"'
+    )
+
+
+def _score_tick(thresholded: bool, h_t: float | None) -> tuple[float | None, str]:
+    """Where H_t (nats) stands on an uncertainty bar (0 to ln 2) and its label, for the score the
+    threshold applies to (``thresholded``); (None, "") otherwise or for an unbounded H_t."""
+    from hdnet.view_images import UNCERTAINTY_MAX_NATS
+
+    if thresholded and _finite(h_t):
+        return min(1.0, float(h_t) / UNCERTAINTY_MAX_NATS), f"H_t = {float(h_t):.4f} nats"  # type: ignore[arg-type]
+    return None, ""
+
+
+def _sites_layer(out: DetectOutput, extent: tuple[float, float, float, float]) -> _Layer:
+    """The layer of the landing sites: circles of the lander's footprint (drawn larger where the map's
+    ``extent``, metres, would make them too small to see)."""
+    lander_m = float(out.info["lander"]["diameter_m"])
+    drawn_m = marker_radius(lander_m / 2, extent)
+    return _Layer(
+        "sites",
+        f"Landing sites ({len(out.site_rows)})",
+        None,
+        True,
+        100,
+        f"Circles: the lander's footprint ({lander_m:g} m across"
+        + (f", drawn {2 * drawn_m:.3g} m across to be seen at this scale" if drawn_m > lander_m / 2 else "")
+        + "), numbered by rank; click one to find it in the table.",
+    )
+
+
+def _map_layers(
+    out: DetectOutput, images: dict[str, tuple[str, int, int]], extent: tuple[float, float, float, float]
+) -> list[_Layer]:
+    """Step 2 of ``_layers``: the sites and the five maps as layers, with their legends and probes."""
+    from hdnet.figures import SAFETY_HEX
+    from hdnet.view_images import (
+        PROBABILITY_CMAP,
+        UNCERTAINTY_CMAP,
+        UNCERTAINTY_MAX_NATS,
+        colour_stops,
+        safety_classes,
+    )
+
+    th = out.info["threshold"]
+    score = recorded_score(th)
+    h_t = th.get("value_nats")
+    prob_stops, unc_stops = colour_stops(PROBABILITY_CMAP), colour_stops(UNCERTAINTY_CMAP)
 
     classes = esc(json.dumps(safety_classes()))
     ln2 = f"{UNCERTAINTY_MAX_NATS:.3f} nats (ln 2)"
 
     def score_tick(name: str) -> tuple[float | None, str]:
-        if score.name == name and _finite(h_t):
-            return min(1.0, float(h_t) / UNCERTAINTY_MAX_NATS), f"H_t = {float(h_t):.4f} nats"
-        return None, ""
+        return _score_tick(score.name == name, h_t)
 
     swatches = "".join(
         f'<span class="swatch" style="background: {colour}"></span>{esc(word)}'
         for colour, word in zip(SAFETY_HEX[:3], ("unsafe", "safe", f"uncertain ({score.name} ≥ H_t)"), strict=True)
     )
-    lander_m = float(out.info["lander"]["diameter_m"])
-    drawn_m = marker_radius(lander_m / 2, extent)
     sensor = out.info.get("sensor_sigma_m", out.info.get("baseline", {}).get("sigma_m"))
-    layers = [
-        _Layer(
-            "sites",
-            f"Landing sites ({len(out.site_rows)})",
-            None,
-            True,
-            100,
-            f"Circles: the lander's footprint ({lander_m:g} m across"
-            + (f", drawn {2 * drawn_m:.3g} m across to be seen at this scale" if drawn_m > lander_m / 2 else "")
-            + "), numbered by rank; click one to find it in the table.",
-        ),
+    return [
+        _sites_layer(out, extent),
         _Layer(
             "safety",
             "Safety map (uncertainty-aware)",
@@ -445,7 +500,7 @@ def _layers(out: DetectOutput, settings: ViewSettings, dtm: Path | None) -> tupl
             False,
             85,
             _bar(prob_stops, "0", "1"),
-            probe(1, "P(safe)", PROBABILITY_CMAP, 1.0),
+            _probe(1, "P(safe)", PROBABILITY_CMAP, 1.0),
         ),
         _Layer(
             "entropy",
@@ -454,7 +509,7 @@ def _layers(out: DetectOutput, settings: ViewSettings, dtm: Path | None) -> tupl
             False,
             85,
             _bar(unc_stops, "0", ln2, *score_tick("entropy")),
-            probe(2, "entropy", UNCERTAINTY_CMAP, UNCERTAINTY_MAX_NATS, " nats"),
+            _probe(2, "entropy", UNCERTAINTY_CMAP, UNCERTAINTY_MAX_NATS, " nats"),
         ),
         _Layer(
             "mutual_information",
@@ -463,7 +518,7 @@ def _layers(out: DetectOutput, settings: ViewSettings, dtm: Path | None) -> tupl
             False,
             85,
             _bar(unc_stops, "0", ln2, *score_tick("mutual-information")),
-            probe(3, "MI", UNCERTAINTY_CMAP, UNCERTAINTY_MAX_NATS, " nats"),
+            _probe(3, "MI", UNCERTAINTY_CMAP, UNCERTAINTY_MAX_NATS, " nats"),
         ),
         _Layer(
             "baseline_p_safe",
@@ -472,18 +527,9 @@ def _layers(out: DetectOutput, settings: ViewSettings, dtm: Path | None) -> tupl
             False,
             85,
             _bar(prob_stops, "0", "1") + f"at sensor σ {esc(_cm(sensor))}; safe where ≥ 0.5",
-            probe(4, "baseline P(safe)", PROBABILITY_CMAP, 1.0),
+            _probe(4, "baseline P(safe)", PROBABILITY_CMAP, 1.0),
         ),
     ]
-    if "hillshade" in images:
-        layers.append(_Layer("hillshade", "Hillshade of the terrain", images["hillshade"], True, 100, "sun NW, 45°"))
-    facts = {
-        "reduction": reduction,
-        "extent": extent,
-        "hillshade_note": note,
-        "image_px": (w, h),
-    }
-    return layers, facts
 
 
 def _round_length(span_m: float) -> float:
