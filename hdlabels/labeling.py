@@ -409,7 +409,7 @@ def label_dataset(
         for i, s in enumerate(manifest["shards"])
     ]
     records = _label_shards(root / LABELS_DIR / name, tasks, int(manifest["n_scans"]), workers, scheduler, progress)
-    entry = _labeling_entry(name, lander, dem, truth, records, manifest)
+    entry = _labeling_entry(name, lander, dem, truth, records, manifest["sigmas_m"])
     add_labeling_to_manifest(root, entry)
     return _summary_from_entry(entry, manifest, time.perf_counter() - t0, reused=False)
 
@@ -473,7 +473,7 @@ def _label_shards(
 
 
 def _labeling_entry(
-    name: str, lander: Lander, dem: DemSpec, truth: str, records: list[LabelRecord], manifest: dict[str, Any]
+    name: str, lander: Lander, dem: DemSpec, truth: str, records: list[LabelRecord], sigmas_m: list[float]
 ) -> dict[str, Any]:
     """Step 3: the manifest's entry of the labelling (its counts summed over the shards' ``records``)."""
     counts = np.sum([r.counts for r in records], axis=0)
@@ -492,7 +492,7 @@ def _labeling_entry(
         },
         "label_counts": {"unsafe": int(counts[0]), "safe": int(counts[1]), "invalid": int(counts[2])},
         "safe_fraction": safe_fraction,
-        "baseline_safe_fraction": _baseline_fractions(records, manifest),
+        "baseline_safe_fraction": _baseline_fractions(records, sigmas_m),
         "shards": [r.entry for r in records],
     }
     if truth != defaults.TRUTH:  # absent: the clean scan's (entries as before the terrain truth existed)
@@ -500,9 +500,9 @@ def _labeling_entry(
     return entry
 
 
-def _baseline_fractions(records: list[LabelRecord], manifest: dict[str, Any]) -> dict[str, float]:
-    """Fraction of labelled pixels the baseline (P >= 0.5) calls safe, per sigma."""
-    sigmas = manifest["sigmas_m"]
+def _baseline_fractions(records: list[LabelRecord], sigmas: list[float]) -> dict[str, float]:
+    """Fraction of labelled pixels the baseline (P >= 0.5) calls safe, per sigma (``sigmas``, metres: the
+    dataset's noise levels)."""
     safe = np.zeros(len(sigmas), dtype=np.int64)
     for r in records:
         safe += r.baseline_safe

@@ -501,8 +501,8 @@ def _run_record(
 
 def _show_epoch(
     bar: Any,
-    report: Callable[[dict[str, Any], int], None] | None,
-    row: dict[str, Any],
+    report: Callable[[dict[str, float], int], None] | None,
+    row: dict[str, float],
     images_per_s: float,
     total_epochs: int,
 ) -> None:
