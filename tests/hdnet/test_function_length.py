@@ -16,7 +16,7 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 PACKAGES = ("hdlabels", "hdnet")
 MAX_LINES = 80
 COMPILERS = ("_compile",)  # the modules' own wrappers around numba.njit
