@@ -39,6 +39,7 @@ from bench_detect import untrained_checkpoint
 from machine import cpu_model
 
 from hdnet.detect import detect
+from hdnet.detect_settings import DetectSettings
 from hdnet.profiles import ROBUST
 from lidarsim.procedural import write_geotiff
 from lidarsim.terrain import DTM
@@ -92,15 +93,8 @@ def main() -> None:
         n_tiles = 0
         for layout in layouts:
             t0 = time.perf_counter()
-            result = detect(
-                ckpt,
-                tmp / layout,
-                dtm=crop,
-                threshold="nats:0.35",
-                mc_samples=args.samples,
-                upsample=True,
-                layout=layout,
-            )
+            settings = DetectSettings(threshold="nats:0.35", mc_samples=args.samples, upsample=True, layout=layout)
+            result = detect(ckpt, tmp / layout, settings, dtm=crop)
             results[layout] = {"seconds": time.perf_counter() - t0, **result.timings_s}
             n_tiles = result.info["tiling"]["n_tiles"]
         print(f"\nJezero crop {km2:.2f} km^2 at 1 m ({n_tiles} tiles of 100 x 100)")

@@ -928,13 +928,24 @@ def detect_dem(
         uncertainty=uncertainty,
         layout=layout,
     )  # each value's kind and range, and the threshold's form, before the run is loaded
-    score = uncertainty_score(settings.uncertainty)
     heights = _height_array(heights_m)
     if not isinstance(run, DetectRun):
         run = load_run(run)
     _warn_if_unfinished(run)
     terrain, grid = _array_terrain(run, heights, transform, scan_frame)
-    s = settings
+    return _maps_of_array(run, terrain, grid, settings, progress)
+
+
+def _maps_of_array(
+    run: DetectRun,
+    terrain: _ArrayTerrain,
+    grid: Affine,
+    s: DetectSettings,
+    progress: Callable[[int, int], None] | None,
+) -> DetectMaps:
+    """``detect_dem``'s steps 3-5 on the array's terrain: the threshold (calibrated on the run's own
+    training data), the maps in memory and the sites."""
+    score = uncertainty_score(s.uncertainty)
     sigma = run.train_sigma_m if s.sigma_m is None else float(s.sigma_m)
     dev = next(run.model.parameters()).device
     own = (run.training_datasets or (), run.labels)  # calibrated on the run's own training data

@@ -977,12 +977,16 @@ def test_cli_detect_prints_a_summary(trained, terrains, tmp_path):
     out = tmp_path / "cli"
     result = CliRunner().invoke(
         main,
-        ["detect", str(run_dir), "--dtm", str(terrains["ok"]), "--out", str(out), "--mc-samples", "2", "--sites", "3"],
+        [
+            *("detect", str(run_dir), "--dtm", str(terrains["ok"]), "--out", str(out)),
+            *("--mc-samples", "2", "--sites", "3", "--layout", "nchw"),
+        ],
     )
     assert result.exit_code == 0, result.output
     assert "valid cells" in result.output and "detect.json" in result.output
     info = json.loads((out / "detect.json").read_text())
     assert info["threshold"]["spec"] == "mean" and info["mc_samples"] == 2 and len(info["sites"]) <= 3
+    assert info["network_layout"] == "nchw"
     assert info["baseline"]["sigma_m"] == 0.0167 and info["run"]["train_sigma_m"] == 0.0167
 
 
