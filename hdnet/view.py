@@ -431,8 +431,8 @@ def _score_tick(thresholded: bool, h_t: float | None) -> tuple[float | None, str
     threshold applies to (``thresholded``); (None, "") otherwise or for an unbounded H_t."""
     from hdnet.view_images import UNCERTAINTY_MAX_NATS
 
-    if thresholded and _finite(h_t):
-        return min(1.0, float(h_t) / UNCERTAINTY_MAX_NATS), f"H_t = {float(h_t):.4f} nats"  # type: ignore[arg-type]
+    if thresholded and h_t is not None and _finite(h_t):
+        return min(1.0, float(h_t) / UNCERTAINTY_MAX_NATS), f"H_t = {float(h_t):.4f} nats"
     return None, ""
 
 
