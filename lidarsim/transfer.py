@@ -32,13 +32,13 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from lidarsim import storage
 from lidarsim.errors import DamagedFileError, FormatError, OutputExistsError, StorageError
 from lidarsim.location import PUBLISH_MARK, RemoteDataset, is_url, remote_dataset, remote_errors
 from lidarsim.outcome import Done, counted
 from lidarsim.shards import MANIFEST_NAME, manifest_text, read_manifest, validate_manifest, verify_dataset
 from lidarsim.storage import (
     WriterLock,
+    atomic,
     atomic_path,
     confine,
     make_dirs,
@@ -259,7 +259,7 @@ def _download(remote: RemoteDataset, relative: str, final: Path, expected: str) 
         try:
             for block in remote.stream(relative):
                 h.update(block)
-                storage._write_all(fd, block)  # the one writer of file contents (lidarsim.storage)
+                atomic._write_all(fd, block)  # the one writer of file contents (lidarsim.storage.atomic)
                 size += len(block)
             os.fsync(fd)
         finally:

@@ -331,7 +331,7 @@ def test_a_label_shard_written_in_blocks_reads_back_row_by_row(tmp_path, monkeyp
     row_bytes = 8 + 1 + sum(a.nbytes for a in rows[0].values())  # scan_index, split and the maps
 
     def write(path: Path, block: int) -> None:
-        monkeypatch.setattr(storage, "ROW_BLOCK_BYTES", block * row_bytes)
+        monkeypatch.setattr(storage.h5image, "ROW_BLOCK_BYTES", block * row_bytes)
         writer = store.LabelShardWriter(path, 5, 2, dem, {"labeling": "t", "sigmas_m": np.array([0.01, 0.07])})
         for k, arrays in enumerate(rows):
             writer.write(k, 10 + k, k % 3, **arrays)

@@ -18,9 +18,7 @@ LAYERS = ("lidarsim", "hdlabels", "hdnet")  # each may import only the ones befo
 
 def import_graph(packages: tuple[str, ...] = LAYERS) -> dict[str, set[str]]:
     """Module name -> the modules of ``packages`` it imports (``from P import m`` counts as ``P.m``)."""
-    files = {
-        (pkg if f.stem == "__init__" else f"{pkg}.{f.stem}"): f for pkg in packages for f in (ROOT / pkg).glob("*.py")
-    }
+    files = {module_name(f): f for pkg in packages for f in (ROOT / pkg).rglob("*.py")}
     edges: dict[str, set[str]] = {name: set() for name in files}
     for name, path in files.items():
         for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
@@ -32,6 +30,12 @@ def import_graph(packages: tuple[str, ...] = LAYERS) -> dict[str, set[str]]:
                 continue
             edges[name] |= {t for t in targets if t in files and t != name}
     return edges
+
+
+def module_name(path: Path) -> str:
+    """A file's dotted module name, sub-packages included (``lidarsim/storage/__init__.py`` -> ``lidarsim.storage``)."""
+    parts = path.relative_to(ROOT).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
 def cycles(edges: dict[str, set[str]]) -> list[list[str]]:
@@ -66,6 +70,16 @@ def cycles(edges: dict[str, set[str]]) -> list[list[str]]:
 def test_the_cycle_finder_finds_a_loop_and_only_a_loop() -> None:
     assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
     assert cycles({"a": {"b"}, "b": set(), "c": {"a", "b"}}) == []
+
+
+def test_sub_packages_are_in_the_graph() -> None:
+    edges = import_graph(("lidarsim",))
+    assert "lidarsim.storage" in edges and "lidarsim.storage.atomic" in edges
+    # a sub-package's __init__ imports its modules; they never import it back
+    assert "lidarsim.storage.atomic" in edges["lidarsim.storage"]
+    assert not any(
+        "lidarsim.storage" in targets for name, targets in edges.items() if name.startswith("lidarsim.storage.")
+    )
 
 
 @pytest.mark.parametrize("package", LAYERS)

@@ -239,13 +239,13 @@ def test_write_geotiff_is_atomic(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 
     path = tmp_path / "keep.tif"
     path.write_bytes(b"previous content")
-    real_write = storage._write_all
+    real_write = storage.atomic._write_all
 
     def disk_full(fd: int, data: bytes) -> None:  # writes part of the file, then the disk is full
         real_write(fd, memoryview(data)[: len(data) // 2])
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(storage, "_write_all", disk_full)
+    monkeypatch.setattr(storage.atomic, "_write_all", disk_full)
     with pytest.raises(storage.StorageError, match=r"keep\.tif: no space left on device"):
         write_geotiff(path, np.zeros((8, 8), dtype=np.float32), 0.5)
     assert path.read_bytes() == b"previous content"

@@ -53,7 +53,7 @@ def test_an_interrupted_write_leaves_no_temporary_file(tmp_path, monkeypatch):
         os.write(fd, bytes(data)[:3])
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(storage, "_write_all", interrupted)
+    monkeypatch.setattr(storage.atomic, "_write_all", interrupted)
     with pytest.raises(KeyboardInterrupt):
         write_json_atomic(tmp_path / "m.json", {"a": 1})
     assert os.listdir(tmp_path) == []
