@@ -25,6 +25,7 @@ import json
 import math
 import os
 from dataclasses import dataclass
+from typing import Any
 
 import numba
 import numpy as np
@@ -41,7 +42,7 @@ from lidarsim.procedural import (
     terrain_stream,
 )
 from lidarsim.storage import write_bytes_atomic
-from lidarsim.terrain import DTM
+from lidarsim.terrain import DTM, DTMInfo
 
 __all__ = [
     "RockyTerrain",
@@ -172,6 +173,42 @@ def check_relief(values: np.ndarray, path: str) -> None:
         )
 
 
+def _output_shape(info: DTMInfo, spacing_m: float) -> tuple[int, int]:
+    """Step 1 of :func:`rocks_on_base`: the (rows, cols) of the base's extent at ``spacing_m`` (m/px).
+
+    Raises:
+        TerrainError: fewer than two cells a side, or more than 2**28 cells.
+    """
+    width_m = info.cols * info.spacing_m[0]
+    height_m = info.rows * info.spacing_m[1]
+    shape = (int(math.floor(height_m / spacing_m + 1e-9)), int(math.floor(width_m / spacing_m + 1e-9)))
+    if shape[0] < 2 or shape[1] < 2:
+        raise TerrainError(f"{info.path}: {width_m:g} x {height_m:g} m is less than two cells of {spacing_m:g} m")
+    if shape[0] * shape[1] > _MAX_CELLS:
+        raise TerrainError(
+            f"{info.path}: {width_m:g} x {height_m:g} m at {spacing_m:g} m/px is {shape[0]} x {shape[1]} cells "
+            f"({shape[0] * shape[1] * 4 / 2**30:.1f} GiB); hd's maximum is {_MAX_CELLS * 4 / 2**30:.0f} GiB: "
+            "cut the base DTM into parts or choose a coarser --spacing"
+        )
+    return shape
+
+
+def _recorded_params(params: MarsTerrainParams, spacing_m: float, craters: bool) -> dict[str, Any]:
+    """Step 2 of :func:`rocks_on_base`: the parameters the output's tags record (the rocks', the
+    spacing in m/px, ``craters`` and, with craters, the crater_* fields)."""
+    recorded: dict[str, Any] = {
+        "rock_k": params.rock_k,
+        "rock_d_min_m": params.rock_d_min_m,
+        "rock_d_max_m": params.rock_d_max_m,
+        "rock_height_ratio": params.rock_height_ratio,
+        "spacing_m": spacing_m,
+        "craters": bool(craters),
+    }
+    if craters:
+        recorded |= {f.name: getattr(params, f.name) for f in dataclasses.fields(params) if f.name.startswith("crater")}
+    return recorded
+
+
 def rocks_on_base(
     base_path: str | os.PathLike[str],
     params: MarsTerrainParams | None = None,
@@ -195,17 +232,7 @@ def rocks_on_base(
         raise TerrainError(f"--seed must be an integer >= 0, got {seed!r}")
     with DTM.open(base_path) as base:
         info = base.info
-        width_m = info.cols * info.spacing_m[0]
-        height_m = info.rows * info.spacing_m[1]
-        shape = (int(math.floor(height_m / spacing_m + 1e-9)), int(math.floor(width_m / spacing_m + 1e-9)))
-        if shape[0] < 2 or shape[1] < 2:
-            raise TerrainError(f"{info.path}: {width_m:g} x {height_m:g} m is less than two cells of {spacing_m:g} m")
-        if shape[0] * shape[1] > _MAX_CELLS:
-            raise TerrainError(
-                f"{info.path}: {width_m:g} x {height_m:g} m at {spacing_m:g} m/px is {shape[0]} x {shape[1]} cells "
-                f"({shape[0] * shape[1] * 4 / 2**30:.1f} GiB); hd's maximum is {_MAX_CELLS * 4 / 2**30:.0f} GiB: "
-                "cut the base DTM into parts or choose a coarser --spacing"
-            )
+        shape = _output_shape(info, spacing_m)
         values = base.read(0, 0, info.rows, info.cols)
         check_relief(values, info.path)
         digest = base.sha256()
@@ -227,16 +254,7 @@ def rocks_on_base(
     rock_d = sample_rock_diameters(params.rock_k, params.rock_d_min_m, params.rock_d_max_m, area, rock_rng)
     rock_xy = rock_rng.random((rock_d.size, 2)) * np.array([shape[1] * spacing_m, shape[0] * spacing_m])
     stamp_rocks(heights, spacing_m, rock_xy, rock_d, params.rock_height_ratio)
-    recorded = {
-        "rock_k": params.rock_k,
-        "rock_d_min_m": params.rock_d_min_m,
-        "rock_d_max_m": params.rock_d_max_m,
-        "rock_height_ratio": params.rock_height_ratio,
-        "spacing_m": spacing_m,
-        "craters": bool(craters),
-    }
-    if craters:
-        recorded |= {f.name: getattr(params, f.name) for f in dataclasses.fields(params) if f.name.startswith("crater")}
+    recorded = _recorded_params(params, spacing_m, craters)
     tags = {
         "generator": GENERATOR,
         "base": info.name,

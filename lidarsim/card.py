@@ -118,12 +118,9 @@ def terrain_licence(recipe: Recipe, config: dict[str, Any]) -> str:
     return PROCEDURAL_LICENCE if config.get("dtm_path") is None else "that of the DTM you supplied (check its source)"
 
 
-def render_card(directory: str | os.PathLike, recipe: Recipe, machine: str = "") -> str:
-    """Markdown card of the dataset at ``directory`` built from ``recipe``."""
-    directory = Path(directory)
-    m = read_manifest(directory)
-    cfg = m["config"]
-    size = sum((directory / s["path"]).stat().st_size for s in m["shards"])
+def _class_balance_lines(m: dict[str, Any]) -> list[str]:
+    """Step 1 of :func:`render_card`: three lines per labelling of the manifest ``m`` (its class balance
+    in % of DEM pixels, its convention, DEM and lander, the ALHAT baseline's safe fraction)."""
     label_lines = []
     for lab in m.get("labelings", []):
         counts = lab["label_counts"]
@@ -142,15 +139,12 @@ def render_card(directory: str | os.PathLike, recipe: Recipe, machine: str = "")
             ),
             f"  ALHAT baseline (P(safe) ≥ 0.5) safe fraction: {base}.",
         ]
-    dtm = m["dtm"]
-    terrain = (
-        "the built-in procedural Mars terrain (seed " + str(cfg["seed"]) + ", parameters below)"
-        if cfg.get("dtm_path") is None
-        else f"`{dtm.get('name')}` (sha256 {dtm.get('sha256')})"
-    )
-    where = recipe_reference(recipe)
-    licence = terrain_licence(recipe, cfg)
-    trajectory = cfg["trajectory"]
+    return label_lines
+
+
+def _altitude_words(m: dict[str, Any], trajectory: dict[str, Any]) -> str:
+    """Step 2 of :func:`render_card`: the flight in words (a fixed altitude or a drawn range, m, or the
+    descents: frames, altitudes in m, approach angle in degrees, navigation error)."""
     descent = trajectory.get("descent")
     if not descent:
         altitude = f"{trajectory['altitude_m']} m altitude"
@@ -167,6 +161,53 @@ def render_card(directory: str | os.PathLike, recipe: Recipe, machine: str = "")
             )
             + f", navigation error (1σ per axis) {_nav_words(descent['nav'])}"
         )
+    return altitude
+
+
+def _build_settings_lines(m: dict[str, Any], cfg: dict[str, Any]) -> list[str]:
+    """Step 3 of :func:`render_card`: the "Build settings" section's lines (software, seed, sensor,
+    trajectory, DTM and, when set, footprint, noise model and terrain, as recorded)."""
+    dtm = m["dtm"]
+    lines = [
+        "## Build settings",
+        (
+            f"- software: hd {m['software_version']}; manifest schema {m['schema']} {m['schema_version']}, scan shards "
+            f"{m['shards'][0]['schema']} {m['shards'][0]['schema_version']}; "
+            f"settings hash `{m['config_sha256']}`"
+        ),
+        f"- seed {cfg['seed']}; shard size {cfg['shard_size']}; compression {cfg['compression']}",
+        f"- sensor: `{json.dumps(cfg['sensor'])}`",
+        f"- trajectory: `{json.dumps(cfg['trajectory'])}` (lattice step {m['trajectory']['step_m']} m)",
+        f"- DTM: scale {cfg['dtm_scale']}; {dtm.get('rows')}×{dtm.get('cols')} cells at {dtm.get('spacing_m')} m/px",
+    ]
+    if cfg.get("footprint"):
+        lines.append(f"- footprint: `{json.dumps(cfg['footprint'])}`")
+    if cfg.get("noise_model"):
+        lines.append(f"- noise model: `{json.dumps(cfg['noise_model'])}`")
+    if cfg.get("rocks_on_dtm"):  # the DTM's relief, resampled, plus the rocks: only these fields are used
+        rocks = {k: v for k, v in cfg["terrain"].items() if k == "spacing_m" or k.startswith("rock_")}
+        lines.append(f"- rocks added to the DTM (resampled to `spacing_m`): `{json.dumps(rocks)}`")
+    elif cfg.get("terrain"):
+        lines.append(f"- procedural terrain: `{json.dumps(cfg['terrain'])}`")
+    return lines
+
+
+def render_card(directory: str | os.PathLike, recipe: Recipe, machine: str = "") -> str:
+    """Markdown card of the dataset at ``directory`` built from ``recipe``."""
+    directory = Path(directory)
+    m = read_manifest(directory)
+    cfg = m["config"]
+    size = sum((directory / s["path"]).stat().st_size for s in m["shards"])
+    dtm = m["dtm"]
+    terrain = (
+        "the built-in procedural Mars terrain (seed " + str(cfg["seed"]) + ", parameters below)"
+        if cfg.get("dtm_path") is None
+        else f"`{dtm.get('name')}` (sha256 {dtm.get('sha256')})"
+    )
+    where = recipe_reference(recipe)
+    licence = terrain_licence(recipe, cfg)
+    descent = cfg["trajectory"].get("descent")
+    altitude = _altitude_words(m, cfg["trajectory"])
     lines = [
         f"# Dataset card: {recipe.name} (recipe version {recipe.version})",
         "",
@@ -197,33 +238,13 @@ def render_card(directory: str | os.PathLike, recipe: Recipe, machine: str = "")
         "equal to the published build within the fingerprint tolerances (docs/shard-format.md); anything else "
         "fails.",
         "",
-        "## Build settings",
-        (
-            f"- software: hd {m['software_version']}; manifest schema {m['schema']} {m['schema_version']}, scan shards "
-            f"{m['shards'][0]['schema']} {m['shards'][0]['schema_version']}; "
-            f"settings hash `{m['config_sha256']}`"
-        ),
-        f"- seed {cfg['seed']}; shard size {cfg['shard_size']}; compression {cfg['compression']}",
-        f"- sensor: `{json.dumps(cfg['sensor'])}`",
-        f"- trajectory: `{json.dumps(cfg['trajectory'])}` (lattice step {m['trajectory']['step_m']} m)",
-        f"- DTM: scale {cfg['dtm_scale']}; {dtm.get('rows')}×{dtm.get('cols')} cells at {dtm.get('spacing_m')} m/px",
-    ]
-    if cfg.get("footprint"):
-        lines.append(f"- footprint: `{json.dumps(cfg['footprint'])}`")
-    if cfg.get("noise_model"):
-        lines.append(f"- noise model: `{json.dumps(cfg['noise_model'])}`")
-    if cfg.get("rocks_on_dtm"):  # the DTM's relief, resampled, plus the rocks: only these fields are used
-        rocks = {k: v for k, v in cfg["terrain"].items() if k == "spacing_m" or k.startswith("rock_")}
-        lines.append(f"- rocks added to the DTM (resampled to `spacing_m`): `{json.dumps(rocks)}`")
-    elif cfg.get("terrain"):
-        lines.append(f"- procedural terrain: `{json.dumps(cfg['terrain'])}`")
-    lines += [
+        *_build_settings_lines(m, cfg),
         "",
         "## Size",
         f"{len(m['shards'])} scan shards, {size / 1e6:.0f} MB.",
         "",
         "## Class balance",
-        *(label_lines or ["Not labelled yet (run `hd label`)."]),
+        *(_class_balance_lines(m) or ["Not labelled yet (run `hd label`)."]),
         "",
         "## Citation",
         "If you use this dataset, cite the method it reproduces:",

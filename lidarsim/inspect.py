@@ -33,6 +33,81 @@ def _size(directory: Path | str, entries: list[dict]) -> int:
     return total
 
 
+def _first_scan_lines(directory: Path | str, manifest: dict[str, Any]) -> list[str]:
+    """Step 1 of :func:`describe_dataset`: the lines read from the first shard (mosaic, sensor, descents,
+    realism, the first scan's returns and height range in m), or one line saying why it cannot be read."""
+    shards = manifest["shards"]
+    lines: list[str] = []
+    if not shards:
+        return lines
+    try:
+        with open_scan_shard(directory, shards[0]) as reader:
+            a = reader.attrs
+            if reader.is_mosaic:
+                lines.append(_mosaic_line(a, _mapping(manifest.get("mosaic"))))
+            pose = (
+                "altitude and tilt: the descents' (below)"
+                if "descent_frames" in a
+                else f"altitude {_span(a, 'trajectory_altitude')}, tilt {_span(a, 'trajectory_tilt')}"
+            )
+            if not reader.is_mosaic:
+                lines.append(
+                    f"sensor    {a.get('sensor_rows')} x {a.get('sensor_cols')} px, "
+                    f"FOV {a.get('sensor_fov_x_deg')} x {a.get('sensor_fov_y_deg')} deg, {pose}, "
+                    f"jitter {_span(a, 'trajectory_jitter')}"
+                )
+            lines += _descent_lines(a, manifest.get("n_descents"))
+            realism = _realism(a)
+            if realism:
+                lines.append(f"realism   {realism}")
+            if len(reader):
+                scan = reader[0]
+                valid = float(np.mean(scan.valid))
+                z = scan.points_clean[..., 2]
+                lines.append(
+                    f"scan 0    {valid * 100:.1f}% returns, "
+                    f"height range {np.nanmin(z):.2f} .. {np.nanmax(z):.2f} m "
+                    f"(scan frame), origin E {scan.origin_map[0]:.1f} N {scan.origin_map[1]:.1f} m"
+                )
+    except (FormatError, StorageError) as exc:
+        lines.append(f"sensor    unknown: the first shard cannot be read ({exc})")
+    except (IndexError, ValueError, TypeError) as exc:  # arrays of other shapes or types than hd writes
+        lines.append(f"sensor    unknown: the first scan of {shards[0]['path']} is not as hd writes it ({exc})")
+    return lines
+
+
+def _labeling_lines(directory: Path | str, manifest: dict[str, Any]) -> list[str]:
+    """Step 2 of :func:`describe_dataset`: one line per labelling (finished, then unfinished ones found
+    on disk) and one for a process writing the dataset now (neither looked for at a URL)."""
+    labelings = manifest.get("labelings", [])
+    lines: list[str] = []
+    for lab in labelings:
+        frac = lab.get("safe_fraction")
+        frac_txt = f", {frac * 100:.1f}% of labelled pixels safe" if isinstance(frac, float) else ""
+        truth = "terrain (the DTM on each scan's DEM grid)" if lab.get("truth") == "terrain" else "clean scan"
+        lines.append(
+            f"labels    {lab.get('name')}: {len(lab.get('shards', []))} label shards{frac_txt}; truth: {truth}"
+        )
+    if not labelings:
+        lines.append("labels    none (run `hd label`)")
+    listed = {lab.get("name") for lab in labelings}
+    if isinstance(directory, str):  # a URL: no unfinished labelling or writer is looked for there
+        return lines
+    labels_dir = directory / "labels"
+    if labels_dir.is_dir():
+        for d in sorted(labels_dir.iterdir()):
+            if d.is_dir() and d.name not in listed:
+                n = len(list(d.glob("labels-*.h5")))
+                lines.append(
+                    f"labels    {d.name}: unfinished ({n} label shards written); re-run the same `hd label` "
+                    "command to finish it"
+                )
+    holder = lock_holder(directory)
+    if holder is not None:
+        lines.append(f"writing   another hd process (PID {holder}) is writing this dataset now")
+    return lines
+
+
 def describe_dataset(directory: str | os.PathLike) -> str:
     """A multi-line summary of a dataset: size, splits, noise levels, sensor, DTM, labelings.
 
@@ -65,65 +140,8 @@ def describe_dataset(directory: str | os.PathLike) -> str:
         f"CRS {'none (local metres)' if not dtm.get('crs_wkt') else _short_crs(str(dtm['crs_wkt']))}, "
         f"sha256 {str(dtm.get('sha256', ''))[:12]}...)"
     )
-    if shards:
-        try:
-            with open_scan_shard(directory, shards[0]) as reader:
-                a = reader.attrs
-                if reader.is_mosaic:
-                    lines.append(_mosaic_line(a, _mapping(manifest.get("mosaic"))))
-                pose = (
-                    "altitude and tilt: the descents' (below)"
-                    if "descent_frames" in a
-                    else f"altitude {_span(a, 'trajectory_altitude')}, tilt {_span(a, 'trajectory_tilt')}"
-                )
-                if not reader.is_mosaic:
-                    lines.append(
-                        f"sensor    {a.get('sensor_rows')} x {a.get('sensor_cols')} px, "
-                        f"FOV {a.get('sensor_fov_x_deg')} x {a.get('sensor_fov_y_deg')} deg, {pose}, "
-                        f"jitter {_span(a, 'trajectory_jitter')}"
-                    )
-                lines += _descent_lines(a, manifest.get("n_descents"))
-                realism = _realism(a)
-                if realism:
-                    lines.append(f"realism   {realism}")
-                if len(reader):
-                    scan = reader[0]
-                    valid = float(np.mean(scan.valid))
-                    z = scan.points_clean[..., 2]
-                    lines.append(
-                        f"scan 0    {valid * 100:.1f}% returns, "
-                        f"height range {np.nanmin(z):.2f} .. {np.nanmax(z):.2f} m "
-                        f"(scan frame), origin E {scan.origin_map[0]:.1f} N {scan.origin_map[1]:.1f} m"
-                    )
-        except (FormatError, StorageError) as exc:
-            lines.append(f"sensor    unknown: the first shard cannot be read ({exc})")
-        except (IndexError, ValueError, TypeError) as exc:  # arrays of other shapes or types than hd writes
-            lines.append(f"sensor    unknown: the first scan of {shards[0]['path']} is not as hd writes it ({exc})")
-    labelings = manifest.get("labelings", [])
-    for lab in labelings:
-        frac = lab.get("safe_fraction")
-        frac_txt = f", {frac * 100:.1f}% of labelled pixels safe" if isinstance(frac, float) else ""
-        truth = "terrain (the DTM on each scan's DEM grid)" if lab.get("truth") == "terrain" else "clean scan"
-        lines.append(
-            f"labels    {lab.get('name')}: {len(lab.get('shards', []))} label shards{frac_txt}; truth: {truth}"
-        )
-    if not labelings:
-        lines.append("labels    none (run `hd label`)")
-    listed = {lab.get("name") for lab in labelings}
-    if isinstance(directory, str):  # a URL: no unfinished labelling or writer is looked for there
-        return "\n".join(lines)
-    labels_dir = directory / "labels"
-    if labels_dir.is_dir():
-        for d in sorted(labels_dir.iterdir()):
-            if d.is_dir() and d.name not in listed:
-                n = len(list(d.glob("labels-*.h5")))
-                lines.append(
-                    f"labels    {d.name}: unfinished ({n} label shards written); re-run the same `hd label` "
-                    "command to finish it"
-                )
-    holder = lock_holder(directory)
-    if holder is not None:
-        lines.append(f"writing   another hd process (PID {holder}) is writing this dataset now")
+    lines += _first_scan_lines(directory, manifest)
+    lines += _labeling_lines(directory, manifest)
     return "\n".join(lines)
 
 

@@ -249,6 +249,54 @@ class _Comparer:
         return problems
 
 
+def _not_comparable(
+    manifest: dict[str, Any], recorded: dict[str, Any], recipe_config: BuildConfig | None
+) -> str | None:
+    """Step 1 of :func:`compare_with_published`: why the dataset's files cannot be the published build's
+    (a deviation from its recipe, other settings, another shard schema version), or None."""
+    try:
+        deviation = recorded_deviation(manifest)
+    except FormatError as exc:
+        return str(exc)
+    if deviation is not None:
+        return (
+            f"the dataset deviates from its recipe {deviation.recipe} ({deviation.words()}): its files are not the "
+            "published build's, their checksums are not compared"
+        )
+    if manifest.get("config_sha256") != recorded.get("config_sha256"):
+        return _other_settings(manifest, recorded, recipe_config)
+    # Checksums published before shard schema 1.1 do not record it: they are of 1.0 shards.
+    shard_schema = str(recorded.get("shard_schema_version", "1.0"))
+    built = {str(s.get("schema_version", "")) for s in manifest.get("shards", [])}
+    if built and built != {shard_schema}:
+        return (
+            f"the recipe's checksums were published for scan shards of schema version {shard_schema}, this "
+            f"dataset's shards are version {', '.join(sorted(built))}: the same settings give other bytes; the "
+            "recipe's checksums must be published again with this hd (`hd card`)"
+        )
+    return None
+
+
+def _compare_labelings(
+    comparer: _Comparer, labelings: list[dict[str, Any]], manifest: dict[str, Any], out: PublishedComparison
+) -> None:
+    """Step 2 of :func:`compare_with_published`: each published labelling's files against the dataset's
+    labelling of the same name; one missing on either side is a verdict, not a problem."""
+    have = {lab.get("name"): lab for lab in manifest.get("labelings", []) if isinstance(lab, dict)}
+    for lab in labelings:
+        mine = have.get(lab["name"])
+        if mine is None:
+            out.verdicts.append(
+                f"labelling {lab['name']}: not in this dataset, not compared (label it with the recipe: "
+                "`hd label DIR --recipe RECIPE`)"
+            )
+            continue
+        comparer.files(_entries(lab.get("shards", []), f"labelings[{lab['name']}].shards"), mine["shards"], "label")
+    published_names = {lab["name"] for lab in labelings}
+    for name in sorted(n for n in have if isinstance(n, str) and n not in published_names):
+        out.verdicts.append(f"labelling {name}: not part of the recipe's published build, not compared")
+
+
 def compare_with_published(
     manifest: dict[str, Any],
     recorded: dict[str, Any],
@@ -270,29 +318,9 @@ def compare_with_published(
             version (``lidarsim.fingerprint``'s own error, passed on).
     """
     out = PublishedComparison()
-    try:
-        deviation = recorded_deviation(manifest)
-    except FormatError as exc:
-        out.problems.append(str(exc))
-        return out
-    if deviation is not None:
-        out.problems.append(
-            f"the dataset deviates from its recipe {deviation.recipe} ({deviation.words()}): its files are not the "
-            "published build's, their checksums are not compared"
-        )
-        return out
-    if manifest.get("config_sha256") != recorded.get("config_sha256"):
-        out.problems.append(_other_settings(manifest, recorded, recipe_config))
-        return out
-    # Checksums published before shard schema 1.1 do not record it: they are of 1.0 shards.
-    shard_schema = str(recorded.get("shard_schema_version", "1.0"))
-    built = {str(s.get("schema_version", "")) for s in manifest.get("shards", [])}
-    if built and built != {shard_schema}:
-        out.problems.append(
-            f"the recipe's checksums were published for scan shards of schema version {shard_schema}, this "
-            f"dataset's shards are version {', '.join(sorted(built))}: the same settings give other bytes; the "
-            "recipe's checksums must be published again with this hd (`hd card`)"
-        )
+    reason = _not_comparable(manifest, recorded, recipe_config)
+    if reason is not None:
+        out.problems.append(reason)
         return out
     try:
         check_fingerprint_schema(recorded, CHECKSUMS_FILE)
@@ -313,19 +341,7 @@ def compare_with_published(
         published_dtm=dtm.get("sha256") if isinstance(dtm, dict) else None,
     )
     comparer.files(shards, manifest.get("shards", []), "scan shard")
-    have = {lab.get("name"): lab for lab in manifest.get("labelings", []) if isinstance(lab, dict)}
-    for lab in labelings:
-        mine = have.get(lab["name"])
-        if mine is None:
-            out.verdicts.append(
-                f"labelling {lab['name']}: not in this dataset, not compared (label it with the recipe: "
-                "`hd label DIR --recipe RECIPE`)"
-            )
-            continue
-        comparer.files(_entries(lab.get("shards", []), f"labelings[{lab['name']}].shards"), mine["shards"], "label")
-    published_names = {lab["name"] for lab in labelings}
-    for name in sorted(n for n in have if isinstance(n, str) and n not in published_names):
-        out.verdicts.append(f"labelling {name}: not part of the recipe's published build, not compared")
+    _compare_labelings(comparer, labelings, manifest, out)
     terrain = _terrain_entry(manifest)
     if isinstance(dtm, dict) and terrain is not None:
         (entry,) = _entries([dtm], "dtm")
