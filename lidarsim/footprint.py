@@ -43,6 +43,7 @@ import numpy as np
 from lidarsim import defaults, limits
 from lidarsim.errors import LidarsimError
 from lidarsim.sensor import SensorConfig
+from lidarsim.setting import check, setting
 
 # Points of the coarse waveform grid of the "first" estimator (then refined by bisection).
 _WAVEFORM_GRID = 48
@@ -55,7 +56,9 @@ _FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
 
 @dataclass(frozen=True)
 class FootprintConfig:
-    """How a pixel samples its field of view and forms its range.
+    """How a pixel samples its field of view and forms its range. Each field's help, unit, default
+    and range is its metadata (``lidarsim.setting``): ``hd build-dataset``'s options, a recipe's
+    ``[build]`` keys (``lidarsim.recipe.BuildSettings``) and the checks here are made from it.
 
     Attributes:
         samples: sub-rays per pixel side (K x K sub-rays per pixel); 1 = one ray through the centre.
@@ -65,31 +68,44 @@ class FootprintConfig:
         return_fraction: fraction of the waveform's peak at which the "first" estimator fires.
     """
 
-    samples: int = defaults.FOOTPRINT_SAMPLES
-    spot_profile: str = defaults.SPOT_PROFILE
-    range_estimator: str = defaults.RANGE_ESTIMATOR
-    pulse_width_m: float = defaults.PULSE_WIDTH_M
-    return_fraction: float = defaults.RETURN_FRACTION
+    samples: int = setting(
+        defaults.FOOTPRINT_SAMPLES,
+        "Sub-rays per pixel side: K x K sub-rays over each pixel's field of view (1: one ray through the centre)",
+        bound=limits.FOOTPRINT_SAMPLES,
+        flag="--footprint-samples",
+    )
+    spot_profile: str = setting(
+        defaults.SPOT_PROFILE,
+        "Weights of the sub-rays over the pixel (gaussian: 1/e^2 radius at half the pixel's side)",
+        choices=defaults.SPOT_PROFILES,
+    )
+    range_estimator: str = setting(
+        defaults.RANGE_ESTIMATOR,
+        "A pixel's range from its returned pulse: energy-weighted centroid, or first crossing of "
+        "--return-fraction of the peak",
+        choices=defaults.RANGE_ESTIMATORS,
+    )
+    pulse_width_m: float = setting(
+        defaults.PULSE_WIDTH_M,
+        "Full width at half maximum of the returned pulse, in range",
+        unit="metres",
+        bound=limits.PULSE_WIDTH_M,
+        flag="--pulse-width",
+    )
+    return_fraction: float = setting(
+        defaults.RETURN_FRACTION,
+        "Fraction of the pulse's peak at which the first-return estimator fires",
+        bound=limits.RETURN_FRACTION,
+    )
 
     def __post_init__(self) -> None:
-        if isinstance(self.samples, bool) or not limits.FOOTPRINT_SAMPLES.contains(self.samples):
-            raise LidarsimError(
-                f"--footprint-samples must be in {limits.FOOTPRINT_SAMPLES.interval()}, got {self.samples}"
-            )
         if self.spot_profile not in defaults.SPOT_PROFILES:
             raise LidarsimError(f"unknown spot profile {self.spot_profile!r}; use {', '.join(defaults.SPOT_PROFILES)}")
         if self.range_estimator not in defaults.RANGE_ESTIMATORS:
             raise LidarsimError(
                 f"unknown range estimator {self.range_estimator!r}; use {', '.join(defaults.RANGE_ESTIMATORS)}"
             )
-        if not limits.PULSE_WIDTH_M.contains(self.pulse_width_m):
-            raise LidarsimError(
-                f"--pulse-width must be in {limits.PULSE_WIDTH_M.interval()} metres, got {self.pulse_width_m}"
-            )
-        if not limits.RETURN_FRACTION.contains(self.return_fraction):
-            raise LidarsimError(
-                f"--return-fraction must be in {limits.RETURN_FRACTION.interval()}, got {self.return_fraction}"
-            )
+        check(self, LidarsimError)
 
     @property
     def is_default(self) -> bool:

@@ -141,6 +141,8 @@ RETURN_FRACTION = Bound(0.0, 1.0, low_open=True, high_open=True)
 SNR_REF = Bound(0.0, low_open=True)
 # Detection threshold on the signal-to-noise ratio (0: every return is kept).
 SNR_MIN = Bound(0.0)
+# The range at which the snr noise model's signal-to-noise ratio is given, metres.
+SNR_REF_RANGE_M = Bound(0.0, low_open=True)
 
 
 # ------------------------------------------------------------------------------------ integers in text

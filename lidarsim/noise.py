@@ -15,7 +15,6 @@ seed, the stored noisy points bit for bit.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from typing import Any, ClassVar
@@ -25,6 +24,7 @@ import numpy as np
 from lidarsim import defaults, limits
 from lidarsim.errors import LidarsimError
 from lidarsim.sensor import SensorConfig, ray_directions
+from lidarsim.setting import check, setting
 from lidarsim.streams import Purpose, sigma_key, stream
 
 # How many float32 steps (ulps) around the first estimate recover_ranges searches for the exact range.
@@ -113,6 +113,9 @@ def stored_kind(attrs: Mapping[str, Any]) -> NoiseKind:
 @dataclass(frozen=True)
 class NoiseModel:
     """How the range noise's 1-sigma depends on the returned signal (docs/lidarsim.md, "Signal-dependent noise").
+    Each field's help, unit, default and range is its metadata (``lidarsim.setting``): ``hd
+    build-dataset``'s options, a recipe's ``[build]`` keys (``lidarsim.recipe.BuildSettings``) and
+    the checks here are made from it.
 
     ``constant`` (the paper's): every return has the dataset's sigma. ``snr``: the sigma of a noise
     level is its value for a whole pixel's return at ``reference_range_m`` and normal incidence,
@@ -129,20 +132,29 @@ class NoiseModel:
         reference_range_m: the reference range, metres.
     """
 
-    kind: str = defaults.NOISE_MODEL
-    snr_ref: float = defaults.SNR_REF
-    snr_min: float = defaults.SNR_MIN
-    reference_range_m: float = defaults.SNR_REF_RANGE_M
+    kind: str = setting(defaults.NOISE_MODEL, help_text(), choices=tuple(NOISE_KINDS), flag="--noise-model")
+    snr_ref: float = setting(
+        defaults.SNR_REF,
+        "snr model: signal-to-noise ratio of a whole pixel's return at 500 m, normal incidence",
+        bound=limits.SNR_REF,
+    )
+    snr_min: float = setting(
+        defaults.SNR_MIN,
+        "snr model: returns below this signal-to-noise ratio come back as no return (status weak)",
+        bound=limits.SNR_MIN,
+    )
+    reference_range_m: float = setting(
+        defaults.SNR_REF_RANGE_M,
+        "The range at which snr_ref holds",
+        unit="metres",
+        bound=limits.SNR_REF_RANGE_M,
+        cli=False,
+    )
 
     def __post_init__(self) -> None:
         if self.kind not in NOISE_KINDS:
             raise LidarsimError(f"unknown noise model {self.kind!r}; use {', '.join(NOISE_KINDS)}")
-        if not limits.SNR_REF.contains(self.snr_ref):
-            raise LidarsimError(f"--snr-ref must be in {limits.SNR_REF.interval()}, got {self.snr_ref}")
-        if not limits.SNR_MIN.contains(self.snr_min):
-            raise LidarsimError(f"--snr-min must be in {limits.SNR_MIN.interval()}, got {self.snr_min}")
-        if not (self.reference_range_m > 0.0 and math.isfinite(self.reference_range_m)):
-            raise LidarsimError(f"the noise model's reference range must be > 0 metres, got {self.reference_range_m}")
+        check(self, LidarsimError)
 
     @property
     def is_default(self) -> bool:

@@ -61,9 +61,9 @@ import re
 import tomllib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
-from lidarsim import defaults, limits, noise
+from lidarsim import defaults, limits
 from lidarsim.build import BuildConfig
 from lidarsim.descent import DescentConfig
 from lidarsim.errors import LidarsimError, RecipeError
@@ -73,7 +73,7 @@ from lidarsim.limits import Bound
 from lidarsim.navigation import NavigationError
 from lidarsim.noise import NoiseModel
 from lidarsim.sensor import SensorConfig
-from lidarsim.setting import FILE_OR_DIRECTORY, check, from_mapping, setting
+from lidarsim.setting import FILE_OR_DIRECTORY, check, described_as, described_fields, from_mapping, setting
 from lidarsim.span import DescendingPairType, SpanType, parse_pair, parse_span
 from lidarsim.storage import is_sha256, read_regular_bytes
 from lidarsim.trajectory import TrajectoryConfig
@@ -96,6 +96,12 @@ _LABEL_KEYS = {
     "gridding",
     "truth",
 }
+
+
+# The fields of a config class that this flat record names otherwise (the recipe key and option
+# they always had): (class name, its field) -> BuildSettings' field.
+_FLAT_NAMES = {("FootprintConfig", "samples"): "footprint_samples", ("NoiseModel", "kind"): "noise_model"}
+T = TypeVar("T")
 
 
 @dataclass(frozen=True)
@@ -177,49 +183,15 @@ class BuildSettings:
     rocks_on_dtm: bool = setting(
         False, "Scan the --dtm resampled to 0.5 m with the procedural rock population added (as hd make-dtm --base)"
     )
-    footprint_samples: int = setting(
-        defaults.FOOTPRINT_SAMPLES,
-        "Sub-rays per pixel side: K x K sub-rays over each pixel's field of view (1: one ray through the centre)",
-        bound=limits.FOOTPRINT_SAMPLES,
-    )
-    spot_profile: str = setting(
-        defaults.SPOT_PROFILE,
-        "Weights of the sub-rays over the pixel (gaussian: 1/e^2 radius at half the pixel's side)",
-        choices=defaults.SPOT_PROFILES,
-    )
-    range_estimator: str = setting(
-        defaults.RANGE_ESTIMATOR,
-        "A pixel's range from its returned pulse: energy-weighted centroid, or first crossing of "
-        "--return-fraction of the peak",
-        choices=defaults.RANGE_ESTIMATORS,
-    )
-    pulse_width_m: float = setting(
-        defaults.PULSE_WIDTH_M,
-        "Full width at half maximum of the returned pulse, in range",
-        unit="metres",
-        bound=limits.PULSE_WIDTH_M,
-        flag="--pulse-width",
-    )
-    return_fraction: float = setting(
-        defaults.RETURN_FRACTION,
-        "Fraction of the pulse's peak at which the first-return estimator fires",
-        bound=limits.RETURN_FRACTION,
-    )
-    noise_model: str = setting(
-        defaults.NOISE_MODEL,
-        noise.help_text(),
-        choices=tuple(noise.NOISE_KINDS),
-    )
-    snr_ref: float = setting(
-        defaults.SNR_REF,
-        "snr model: signal-to-noise ratio of a whole pixel's return at 500 m, normal incidence",
-        bound=limits.SNR_REF,
-    )
-    snr_min: float = setting(
-        defaults.SNR_MIN,
-        "snr model: returns below this signal-to-noise ratio come back as no return (status weak)",
-        bound=limits.SNR_MIN,
-    )
+    # The footprint's and the noise model's settings, each described once in its config class.
+    footprint_samples: int = described_as(FootprintConfig, "samples")
+    spot_profile: str = described_as(FootprintConfig, "spot_profile")
+    range_estimator: str = described_as(FootprintConfig, "range_estimator")
+    pulse_width_m: float = described_as(FootprintConfig, "pulse_width_m")
+    return_fraction: float = described_as(FootprintConfig, "return_fraction")
+    noise_model: str = described_as(NoiseModel, "kind", flag="")
+    snr_ref: float = described_as(NoiseModel, "snr_ref")
+    snr_min: float = described_as(NoiseModel, "snr_min")
     descent_frames: int = setting(
         defaults.DESCENT_FRAMES,
         "Frames per descent: with K >= 2 the build flies descents instead of single scans, K frames each "
@@ -323,17 +295,19 @@ class BuildSettings:
             shard_size=int(self.shard_size),
             compression=str(self.compression),
             rocks_on_dtm=self.rocks_on_dtm,
-            footprint=FootprintConfig(
-                samples=int(self.footprint_samples),
-                spot_profile=str(self.spot_profile),
-                range_estimator=str(self.range_estimator),
-                pulse_width_m=float(self.pulse_width_m),
-                return_fraction=float(self.return_fraction),
-            ),
-            noise_model=NoiseModel(
-                kind=str(self.noise_model), snr_ref=float(self.snr_ref), snr_min=float(self.snr_min)
-            ),
+            footprint=self._filled(FootprintConfig),
+            noise_model=self._filled(NoiseModel),
         )
+
+    def _filled(self, cls: type[T]) -> T:
+        """The config ``cls`` (``FootprintConfig``, ``NoiseModel``) made of this record's fields that are
+        described as its own (``_FLAT_NAMES``: the fields named otherwise here), each of the field's kind."""
+        values = {}
+        for f, d in described_fields(cls):
+            if d.cli:
+                value = getattr(self, _FLAT_NAMES.get((cls.__name__, f.name), f.name))
+                values[f.name] = d.kind(value)
+        return cls(**values)
 
     def _descent(self) -> DescentConfig | None:
         """The descent of ``--descent-frames`` K >= 2 (None for 0: single scans, whose descent settings
