@@ -9,6 +9,10 @@ as record sets (``scans`` from the scan shards, one per labelling from its label
 field named after its HDF5 dataset (``extract.column``), with its type and its shape per scan in
 the description. The fields are read from the first shard of each kind, so they are the arrays
 the files hold. Validated with the ``mlcroissant`` library in the tests.
+
+The document is written as JSON-LD nodes, each a :data:`JsonLdNode` (a ``dict``: JSON-LD is the
+file format, its keys are Croissant's and schema.org's terms, ``@type``, ``@id`` and the like); the
+manifest's records read here (the build settings, published checksums) are not nodes.
 """
 
 from __future__ import annotations
@@ -24,11 +28,14 @@ import numpy as np
 from lidarsim.shards import MANIFEST_NAME, read_manifest
 from lidarsim.storage import sha256_file
 
+# One JSON-LD node of the document being written (the file format itself, see the module docstring).
+JsonLdNode = dict[str, Any]
+
 CROISSANT_FILE = "croissant.json"
 CONFORMS_TO = "http://mlcommons.org/croissant/1.0"
 HDF5_FORMAT = "application/x-hdf5"
 # The JSON-LD context of Croissant 1.0 (the specification's, section "Dataset-level information").
-CONTEXT: dict[str, Any] = {
+CONTEXT: JsonLdNode = {
     "@language": "en",
     "@vocab": "https://schema.org/",
     "citeAs": "cr:citeAs",
@@ -106,7 +113,7 @@ def _arrays(path: Path) -> Arrays:
         return {n: (str(f[n].dtype), tuple(f[n].shape)) for n in f if isinstance(f[n], h5py.Dataset) and f[n].shape}
 
 
-def _fields(arrays: Arrays, set_id: str, file_set: str) -> list[dict[str, Any]]:
+def _fields(arrays: Arrays, set_id: str, file_set: str) -> list[JsonLdNode]:
     """One field per array of a shard (its rows are the scans)."""
     fields = []
     for name in sorted(arrays):
@@ -125,8 +132,8 @@ def _fields(arrays: Arrays, set_id: str, file_set: str) -> list[dict[str, Any]]:
     return fields
 
 
-def _file_entry(rel: str, sha256: str, size: int | None) -> dict[str, Any]:
-    entry: dict[str, Any] = {"@type": "cr:FileObject", "@id": rel, "name": rel, "contentUrl": rel}
+def _file_entry(rel: str, sha256: str, size: int | None) -> JsonLdNode:
+    entry: JsonLdNode = {"@type": "cr:FileObject", "@id": rel, "name": rel, "contentUrl": rel}
     if size is not None:
         entry["contentSize"] = f"{size} B"
     entry["encodingFormat"] = "application/json" if rel.endswith(".json") else HDF5_FORMAT
@@ -134,7 +141,7 @@ def _file_entry(rel: str, sha256: str, size: int | None) -> dict[str, Any]:
     return entry
 
 
-def _file_object(directory: Path, rel: str, sha256: str | None = None) -> dict[str, Any]:
+def _file_object(directory: Path, rel: str, sha256: str | None = None) -> JsonLdNode:
     path = directory / rel
     return _file_entry(rel, sha256 if sha256 is not None else sha256_file(path), path.stat().st_size)
 
@@ -151,10 +158,10 @@ class Described:
         dtm_name: the DTM's file name.
     """
 
-    manifest: dict[str, Any] | None
-    shards: list[dict[str, Any]]
+    manifest: JsonLdNode | None
+    shards: list[JsonLdNode]
     shard_arrays: Arrays | None
-    labelings: list[tuple[str, str | None, list[dict[str, Any]], Arrays | None]]
+    labelings: list[tuple[str, str | None, list[JsonLdNode], Arrays | None]]
     config: dict[str, Any]
     sigmas_m: list[float]
     dtm_name: str
@@ -162,7 +169,7 @@ class Described:
 
 def croissant_metadata(
     directory: str | os.PathLike, name: str, description: str, version: int, licence: str, citation: str
-) -> dict[str, Any]:
+) -> JsonLdNode:
     """The Croissant 1.0 record of the dataset at ``directory`` (see the module docstring).
 
     Args:
@@ -192,7 +199,7 @@ def croissant_metadata(
     return _metadata(described, name, description, version, licence, citation)
 
 
-def recipe_croissant(recipe_dir: str | os.PathLike, licence: str, citation: str) -> dict[str, Any]:
+def recipe_croissant(recipe_dir: str | os.PathLike, licence: str, citation: str) -> JsonLdNode:
     """The Croissant 1.0 record of a published recipe's dataset, from its ``recipe.toml`` and
     ``checksums.json`` alone (no build): every shard with its sha256, the arrays as the content
     fingerprints record them (name, dtype, shape). The checksums hold no file sizes and no manifest
@@ -238,12 +245,12 @@ def recipe_croissant(recipe_dir: str | os.PathLike, licence: str, citation: str)
     return _metadata(described, recipe.name, recipe.description, recipe.version, licence, citation)
 
 
-def _metadata(d: Described, name: str, description: str, version: int, licence: str, citation: str) -> dict[str, Any]:
+def _metadata(d: Described, name: str, description: str, version: int, licence: str, citation: str) -> JsonLdNode:
     """The Croissant record of what ``d`` describes."""
     cfg = d.config
     sensor = cfg.get("sensor", {}) if isinstance(cfg, dict) else {}
     terrain = "hd's procedural Mars terrain" if not cfg.get("dtm_path") else f"the DTM {d.dtm_name}"
-    distribution: list[dict[str, Any]] = [d.manifest] if d.manifest is not None else []
+    distribution: list[JsonLdNode] = [d.manifest] if d.manifest is not None else []
     distribution += d.shards
     distribution.append(
         {
@@ -255,7 +262,7 @@ def _metadata(d: Described, name: str, description: str, version: int, licence: 
             "includes": "shards/*.h5",
         }
     )
-    record_sets: list[dict[str, Any]] = []
+    record_sets: list[JsonLdNode] = []
     if d.shard_arrays is not None:
         record_sets.append(
             {
