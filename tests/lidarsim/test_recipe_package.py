@@ -31,6 +31,19 @@ def test_every_file_of_the_recipes_is_package_data() -> None:
     assert missed == []
 
 
+def test_every_sub_package_is_installed() -> None:
+    """pyproject lists its packages by name: a new sub-package (``lidarsim.storage``) must be listed
+    too, or a wheel (a non-editable install) would lack it."""
+    listed = set(tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    found = {
+        ".".join(init.parent.relative_to(REPO).parts)
+        for top in ("lidarsim", "hdlabels", "hdnet")
+        for init in (REPO / top).rglob("__init__.py")
+    }
+    assert "lidarsim.storage" in found
+    assert found - listed == set()
+
+
 def test_a_shipped_recipe_is_found_by_name_and_only_among_the_shipped_ones(tmp_path, monkeypatch) -> None:
     monkeypatch.chdir(tmp_path)
     (tmp_path / "mars-paper").mkdir()  # a folder of the user's that happens to share the name
