@@ -1,6 +1,6 @@
 """The ``hd`` command: options and calls; lidarsim, hdlabels and hdnet do the work.
 
-Each command's options are generated from the settings it fills (``lidarsim.setting.click_options``
+Each command's options are generated from the settings it fills (``hdcore.setting.click_options``
 over ``lidarsim.recipe.BuildSettings``, ``hdlabels.settings.LabelSettings``, ``hdnet.fit.FitConfig``,
 ...), shared ones come from ``hdnet.shared_options``, and the terminal (one-line errors, signals,
 summaries, progress) is ``hdnet.terminal`` (docs/reliability.md).
@@ -15,6 +15,17 @@ from typing import Any
 import click
 from click.core import ParameterSource
 
+from hdcore.outcome import Done, counted
+from hdcore.setting import (
+    DATASET_OR_URL,
+    DIRECTORY,
+    FILE_OR_DIRECTORY,
+    NonEmptyPath,
+    SettingsCommand,
+    bounded,
+    click_options,
+    settings_from_options,
+)
 from hdlabels.errors import HdLabelsError
 from hdnet import terminal
 from hdnet.chains import PAPER_RECIPE, DemoSettings, ReproduceSettings, run_demo, run_reproduce
@@ -44,17 +55,6 @@ from lidarsim import limits
 from lidarsim._version import __version__
 from lidarsim.errors import LidarsimError
 from lidarsim.make_dtm import DtmSettings
-from lidarsim.outcome import Done, counted
-from lidarsim.setting import (
-    DATASET_OR_URL,
-    DIRECTORY,
-    FILE_OR_DIRECTORY,
-    NonEmptyPath,
-    SettingsCommand,
-    bounded,
-    click_options,
-    settings_from_options,
-)
 
 
 # ------------------------------------------------------------------------------------------ commands

@@ -39,6 +39,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from hdcore.storage import OutputTransaction, atomic_path, write_json_atomic, write_text_atomic
 from hdnet import defaults
 from hdnet.data import HazardDataset, dem_spacing_m, open_labeling
 from hdnet.evaluate import validation_summary
@@ -47,7 +48,6 @@ from hdnet.inputs import Normalisation
 from hdnet.model import BayesianSegNet
 from hdnet.profiles import CPU, TrainingProfile
 from hdnet.train import load_checkpoint, median_images_per_s
-from lidarsim.storage import OutputTransaction, atomic_path, write_json_atomic, write_text_atomic
 
 # The cpu profile as shipped before this study (hd 0.1.0): the reference every lever is measured against.
 # Parallel instances share --out: each waits up to this long (seconds) for another's short write.

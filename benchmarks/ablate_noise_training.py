@@ -34,6 +34,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from hdcore.storage import OutputTransaction, write_json_atomic, write_text_atomic
 from hdnet.evaluate import checkpoint_path, infer_split, run_data, score, split_dataset
 from hdnet.fit import FitConfig, fit
 from hdnet.noise_levels import TrainingNoise
@@ -41,7 +42,6 @@ from hdnet.profiles import CPU, ROBUST_THRESHOLD_SPEC
 from hdnet.results import SplitInference
 from hdnet.thresholds import EntropyCalibration, select_threshold
 from hdnet.train import load_trained_model, median_images_per_s
-from lidarsim.storage import OutputTransaction, write_json_atomic, write_text_atomic
 
 RANGE_M = (0.0, 0.10)
 SIGMAS_M = (0.0167, 0.03, 0.07, 0.10, 0.12)

@@ -31,9 +31,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from machine import cpu_model
 
+from hdcore.errors import HdWarning
 from lidarsim.base_relief import rocks_on_base, rocky_geotiff_bytes
 from lidarsim.build import BuildConfig, build_dataset
-from lidarsim.errors import HdWarning
 from lidarsim.recipe import load_recipe
 
 

@@ -1,4 +1,4 @@
-"""The public names of hdlabels (docs/api.md): imported on first use (``lidarsim.exports``)."""
+"""The public names of hdlabels (docs/api.md): imported on first use (``hdcore.exports``)."""
 
 from hdlabels._version import __version__ as __version__
 from hdlabels.alhat import HazardMaps as HazardMaps

@@ -1,11 +1,11 @@
 """Errors raised by hdlabels for bad input: one-line messages that name the problem.
 
-hdlabels' hierarchy sits under hd's root error, ``lidarsim.errors.HdError`` (documented there).
+hdlabels' hierarchy sits under hd's root error, ``hdcore.errors.HdError`` (documented there).
 """
 
 from __future__ import annotations
 
-from lidarsim.errors import HdError
+from hdcore.errors import HdError
 
 
 class HdLabelsError(HdError):

@@ -37,6 +37,9 @@ from typing import Any
 
 import numpy as np
 
+from hdcore.errors import HdWarning, StorageError
+from hdcore.outcome import counted
+from hdcore.storage import OutputTransaction, check_h5_data, confine, open_h5
 from hdlabels import defaults
 from hdlabels.alhat import hazard_maps, safety_probability
 from hdlabels.grid import grid_points
@@ -57,8 +60,6 @@ from hdlabels.store import (
     labeling_truth,
 )
 from hdlabels.truth import check_build_terrain, labelled_terrain, terrain_dem
-from lidarsim.errors import HdWarning, StorageError
-from lidarsim.outcome import counted
 from lidarsim.parallel import run_tasks
 from lidarsim.shards import (
     TRUTH_DTM_SHA256_ATTR,
@@ -68,7 +69,6 @@ from lidarsim.shards import (
     remove_partials,
     sha256_file,
 )
-from lidarsim.storage import OutputTransaction, check_h5_data, confine, open_h5
 from lidarsim.terrain import DTM
 
 

@@ -16,12 +16,12 @@ from typing import Literal
 
 import numpy as np
 
+from hdcore.setting import check, setting
 from hdlabels import defaults, limits
 from hdlabels.conventions import Convention, convention
 from hdlabels.errors import HdLabelsError
 from hdlabels.geometry import RESTING_TRIPLES, Geometry, plane_weights_of
 from hdlabels.hd_geometry import bilinear_taps, pad_sample_points
-from lidarsim.setting import check, setting
 
 __all__ = [
     "RESTING_TRIPLES",
@@ -37,7 +37,7 @@ __all__ = [
 @dataclass(frozen=True)
 class Lander:
     """A legged lander, seen from above: a body disk and footpads on a circle inside it. Each field's
-    meaning, unit and range is its metadata (``lidarsim.setting``), from which the checks here are
+    meaning, unit and range is its metadata (``hdcore.setting``), from which the checks here are
     made; how the fields go together (the pads inside the body, the convention's own rules) is
     checked after them.
     """

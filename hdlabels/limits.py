@@ -1,6 +1,6 @@
 """Ranges of hdlabels' numeric settings (``hd label``'s options and a recipe's ``[label]`` keys).
 
-Each is declared once here, as a :class:`lidarsim.limits.Bound`, and used by the checks of
+Each is declared once here, as a :class:`hdcore.bounds.Bound`, and used by the checks of
 :class:`hdlabels.lander.Lander` and by the command line (shown in ``hd label --help``). Ranges that
 depend on two settings (the pads smaller than the lander, the lander within the DEM) are checked
 where both are known.
@@ -8,8 +8,8 @@ where both are known.
 
 from __future__ import annotations
 
+from hdcore.bounds import Bound
 from hdlabels import defaults
-from lidarsim.limits import Bound
 
 # Yaws per symmetry period of the pad layout (hd convention): one per degree of a full turn is far
 # finer than the pads' sampling of the grid (hd choice; the default is defaults.N_YAWS).

@@ -25,7 +25,7 @@ The dataset's files: ``manifest.json`` (kind ``descent-mosaics``, schema 1.3, wi
 record: the source dataset, poses, DEM grid and registration settings), ``mosaics-NNNNN.h5`` (scan
 shards of schema 1.4, one per source shard) and ``mosaic-terrain.tif``, a copy of the source's
 procedural terrain (a user DTM is recorded by its absolute path, as in the source). Splits are the
-descents'. The output is written like every hd output (``lidarsim.storage.OutputDir``): staged and
+descents'. The output is written like every hd output (``hdcore.storage.OutputDir``): staged and
 moved into place with the manifest last, so an interrupted run leaves nothing half-written; an
 existing mosaic dataset is replaced only with ``overwrite``. Noise levels cannot be made on the fly
 for a mosaic dataset: its noisy mosaics come from registering noisy frames.
@@ -43,6 +43,10 @@ from typing import Any
 
 import numpy as np
 
+from hdcore.bounds import parse_integer
+from hdcore.outcome import counted
+from hdcore.setting import check, described_as, setting
+from hdcore.storage import OutputDir, confine, write_json_atomic
 from hdlabels.errors import HdLabelsError
 from hdlabels.grid import cell_centres
 from hdlabels.mosaic import (
@@ -61,10 +65,7 @@ from hdlabels.mosaic import (
 from hdlabels.settings import LabelSettings
 from hdlabels.store import DemSpec
 from lidarsim._version import __version__
-from lidarsim.limits import parse_integer
-from lidarsim.outcome import counted
 from lidarsim.parallel import run_tasks
-from lidarsim.setting import check, described_as, setting
 from lidarsim.shards import (
     MANIFEST_KIND_MOSAICS,
     MANIFEST_NAME,
@@ -79,7 +80,6 @@ from lidarsim.shards import (
     read_manifest,
     scan_schema_version,
 )
-from lidarsim.storage import OutputDir, confine, write_json_atomic
 
 MOSAIC_SHARD_PREFIX = "mosaics-"
 # The copy of a source's own (procedural) terrain in a mosaic dataset.
@@ -117,7 +117,7 @@ class MosaicSettings:
 
         Raises:
             HdLabelsError: indices or ranges outside frames 0 .. k - 1, naming the list.
-            LidarsimError: an entry that is not a whole number (``lidarsim.limits.parse_integer``).
+            LidarsimError: an entry that is not a whole number (``hdcore.bounds.parse_integer``).
         """
         if self.frames is None:
             return tuple(range(k))

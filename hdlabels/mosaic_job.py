@@ -12,7 +12,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from lidarsim.outcome import Done
+from hdcore.outcome import Done
 
 
 def mosaic_job(

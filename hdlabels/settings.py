@@ -11,12 +11,12 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from hdcore.setting import check, described_as, from_mapping, setting
 from hdlabels import defaults, limits
 from hdlabels.conventions import convention
 from hdlabels.errors import HdLabelsError
 from hdlabels.lander import Lander
 from hdlabels.store import DemSpec
-from lidarsim.setting import check, described_as, from_mapping, setting
 
 # Recipes written before label conventions existed carry no ``convention``: they are the hd convention.
 RECIPE_CONVENTION_BEFORE_CONVENTIONS = "hd"
@@ -25,7 +25,7 @@ RECIPE_CONVENTION_BEFORE_CONVENTIONS = "hd"
 @dataclass(frozen=True)
 class LabelSettings:
     """Lander and DEM settings of a labelling (field names are the recipe's ``[label]`` keys). Each
-    field's help, unit, default and range is its metadata (``lidarsim.setting``): the options of
+    field's help, unit, default and range is its metadata (``hdcore.setting``): the options of
     ``hd label``, the reading of a recipe's ``[label]`` and the checks here are made from it.
     """
 

@@ -18,10 +18,10 @@ from typing import Any
 
 import numpy as np
 
+from hdcore.storage import confine
 from hdlabels.labeling import baseline_safe_counts, label_counts
 from hdlabels.store import LabelShardReader, LabelStoreError
 from lidarsim.shards import SPLIT_NAMES
-from lidarsim.storage import confine
 
 # hd choice: label-shard scans read at once (100 x 100 DEMs at 3 noise levels: 8 MB of P(safe)).
 BLOCK_SCANS = 64

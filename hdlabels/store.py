@@ -4,7 +4,7 @@ A *labelling* is the result of one set of lander parameters and DEM settings app
 scan of a dataset. It lives in ``DATASET/labels/<name>/`` with one label shard per scan shard
 (``labels-NNNNN.h5``, linked to its source shard by path and sha256) and is listed in the
 manifest's ``labelings``. Scan shards are never modified. Field-by-field documentation:
-``docs/labels-format.md``. Files go through ``lidarsim.storage``: built in memory, written
+``docs/labels-format.md``. Files go through ``hdcore.storage``: built in memory, written
 atomically, a fletcher32 checksum on every chunk (schema 1.1); readers check the manifest's
 sha256 and name the file and the scan in every error.
 """
@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from hdcore.storage import CheckedH5File, H5Image, RowBlocks, verify_sha256
 from hdlabels import conventions, defaults
 from hdlabels._version import __version__
 from hdlabels.errors import HdLabelsError, LabelStoreError
@@ -36,7 +37,6 @@ from lidarsim.shards import (
     write_attrs,
     write_json_atomic,
 )
-from lidarsim.storage import CheckedH5File, H5Image, RowBlocks, verify_sha256
 
 LABEL_SCHEMA = "hd.labels"
 # 1.1: the label convention, the baseline's combination and the gridding are recorded (attributes
@@ -300,7 +300,7 @@ class LabelShardReader:
 
     Raises:
         FormatError: not a label shard or an unknown major version (``DamagedFileError``: a checksum
-            mismatch or damage), as ``lidarsim.storage`` raises it.
+            mismatch or damage), as ``hdcore.storage`` raises it.
         LabelStoreError: a file that opens but does not hold a label shard's arrays.
     """
 
@@ -513,7 +513,7 @@ def open_label_shard(directory: str | os.PathLike, entry: dict[str, Any]) -> Lab
 
     Raises:
         FormatError: path outside the dataset, unknown schema (``DamagedFileError``: a missing or
-            damaged file), as ``lidarsim.storage`` raises it.
+            damaged file), as ``hdcore.storage`` raises it.
     """
     what = f"{dataset_label(directory)}/{entry['path']}" if is_url(directory) else f"{Path(directory) / entry['path']}"
     path = join(directory, entry["path"], what)

@@ -42,11 +42,11 @@ from typing import Any
 
 import numpy as np
 
+from hdcore.errors import HdError
+from hdcore.storage import confine, sha256_file
 from hdlabels import defaults
 from hdlabels.grid import cell_centres, grid_points
 from hdlabels.store import DemSpec, LabelStoreError
-from lidarsim.errors import HdError
-from lidarsim.storage import confine, sha256_file
 from lidarsim.terrain import DTM
 
 # Griddings whose DEM value is the height at the cell centre when a sample lies there.

@@ -1,4 +1,4 @@
-"""The public names of hdnet (docs/api.md): imported on first use (``lidarsim.exports``)."""
+"""The public names of hdnet (docs/api.md): imported on first use (``hdcore.exports``)."""
 
 from hdnet._version import __version__ as __version__
 from hdnet.data import HazardDataset as HazardDataset

@@ -12,10 +12,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from hdcore.setting import check, setting
 from hdnet import limits
 from hdnet.errors import HdNetError
 from lidarsim import limits as lidar_limits
-from lidarsim.setting import check, setting
 
 # How a training shows its epochs: a bar (True), nothing (False), or a function given each finished
 # epoch's metrics row and the number of epochs (``hdnet.train.train``'s ``progress``).

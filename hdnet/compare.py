@@ -18,11 +18,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from hdcore.storage import read_json
 from hdnet.errors import HdNetError
 from hdnet.report import METHOD_WORDS, ROW_KEYS, json_plain
 from hdnet.run_files import CONFIG, LAST
 from hdnet.uncertainty import RECORD_KEY, recorded_score
-from lidarsim.storage import read_json
 
 REPORT = "report.json"
 FORMATS = ("table", "markdown", "json")
@@ -108,7 +108,7 @@ def read_report(path: str | os.PathLike) -> tuple[Path, dict[str, Any]]:
     Raises:
         HdNetError: a run directory (runs do not record their reports: ``hd eval`` it first), a
             directory without ``report.json``, or a ``report.json`` that is not an ``hd eval`` report.
-        StorageError: an unreadable, damaged or non-regular ``report.json`` (``lidarsim.storage.read_json``).
+        StorageError: an unreadable, damaged or non-regular ``report.json`` (``hdcore.storage.read_json``).
     """
     p = Path(path)
     if p.name == REPORT and not p.is_dir():

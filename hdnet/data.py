@@ -40,7 +40,7 @@ probabilities over each DEM cell for resizing, so metrics are always computed on
 The h5py handles are opened lazily in the process that reads (re-opened after a fork), never
 pickled: the dataset works with ``DataLoader(num_workers > 0)``. Every label shard is checked
 against the manifest's sha256 and schema when the dataset is made, and every later read error
-(a chunk whose fletcher32 checksum fails) names the file and the scan (``lidarsim.storage``).
+(a chunk whose fletcher32 checksum fails) names the file and the scan (``hdcore.storage``).
 """
 
 from __future__ import annotations
@@ -54,9 +54,10 @@ import numpy as np
 import torch
 from torch.utils.data import ConcatDataset, Dataset
 
+from hdcore.errors import HdError
+from hdcore.storage import CheckedH5File
 from hdlabels.alhat import safety_probability
 from hdlabels.deadpixels import drop_and_repair, random_dead_pixels
-from hdlabels.errors import HdLabelsError
 from hdlabels.lander import Lander
 from hdlabels.noisy import CleanScan, NoisyDems
 from hdlabels.store import (
@@ -81,9 +82,7 @@ from hdnet.inputs import (  # noqa: F401  (re-exported: the grid helpers belong 
 )
 from hdnet.noise_levels import TrainingNoise, check_levels
 from hdnet.sample import DemSample
-from lidarsim.errors import LidarsimError
 from lidarsim.location import is_url, open_h5_at
-from lidarsim.storage import CheckedH5File
 from lidarsim.streams import Purpose, stream
 
 SPLITS: tuple[str, str, str] = ("train", "val", "test")  # split codes 0, 1, 2 of the label shards
@@ -149,7 +148,7 @@ def dem_spacing_m(entry: dict[str, Any]) -> float:
 
 
 def _open_verified(dataset_dir: str | os.PathLike, shard: dict[str, Any]) -> LabelShardReader:
-    """A label shard of the manifest, checked (sha256, schema) before it is read (``lidarsim.storage``'s
+    """A label shard of the manifest, checked (sha256, schema) before it is read (``hdcore.storage``'s
     ``FormatError`` and ``DamagedFileError`` as they are)."""
     return open_label_shard(dataset_dir, shard)
 
@@ -357,7 +356,7 @@ class HazardDataset(Dataset):
         if self._maker is None:
             try:
                 self._maker = NoisyDems.of_dataset(self.dataset_dir, DemSpec.from_entry(self.entry.get("dem", {})))
-            except (HdLabelsError, LidarsimError) as exc:
+            except HdError as exc:  # hd's own errors (storage included), with the dataset named
                 raise type(exc)(f"{self.dataset_dir}: {exc}") from exc
         return self._maker
 
@@ -373,7 +372,7 @@ class HazardDataset(Dataset):
                 shard = self.entry["shards"][k]
                 try:
                     scans = maker.read_scans(self.dataset_dir, shard, [self.items[n][1] for n in members])
-                except (HdLabelsError, LidarsimError, KeyError) as exc:
+                except (HdError, KeyError) as exc:
                     error = HdNetError if isinstance(exc, KeyError) else type(exc)
                     raise error(
                         f"{self.dataset_dir}: cannot make noisy DEMs from the clean points of "

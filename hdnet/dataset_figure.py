@@ -29,15 +29,15 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from hdcore.errors import HdError, OutputExistsError
+from hdcore.storage import atomic_path, check_not_input, check_output_file, sha256_file
 from hdlabels.split_summary import SplitSummary, split_summary
 from hdlabels.store import LabelStoreError, find_labeling
 from hdlabels.truth import build_terrain_path
 from hdnet.errors import HdNetError
-from lidarsim.errors import HdError, OutputExistsError
 from lidarsim.map_window import MapWindow, window_cells
 from lidarsim.scan_summary import HEIGHT_SAMPLE_SCANS, ScanSummary, height_sample, scan_summary
 from lidarsim.shards import SPLIT_NAMES, read_manifest
-from lidarsim.storage import atomic_path, check_not_input, check_output_file, sha256_file
 from lidarsim.terrain import DTM
 
 if TYPE_CHECKING:

@@ -2,7 +2,7 @@
 
 Input: a DTM file (any size; read window by window through ``lidarsim.terrain.DTM``, resampled to
 the run's DEM spacing) or one scan's noisy DEM of a labelled dataset (scan frame). Output, into a
-new or empty directory or over an earlier ``hd detect`` output (``lidarsim.storage.OutputDir``:
+new or empty directory or over an earlier ``hd detect`` output (``hdcore.storage.OutputDir``:
 never an input or a directory holding one, under a writer lock, staged inside the directory and
 moved into place file by file with ``detect.json`` last, so the output is complete when
 ``detect.json`` is there):
@@ -53,6 +53,15 @@ from rasterio.transform import Affine
 from rasterio.windows import Window
 from scipy import ndimage
 
+from hdcore.errors import HdError, HdWarning
+from hdcore.storage import (
+    GeoTiffWriter,
+    OutputDir,
+    StorageError,
+    describe_os_error,
+    write_json_atomic,
+    write_text_atomic,
+)
 from hdlabels import defaults as label_defaults
 from hdlabels.alhat import safety_probability
 from hdlabels.lander import Lander, geometry
@@ -101,19 +110,11 @@ from hdnet.tiling import TilePlan
 from hdnet.train import load_trained_model
 from hdnet.uncertainty import ENTROPY, UncertaintyScore, recorded_score, uncertainty_score, with_score
 from lidarsim.base_relief import resample_bilinear
-from lidarsim.errors import HdError, HdWarning, TerrainError
+from lidarsim.errors import TerrainError
 from lidarsim.location import dataset_at, dataset_key, has_manifest, manifest_sha256
 from lidarsim.map_window import MapWindow, WindowCells, bounds_text, grid_bounds, window_cells
 from lidarsim.procedural import geotiff_bytes, geotiff_profile
 from lidarsim.shards import MANIFEST_NAME, open_scan_shard, read_manifest
-from lidarsim.storage import (
-    GeoTiffWriter,
-    OutputDir,
-    StorageError,
-    describe_os_error,
-    write_json_atomic,
-    write_text_atomic,
-)
 from lidarsim.terrain import DTM
 
 

@@ -9,8 +9,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
+from hdcore.outcome import Done
 from hdnet.detect_settings import DetectSettings
-from lidarsim.outcome import Done
 
 
 def detect_job(

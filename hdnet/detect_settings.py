@@ -12,6 +12,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 
+from hdcore.setting import check, setting
 from hdnet import limits
 from hdnet.errors import HdNetError
 from hdnet.shared_options import (
@@ -26,7 +27,6 @@ from hdnet.shared_options import (
 from hdnet.threshold_spec import parse_threshold_spec
 from lidarsim.errors import LidarsimError
 from lidarsim.map_window import FORM, MAP_WINDOW, MapWindow
-from lidarsim.setting import check, setting
 
 # The network's memory layouts on the CPU (``hdnet.engine``): the fast one first, the reference last.
 LAYOUTS = ("channels-last", "channels-last-per-tile", "nchw")

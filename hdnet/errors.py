@@ -1,9 +1,9 @@
 """The one exception type raised by hdnet for bad input (shapes, specs, checkpoints, options).
 
-It sits under hd's root error, ``lidarsim.errors.HdError`` (documented there).
+It sits under hd's root error, ``hdcore.errors.HdError`` (documented there).
 """
 
-from lidarsim.errors import HdError
+from hdcore.errors import HdError
 
 
 class HdNetError(HdError):

@@ -13,9 +13,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from hdcore.outcome import Done
+from hdcore.setting import check, setting, settings_from_options
 from hdnet.errors import HdNetError
-from lidarsim.outcome import Done
-from lidarsim.setting import check, setting, settings_from_options
 
 
 @dataclass(frozen=True)
@@ -56,9 +56,9 @@ def eval_job(
         HdNetError / StorageError: bad values, an output that is an input, a missing or misshapen run or
             dataset, an unknown labelling (all before anything is loaded), and whatever ``evaluate`` refuses.
     """
+    from hdcore.storage import check_not_input
     from hdnet.eval_settings import EvalConfig
     from hdnet.preflight import check_inputs
-    from lidarsim.storage import check_not_input
 
     calibrate_on = tuple(options.get("calibrate_on", ()))
     check_not_input(out_dir, {f"the calibration dataset {d}": d for d in calibrate_on})

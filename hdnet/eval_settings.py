@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from hdcore.setting import DIRECTORY, check, setting
 from hdlabels import defaults as label_defaults
 from hdnet import limits
 from hdnet.errors import HdNetError
@@ -27,7 +28,6 @@ from hdnet.shared_options import (
 )
 from hdnet.threshold_spec import ThresholdSpec, parse_threshold_spec
 from hdnet.uncertainty import UncertaintyScore, uncertainty_score
-from lidarsim.setting import DIRECTORY, check, setting
 
 
 @dataclass(frozen=True)
@@ -54,7 +54,7 @@ class EvalConfig:
 
     Raises:
         HdNetError: a value of the wrong kind or outside its range (each field's metadata,
-            ``lidarsim.setting``) or a bad threshold spec, checked here before any file is looked
+            ``hdcore.setting``) or a bad threshold spec, checked here before any file is looked
             at; the dropped pixels are checked against the DEM size by ``evaluate``.
     """
 

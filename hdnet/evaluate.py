@@ -35,6 +35,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from hdcore.errors import HdError, HdWarning
+from hdcore.storage import read_regular_text
 from hdlabels import defaults as label_defaults
 from hdlabels.alhat import safety_probability
 from hdlabels.defaults import TRUTHS
@@ -70,10 +72,8 @@ from hdnet.thresholds import (
 )
 from hdnet.train import load_checkpoint, load_trained_model
 from hdnet.uncertainty import ENTROPY, UncertaintyScore, recorded_score, with_score
-from lidarsim.errors import HdError, HdWarning
 from lidarsim.location import dataset_key, manifest_sha256
 from lidarsim.shards import read_manifest, sha256_file
-from lidarsim.storage import read_regular_text
 
 # Where H_t is calibrated: once at the run's reference noise level (the paper), or at each test level.
 # hd choice: above a run's training noise levels, `--calibrate each` calls a pixel certain-safe only

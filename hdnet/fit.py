@@ -26,6 +26,19 @@ from typing import Any
 
 from torch.utils.data import ConcatDataset, Dataset
 
+from hdcore.errors import HdWarning, StorageError
+from hdcore.setting import DIRECTORY, check, setting
+from hdcore.storage import (
+    LOCK_NAME,
+    PARTIAL_MARK,
+    OutputTransaction,
+    check_not_input,
+    check_output_dir,
+    check_regular_file,
+    read_regular_bytes,
+    read_regular_text,
+    sha256_bytes,
+)
 from hdnet import defaults, limits
 from hdnet.augment import check_augment
 from hdnet.data import (
@@ -46,21 +59,8 @@ from hdnet.run_check import RUN_FILES, check_run
 from hdnet.run_record import CONFIG, RUN_SCHEMA, AlsoDataset, TrainingData, checkpoint_data
 from hdnet.train import LAST, load_checkpoint, train
 from lidarsim import limits as lidar_limits
-from lidarsim.errors import HdWarning, StorageError
 from lidarsim.location import dataset_key, has_manifest, is_url, manifest_sha256
-from lidarsim.setting import DIRECTORY, check, setting
 from lidarsim.shards import MANIFEST_NAME
-from lidarsim.storage import (
-    LOCK_NAME,
-    PARTIAL_MARK,
-    OutputTransaction,
-    check_not_input,
-    check_output_dir,
-    check_regular_file,
-    read_regular_bytes,
-    read_regular_text,
-    sha256_bytes,
-)
 
 
 def input_spec_for(profile: TrainingProfile, spacing_m: float, normalisation: Normalisation | None) -> InputSpec:
@@ -204,7 +204,7 @@ def prepare_run_dir(
 
 @contextlib.contextmanager
 def run_transaction(run_dir: Path, check: Callable[[], Any], rollback: Callable[[], None]) -> Iterator[Any]:
-    """The run directory's output transaction (``lidarsim.storage.OutputTransaction``, in place:
+    """The run directory's output transaction (``hdcore.storage.OutputTransaction``, in place:
     checkpoints are written one by one, each atomically, and a later call resumes them); yields
     ``check()``'s result, checked under the lock. Rank 0 only under torchrun (other ranks write
     nothing)."""
@@ -231,7 +231,7 @@ class FitConfig:
     checkpoints, metrics.csv and config.json are replaced); ``stop_after``: end this call after
     that many epochs of the ``epochs``-long schedule (resume later).
 
-    Each setting's help, unit, default and range is its field's metadata (``lidarsim.setting``),
+    Each setting's help, unit, default and range is its field's metadata (``hdcore.setting``),
     from which ``hd train``'s options and the checks here are made.
 
     Raises:

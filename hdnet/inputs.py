@@ -47,10 +47,10 @@ import torch
 import torch.nn.functional as F
 from scipy import ndimage
 
+from hdcore.bounds import Bound
+from hdcore.setting import check, setting
 from hdnet import defaults
 from hdnet.errors import HdNetError
-from lidarsim.limits import Bound
-from lidarsim.setting import check, setting
 
 Heights = Literal["minmax", "median", "plane"]
 HEIGHTS: tuple[str, ...] = ("minmax", "median", "plane")
@@ -89,7 +89,7 @@ class Normalisation:
 @dataclass(frozen=True)
 class InputSpec:
     """How a DEM becomes the network input (see the module docstring). Each field's meaning, unit
-    and range is its metadata (``lidarsim.setting``), from which the checks here are made;
+    and range is its metadata (``hdcore.setting``), from which the checks here are made;
     ``normalisation`` is the training split's min/max heights (metres), required for ``minmax`` only.
     """
 

@@ -1,6 +1,6 @@
 """Ranges of hdnet's numeric settings (the options of ``hd train``, ``hd eval`` and ``hd detect``).
 
-Each is declared once here, as a :class:`lidarsim.limits.Bound`, and used by hdnet's own checks
+Each is declared once here, as a :class:`hdcore.bounds.Bound`, and used by hdnet's own checks
 (``hdnet.evaluate``, ``hdnet.detect``) and by the command line (shown in ``--help``; a value outside
 is a usage error before any work). Sizes that depend on several settings and on the data (dropped
 pixels within a DEM, memory of a batch) are checked where the data is known.
@@ -8,9 +8,9 @@ pixels within a DEM, memory of a batch) are checked where the data is known.
 
 from __future__ import annotations
 
+from hdcore.bounds import Bound
 from hdlabels.defaults import MAX_DEM_SIDE_PX
 from lidarsim import limits as lidar_limits
-from lidarsim.limits import Bound
 
 # MC-dropout samples per DEM: the tiled suffix of one batch holds M copies in memory (hd choice;
 # the paper's M is 8).

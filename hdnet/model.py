@@ -37,11 +37,11 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from hdcore.bounds import Bound
+from hdcore.setting import check, setting
 from hdnet import defaults
 from hdnet.dropout_masks import fast_dropout
 from hdnet.errors import HdNetError
-from lidarsim.limits import Bound
-from lidarsim.setting import check, setting
 
 MODEL_NAME = "bayesian_segnet"
 
@@ -49,7 +49,7 @@ MODEL_NAME = "bayesian_segnet"
 @dataclass(frozen=True)
 class ModelConfig:
     """Hyper-parameters that define the architecture (stored in every checkpoint). Each field's
-    meaning and range is its metadata (``lidarsim.setting``), from which the checks here are made.
+    meaning and range is its metadata (``hdcore.setting``), from which the checks here are made.
     Checkpoints written before ``depth`` existed hold 5-block models and load with the default.
     """
 

@@ -28,6 +28,8 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
+from hdcore.errors import HdError
+from hdcore.storage import read_regular_text
 from hdlabels import defaults as label_defaults
 from hdlabels.settings import LabelSettings
 from hdnet import defaults as net_defaults
@@ -35,8 +37,7 @@ from hdnet.noise_levels import parse_sigma_sweep
 from hdnet.profiles import ROBUST_THRESHOLD_SPEC, get_profile
 from lidarsim import defaults as lidar_defaults
 from lidarsim.build import BuildConfig
-from lidarsim.errors import HdError, LidarsimError
-from lidarsim.storage import read_regular_text
+from lidarsim.errors import LidarsimError
 
 if TYPE_CHECKING:
     from hdnet.evaluate import EvalConfig
@@ -130,8 +131,8 @@ class Pipeline:
             HdError: naming the option (a split left empty, a DTM that cannot be read, a lander that
                 does not fit the DEM, an output path that cannot be written).
         """
+        from hdcore.storage import check_not_input, check_output_dir
         from lidarsim.build import assign_splits
-        from lidarsim.storage import check_not_input, check_output_dir
         from lidarsim.terrain import DTM
 
         n_scans = self.build.trajectory.n_scans
@@ -356,8 +357,8 @@ def _label(pipeline: Pipeline, workers: int | None, echo: Echo, progress: Progre
 
 
 def _inspect(directory: Path, echo: Echo) -> None:
+    from hdcore.errors import DamagedFileError
     from hdlabels.store import LABEL_SCHEMA, LABEL_SCHEMA_VERSION
-    from lidarsim.errors import DamagedFileError
     from lidarsim.inspect import INTACT_STATUS, damaged_message, damaged_status, describe_dataset
     from lidarsim.shards import verify_dataset
 
@@ -470,7 +471,7 @@ class StageLog:
 
     def finish(self) -> dict[str, float]:
         """Append this run's stage times to ``stages.json`` (a damaged file is started again)."""
-        from lidarsim.storage import OutputTransaction, write_json_atomic
+        from hdcore.storage import OutputTransaction, write_json_atomic
 
         path = self.out_dir / STAGES_FILE
         previous: Any
@@ -490,8 +491,8 @@ class StageLog:
 def first_test_scan(dataset_dir: Path) -> int | None:
     """The index of the dataset's first test-split scan (one the network never trained on), or None:
     no test scan, or a dataset that cannot be read (only the ``split`` and ``scan_index`` arrays are)."""
+    from hdcore.storage import confine, open_h5
     from lidarsim.shards import SPLIT_NAMES, read_manifest
-    from lidarsim.storage import confine, open_h5
 
     test = SPLIT_NAMES.index("test")
     try:

@@ -23,13 +23,13 @@ from collections.abc import Mapping
 from dataclasses import MISSING, asdict, dataclass, fields, replace
 from typing import Literal
 
+from hdcore.bounds import Bound
+from hdcore.setting import check, setting
 from hdnet import defaults
 from hdnet.augment import AUGMENTATIONS
 from hdnet.errors import HdNetError
 from hdnet.inputs import EXTRA_CHANNELS, HEIGHTS
 from hdnet.model import ModelConfig
-from lidarsim.limits import Bound
-from lidarsim.setting import check, setting
 
 LR_SCHEDULES: tuple[str, ...] = ("constant", "cosine", "onecycle")
 CLASS_WEIGHTINGS: tuple[str, ...] = ("none", "balanced")
@@ -46,7 +46,7 @@ ONECYCLE_FINAL_DIV_FACTOR = 1e4
 @dataclass(frozen=True)
 class TrainingProfile:
     """One training configuration. Each field's meaning, unit and range is its metadata
-    (``lidarsim.setting``), from which the checks here are made. The first fields are the paper's
+    (``hdcore.setting``), from which the checks here are made. The first fields are the paper's
     knobs; the others default to the paper's choices, so a profile saved before they existed reads
     back unchanged.
     """

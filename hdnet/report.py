@@ -12,7 +12,7 @@ full disk included) removes the staging directory, so a report directory never h
 report. The directory's writer lock keeps two evaluations from writing the same report. An
 existing report is replaced only with ``overwrite``; a non-empty directory that is not a report,
 and a directory that is, holds or lies inside the run or the dataset, are never written
-(``lidarsim.storage.OutputDir``; ``check_report_dir`` is also called before an evaluation starts).
+(``hdcore.storage.OutputDir``; ``check_report_dir`` is also called before an evaluation starts).
 """
 
 from __future__ import annotations
@@ -23,14 +23,14 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from hdnet.paper_results import paper_row
-from hdnet.threshold_spec import unreachable_risk_words
-from hdnet.uncertainty import recorded_score
-from lidarsim.storage import (
+from hdcore.storage import (
     OutputDir,
     write_json_atomic,
     write_text_atomic,
 )
+from hdnet.paper_results import paper_row
+from hdnet.threshold_spec import unreachable_risk_words
+from hdnet.uncertainty import recorded_score
 
 if TYPE_CHECKING:
     from hdnet.results import EvaluationResult, ReportRow

@@ -33,11 +33,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from hdcore.errors import StorageError
+from hdcore.storage import check_regular_file, lock_holder, read_regular_text
 from hdnet.errors import HdNetError
 from hdnet.run_record import CONFIG, RunRecord, TrainingData, extra_difference, json_difference, read_run_record
 from hdnet.train import BEST, LAST, METRIC_FIELDS, METRICS, checked_model_config, load_checkpoint
-from lidarsim.errors import StorageError
-from lidarsim.storage import check_regular_file, lock_holder, read_regular_text
 
 __all__ = ["RUN_FILES", "CheckedRun", "check_run"]
 

@@ -35,14 +35,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from hdcore.errors import StorageError
+from hdcore.storage import read_regular_text, write_json_atomic
 from hdnet.errors import HdNetError
 from hdnet.inputs import InputSpec
 from hdnet.noise_levels import TrainingNoise
 from hdnet.run_files import CONFIG, LAST, METRICS
-from lidarsim.errors import StorageError
 from lidarsim.location import has_manifest
 from lidarsim.shards import MANIFEST_NAME
-from lidarsim.storage import read_regular_text, write_json_atomic
 
 __all__ = [
     "CONFIG",
@@ -457,7 +457,7 @@ def unfinished_training(checkpoint: str | os.PathLike, epoch: int) -> str | None
 
 
 def write_run_record(run_dir: str | os.PathLike, record: RunRecord) -> None:
-    """Write ``RUN/config.json`` atomically (``lidarsim.storage.write_json_atomic``).
+    """Write ``RUN/config.json`` atomically (``hdcore.storage.write_json_atomic``).
 
     Raises:
         StorageError: a value JSON cannot hold, or an OS error (a full disk); nothing is half-written.

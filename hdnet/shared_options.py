@@ -1,7 +1,7 @@
 """The options that several ``hd`` commands share, declared once (the ``*_option`` factories).
 
 The options of one command's settings are generated from the settings dataclass
-(:func:`lidarsim.setting.click_options`); these are the ones around them: where to write, how many
+(:func:`hdcore.setting.click_options`); these are the ones around them: where to write, how many
 workers, the seed, the run's threshold.
 """
 
@@ -13,12 +13,12 @@ from typing import Any
 
 import click
 
+from hdcore.setting import DIRECTORY, FILE_OR_DIRECTORY, bounded, setting
 from hdnet import defaults as net_defaults
 from hdnet import limits as net_limits
 from hdnet import threshold_spec, uncertainty
 from lidarsim import defaults as lidar_defaults
 from lidarsim import limits
-from lidarsim.setting import DIRECTORY, FILE_OR_DIRECTORY, bounded, setting
 
 Decorator = Callable[[Callable[..., Any]], Callable[..., Any]]
 

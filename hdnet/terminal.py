@@ -19,7 +19,7 @@ from typing import Any
 import click
 from click.core import ParameterSource
 
-from lidarsim.errors import HdError, HdWarning
+from hdcore.errors import HdError, HdWarning
 
 
 class Terminated(KeyboardInterrupt):
@@ -174,7 +174,7 @@ def _one_line_errors(func: Callable[..., Any]) -> Callable[..., Any]:
         except HdError as exc:
             raise click.ClickException(one_line(exc)) from exc
         except OSError as exc:
-            from lidarsim.storage import describe_os_error
+            from hdcore.storage import describe_os_error
 
             raise click.ClickException(describe_os_error(exc)) from exc
         except MemoryError as exc:

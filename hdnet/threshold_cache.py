@@ -37,11 +37,11 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+from hdcore.errors import HdWarning
+from hdcore.storage import StorageError, read_regular_bytes, write_json_atomic
 from hdnet.uncertainty import ENTROPY, UncertaintyScore, uncertainty_score, with_score
-from lidarsim.errors import HdWarning
 from lidarsim.location import manifest_sha256
 from lidarsim.shards import MANIFEST_NAME, sha256_file
-from lidarsim.storage import StorageError, read_regular_bytes, write_json_atomic
 
 __all__ = ["CACHE_FILE", "CachedThreshold", "ThresholdKey", "cache_key", "entry_digest"]
 

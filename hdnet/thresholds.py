@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from hdcore.errors import HdWarning
 from hdnet import defaults
 from hdnet.errors import HdNetError
 from hdnet.threshold_spec import (
@@ -53,7 +54,6 @@ from hdnet.threshold_spec import (
     risk_reach,
     unreachable_risk_words,
 )
-from lidarsim.errors import HdWarning
 
 __all__ = [
     "LOSS_BOUND",

@@ -58,6 +58,8 @@ import torch.nn.functional as F
 from torch import nn
 from torch.utils.data import DataLoader, Dataset, DistributedSampler
 
+from hdcore.errors import HdWarning
+from hdcore.storage import write_bytes_atomic
 from hdnet import defaults
 from hdnet._version import __version__
 from hdnet.errors import HdNetError
@@ -65,8 +67,6 @@ from hdnet.model import MODEL_NAME, BayesianSegNet, ModelConfig
 from hdnet.profiles import TrainingProfile, profile_from_dict
 from hdnet.run_files import BEST, LAST, METRICS  # and CONFIG, the run record (hdnet.run_record)
 from hdnet.run_record import RunRecord, extra_difference, write_run_record
-from lidarsim.errors import HdWarning
-from lidarsim.storage import write_bytes_atomic
 
 CHECKPOINT_SCHEMA = "hdnet.checkpoint"
 CHECKPOINT_VERSION = 2

@@ -11,10 +11,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from hdcore.outcome import Done
+from hdcore.setting import check, setting, settings_from_options
 from hdnet import limits
 from hdnet.errors import HdNetError
-from lidarsim.outcome import Done
-from lidarsim.setting import check, setting, settings_from_options
 
 
 @dataclass(frozen=True)

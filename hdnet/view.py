@@ -24,7 +24,7 @@ report (``hdnet.compare.settings``).
 
 Every file is checked as it is read: a damaged ``detect.json``, map, ``sites.csv``, ``report.json``
 or figure is one error naming the file, and nothing is written. The page is written atomically
-(``lidarsim.storage.write_text_atomic``) and never over anything but an earlier page of ``hd view``;
+(``hdcore.storage.write_text_atomic``) and never over anything but an earlier page of ``hd view``;
 while it is made, the directory's writer lock is held (when the page goes into it) or checked, so an
 ``hd detect`` or ``hd eval`` writing the directory is never read half-way.
 """
@@ -45,6 +45,20 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from hdcore.errors import DamagedFileError, HdError, LockedError, OutputExistsError, StorageError
+from hdcore.outcome import Done
+from hdcore.setting import check, setting
+from hdcore.storage import (
+    WriterLock,
+    check_output_file,
+    check_regular_file,
+    lock_holder,
+    read_json,
+    read_regular_bytes,
+    read_regular_text,
+    sha256_file,
+    write_text_atomic,
+)
 from hdlabels.store import find_labeling, open_label_shard
 from hdnet import limits
 from hdnet._version import __version__
@@ -56,21 +70,7 @@ from hdnet.results import SITE_COLUMNS, EvaluationResult, LandingRow, ReportRow
 from hdnet.run_files import CONFIG, LAST
 from hdnet.uncertainty import recorded_score
 from hdnet.view_html import anchor, data_uri, definitions, esc, is_page, markdown_html, page, table
-from lidarsim.errors import DamagedFileError, HdError, LockedError, OutputExistsError, StorageError
-from lidarsim.outcome import Done
-from lidarsim.setting import check, setting
 from lidarsim.shards import MANIFEST_NAME
-from lidarsim.storage import (
-    WriterLock,
-    check_output_file,
-    check_regular_file,
-    lock_holder,
-    read_json,
-    read_regular_bytes,
-    read_regular_text,
-    sha256_file,
-    write_text_atomic,
-)
 
 if TYPE_CHECKING:  # hdnet.view_images imports matplotlib: only where the page is drawn
     from hdnet.view_images import Reduction
@@ -965,7 +965,7 @@ def check_out(out: Path) -> Path:
     is missing or an earlier page of ``hd view``; returns its absolute path.
 
     Raises:
-        StorageError: an unusable place (see ``lidarsim.storage.check_output_file``).
+        StorageError: an unusable place (see ``hdcore.storage.check_output_file``).
         OutputExistsError: ``out`` is anything else (an input, a user's file, a FIFO).
     """
     path = check_output_file(out, "--out")

@@ -36,10 +36,10 @@ from rasterio.enums import Resampling
 from rasterio.errors import RasterioError
 from rasterio.windows import Window, from_bounds
 
+from hdcore.errors import DamagedFileError
+from hdcore.storage import check_regular_file
 from hdnet.figures import SAFETY_HEX
 from hdnet.sites import SAFETY_INVALID, SAFETY_SAFE, SAFETY_UNCERTAIN, SAFETY_UNSAFE
-from lidarsim.errors import DamagedFileError
-from lidarsim.storage import check_regular_file
 
 # hd choice: cells read per window while reducing a map (16 MiB of float32), whatever its size.
 STRIP_CELLS = 1 << 22

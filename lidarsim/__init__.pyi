@@ -1,11 +1,11 @@
-"""The public names of lidarsim (docs/api.md): imported on first use (``lidarsim.exports``)."""
+"""The public names of lidarsim (docs/api.md): imported on first use (``hdcore.exports``)."""
 
+from hdcore.errors import HdError as HdError
+from hdcore.errors import HdWarning as HdWarning
 from lidarsim._version import __version__ as __version__
 from lidarsim.build import BuildConfig as BuildConfig
 from lidarsim.build import BuildSummary as BuildSummary
 from lidarsim.build import build_dataset as build_dataset
-from lidarsim.errors import HdError as HdError
-from lidarsim.errors import HdWarning as HdWarning
 from lidarsim.errors import LidarsimError as LidarsimError
 from lidarsim.errors import TerrainError as TerrainError
 from lidarsim.footprint import FootprintConfig as FootprintConfig

@@ -30,6 +30,7 @@ from typing import Any
 import numba
 import numpy as np
 
+from hdcore.storage import write_bytes_atomic
 from lidarsim import terrain_defaults as td
 from lidarsim.errors import TerrainError
 from lidarsim.procedural import (
@@ -41,7 +42,6 @@ from lidarsim.procedural import (
     stamp_rocks,
     terrain_stream,
 )
-from lidarsim.storage import write_bytes_atomic
 from lidarsim.terrain import DTM, DTMInfo
 
 __all__ = [

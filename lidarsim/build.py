@@ -27,14 +27,29 @@ from typing import Any
 
 import numpy as np
 
+from hdcore.errors import HdWarning, OutputExistsError
+from hdcore.outcome import counted
+from hdcore.storage import (
+    LOCK_NAME,
+    PARTIAL_MARK,
+    OutputTransaction,
+    StorageError,
+    check_h5_data,
+    check_not_input,
+    check_output_dir,
+    first_missing,
+    make_subdir,
+    read_regular_text,
+    sha256_bytes,
+    write_bytes_atomic,
+)
 from lidarsim import defaults, limits
 from lidarsim._version import __version__
 from lidarsim.base_relief import rocks_on_base, rocky_geotiff_bytes
-from lidarsim.errors import HdWarning, LidarsimError, OutputExistsError
+from lidarsim.errors import LidarsimError
 from lidarsim.footprint import FootprintConfig
 from lidarsim.navigation import DescentNavErrors, descent_nav_errors
 from lidarsim.noise import NoiseModel
-from lidarsim.outcome import counted
 from lidarsim.parallel import probe_scheduler, run_tasks
 from lidarsim.procedural import MarsTerrainParams, generate_mars_terrain, geotiff_bytes, terrain_tags
 from lidarsim.scan import (
@@ -67,20 +82,6 @@ from lidarsim.shards import (
     scan_schema_version,
     sha256_file,
     write_json_atomic,
-)
-from lidarsim.storage import (
-    LOCK_NAME,
-    PARTIAL_MARK,
-    OutputTransaction,
-    StorageError,
-    check_h5_data,
-    check_not_input,
-    check_output_dir,
-    first_missing,
-    make_subdir,
-    read_regular_text,
-    sha256_bytes,
-    write_bytes_atomic,
 )
 from lidarsim.streams import Purpose, stream
 from lidarsim.terrain import DTM

@@ -12,8 +12,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from hdcore.outcome import Done
 from lidarsim import limits
-from lidarsim.outcome import Done
 
 
 def build_job(
@@ -42,10 +42,10 @@ def build_job(
             a recipe's DTM that is not there, before anything is written; and whatever
             ``build_dataset`` refuses.
     """
+    from hdcore.storage import check_output_dir
     from lidarsim.build import build_dataset, default_out_dir
     from lidarsim.recipe import BuildSettings, check_recipe_dtm, load_recipe
     from lidarsim.recipe_deviation import deviate
-    from lidarsim.storage import check_output_dir
 
     if out_dir is not None:
         check_output_dir(out_dir, "--out")

@@ -15,12 +15,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from hdcore.storage import write_text_atomic
 from lidarsim.croissant import CROISSANT_FILE, croissant_metadata, recipe_croissant
 from lidarsim.errors import RecipeError
 from lidarsim.published import FINGERPRINT_KEYS, content_fingerprints
 from lidarsim.recipe import CHECKSUMS_FILE, Recipe, load_recipe, shipped_recipe_dirs
 from lidarsim.shards import read_manifest
-from lidarsim.storage import write_text_atomic
 
 CARD_FILE = "card.md"
 

@@ -25,8 +25,8 @@ from typing import Any
 import h5py
 import numpy as np
 
+from hdcore.storage import sha256_file
 from lidarsim.shards import MANIFEST_NAME, read_manifest
-from lidarsim.storage import sha256_file
 
 # One JSON-LD node of the document being written (the file format itself, see the module docstring).
 JsonLdNode = dict[str, Any]

@@ -18,7 +18,7 @@ backend) in point format 6, the LAS 1.4 format without colour:
 
 Beside the files, ``export.json`` records the dataset, the settings and, per file, its scan, point
 count, origin_map and sha256. The output directory follows hd's rules for outputs
-(:class:`lidarsim.storage.OutputDir`): files are staged under a temporary name and moved into place
+(:class:`hdcore.storage.OutputDir`): files are staged under a temporary name and moved into place
 when all are written, so an interrupted export leaves no partial file; an existing export is
 replaced only with ``overwrite``.
 """
@@ -33,14 +33,14 @@ from typing import Any
 
 import numpy as np
 
+from hdcore.bounds import Bound, parse_integer
+from hdcore.setting import check, setting
+from hdcore.storage import OutputDir, sha256_file, write_json_atomic
 from lidarsim import limits
 from lidarsim._version import __version__
 from lidarsim.errors import LidarsimError
-from lidarsim.limits import Bound, parse_integer
 from lidarsim.scan import STATUS_DAMAGED, STATUS_RETURN
-from lidarsim.setting import check, setting
 from lidarsim.shards import open_scan_shard, read_manifest
-from lidarsim.storage import OutputDir, sha256_file, write_json_atomic
 
 EXPORT_FORMATS: tuple[str, ...] = ("laz", "las")
 EXPORT_FRAMES: tuple[str, ...] = ("scan", "map")
@@ -107,7 +107,7 @@ class ExportSummary:
 
 def parse_scans(text: str) -> tuple[int, ...]:
     """Scan indices from ``"3"``, ``"0,5,9"`` or ranges ``"10-19"`` (inclusive), in the order given;
-    indices in the ASCII digits 0-9 (:func:`lidarsim.limits.parse_integer`). The scans a list names
+    indices in the ASCII digits 0-9 (:func:`hdcore.bounds.parse_integer`). The scans a list names
     (ranges counted in full, repeats included) are bounded by ``limits.SCANS`` - a dataset holds no
     more - before the list is expanded.
 

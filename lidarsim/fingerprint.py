@@ -53,9 +53,9 @@ from typing import Any
 import h5py
 import numpy as np
 
-from lidarsim.limits import Bound
+from hdcore.bounds import Bound
+from hdcore.storage import CheckedDataset, FormatError, check_schema, open_h5
 from lidarsim.shards import TRUTH_DTM_SHA256_ATTR
-from lidarsim.storage import CheckedDataset, FormatError, check_schema, open_h5
 
 __all__ = [
     "FILE_DIGEST_ATTRS",

@@ -40,10 +40,10 @@ from functools import lru_cache
 
 import numpy as np
 
+from hdcore.setting import check, setting
 from lidarsim import defaults, limits
 from lidarsim.errors import LidarsimError
 from lidarsim.sensor import SensorConfig
-from lidarsim.setting import check, setting
 
 # Points of the coarse waveform grid of the "first" estimator (then refined by bisection).
 _WAVEFORM_GRID = 48
@@ -57,7 +57,7 @@ _FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
 @dataclass(frozen=True)
 class FootprintConfig:
     """How a pixel samples its field of view and forms its range. Each field's help, unit, default
-    and range is its metadata (``lidarsim.setting``): ``hd build-dataset``'s options, a recipe's
+    and range is its metadata (``hdcore.setting``): ``hd build-dataset``'s options, a recipe's
     ``[build]`` keys (``lidarsim.recipe.BuildSettings``) and the checks here are made from it.
 
     Attributes:

@@ -9,11 +9,11 @@ from typing import Any
 
 import numpy as np
 
+from hdcore.outcome import counted
+from hdcore.storage import FormatError, StorageError, confine, lock_holder
 from lidarsim.location import is_url, remote_dataset
 from lidarsim.noise import stored_kind
-from lidarsim.outcome import counted
 from lidarsim.shards import SPLIT_NAMES, open_scan_shard, read_manifest
-from lidarsim.storage import FormatError, StorageError, confine, lock_holder
 
 
 def _size(directory: Path | str, entries: list[dict]) -> int:

@@ -7,12 +7,8 @@ once instead of a MemoryError after a long wait (docs/reliability.md lists them)
 
 from __future__ import annotations
 
-import math
-import re
-from dataclasses import dataclass
-
+from hdcore.bounds import Bound, int_bound
 from lidarsim import terrain_defaults
-from lidarsim.errors import LidarsimError
 
 # Detector pixels per side: one ray-casting batch (16 scans) of 1024 x 1024 rays needs ~0.4 GB.
 MAX_DETECTOR_PX: int = 1024
@@ -34,61 +30,19 @@ MAX_LOADER_WORKERS: int = 256
 MAX_SHARD_FILES: int = 10_000
 
 
-# ------------------------------------------------------------------------------------ option ranges
-@dataclass(frozen=True)
-class Bound:
-    """The range of one numeric setting, declared once where the value belongs and used by the
-    package's own checks and by the ``hd`` command line (click ranges: the bound is shown in
-    ``--help`` and a value outside it is a usage error before any work).
-
-    ``low``/``high``: the ends (None: unbounded on that side), in the setting's unit; ``low_open``/
-    ``high_open``: the end itself is excluded. ``integer``: the setting is a count or an index.
-    ``hint``: a sentence said with every refusal of a value outside the range.
-    """
-
-    low: float | None = None
-    high: float | None = None
-    low_open: bool = False
-    high_open: bool = False
-    integer: bool = False
-    hint: str = ""  # said after the range when a value falls outside it (e.g. the unit it is in)
-
-    def contains(self, value: float) -> bool:
-        """True when ``value`` is a finite number within the range."""
-        if not math.isfinite(value):
-            return False
-        if self.low is not None and (value <= self.low if self.low_open else value < self.low):
-            return False
-        return not (self.high is not None and (value >= self.high if self.high_open else value > self.high))
-
-    def interval(self) -> str:
-        """The range in interval notation: ``(0, 170)``, ``[0, 5)``, ``[1, inf)``."""
-
-        def end(v: float | None, default: str) -> str:
-            return default if v is None else (f"{int(v)}" if self.integer else f"{v:g}")
-
-        left = "(" if self.low_open or self.low is None else "["
-        right = ")" if self.high_open or self.high is None else "]"
-        return f"{left}{end(self.low, '-inf')}, {end(self.high, 'inf')}{right}"
-
-
-def _int_bound(low: int, high: int | None = None) -> Bound:
-    return Bound(low, high, integer=True)
-
-
 # Seeds: unsigned 32-bit integers, which every random generator hd seeds (numpy, PyTorch, Dask)
 # and every file that records them (shard attributes, JSON, checkpoints) take as they are.
 MAX_SEED: int = 2**32 - 1
-SEED = _int_bound(0, MAX_SEED)
-SCANS = _int_bound(1, MAX_SCANS)
-SHARD_SIZE = _int_bound(1, MAX_SCANS)
+SEED = int_bound(0, MAX_SEED)
+SCANS = int_bound(1, MAX_SCANS)
+SHARD_SIZE = int_bound(1, MAX_SCANS)
 # The shard files a build may create (--max-shards): a build writes at most one shard per scan.
-SHARD_FILES = _int_bound(1, MAX_SCANS)
-WORKERS = _int_bound(1, MAX_WORKERS)
-LOADER_WORKERS = _int_bound(0, MAX_LOADER_WORKERS)
-DETECTOR_PX = _int_bound(2, MAX_DETECTOR_PX)
+SHARD_FILES = int_bound(1, MAX_SCANS)
+WORKERS = int_bound(1, MAX_WORKERS)
+LOADER_WORKERS = int_bound(0, MAX_LOADER_WORKERS)
+DETECTOR_PX = int_bound(2, MAX_DETECTOR_PX)
 # Dead or damaged detector elements (together at most the detector's pixels, checked with --resolution).
-DETECTOR_ELEMENTS = _int_bound(0, MAX_DETECTOR_PX * MAX_DETECTOR_PX)
+DETECTOR_ELEMENTS = int_bound(0, MAX_DETECTOR_PX * MAX_DETECTOR_PX)
 # hd choice: the largest range-noise 1-sigma any command takes, metres: ten times the paper's largest
 # level (7 cm). Beyond it the 0.2 m roughness rule is drowned and the DEMs are noise; a larger value is
 # almost always centimetres typed where metres are meant.
@@ -108,7 +62,7 @@ JITTER_DEG = Bound(0.0, 5.0, high_open=True)
 # 64 frames, far more than the few frames a hazard-detection pass takes (the docs' examples use 9); the
 # frames of a descent are held in one shard, so K also bounds a shard's size from below.
 MAX_DESCENT_FRAMES: int = 64
-DESCENT_FRAMES = _int_bound(0, MAX_DESCENT_FRAMES)
+DESCENT_FRAMES = int_bound(0, MAX_DESCENT_FRAMES)
 # Angle of a descent's straight approach path from the vertical, degrees (the boresight is tilted by
 # it to look at the target; as --tilt, beyond 60 degrees the footprint grazes the terrain).
 APPROACH_DEG = Bound(0.0, 60.0, high_open=True)
@@ -132,7 +86,7 @@ ROCK_K = Bound(0.0, terrain_defaults.ROCK_K_MAX)
 # smallest crater the model samples.
 CRATER_DIAMETER_M = Bound(terrain_defaults.CRATER_D_MIN_M)
 # Sub-rays per pixel side of the footprint model (K x K sub-rays per pixel; 16: 256 rays per pixel).
-FOOTPRINT_SAMPLES = _int_bound(1, 16)
+FOOTPRINT_SAMPLES = int_bound(1, 16)
 # Full width at half maximum of the returned pulse in range, metres.
 PULSE_WIDTH_M = Bound(0.0, 30.0, low_open=True)
 # Fraction of the waveform's peak at which the first-return estimator fires.
@@ -143,36 +97,3 @@ SNR_REF = Bound(0.0, low_open=True)
 SNR_MIN = Bound(0.0)
 # The range at which the snr noise model's signal-to-noise ratio is given, metres.
 SNR_REF_RANGE_M = Bound(0.0, low_open=True)
-
-
-# ------------------------------------------------------------------------------------ integers in text
-_DIGITS = re.compile(r"[0-9]+")
-_SIGNED_DIGITS = re.compile(r"-?[0-9]+")
-# hd's counts and indices have at most 10 digits; Python's int() refuses more than 4300.
-_MAX_DIGITS = 100
-
-
-def parse_integer(text: str, what: str = "", *, negative: bool = False, hint: str = "") -> int:
-    """The integer written in ``text`` with the ASCII digits 0-9 only (and a leading ``-`` when
-    ``negative``): Python's ``int()`` also takes other scripts' digits (``'٣'``), superscripts
-    (``'²'``, then fails), underscores (``'1_000'``), a ``+`` and blanks around the number, none of
-    which hd's options, lists and specs take. Every parser of an integer in user text goes through here.
-
-    ``what`` names where the text comes from (``"--scans '0,²': scan"``), ``hint`` is said after the
-    refusal (the form expected, with an example).
-
-    Raises:
-        LidarsimError: ``{what} {text!r} is not ...``, one line naming the text.
-    """
-    pattern = _SIGNED_DIGITS if negative else _DIGITS
-    if isinstance(text, str) and pattern.fullmatch(text) and len(text.lstrip("-")) <= _MAX_DIGITS:
-        return int(text)
-    shown = repr(text) if not isinstance(text, str) or len(text) <= 40 else repr(text[:37] + "...")
-    if isinstance(text, str) and pattern.fullmatch(text):
-        problem = f"has {len(text.lstrip('-'))} digits, more than any count or index hd takes"
-    elif negative:
-        problem = "is not an integer written with the digits 0-9 and an optional leading '-'"
-    else:
-        problem = "is not a whole number written with the digits 0-9"
-    tail = f"; {hint}" if hint else ""
-    raise LidarsimError(f"{what} {shown} {problem}{tail}".strip())

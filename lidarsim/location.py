@@ -1,11 +1,11 @@
 """Where a dataset lies: a local directory, read by today's code unchanged, or a URL read through fsspec.
 
 The one seam between hd's readers and remote storage. A dataset or run is given either as a
-directory (every function here hands it to ``lidarsim.storage`` as before: same checks, same bytes)
+directory (every function here hands it to ``hdcore.storage`` as before: same checks, same bytes)
 or as a URL (``s3://bucket/prefix``, ``https://host/path``, ``file:///abs/path``, or anything else
 fsspec reads): then
 
-* :func:`join` gives a manifest path's URL (the path checked as :func:`lidarsim.storage.confine`
+* :func:`join` gives a manifest path's URL (the path checked as :func:`hdcore.storage.confine`
   checks a local one: relative, no ``..``);
 * :meth:`RemoteDataset.read_bytes` reads a side file (the manifest) whole, bounded like a local one,
   and keeps it for the process while the server reports the same version of it (its ETag);
@@ -14,7 +14,7 @@ fsspec reads): then
   range requests, never the whole shard; a file of at most ``WHOLE_FILE_BLOCKS`` blocks is fetched
   whole in one request instead, checked against the manifest's sha256 and kept for the process;
 * :func:`remote_errors` turns what the protocol raises (an unreachable host, a missing bucket or
-  object, missing credentials, access denied) into one :class:`~lidarsim.errors.StorageError` line
+  object, missing credentials, access denied) into one :class:`~hdcore.errors.StorageError` line
   naming the URL.
 
 Credentials come from each protocol's standard places (S3: ``AWS_*`` variables, profiles, the
@@ -37,8 +37,8 @@ from typing import Any
 
 import h5py
 
-from lidarsim.errors import DamagedFileError, FormatError, LidarsimError, StorageError
-from lidarsim.storage import (
+from hdcore.errors import DamagedFileError, FormatError, HdError, StorageError
+from hdcore.storage import (
     MAX_SIDE_FILE_BYTES,
     CheckedH5File,
     check_relative,
@@ -47,6 +47,7 @@ from lidarsim.storage import (
     read_regular_bytes,
     sha256_bytes,
 )
+from lidarsim.errors import LidarsimError
 
 URL_PATTERN = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]*://")
 # hd choice: the block of an HDF5 file fetched per range request, bytes. A scan's chunk of a shard
@@ -126,7 +127,7 @@ def remote_errors(url: str) -> Iterator[None]:
     """Every exception of the block but hd's own becomes :func:`remote_error`'s one line."""
     try:
         yield
-    except LidarsimError:
+    except HdError:
         raise
     except Exception as exc:  # protocols raise their own classes (botocore, aiohttp): all become one line
         raise remote_error(url, exc) from exc
@@ -421,7 +422,7 @@ def has_manifest(location: str | os.PathLike, name: str = "manifest.json") -> bo
 
 def join(location: str | os.PathLike, relative: Any, where: str | None = None) -> Path | str:
     """The file ``relative`` (a manifest path) of a dataset: a URL under a URL, else
-    :func:`lidarsim.storage.confine`'s checked path.
+    :func:`hdcore.storage.confine`'s checked path.
 
     Raises:
         FormatError: an absolute path, ``..``, or a link leading outside the dataset.
@@ -439,7 +440,7 @@ def split_url(url: str) -> tuple[RemoteDataset, str]:
 
 
 def open_h5_at(path: str | os.PathLike, what: str | None = None, sha256: str | None = None) -> CheckedH5File:
-    """Open an HDF5 file read-only with checked reads: a local path as :func:`lidarsim.storage.open_h5`
+    """Open an HDF5 file read-only with checked reads: a local path as :func:`hdcore.storage.open_h5`
     opens it, a URL lazily through fsspec (block cache; see the module docstring); a file of at most
     ``WHOLE_FILE_BLOCKS`` blocks is fetched whole once per process and, given the manifest's
     ``sha256``, checked against it (then opened again without a request).

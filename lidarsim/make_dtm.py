@@ -12,10 +12,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from hdcore.setting import NonEmptyPath, check, setting
 from lidarsim import defaults, limits
 from lidarsim import terrain_defaults as td
 from lidarsim.errors import LidarsimError
-from lidarsim.setting import NonEmptyPath, check, setting
 
 if TYPE_CHECKING:
     from lidarsim.procedural import MarsTerrainParams
@@ -67,8 +67,8 @@ def make_dtm(out_path: str | os.PathLike, settings: DtmSettings | None = None, o
         LidarsimError: an unusable ``out_path``, an existing file without ``overwrite``, options
             that exclude each other, before anything is written.
     """
+    from hdcore.storage import check_not_input, check_output_file
     from lidarsim.procedural import MarsTerrainParams, write_procedural_dtm
-    from lidarsim.storage import check_not_input, check_output_file
 
     out_path = Path(out_path)
     settings = settings if settings is not None else DtmSettings()

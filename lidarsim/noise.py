@@ -21,10 +21,10 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from hdcore.setting import check, setting
 from lidarsim import defaults, limits
 from lidarsim.errors import LidarsimError
 from lidarsim.sensor import SensorConfig, ray_directions
-from lidarsim.setting import check, setting
 from lidarsim.streams import Purpose, sigma_key, stream
 
 # How many float32 steps (ulps) around the first estimate recover_ranges searches for the exact range.
@@ -113,7 +113,7 @@ def stored_kind(attrs: Mapping[str, Any]) -> NoiseKind:
 @dataclass(frozen=True)
 class NoiseModel:
     """How the range noise's 1-sigma depends on the returned signal (docs/lidarsim.md, "Signal-dependent noise").
-    Each field's help, unit, default and range is its metadata (``lidarsim.setting``): ``hd
+    Each field's help, unit, default and range is its metadata (``hdcore.setting``): ``hd
     build-dataset``'s options, a recipe's ``[build]`` keys (``lidarsim.recipe.BuildSettings``) and
     the checks here are made from it.
 

@@ -31,8 +31,9 @@ from multiprocessing import get_context
 from multiprocessing.connection import Connection, wait
 from typing import Any, TypeVar, cast
 
-from lidarsim.errors import LidarsimError, WorkerError
-from lidarsim.limits import parse_integer
+from hdcore.bounds import parse_integer
+from hdcore.errors import WorkerError
+from lidarsim.errors import LidarsimError
 
 T = TypeVar("T")
 R = TypeVar("R")

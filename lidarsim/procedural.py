@@ -29,9 +29,9 @@ import numpy as np
 from rasterio.crs import CRS
 from rasterio.transform import Affine, from_origin
 
+from hdcore.storage import write_bytes_atomic
 from lidarsim import terrain_defaults as td
 from lidarsim.errors import TerrainError
-from lidarsim.storage import write_bytes_atomic
 
 __all__ = [
     "MarsTerrainParams",
@@ -474,7 +474,7 @@ def write_geotiff(
 ) -> None:
     """Write ``heights`` (metres) as a float32, north-up GeoTIFF with nodata NaN (see ``geotiff_bytes``).
 
-    The file is built in memory and written through ``lidarsim.storage`` (temporary name, fsync,
+    The file is built in memory and written through ``hdcore.storage`` (temporary name, fsync,
     rename), so a half-written file is never visible at ``path`` and a full disk gives one error
     line naming it.
     """

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from hdcore.storage import DamagedFileError, FormatError, StorageError, confine
 from lidarsim.build import BuildConfig, setting_changes
 from lidarsim.errors import RecipeError
 from lidarsim.fingerprint import (
@@ -39,7 +40,6 @@ from lidarsim.fingerprint import (
 from lidarsim.recipe import CHECKSUMS_FILE, load_recipe
 from lidarsim.recipe_deviation import recorded_deviation
 from lidarsim.shards import TRUTH_DTM_SHA256_ATTR, read_manifest
-from lidarsim.storage import DamagedFileError, FormatError, StorageError, confine
 
 __all__ = [
     "FINGERPRINT_KEYS",

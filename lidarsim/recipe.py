@@ -63,19 +63,19 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, TypeVar
 
+from hdcore.bounds import Bound
+from hdcore.setting import FILE_OR_DIRECTORY, check, described_as, described_fields, from_mapping, setting
+from hdcore.storage import is_sha256, read_regular_bytes
 from lidarsim import defaults, limits
 from lidarsim.build import BuildConfig
 from lidarsim.descent import DescentConfig
 from lidarsim.errors import LidarsimError, RecipeError
 from lidarsim.fingerprint import fingerprint_problem
 from lidarsim.footprint import FootprintConfig
-from lidarsim.limits import Bound
 from lidarsim.navigation import NavigationError
 from lidarsim.noise import NoiseModel
 from lidarsim.sensor import SensorConfig
-from lidarsim.setting import FILE_OR_DIRECTORY, check, described_as, described_fields, from_mapping, setting
 from lidarsim.span import DescendingPairType, SpanType, parse_pair, parse_span
-from lidarsim.storage import is_sha256, read_regular_bytes
 from lidarsim.trajectory import TrajectoryConfig
 
 RECIPE_FILE = "recipe.toml"
@@ -109,7 +109,7 @@ class BuildSettings:
     """The content settings of a dataset as ``hd build-dataset`` takes them and a recipe's
     ``[build]`` section records them (one flat record; :meth:`to_config` makes the
     :class:`~lidarsim.build.BuildConfig`). Defaults are ``lidarsim.defaults``'. Each field's help,
-    unit, default and range is its metadata (``lidarsim.setting``): the options of
+    unit, default and range is its metadata (``hdcore.setting``): the options of
     ``hd build-dataset``, the reading of a recipe's ``[build]`` and the checks here are made from it.
     """
 
@@ -528,7 +528,7 @@ def check_recipe_dtm(recipe: Recipe) -> None:
 
 def _check_dtm_sha256(recipe_path: Path, dtm_path: Path, expected: object) -> None:
     """Refuse a recipe DTM whose bytes are not the ones the recipe names (``dtm_sha256``)."""
-    from lidarsim.storage import sha256_file
+    from hdcore.storage import sha256_file
 
     if not isinstance(expected, str) or len(expected) != 64:
         raise RecipeError(f"{recipe_path}: [build] dtm_sha256 must be 64 hex digits, got {expected!r}")

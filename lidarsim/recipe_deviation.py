@@ -13,10 +13,10 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
+from hdcore.setting import described_fields
+from hdcore.storage import FormatError
 from lidarsim.build import BuildConfig
 from lidarsim.recipe import BuildSettings, Recipe
-from lidarsim.setting import described_fields
-from lidarsim.storage import FormatError
 
 # The manifest key of a deviating build's record.
 DEVIATION_KEY = "recipe_deviation"

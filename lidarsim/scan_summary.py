@@ -19,10 +19,10 @@ from typing import Any
 
 import numpy as np
 
-from lidarsim.errors import DamagedFileError
+from hdcore.errors import DamagedFileError
+from hdcore.storage import confine
 from lidarsim.sensor import footprint_corners
 from lidarsim.shards import SPLIT_NAMES, ScanShardReader, read_manifest
-from lidarsim.storage import confine
 
 # hd choice: scans per split whose clean points make the height sample (about 16 000 points each
 # for the paper's 128 x 128 detector): enough for a histogram, a few MB read whatever the dataset's size.

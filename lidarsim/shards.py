@@ -2,7 +2,7 @@
 
 Every field is documented in ``docs/shard-format.md``; a team without hd reads shards with h5py
 alone. This module holds the writer, the lazy reader, the manifest and the checks of
-``hd verify``. Files are written and read through ``lidarsim.storage``: built in memory, written
+``hd verify``. Files are written and read through ``hdcore.storage``: built in memory, written
 under a temporary name and renamed when complete; every array chunk carries a fletcher32
 checksum (schema 1.1); readers check the manifest's sha256, confine manifest paths to the dataset
 and name the file and the scan in every error.
@@ -23,13 +23,8 @@ from typing import Any
 import h5py
 import numpy as np
 
-from lidarsim import defaults, limits
-from lidarsim._version import __version__
-from lidarsim.errors import LidarsimError
-from lidarsim.location import PUBLISH_MARK, dataset_label, is_url, join, open_h5_at, remote_dataset
-from lidarsim.noise import stored_kind
-from lidarsim.outcome import counted
-from lidarsim.storage import (
+from hdcore.outcome import counted
+from hdcore.storage import (
     CheckedH5File,
     DamagedFileError,
     FormatError,
@@ -51,6 +46,11 @@ from lidarsim.storage import (
     verify_sha256,
     write_json_atomic,
 )
+from lidarsim import defaults, limits
+from lidarsim._version import __version__
+from lidarsim.errors import LidarsimError
+from lidarsim.location import PUBLISH_MARK, dataset_label, is_url, join, open_h5_at, remote_dataset
+from lidarsim.noise import stored_kind
 
 __all__ = [
     "BUILD_STATE_NAME",
@@ -175,7 +175,7 @@ def write_attrs(obj: h5py.HLObject, attrs: dict[str, Any]) -> None:
 class ScanShardWriter:
     """Writes one shard of ``n_scans`` scans; use as a context manager, then ``commit()``.
 
-    The file is built in memory (``lidarsim.storage.H5Image``) and written to ``path`` atomically
+    The file is built in memory (``hdcore.storage.H5Image``) and written to ``path`` atomically
     by ``commit()``; leaving the block with an exception discards it. Every dataset is chunked with
     a fletcher32 checksum per chunk.
 

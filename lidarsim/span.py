@@ -9,8 +9,8 @@ from typing import Any
 
 import click
 
+from hdcore.bounds import Bound
 from lidarsim.errors import LidarsimError
-from lidarsim.limits import Bound
 
 
 class SpanType(click.ParamType):

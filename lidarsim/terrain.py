@@ -33,9 +33,9 @@ from rasterio.enums import Resampling
 from rasterio.errors import NotGeoreferencedWarning, RasterioError, RasterioIOError
 from rasterio.windows import Window
 
+from hdcore.storage import StorageError, sha256_bytes, sha256_file
 from lidarsim.defaults import HIRISE_NULL
 from lidarsim.errors import TerrainError
-from lidarsim.storage import StorageError, sha256_bytes, sha256_file
 
 __all__ = ["DTM", "DTMInfo", "TerrainError", "invalid_mask"]
 

@@ -32,11 +32,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from lidarsim.errors import DamagedFileError, FormatError, OutputExistsError, StorageError
-from lidarsim.location import PUBLISH_MARK, RemoteDataset, is_url, remote_dataset, remote_errors
-from lidarsim.outcome import Done, counted
-from lidarsim.shards import MANIFEST_NAME, manifest_text, read_manifest, validate_manifest, verify_dataset
-from lidarsim.storage import (
+from hdcore.errors import DamagedFileError, FormatError, OutputExistsError, StorageError
+from hdcore.outcome import Done, counted
+from hdcore.storage import (
     WriterLock,
     atomic,
     atomic_path,
@@ -48,6 +46,8 @@ from lidarsim.storage import (
     write_bytes_atomic,
     write_json_atomic,
 )
+from lidarsim.location import PUBLISH_MARK, RemoteDataset, is_url, remote_dataset, remote_errors
+from lidarsim.shards import MANIFEST_NAME, manifest_text, read_manifest, validate_manifest, verify_dataset
 
 # The mark ``hd pull`` keeps in a directory it is filling (the manifest sha256 it copies), removed
 # once the manifest is written: a re-run resumes, another URL into the same directory is refused.
@@ -259,7 +259,7 @@ def _download(remote: RemoteDataset, relative: str, final: Path, expected: str) 
         try:
             for block in remote.stream(relative):
                 h.update(block)
-                atomic._write_all(fd, block)  # the one writer of file contents (lidarsim.storage.atomic)
+                atomic._write_all(fd, block)  # the one writer of file contents (hdcore.storage.atomic)
                 size += len(block)
             os.fsync(fd)
         finally:

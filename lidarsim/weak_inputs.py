@@ -1,6 +1,6 @@
 """Inputs that build a valid but weaker dataset than it looks: said with numbers, never refused.
 
-Two cases, each a one-line :class:`~lidarsim.errors.HdWarning` from ``hd build-dataset``:
+Two cases, each a one-line :class:`~hdcore.errors.HdWarning` from ``hd build-dataset``:
 
 * a DTM coarser than the LiDAR's ground sample (altitude x the angle of one detector pixel): the
   returns then come from a mesh through the DTM's posts, and no hazard smaller than its cells

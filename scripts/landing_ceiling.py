@@ -30,13 +30,13 @@ from pathlib import Path
 import numpy as np
 from rasterio.transform import Affine
 
+from hdcore.storage import confine, open_h5
 from hdlabels.lander import Lander
 from hdlabels.store import find_labeling
 from hdnet.data import dem_spacing_m, lander_of, split_labels
 from hdnet.landing import NAV_SIGMAS_M, TOUCHDOWNS, LandingTally, score_touchdowns, touchdown_offsets
 from hdnet.sites import SAFETY_INVALID, SAFETY_SAFE, SAFETY_UNSAFE, select_sites
 from lidarsim.shards import read_manifest
-from lidarsim.storage import confine, open_h5
 
 SAFE, INVALID = 1, 255
 

@@ -11,6 +11,7 @@ import pytest
 from click.testing import CliRunner
 
 from cli import main
+from hdcore.errors import FormatError
 from hdlabels.alhat import hazard_maps, safety_probability
 from hdlabels.grid import grid_points
 from hdlabels.labeling import label_dataset
@@ -26,7 +27,6 @@ from hdlabels.store import (
     label_shard_paths,
 )
 from lidarsim.build import BuildConfig, build_dataset
-from lidarsim.errors import FormatError
 from lidarsim.sensor import SensorConfig
 from lidarsim.shards import ScanShardReader, read_manifest, sha256_file, verify_dataset
 from lidarsim.trajectory import TrajectoryConfig
@@ -311,8 +311,8 @@ def test_the_manifests_counts_are_those_of_the_label_shards_also_after_a_resumed
 def test_a_label_shard_written_in_blocks_reads_back_row_by_row(tmp_path, monkeypatch):
     """The writer holds up to ROW_BLOCK_BYTES of scans and writes them together: with blocks of 2,
     five scans come back exactly, and the bytes equal those of one block; rows go in order."""
+    from hdcore import storage
     from hdlabels import store
-    from lidarsim import storage
 
     rng = np.random.default_rng(3)
     dem = DemSpec(rows=8, cols=8, spacing_m=1.0, gridding="nearest")

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from hdcore.errors import HdWarning
 from hdlabels.errors import HdLabelsError
 from hdlabels.mosaic import (
     POSES,
@@ -28,7 +29,6 @@ from hdlabels.mosaic import (
 )
 from hdlabels.store import DemSpec
 from lidarsim.build import build_dataset
-from lidarsim.errors import HdWarning
 from lidarsim.noise import points_at_ranges, scan_directions
 from lidarsim.recipe import BuildSettings
 from lidarsim.scan import TileScene

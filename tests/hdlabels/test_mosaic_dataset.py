@@ -14,13 +14,13 @@ from click.testing import CliRunner
 from test_mosaic import SIDE_M, hills, tilted_plane
 
 from cli import main
+from hdcore.errors import HdWarning
 from hdlabels.grid import grid_points
 from hdlabels.mosaic import descent_frames, mosaic_frames, navigation_error, placed_points, terrain_residual
 from hdlabels.mosaic_dataset import MosaicSettings, cell_points, clean_mosaic, in_mosaic_frame, mosaic_dataset
 from hdlabels.store import DemSpec, iter_labeled_scans
 from hdlabels.truth import terrain_dem
 from lidarsim.build import build_dataset
-from lidarsim.errors import HdWarning
 from lidarsim.recipe import BuildSettings
 from lidarsim.shards import iter_descents, iter_scans, read_manifest
 from lidarsim.terrain import DTM

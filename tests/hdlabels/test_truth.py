@@ -237,8 +237,9 @@ def test_a_missing_procedural_terrain_is_regenerated_when_it_gives_the_recorded_
     """The procedural terrain is a function of the build's seed and parameters (in the manifest):
     a deleted terrain/ file is written back, with a warning, when it hashes to the recorded sha256;
     otherwise the labelling stops with one line and writes nothing."""
+    from hdcore.errors import HdWarning
     from lidarsim import build as build_module
-    from lidarsim.errors import HdWarning, LidarsimError
+    from lidarsim.errors import LidarsimError
     from lidarsim.shards import sha256_file
 
     root = build(None, tmp_path / "d", n_scans=2)

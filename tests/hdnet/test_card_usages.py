@@ -26,7 +26,7 @@ from hdlabels import defaults as label_defaults
 from hdnet.fit import FitConfig
 from lidarsim import defaults as lidar_defaults
 
-FIT_MODULE = importlib.import_module("hdnet.fit")  # the module: hdnet.fit is the function (lidarsim.exports)
+FIT_MODULE = importlib.import_module("hdnet.fit")  # the module: hdnet.fit is the function (hdcore.exports)
 
 
 @pytest.fixture

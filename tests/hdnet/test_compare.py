@@ -18,12 +18,12 @@ import pytest
 from click.testing import CliRunner, Result
 
 from cli import main
+from hdcore.errors import StorageError
+from hdcore.storage import write_json_atomic
 from hdnet.compare import ABSENT, column_names, compare
 from hdnet.errors import HdNetError
 from hdnet.report import METHOD_WORDS, report_dict
 from hdnet.results import METHODS, EvaluationResult, LandingRow, ReportRow
-from lidarsim.errors import StorageError
-from lidarsim.storage import write_json_atomic
 
 SIGMAS = (0.0167, 0.07)
 ROOT = Path(__file__).resolve().parents[2]

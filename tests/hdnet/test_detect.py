@@ -27,6 +27,8 @@ from rasterio.transform import from_origin
 from scipy import ndimage
 
 from cli import main
+from hdcore.errors import HdWarning, LockedError, OutputExistsError
+from hdcore.storage import PARTIAL_MARK, WriterLock
 from hdlabels.grid import cell_centres
 from hdlabels.lander import Lander, geometry
 from hdlabels.store import find_labeling, iter_labeled_scans, label_shard_paths
@@ -57,11 +59,10 @@ from hdnet.sites import SITE_RANK_RULES, body_disk
 from hdnet.thresholds import parse_threshold_spec
 from hdnet.train import save_checkpoint
 from hdnet.uncertainty import MUTUAL_INFORMATION
-from lidarsim.errors import HdWarning, LockedError, OutputExistsError, TerrainError
+from lidarsim.errors import TerrainError
 from lidarsim.map_window import MapWindow
 from lidarsim.procedural import MarsTerrainParams, generate_mars_terrain, write_geotiff
 from lidarsim.shards import sha256_file
-from lidarsim.storage import PARTIAL_MARK, WriterLock
 from lidarsim.terrain import DTM
 from tests.geotiff import write_geotiff as write_test_geotiff
 

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
+from hdcore.errors import DamagedFileError, HdError
 from hdnet.data import open_labeling
-from lidarsim.errors import DamagedFileError, HdError
 
 ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ("lidarsim", "hdlabels", "hdnet")

@@ -17,6 +17,7 @@ import pytest
 import torch
 from hdnet_datasets import SIGMAS_M, build_labelled
 
+from hdcore.errors import HdWarning, OutputExistsError
 from hdlabels.errors import LabelStoreError
 from hdlabels.store import find_labeling, label_shard_paths
 from hdnet.data import HazardDataset
@@ -25,7 +26,6 @@ from hdnet.evaluate import METHODS, EvalConfig, evaluate, reliability
 from hdnet.fit import FitConfig, fit
 from hdnet.pipeline import evaluate_to_report
 from hdnet.report import ROW_KEYS, report_dict
-from lidarsim.errors import HdWarning, OutputExistsError
 
 
 @pytest.fixture(scope="module")

@@ -1,5 +1,5 @@
-"""The packages' import graph: the layers import one way (lidarsim → hdlabels → hdnet) and no two
-modules import each other, directly or round a longer loop.
+"""The packages' import graph: the layers import one way (hdcore → lidarsim → hdlabels → hdnet) and
+no two modules import each other, directly or round a longer loop.
 
 Every import statement counts, also those inside functions and under ``TYPE_CHECKING``: a
 deferred import hides a loop from Python, not from a reader.
@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
-LAYERS = ("lidarsim", "hdlabels", "hdnet")  # each may import only the ones before it
+LAYERS = ("hdcore", "lidarsim", "hdlabels", "hdnet")  # each may import only the ones before it
 
 
 def import_graph(packages: tuple[str, ...] = LAYERS) -> dict[str, set[str]]:
@@ -33,7 +33,7 @@ def import_graph(packages: tuple[str, ...] = LAYERS) -> dict[str, set[str]]:
 
 
 def module_name(path: Path) -> str:
-    """A file's dotted module name, sub-packages included (``lidarsim/storage/__init__.py`` -> ``lidarsim.storage``)."""
+    """A file's dotted module name, sub-packages included (``hdcore/storage/__init__.py`` -> ``hdcore.storage``)."""
     parts = path.relative_to(ROOT).with_suffix("").parts
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
@@ -73,13 +73,11 @@ def test_the_cycle_finder_finds_a_loop_and_only_a_loop() -> None:
 
 
 def test_sub_packages_are_in_the_graph() -> None:
-    edges = import_graph(("lidarsim",))
-    assert "lidarsim.storage" in edges and "lidarsim.storage.atomic" in edges
+    edges = import_graph(("hdcore",))
+    assert "hdcore.storage" in edges and "hdcore.storage.atomic" in edges
     # a sub-package's __init__ imports its modules; they never import it back
-    assert "lidarsim.storage.atomic" in edges["lidarsim.storage"]
-    assert not any(
-        "lidarsim.storage" in targets for name, targets in edges.items() if name.startswith("lidarsim.storage.")
-    )
+    assert "hdcore.storage.atomic" in edges["hdcore.storage"]
+    assert not any("hdcore.storage" in targets for name, targets in edges.items() if name.startswith("hdcore.storage."))
 
 
 @pytest.mark.parametrize("package", LAYERS)

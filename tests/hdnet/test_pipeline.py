@@ -9,12 +9,12 @@ from pathlib import Path
 import pytest
 from hdnet_datasets import hills_dtm
 
+from hdcore.errors import HdError
 from hdlabels.settings import LabelSettings
 from hdlabels.store import labeling_name
 from hdnet.pipeline import Evaluation, Pipeline, demo_pipeline, reproduce_pipeline, run_pipeline
 from lidarsim import defaults
 from lidarsim.build import BuildConfig
-from lidarsim.errors import HdError
 from lidarsim.recipe import BuildSettings, load_recipe
 from lidarsim.trajectory import TrajectoryConfig
 

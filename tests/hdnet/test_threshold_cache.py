@@ -13,6 +13,7 @@ from typing import Any
 
 import pytest
 
+from hdcore.errors import HdWarning
 from hdnet.threshold_cache import (
     CACHE_FILE,
     MAX_FILE_BYTES,
@@ -20,7 +21,6 @@ from hdnet.threshold_cache import (
     ThresholdKey,
     entry_digest,
 )
-from lidarsim.errors import HdWarning
 
 KEY = ThresholdKey(
     checkpoint_sha256="a" * 64,

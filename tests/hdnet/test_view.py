@@ -37,6 +37,8 @@ from click.testing import CliRunner
 from hdnet_datasets import build_labelled
 
 from cli import main
+from hdcore.errors import HdWarning, LockedError, OutputExistsError
+from hdcore.storage import WriterLock
 from hdnet import view_images
 from hdnet.detect import MAP_FILES, detect
 from hdnet.detect_settings import DetectSettings
@@ -49,8 +51,6 @@ from hdnet.sites import SAFETY_INVALID, SAFETY_SAFE, SAFETY_UNCERTAIN, SAFETY_UN
 from hdnet.train import save_checkpoint
 from hdnet.view import ViewSettings, view
 from hdnet.view_images import Reduction, colour_rgba, reduced_map, safety_rgba
-from lidarsim.errors import HdWarning, LockedError, OutputExistsError
-from lidarsim.storage import WriterLock
 from tests.geotiff import write_geotiff
 
 ROOT = Path(__file__).resolve().parents[2]

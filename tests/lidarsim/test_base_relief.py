@@ -16,6 +16,7 @@ from rasterio.crs import CRS
 from terrain_files import plane, write_tif
 
 from cli import main
+from hdcore.storage import sha256_file
 from lidarsim import terrain_defaults as td
 from lidarsim.base_relief import resample_bilinear, rocks_on_base
 from lidarsim.build import BuildConfig, build_dataset
@@ -29,7 +30,6 @@ from lidarsim.procedural import (
 )
 from lidarsim.sensor import SensorConfig
 from lidarsim.shards import read_manifest
-from lidarsim.storage import sha256_file
 from lidarsim.trajectory import TrajectoryConfig
 
 # A tilted plane on a coarse grid, as HiRISE posts: 3 m cells, 40 x 30 cells (120 m x 90 m).

@@ -13,8 +13,9 @@ from rasterio.crs import CRS
 from terrain_files import plane, write_tif
 
 from cli import main
+from hdcore.errors import OutputExistsError
 from lidarsim.build import BuildConfig, build_dataset
-from lidarsim.errors import LidarsimError, OutputExistsError
+from lidarsim.errors import LidarsimError
 from lidarsim.export import COORDINATE_SCALE_M, ExportSettings, export_scans, parse_scans
 from lidarsim.sensor import SensorConfig
 from lidarsim.shards import ScanShardReader, read_manifest

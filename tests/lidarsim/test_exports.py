@@ -1,4 +1,4 @@
-"""The packages' public names (``lidarsim.exports``): declared once in ``__init__.pyi``, imported on first
+"""The packages' public names (``hdcore.exports``): declared once in ``__init__.pyi``, imported on first
 use, and a function named like its module is the package's attribute whatever was imported first."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from types import ModuleType
 
 import pytest
 
-from lidarsim.exports import ExportError, stub_exports
+from hdcore.exports import ExportError, stub_exports
 
 ROOT = Path(__file__).resolve().parents[2]
 HEAVY = ("numpy", "torch", "open3d", "rasterio", "h5py", "scipy", "numba", "dask", "matplotlib", "click")
@@ -112,4 +112,4 @@ def test_the_stubs_are_what_the_packages_export():
         assert module.__file__ is not None
         exports = stub_exports(Path(module.__file__).with_suffix(".pyi"), module.__name__)
         assert sorted(exports) == module.__all__
-        assert all(source.startswith(f"{module.__name__}.") for source, _ in exports.values())
+        assert all(source.startswith((f"{module.__name__}.", "hdcore.")) for source, _ in exports.values())

@@ -10,6 +10,7 @@ import h5py
 import numpy as np
 import pytest
 
+from hdcore.storage import FormatError
 from lidarsim.fingerprint import (
     MAX_INLINE_ATTR_CHARS,
     array_fingerprint,
@@ -18,7 +19,6 @@ from lidarsim.fingerprint import (
     h5_fingerprint,
 )
 from lidarsim.published import terrain_fingerprint
-from lidarsim.storage import FormatError
 
 
 def _shard(path: Path, points: np.ndarray, label: np.ndarray, **attrs: object) -> Path:

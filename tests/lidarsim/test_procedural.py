@@ -235,7 +235,7 @@ def test_write_geotiff_without_crs(tmp_path: Path) -> None:
 def test_write_geotiff_is_atomic(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     import errno
 
-    from lidarsim import storage
+    from hdcore import storage
 
     path = tmp_path / "keep.tif"
     path.write_bytes(b"previous content")

@@ -19,6 +19,7 @@ from lidarsim.recipe import SOURCE_RECIPES, shipped_recipe, shipped_recipe_dirs
 
 REPO = Path(__file__).resolve().parents[2]
 PACKAGE = "lidarsim.datasets"
+TOP_PACKAGES = ("hdcore", "lidarsim", "hdlabels", "hdnet")  # the packages a wheel holds
 
 
 def test_every_file_of_the_recipes_is_package_data() -> None:
@@ -32,15 +33,15 @@ def test_every_file_of_the_recipes_is_package_data() -> None:
 
 
 def test_every_sub_package_is_installed() -> None:
-    """pyproject lists its packages by name: a new sub-package (``lidarsim.storage``) must be listed
+    """pyproject lists its packages by name: a new sub-package (``hdcore.storage``) must be listed
     too, or a wheel (a non-editable install) would lack it."""
     listed = set(tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
     found = {
         ".".join(init.parent.relative_to(REPO).parts)
-        for top in ("lidarsim", "hdlabels", "hdnet")
+        for top in TOP_PACKAGES
         for init in (REPO / top).rglob("__init__.py")
     }
-    assert "lidarsim.storage" in found
+    assert "hdcore.storage" in found
     assert found - listed == set()
 
 
@@ -58,7 +59,7 @@ def test_an_installed_wheel_finds_its_recipes(tmp_path) -> None:
     src.mkdir()
     for name in ("pyproject.toml", "README.md", "cli.py"):
         shutil.copy2(REPO / name, src / name)
-    for name in ("lidarsim", "hdlabels", "hdnet", "datasets"):
+    for name in (*TOP_PACKAGES, "datasets"):
         shutil.copytree(REPO / name, src / name, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
     wheels = tmp_path / "wheels"
     pip = [sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation", "--no-index"]

@@ -230,9 +230,9 @@ def test_the_user_guides_reader_without_hd_runs_against_s3(dataset, s3, capsys):
 def test_a_small_shard_at_a_url_is_fetched_once_and_checked_against_the_manifest(dataset, http):
     """A file of at most WHOLE_FILE_BLOCKS blocks is fetched whole, once per process however often it
     is opened, and its sha256 checked in memory: altered bytes are named, never read."""
+    from hdcore.errors import DamagedFileError
     from hdlabels.store import open_label_shard
     from lidarsim import location
-    from lidarsim.errors import DamagedFileError
 
     url, server = http
     location.forget_remotes()
@@ -301,10 +301,10 @@ def test_a_dataset_set_up_again_asks_only_whether_its_manifest_changed(dataset, 
 def test_a_manifest_replaced_at_the_url_is_read_by_the_next_set_up(dataset, s3, s3_requests):
     """Kept manifest bytes are given again only while the server reports the same size and ETag: a
     manifest replaced by another writer, also by one of the same size, is read anew."""
+    from hdcore.storage import sha256_bytes
     from hdlabels.store import LabelStoreError
     from hdnet.data import HazardDataset
     from lidarsim.location import manifest_sha256
-    from lidarsim.storage import sha256_bytes
 
     upload_tree(dataset, "hd-data", "team/replaced")
     url = "s3://hd-data/team/replaced"

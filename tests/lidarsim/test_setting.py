@@ -1,4 +1,4 @@
-"""lidarsim.setting: one description per setting gives the checks, the recipe reading and the options."""
+"""hdcore.setting: one description per setting gives the checks, the recipe reading and the options."""
 
 from __future__ import annotations
 
@@ -8,10 +8,8 @@ import click
 import pytest
 from click.testing import CliRunner
 
-from lidarsim.errors import LidarsimError
-from lidarsim.limits import Bound
-from lidarsim.map_window import MAP_WINDOW, MapWindow
-from lidarsim.setting import (
+from hdcore.bounds import Bound
+from hdcore.setting import (
     SettingsCommand,
     check,
     click_options,
@@ -20,6 +18,8 @@ from lidarsim.setting import (
     from_mapping,
     setting,
 )
+from lidarsim.errors import LidarsimError
+from lidarsim.map_window import MAP_WINDOW, MapWindow
 
 
 @dataclass(frozen=True)

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lidarsim.errors import HdWarning
+from hdcore.errors import HdWarning
 from lidarsim.sensor import SensorConfig
 from lidarsim.weak_inputs import coarse_dtm_message, ground_sample_m, overlap_message, split_overlap
 

@@ -206,7 +206,7 @@ def inject_enospc(monkeypatch: pytest.MonkeyPatch, pattern: str) -> list[str]:
     import errno
     import fnmatch
 
-    from lidarsim.storage import atomic as storage
+    from hdcore.storage import atomic as storage
 
     real = storage._write_all
     failed: list[str] = []

@@ -26,7 +26,7 @@ from reliability_kit import (
     wait_for,
 )
 
-from lidarsim.storage import LOCK_NAME, WriterLock, lock_holder
+from hdcore.storage import LOCK_NAME, WriterLock, lock_holder
 
 
 def test_two_builds_on_one_directory(tmp_path, dtm, reference):
@@ -102,7 +102,7 @@ def test_the_lock_dies_with_its_holder(tmp_path):
     d = tmp_path / "d"
     d.mkdir()
     code = (
-        "import sys, time; from lidarsim.storage import WriterLock; "
+        "import sys, time; from hdcore.storage import WriterLock; "
         f"WriterLock({str(d)!r}).acquire(); print('held', flush=True); time.sleep(60)"
     )
     holder = subprocess.Popen(

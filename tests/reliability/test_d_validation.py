@@ -545,7 +545,7 @@ def test_partial_names_that_are_not_ascii_pids_are_not_hds(tmp_path):
     PID 3, long dead, and the file was deleted)."""
     import subprocess
 
-    from lidarsim.storage import write_bytes_atomic
+    from hdcore.storage import write_bytes_atomic
 
     final = tmp_path / "manifest.json"
     strangers = [tmp_path / ".manifest.json.partial-\u00b2", tmp_path / ".manifest.json.partial-\u0663"]

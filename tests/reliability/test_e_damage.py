@@ -19,8 +19,8 @@ import pytest
 import torch
 from reliability_kit import assert_one_line_error, hills, invoke
 
+from hdcore.storage import DamagedFileError
 from lidarsim.shards import ScanShardReader, read_manifest, sha256_file
-from lidarsim.storage import DamagedFileError
 
 LABEL_GLOB = "labels/*/labels-00000.h5"
 

@@ -9,7 +9,7 @@ import shutil
 import pytest
 from reliability_kit import BUILD_ARGS, assert_one_line_error, invoke
 
-from lidarsim.storage import WriterLock
+from hdcore.storage import WriterLock
 
 
 def test_an_intact_dataset_is_summarised_as_intact(labelled):

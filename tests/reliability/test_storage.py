@@ -1,4 +1,4 @@
-"""The storage layer itself (lidarsim.storage) and the worker pool's safety nets (lidarsim.parallel)."""
+"""The storage layer itself (hdcore.storage) and the worker pool's safety nets (lidarsim.parallel)."""
 
 from __future__ import annotations
 
@@ -15,10 +15,8 @@ import numpy as np
 import pytest
 from reliability_kit import REPO, alive, inject_enospc
 
-from lidarsim import storage
-from lidarsim.errors import LidarsimError
-from lidarsim.parallel import check_scheduler_address
-from lidarsim.storage import (
+from hdcore import storage
+from hdcore.storage import (
     DamagedFileError,
     FormatError,
     H5Image,
@@ -34,6 +32,8 @@ from lidarsim.storage import (
     write_bytes_atomic,
     write_json_atomic,
 )
+from lidarsim.errors import LidarsimError
+from lidarsim.parallel import check_scheduler_address
 
 
 def test_atomic_write_replaces_or_keeps_the_old_file(tmp_path, monkeypatch):

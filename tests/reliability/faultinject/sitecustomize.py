@@ -39,7 +39,7 @@ def _final_name(fd: int) -> str:
 
 
 def _install() -> None:
-    from lidarsim.storage import atomic as storage
+    from hdcore.storage import atomic as storage
 
     pause = os.environ.get("HD_TEST_WRITE_PAUSE", "")
     enospc = os.environ.get("HD_TEST_ENOSPC", "")

@@ -9,12 +9,8 @@ import stat
 from pathlib import Path
 from typing import Any
 
-from lidarsim.errors import (
-    DamagedFileError,
-    FormatError,
-    StorageError,
-)
-from lidarsim.storage.oserrors import describe_os_error
+from hdcore.errors import DamagedFileError, FormatError, StorageError
+from hdcore.storage.oserrors import describe_os_error
 
 _HASH_CHUNK_BYTES = 1 << 22
 _SHA256_RE = re.compile(r"^[0-9a-f]{64}$")

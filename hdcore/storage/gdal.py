@@ -13,10 +13,8 @@ from typing import Any
 
 import numpy as np
 
-from lidarsim.errors import (
-    StorageError,
-)
-from lidarsim.storage.oserrors import describe_os_error, short_message
+from hdcore.errors import StorageError
+from hdcore.storage.oserrors import describe_os_error, short_message
 
 # OS errors GDAL and libtiff report only as text (their strerror), most likely first.
 _GDAL_ERRNOS = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.EACCES, errno.EIO)

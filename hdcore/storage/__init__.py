@@ -42,29 +42,22 @@ One output transaction: every command writes its output directory inside an
 adds the rules of a command whose whole output is replaced at once (``hd eval``'s report,
 ``hd detect``).
 
-The modules, one a section: :mod:`lidarsim.storage.oserrors`,
-:mod:`lidarsim.storage.hashes`,
-:mod:`lidarsim.storage.atomic`,
-:mod:`lidarsim.storage.h5image`,
-:mod:`lidarsim.storage.h5read`,
-:mod:`lidarsim.storage.sidefiles`,
-:mod:`lidarsim.storage.paths`,
-:mod:`lidarsim.storage.gdal`,
-:mod:`lidarsim.storage.lock`;
+The modules, one a section: :mod:`hdcore.storage.oserrors`,
+:mod:`hdcore.storage.hashes`,
+:mod:`hdcore.storage.atomic`,
+:mod:`hdcore.storage.h5image`,
+:mod:`hdcore.storage.h5read`,
+:mod:`hdcore.storage.sidefiles`,
+:mod:`hdcore.storage.paths`,
+:mod:`hdcore.storage.gdal`,
+:mod:`hdcore.storage.lock`;
 this package re-exports their public names.
 """
 
 from __future__ import annotations
 
-from lidarsim.errors import (
-    DamagedFileError,
-    FormatError,
-    LidarsimError,
-    LockedError,
-    OutputExistsError,
-    StorageError,
-)
-from lidarsim.storage.atomic import (
+from hdcore.errors import DamagedFileError, FormatError, LockedError, OutputExistsError, StorageError
+from hdcore.storage.atomic import (
     PARTIAL_MARK,
     atomic_path,
     commit_file,
@@ -77,38 +70,38 @@ from lidarsim.storage.atomic import (
     write_json_atomic,
     write_text_atomic,
 )
-from lidarsim.storage.gdal import (
+from hdcore.storage.gdal import (
     GeoTiffWriter,
     captured_gdal_errors,
     gdal_write_error,
 )
-from lidarsim.storage.h5image import (
+from hdcore.storage.h5image import (
     ROW_BLOCK_BYTES,
     H5Image,
     RowBlocks,
     h5_chunk_kwargs,
 )
-from lidarsim.storage.h5read import (
+from hdcore.storage.h5read import (
     CheckedDataset,
     CheckedH5File,
     check_h5_data,
     open_h5,
 )
-from lidarsim.storage.hashes import (
+from hdcore.storage.hashes import (
     is_sha256,
     sha256_bytes,
     sha256_file,
     verify_sha256,
 )
-from lidarsim.storage.lock import (
+from hdcore.storage.lock import (
     LOCK_NAME,
     WriterLock,
     lock_holder,
 )
-from lidarsim.storage.oserrors import (
+from hdcore.storage.oserrors import (
     describe_os_error,
 )
-from lidarsim.storage.paths import (
+from hdcore.storage.paths import (
     NAME_MAX_BYTES,
     OutputDir,
     OutputTransaction,
@@ -122,7 +115,7 @@ from lidarsim.storage.paths import (
     make_subdir,
     remove_empty_dirs,
 )
-from lidarsim.storage.sidefiles import (
+from hdcore.storage.sidefiles import (
     MAX_SIDE_FILE_BYTES,
     check_regular_file,
     check_schema,
@@ -144,7 +137,6 @@ __all__ = [
     "FormatError",
     "GeoTiffWriter",
     "H5Image",
-    "LidarsimError",
     "LockedError",
     "OutputDir",
     "OutputExistsError",

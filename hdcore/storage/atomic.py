@@ -10,13 +10,10 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from lidarsim.errors import (
-    LidarsimError,
-    StorageError,
-)
-from lidarsim.limits import parse_integer
-from lidarsim.storage.lock import pid_alive
-from lidarsim.storage.oserrors import describe_os_error
+from hdcore.bounds import parse_integer
+from hdcore.errors import HdError, StorageError
+from hdcore.storage.lock import pid_alive
+from hdcore.storage.oserrors import describe_os_error
 
 PARTIAL_MARK = ".partial-"
 
@@ -96,7 +93,7 @@ def remove_stale_partials(final: Path) -> None:
         for p in final.parent.glob(f"{glob_escape(prefix)}*"):
             try:
                 pid = parse_integer(p.name[len(prefix) :])
-            except LidarsimError:
+            except HdError:
                 continue  # not a PID in ASCII digits: not a name hd writes
             if pid != os.getpid() and not pid_alive(pid):
                 with contextlib.suppress(OSError):

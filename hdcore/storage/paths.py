@@ -12,15 +12,10 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-from lidarsim.errors import (
-    FormatError,
-    LockedError,
-    OutputExistsError,
-    StorageError,
-)
-from lidarsim.storage.atomic import PARTIAL_MARK, commit_file, remove_partials
-from lidarsim.storage.lock import LOCK_NAME, WriterLock
-from lidarsim.storage.oserrors import describe_os_error
+from hdcore.errors import FormatError, LockedError, OutputExistsError, StorageError
+from hdcore.storage.atomic import PARTIAL_MARK, commit_file, remove_partials
+from hdcore.storage.lock import LOCK_NAME, WriterLock
+from hdcore.storage.oserrors import describe_os_error
 
 # Longest file-name component most file systems accept, bytes (NAME_MAX on Linux).
 NAME_MAX_BYTES = 255

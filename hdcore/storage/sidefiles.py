@@ -9,12 +9,8 @@ import stat
 from pathlib import Path
 from typing import Any
 
-from lidarsim.errors import (
-    DamagedFileError,
-    FormatError,
-    StorageError,
-)
-from lidarsim.storage.oserrors import describe_os_error
+from hdcore.errors import DamagedFileError, FormatError, StorageError
+from hdcore.storage.oserrors import describe_os_error
 
 
 def check_schema(name: str, version: str, expected_name: str, expected_version: str, where: str) -> None:

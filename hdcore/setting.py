@@ -10,7 +10,7 @@ A field made with :func:`setting` holds a :class:`Described` in its metadata. Fr
   with its unit), so that ``--help`` shows the range and click refuses a value outside it before
   any work.
 
-Ranges are :class:`lidarsim.limits.Bound` values, declared in each package's ``limits`` module.
+Ranges are :class:`hdcore.bounds.Bound` values, declared in each package's ``limits`` module.
 """
 
 from __future__ import annotations
@@ -26,8 +26,8 @@ from typing import Any, TypeVar
 
 import click
 
-from lidarsim.errors import HdError, LidarsimError
-from lidarsim.limits import Bound, parse_integer
+from hdcore.bounds import Bound, parse_integer
+from hdcore.errors import HdError
 
 _KEY = "hd.setting"
 T = TypeVar("T")
@@ -291,7 +291,7 @@ class Finite(click.FloatRange):
 
 class Integer(click.IntRange):
     """An integer option written with the ASCII digits 0-9 and an optional leading ``-``
-    (:func:`lidarsim.limits.parse_integer`; click's own ``int()`` also takes other scripts' digits
+    (:func:`hdcore.bounds.parse_integer`; click's own ``int()`` also takes other scripts' digits
     such as ``'٣'``, ``'1_000'``, ``'+8'`` and blanks), within the range when one is given."""
 
     def _describe_range(self) -> str:
@@ -301,7 +301,7 @@ class Integer(click.IntRange):
         if isinstance(value, str):
             try:
                 value = parse_integer(value, negative=True)
-            except LidarsimError as exc:
+            except HdError as exc:
                 self.fail(str(exc), param, ctx)
         return super().convert(value, param, ctx)
 

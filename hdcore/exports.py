@@ -24,6 +24,9 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
+# The package beneath every other: a package may re-export its names (the root error, HdError).
+CORE = "hdcore"
+
 STUB_SUFFIX = ".pyi"
 
 
@@ -38,8 +41,8 @@ def stub_exports(stub: str | Path, package: str) -> dict[str, tuple[str, str]]:
     and re-exporting under the imported name (``as N``, the typing convention for a re-export).
 
     Raises:
-        ExportError: any other statement, a relative import, a module outside ``package``, a
-            renamed or repeated name.
+        ExportError: any other statement, a relative import, a module outside ``package`` (and
+            the core beneath every package, ``hdcore``), a renamed or repeated name.
     """
     path = Path(stub)
     tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
@@ -50,8 +53,8 @@ def stub_exports(stub: str | Path, package: str) -> dict[str, tuple[str, str]]:
         if not isinstance(node, ast.ImportFrom) or node.level or not node.module:
             where = f"{path}:{getattr(node, 'lineno', 0)}"
             raise ExportError(f"{where}: only `from {package}.MODULE import NAME as NAME` lines belong here")
-        if not node.module.startswith(f"{package}."):
-            raise ExportError(f"{path}:{node.lineno}: {node.module} is not a module of {package}")
+        if not node.module.startswith((f"{package}.", f"{CORE}.")):
+            raise ExportError(f"{path}:{node.lineno}: {node.module} is not a module of {package} or of {CORE}")
         for alias in node.names:
             if alias.asname != alias.name or alias.name in exports:
                 name = alias.name

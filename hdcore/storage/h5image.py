@@ -11,11 +11,9 @@ from typing import Any
 import h5py
 import numpy as np
 
-from lidarsim.errors import (
-    StorageError,
-)
-from lidarsim.storage.atomic import write_bytes_atomic
-from lidarsim.storage.hashes import sha256_bytes
+from hdcore.errors import StorageError
+from hdcore.storage.atomic import write_bytes_atomic
+from hdcore.storage.hashes import sha256_bytes
 
 
 class H5Image:

@@ -10,12 +10,8 @@ from typing import Any
 import h5py
 import numpy as np
 
-from lidarsim.errors import (
-    DamagedFileError,
-    FormatError,
-    StorageError,
-)
-from lidarsim.storage.oserrors import describe_os_error, short_message
+from hdcore.errors import DamagedFileError, FormatError, StorageError
+from hdcore.storage.oserrors import describe_os_error, short_message
 
 
 def _selection_row(selection: Any) -> int | None:

@@ -8,11 +8,8 @@ import os
 import stat
 from pathlib import Path
 
-from lidarsim.errors import (
-    LockedError,
-    StorageError,
-)
-from lidarsim.storage.oserrors import describe_os_error
+from hdcore.errors import LockedError, StorageError
+from hdcore.storage.oserrors import describe_os_error
 
 LOCK_NAME = ".hd-lock"
 
