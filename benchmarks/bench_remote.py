@@ -29,9 +29,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from machine import cpu_model
 
+from hdcli.inspection import known_schemas
 from hdnet.data import HazardDataset
 from hdnet.fit import input_spec_for
-from hdnet.inspection import known_schemas
 from hdnet.profiles import CPU
 from lidarsim import location
 from lidarsim.shards import read_manifest, verify_dataset

@@ -12,6 +12,7 @@ from hdnet.detect_settings import DetectSettings as DetectSettings
 from hdnet.errors import HdNetError as HdNetError
 from hdnet.eval_settings import EvalConfig as EvalConfig
 from hdnet.evaluate import evaluate as evaluate
+from hdnet.evaluate import evaluate_to_report as evaluate_to_report
 from hdnet.fit import FitConfig as FitConfig
 from hdnet.fit import fit as fit
 from hdnet.infer import MCPrediction as MCPrediction
@@ -20,7 +21,6 @@ from hdnet.inputs import InputSpec as InputSpec
 from hdnet.model import BayesianSegNet as BayesianSegNet
 from hdnet.model import ModelConfig as ModelConfig
 from hdnet.noise_levels import TrainingNoise as TrainingNoise
-from hdnet.pipeline import evaluate_to_report as evaluate_to_report
 from hdnet.profiles import CPU as CPU
 from hdnet.profiles import PAPER as PAPER
 from hdnet.profiles import PROFILES as PROFILES

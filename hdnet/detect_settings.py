@@ -2,7 +2,7 @@
 command's options and checks are made from them).
 
 A leaf module without PyTorch: ``hdnet.detect.detect`` takes a :class:`DetectSettings` and
-``hdnet.detect_job`` runs it with the command's, without the two importing each other;
+``hdcli.detect_job`` runs it with the command's, without the two importing each other;
 ``hd detect`` reads and checks them (the threshold's form included) before anything heavy is
 imported or loaded.
 """
@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from hdcore.setting import check, setting
 from hdnet import limits
 from hdnet.errors import HdNetError
-from hdnet.shared_options import (
+from hdnet.shared_settings import (
     batch_size_setting,
     calibrate_setting,
     labels_setting,

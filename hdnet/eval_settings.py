@@ -17,7 +17,7 @@ from hdnet import limits
 from hdnet.errors import HdNetError
 from hdnet.landing import NAV_SIGMAS_M
 from hdnet.noise_levels import check_levels
-from hdnet.shared_options import (
+from hdnet.shared_settings import (
     batch_size_setting,
     calibrate_setting,
     labels_setting,

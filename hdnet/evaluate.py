@@ -448,7 +448,7 @@ def evaluate(
 
     Returns the result; writing it is the caller's (``hdnet.report.write_report``, after checking
     the report directory with ``check_report_dir`` before the evaluation runs, as
-    ``hdnet.pipeline.evaluate_to_report`` does).
+    ``hdnet.evaluate.evaluate_to_report`` does).
 
     Raises:
         HdNetError: a dataset without labels, a training sigma not in the dataset, a checkpoint of
@@ -958,3 +958,34 @@ def preferred_labeling(dataset_dir: str | os.PathLike, run_labels: str | None) -
     """The run's labelling name when the dataset has a labelling of that name, else None (the dataset's only one)."""
     names = [lab.get("name") for lab in read_manifest(dataset_dir).get("labelings", [])]
     return run_labels if run_labels in names else None
+
+
+def evaluate_to_report(
+    run_dir: str | os.PathLike,
+    dataset_dir: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    config: EvalConfig | None = None,
+    *,
+    figures: bool = True,
+    overwrite: bool = False,
+    progress: Callable[[int, int], None] | None = None,
+) -> EvaluationResult:
+    """``hd eval``: the report directory checked, the run evaluated, the report written; returns the result.
+
+    ``progress`` is called with (images inferred, images to infer).
+
+    ``out_dir`` is checked before the evaluation runs (a bad or occupied directory fails at once);
+    an existing report, or a non-empty directory that is not a report, is replaced only with
+    ``overwrite``. The report is ``report.json``, ``report.md`` and, with ``figures``, the PNGs.
+
+    Raises:
+        HdNetError: see ``hdnet.report.check_report_dir``, ``hdnet.evaluate.evaluate`` and
+            ``hdnet.report.write_report``.
+    """
+    from hdnet.report import check_report_dir, write_report
+
+    inputs: dict[str, str | os.PathLike | None] = {"the run": run_dir, "the dataset": dataset_dir}
+    check_report_dir(out_dir, overwrite, inputs)  # before the evaluation runs
+    result = evaluate(run_dir, dataset_dir, config, progress=progress)
+    write_report(result, Path(out_dir), figures=figures, overwrite=overwrite, inputs=inputs)
+    return result

@@ -173,7 +173,7 @@ def publish_dataset(
         directory: the local dataset.
         url: where to publish it (``s3://bucket/prefix``, ``file:///path``...; HTTPS is read-only).
         overwrite: replace another dataset (or files) at ``url``.
-        known_schemas: the schemas of its label shards (``hdnet.inspection.known_schemas``).
+        known_schemas: the schemas of its label shards (``hdcli.inspection.known_schemas``).
         progress: called with each file's relative path and size in bytes once it is there.
 
     Raises:

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from cli import main
+from hdcli.cli import main
 from hdcore.errors import FormatError
 from hdlabels.alhat import hazard_maps, safety_probability
 from hdlabels.grid import grid_points

@@ -13,7 +13,7 @@ import pytest
 from click.testing import CliRunner
 from test_mosaic import SIDE_M, hills, tilted_plane
 
-from cli import main
+from hdcli.cli import main
 from hdcore.errors import HdWarning
 from hdlabels.grid import grid_points
 from hdlabels.mosaic import descent_frames, mosaic_frames, navigation_error, placed_points, terrain_residual

@@ -9,7 +9,7 @@ import pytest
 import rasterio
 from click.testing import CliRunner
 
-from cli import main
+from hdcli.cli import main
 from hdlabels.errors import HdLabelsError
 from hdlabels.grid import grid_points
 from hdlabels.labeling import label_dataset

@@ -21,7 +21,7 @@ from click.testing import CliRunner
 from hdnet_datasets import hills_dtm
 
 import lidarsim.build
-from cli import main
+from hdcli.cli import main
 from hdlabels import defaults as label_defaults
 from hdnet.fit import FitConfig
 from lidarsim import defaults as lidar_defaults

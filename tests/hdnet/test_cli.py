@@ -15,7 +15,7 @@ import pytest
 from click.testing import CliRunner
 from hdnet_datasets import build_labelled
 
-from cli import main
+from hdcli.cli import main
 from tests.geotiff import write_geotiff
 
 

@@ -17,7 +17,7 @@ from typing import Any
 import pytest
 from click.testing import CliRunner, Result
 
-from cli import main
+from hdcli.cli import main
 from hdcore.errors import StorageError
 from hdcore.storage import write_json_atomic
 from hdnet.compare import ABSENT, column_names, compare

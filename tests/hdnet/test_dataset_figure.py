@@ -14,7 +14,7 @@ from click.testing import CliRunner
 from hdnet_datasets import build_labelled
 from matplotlib.collections import PolyCollection
 
-from cli import main
+from hdcli.cli import main
 from hdnet.dataset_figure import PANELS, chosen_labeling, dataset_figure, dataset_overview
 from lidarsim.shards import SPLIT_NAMES, read_manifest
 

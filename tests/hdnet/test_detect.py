@@ -26,7 +26,7 @@ from rasterio.crs import CRS
 from rasterio.transform import from_origin
 from scipy import ndimage
 
-from cli import main
+from hdcli.cli import main
 from hdcore.errors import HdWarning, LockedError, OutputExistsError
 from hdcore.storage import PARTIAL_MARK, WriterLock
 from hdlabels.grid import cell_centres

@@ -22,9 +22,8 @@ from hdlabels.errors import LabelStoreError
 from hdlabels.store import find_labeling, label_shard_paths
 from hdnet.data import HazardDataset
 from hdnet.errors import HdNetError
-from hdnet.evaluate import METHODS, EvalConfig, evaluate, reliability
+from hdnet.evaluate import METHODS, EvalConfig, evaluate, evaluate_to_report, reliability
 from hdnet.fit import FitConfig, fit
-from hdnet.pipeline import evaluate_to_report
 from hdnet.report import ROW_KEYS, report_dict
 
 
@@ -456,7 +455,7 @@ def test_hd_compare_shows_two_real_reports_numbers_and_their_differing_settings(
     Table 1's numbers and H_t are the reports', and the settings that differ are named."""
     from click.testing import CliRunner
 
-    from cli import main
+    from hdcli.cli import main
     from hdnet.report import METHOD_WORDS
 
     entropy_dir, mi_dir = setup[2], mi_report[0]

@@ -8,7 +8,7 @@ decorated with numba's ``njit``/``jit``, or handed to such a compiler in the mod
 (``_compile(_maps_loops)``, ``numba.njit(f)``: a call whose function's name ends in ``jit`` or is
 ``_compile``).
 
-``PACKAGES`` lists the packages held to it: all three.
+``PACKAGES`` lists the packages held to it: all of them.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import ast
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
-PACKAGES = ("lidarsim", "hdlabels", "hdnet")
+PACKAGES = ("hdcore", "lidarsim", "hdlabels", "hdnet", "hdcli")
 MAX_LINES = 80
 COMPILERS = ("_compile",)  # the modules' own wrappers around numba.njit
 

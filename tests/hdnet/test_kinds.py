@@ -15,7 +15,7 @@ import ast
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
-SOURCES = ("lidarsim", "hdlabels", "hdnet", "cli.py")
+SOURCES = ("hdcore", "lidarsim", "hdlabels", "hdnet", "hdcli")
 
 
 def _is_kind(node: ast.expr) -> bool:
@@ -118,4 +118,4 @@ def test_guard_allows_the_defining_module_and_dtype_codes() -> None:
 
 def test_guard_reads_every_package() -> None:
     files = {str(f.relative_to(REPO)) for f in _package_files()}
-    assert {"hdnet/threshold_spec.py", "lidarsim/noise.py", "hdlabels/conventions.py", "cli.py"} <= files
+    assert {"hdnet/threshold_spec.py", "lidarsim/noise.py", "hdlabels/conventions.py", "hdcli/cli.py"} <= files

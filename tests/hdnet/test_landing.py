@@ -18,7 +18,7 @@ from hdlabels.settings import LabelSettings
 from hdlabels.store import find_labeling, labelings_by_truth
 from hdnet.data import split_labels
 from hdnet.errors import HdNetError
-from hdnet.evaluate import EvalConfig
+from hdnet.evaluate import EvalConfig, evaluate_to_report
 from hdnet.fit import FitConfig, fit
 from hdnet.landing import (
     LandingTally,
@@ -33,7 +33,6 @@ from hdnet.landing import (
     wilson_interval,
 )
 from hdnet.landing_table import METHODS, LandingSettings, landing_rows, method_map
-from hdnet.pipeline import evaluate_to_report
 from hdnet.results import SplitInference
 from hdnet.sites import SAFETY_INVALID, SAFETY_SAFE, SAFETY_UNCERTAIN, SAFETY_UNSAFE, select_sites
 from hdnet.uncertainty import MUTUAL_INFORMATION

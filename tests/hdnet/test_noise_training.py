@@ -13,7 +13,7 @@ from click.testing import CliRunner
 from hdnet_datasets import SIGMAS_M, build_labelled
 from torch.utils.data import DataLoader
 
-from cli import main
+from hdcli.cli import main
 from hdnet.data import HazardDataset
 from hdnet.errors import HdNetError
 from hdnet.evaluate import EvalConfig, evaluate

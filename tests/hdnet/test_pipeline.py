@@ -9,10 +9,10 @@ from pathlib import Path
 import pytest
 from hdnet_datasets import hills_dtm
 
+from hdcli.pipeline import Evaluation, Pipeline, demo_pipeline, reproduce_pipeline, run_pipeline
 from hdcore.errors import HdError
 from hdlabels.settings import LabelSettings
 from hdlabels.store import labeling_name
-from hdnet.pipeline import Evaluation, Pipeline, demo_pipeline, reproduce_pipeline, run_pipeline
 from lidarsim import defaults
 from lidarsim.build import BuildConfig
 from lidarsim.recipe import BuildSettings, load_recipe
@@ -141,8 +141,8 @@ def _tiny_pipeline(tmp_path: Path, epochs: int) -> Pipeline:
 def test_demo_training_prints_hd_trains_epoch_lines_and_says_where_it_resumes(tmp_path, monkeypatch):
     from click.testing import CliRunner
 
-    import hdnet.pipeline
-    from cli import main
+    import hdcli.pipeline
+    from hdcli.cli import main
 
     pipe = _tiny_pipeline(tmp_path, epochs=2)
 
@@ -152,7 +152,7 @@ def test_demo_training_prints_hd_trains_epoch_lines_and_says_where_it_resumes(tm
     with pytest.raises(KeyboardInterrupt):
         run_pipeline(pipe, 1, echo=print, progress=lambda d, u: _NoBar(), train_progress=ctrl_c_after_the_first_epoch)
     assert (pipe.run_dir / "last.pt").is_file()
-    monkeypatch.setattr(hdnet.pipeline, "demo_pipeline", lambda out_dir, scans, epochs: pipe)
+    monkeypatch.setattr(hdcli.pipeline, "demo_pipeline", lambda out_dir, scans, epochs: pipe)
     result = CliRunner().invoke(main, ["demo", "--out", str(pipe.out_dir), "--workers", "1"])
     assert result.exit_code == 0, result.output
     lines = result.output.splitlines()

@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 import pytest
 
-from cli import main
+from hdcli.cli import main
 
 README = Path(__file__).resolve().parents[2] / "README.md"
 
@@ -56,7 +56,7 @@ def test_each_readme_command_parses(line: str):
 
 
 def test_the_demo_ends_with_commands_that_parse(tmp_path):
-    from hdnet.pipeline import demo_next_steps
+    from hdcli.pipeline import demo_next_steps
 
     text = demo_next_steps(tmp_path / "demo-out")
     lines = [line.strip() for line in text.splitlines()[1:]]
@@ -88,7 +88,7 @@ def test_the_quick_start_runs_line_by_line_as_pasted(tmp_path):
 def test_the_demo_suggests_mapping_a_test_scan_not_a_training_scan(tmp_path):
     from hdnet_datasets import build_labelled
 
-    from hdnet.pipeline import demo_next_steps, first_test_scan
+    from hdcli.pipeline import demo_next_steps, first_test_scan
     from lidarsim.shards import iter_scans
 
     dataset = build_labelled(tmp_path / "demo-out", label=False)

@@ -17,7 +17,7 @@ import torch
 from click.testing import CliRunner
 from hdnet_datasets import build_labelled
 
-from cli import main
+from hdcli.cli import main
 from lidarsim.shards import read_manifest
 from tests.remote_servers import http_server, make_bucket, s3_server, upload_tree
 

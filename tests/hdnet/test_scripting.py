@@ -11,7 +11,7 @@ import pytest
 from click.testing import CliRunner
 from hdnet_datasets import build_labelled
 
-from cli import main
+from hdcli.cli import main
 from hdnet.fit import FitConfig, fit
 from hdnet.profiles import TINY
 
@@ -156,7 +156,7 @@ def test_the_global_json_flag_is_refused_by_a_command_without_json_output(data_a
 
 
 def test_a_summary_ends_a_live_progress_bar_before_it_is_printed(capsys, monkeypatch):
-    from hdnet import terminal
+    from hdcli import terminal
 
     monkeypatch.delenv("TQDM_DISABLE", raising=False)
     for name, value in (("progress", True), ("lines", False), ("quiet", False), ("json", False)):

@@ -11,7 +11,7 @@ import torch
 from click.testing import CliRunner
 from hdnet_datasets import build_labelled
 
-from cli import main
+from hdcli.cli import main
 from hdlabels.errors import LabelStoreError
 from hdnet.data import HazardDataset, MixedDataset
 from hdnet.evaluate import EvalConfig, evaluate

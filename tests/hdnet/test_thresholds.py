@@ -175,7 +175,7 @@ def test_a_risk_level_below_one_over_n_plus_one_is_unreachable_and_says_how_many
 
 
 def test_each_registered_rule_parses_selects_and_is_in_the_help() -> None:
-    from hdnet.shared_options import THRESHOLD_FORMS
+    from hdnet.shared_settings import THRESHOLD_FORMS
     from hdnet.threshold_spec import RULES, SPEC_FORMS, ThresholdRule, parse_threshold_spec
 
     assert list(RULES) == ["mean", "quantile", "risk", "nats"]

@@ -36,7 +36,7 @@ import torch
 from click.testing import CliRunner
 from hdnet_datasets import build_labelled
 
-from cli import main
+from hdcli.cli import main
 from hdcore.errors import HdWarning, LockedError, OutputExistsError
 from hdcore.storage import WriterLock
 from hdnet import view_images

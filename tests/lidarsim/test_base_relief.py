@@ -15,7 +15,7 @@ from click.testing import CliRunner
 from rasterio.crs import CRS
 from terrain_files import plane, write_tif
 
-from cli import main
+from hdcli.cli import main
 from hdcore.storage import sha256_file
 from lidarsim import terrain_defaults as td
 from lidarsim.base_relief import resample_bilinear, rocks_on_base

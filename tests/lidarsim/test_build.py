@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from cli import main
+from hdcli.cli import main
 from lidarsim.build import BuildConfig, assign_splits, build_dataset
 from lidarsim.sensor import SensorConfig
 from lidarsim.shards import ScanShardReader, iter_scans, read_manifest, verify_dataset
@@ -119,7 +119,7 @@ def kill_after_two_shards(argv: list[str], out: Path) -> None:
     the build must not have finished (no manifest)."""
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     proc = subprocess.Popen(
-        [sys.executable, str(REPO / "cli.py"), *argv, "--out", str(out)],
+        [sys.executable, "-m", "hdcli", *argv, "--out", str(out)],
         env=env,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,

@@ -11,7 +11,7 @@ import h5py
 import pytest
 from click.testing import CliRunner
 
-from cli import main
+from hdcli.cli import main
 from lidarsim.croissant import CONFORMS_TO, croissant_metadata
 from lidarsim.shards import read_manifest
 from tests.hdnet.hdnet_datasets import hills_dtm

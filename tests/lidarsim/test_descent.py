@@ -15,7 +15,7 @@ from click.testing import CliRunner
 from scipy.spatial.transform import Rotation
 from test_build import REPO, kill_after_two_shards, rough_dtm
 
-from cli import main
+from hdcli.cli import main
 from hdlabels.labeling import label_dataset
 from hdlabels.settings import LabelSettings
 from lidarsim.build import BuildConfig, assign_splits, build_dataset, scan_splits

@@ -26,7 +26,7 @@ import h5py
 import pytest
 from click.testing import CliRunner
 
-from cli import main
+from hdcli.cli import main
 from lidarsim.shards import read_manifest
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"

@@ -12,7 +12,7 @@ from click.testing import CliRunner
 from rasterio.crs import CRS
 from terrain_files import plane, write_tif
 
-from cli import main
+from hdcli.cli import main
 from hdcore.errors import OutputExistsError
 from lidarsim.build import BuildConfig, build_dataset
 from lidarsim.errors import LidarsimError

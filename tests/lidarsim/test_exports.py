@@ -47,7 +47,7 @@ def test_importing_the_packages_imports_none_of_their_libraries():
     [
         "import hdnet.fit, hdnet.evaluate, hdnet.detect",  # the modules first
         "from hdnet.detect import DetectRun; from hdnet.fit import FitConfig; from hdnet.evaluate import evaluate",
-        "import hdnet.detect_job, hdnet.train_job, hdnet.eval_job, hdnet.pipeline",  # what the CLI imports
+        "import hdcli.detect_job, hdcli.train_job, hdcli.eval_job, hdcli.pipeline",  # what the CLI imports
         "import hdnet; hdnet.detect_dem; hdnet.FitConfig; hdnet.EvalConfig",  # names that import those modules
         "import hdnet",
     ],

@@ -13,7 +13,7 @@ import pytest
 from click.testing import CliRunner
 from test_build import rough_dtm
 
-from cli import main
+from hdcli.cli import main
 from hdlabels.grid import grid_points
 from hdlabels.labeling import label_dataset
 from hdlabels.settings import LabelSettings

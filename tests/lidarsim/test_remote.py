@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from cli import main
+from hdcli.cli import main
 from lidarsim.shards import read_manifest
 from tests.hdnet.hdnet_datasets import build_labelled
 from tests.remote_servers import http_server, make_bucket, s3_server, upload_tree

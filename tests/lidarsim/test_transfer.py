@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from cli import main
+from hdcli.cli import main
 from lidarsim.shards import read_manifest
 from tests.hdnet.hdnet_datasets import build_labelled
 from tests.remote_servers import make_bucket, s3_server
@@ -132,7 +132,7 @@ def hd(*args: object, env: dict[str, str]) -> subprocess.Popen:
     """``hd ARGS`` in its own process with the fault injector of tests/reliability loaded."""
     full = {**os.environ, "PYTHONPATH": f"{FAULTS}{os.pathsep}{REPO}", "HD_TEST_FAULTS": "1", **env}
     return subprocess.Popen(
-        [sys.executable, str(REPO / "cli.py"), *[str(a) for a in args]],
+        [sys.executable, "-m", "hdcli", *[str(a) for a in args]],
         env=full,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,

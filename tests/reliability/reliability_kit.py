@@ -17,7 +17,7 @@ import pytest
 from click.testing import CliRunner, Result
 from scipy import ndimage
 
-from cli import main
+from hdcli.cli import main
 from lidarsim.shards import read_manifest
 from tests.geotiff import write_geotiff
 
@@ -86,7 +86,7 @@ def hd_process(
         **(env or {}),
     }
     return subprocess.Popen(
-        [sys.executable, str(REPO / "cli.py"), *[str(a) for a in args]],
+        [sys.executable, "-m", "hdcli", *[str(a) for a in args]],
         env=full_env,
         cwd=cwd,
         stdout=subprocess.DEVNULL,

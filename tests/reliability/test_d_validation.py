@@ -344,7 +344,7 @@ def test_eval_refuses(case, args, needle, places, labelled, trained, monkeypatch
     ],
 )
 def test_multi_stage_commands_check_every_stage_first(command, args, needle, places, monkeypatch):
-    _no_work(monkeypatch, ("hdnet.pipeline", "_build_unless_done"))
+    _no_work(monkeypatch, ("hdcli.pipeline", "_build_unless_done"))
     argv = _fill(args, places)
     if "--out" not in argv:
         argv = ["--out", f"{places['tmp']}/chain", *argv]
@@ -366,7 +366,7 @@ def test_every_float_option_rejects_nan_and_inf():
     """Guard for new options: each float option of every command is covered by a case above."""
     from click.types import FloatParamType
 
-    from cli import main
+    from hdcli.cli import main
 
     covered = {
         a for rows in (BUILD, LABEL, MAKE_DTM, TRAIN, EVAL) for _, args, _ in rows for a in args if a.startswith("--")
@@ -386,7 +386,7 @@ def test_every_float_option_rejects_nan_and_inf():
 
 def _numeric_options() -> list[tuple[str, click.Command, click.Option]]:
     """(command name, command, option) for every int or float option of every command."""
-    from cli import main
+    from hdcli.cli import main
 
     return [
         (c, cmd, p)
@@ -437,7 +437,7 @@ def _outside(t: _NumberRangeBase) -> str:
 )
 def test_a_value_outside_its_range_is_a_usage_error_before_work(command, option, tmp_path):
     """One line naming the option and its range; nothing created (click refuses it before the command runs)."""
-    from cli import main
+    from hdcli.cli import main
 
     cmd = main.commands[command]
     argv = [command]

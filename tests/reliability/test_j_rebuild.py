@@ -238,7 +238,7 @@ def test_a_rebuild_computed_as_on_another_cpu_passes_with_identical_scans(tmp_pa
         ["label", str(out), "--workers", "1", *LABEL_ARGS],
     ):
         done = subprocess.run(
-            [sys.executable, str(REPO / "cli.py"), *args], env=env, capture_output=True, text=True, timeout=600
+            [sys.executable, "-m", "hdcli", *args], env=env, capture_output=True, text=True, timeout=600
         )
         assert done.returncode == 0, done.stderr
     code, out_text, err = verify(out, recipe)

@@ -2,8 +2,8 @@
 
 Each command's options are generated from the settings it fills (``hdcore.setting.click_options``
 over ``lidarsim.recipe.BuildSettings``, ``hdlabels.settings.LabelSettings``, ``hdnet.fit.FitConfig``,
-...), shared ones come from ``hdnet.shared_options``, and the terminal (one-line errors, signals,
-summaries, progress) is ``hdnet.terminal`` (docs/reliability.md).
+...), shared ones come from ``hdnet.shared_settings``, and the terminal (one-line errors, signals,
+summaries, progress) is ``hdcli.terminal`` (docs/reliability.md).
 """
 
 from __future__ import annotations
@@ -15,6 +15,21 @@ from typing import Any
 import click
 from click.core import ParameterSource
 
+from hdcli import terminal
+from hdcli.chains import PAPER_RECIPE, DemoSettings, ReproduceSettings, run_demo, run_reproduce
+from hdcli.inspection import Verdict, inspect_directory, known_schemas, verify_directory
+from hdcli.options import dtm_option, out_option, overwrite_option, recipe_option, scheduler_option, workers_option
+from hdcli.terminal import (
+    OUTPUT,
+    HdGroup,
+    ScanProgress,
+    epoch_progress,
+    friendly_errors,
+    json_output,
+    record,
+    refuse_with_recipe,
+    say,
+)
 from hdcore.outcome import Done, counted
 from hdcore.setting import (
     DATASET_OR_URL,
@@ -27,30 +42,8 @@ from hdcore.setting import (
     settings_from_options,
 )
 from hdlabels.errors import HdLabelsError
-from hdnet import terminal
-from hdnet.chains import PAPER_RECIPE, DemoSettings, ReproduceSettings, run_demo, run_reproduce
 from hdnet.detect_settings import DetectSettings
-from hdnet.inspection import Verdict, inspect_directory, known_schemas, verify_directory
-from hdnet.shared_options import (
-    LABELS_FORMS,
-    dtm_option,
-    out_option,
-    overwrite_option,
-    recipe_option,
-    scheduler_option,
-    workers_option,
-)
-from hdnet.terminal import (
-    OUTPUT,
-    HdGroup,
-    ScanProgress,
-    epoch_progress,
-    friendly_errors,
-    json_output,
-    record,
-    refuse_with_recipe,
-    say,
-)
+from hdnet.shared_settings import LABELS_FORMS
 from lidarsim import limits
 from lidarsim._version import __version__
 from lidarsim.errors import LidarsimError
@@ -101,7 +94,7 @@ def main(ctx: click.Context, quiet: bool = False, no_progress: bool = False, as_
 @friendly_errors
 def build_dataset_cmd(ctx: click.Context, out_dir: Path | None, recipe: Path | None, **options: Any) -> None:
     """Simulate flash-LiDAR scans over a terrain and write clean and noisy point clouds as HDF5 shards."""
-    from lidarsim.build_job import build_job
+    from hdcli.build_job import build_job
     from lidarsim.recipe_deviation import SIZE_OPTIONS, SIZE_SETTINGS
 
     workers, scheduler, overwrite = options.pop("workers"), options.pop("scheduler"), options.pop("overwrite")
@@ -240,7 +233,7 @@ def verify_cmd(directory: Path | str, recipe: Path | None) -> None:
 @friendly_errors
 def label_cmd(ctx: click.Context, directory: Path, workers: int | None, recipe: Path | None, **options: Any) -> None:
     """Grid every scan into DEMs and add ALHAT labels and the baseline P(safe) to the dataset."""
-    from hdlabels.label_job import label_job
+    from hdcli.label_job import label_job
 
     scheduler = options.pop("scheduler")
     truth = None
@@ -267,7 +260,7 @@ def mosaic_cmd(
     ctx: click.Context, source: Path, out_dir: Path, workers: int | None, recipe: Path | None, **options: Any
 ) -> None:
     """Mosaic every descent of a descent build into one DEM: a dataset with one scan per descent."""
-    from hdlabels.mosaic_job import mosaic_job
+    from hdcli.mosaic_job import mosaic_job
 
     scheduler, overwrite = options.pop("scheduler"), options.pop("overwrite")
     if recipe is not None:
@@ -283,7 +276,7 @@ def _done(done: Done) -> None:
     record(done.record)
 
 
-@main.command("train", cls=SettingsCommand, settings=("hdnet.fit:FitConfig", "hdnet.train_job:TrainingNoiseOptions"))
+@main.command("train", cls=SettingsCommand, settings=("hdnet.fit:FitConfig", "hdcli.train_job:TrainingNoiseOptions"))
 @click.argument("dataset", type=DATASET_OR_URL)
 @out_option("run_dir", "Run directory (checkpoints, metrics.csv, config.json).")
 @json_output
@@ -291,12 +284,12 @@ def _done(done: Done) -> None:
 def train_cmd(dataset: Path | str, run_dir: Path, **options: Any) -> None:
     """Train the Bayesian SegNet on the noisy DEMs of a labelled dataset (a directory or a URL:
     s3://bucket/prefix, https://host/path; the run is written locally)."""
-    from hdnet.train_job import train_job
+    from hdcli.train_job import train_job
 
     _done(train_job(dataset, run_dir, options, epoch_progress()))
 
 
-@main.command("eval", cls=SettingsCommand, settings=("hdnet.eval_settings:EvalConfig", "hdnet.eval_job:SweepOption"))
+@main.command("eval", cls=SettingsCommand, settings=("hdnet.eval_settings:EvalConfig", "hdcli.eval_job:SweepOption"))
 @click.argument("run_dir", type=DIRECTORY)
 @click.option(
     "--data",
@@ -311,7 +304,7 @@ def train_cmd(dataset: Path | str, run_dir: Path, **options: Any) -> None:
 @friendly_errors
 def eval_cmd(run_dir: Path, dataset: Path | str, out_dir: Path, overwrite: bool, **options: Any) -> None:
     """Evaluate a trained run: the paper's tables, threshold sweep, calibration, noise sweep and figures."""
-    from hdnet.eval_job import eval_job
+    from hdcli.eval_job import eval_job
 
     with ScanProgress("eval", unit="image") as progress:
         _done(eval_job(run_dir, dataset, out_dir, options, overwrite, progress))
@@ -335,7 +328,7 @@ def detect_cmd(
     run_dir: Path, out_dir: Path, dataset: Path | str | None, dtm_path: Path | None, overwrite: bool, **settings: Any
 ) -> None:
     """Hazard maps and ranked landing sites of a DTM (or of one scan) from a trained run."""
-    from hdnet.detect_job import detect_job
+    from hdcli.detect_job import detect_job
 
     with ScanProgress("tiles", unit="tile") as progress:
         _done(
@@ -446,7 +439,3 @@ def pull_cmd(url: str, directory: Path) -> None:
     from lidarsim.transfer import pull_dataset
 
     _done(pull_dataset(url, directory, known_schemas()))
-
-
-if __name__ == "__main__":
-    main()

@@ -74,8 +74,8 @@ def train_job(
         StorageError / LabelStoreError: no dataset, no labels, an unknown labelling (before anything
             else is read or written).
     """
+    from hdcli.pipeline import training_done_message
     from hdnet.fit import FitConfig, already_trained, check_distinct_datasets, fit
-    from hdnet.pipeline import training_done_message
     from hdnet.preflight import check_dataset
     from hdnet.run_summary import run_record
 

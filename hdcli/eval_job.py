@@ -68,8 +68,8 @@ def eval_job(
     # Every option is checked now; the inputs next, before PyTorch is imported and the run loaded.
     check_inputs(run_dir, dataset, config.labels, calibration=config.calibrate_on)
 
-    from hdnet.evaluate import report_is_current
-    from hdnet.pipeline import evaluate_to_report, report_written_message
+    from hdcli.pipeline import report_written_message
+    from hdnet.evaluate import evaluate_to_report, report_is_current
 
     if not overwrite and report_is_current(out_dir, run_dir, dataset, config):
         said = (

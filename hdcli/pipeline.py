@@ -40,8 +40,7 @@ from lidarsim.build import BuildConfig
 from lidarsim.errors import LidarsimError
 
 if TYPE_CHECKING:
-    from hdnet.evaluate import EvalConfig
-    from hdnet.results import EvaluationResult
+    pass
 
 # hd choice: the risk level of the risk-controlled threshold `hd reproduce` adds to the paper's
 # mean-entropy threshold (docs/evaluation.md, "risk:ALPHA").
@@ -389,7 +388,7 @@ def _train(pipeline: Pipeline, echo: Echo, progress: bool | Callable[[dict[str, 
 def _evaluate_unless_done(
     pipeline: Pipeline, evaluation: Evaluation, echo: Echo, progress: ProgressFactory | None = None
 ) -> None:
-    from hdnet.evaluate import EvalConfig
+    from hdnet.evaluate import EvalConfig, evaluate_to_report
 
     report = pipeline.out_dir / evaluation.directory
     if (report / "report.json").exists():
@@ -410,38 +409,6 @@ def _evaluate_unless_done(
             result = evaluate_to_report(pipeline.run_dir, pipeline.dataset_dir, report, config, progress=bar)
     echo(result.summary())
     echo(report_written_message(report))
-
-
-def evaluate_to_report(
-    run_dir: str | os.PathLike,
-    dataset_dir: str | os.PathLike,
-    out_dir: str | os.PathLike,
-    config: EvalConfig | None = None,
-    *,
-    figures: bool = True,
-    overwrite: bool = False,
-    progress: Callable[[int, int], None] | None = None,
-) -> EvaluationResult:
-    """``hd eval``: the report directory checked, the run evaluated, the report written; returns the result.
-
-    ``progress`` is called with (images inferred, images to infer).
-
-    ``out_dir`` is checked before the evaluation runs (a bad or occupied directory fails at once);
-    an existing report, or a non-empty directory that is not a report, is replaced only with
-    ``overwrite``. The report is ``report.json``, ``report.md`` and, with ``figures``, the PNGs.
-
-    Raises:
-        HdNetError: see ``hdnet.report.check_report_dir``, ``hdnet.evaluate.evaluate`` and
-            ``hdnet.report.write_report``.
-    """
-    from hdnet.evaluate import evaluate
-    from hdnet.report import check_report_dir, write_report
-
-    inputs: dict[str, str | os.PathLike | None] = {"the run": run_dir, "the dataset": dataset_dir}
-    check_report_dir(out_dir, overwrite, inputs)  # before the evaluation runs
-    result = evaluate(run_dir, dataset_dir, config, progress=progress)
-    write_report(result, Path(out_dir), figures=figures, overwrite=overwrite, inputs=inputs)
-    return result
 
 
 @contextlib.contextmanager

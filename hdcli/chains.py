@@ -2,7 +2,7 @@
 
 :class:`DemoSettings` and :class:`ReproduceSettings` describe each command's own settings once
 (field metadata: options and checks are made from them); :func:`run_demo` and :func:`run_reproduce`
-make the :class:`hdnet.pipeline.Pipeline` and run it.
+make the :class:`hdcli.pipeline.Pipeline` and run it.
 """
 
 from __future__ import annotations
@@ -62,7 +62,7 @@ def run_demo(
 ) -> str:
     """Run the demo chain into ``out_dir`` (re-running resumes); returns what to try next.
     ``train_progress``: how the training shows its epochs (``hdnet.train.train``'s ``progress``)."""
-    from hdnet.pipeline import demo_next_steps, demo_pipeline, run_pipeline
+    from hdcli.pipeline import demo_next_steps, demo_pipeline, run_pipeline
 
     pipeline = demo_pipeline(out_dir, settings.scans, settings.epochs)
     run_pipeline(pipeline, workers, echo=echo, progress=progress, train_progress=train_progress)
@@ -81,7 +81,7 @@ def run_reproduce(
 ) -> None:
     """Reproduce the paper from ``recipe`` (default: the shipped mars-paper), optionally on ``dtm``;
     ``train_progress`` as :func:`run_demo`'s."""
-    from hdnet.pipeline import reproduce_pipeline, run_pipeline
+    from hdcli.pipeline import reproduce_pipeline, run_pipeline
     from lidarsim.recipe import shipped_recipe
 
     recipe = recipe if recipe is not None else shipped_recipe(PAPER_RECIPE)

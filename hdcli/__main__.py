@@ -1,0 +1,5 @@
+"""``python -m hdcli``: the ``hd`` command."""
+
+from hdcli.cli import main
+
+main()
