@@ -24,6 +24,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from hdcore.setting import check, setting
 from lidarsim import defaults, limits
 from lidarsim.errors import LidarsimError
 from lidarsim.streams import Purpose, stream
@@ -31,7 +32,10 @@ from lidarsim.streams import Purpose, stream
 
 @dataclass(frozen=True)
 class NavigationError:
-    """The navigation error model of a descent (all 1-sigma per map axis; 0 = none).
+    """The navigation error model of a descent (all 1-sigma per map axis; 0 = none). Each field's
+    help, unit, default and range is its metadata (``hdcore.setting``): ``hd build-dataset``'s
+    options, a recipe's ``[build]`` keys (``lidarsim.recipe.BuildSettings``) and the checks here are
+    made from it.
 
     Attributes:
         position_sigma_m: the position bias drawn once per descent, metres.
@@ -40,22 +44,40 @@ class NavigationError:
         attitude_walk_deg: the attitude increment at each frame after the first, degrees.
     """
 
-    position_sigma_m: float = defaults.NAV_POSITION_SIGMA_M
-    position_walk_m: float = defaults.NAV_POSITION_WALK_M
-    attitude_sigma_deg: float = defaults.NAV_ATTITUDE_SIGMA_DEG
-    attitude_walk_deg: float = defaults.NAV_ATTITUDE_WALK_DEG
+    position_sigma_m: float = setting(
+        defaults.NAV_POSITION_SIGMA_M,
+        "A descent's navigation error: 1-sigma per map axis of its position bias, drawn once per descent",
+        unit="metres",
+        bound=limits.NAV_POSITION_M,
+        flag="--nav-position-sigma",
+    )
+    position_walk_m: float = setting(
+        defaults.NAV_POSITION_WALK_M,
+        "A descent's navigation error: 1-sigma per map axis of the position increment added at each frame "
+        "after the first (a random walk)",
+        unit="metres",
+        bound=limits.NAV_POSITION_M,
+        flag="--nav-position-walk",
+    )
+    attitude_sigma_deg: float = setting(
+        defaults.NAV_ATTITUDE_SIGMA_DEG,
+        "A descent's navigation error: 1-sigma per map axis of its attitude bias (a small rotation), drawn "
+        "once per descent",
+        unit="degrees",
+        bound=limits.NAV_ATTITUDE_DEG,
+        flag="--nav-attitude-sigma",
+    )
+    attitude_walk_deg: float = setting(
+        defaults.NAV_ATTITUDE_WALK_DEG,
+        "A descent's navigation error: 1-sigma per map axis of the attitude increment at each frame after the "
+        "first (a random walk)",
+        unit="degrees",
+        bound=limits.NAV_ATTITUDE_DEG,
+        flag="--nav-attitude-walk",
+    )
 
     def __post_init__(self) -> None:
-        for name, bound, unit in (
-            ("position_sigma_m", limits.NAV_POSITION_M, "metres"),
-            ("position_walk_m", limits.NAV_POSITION_M, "metres"),
-            ("attitude_sigma_deg", limits.NAV_ATTITUDE_DEG, "degrees"),
-            ("attitude_walk_deg", limits.NAV_ATTITUDE_DEG, "degrees"),
-        ):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not bound.contains(value):
-                option = "--nav-" + name.rsplit("_", 1)[0].replace("_", "-")
-                raise LidarsimError(f"{option} must be a number of {unit} in {bound.interval()}, got {value!r}")
+        check(self, LidarsimError)
 
     @property
     def is_perfect(self) -> bool:

@@ -218,37 +218,10 @@ class BuildSettings:
         unit="degrees",
         bound=limits.APPROACH_DEG,
     )
-    nav_position_sigma_m: float = setting(
-        defaults.NAV_POSITION_SIGMA_M,
-        "A descent's navigation error: 1-sigma per map axis of its position bias, drawn once per descent",
-        unit="metres",
-        bound=limits.NAV_POSITION_M,
-        flag="--nav-position-sigma",
-    )
-    nav_position_walk_m: float = setting(
-        defaults.NAV_POSITION_WALK_M,
-        "A descent's navigation error: 1-sigma per map axis of the position increment added at each frame "
-        "after the first (a random walk)",
-        unit="metres",
-        bound=limits.NAV_POSITION_M,
-        flag="--nav-position-walk",
-    )
-    nav_attitude_sigma_deg: float = setting(
-        defaults.NAV_ATTITUDE_SIGMA_DEG,
-        "A descent's navigation error: 1-sigma per map axis of its attitude bias (a small rotation), drawn "
-        "once per descent",
-        unit="degrees",
-        bound=limits.NAV_ATTITUDE_DEG,
-        flag="--nav-attitude-sigma",
-    )
-    nav_attitude_walk_deg: float = setting(
-        defaults.NAV_ATTITUDE_WALK_DEG,
-        "A descent's navigation error: 1-sigma per map axis of the attitude increment at each frame after the "
-        "first (a random walk)",
-        unit="degrees",
-        bound=limits.NAV_ATTITUDE_DEG,
-        flag="--nav-attitude-walk",
-    )
+    nav_position_sigma_m: float = described_as(NavigationError, "position_sigma_m")
+    nav_position_walk_m: float = described_as(NavigationError, "position_walk_m")
+    nav_attitude_sigma_deg: float = described_as(NavigationError, "attitude_sigma_deg")
+    nav_attitude_walk_deg: float = described_as(NavigationError, "attitude_walk_deg")
 
     def __post_init__(self) -> None:
         check(self, LidarsimError)
