@@ -124,7 +124,7 @@ def test_eval_and_detect_offer_the_uncertainty_score(command):
 
 # --- options and inputs checked before anything heavy; labellings by alias; URLs -------------------------
 ROOT = Path(__file__).resolve().parents[2]
-NO_TORCH = "import sys; sys.modules['torch'] = None; from cli import main; main(sys.argv[1:], prog_name='hd')"
+NO_TORCH = "import sys; sys.modules['torch'] = None; from hdcli.cli import main; main(sys.argv[1:], prog_name='hd')"
 
 
 def hd_without_torch(*args: str) -> subprocess.CompletedProcess[str]:

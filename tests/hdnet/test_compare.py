@@ -269,7 +269,7 @@ def test_a_missing_directory_and_a_fifo_report_are_refused(tmp_path):
 
 def test_hd_compare_does_not_import_torch(tmp_path):
     a, b = write_report(tmp_path / "a"), write_report(tmp_path / "b")
-    code = "import sys; sys.modules['torch'] = None; from cli import main; main(sys.argv[1:], prog_name='hd')"
+    code = "import sys; sys.modules['torch'] = None; from hdcli.cli import main; main(sys.argv[1:], prog_name='hd')"
     done = subprocess.run(
         [sys.executable, "-c", code, "compare", str(a), str(b)], cwd=ROOT, capture_output=True, text=True, check=False
     )

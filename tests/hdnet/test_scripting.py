@@ -15,7 +15,7 @@ from hdcli.cli import main
 from hdnet.fit import FitConfig, fit
 from hdnet.profiles import TINY
 
-HD = [sys.executable, "-c", "import sys; from cli import main; sys.exit(main())"]
+HD = [sys.executable, "-c", "import sys; from hdcli.cli import main; sys.exit(main())"]
 REPO = Path(__file__).resolve().parents[2]
 
 

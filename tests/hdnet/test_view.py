@@ -699,7 +699,7 @@ def test_cli_view_says_what_it_wrote(outputs, tmp_path):
 def test_hd_view_never_imports_the_network_library(outputs, tmp_path, which):
     out = copy_of(outputs[which], tmp_path)
     code = (
-        "import sys\nfrom cli import main\ntry:\n    main(['view', sys.argv[1]])\nexcept SystemExit as exc:\n"
+        "import sys\nfrom hdcli.cli import main\ntry:\n    main(['view', sys.argv[1]])\nexcept SystemExit as exc:\n"
         "    assert exc.code == 0, exc.code\nassert 'torch' not in sys.modules, 'torch imported'\n"
     )
     done = subprocess.run([sys.executable, "-c", code, str(out)], cwd=ROOT, capture_output=True, text=True, timeout=300)
