@@ -101,6 +101,7 @@ from hdnet.sites import (
     SAFETY_SAFE,
     SAFETY_UNCERTAIN,
     SAFETY_UNSAFE,
+    SITE_FOOTPRINTS,
     SITE_RANK_RULES,
     select_sites,
 )
@@ -891,6 +892,7 @@ def detect_dem(
     batch_size: int = 8,
     progress: Callable[[int, int], None] | None = None,
     layout: str = "channels-last",
+    site_margin_m: float = 0.0,
 ) -> DetectMaps:
     """Hazard maps and ranked landing sites of a height array, in memory: ``hd detect`` without files.
 
@@ -909,7 +911,7 @@ def detect_dem(
     take it as an input; ``threshold`` a calibrated ``mean``, ``quantile:Q`` or ``risk:ALPHA``
     (calibrated on the validation split of the run's own training data, cached in the run directory
     like ``hd detect``'s) or a fixed ``nats:H``; ``uncertainty`` the score it applies to;
-    ``n_sites`` and ``nav_sigma_m`` (metres) for the sites; ``progress`` is called with (tiles
+    ``n_sites``, ``nav_sigma_m`` and ``site_margin_m`` (metres) for the sites; ``progress`` is called with (tiles
     done, tiles total). The model runs on the device it was loaded on.
 
     Raises:
@@ -924,6 +926,7 @@ def detect_dem(
         calibrate=calibrate,
         n_sites=n_sites,
         nav_sigma_m=nav_sigma_m,
+        site_margin_m=site_margin_m,
         seed=seed,
         batch_size=batch_size,
         uncertainty=uncertainty,
@@ -958,7 +961,7 @@ def _maps_of_array(
         terrain, run, plan, h_t, sigma, s.mc_samples, s.batch_size, s.seed, dev, progress, score, layout=s.layout
     )
     layers = (maps["safety"], maps["p_safe"], maps["entropy_nats"], maps["baseline_p_safe"])
-    sites = select_sites(*layers, grid, terrain.spacing_xy_m, run.lander, s.n_sites, s.nav_sigma_m)
+    sites = select_sites(*layers, grid, terrain.spacing_xy_m, run.lander, s.n_sites, s.nav_sigma_m, s.site_margin_m)
     return DetectMaps(
         **maps,
         sites=sites,
@@ -1149,7 +1152,7 @@ def _detect_into(
     )
     timings |= map_timings
     t0 = time.perf_counter()
-    sites = _write_sites(tmp, terrain, run, s.n_sites, s.nav_sigma_m)
+    sites = _write_sites(tmp, terrain, run, s.n_sites, s.nav_sigma_m, s.site_margin_m)
     timings["sites"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     _overview(tmp, terrain, sites, run, h_t, baseline_sigma, score)
@@ -1158,6 +1161,8 @@ def _detect_into(
         run, terrain, plan, threshold_info, baseline_sigma, s.mc_samples, s.seed, counts, sites, timings, s.nav_sigma_m
     )
     info["network_layout"] = s.layout  # hdnet.engine: the same draws; the maps within round-off of nchw's
+    info["site_rule"]["margin_m"] = s.site_margin_m
+    info["site_rule"]["footprint"] = SITE_FOOTPRINTS["margin" if s.site_margin_m > 0.0 else "body"]
     return DetectResult(out, sites, h_t, counts, {k: round(v, 3) for k, v in timings.items()}, info)
 
 
@@ -1294,7 +1299,9 @@ def _calibrated_threshold(
     return th.value_nats, info
 
 
-def _write_sites(tmp: Path, terrain: _Terrain, run: DetectRun, n_sites: int, nav_sigma_m: float = 0.0) -> list[Site]:
+def _write_sites(
+    tmp: Path, terrain: _Terrain, run: DetectRun, n_sites: int, nav_sigma_m: float = 0.0, margin_m: float = 0.0
+) -> list[Site]:
     """Step 5: the ranked landing sites from the written maps, as ``sites.csv`` and ``sites.geojson``."""
     with rasterio.open(tmp / "entropy.tif") as h_src, rasterio.open(tmp / "baseline_p_safe.tif") as b_src:
         sites = select_sites(
@@ -1307,6 +1314,7 @@ def _write_sites(tmp: Path, terrain: _Terrain, run: DetectRun, n_sites: int, nav
             run.lander,
             n_sites,
             nav_sigma_m,
+            margin_m,
         )
     write_text_atomic(tmp / "sites.csv", _sites_csv(sites))
     write_json_atomic(tmp / "sites.geojson", _sites_geojson(sites, terrain.crs_wkt), indent=1)
@@ -1602,7 +1610,7 @@ def _info(
         "counts": counts,
         "sites": [s.columns() for s in sites],
         "site_rule": {
-            "footprint": "lander body disk",
+            "footprint": SITE_FOOTPRINTS["body"],
             "min_separation_m": run.lander.diameter_m,
             "nav_sigma_m": nav_sigma_m,
             "rank_by": SITE_RANK_RULES["touchdown" if nav_sigma_m > 0.0 else "aim"],

@@ -69,6 +69,14 @@ class DetectSettings:
         bound=limits.NAV_SIGMA_M,
         flag="--nav-sigma",
     )
+    site_margin_m: float = setting(
+        0.0,
+        "Safety margin of the sites, {unit}: a site's lander disk widened by it all round must be safe and "
+        "certain (0: the lander disk alone)",
+        unit="metres",
+        bound=limits.SITE_MARGIN_M,
+        flag="--site-margin",
+    )
     upsample: bool = setting(
         False,
         "A DTM coarser than the run's DEM spacing (e.g. HiRISE at 2-4 m) is interpolated bilinearly to it "

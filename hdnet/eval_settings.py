@@ -97,6 +97,14 @@ class EvalConfig:
         bound=limits.NAV_SIGMA_M,
         flag="--nav-sigma",
     )
+    site_margin_m: float = setting(
+        0.0,
+        "Safety margin of the landing table's sites, {unit}: a site's lander disk widened by it all round "
+        "must be safe and certain in the method's map (0: the lander disk alone, as hd detect's default)",
+        unit="metres",
+        bound=limits.SITE_MARGIN_M,
+        flag="--site-margin",
+    )
 
     def __post_init__(self) -> None:
         parse_threshold_spec(self.threshold)

@@ -759,7 +759,7 @@ def _landing_table(
     entry, _ = open_labeling(dataset_dir, setup.labels)
     names = labelings_by_truth(dataset_dir, entry)
     truths = {truth: split_labels(dataset_dir, "test", name) for truth, name in sorted(names.items(), reverse=True)}
-    settings = LandingSettings(nav_sigmas_m=cfg.nav_sigma_m, seed=cfg.seed)
+    settings = LandingSettings(nav_sigmas_m=cfg.nav_sigma_m, seed=cfg.seed, margin_m=cfg.site_margin_m)
     rows: list[LandingRow] = []
     for sigma, inf in tests.items():
         rows += landing_rows(

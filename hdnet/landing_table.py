@@ -47,14 +47,22 @@ BASELINE_THRESHOLD = label_defaults.SAFE_PROBABILITY_THRESHOLD
 @dataclass(frozen=True)
 class LandingSettings:
     """How the landing table is made: the dispersions (metres, 1-sigma per horizontal axis), the
-    touchdowns per scene and the seed of their draws."""
+    touchdowns per scene, the seed of their draws and the sites' safety margin (metres,
+    ``hdnet.sites.select_sites``)."""
 
     nav_sigmas_m: tuple[float, ...] = NAV_SIGMAS_M
     touchdowns: int = TOUCHDOWNS
     seed: int = 0
+    margin_m: float = 0.0
 
     def to_dict(self) -> dict[str, object]:
-        return {"nav_sigmas_m": list(self.nav_sigmas_m), "touchdowns": self.touchdowns, "seed": self.seed}
+        """The settings as report.json records them (the margin only when there is one: reports
+        written without it keep their bytes)."""
+        out: dict[str, object] = {"nav_sigmas_m": list(self.nav_sigmas_m), "touchdowns": self.touchdowns}
+        out["seed"] = self.seed
+        if self.margin_m > 0.0:
+            out["site_margin_m"] = self.margin_m
+        return out
 
 
 def method_map(
@@ -117,7 +125,9 @@ def landing_rows(
             safety, p = method_map(method, inf, j, threshold_nats, uncertainty)
             base = inf.baseline_p_safe[j] if inf.baseline_p_safe is not None else p  # method_map checked it
             for nav in settings.nav_sigmas_m:
-                sites = select_sites(safety, p, inf.entropy_nats[j], base, transform, spacing, lander, 1, nav)
+                sites = select_sites(
+                    safety, p, inf.entropy_nats[j], base, transform, spacing, lander, 1, nav, settings.margin_m
+                )
                 for name, (lab, clearance) in truth_maps.items():
                     tally = tallies[(method, nav, name)]
                     if not sites:

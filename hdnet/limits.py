@@ -43,6 +43,9 @@ NOISE_SIGMA_M = lidar_limits.NOISE_SIGMA_M
 # Navigation dispersion of the touchdown around the aim point, metres 1-sigma per horizontal axis
 # (hd choice: 100 m is ten landers' diameters, far past any terrain-relative navigation).
 NAV_SIGMA_M = Bound(0.0, 100.0)
+# Safety margin around the lander body a site must keep safe and certain, metres (hd choice: 50 m, ten
+# landers' radii; a wider ring leaves no site in any map a lander would be given).
+SITE_MARGIN_M = Bound(0.0, 50.0)
 # Longest side of a map image of hd view, pixels (hd choice): below 64 a map says nothing; above
 # 8192 one RGBA layer is 256 MiB before compression and browsers slow to a crawl.
 VIEW_PX = Bound(64, 8192, integer=True)

@@ -351,6 +351,12 @@ def _landing_section(result: EvaluationResult) -> list[str]:
             "its 95 % Wilson interval over those scenes; a scene without a site is an abstention, never a safe "
             "landing. Clearance: distance from the aim point to the nearest cell that is not safe, in the "
             "method's map and in the truth."
+            + (
+                f" Every site keeps a safety margin of {settings['site_margin_m']:g} m: its lander disk widened by it "
+                "all round is safe and certain in the method's map."
+                if settings.get("site_margin_m")
+                else ""
+            )
         ),
         "",
     ]

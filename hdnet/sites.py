@@ -30,12 +30,15 @@ SITE_RANK_RULES = {
         "ground counting 0 (rounded to 0.001), then clearance"
     ),
 }
+# What a site keeps safe and certain, with a margin (``select_sites``'s ``margin_m``) or without.
+SITE_FOOTPRINTS = {"body": "lander body disk", "margin": "lander body disk widened by margin_m all round"}
 
 
-def body_disk(lander: Lander, spacing_m: float) -> np.ndarray:
+def body_disk(lander: Lander, spacing_m: float, margin_m: float = 0.0) -> np.ndarray:
     """(2k+1, 2k+1) bool: the cells whose centres lie under the lander body (a disk of the lander's
-    diameter) when it is centred on the middle cell; ``spacing_m`` in metres per cell."""
-    r = lander.radius_m / spacing_m
+    diameter) when it is centred on the middle cell, widened by ``margin_m`` metres all round;
+    ``spacing_m`` in metres per cell."""
+    r = (lander.radius_m + margin_m) / spacing_m
     k = int(math.floor(r + 1e-9))
     di, dj = np.mgrid[-k : k + 1, -k : k + 1]
     return di * di + dj * dj <= r * r + 1e-9
@@ -51,6 +54,7 @@ def select_sites(
     lander: Lander,
     n_sites: int,
     nav_sigma_m: float = 0.0,
+    margin_m: float = 0.0,
 ) -> list[Site]:
     """Ranked, non-overlapping landing sites of a safety map.
 
@@ -72,12 +76,18 @@ def select_sites(
 
     ``safety`` (uint8) and ``p_safe`` (float) are whole arrays; ``entropy`` and ``baseline`` are read
     only around the chosen sites, through 2-D slicing (arrays, or windowed raster readers).
+    ``margin_m`` (metres): a safety margin; a site's body disk widened by it all round must be safe
+    and certain too (the disk-mean P(safe), the entropy and the ranking stay those of the body disk).
+    The hazards a map misses lie mostly right beside ground it calls safe (docs/results.md, "Landing
+    safety"), so a margin trades sites for safety.
+
     Memory: about 32 bytes per cell at the peak (the distance transform), besides the two inputs.
     """
     sx, sy = spacing_xy_m
     disk = body_disk(lander, float(np.sqrt(sx * sy)))
+    kept = body_disk(lander, float(np.sqrt(sx * sy)), margin_m) if margin_m > 0.0 else disk
     clear = safety == SAFETY_SAFE
-    candidate = ndimage.binary_erosion(clear, structure=disk, border_value=0)
+    candidate = ndimage.binary_erosion(clear, structure=kept, border_value=0)
     if not candidate.any():
         return []
     # One ranking key per cell: round(P, 3) * scale + clearance, scale > any clearance; P the disk-mean

@@ -980,7 +980,7 @@ def test_cli_detect_prints_a_summary(trained, terrains, tmp_path):
         main,
         [
             *("detect", str(run_dir), "--dtm", str(terrains["ok"]), "--out", str(out)),
-            *("--mc-samples", "2", "--sites", "3", "--layout", "nchw"),
+            *("--mc-samples", "2", "--sites", "3", "--layout", "nchw", "--site-margin", "1"),
         ],
     )
     assert result.exit_code == 0, result.output
@@ -988,6 +988,7 @@ def test_cli_detect_prints_a_summary(trained, terrains, tmp_path):
     info = json.loads((out / "detect.json").read_text())
     assert info["threshold"]["spec"] == "mean" and info["mc_samples"] == 2 and len(info["sites"]) <= 3
     assert info["network_layout"] == "nchw"
+    assert info["site_rule"]["margin_m"] == 1.0 and "widened" in info["site_rule"]["footprint"]
     assert info["baseline"]["sigma_m"] == 0.0167 and info["run"]["train_sigma_m"] == 0.0167
 
 

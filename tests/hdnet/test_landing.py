@@ -201,6 +201,25 @@ def test_dispersion_aware_ranking_prefers_room_to_land():
     assert p_wide == pytest.approx(1.0, abs=1e-9) and p_aim < 0.99
 
 
+def test_a_margin_keeps_only_sites_with_room_around_the_lander():
+    """Two safe disks in an unsafe field: radius 6 m (P 0.99) and 8 m (P 0.90). The 10 m lander (radius
+    5 m) fits both, and the likelier one wins; with a 2 m margin it needs 7 m of safe ground all round:
+    only the wide disk, at its centre; with 4 m (9 m) none; the disk-mean P(safe) stays the body's."""
+    shape = (60, 100)
+    small, wide = disk(shape, (30, 25), 6.0), disk(shape, (30, 70), 8.0)
+    safety = np.full(shape, SAFETY_UNSAFE, np.uint8)
+    safety[small | wide] = SAFETY_SAFE
+    p = np.where(small, 0.99, np.where(wide, 0.90, 0.1)).astype(np.float32)
+    zeros = np.zeros(shape, np.float32)
+    args = (zeros, zeros, Affine.identity(), SPACING, LANDER, 3)
+    bare = select_sites(safety, p, *args)
+    assert (bare[0].row, bare[0].col) == (30, 25) and bare[0].p_safe == pytest.approx(0.99)
+    kept = select_sites(safety, p, *args, margin_m=2.0)
+    assert [(s.row, s.col) for s in kept] == [(30, 70)]  # 8 - 7 = 1 m of play, less than a site's spacing
+    assert kept[0].p_safe == pytest.approx(0.90, rel=1e-6) and kept[0].clearance_m == pytest.approx(math.sqrt(65))
+    assert select_sites(safety, p, *args, margin_m=4.0) == []
+
+
 def test_uncertain_and_invalid_ground_carry_no_touchdown_probability():
     safety, p, _ = two_regions()
     safety[10:70, 70:130][:, ::7] = SAFETY_UNCERTAIN  # stripes of uncertainty through the field
