@@ -62,17 +62,20 @@ _SIGNED_DIGITS = re.compile(r"-?[0-9]+")
 _MAX_DIGITS = 100
 
 
-def parse_integer(text: str, what: str = "", *, negative: bool = False, hint: str = "") -> int:
+def parse_integer(
+    text: str, what: str = "", *, negative: bool = False, hint: str = "", error: type[HdError] = HdError
+) -> int:
     """The integer written in ``text`` with the ASCII digits 0-9 only (and a leading ``-`` when
     ``negative``): Python's ``int()`` also takes other scripts' digits (``'٣'``), superscripts
     (``'²'``, then fails), underscores (``'1_000'``), a ``+`` and blanks around the number, none of
     which hd's options, lists and specs take. Every parser of an integer in user text goes through here.
 
     ``what`` names where the text comes from (``"--scans '0,²': scan"``), ``hint`` is said after the
-    refusal (the form expected, with an example).
+    refusal (the form expected, with an example); ``error`` is the kind of error raised (the caller's
+    package's own, e.g. ``LidarsimError``).
 
     Raises:
-        HdError: ``{what} {text!r} is not ...``, one line naming the text.
+        error: ``{what} {text!r} is not ...``, one line naming the text.
     """
     pattern = _SIGNED_DIGITS if negative else _DIGITS
     if isinstance(text, str) and pattern.fullmatch(text) and len(text.lstrip("-")) <= _MAX_DIGITS:
@@ -85,4 +88,4 @@ def parse_integer(text: str, what: str = "", *, negative: bool = False, hint: st
     else:
         problem = "is not a whole number written with the digits 0-9"
     tail = f"; {hint}" if hint else ""
-    raise HdError(f"{what} {shown} {problem}{tail}".strip())
+    raise error(f"{what} {shown} {problem}{tail}".strip())

@@ -116,8 +116,8 @@ class MosaicSettings:
         """The frames used of a descent of ``k`` frames, ascending (all of them by default).
 
         Raises:
-            HdLabelsError: indices or ranges outside frames 0 .. k - 1, naming the list.
-            LidarsimError: an entry that is not a whole number (``hdcore.bounds.parse_integer``).
+            HdLabelsError: indices or ranges outside frames 0 .. k - 1, or an entry that is not a whole
+                number (``hdcore.bounds.parse_integer``), naming the list.
         """
         if self.frames is None:
             return tuple(range(k))
@@ -126,8 +126,8 @@ class MosaicSettings:
         used: set[int] = set()
         for part in self.frames.split(","):
             lo, sep, hi = part.strip().partition("-")
-            first = parse_integer(lo, f"{where}: frame", hint=usage)
-            last = parse_integer(hi, f"{where}: frame", hint=usage) if sep else first
+            first = parse_integer(lo, f"{where}: frame", hint=usage, error=HdLabelsError)
+            last = parse_integer(hi, f"{where}: frame", hint=usage, error=HdLabelsError) if sep else first
             if not 0 <= first <= last < k:
                 raise HdLabelsError(f"{where}: {part.strip()} is not frames of a descent of {k} frames; {usage}")
             used.update(range(first, last + 1))

@@ -122,8 +122,8 @@ def parse_scans(text: str) -> tuple[int, ...]:
         if not item:
             raise LidarsimError(f"{where}: an empty entry; {usage}")
         lo, sep, hi = item.partition("-")
-        first = parse_integer(lo, f"{where}: scan", hint=usage)
-        last = parse_integer(hi, f"{where}: scan", hint=usage) if sep else first
+        first = parse_integer(lo, f"{where}: scan", hint=usage, error=LidarsimError)
+        last = parse_integer(hi, f"{where}: scan", hint=usage, error=LidarsimError) if sep else first
         if last < first:
             raise LidarsimError(f"{where}: the range {item} runs backwards")
         spans.append((first, last))

@@ -267,7 +267,7 @@ def check_scheduler_address(address: str) -> str:
     host, colon, port = rest.rpartition(":")
     if not colon or not host or "/" in rest or " " in rest:
         raise LidarsimError(f"--scheduler {text!r} is not a scheduler address; {hint}")
-    if not 0 < parse_integer(port, f"--scheduler {text!r}: the port", hint=hint) < 65536:
+    if not 0 < parse_integer(port, f"--scheduler {text!r}: the port", hint=hint, error=LidarsimError) < 65536:
         raise LidarsimError(f"--scheduler {text!r}: port {port!r} must be a number in 1..65535; {hint}")
     return text
 

@@ -13,7 +13,7 @@ from rasterio.crs import CRS
 from terrain_files import plane, write_tif
 
 from hdcli.cli import main
-from hdcore.errors import OutputExistsError
+from hdcore.errors import OutputExistsError, StorageError
 from lidarsim.build import BuildConfig, build_dataset
 from lidarsim.errors import LidarsimError
 from lidarsim.export import COORDINATE_SCALE_M, ExportSettings, export_scans, parse_scans
@@ -143,7 +143,7 @@ def test_a_failed_write_leaves_nothing(dataset, tmp_path, monkeypatch):
 
     real = laspy.LasData.write
     monkeypatch.setattr(laspy.LasData, "write", fail_second)
-    with pytest.raises(LidarsimError, match="no space left on device"):
+    with pytest.raises(StorageError, match="no space left on device"):
         export_scans(dataset, tmp_path / "full", ExportSettings())
     assert not (tmp_path / "full").exists()
     (tmp_path / "taken").mkdir()
