@@ -110,13 +110,13 @@ from hdnet.thresholds import ThresholdSpec, parse_threshold_spec, uncertain_mask
 from hdnet.tiling import TilePlan
 from hdnet.train import load_trained_model
 from hdnet.uncertainty import ENTROPY, UncertaintyScore, recorded_score, uncertainty_score, with_score
-from lidarsim.base_relief import resample_bilinear
 from lidarsim.errors import TerrainError
 from lidarsim.location import dataset_at, dataset_key, has_manifest, manifest_sha256
 from lidarsim.map_window import MapWindow, WindowCells, bounds_text, grid_bounds, window_cells
-from lidarsim.procedural import geotiff_bytes, geotiff_profile
+from lidarsim.procedural import geotiff_profile
 from lidarsim.shards import MANIFEST_NAME, open_scan_shard, read_manifest
 from lidarsim.terrain import DTM
+from lidarsim.upsampled import UpsampledDTM
 
 
 @dataclass(frozen=True)
@@ -193,7 +193,9 @@ BASELINE_THRESHOLD = label_defaults.SAFE_PROBABILITY_THRESHOLD
 # hd choice: a DTM may be up to 2 % coarser than the run's DEM spacing (HiRISE "1 m" products are
 # 1.01 m); it is then read at full resolution. Anything coarser would have to invent detail.
 SPACING_TOLERANCE = 0.02
-# hd choice: cells of a DTM upsampled in memory (--upsample): 2**28 float32 = 1 GiB, as lidarsim's limit.
+# hd choice: cells of a DTM upsampled (--upsample): 2**28, as lidarsim's limit of cells in memory. The
+# interpolated grid is computed window by window (lidarsim.upsampled), but the maps' own arrays (the
+# sites' safety map and P(safe)) and the footprint check (one byte per cell) still hold the whole grid.
 MAX_UPSAMPLED_CELLS = 1 << 28
 OVERVIEW_MAX_PX = 1200  # hd choice: longest side of the overview's hillshade, pixels
 
@@ -381,6 +383,7 @@ class _DtmTerrain(_Terrain):
         self.path = Path(info.path)
         self.upsampled: dict[str, Any] | None = None
         self.window = window
+        self.dtm: DTM | UpsampledDTM
         if coarse > run.spacing_m * (1.0 + SPACING_TOLERANCE):
             if not upsample:
                 raise TerrainError(
@@ -420,30 +423,28 @@ class _DtmTerrain(_Terrain):
             )
         return cells
 
-    def _upsampled(self, path: Path, info: Any, spacing_m: float, source: WindowCells) -> DTM:
+    def _upsampled(self, path: Path, info: Any, spacing_m: float, source: WindowCells) -> UpsampledDTM:
         """The cells ``source`` of the DTM at ``path`` (all of them without a window) interpolated
-        bilinearly to ``spacing_m`` (metres/pixel), held in memory as a GeoTIFF over the same extent
-        (``lidarsim.base_relief.resample_bilinear``)."""
+        bilinearly to ``spacing_m`` (metres/pixel) over the same extent, window by window as the
+        tiles read them (``lidarsim.upsampled``: only the coarse cells are held)."""
         sx, sy = info.spacing_m
-        shape = (max(1, int(source.rows * sy / spacing_m + 1e-9)), max(1, int(source.cols * sx / spacing_m + 1e-9)))
-        if shape[0] * shape[1] > MAX_UPSAMPLED_CELLS:
+        rows, cols = (
+            max(1, int(source.rows * sy / spacing_m + 1e-9)),
+            max(1, int(source.cols * sx / spacing_m + 1e-9)),
+        )
+        if rows * cols > MAX_UPSAMPLED_CELLS:
             raise TerrainError(
-                f"{info.path}: upsampled to {spacing_m:g} m/px it would be {shape[0]} x {shape[1]} cells, more than "
+                f"{info.path}: upsampled to {spacing_m:g} m/px it would be {rows} x {cols} cells, more than "
                 f"hd's {MAX_UPSAMPLED_CELLS:,} for --upsample; map it in parts (--window, or gdal_translate -srcwin)"
             )
-        with DTM.open(path) as src:
-            values = src.read(source.row0, source.col0, source.rows, source.cols)
-            digest = src.sha256()
-        heights = resample_bilinear(values, (sx, sy), spacing_m, shape)
-        t = source.transform(info.transform)
-        data = geotiff_bytes(heights, spacing_m, (float(t[2]), float(t[5])), info.crs_wkt, name=str(info.path))
+        dtm = UpsampledDTM(path, source, spacing_m)
         self.upsampled = {
             "method": "bilinear between cell centres (lidarsim.base_relief.resample_bilinear)",
             "source_spacing_m": [sx, sy],
             "spacing_m": spacing_m,
-            "source_sha256": digest,
+            "source_sha256": dtm.sha256(),
         }
-        return DTM.from_bytes(data, path, sha256=digest)  # provenance names the file read
+        return dtm
 
     def _describe(self, info: Any, run: DetectRun) -> None:
         sx, sy = info.spacing_m
@@ -486,9 +487,13 @@ class _DtmTerrain(_Terrain):
         c, coarse = self.cells, max(self.spacing_xy_m)
         part = None if self.window is None else (c.row0, c.col0, *self.shape)
         # "every cell is nodata" from here (of the window's cells: only they are read)
-        _check_footprint_fits(
-            run, name, what, fix, self.shape, self.spacing_xy_m, lambda: self.dtm.validity_overview(coarse, part)[0]
-        )
+        dtm = self.dtm
+        if isinstance(dtm, UpsampledDTM):  # its own cells, at the run's spacing
+            _check_footprint_fits(run, name, what, fix, self.shape, self.spacing_xy_m, dtm.valid_cells)
+        else:
+            _check_footprint_fits(
+                run, name, what, fix, self.shape, self.spacing_xy_m, lambda: dtm.validity_overview(coarse, part)[0]
+            )
 
     def read(self, row0: int, col0: int, rows: int, cols: int) -> np.ndarray:
         """Heights of cells of the grid (the window's own, without a window the DTM's); NaN outside it."""
@@ -506,7 +511,7 @@ class _DtmTerrain(_Terrain):
         factor = min(1.0, max_px / max(rows, cols))
         if factor >= 1.0:
             return self.read(0, 0, rows, cols), float(np.mean(self.spacing_xy_m))
-        if self.window is not None:  # the window's cells, decimated in one read
+        if self.window is not None or isinstance(self.dtm, UpsampledDTM):  # the window's cells, decimated in one read
             c = self.cells
             heights = self.dtm.preview(max_px, c.row0, c.col0, rows, cols)
             return heights, float(np.mean(self.spacing_xy_m)) * rows / heights.shape[0]

@@ -81,7 +81,7 @@ class RockyTerrain:
     n_craters: int
 
 
-def _axis_weights(n_out: int, spacing_m: float, n_src: int, src_spacing_m: float) -> tuple[np.ndarray, np.ndarray]:
+def axis_weights(n_out: int, spacing_m: float, n_src: int, src_spacing_m: float) -> tuple[np.ndarray, np.ndarray]:
     """Lower source index and weight of the upper one for ``n_out`` cell centres along one axis.
 
     Cell i of the output has its centre at (i + 0.5) * spacing_m from the common corner; source
@@ -107,12 +107,22 @@ def resample_bilinear(
     """
     src = np.ascontiguousarray(values, dtype=np.float64)
     rows, cols = src.shape
-    r_lo, r_w = _axis_weights(shape[0], spacing_m, rows, src_spacing_m[1])
-    c_lo, c_w = _axis_weights(shape[1], spacing_m, cols, src_spacing_m[0])
-    c_hi = np.minimum(c_lo + 1, cols - 1)
-    r_hi = np.minimum(r_lo + 1, rows - 1)
-    out = np.empty(shape, dtype=np.float64)
-    _resample_jit(src, r_lo, r_hi, r_w, c_lo, c_hi, c_w, out)
+    r_lo, r_w = axis_weights(shape[0], spacing_m, rows, src_spacing_m[1])
+    c_lo, c_w = axis_weights(shape[1], spacing_m, cols, src_spacing_m[0])
+    return resample_cells(src, (r_lo, r_w), (c_lo, c_w))
+
+
+def resample_cells(
+    src: np.ndarray, row_weights: tuple[np.ndarray, np.ndarray], col_weights: tuple[np.ndarray, np.ndarray]
+) -> np.ndarray:
+    """The output cells of :func:`resample_bilinear` whose rows and columns have the weights
+    ``row_weights`` and ``col_weights`` (each ``axis_weights``' (lower source index, weight of the
+    upper one), or any selection of their entries): a window of the output is the same cells, bit for
+    bit, as the whole grid's. ``src``: float64 C-contiguous source heights. Returns float64 metres."""
+    (r_lo, r_w), (c_lo, c_w) = row_weights, col_weights
+    rows, cols = src.shape
+    out = np.empty((r_lo.size, c_lo.size), dtype=np.float64)
+    _resample_jit(src, r_lo, np.minimum(r_lo + 1, rows - 1), r_w, c_lo, np.minimum(c_lo + 1, cols - 1), c_w, out)
     return out
 
 

@@ -59,6 +59,7 @@ from hdnet.sites import SITE_RANK_RULES, body_disk
 from hdnet.thresholds import parse_threshold_spec
 from hdnet.train import save_checkpoint
 from hdnet.uncertainty import MUTUAL_INFORMATION
+from lidarsim.base_relief import resample_bilinear
 from lidarsim.errors import TerrainError
 from lidarsim.map_window import MapWindow
 from lidarsim.procedural import MarsTerrainParams, generate_mars_terrain, write_geotiff
@@ -670,6 +671,28 @@ def test_a_window_of_a_coarse_dtm_is_upsampled_alone_and_one_reaching_past_the_d
     assert info["input"]["window"]["clipped"] is True
     assert info["input"]["window"]["mapped"] == [1100.0, 1950.0, 1140.0, 2000.0]
     assert info["grid"]["rows"] == 50 and info["grid"]["cols"] == 40
+
+
+def test_upsampling_window_by_window_maps_as_the_whole_interpolated_grid(trained, tmp_path):
+    """--upsample computes the interpolated heights tile by tile (lidarsim.upsampled); the maps equal,
+    bit for bit, those of the whole grid interpolated at once and stored as a float32 GeoTIFF (what
+    hd detect held in memory before): the same heights, so the same network inputs and draws."""
+    _, run, _ = trained  # a trained network: its maps follow the heights
+    z = rough_hills(40, 45, seed=3)
+    z[12, 20] = np.nan  # a nodata cell spreads to the cells interpolating from it, in both
+    coarse = write_dtm(tmp_path / "coarse.tif", z, 2.0)
+    with DTM.open(coarse) as src:
+        source = src.read(0, 0, 40, 45)
+    fine = write_dtm(tmp_path / "fine.tif", resample_bilinear(source, (2.0, 2.0), 1.0, (80, 90)), 1.0)
+    kw: dict[str, Any] = {"threshold": "nats:0.5", "mc_samples": 2}
+    detect(run, tmp_path / "up", DetectSettings(upsample=True, **kw), dtm=coarse)
+    detect(run, tmp_path / "fine", DetectSettings(**kw), dtm=fine)
+    up, whole = maps_of(tmp_path / "up"), maps_of(tmp_path / "fine")
+    for name in MAP_FILES:
+        np.testing.assert_array_equal(up[name], whole[name], err_msg=name)
+    assert (up["safety.tif"] == SAFETY_INVALID).any() and (up["safety.tif"] != SAFETY_INVALID).any()
+    p = up["p_safe.tif"][np.isfinite(up["p_safe.tif"])]
+    assert p.std() > 1e-3  # maps that vary with the terrain
 
 
 # --- sites by hand -------------------------------------------------------------------------------------
