@@ -294,6 +294,9 @@ EVAL = [
     ("nav-sigma-nan", ["--nav-sigma", "nan"], "--nav-sigma"),
     ("nav-sigma-inf", ["--nav-sigma", "inf"], "--nav-sigma"),
     ("nav-sigma-negative", ["--nav-sigma", "-1"], "--nav-sigma"),
+    ("site-margin-nan", ["--site-margin", "nan"], "--site-margin"),
+    ("site-margin-inf", ["--site-margin", "inf"], "--site-margin"),
+    ("site-margin-absurd", ["--site-margin", "51"], "--site-margin"),
     # Sweeps are checked, and their number of levels bounded, before anything is expanded or loaded.
     ("sigma-sweep-no-step", ["--sigma-sweep", "0:0.1"], "e.g. 0:0.1:0.01"),
     ("sigma-sweep-subnormal-step", ["--sigma-sweep", "0:0.12:5e-324"], "finer than noise levels"),  # OverflowError
@@ -370,7 +373,7 @@ def test_every_float_option_rejects_nan_and_inf():
 
     covered = {
         a for rows in (BUILD, LABEL, MAKE_DTM, TRAIN, EVAL) for _, args, _ in rows for a in args if a.startswith("--")
-    }  # detect's --nav-sigma is eval's setting (one Bound, limits.NAV_SIGMA_M): covered by eval's cases
+    }  # detect's --nav-sigma and --site-margin are eval's settings (one Bound each): covered by eval's cases
     floats = {
         f"{c}:{o}"
         for c, cmd in main.commands.items()
