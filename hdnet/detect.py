@@ -95,7 +95,7 @@ from hdnet.noise_levels import TrainingNoise
 from hdnet.preflight import check_inputs
 from hdnet.report import json_plain
 from hdnet.results import SITE_COLUMNS, Site
-from hdnet.run_record import TrainingData, checkpoint_data, unfinished_training
+from hdnet.run_record import CheckpointHeader, TrainingData, checkpoint_data, unfinished_training
 from hdnet.sites import (
     SAFETY_INVALID,
     SAFETY_SAFE,
@@ -298,7 +298,7 @@ def load_run(run_dir: str | os.PathLike, device: torch.device | str | None = Non
 
 def _warn_if_unfinished(run: DetectRun) -> None:
     """Warn (``HdWarning``) when the run's training stopped before its last epoch."""
-    unfinished = unfinished_training(run.checkpoint, int(run.ckpt.get("epoch", 0)))
+    unfinished = unfinished_training(run.checkpoint, CheckpointHeader.of(run.ckpt).epoch)
     if unfinished is not None:
         warnings.warn(unfinished, HdWarning, stacklevel=3)
 
@@ -1580,9 +1580,7 @@ def _info(
         "software_version": __version__,
         "run": {
             "checkpoint": str(run.checkpoint.resolve()),
-            "epoch": int(run.ckpt.get("epoch", 0)),
-            "profile": run.ckpt.get("profile", {}).get("name"),
-            "model_config": run.ckpt.get("model_config"),
+            **CheckpointHeader.of(run.ckpt).to_dict(),
             "train_sigma_m": run.train_sigma_m,
             "train_noise": run.train_noise.to_dict(),
             "input_size": run.input_size,

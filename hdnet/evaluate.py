@@ -62,7 +62,7 @@ from hdnet.model import BayesianSegNet
 from hdnet.noise_levels import TrainingNoise
 from hdnet.preflight import check_inputs, check_run
 from hdnet.results import METHODS, EvaluationResult, LandingRow, ReliabilityBins, ReportRow, SplitInference
-from hdnet.run_record import checkpoint_data, unfinished_training
+from hdnet.run_record import CheckpointHeader, checkpoint_data, unfinished_training
 from hdnet.thresholds import (
     EntropyCalibration,
     ThresholdSpec,
@@ -617,7 +617,7 @@ def _open_evaluation(run_dir: str | os.PathLike, dataset_dir: str | os.PathLike,
     ckpt_path = check_inputs(run_dir, dataset_dir, cfg.labels, calibration=cfg.calibrate_on)
     dev = torch.device(cfg.device) if cfg.device else torch.device("cuda" if torch.cuda.is_available() else "cpu")
     model, ckpt = load_trained_model(ckpt_path, map_location=dev)
-    unfinished = unfinished_training(ckpt_path, int(ckpt.get("epoch", 0)))
+    unfinished = unfinished_training(ckpt_path, CheckpointHeader.of(ckpt).epoch)
     if unfinished is not None:
         warnings.warn(unfinished, HdWarning, stacklevel=3)
     train_sigma, input_spec, run_labels = run_data(ckpt, ckpt_path)
@@ -794,9 +794,7 @@ def _run_info(
         "checkpoint": str(setup.ckpt_path.resolve()),
         "checkpoint_sha256": sha256_file(setup.ckpt_path),
         "batch_size": cfg.batch_size,
-        "epoch": int(ckpt.get("epoch", 0)),
-        "profile": ckpt.get("profile", {}).get("name"),
-        "model_config": ckpt.get("model_config"),
+        **CheckpointHeader.of(ckpt).to_dict(),
         "train_sigma_m": setup.train_sigma_m,
         "train_noise": data.train_noise.to_dict(),
         "sigma_sweep_m": list(cfg.sigma_sweep),

@@ -465,6 +465,32 @@ def write_run_record(run_dir: str | os.PathLike, record: RunRecord) -> None:
     write_json_atomic(Path(run_dir) / CONFIG, record.to_dict())
 
 
+@dataclass(frozen=True)
+class CheckpointHeader:
+    """What a checkpoint says of its training, read in one place (``hd eval``'s report and ``hd
+    detect``'s detect.json record it; an unfinished run is warned about from ``epoch``).
+
+    Attributes:
+        epoch: the epochs trained when it was saved (0 when not recorded).
+        profile: the training profile's name, or None (a checkpoint not made by ``hdnet.fit``).
+        model_config: the network's configuration as stored (plain JSON), or None.
+    """
+
+    epoch: int
+    profile: str | None
+    model_config: dict[str, Any] | None
+
+    @classmethod
+    def of(cls, ckpt: dict[str, Any]) -> CheckpointHeader:
+        """The header of a loaded checkpoint (``hdnet.train.load_checkpoint``'s dictionary)."""
+        profile = ckpt.get("profile")
+        return cls(int(ckpt.get("epoch", 0)), (profile or {}).get("name"), ckpt.get("model_config"))
+
+    def to_dict(self) -> dict[str, Any]:
+        """The three fields as reports record them (``epoch``, ``profile``, ``model_config``)."""
+        return {"epoch": self.epoch, "profile": self.profile, "model_config": self.model_config}
+
+
 def checkpoint_data(ckpt: dict[str, Any], path: str | os.PathLike) -> TrainingData:
     """The training data a checkpoint carries (its ``extra_config``, migrated like a ``config.json``).
 

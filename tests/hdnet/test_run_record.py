@@ -13,6 +13,7 @@ from hdnet.run_record import (
     RUN_DATA_KEYS,
     RUN_SCHEMA_VERSION,
     AlsoDataset,
+    CheckpointHeader,
     RunRecord,
     TrainingData,
     checkpoint_data,
@@ -133,3 +134,14 @@ def test_unreadable_config_files_are_one_error_naming_the_file(tmp_path):
     (tmp_path / "config.json").write_text("[1, 2]")
     with pytest.raises(HdNetError, match=r"config\.json: not a JSON object"):
         read_run_record(tmp_path)
+
+
+def test_a_checkpoints_header_is_read_in_one_place():
+    """Epoch, profile name and model config, as hd eval's report and hd detect's detect.json record
+    them (in that order); a checkpoint without them reads as epoch 0 and None."""
+    ckpt = {"epoch": 7, "profile": {"name": "robust", "width": 0.75}, "model_config": {"depth": 2}, "model": {}}
+    header = CheckpointHeader.of(ckpt)
+    assert header == CheckpointHeader(7, "robust", {"depth": 2})
+    assert list(header.to_dict().items()) == [("epoch", 7), ("profile", "robust"), ("model_config", {"depth": 2})]
+    assert CheckpointHeader.of({}) == CheckpointHeader(0, None, None)
+    assert CheckpointHeader.of({"profile": None}).profile is None
