@@ -246,6 +246,8 @@ def plot(results: dict[str, Any], folder: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    folder.mkdir(parents=True, exist_ok=True)
+
     labels = {
         "scans": "scans (3 noise levels)",
         "noise": f"noise levels ({results.get('noise_scans', '')} scans)",
