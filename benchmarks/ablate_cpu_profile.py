@@ -41,7 +41,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from hdcore.storage import OutputTransaction, atomic_path, write_json_atomic, write_text_atomic
 from hdnet import defaults
-from hdnet.data import HazardDataset, dem_spacing_m, open_labeling
+from hdnet.data import HazardDataset, open_labeling
 from hdnet.evaluate import validation_summary
 from hdnet.fit import FitConfig, fit, input_spec_for
 from hdnet.inputs import Normalisation
@@ -147,7 +147,7 @@ def throughput(dataset: Path, names: list[str], rounds: int, steps: int, labels:
     setups = {}
     for n in names:
         p = profile_of(n, 1)
-        spec = input_spec_for(p, dem_spacing_m(entry), Normalisation(-10.0, 10.0) if p.heights == "minmax" else None)
+        spec = input_spec_for(p, entry.spacing_m, Normalisation(-10.0, 10.0) if p.heights == "minmax" else None)
         ds = HazardDataset(dataset, "train", defaults.TRAIN_SIGMA_M, labels=labels, input_spec=spec, augment=p.augment)
         model = BayesianSegNet(p.model_config(spec.n_channels))
         fmt = torch.channels_last if p.channels_last else torch.contiguous_format

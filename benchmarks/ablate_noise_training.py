@@ -35,11 +35,12 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from hdcore.storage import OutputTransaction, write_json_atomic, write_text_atomic
-from hdnet.evaluate import checkpoint_path, infer_split, run_data, score, split_dataset
+from hdnet.evaluate import checkpoint_path, infer_split, score, split_dataset
 from hdnet.fit import FitConfig, fit
 from hdnet.noise_levels import TrainingNoise
 from hdnet.profiles import CPU, ROBUST_THRESHOLD_SPEC
 from hdnet.results import SplitInference
+from hdnet.run_record import checkpoint_data
 from hdnet.thresholds import EntropyCalibration, select_threshold
 from hdnet.train import load_trained_model, median_images_per_s
 
@@ -88,7 +89,8 @@ def summarise(run: Path, dataset: Path) -> dict[str, float]:
     """The validation numbers of one run (see the module docstring)."""
     path = checkpoint_path(run)
     model, ckpt = load_trained_model(path, map_location="cpu")
-    _, spec, labels = run_data(ckpt, path)
+    data = checkpoint_data(ckpt, path)
+    spec, labels = data.input, data.labels
     out: dict[str, float] = {"val_loss": float(ckpt["history"][-1]["val_loss"])}
     out["images_per_s"] = float(median_images_per_s(ckpt.get("timing", [])) or float("nan"))
     for sigma in SIGMAS_M:

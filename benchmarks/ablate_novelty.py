@@ -42,10 +42,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from hdnet import defaults
 from hdnet.data import HazardDataset
-from hdnet.evaluate import checkpoint_path, infer_split, run_data, score, split_dataset
+from hdnet.evaluate import checkpoint_path, infer_split, score, split_dataset
 from hdnet.model import BayesianSegNet
 from hdnet.results import SplitInference
-from hdnet.train import load_trained_model
+from hdnet.trained_run import TrainedRun
 from hdnet.uncertainty import SCORES
 
 DASH = "\u2013"  # the tables' "no value"
@@ -190,9 +190,9 @@ def main() -> None:
     sigmas = args.sigma or [0.0167, 0.03, 0.07]
     device = torch.device("cpu")
     ckpt = checkpoint_path(args.run)
-    model, data = load_trained_model(ckpt, map_location=device)
-    _, spec, _ = run_data(data, ckpt)
-    print(f"run {args.run} ({data.get('profile', {}).get('name')}), home {args.home}, held-out {args.heldout}")
+    run = TrainedRun.load(ckpt, device)
+    model, spec = run.model, run.data.input
+    print(f"run {args.run} ({run.header.profile}), home {args.home}, held-out {args.heldout}")
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, M = {args.mc_samples}\n")
     print("| test σ | split | score | V/C % | precision | sensitivity | AUROC of errors |")
     print("|---|---|---|---|---|---|---|")

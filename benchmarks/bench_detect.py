@@ -33,7 +33,6 @@ import time
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
@@ -41,6 +40,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from hdlabels.lander import Lander
+from hdlabels.store import DemSpec, LabelingEntry
 from hdnet.detect import (
     SAFETY_SAFE,
     DetectRun,
@@ -56,15 +56,13 @@ from hdnet.infer import mc_dropout_predict, predictive_entropy
 from hdnet.inputs import Normalisation, network_shape
 from hdnet.model import BayesianSegNet, count_parameters
 from hdnet.profiles import CPU, PAPER, TrainingProfile
+from hdnet.run_record import CheckpointHeader
 from hdnet.train import CHECKPOINT_SCHEMA, CHECKPOINT_VERSION, save_checkpoint
 from lidarsim.procedural import MarsTerrainParams, generate_mars_terrain, write_geotiff
 
 BUDGET_S = 10.0  # hd choice: the per-frame time budget detection is measured against (docs/benchmarks.md)
-LABELING: dict[str, Any] = {
-    "name": "default-lander-dem100x100at1m",
-    "lander": Lander().to_attrs(),  # the default label convention
-    "dem": {"rows": 100, "cols": 100, "spacing_m": 1.0},
-}
+# the default label convention's lander on 100 x 100 DEMs at 1 m
+LABELING = LabelingEntry("default-lander-dem100x100at1m", Lander(), DemSpec.for_convention("paper"))
 
 
 def _median(fn: Callable[[], object], repeats: int, warmups: int = 2) -> float:
@@ -86,7 +84,19 @@ def _run(profile: TrainingProfile, width: float, dem: np.ndarray) -> DetectRun:
     )
     spec = input_spec_for(profile, 1.0, norm)
     model = BayesianSegNet(replace(profile, width=width).model_config(spec.n_channels)).eval()
-    return DetectRun(Path("-"), model, {}, 0.0167, spec, LABELING["name"], LABELING, Lander(), (100, 100), 1.0, None)
+    return DetectRun(
+        Path("-"),
+        model,
+        CheckpointHeader(0, None, None),
+        0.0167,
+        spec,
+        LABELING.name,
+        LABELING,
+        Lander(),
+        (100, 100),
+        1.0,
+        None,
+    )
 
 
 def untrained_checkpoint(path: Path, dem: np.ndarray, profile: TrainingProfile = CPU) -> Path:
@@ -109,9 +119,9 @@ def untrained_checkpoint(path: Path, dem: np.ndarray, profile: TrainingProfile =
                 "input": run.input_spec.to_dict(),
                 "normalisation": None,
                 "input_size": None,
-                "labels": LABELING["name"],
+                "labels": LABELING.name,
                 "dem_shape": [100, 100],
-                "labeling": LABELING,
+                "labeling": LABELING.to_json(),
             },
         },
     )

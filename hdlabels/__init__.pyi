@@ -15,6 +15,8 @@ from hdlabels.mosaic_dataset import mosaic_dataset as mosaic_dataset
 from hdlabels.settings import LabelSettings as LabelSettings
 from hdlabels.store import DemSpec as DemSpec
 from hdlabels.store import LabeledScan as LabeledScan
+from hdlabels.store import LabelingEntry as LabelingEntry
+from hdlabels.store import LabelShardEntry as LabelShardEntry
 from hdlabels.store import LabelShardReader as LabelShardReader
 from hdlabels.store import find_labeling as find_labeling
 from hdlabels.store import iter_labeled_scans as iter_labeled_scans

@@ -24,6 +24,7 @@ labelled again (with a warning) instead of being reported as already labelled.
 
 from __future__ import annotations
 
+import math
 import os
 import shutil
 import time
@@ -47,9 +48,10 @@ from hdlabels.lander import Lander, geometry
 from hdlabels.mosaic_dataset import check_mosaic_grid
 from hdlabels.settings import LabelSettings
 from hdlabels.store import (
-    LABEL_SCHEMA,
     LABELS_DIR,
     DemSpec,
+    LabelingEntry,
+    LabelShardEntry,
     LabelShardReader,
     LabelShardWriter,
     LabelStoreError,
@@ -57,11 +59,11 @@ from hdlabels.store import (
     label_schema_version,
     label_shard_name,
     labeling_name,
-    labeling_truth,
 )
 from hdlabels.truth import check_build_terrain, labelled_terrain, terrain_dem
 from lidarsim.parallel import run_tasks
 from lidarsim.shards import (
+    MANIFEST_NAME,
     TRUTH_DTM_SHA256_ATTR,
     ShardFormatError,
     open_scan_shard,
@@ -93,7 +95,7 @@ class LabelTask:
 class LabelRecord:
     """Manifest entry of one label shard, plus its label counts and the baseline's safe counts."""
 
-    entry: dict[str, Any]
+    entry: LabelShardEntry
     counts: tuple[int, int, int]  # unsafe, safe, invalid pixels
     baseline_safe: tuple[int, ...]  # per sigma: labelled pixels whose P(safe) >= 0.5
 
@@ -271,15 +273,14 @@ def truth_attrs(task: LabelTask) -> dict[str, Any]:
 
 
 def _record(task: LabelTask, sha256: str, n_scans: int, counts: np.ndarray, baseline: np.ndarray) -> LabelRecord:
-    entry = {
-        "path": task.out_path,
-        "sha256": sha256,
-        "n_scans": n_scans,
-        "source_path": task.source_path,
-        "source_sha256": task.source_sha256,
-        "schema": LABEL_SCHEMA,
-        "schema_version": label_schema_version(task.truth),
-    }
+    entry = LabelShardEntry(
+        path=task.out_path,
+        sha256=sha256,
+        n_scans=n_scans,
+        source_path=task.source_path,
+        source_sha256=task.source_sha256,
+        schema_version=label_schema_version(task.truth),
+    )
     return LabelRecord(
         entry=entry,
         counts=(int(counts[0]), int(counts[1]), int(counts[2])),
@@ -310,20 +311,20 @@ def _existing(task: LabelTask) -> LabelRecord | None:
     return _record(task, sha256_file(out), n, label_counts(lab), baseline_safe_counts(lab, p_safe))
 
 
-def other_terrain_shards(root: Path, labeling: dict[str, Any], dtm_sha256: str) -> list[str]:
+def other_terrain_shards(root: Path, labeling: LabelingEntry, dtm_sha256: str) -> list[str]:
     """The label shards of a labelling entry that record another terrain than ``dtm_sha256`` (the
     build's), as ``PATH: truth_dtm_sha256 ABC...``. Shards that record none (written before shards
     recorded their terrain) and shards that cannot be read (``hd verify`` names those) are not listed.
     """
     foreign: list[str] = []
-    for entry in labeling.get("shards", []):
+    for entry in labeling.shards:
         try:
-            with open_h5(confine(root, entry["path"]), entry["path"]) as f:
+            with open_h5(confine(root, entry.path), entry.path) as f:
                 recorded = f.attrs.get(TRUTH_DTM_SHA256_ATTR)
         except (StorageError, OSError, KeyError, TypeError):
             continue
         if recorded is not None and recorded != dtm_sha256:
-            foreign.append(f"{entry['path']}: {TRUTH_DTM_SHA256_ATTR} {str(recorded)[:12]}...")
+            foreign.append(f"{entry.path}: {TRUTH_DTM_SHA256_ATTR} {str(recorded)[:12]}...")
     return foreign
 
 
@@ -414,14 +415,15 @@ def label_dataset(
     return _summary_from_entry(entry, manifest, time.perf_counter() - t0, reused=False)
 
 
-def _current_labeling(root: Path, manifest: dict[str, Any], name: str, dtm_sha256: str | None) -> dict[str, Any] | None:
+def _current_labeling(root: Path, manifest: dict[str, Any], name: str, dtm_sha256: str | None) -> LabelingEntry | None:
     """Step 1: the manifest's entry of the labelling ``name`` when it is there and whole (every shard labelled
     from the terrain the scans were cast on), else None (a foreign shard: warned, labelled again)."""
-    for lab in manifest.get("labelings", []):
-        if lab["name"] == name:
+    for raw in manifest.get("labelings", []):
+        if raw["name"] == name:
+            lab = LabelingEntry.from_json(raw, f"{root}/{MANIFEST_NAME}: labelling {name}")
             foreign = [] if dtm_sha256 is None else other_terrain_shards(root, lab, dtm_sha256)
             if not foreign:
-                return dict(lab)
+                return lab
             warnings.warn(
                 HdWarning(
                     f"{root.name}: {len(foreign)} label shard(s) of {name} were labelled from another terrain than "
@@ -454,7 +456,7 @@ def _label_shards(
             pending.append((i, task))
         else:
             records[i] = rec
-    done = sum(r.entry["n_scans"] for r in records.values())
+    done = sum(r.entry.n_scans for r in records.values())
     if progress:
         progress(done, total)
     n_workers = max(1, workers if workers is not None else (os.cpu_count() or 1))
@@ -462,7 +464,7 @@ def _label_shards(
         for position, rec in run_tasks(run_label_task, [t for _, t in pending], n_workers, scheduler):
             i = pending[position][0]
             records[i] = rec
-            done += rec.entry["n_scans"]
+            done += rec.entry.n_scans
             if progress:
                 progress(done, total)
     except LabelStoreError:
@@ -474,30 +476,20 @@ def _label_shards(
 
 def _labeling_entry(
     name: str, lander: Lander, dem: DemSpec, truth: str, records: list[LabelRecord], sigmas_m: list[float]
-) -> dict[str, Any]:
+) -> LabelingEntry:
     """Step 3: the manifest's entry of the labelling (its counts summed over the shards' ``records``)."""
     counts = np.sum([r.counts for r in records], axis=0)
-    safe_fraction = float(counts[1] / max(1, counts[0] + counts[1]))
-    entry = {
-        "name": name,
-        "schema": LABEL_SCHEMA,
-        "schema_version": label_schema_version(truth),
-        "convention": lander.convention,
-        "lander": lander.to_attrs(),
-        "dem": dem.to_entry(),
-        "label_codes": {
-            "unsafe": defaults.LABEL_UNSAFE,
-            "safe": defaults.LABEL_SAFE,
-            "invalid": defaults.LABEL_INVALID,
-        },
-        "label_counts": {"unsafe": int(counts[0]), "safe": int(counts[1]), "invalid": int(counts[2])},
-        "safe_fraction": safe_fraction,
-        "baseline_safe_fraction": _baseline_fractions(records, sigmas_m),
-        "shards": [r.entry for r in records],
-    }
-    if truth != defaults.TRUTH:  # absent: the clean scan's (entries as before the terrain truth existed)
-        entry["truth"] = truth
-    return entry
+    return LabelingEntry(
+        name=name,
+        lander=lander,
+        dem=dem,
+        truth=truth,
+        schema_version=label_schema_version(truth),
+        label_counts=(int(counts[0]), int(counts[1]), int(counts[2])),
+        safe_fraction=float(counts[1] / max(1, counts[0] + counts[1])),
+        baseline_safe_fraction=_baseline_fractions(records, sigmas_m),
+        shards=tuple(r.entry for r in records),
+    )
 
 
 def _baseline_fractions(records: list[LabelRecord], sigmas: list[float]) -> dict[str, float]:
@@ -510,14 +502,14 @@ def _baseline_fractions(records: list[LabelRecord], sigmas: list[float]) -> dict
     return {f"{sig:g}": float(safe[s] / max(1, valid)) for s, sig in enumerate(sigmas)}
 
 
-def _summary_from_entry(entry: dict[str, Any], manifest: dict[str, Any], seconds: float, reused: bool) -> LabelSummary:
+def _summary_from_entry(entry: LabelingEntry, manifest: dict[str, Any], seconds: float, reused: bool) -> LabelSummary:
     return LabelSummary(
-        name=entry["name"],
+        name=entry.name,
         n_scans=int(manifest["n_scans"]),
-        n_shards=len(entry["shards"]),
-        safe_fraction=float(entry["safe_fraction"]),
-        baseline_safe_fraction=entry.get("baseline_safe_fraction", {}),
+        n_shards=len(entry.shards),
+        safe_fraction=math.nan if entry.safe_fraction is None else entry.safe_fraction,
+        baseline_safe_fraction=dict(entry.baseline_safe_fraction),
         seconds=seconds,
         reused=reused,
-        truth=labeling_truth(entry),
+        truth=entry.truth,
     )

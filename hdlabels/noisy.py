@@ -21,13 +21,12 @@ import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from hdlabels.errors import HdLabelsError
 from hdlabels.grid import grid_points
-from hdlabels.store import DemSpec
+from hdlabels.store import DemSpec, LabelShardEntry
 from lidarsim.errors import LidarsimError
 from lidarsim.noise import noisy_points, recover_ranges, scan_directions
 from lidarsim.scan import STATUS_DAMAGED
@@ -128,10 +127,12 @@ class NoisyDems:
             None if noise_scale is None else np.asarray(noise_scale, dtype=np.float64),
         )
 
-    def read_scans(self, dataset_dir: str | os.PathLike, shard: dict[str, Any], rows: Sequence[int]) -> list[CleanScan]:
+    def read_scans(
+        self, dataset_dir: str | os.PathLike, shard: LabelShardEntry, rows: Sequence[int]
+    ) -> list[CleanScan]:
         """The clean scans at ``rows`` of the scan shard behind one label shard entry of a labelling
         (its ``source_path`` and ``source_sha256``; the shard is checked against the checksum)."""
-        source = {"path": shard["source_path"], "sha256": shard["source_sha256"]}
+        source = {"path": shard.source_path, "sha256": shard.source_sha256}
         with open_scan_shard(Path(dataset_dir), source) as reader:
             f = reader.h5
             return [

@@ -14,13 +14,12 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from hdcore.storage import confine
 from hdlabels.labeling import baseline_safe_counts, label_counts
-from hdlabels.store import LabelShardReader, LabelStoreError
+from hdlabels.store import LabelingEntry, LabelShardReader, LabelStoreError
 from lidarsim.shards import SPLIT_NAMES
 
 # hd choice: label-shard scans read at once (100 x 100 DEMs at 3 noise levels: 8 MB of P(safe)).
@@ -63,7 +62,7 @@ class SplitSummary:
     splits: dict[str, SplitCounts]
 
 
-def split_summary(directory: str | os.PathLike, labeling: dict[str, Any]) -> SplitSummary:
+def split_summary(directory: str | os.PathLike, labeling: LabelingEntry) -> SplitSummary:
     """The counts per split of the labelling ``labeling`` (its manifest entry, e.g. from
     ``hdlabels.store.find_labeling``) of the dataset at ``directory``.
 
@@ -77,9 +76,9 @@ def split_summary(directory: str | os.PathLike, labeling: dict[str, Any]) -> Spl
     scans = np.zeros(n, np.int64)
     classes = np.zeros((n, 3), np.int64)  # unsafe, safe, invalid pixels per split
     baseline = np.zeros((n, 0), np.int64)  # the baseline's safe pixels per split and noise level
-    for entry in labeling["shards"]:
-        what = f"{root / entry['path']}"
-        with LabelShardReader(confine(root, entry["path"], what), what=what) as reader:
+    for entry in labeling.shards:
+        what = f"{root / entry.path}"
+        with LabelShardReader(confine(root, entry.path, what), what=what) as reader:
             if sigmas is None:
                 sigmas = reader.sigmas_m
                 baseline = np.zeros((n, len(sigmas)), np.int64)
@@ -108,4 +107,4 @@ def split_summary(directory: str | os.PathLike, labeling: dict[str, Any]) -> Spl
         )
         for code, name in enumerate(SPLIT_NAMES)
     }
-    return SplitSummary(str(labeling.get("name")), str(labeling.get("truth", "clean-scan")), sigmas or (), counts)
+    return SplitSummary(labeling.name, labeling.truth, sigmas or (), counts)

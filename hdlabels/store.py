@@ -11,6 +11,7 @@ sha256 and name the file and the scan in every error.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 from collections.abc import Iterator
@@ -118,6 +119,187 @@ class DemSpec:
         )
 
 
+@dataclass(frozen=True)
+class LabelShardEntry:
+    """One label shard as a labelling's manifest entry lists it: its file (``path``, relative to the
+    dataset), the file's sha256, its number of scans and the scan shard it labels (path, sha256)."""
+
+    path: str
+    sha256: str
+    n_scans: int
+    source_path: str
+    source_sha256: str
+    schema_version: str = LABEL_SCHEMA_VERSION_CLEAN_SCAN
+
+    def to_json(self) -> dict[str, object]:
+        """The manifest's entry (keys in the order hd has always written them)."""
+        return {
+            "path": self.path,
+            "sha256": self.sha256,
+            "n_scans": self.n_scans,
+            "source_path": self.source_path,
+            "source_sha256": self.source_sha256,
+            "schema": LABEL_SCHEMA,
+            "schema_version": self.schema_version,
+        }
+
+    @classmethod
+    def from_json(cls, obj: object, where: str, labeling_version: str) -> LabelShardEntry:
+        """The entry of a manifest (a 1.0 entry without a schema version has its labelling's).
+
+        Raises:
+            LabelStoreError: not an object, or a key missing or of the wrong type (naming ``where``).
+        """
+        if not isinstance(obj, dict):
+            raise LabelStoreError(f"{where}: a label shard's entry must be a JSON object")
+        texts = {}
+        for key in ("path", "sha256", "source_path", "source_sha256"):
+            value = obj.get(key)
+            if not isinstance(value, str):
+                raise LabelStoreError(f"{where}: its {key!r} must be a string, got {value!r}")
+            texts[key] = value
+        n = obj.get("n_scans")
+        if isinstance(n, bool) or not isinstance(n, int) or n < 0:
+            raise LabelStoreError(f"{where}: its 'n_scans' must be a non-negative integer, got {n!r}")
+        check_schema(
+            str(obj.get("schema", LABEL_SCHEMA)),
+            str(obj.get("schema_version", labeling_version)),
+            LABEL_SCHEMA,
+            LABEL_SCHEMA_VERSION,
+            where,
+        )
+        return cls(n_scans=n, schema_version=str(obj.get("schema_version", labeling_version)), **texts)
+
+
+@dataclass(frozen=True)
+class LabelingEntry:
+    """A labelling as the dataset's manifest lists it (``docs/labels-format.md``): its name, label
+    convention and truth, the lander and DEM grid it was made with, its label counts (pixels) and
+    the baseline's safe fraction per noise level, and its shards in scan order.
+
+    JSON is the file format (:meth:`from_json`, :meth:`to_json`); everything else reads this record.
+    A run records its labelling without the shards (``shards == ()``).
+    """
+
+    name: str
+    lander: Lander
+    dem: DemSpec
+    truth: str = defaults.TRUTH
+    schema_version: str = LABEL_SCHEMA_VERSION_CLEAN_SCAN
+    label_counts: tuple[int, int, int] | None = None  # unsafe, safe, invalid pixels (None: not recorded)
+    safe_fraction: float | None = None  # of the labelled pixels (None: not recorded)
+    baseline_safe_fraction: dict[str, float] = dataclasses.field(default_factory=dict)  # per sigma as written
+    shards: tuple[LabelShardEntry, ...] = ()
+
+    @property
+    def convention(self) -> str:
+        """The label convention (``"paper"`` or ``"hd"``), the lander's."""
+        return self.lander.convention
+
+    @property
+    def spacing_m(self) -> float:
+        """The DEM spacing, metres per pixel."""
+        return self.dem.spacing_m
+
+    @property
+    def first_sha256(self) -> str | None:
+        """The sha256 of the first label shard (None when the entry lists none)."""
+        return self.shards[0].sha256 if self.shards else None
+
+    def shard_paths(self, directory: str | os.PathLike) -> list[Path | str]:
+        """Paths of the label shards, in scan order (each confined to the dataset; URLs under a URL).
+
+        Raises:
+            FormatError: a path that leaves the dataset.
+        """
+        return [join(directory, s.path, f"{directory}/{s.path}") for s in self.shards]
+
+    def same_hazards(self, other: LabelingEntry) -> bool:
+        """True when ``other`` judges the same lander on the same DEM grid (its truth aside)."""
+        return self.lander == other.lander and self.dem == other.dem
+
+    def without_shards(self) -> LabelingEntry:
+        """The entry as a run records it: everything but the shard list."""
+        return dataclasses.replace(self, shards=())
+
+    def to_json(self) -> dict[str, object]:
+        """The manifest's entry, keys in the order hd has always written them (the shard list only
+        when the entry has shards; ``truth`` only for the terrain truth)."""
+        out: dict[str, object] = {
+            "name": self.name,
+            "schema": LABEL_SCHEMA,
+            "schema_version": self.schema_version,
+            "convention": self.convention,
+            "lander": self.lander.to_attrs(),
+            "dem": self.dem.to_entry(),
+            "label_codes": {
+                "unsafe": defaults.LABEL_UNSAFE,
+                "safe": defaults.LABEL_SAFE,
+                "invalid": defaults.LABEL_INVALID,
+            },
+        }
+        if self.label_counts is not None:
+            out["label_counts"] = dict(zip(("unsafe", "safe", "invalid"), self.label_counts, strict=True))
+        if self.safe_fraction is not None:
+            out["safe_fraction"] = self.safe_fraction
+        out["baseline_safe_fraction"] = dict(self.baseline_safe_fraction)
+        if self.shards:
+            out["shards"] = [s.to_json() for s in self.shards]
+        if self.truth != defaults.TRUTH:  # absent: the clean scan's (entries as before the terrain truth existed)
+            out["truth"] = self.truth
+        return out
+
+    @classmethod
+    def from_json(cls, obj: object, where: str) -> LabelingEntry:
+        """The entry of a manifest or a run record (``where`` names it in errors). Entries made before
+        conventions, truths or griddings existed read as the hd convention, the clean scan's truth and
+        linear gridding.
+
+        Raises:
+            HdLabelsError: naming ``where``: a grid or lander hd cannot use (their own errors), or
+                ``LabelStoreError``: not an object, a missing name, a shard entry or schema hd cannot read.
+        """
+        if not isinstance(obj, dict):
+            raise LabelStoreError(f"{where}: a labelling entry must be a JSON object")
+        name = obj.get("name")
+        if not isinstance(name, str) or not name:
+            raise LabelStoreError(f"{where}: a labelling entry needs a 'name' string, got {name!r}")
+        version = str(obj.get("schema_version", "1.0"))  # absent in the copies early runs recorded
+        check_schema(str(obj.get("schema", LABEL_SCHEMA)), version, LABEL_SCHEMA, LABEL_SCHEMA_VERSION, where)
+        dem, lander = obj.get("dem", {}), obj.get("lander", {})
+        if not isinstance(dem, dict) or not isinstance(lander, dict):
+            raise LabelStoreError(f"{where}: its 'dem' and 'lander' entries must be JSON objects")
+        try:
+            grid, vehicle = DemSpec.from_entry(dem), Lander.from_attrs(lander)
+            counts = obj.get("label_counts")
+            label_counts = (
+                None if counts is None else (int(counts["unsafe"]), int(counts["safe"]), int(counts["invalid"]))
+            )
+            fraction = obj.get("safe_fraction")
+            baseline = {str(k): float(v) for k, v in dict(obj.get("baseline_safe_fraction") or {}).items()}
+        except HdLabelsError as exc:
+            raise type(exc)(f"{where}: {exc}") from exc
+        except (TypeError, ValueError, OverflowError, KeyError) as exc:
+            raise LabelStoreError(f"{where}: its dem, lander or counts are not ones hd writes ({exc})") from exc
+        truth = str(obj.get("truth", defaults.TRUTH))
+        if truth not in defaults.TRUTHS:
+            raise LabelStoreError(f"{where}: unknown truth {truth!r}; hd knows {', '.join(defaults.TRUTHS)}")
+        shards = obj.get("shards", [])
+        if not isinstance(shards, list):
+            raise LabelStoreError(f"{where}: its 'shards' must be a list")
+        return cls(
+            name=name,
+            lander=vehicle,
+            dem=grid,
+            truth=truth,
+            schema_version=version,
+            label_counts=label_counts,
+            safe_fraction=None if fraction is None else float(fraction),
+            baseline_safe_fraction=baseline,
+            shards=tuple(LabelShardEntry.from_json(s, f"{where}: shards[{i}]", version) for i, s in enumerate(shards)),
+        )
+
+
 def label_schema_version(truth: str) -> str:
     """The schema version of the label shards (and manifest entries) a labelling of ``truth`` writes:
     1.2 for the terrain truth (it records its terrain's sha256), 1.1 for the clean scan's."""
@@ -134,19 +316,18 @@ def labeling_name(lander: Lander, dem: DemSpec, truth: str = defaults.TRUTH) -> 
     return _labeling_body(lander, dem) + ("" if truth == defaults.TRUTH else f"-truth-{truth}")
 
 
-def labeling_truth(entry: dict[str, Any]) -> str:
-    """The truth of a labelling's manifest entry: ``"terrain"`` or ``"clean-scan"`` (entries without
-    a ``truth`` key, every labelling made before the terrain truth existed, are the clean scan's)."""
-    return str(entry.get("truth", defaults.TRUTH))
-
-
-def labelings_by_truth(directory: str | os.PathLike, entry: dict[str, Any]) -> dict[str, str]:
+def labelings_by_truth(directory: str | os.PathLike, entry: LabelingEntry) -> dict[str, str]:
     """The labellings of a dataset made with the lander and DEM of the labelling ``entry``, one name per
-    truth (``"clean-scan"``, ``"terrain"``): the same hazards judged on the clean scan and on the terrain."""
+    truth (``"clean-scan"``, ``"terrain"``): the same hazards judged on the clean scan and on the terrain.
+    Labellings hd cannot read are left out (``find_labeling`` names their faults when they are asked for)."""
     out: dict[str, str] = {}
-    for other in read_manifest(directory).get("labelings", []):
-        if other.get("lander") == entry.get("lander") and other.get("dem") == entry.get("dem"):
-            out.setdefault(labeling_truth(other), str(other.get("name")))
+    for i, raw in enumerate(read_manifest(directory).get("labelings", [])):
+        try:
+            other = LabelingEntry.from_json(raw, f"{directory}: labelings[{i}]")
+        except (HdLabelsError, ShardFormatError):
+            continue
+        if other.same_hazards(entry):
+            out.setdefault(other.truth, other.name)
     return out
 
 
@@ -375,7 +556,7 @@ class LabelShardReader:
 ALIAS_JOIN = "+"
 
 
-def find_labeling(directory: str | os.PathLike, name: str | None = None) -> dict[str, Any]:
+def find_labeling(directory: str | os.PathLike, name: str | None = None) -> LabelingEntry:
     """The manifest entry of a labelling of the dataset (the only one, or the one called ``name``).
 
     ``name`` is, in this order: a labelling's full name (an exact name always wins, also over
@@ -411,15 +592,15 @@ def find_labeling(directory: str | os.PathLike, name: str | None = None) -> dict
                 f"{directory} has several labellings ({names}); choose one with --labels"
                 + _alias_hint(labelings, ": a name or an alias ({})")
             )
-        return _checked_entry(labelings[0], f"{directory}/{MANIFEST_NAME}: labelling {labelings[0]['name']}")
+        return LabelingEntry.from_json(labelings[0], f"{directory}/{MANIFEST_NAME}: labelling {labelings[0]['name']}")
     for lab in labelings:
         if lab["name"] == name:
-            return _checked_entry(lab, f"{directory}/{MANIFEST_NAME}: labelling {name}")
+            return LabelingEntry.from_json(lab, f"{directory}/{MANIFEST_NAME}: labelling {name}")
     named = _alias_matches(labelings, name)
     if named is None:  # not an alias: the beginning of one labelling's name
         named = [lab for lab in labelings if str(lab["name"]).startswith(name)]
     if len(named) == 1:
-        return _checked_entry(named[0], f"{directory}/{MANIFEST_NAME}: labelling {named[0]['name']}")
+        return LabelingEntry.from_json(named[0], f"{directory}/{MANIFEST_NAME}: labelling {named[0]['name']}")
     if named:
         raise LabelStoreError(
             f"{directory}: {name!r} names {len(named)} labellings: "
@@ -433,6 +614,11 @@ def find_labeling(directory: str | os.PathLike, name: str | None = None) -> dict
         f"{directory} has no labelling named {name!r}; it has: {names}"
         + (f" (aliases: {', '.join(aliases)})" if aliases else "")
     )
+
+
+def _raw_truth(lab: dict[str, Any]) -> str:
+    """The truth of a labelling as the manifest has it (absent: the clean scan's, as before truths existed)."""
+    return str(lab.get("truth", defaults.TRUTH))
 
 
 def _alias_matches(labelings: list[dict[str, Any]], alias: str) -> list[dict[str, Any]] | None:
@@ -452,8 +638,8 @@ def _alias_matches(labelings: list[dict[str, Any]], alias: str) -> list[dict[str
         )
     mine = [lab for lab in labelings if lab.get("convention", "hd") == convention]
     if joined:
-        return [lab for lab in mine if labeling_truth(lab) == truth]
-    paper_truth = [lab for lab in mine if labeling_truth(lab) == defaults.TRUTH]
+        return [lab for lab in mine if _raw_truth(lab) == truth]
+    paper_truth = [lab for lab in mine if _raw_truth(lab) == defaults.TRUTH]
     return paper_truth if len(paper_truth) == 1 else mine
 
 
@@ -478,46 +664,25 @@ def _alias_hint(labelings: list[dict[str, Any]], form: str) -> str:
     return form.format(", ".join(f"{alias} = {name}" for name, alias in first.items())) if first else ""
 
 
-def _checked_entry(labeling: dict[str, Any], where: str) -> dict[str, Any]:
-    """A labelling entry whose ``dem`` grid and ``lander`` are ones hd can use (its readers take both
-    as they are: a ``rows`` that is a list failed deep inside training).
-
-    Raises:
-        HdLabelsError: naming ``where`` and the faulty entry (the lander's or DEM grid's own error,
-            or ``LabelStoreError``).
-    """
-    dem, lander = labeling.get("dem", {}), labeling.get("lander", {})
-    if not isinstance(dem, dict) or not isinstance(lander, dict):
-        raise LabelStoreError(f"{where}: its 'dem' and 'lander' entries must be JSON objects")
-    try:
-        DemSpec.from_entry(dem)
-        Lander.from_attrs(lander)
-    except HdLabelsError as exc:
-        raise type(exc)(f"{where}: {exc}") from exc
-    except (TypeError, ValueError, OverflowError) as exc:
-        raise LabelStoreError(f"{where}: its dem or lander entry is not one hd writes ({exc})") from exc
-    return labeling
-
-
-def label_shard_paths(directory: str | os.PathLike, labeling: dict[str, Any]) -> list[Path | str]:
-    """Paths of a labelling's shards, in scan order (each confined to the dataset; URLs under a URL).
+def label_shard_paths(directory: str | os.PathLike, labeling: LabelingEntry) -> list[Path | str]:
+    """Paths of a labelling's shards, in scan order (:meth:`LabelingEntry.shard_paths`).
 
     Raises:
         FormatError: a path that leaves the dataset.
     """
-    return [join(directory, entry["path"], f"{directory}/{entry['path']}") for entry in labeling["shards"]]
+    return labeling.shard_paths(directory)
 
 
-def open_label_shard(directory: str | os.PathLike, entry: dict[str, Any]) -> LabelShardReader:
+def open_label_shard(directory: str | os.PathLike, entry: LabelShardEntry) -> LabelShardReader:
     """Open the label shard of a manifest entry: confined to the dataset, its sha256 checked first.
 
     Raises:
         FormatError: path outside the dataset, unknown schema (``DamagedFileError``: a missing or
             damaged file), as ``hdcore.storage`` raises it.
     """
-    what = f"{dataset_label(directory)}/{entry['path']}" if is_url(directory) else f"{Path(directory) / entry['path']}"
-    path = join(directory, entry["path"], what)
-    return LabelShardReader(path, sha256=entry["sha256"], what=what)
+    what = f"{dataset_label(directory)}/{entry.path}" if is_url(directory) else f"{Path(directory) / entry.path}"
+    path = join(directory, entry.path, what)
+    return LabelShardReader(path, sha256=entry.sha256, what=what)
 
 
 def iter_labeled_scans(
@@ -539,16 +704,18 @@ def iter_labeled_scans(
     return _labeled_scans(directory, entry, split)
 
 
-def _labeled_scans(directory: str | os.PathLike, entry: dict[str, Any], split: str | None) -> Iterator[LabeledScan]:
-    for shard in entry["shards"]:
+def _labeled_scans(directory: str | os.PathLike, entry: LabelingEntry, split: str | None) -> Iterator[LabeledScan]:
+    for shard in entry.shards:
         with open_label_shard(directory, shard) as reader:
             for scan in reader:
                 if split is None or scan.split == split:
                     yield scan
 
 
-def add_labeling_to_manifest(directory: Path, entry: dict[str, Any]) -> None:
-    """Add (or replace, same name) a labelling entry in the manifest, atomically (writer lock held)."""
+def add_labeling_to_manifest(directory: Path, entry: LabelingEntry) -> None:
+    """Add (or replace, same name) a labelling entry in the manifest, atomically (writer lock held); the
+    other labellings stay as the manifest has them."""
     manifest = read_manifest(directory)
-    manifest["labelings"] = [lab for lab in manifest.get("labelings", []) if lab["name"] != entry["name"]] + [entry]
+    others = [lab for lab in manifest.get("labelings", []) if lab["name"] != entry.name]
+    manifest["labelings"] = [*others, entry.to_json()]
     write_json_atomic(directory / MANIFEST_NAME, manifest)

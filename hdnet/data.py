@@ -58,15 +58,8 @@ from hdcore.errors import HdError
 from hdcore.storage import CheckedH5File
 from hdlabels.alhat import safety_probability
 from hdlabels.deadpixels import drop_and_repair, random_dead_pixels
-from hdlabels.lander import Lander
 from hdlabels.noisy import CleanScan, NoisyDems
-from hdlabels.store import (
-    DemSpec,
-    LabelShardReader,
-    find_labeling,
-    label_shard_paths,
-    open_label_shard,
-)
+from hdlabels.store import LabelingEntry, LabelShardReader, find_labeling, open_label_shard
 from hdnet import defaults
 from hdnet.augment import D4_ORDER, check_augment, transform_sample
 from hdnet.errors import HdNetError
@@ -94,10 +87,10 @@ DEAD_PIXEL_STREAM = 0xDEAD  # hd choice: stream key of the dead-pixel draws, (se
 
 
 # --- labelling and noise levels ----------------------------------------------------------------
-def open_labeling(dataset_dir: str | os.PathLike, labels: str | None = None) -> tuple[dict[str, Any], list[Path | str]]:
+def open_labeling(dataset_dir: str | os.PathLike, labels: str | None = None) -> tuple[LabelingEntry, list[Path | str]]:
     """The labelling entry of a dataset and its label shard paths (``LabelStoreError`` when there are no labels)."""
     entry = find_labeling(dataset_dir, labels)
-    return entry, label_shard_paths(dataset_dir, entry)
+    return entry, entry.shard_paths(dataset_dir)
 
 
 def dataset_sigmas(paths: list[Path | str], sha256: str | None = None) -> tuple[float, ...]:
@@ -110,12 +103,6 @@ def dataset_sigmas(paths: list[Path | str], sha256: str | None = None) -> tuple[
         raise HdNetError("the labelling lists no label shards.")
     with LabelShardReader(paths[0], sha256=sha256 if is_url(paths[0]) else None) as reader:
         return reader.sigmas_m
-
-
-def first_sha256(entry: dict[str, Any]) -> str | None:
-    """The manifest's sha256 of a labelling's first label shard (None when it lists none)."""
-    shards = entry.get("shards") or []
-    return str(shards[0]["sha256"]) if shards else None
 
 
 def format_sigmas(sigmas_m: tuple[float, ...]) -> str:
@@ -137,22 +124,6 @@ def sigma_index(sigmas_m: tuple[float, ...], sigma_m: float) -> int:
     raise HdNetError(f"sigma {sigma_m:g} m is not in the dataset; it has {format_sigmas(sigmas_m)} m.")
 
 
-def lander_of(entry: dict[str, Any]) -> Lander:
-    """The lander a labelling was made with (from its manifest entry)."""
-    return Lander.from_attrs(entry.get("lander", {}))
-
-
-def dem_spacing_m(entry: dict[str, Any]) -> float:
-    """DEM spacing of a labelling, metres per pixel."""
-    return float(entry.get("dem", {}).get("spacing_m", 1.0))
-
-
-def _open_verified(dataset_dir: str | os.PathLike, shard: dict[str, Any]) -> LabelShardReader:
-    """A label shard of the manifest, checked (sha256, schema) before it is read (``hdcore.storage``'s
-    ``FormatError`` and ``DamagedFileError`` as they are)."""
-    return open_label_shard(dataset_dir, shard)
-
-
 def split_labels(dataset_dir: str | os.PathLike, split: str, labels: str) -> dict[int, np.ndarray]:
     """The labels of every scan of ``split`` under the labelling ``labels``, by scan index, as stored
     (uint8 DEM grids: 1 safe, 0 unsafe, 255 invalid), every label shard checked before it is read."""
@@ -161,8 +132,8 @@ def split_labels(dataset_dir: str | os.PathLike, split: str, labels: str) -> dic
     entry = find_labeling(dataset_dir, labels)
     code = SPLITS.index(split)
     out: dict[int, np.ndarray] = {}
-    for shard in entry["shards"]:
-        with _open_verified(dataset_dir, shard) as reader:
+    for shard in entry.shards:
+        with open_label_shard(dataset_dir, shard) as reader:
             f = reader.h5
             rows = np.flatnonzero(f["split"][:] == code)
             if rows.size:
@@ -176,18 +147,18 @@ def split_labels(dataset_dir: str | os.PathLike, split: str, labels: str) -> dic
 def compute_normalisation(dataset_dir: str | os.PathLike, sigma_m: float, labels: str | None = None) -> Normalisation:
     """Min and max (metres) of the finite noisy-DEM heights at ``sigma_m`` over the training split only."""
     entry, paths = open_labeling(dataset_dir, labels)
-    return labeling_normalisation(dataset_dir, entry, dataset_sigmas(paths, first_sha256(entry)), sigma_m)
+    return labeling_normalisation(dataset_dir, entry, dataset_sigmas(paths, entry.first_sha256), sigma_m)
 
 
 def labeling_normalisation(
-    dataset_dir: str | os.PathLike, entry: dict[str, Any], sigmas_m: tuple[float, ...], sigma_m: float
+    dataset_dir: str | os.PathLike, entry: LabelingEntry, sigmas_m: tuple[float, ...], sigma_m: float
 ) -> Normalisation:
     """:func:`compute_normalisation` of a labelling entry already read from the manifest (with its
     noise levels ``sigmas_m``, metres): the manifest is not read again."""
     s = sigma_index(sigmas_m, sigma_m)
     lo, hi = math.inf, -math.inf
-    for shard in entry["shards"]:
-        with _open_verified(dataset_dir, shard) as reader:
+    for shard in entry.shards:
+        with open_label_shard(dataset_dir, shard) as reader:
             f = reader.h5
             rows = np.flatnonzero(f["split"][:] == 0)
             if rows.size == 0:
@@ -247,8 +218,8 @@ class HazardDataset(Dataset):
         self.dataset_dir: Path | str = str(dataset_dir).rstrip("/") if is_url(dataset_dir) else Path(dataset_dir)
         self.split = split
         self.entry, self.paths = open_labeling(dataset_dir, labels)
-        self.labels = str(self.entry["name"])
-        self.sigmas_m = dataset_sigmas(self.paths, first_sha256(self.entry))
+        self.labels = self.entry.name
+        self.sigmas_m = dataset_sigmas(self.paths, self.entry.first_sha256)
         self.noise = noise
         self.sigma_index: int | None = None
         if sigma_m is not None:
@@ -257,10 +228,9 @@ class HazardDataset(Dataset):
         else:
             assert noise is not None
             self.sigma_m = math.nan  # drawn per sample
-        self.lander = lander_of(self.entry)
-        self.spacing_m = dem_spacing_m(self.entry)
-        dem = self.entry.get("dem", {})
-        self.dem_shape = (int(dem.get("rows", defaults.DEM_SIZE_PX)), int(dem.get("cols", defaults.DEM_SIZE_PX)))
+        self.lander = self.entry.lander
+        self.spacing_m = self.entry.spacing_m
+        self.dem_shape = (self.entry.dem.rows, self.entry.dem.cols)
         n_pixels = self.dem_shape[0] * self.dem_shape[1]
         if (
             isinstance(dead_pixels, bool)
@@ -275,8 +245,8 @@ class HazardDataset(Dataset):
         self.epoch = 0
         code = SPLITS.index(split)
         items: list[tuple[int, int, int]] = []  # (shard number, row in shard, scan index)
-        for k, (path, shard) in enumerate(zip(self.paths, self.entry["shards"], strict=True)):
-            with _open_verified(dataset_dir, shard) as reader:
+        for k, (path, shard) in enumerate(zip(self.paths, self.entry.shards, strict=True)):
+            with open_label_shard(dataset_dir, shard) as reader:
                 splits, scans = reader.h5["split"][:], reader.h5["scan_index"][:]
                 shard_sigmas = reader.sigmas_m
             if len(shard_sigmas) != len(self.sigmas_m) or any(
@@ -332,7 +302,7 @@ class HazardDataset(Dataset):
         f = self._files.get(k)
         if f is None:
             # the manifest's sha256: at a URL, the shard checked as the dataset was made is read without a request
-            f = self._files[k] = open_h5_at(self.paths[k], sha256=self.entry["shards"][k]["sha256"])
+            f = self._files[k] = open_h5_at(self.paths[k], sha256=self.entry.shards[k].sha256)
         return f
 
     def close(self) -> None:
@@ -355,7 +325,7 @@ class HazardDataset(Dataset):
         """The maker of this dataset's noisy DEMs at any level (``hdlabels.noisy``)."""
         if self._maker is None:
             try:
-                self._maker = NoisyDems.of_dataset(self.dataset_dir, DemSpec.from_entry(self.entry.get("dem", {})))
+                self._maker = NoisyDems.of_dataset(self.dataset_dir, self.entry.dem)
             except HdError as exc:  # hd's own errors (storage included), with the dataset named
                 raise type(exc)(f"{self.dataset_dir}: {exc}") from exc
         return self._maker
@@ -369,19 +339,19 @@ class HazardDataset(Dataset):
                 by_shard.setdefault(k, []).append(n)
             clean: list[CleanScan | None] = [None] * len(self.items)
             for k, members in by_shard.items():
-                shard = self.entry["shards"][k]
+                shard = self.entry.shards[k]
                 try:
                     scans = maker.read_scans(self.dataset_dir, shard, [self.items[n][1] for n in members])
                 except (HdError, KeyError) as exc:
                     error = HdNetError if isinstance(exc, KeyError) else type(exc)
                     raise error(
                         f"{self.dataset_dir}: cannot make noisy DEMs from the clean points of "
-                        f"{shard.get('source_path', '?')}: {str(exc).rstrip('.')}."
+                        f"{shard.source_path}: {str(exc).rstrip('.')}."
                     ) from exc
                 for n, c in zip(members, scans, strict=True):
                     if c.scan_index != self.items[n][2]:
                         raise HdNetError(
-                            f"{shard.get('source_path')}: row {self.items[n][1]} holds scan {c.scan_index}, its "
+                            f"{shard.source_path}: row {self.items[n][1]} holds scan {c.scan_index}, its "
                             f"label shard scan {self.items[n][2]}; relabel the dataset."
                         )
                     clean[n] = c

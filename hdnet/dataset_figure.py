@@ -32,7 +32,7 @@ import numpy as np
 from hdcore.errors import HdError, OutputExistsError
 from hdcore.storage import atomic_path, check_not_input, check_output_file, sha256_file
 from hdlabels.split_summary import SplitSummary, split_summary
-from hdlabels.store import LabelStoreError, find_labeling
+from hdlabels.store import LabelingEntry, LabelStoreError, find_labeling
 from hdlabels.truth import build_terrain_path
 from hdnet.errors import HdNetError
 from lidarsim.map_window import MapWindow, window_cells
@@ -152,7 +152,7 @@ def check_figure_path(dataset: str | os.PathLike, path: str | os.PathLike, overw
     return target
 
 
-def chosen_labeling(dataset: str | os.PathLike, labels: str | None) -> dict[str, Any] | None:
+def chosen_labeling(dataset: str | os.PathLike, labels: str | None) -> LabelingEntry | None:
     """The labelling the figure shows, chosen as ``hd eval`` chooses it: the one ``labels`` names (a
     name or an alias), else the dataset's only one; None for a dataset without labels.
 
@@ -166,7 +166,7 @@ def chosen_labeling(dataset: str | os.PathLike, labels: str | None) -> dict[str,
 
 
 # --- what the panels show ---------------------------------------------------------------------------------
-def dataset_overview(directory: str | os.PathLike, labeling: dict[str, Any] | None) -> DatasetOverview:
+def dataset_overview(directory: str | os.PathLike, labeling: LabelingEntry | None) -> DatasetOverview:
     """Every panel's data for the dataset at ``directory`` and the labelling entry ``labeling``
     (:func:`chosen_labeling`; None: not labelled).
 

@@ -65,17 +65,10 @@ from hdcore.storage import (
 from hdlabels import defaults as label_defaults
 from hdlabels.alhat import safety_probability
 from hdlabels.lander import Lander, geometry
-from hdlabels.store import find_labeling, open_label_shard
+from hdlabels.store import LabelingEntry, LabelShardEntry, find_labeling, open_label_shard
 from hdnet import defaults
 from hdnet._version import __version__
-from hdnet.data import (
-    dataset_sigmas,
-    dem_spacing_m,
-    first_sha256,
-    lander_of,
-    open_labeling,
-    sigma_index,
-)
+from hdnet.data import dataset_sigmas, open_labeling, sigma_index
 from hdnet.detect_settings import DetectSettings
 from hdnet.engine import inference_model, predict
 from hdnet.errors import HdNetError
@@ -95,7 +88,7 @@ from hdnet.noise_levels import TrainingNoise
 from hdnet.preflight import check_inputs
 from hdnet.report import json_plain
 from hdnet.results import SITE_COLUMNS, Site
-from hdnet.run_record import CheckpointHeader, TrainingData, checkpoint_data, unfinished_training
+from hdnet.run_record import CheckpointHeader, TrainingData, unfinished_training
 from hdnet.sites import (
     SAFETY_INVALID,
     SAFETY_SAFE,
@@ -108,7 +101,7 @@ from hdnet.sites import (
 from hdnet.threshold_cache import CachedThreshold, cache_key
 from hdnet.thresholds import ThresholdSpec, parse_threshold_spec, uncertain_mask, warn_if_unreachable
 from hdnet.tiling import TilePlan
-from hdnet.train import load_trained_model
+from hdnet.trained_run import TrainedRun
 from hdnet.uncertainty import ENTROPY, UncertaintyScore, recorded_score, uncertainty_score, with_score
 from lidarsim.errors import TerrainError
 from lidarsim.location import dataset_at, dataset_key, has_manifest, manifest_sha256
@@ -213,11 +206,11 @@ class DetectRun:
 
     checkpoint: Path
     model: BayesianSegNet = field(repr=False)
-    ckpt: dict[str, Any] = field(repr=False)
+    header: CheckpointHeader
     train_sigma_m: float
     input_spec: InputSpec
     labels: str
-    labeling: dict[str, Any] = field(repr=False)
+    labeling: LabelingEntry = field(repr=False)
     lander: Lander
     dem_shape: tuple[int, int]
     spacing_m: float
@@ -264,8 +257,8 @@ def load_run(run_dir: str | os.PathLike, device: torch.device | str | None = Non
     path = checkpoint_path(run_dir)
     if not Path(run_dir).exists():
         raise HdNetError(f"run {run_dir} does not exist.")
-    model, ckpt = load_trained_model(path, map_location=_device(device))
-    data = checkpoint_data(ckpt, path)
+    trained = TrainedRun.load(path, _device(device))
+    data = trained.data
     labels = data.labels
     dataset = dataset_at(data.dataset) if data.dataset else None
     if dataset is not None and not has_manifest(dataset, MANIFEST_NAME):
@@ -277,20 +270,19 @@ def load_run(run_dir: str | os.PathLike, device: torch.device | str | None = Non
                 f"{path} does not record its lander and its dataset {data.dataset} is not present; "
                 "retrain it with this hd or restore the dataset."
             )
-        labeling = {k: v for k, v in find_labeling(dataset, labels).items() if k != "shards"}
-    dem = labeling.get("dem", {})
-    shape = data.dem_shape or (dem.get("rows", defaults.DEM_SIZE_PX), dem.get("cols", defaults.DEM_SIZE_PX))
+        labeling = find_labeling(dataset, labels).without_shards()
+    shape = data.dem_shape or (labeling.dem.rows, labeling.dem.cols)
     return DetectRun(
         path,
-        model,
-        ckpt,
+        trained.model,
+        trained.header,
         data.train_sigma_m,
         data.input,
-        str(labeling.get("name", labels)),
+        labeling.name,
         labeling,
-        lander_of(labeling),
+        labeling.lander,
         (int(shape[0]), int(shape[1])),
-        dem_spacing_m(labeling),
+        labeling.spacing_m,
         dataset,
         data,
     )
@@ -298,7 +290,7 @@ def load_run(run_dir: str | os.PathLike, device: torch.device | str | None = Non
 
 def _warn_if_unfinished(run: DetectRun) -> None:
     """Warn (``HdWarning``) when the run's training stopped before its last epoch."""
-    unfinished = unfinished_training(run.checkpoint, CheckpointHeader.of(run.ckpt).epoch)
+    unfinished = unfinished_training(run.checkpoint, run.header.epoch)
     if unfinished is not None:
         warnings.warn(unfinished, HdWarning, stacklevel=3)
 
@@ -326,13 +318,13 @@ def network_output(mean_probs: torch.Tensor, run: DetectRun) -> torch.Tensor:
     return to_dem_grid(mean_probs, run.dem_shape, run.input_size)
 
 
-def baseline_p_safe(dem_m: np.ndarray, spacing_m: float, sigma_m: float, labeling: dict[str, Any]) -> np.ndarray:
+def baseline_p_safe(dem_m: np.ndarray, spacing_m: float, sigma_m: float, labeling: LabelingEntry) -> np.ndarray:
     """The ALHAT P(safe) baseline of a DEM (float32, NaN where invalid) for a run's labelling entry.
 
     The one place where detection calls the baseline: the labelling entry says which lander (and
     label convention) the run was trained with.
     """
-    return safety_probability(dem_m, spacing_m, sigma_m, lander_of(labeling))
+    return safety_probability(dem_m, spacing_m, sigma_m, labeling.lander)
 
 
 def overlap_px(lander: Lander, spacing_m: float) -> int:
@@ -598,16 +590,16 @@ class _ScanTerrain(_ArrayTerrain):
 
     def __init__(self, dataset: Path | str, scan: int, sigma_m: float, labels: str | None, run: DetectRun) -> None:
         entry, paths = open_labeling(dataset, labels)
-        sigmas = dataset_sigmas(paths, first_sha256(entry))
+        sigmas = dataset_sigmas(paths, entry.first_sha256)
         k = sigma_index(sigmas, sigma_m)
-        spacing = dem_spacing_m(entry)
+        spacing = entry.spacing_m
         if abs(spacing - run.spacing_m) > SPACING_TOLERANCE * run.spacing_m:
             raise HdNetError(
                 f"{dataset}: its DEMs are at {spacing:g} m/px, the run was trained at {run.spacing_m:g} m/px."
             )
         found = None
         all_scans: list[int] = []
-        for path, shard in zip(paths, entry["shards"], strict=True):
+        for path, shard in zip(paths, entry.shards, strict=True):
             # through the storage layer: checksum first, damaged chunks named with the scan
             with open_label_shard(dataset, shard) as reader:
                 f = reader.h5
@@ -627,7 +619,7 @@ class _ScanTerrain(_ArrayTerrain):
             "kind": "scan",
             "dataset": dataset_key(dataset),
             "manifest_sha256": manifest_sha256(dataset, MANIFEST_NAME),
-            "labels": str(entry["name"]),
+            "labels": entry.name,
             "scan_index": scan,
             "split": ("train", "val", "test")[found[2]],
             "sigma_m": sigmas[k],
@@ -640,15 +632,15 @@ class _ScanTerrain(_ArrayTerrain):
         }
         super().__init__(dem, centred_transform(dem.shape, spacing), True, provenance)
         self.sigma_m = sigmas[k]
-        self.labels = str(entry["name"])
+        self.labels = entry.name
         self.dataset = dataset_at(dataset)
-        self.source_sha256 = str(found[3].get("source_sha256", ""))
+        self.source_sha256 = found[3].source_sha256
 
 
-def _origin_map(dataset: Path | str, label_shard: dict[str, Any], scan: int) -> list[float]:
+def _origin_map(dataset: Path | str, label_shard: LabelShardEntry, scan: int) -> list[float]:
     """Map coordinates (metres) of a scan's frame origin, from the scan shard behind its label shard
     (through the storage layer: checksum first; damage is an error naming the file and the scan)."""
-    source = {"path": label_shard["source_path"], "sha256": label_shard["source_sha256"]}
+    source = {"path": label_shard.source_path, "sha256": label_shard.source_sha256}
     with open_scan_shard(dataset, source) as reader:
         rows = np.flatnonzero(reader.h5["scan_index"][:] == scan)
         if not rows.size:
@@ -1580,7 +1572,7 @@ def _info(
         "software_version": __version__,
         "run": {
             "checkpoint": str(run.checkpoint.resolve()),
-            **CheckpointHeader.of(run.ckpt).to_dict(),
+            **run.header.to_dict(),
             "train_sigma_m": run.train_sigma_m,
             "train_noise": run.train_noise.to_dict(),
             "input_size": run.input_size,

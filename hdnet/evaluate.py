@@ -40,14 +40,11 @@ from hdcore.storage import read_regular_text
 from hdlabels import defaults as label_defaults
 from hdlabels.alhat import safety_probability
 from hdlabels.defaults import TRUTHS
-from hdlabels.store import find_labeling, labeling_truth, labelings_by_truth
+from hdlabels.store import find_labeling, labelings_by_truth
 from hdnet import defaults
 from hdnet.data import (
     HazardDataset,
     dataset_sigmas,
-    dem_spacing_m,
-    first_sha256,
-    lander_of,
     open_labeling,
     split_labels,
     stored_sigma_index,
@@ -62,7 +59,7 @@ from hdnet.model import BayesianSegNet
 from hdnet.noise_levels import TrainingNoise
 from hdnet.preflight import check_inputs, check_run
 from hdnet.results import METHODS, EvaluationResult, LandingRow, ReliabilityBins, ReportRow, SplitInference
-from hdnet.run_record import CheckpointHeader, checkpoint_data, unfinished_training
+from hdnet.run_record import TrainingData
 from hdnet.thresholds import (
     EntropyCalibration,
     ThresholdSpec,
@@ -70,7 +67,7 @@ from hdnet.thresholds import (
     select_threshold,
     warn_if_unreachable,
 )
-from hdnet.train import load_checkpoint, load_trained_model
+from hdnet.trained_run import TrainedRun, recorded_training_data
 from hdnet.uncertainty import ENTROPY, UncertaintyScore, recorded_score, with_score
 from lidarsim.location import dataset_key, manifest_sha256
 from lidarsim.shards import read_manifest, sha256_file
@@ -256,15 +253,6 @@ def checkpoint_path(run_dir: str | os.PathLike) -> Path:
     return check_run(run_dir)
 
 
-def run_data(ckpt: dict[str, Any], path: Path) -> tuple[float, InputSpec, str | None]:
-    """(training sigma in metres, input spec, labelling name) of a checkpoint.
-
-    Raises HdNetError for a checkpoint not trained by ``hdnet.fit`` (no run data config).
-    """
-    data = checkpoint_data(ckpt, path)
-    return data.train_sigma_m, data.input, data.labels
-
-
 def split_dataset(
     dataset_dir: str | os.PathLike,
     split: str,
@@ -359,20 +347,29 @@ def _check_drop_pixels(drop_pixels: int, n_pixels: int) -> None:
 class _Setup:
     """What every step of an evaluation shares: the model and its run, the labelling, the noise levels."""
 
-    model: BayesianSegNet
-    ckpt: dict[str, Any]
-    ckpt_path: Path
+    run: TrainedRun
     device: torch.device
-    train_sigma_m: float
-    input_spec: InputSpec
     labels: str
     sigmas_m: tuple[float, ...]
     calibration: Calibration
 
     @property
+    def model(self) -> BayesianSegNet:
+        return self.run.model
+
+    @property
+    def train_sigma_m(self) -> float:
+        """The run's reference training noise level, metres."""
+        return self.run.data.train_sigma_m
+
+    @property
+    def input_spec(self) -> InputSpec:
+        return self.run.data.input
+
+    @property
     def train_noise(self) -> TrainingNoise:
         """The run's training noise levels (one level for runs that do not record them)."""
-        return checkpoint_data(self.ckpt, self.ckpt_path).train_noise
+        return self.run.data.train_noise
 
     def dataset(
         self,
@@ -409,14 +406,13 @@ class Calibration:
 
 
 def calibration_datasets(
-    ckpt: dict[str, Any], dataset_dir: str | os.PathLike, cfg: EvalConfig, labels: str, run_labels: str | None
+    data: TrainingData, dataset_dir: str | os.PathLike, cfg: EvalConfig, labels: str, run_labels: str | None
 ) -> Calibration:
     """The validation splits that calibrate H_t: ``cfg.calibrate_on``; else the run's training
     datasets (its ``dataset`` and every ``--also`` one) when all are present with the run's labelling
     ``run_labels``; else the evaluated dataset ``dataset_dir`` (labelling ``labels``), with the reason."""
     if cfg.calibrate_on:
         return Calibration(tuple(dataset_key(d) for d in cfg.calibrate_on), labels, "calibrate-on")
-    data = checkpoint_data(ckpt, "the run")
     recorded = data.datasets
     evaluated = dataset_key(dataset_dir)
     note = "the run does not record its training data"
@@ -616,22 +612,19 @@ def _open_evaluation(run_dir: str | os.PathLike, dataset_dir: str | os.PathLike,
     # The clear "no such dataset", "no labels" or "no labelling named" error before the model is loaded.
     ckpt_path = check_inputs(run_dir, dataset_dir, cfg.labels, calibration=cfg.calibrate_on)
     dev = torch.device(cfg.device) if cfg.device else torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    model, ckpt = load_trained_model(ckpt_path, map_location=dev)
-    unfinished = unfinished_training(ckpt_path, CheckpointHeader.of(ckpt).epoch)
-    if unfinished is not None:
-        warnings.warn(unfinished, HdWarning, stacklevel=3)
-    train_sigma, input_spec, run_labels = run_data(ckpt, ckpt_path)
+    run = TrainedRun.load(ckpt_path, dev)
+    if run.unfinished is not None:
+        warnings.warn(run.unfinished, HdWarning, stacklevel=3)
+    run_labels = run.data.labels
     entry, paths = open_labeling(
         dataset_dir, cfg.labels if cfg.labels is not None else preferred_labeling(dataset_dir, run_labels)
     )
-    dem = entry.get("dem", {})
-    n_pixels = int(dem.get("rows", defaults.DEM_SIZE_PX)) * int(dem.get("cols", defaults.DEM_SIZE_PX))
-    _check_drop_pixels(cfg.drop_pixels, n_pixels)
-    sigmas = dataset_sigmas(paths, first_sha256(entry))
-    stored_sigma_index(sigmas, train_sigma)  # stored, or a level the noisy DEMs are made at from the clean points
-    labels = str(entry["name"])
-    calibration = calibration_datasets(ckpt, dataset_dir, cfg, labels, run_labels)
-    return _Setup(model, ckpt, ckpt_path, dev, train_sigma, input_spec, labels, tuple(sigmas), calibration)
+    _check_drop_pixels(cfg.drop_pixels, entry.dem.rows * entry.dem.cols)
+    sigmas = dataset_sigmas(paths, entry.first_sha256)
+    stored_sigma_index(sigmas, run.data.train_sigma_m)  # stored, or made at from the clean points
+    labels = entry.name
+    calibration = calibration_datasets(run.data, dataset_dir, cfg, labels, run_labels)
+    return _Setup(run, dev, labels, tuple(sigmas), calibration)
 
 
 def _noise_table(
@@ -766,8 +759,8 @@ def _landing_table(
             inf,
             thresholds.at(sigma).value_nats,
             truths,
-            lander_of(entry),
-            dem_spacing_m(entry),
+            entry.lander,
+            entry.spacing_m,
             settings,
             uncertainty=cfg.uncertainty_score,
         )
@@ -788,13 +781,13 @@ def _run_info(
     """Step 5: the ``run`` entry of the report: checkpoint, run settings, dataset and evaluation settings."""
     root = dataset_key(dataset_dir)
     digest = manifest_sha256(dataset_dir)
-    ckpt = setup.ckpt
-    data = checkpoint_data(ckpt, setup.ckpt_path)
+    run = setup.run
+    data = run.data
     return {
-        "checkpoint": str(setup.ckpt_path.resolve()),
-        "checkpoint_sha256": sha256_file(setup.ckpt_path),
+        "checkpoint": str(run.checkpoint.resolve()),
+        "checkpoint_sha256": sha256_file(run.checkpoint),
         "batch_size": cfg.batch_size,
-        **CheckpointHeader.of(ckpt).to_dict(),
+        **run.header.to_dict(),
         "train_sigma_m": setup.train_sigma_m,
         "train_noise": data.train_noise.to_dict(),
         "sigma_sweep_m": list(cfg.sigma_sweep),
@@ -803,7 +796,7 @@ def _run_info(
         "dataset": root,
         "manifest_sha256": digest,
         "labels": setup.labels,
-        "truth": labeling_truth(open_labeling(root, setup.labels)[0]),
+        "truth": open_labeling(root, setup.labels)[0].truth,
         "same_dataset_as_training": data.manifest_sha256 == digest,
         "sigmas_m": list(setup.sigmas_m),
         "mc_samples": cfg.mc_samples,
@@ -831,14 +824,14 @@ def report_is_current(
             and run.get("dataset") == dataset_key(dataset_dir)
             and run.get("manifest_sha256") == manifest_sha256(dataset_dir)
         )
-        ckpt_data = load_checkpoint(ckpt)
-        run_labels = run_data(ckpt_data, ckpt)[2]
+        recorded = recorded_training_data(ckpt)
+        run_labels = recorded.labels
         calibration = list(
-            calibration_datasets(ckpt_data, dataset_dir, cfg, str(run.get("labels")), run_labels).datasets
+            calibration_datasets(recorded, dataset_dir, cfg, str(run.get("labels")), run_labels).datasets
         )
         # The labelling this evaluation would score against: asked for (a name or an alias), else the run's.
         asked = cfg.labels if cfg.labels is not None else preferred_labeling(dataset_dir, run_labels)
-        labels = find_labeling(dataset_dir, asked)["name"]
+        labels = find_labeling(dataset_dir, asked).name
     except (OSError, ValueError, KeyError, TypeError, HdNetError):
         return False
     return bool(
@@ -899,12 +892,12 @@ def validation_summary(
     """
     ckpt_path = checkpoint_path(run_dir)
     dev = torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    model, ckpt = load_trained_model(ckpt_path, map_location=dev)
-    train_sigma, input_spec, run_labels = run_data(ckpt, ckpt_path)
+    run = TrainedRun.load(ckpt_path, dev)
+    model, train_sigma, input_spec, run_labels = run.model, run.data.train_sigma_m, run.data.input, run.data.labels
     entry, _ = open_labeling(dataset_dir, labels if labels is not None else preferred_labeling(dataset_dir, run_labels))
 
     def val_at(sigma: float) -> SplitInference:
-        ds = split_dataset(dataset_dir, "val", sigma, labels=str(entry["name"]), input_spec=input_spec)
+        ds = split_dataset(dataset_dir, "val", sigma, labels=entry.name, input_spec=input_spec)
         return infer_split(model, ds, mc_samples, batch_size, seed, dev)
 
     inf = val_at(train_sigma)

@@ -39,6 +39,7 @@ from hdcore.storage import (
     read_regular_text,
     sha256_bytes,
 )
+from hdlabels.store import LabelingEntry
 from hdnet import defaults, limits
 from hdnet.augment import check_augment
 from hdnet.data import (
@@ -46,9 +47,6 @@ from hdnet.data import (
     MixedDataset,
     compute_normalisation,
     dataset_sigmas,
-    dem_spacing_m,
-    first_sha256,
-    lander_of,
     open_labeling,
 )
 from hdnet.errors import HdNetError
@@ -82,7 +80,7 @@ def training_data(
     sigma_m: float,
     spec: InputSpec,
     dem_shape: tuple[int, int],
-    labeling: dict[str, Any] | None = None,
+    labeling: LabelingEntry | None = None,
     noise: TrainingNoise | None = None,
     also: tuple[str | os.PathLike, ...] = (),
 ) -> TrainingData:
@@ -98,7 +96,7 @@ def training_data(
         dataset=dataset_key(dataset_dir),
         manifest_sha256=manifest_sha256(dataset_dir),
         labels=labels,
-        labeling={k: v for k, v in (labeling or {}).items() if k != "shards"},
+        labeling=None if labeling is None else labeling.without_shards(),
         train_sigma_m=float(sigma_m),
         train_noise=noise if noise is not None else TrainingNoise.single(sigma_m),
         dem_shape=(int(dem_shape[0]), int(dem_shape[1])),
@@ -340,7 +338,7 @@ def _mix(
     vals: list[Dataset] = [val_ds]
     for k, other in enumerate(cfg.also, start=1):
         entry, _ = open_labeling(other, train_ds.labels)
-        if dem_spacing_m(entry) != train_ds.spacing_m:
+        if entry.spacing_m != train_ds.spacing_m:
             raise HdNetError(f"{other}: its DEMs are not on the first dataset's grid; label it with the same settings.")
         mine = {**common, "labels": train_ds.labels, "seed": cfg.seed + k * MIX_SEED_STRIDE}
         if noise.is_single:
@@ -368,7 +366,7 @@ def already_trained(dataset_dir: str | os.PathLike, run_dir: str | os.PathLike, 
         checked = check_run(run)
         profile = config.training_profile()
         entry, paths = open_labeling(dataset_dir, config.labels)
-        sigmas = dataset_sigmas(paths, first_sha256(entry))
+        sigmas = dataset_sigmas(paths, entry.first_sha256)
         noise = training_noise(config.train_noise, config.train_sigma_m, profile, sigmas)
     except (OSError, ValueError, HdNetError):
         return False
@@ -382,7 +380,7 @@ def already_trained(dataset_dir: str | os.PathLike, run_dir: str | os.PathLike, 
         and recorded.seed == config.seed
         and data.dataset == dataset_key(dataset_dir)
         and data.manifest_sha256 == manifest_sha256(dataset_dir)
-        and data.labels == entry.get("name")
+        and data.labels == entry.name
         and data.train_noise == noise
         and data.also == _also_datasets(tuple(config.also))
     )
@@ -401,7 +399,7 @@ def _recorded_data(last: Path) -> TrainingData:
 
 
 def check_resumed_data(
-    run_dir: Path, dataset_dir: str | os.PathLike, entry: dict[str, Any], noise: TrainingNoise, also: tuple[str, ...]
+    run_dir: Path, dataset_dir: str | os.PathLike, entry: LabelingEntry, noise: TrainingNoise, also: tuple[str, ...]
 ) -> None:
     """Refuse to resume the run at ``run_dir`` on other data than its ``last.pt`` records, before any
     data is read: the dataset (path and manifest sha256), the ``--also`` datasets, the labelling
@@ -411,7 +409,7 @@ def check_resumed_data(
     Raises:
         HdNetError: naming what differs, as recorded and as given, and what to do instead.
     """
-    labels = entry.get("name")
+    labels = entry.name
     for other in also:
         open_labeling(other, labels)  # the clear "not a dataset" or "no such labelling" first
     recorded = _recorded_data(run_dir / LAST)
@@ -420,7 +418,7 @@ def check_resumed_data(
         dataset=dataset_key(dataset_dir),
         manifest_sha256=manifest_sha256(dataset_dir),
         labels=labels,
-        labeling={k: v for k, v in entry.items() if k != "shards"},
+        labeling=entry.without_shards(),
         train_noise=noise,
         also=_also_datasets(also),
     )
@@ -448,17 +446,17 @@ def fit(dataset_dir: str | os.PathLike, run_dir: str | os.PathLike, config: FitC
         prepare_run_dir(run_dir, resume, overwrite, other)
     profile = cfg.training_profile()
     entry, paths = open_labeling(dataset_dir, labels)  # the clear "no labels" error first
-    noise = training_noise(cfg.train_noise, cfg.train_sigma_m, profile, dataset_sigmas(paths, first_sha256(entry)))
+    noise = training_noise(cfg.train_noise, cfg.train_sigma_m, profile, dataset_sigmas(paths, entry.first_sha256))
     if resume and not overwrite and (run_path / LAST).exists():
         check_resumed_data(run_path, dataset_dir, entry, noise, tuple(cfg.also))
-    train_sigma_m = reference_sigma(noise, dataset_sigmas(paths, first_sha256(entry)))
-    check_augment(profile.augment, lander_of(entry))
+    train_sigma_m = reference_sigma(noise, dataset_sigmas(paths, entry.first_sha256))
+    check_augment(profile.augment, entry.lander)
     normalisation = (
-        compute_normalisation(dataset_dir, nearest_stored(noise, dataset_sigmas(paths, first_sha256(entry))), labels)
+        compute_normalisation(dataset_dir, nearest_stored(noise, dataset_sigmas(paths, entry.first_sha256)), labels)
         if profile.heights == "minmax"
         else None
     )
-    spec = input_spec_for(profile, dem_spacing_m(entry), normalisation)
+    spec = input_spec_for(profile, entry.spacing_m, normalisation)
     common: dict[str, Any] = {"labels": labels, "input_spec": spec, "seed": cfg.seed}
     if noise.is_single:
         train_ds = HazardDataset(dataset_dir, "train", train_sigma_m, augment=profile.augment, **common)

@@ -37,6 +37,8 @@ from typing import Any
 
 from hdcore.errors import StorageError
 from hdcore.storage import read_regular_text, write_json_atomic
+from hdlabels.errors import HdLabelsError
+from hdlabels.store import LabelingEntry
 from hdnet.errors import HdNetError
 from hdnet.inputs import InputSpec
 from hdnet.noise_levels import TrainingNoise
@@ -109,7 +111,7 @@ class TrainingData:
     dataset: str | None = None
     manifest_sha256: str | None = None
     labels: str | None = None
-    labeling: dict[str, Any] | None = None
+    labeling: LabelingEntry | None = None
     dem_shape: tuple[int, int] | None = None
     also: tuple[AlsoDataset, ...] = ()
 
@@ -172,7 +174,7 @@ class TrainingData:
             "dataset": self.dataset,
             "manifest_sha256": self.manifest_sha256,
             "labels": self.labels,
-            "labeling": self.labeling,
+            "labeling": None if self.labeling is None else self.labeling.without_shards().to_json(),
             "train_sigma_m": float(self.train_sigma_m),
             "train_noise": self.train_noise.to_dict(),
             "dem_shape": None if self.dem_shape is None else list(self.dem_shape),
@@ -200,9 +202,8 @@ class TrainingData:
             noise = TrainingNoise.from_dict(extra["train_noise"])
             shape = extra.get("dem_shape")
             also = tuple(AlsoDataset(str(a["dataset"]), str(a["manifest_sha256"])) for a in extra.get("also") or ())
-            labeling = extra.get("labeling")
-            if labeling is not None and not isinstance(labeling, dict):
-                raise TypeError("labeling is not a dictionary")
+            labeling = extra.get("labeling") or None
+            entry = None if labeling is None else LabelingEntry.from_json(labeling, "its labelling's entry")
             return cls(
                 train_sigma_m=sigma,
                 input=spec,
@@ -210,11 +211,11 @@ class TrainingData:
                 dataset=_optional_str(extra.get("dataset")),
                 manifest_sha256=_optional_str(extra.get("manifest_sha256")),
                 labels=_optional_str(extra.get("labels")),
-                labeling=labeling or None,
+                labeling=entry,
                 dem_shape=None if not shape else (int(shape[0]), int(shape[1])),
                 also=also,
             )
-        except HdNetError as exc:
+        except (HdNetError, HdLabelsError) as exc:
             raise HdNetError(f"{where}: {str(exc).rstrip('.')}.") from exc
         except (KeyError, TypeError, ValueError, IndexError) as exc:
             raise HdNetError(f"{where}: unreadable training data record ({exc}).") from exc

@@ -47,7 +47,7 @@ def run_record(directory: str | os.PathLike) -> dict[str, Any]:
         "dataset": None if data is None else data.dataset,
         "also": [] if data is None else [a.dataset for a in data.also],
         "labels": None if data is None else data.labels,
-        "convention": None if data is None else (data.labeling or {}).get("convention"),
+        "convention": None if data is None or data.labeling is None else data.labeling.convention,
         "train_sigma_m": None if data is None else data.train_sigma_m,
         "train_noise": None if data is None else data.train_noise.to_dict(),
         "input": None if data is None else data.input.to_dict(),

@@ -301,7 +301,7 @@ def _scan_heights(out: DetectOutput) -> tuple[Any, str]:
         if sha256_file(dataset / MANIFEST_NAME) != source.get("manifest_sha256"):
             return None, f"No hillshade: the dataset {dataset} has changed since hd detect read {name}"
         entry = find_labeling(dataset, str(source.get("labels")))
-        shard = next(s for s in entry["shards"] if Path(s["path"]).name == source.get("label_shard"))
+        shard = next(s for s in entry.shards if Path(s.path).name == source.get("label_shard"))
         with open_label_shard(dataset, shard) as reader:
             rows = np.flatnonzero(reader.h5["scan_index"][:] == source.get("scan_index"))
             k = [abs(s - float(source.get("sigma_m", -1))) <= 1e-9 for s in reader.sigmas_m].index(True)

@@ -37,8 +37,8 @@ MAX_SHOWN = 10  # differing pixels listed per map, with the values that decide t
 def stored(dataset: Path, labels: str | None, n_scans: int | None) -> dict[str, np.ndarray]:
     """DEMs, labels, slope, roughness and P(safe) of the labelling, stacked over scans."""
     entry = find_labeling(dataset, labels)
-    if entry.get("convention") != "paper":
-        raise SystemExit(f"{entry['name']} is not a paper-convention labelling")
+    if entry.convention != "paper":
+        raise SystemExit(f"{entry.name} is not a paper-convention labelling")
     keys = ("dem_clean", "dem_noisy", "label", "slope_rad", "roughness_m", "p_safe")
     out: dict[str, list[np.ndarray]] = {k: [] for k in keys}
     sigmas: tuple[float, ...] = ()

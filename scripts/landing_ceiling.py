@@ -33,7 +33,7 @@ from rasterio.transform import Affine
 from hdcore.storage import confine, open_h5
 from hdlabels.lander import Lander
 from hdlabels.store import find_labeling
-from hdnet.data import dem_spacing_m, lander_of, split_labels
+from hdnet.data import split_labels
 from hdnet.landing import NAV_SIGMAS_M, TOUCHDOWNS, LandingTally, score_touchdowns, touchdown_offsets
 from hdnet.sites import SAFETY_INVALID, SAFETY_SAFE, SAFETY_UNSAFE, select_sites
 from lidarsim.shards import read_manifest
@@ -70,7 +70,7 @@ def main() -> None:
     navs = tuple(args.nav_sigma or NAV_SIGMAS_M)
     terrain = split_labels(args.dataset, args.split, args.terrain)
     entry = find_labeling(args.dataset, args.terrain)
-    lander, spacing = lander_of(entry), dem_spacing_m(entry)
+    lander, spacing = entry.lander, entry.spacing_m
     oracles = [("terrain truth", args.terrain), *(tuple(o.split("=", 1)) for o in args.oracle)]
     print(
         f"{len(terrain)} {args.split} scenes of {args.dataset}; touchdowns scored against {args.terrain}; "

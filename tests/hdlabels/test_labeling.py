@@ -20,6 +20,8 @@ from hdlabels.store import (
     LABEL_SCHEMA_VERSION,
     LABEL_SCHEMA_VERSION_CLEAN_SCAN,
     DemSpec,
+    LabelingEntry,
+    LabelShardEntry,
     LabelShardReader,
     LabelStoreError,
     find_labeling,
@@ -69,19 +71,19 @@ def test_label_shards_hold_the_maps_of_the_gridded_scans(dataset):
     summary = label_dataset(dataset, workers=1)
     assert 0.0 < summary.safe_fraction < 1.0
     entry = find_labeling(dataset)
-    assert entry["name"] == summary.name and len(entry["shards"]) == 2
+    assert entry.name == summary.name and len(entry.shards) == 2
     manifest = read_manifest(dataset)
-    for label_entry, scan_entry in zip(entry["shards"], manifest["shards"], strict=True):
-        assert label_entry["source_path"] == scan_entry["path"]
-        assert label_entry["source_sha256"] == scan_entry["sha256"]
+    for label_entry, scan_entry in zip(entry.shards, manifest["shards"], strict=True):
+        assert label_entry.source_path == scan_entry["path"]
+        assert label_entry.source_sha256 == scan_entry["sha256"]
     paths = label_shard_paths(dataset, entry)
     with LabelShardReader(paths[1]) as labels, ScanShardReader(dataset / manifest["shards"][1]["path"]) as scans:
         assert labels.sigmas_m == (0.01, 0.07)
         scan, lab = scans[2], labels[2]
         assert lab.scan_index == scan.scan_index == 5
         # the default labelling: the paper convention, its gridding and its product baseline
-        lander, grid = Lander.from_attrs(entry["lander"]), DemSpec.from_entry(entry["dem"])
-        assert (lander, grid) == (Lander(), DemSpec.for_convention("paper")) and entry["convention"] == "paper"
+        lander, grid = entry.lander, entry.dem
+        assert (lander, grid) == (Lander(), DemSpec.for_convention("paper")) and entry.convention == "paper"
         assert labels.h5.attrs["lander_convention"] == "paper" and labels.h5.attrs["dem_gridding"] == grid.gridding
         dem = grid_points(scan.points_clean, method=grid.gridding)
         np.testing.assert_array_equal(lab.dem_clean, dem)
@@ -137,7 +139,7 @@ def test_other_lander_makes_a_second_labelling(dataset):
     with pytest.raises(LabelStoreError, match="several labellings"):
         find_labeling(dataset)
     tri = find_labeling(dataset, labelings[1]["name"])
-    assert tri["lander"]["layout"] == "triangle" and tri["lander"]["max_roughness_m"] == 0.3
+    assert tri.lander.layout == "triangle" and tri.lander.max_roughness_m == 0.3
     ok = CliRunner().invoke(main, ["verify", str(dataset)])
     assert ok.exit_code == 0 and "OK" in ok.output
 
@@ -177,6 +179,28 @@ def test_not_a_dataset_and_all_nan_dems_are_refused(tmp_path):
     assert not (out / "labels").exists() or not any((out / "labels").rglob("*.h5"))
 
 
+def test_the_labelling_entry_is_a_typed_record_that_writes_the_manifest_as_it_reads_it(dataset):
+    """find_labeling gives a LabelingEntry; its JSON is the manifest's entry key for key and in order,
+    and an entry hd cannot use is refused naming the manifest, not read with a silent default."""
+    label_dataset(dataset, workers=1)
+    raw = read_manifest(dataset)["labelings"][0]
+    entry = find_labeling(dataset, raw["name"])
+    assert isinstance(entry, LabelingEntry) and all(isinstance(s, LabelShardEntry) for s in entry.shards)
+    assert json.dumps(entry.to_json()) == json.dumps(raw)  # the same keys, values and order
+    assert entry.spacing_m == 1.0 and entry.first_sha256 == raw["shards"][0]["sha256"]
+    assert sum(s.n_scans for s in entry.shards) == 6 and entry.truth == "clean-scan"
+    assert "shards" not in entry.without_shards().to_json() and entry.without_shards().same_hazards(entry)
+    for broken, message in (
+        ({**raw, "dem": {"rows": [100], "cols": 100}}, "labelling x: its dem, lander or counts"),
+        ({**raw, "dem": "100x100"}, "labelling x: its 'dem' and 'lander' entries must be JSON objects"),
+        ({**raw, "truth": "rocks"}, "labelling x: unknown truth 'rocks'"),
+        ({**raw, "shards": [{**raw["shards"][0], "n_scans": "3"}]}, r"x: shards\[0\]: its 'n_scans' must be"),
+        ({**raw, "shards": [{k: v for k, v in raw["shards"][0].items() if k != "source_path"}]}, "'source_path'"),
+    ):
+        with pytest.raises(LabelStoreError, match=message):
+            LabelingEntry.from_json(broken, "manifest.json: labelling x")
+
+
 def test_unknown_label_schema_version_is_refused(dataset, tmp_path):
     label_dataset(dataset, workers=1)
     entry = find_labeling(dataset, read_manifest(dataset)["labelings"][0]["name"])
@@ -199,8 +223,8 @@ def test_convention_options_name_and_record_the_labelling(dataset):
     entry = find_labeling(
         dataset, "square-d10m-pad1m-slope10deg-rough0.2m-yaws8-dem100x100at1m"
     )  # the pre-convention name
-    assert entry["convention"] == "hd" and entry["dem"]["gridding"] == "linear"
-    assert Lander.from_attrs(entry["lander"]) == Lander(convention="hd")
+    assert entry.convention == "hd" and entry.dem.gridding == "linear"
+    assert entry.lander == Lander(convention="hd")
     with LabelShardReader(label_shard_paths(dataset, entry)[0]) as reader:
         assert reader.h5.attrs["lander_convention"] == "hd" and reader.h5.attrs["lander_baseline_combine"] == "min"
     mixed = runner.invoke(
@@ -220,7 +244,7 @@ def test_convention_options_name_and_record_the_labelling(dataset):
     )
     assert mixed.exit_code == 0, mixed.output
     entry = find_labeling(dataset, "paper-square-d10m-pad1m-slope10deg-rough0.2m-min-mean-dem100x100at1m")
-    assert entry["lander"]["baseline_combine"] == "min" and entry["dem"]["gridding"] == "mean"
+    assert entry.lander.baseline_combine == "min" and entry.dem.gridding == "mean"
 
 
 @pytest.mark.parametrize(
@@ -249,13 +273,13 @@ def test_a_labelling_is_found_by_a_short_name_and_the_names_are_listed(dataset):
         by_convention.setdefault(lab.get("convention", "hd"), []).append(lab["name"])
     for convention, names in by_convention.items():
         if len(names) == 1:
-            assert find_labeling(dataset, convention)["name"] == names[0]
+            assert find_labeling(dataset, convention).name == names[0]
         else:
             with pytest.raises(LabelStoreError, match=f"names {len(names)} labellings") as info:
                 find_labeling(dataset, convention)
             assert all(n in str(info.value) for n in names)
     full = labelings[-1]["name"]
-    assert find_labeling(dataset, full)["name"] == full
+    assert find_labeling(dataset, full).name == full
     with pytest.raises(LabelStoreError, match="has no labelling named 'nope'; it has: ") as info:
         find_labeling(dataset, "nope")
     assert all(lab["name"] in str(info.value) for lab in labelings)
@@ -296,15 +320,11 @@ def test_the_manifests_counts_are_those_of_the_label_shards_also_after_a_resumed
             p_safe.append(f["p_safe"][:])
     label, p = np.concatenate(labels), np.concatenate(p_safe)
     labelled = label != 255
-    assert entry["label_counts"] == {
-        "unsafe": int((label == 0).sum()),
-        "safe": int((label == 1).sum()),
-        "invalid": int((label == 255).sum()),
-    }
+    assert entry.label_counts == (int((label == 0).sum()), int((label == 1).sum()), int((label == 255).sum()))
     expected = {
         f"{s:g}": float(((p[:, k] >= 0.5) & labelled).sum() / labelled.sum()) for k, s in enumerate((0.01, 0.07))
     }
-    assert entry["baseline_safe_fraction"] == expected
+    assert entry.baseline_safe_fraction == expected
     assert 0.0 < expected["0.01"] <= 1.0
 
 

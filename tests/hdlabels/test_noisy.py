@@ -10,7 +10,7 @@ from scipy import ndimage
 from hdlabels.labeling import label_dataset
 from hdlabels.noisy import NoisyDems
 from hdlabels.settings import LabelSettings
-from hdlabels.store import DemSpec, find_labeling
+from hdlabels.store import find_labeling
 from lidarsim.build import BuildConfig, build_dataset
 from lidarsim.errors import LidarsimError
 from lidarsim.footprint import FootprintConfig
@@ -54,11 +54,11 @@ def dataset(request, tmp_path_factory):
 
 def test_made_dems_equal_the_stored_ones_bit_for_bit_at_stored_levels(dataset):
     entry = find_labeling(dataset)
-    maker = NoisyDems.of_dataset(dataset, DemSpec.from_entry(entry["dem"]))
+    maker = NoisyDems.of_dataset(dataset, entry.dem)
     assert maker.seed == 11 and maker.sensor.damaged_elements == 5
     checked = 0
-    for shard in entry["shards"]:
-        with h5py.File(dataset / shard["path"]) as lab, h5py.File(dataset / shard["source_path"]) as src:
+    for shard in entry.shards:
+        with h5py.File(dataset / shard.path) as lab, h5py.File(dataset / shard.source_path) as src:
             scans = maker.read_scans(dataset, shard, range(lab["scan_index"].shape[0]))
             status = src["status"][:]
             assert (status == STATUS_DAMAGED).any() and (status == STATUS_DEAD).any()
@@ -73,8 +73,8 @@ def test_made_dems_equal_the_stored_ones_bit_for_bit_at_stored_levels(dataset):
 
 def test_other_levels_and_realisations(dataset):
     entry = find_labeling(dataset)
-    maker = NoisyDems.of_dataset(dataset, DemSpec.from_entry(entry["dem"]))
-    scan = maker.read_scans(dataset, entry["shards"][0], [0])[0]
+    maker = NoisyDems.of_dataset(dataset, entry.dem)
+    scan = maker.read_scans(dataset, entry.shards[0], [0])[0]
     clean = maker.dem(scan, 0.0)
     noisy = maker.dem(scan, 0.10)
     again = maker.dem(scan, 0.10)
@@ -88,8 +88,8 @@ def test_other_levels_and_realisations(dataset):
 
 def test_altered_clean_points_are_refused(dataset, tmp_path):
     entry = find_labeling(dataset)
-    maker = NoisyDems.of_dataset(dataset, DemSpec.from_entry(entry["dem"]))
-    with h5py.File(dataset / entry["shards"][0]["source_path"]) as src:
+    maker = NoisyDems.of_dataset(dataset, entry.dem)
+    with h5py.File(dataset / entry.shards[0].source_path) as src:
         pts = src["points_clean"][0].copy()
         pose = src["sensor_position"][0], src["sensor_attitude"][0], src["status"][0]
     finite = np.argwhere(np.isfinite(pts).all(axis=-1))[0]

@@ -195,9 +195,9 @@ def test_the_label_store_records_the_truth(tmp_path):
     by_name = {lab["name"]: lab for lab in manifest["labelings"]}
     assert "truth" not in by_name[clean.name]  # the clean scan's entries are as before
     assert by_name[terrain.name]["truth"] == "terrain"
-    with LabelShardReader(label_shard_paths(root, by_name[clean.name])[0]) as reader:
+    with LabelShardReader(label_shard_paths(root, find_labeling(root, clean.name))[0]) as reader:
         assert "truth" not in reader.h5.attrs
-    with LabelShardReader(label_shard_paths(root, by_name[terrain.name])[0]) as reader:
+    with LabelShardReader(label_shard_paths(root, find_labeling(root, terrain.name))[0]) as reader:
         attrs = reader.h5.attrs
         assert attrs["truth"] == "terrain" and attrs["truth_dtm"] == "p.tif" and attrs["truth_dtm_scale"] == 1.0
     shown = CliRunner().invoke(main, ["inspect", str(root)])
@@ -267,12 +267,12 @@ def test_a_labelling_is_chosen_by_its_name_or_an_alias_and_an_ambiguity_names_bo
     clean = label_dataset(root, workers=1).name
     terrain = label_dataset(root, LabelSettings(truth="terrain"), workers=1).name
     assert terrain.startswith(clean)
-    assert find_labeling(root, clean)["name"] == clean  # exact beats the prefix of the terrain's name
-    assert find_labeling(root, terrain)["name"] == terrain
-    assert find_labeling(root, "paper")["name"] == clean  # the paper's own truth
-    assert find_labeling(root, "paper+clean-scan")["name"] == clean
-    assert find_labeling(root, "paper+terrain")["name"] == terrain
-    assert find_labeling(root, "PAPER+Terrain")["name"] == terrain
+    assert find_labeling(root, clean).name == clean  # exact beats the prefix of the terrain's name
+    assert find_labeling(root, terrain).name == terrain
+    assert find_labeling(root, "paper").name == clean  # the paper's own truth
+    assert find_labeling(root, "paper+clean-scan").name == clean
+    assert find_labeling(root, "paper+terrain").name == terrain
+    assert find_labeling(root, "PAPER+Terrain").name == terrain
     with pytest.raises(LabelStoreError, match="several labellings") as info:
         find_labeling(root)
     assert f"paper = {clean}" in str(info.value) and f"paper+terrain = {terrain}" in str(info.value)
@@ -284,8 +284,8 @@ def test_a_labelling_is_chosen_by_its_name_or_an_alias_and_an_ambiguity_names_bo
     assert "paper+terrain" in str(info.value)
     hd_clean = label_dataset(root, LabelSettings(convention="hd"), workers=1).name
     hd_terrain = label_dataset(root, LabelSettings(convention="hd", truth="terrain"), workers=1)
-    assert find_labeling(root, "hd")["name"] == hd_clean
-    assert find_labeling(root, "hd+terrain")["name"] == hd_terrain.name
-    assert find_labeling(root, "paper")["name"] == clean  # still, among four
+    assert find_labeling(root, "hd").name == hd_clean
+    assert find_labeling(root, "hd+terrain").name == hd_terrain.name
+    assert find_labeling(root, "paper").name == clean  # still, among four
     with pytest.raises(LabelStoreError, match="'paper\\+rock' is not an alias"):
         find_labeling(root, "paper+rock")

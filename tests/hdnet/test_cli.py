@@ -199,13 +199,13 @@ def test_eval_and_detect_check_their_inputs_before_the_run_is_loaded(dataset, tm
     """In the library too (hdnet.evaluate.evaluate, hdnet.detect.detect): a typo in a path or a labelling
     is refused before the checkpoint is read."""
     detect_module = importlib.import_module("hdnet.detect")  # the modules: hdnet.detect is the function
-    evaluate_module = importlib.import_module("hdnet.evaluate")
+    trained_run_module = importlib.import_module("hdnet.trained_run")  # where hd eval loads a checkpoint
 
     def never(*args, **kwargs):
         raise AssertionError("the run was loaded before the inputs were checked")
 
     monkeypatch.setattr(detect_module, "load_run", never)
-    monkeypatch.setattr(evaluate_module, "load_trained_model", never)
+    monkeypatch.setattr(trained_run_module, "load_trained_model", never)
     run = fake_run(tmp_path / "run")
     cases = [
         (["eval", run, "--data", dataset, "--calibrate-on", tmp_path / "nope"], "no such dataset directory"),

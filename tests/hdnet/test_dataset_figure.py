@@ -60,17 +60,17 @@ def test_the_overview_holds_what_the_manifest_says(datasets):
     assert (left, right, bottom, top) == (1000.0, 1400.0, 1600.0, 2000.0)  # footprints to the edges: all of it
     assert overview.backdrop.heights_m.shape == (400, 400) and np.isfinite(overview.backdrop.heights_m).all()
     # (b) the labels' counts per split add up to the labelling's own, and its baseline fractions
-    assert overview.labels is not None and overview.labels.labeling == lab["name"]
+    assert overview.labels is not None and overview.labels.labeling == lab.name
     splits = overview.labels.splits
     assert [splits[n].scans for n in SPLIT_NAMES] == [16, 2, 2]
     totals = {k: sum(getattr(splits[n], k) for n in SPLIT_NAMES) for k in ("unsafe", "safe", "invalid")}
-    assert totals == lab["label_counts"]
+    assert (totals["unsafe"], totals["safe"], totals["invalid"]) == lab.label_counts
     labelled = totals["unsafe"] + totals["safe"]
     for k, sigma in enumerate(overview.labels.sigmas_m):
         safe = sum(splits[n].baseline_safe[k] for n in SPLIT_NAMES)
-        assert safe / labelled == lab["baseline_safe_fraction"][f"{sigma:g}"]
+        assert safe / labelled == lab.baseline_safe_fraction[f"{sigma:g}"]
     # ... and the test split's by hand from its label shards
-    test_label = np.concatenate([split_labels(data / e["path"], 2) for e in lab["shards"]])
+    test_label = np.concatenate([split_labels(data / e.path, 2) for e in lab.shards])
     assert splits["test"].safe == int((test_label == 1).sum()) and splits["test"].unsafe == int((test_label == 0).sum())
     # (c) the clean points of every scan (fewer than 24 per split), (d) every scan at 500 m
     assert overview.height_scans == {"train": 16, "val": 2, "test": 2}

@@ -32,7 +32,7 @@ from hdcore.storage import PARTIAL_MARK, WriterLock
 from hdlabels.grid import cell_centres
 from hdlabels.lander import Lander, geometry
 from hdlabels.store import find_labeling, iter_labeled_scans, label_shard_paths
-from hdnet.data import HazardDataset, lander_of, to_dem_grid
+from hdnet.data import HazardDataset, to_dem_grid
 from hdnet.detect import (
     MAP_FILES,
     OUTPUT_FILES,
@@ -203,11 +203,11 @@ def test_run_records_its_lander_and_old_runs_fall_back_to_their_dataset(trained,
     dataset, run_dir, _ = trained
     run = load_run(run_dir, CPU)
     entry = find_labeling(dataset)
-    assert run.lander == lander_of(entry) and run.spacing_m == 1.0 and run.dem_shape == (100, 100)
+    assert run.lander == entry.lander and run.spacing_m == 1.0 and run.dem_shape == (100, 100)
     ckpt = torch.load(run_dir / "last.pt", weights_only=True)
     del ckpt["extra_config"]["labeling"]  # a run trained before the labelling was recorded
     save_checkpoint(tmp_path / "old.pt", ckpt)
-    assert load_run(tmp_path / "old.pt", CPU).labeling["lander"] == entry["lander"]
+    assert load_run(tmp_path / "old.pt", CPU).labeling == entry.without_shards()
     ckpt["extra_config"]["dataset"] = str(tmp_path / "gone")
     save_checkpoint(tmp_path / "old-gone.pt", ckpt)
     with pytest.raises(HdNetError, match="does not record its lander"):

@@ -13,6 +13,7 @@ import torch
 from scipy import ndimage
 
 from hdlabels.lander import Lander
+from hdlabels.store import DemSpec, LabelingEntry
 from hdnet.detect import DetectRun, detect_dem
 from hdnet.detect_settings import LAYOUTS, DetectSettings
 from hdnet.engine import NCHWDrawDropout, inference_model, laid_out, predict_tile_by_tile
@@ -21,8 +22,9 @@ from hdnet.fit import input_spec_for
 from hdnet.infer import mc_dropout_predict
 from hdnet.model import BayesianSegNet, MCDropout
 from hdnet.profiles import ROBUST
+from hdnet.run_record import CheckpointHeader
 
-LABELING = {"name": "l", "lander": Lander().to_attrs(), "dem": {"rows": 100, "cols": 100, "spacing_m": 1.0}}
+LABELING = LabelingEntry("l", Lander(), DemSpec(100, 100, 1.0))
 
 
 def _model(width: float = 0.25) -> BayesianSegNet:
@@ -102,7 +104,9 @@ def test_detect_maps_with_channels_last_equal_the_reference_maps():
     cells, P(safe), entropy, mutual information and baseline within 1e-3 (float round-off: ~1e-6)."""
     model = _model()
     spec = input_spec_for(ROBUST, 1.0, None)
-    run = DetectRun(Path("-"), model, {}, 0.0167, spec, "l", LABELING, Lander(), (100, 100), 1.0, None)
+    run = DetectRun(
+        Path("-"), model, CheckpointHeader(0, None, None), 0.0167, spec, "l", LABELING, Lander(), (100, 100), 1.0, None
+    )
     rng = np.random.default_rng(5)
     z = ndimage.gaussian_filter(rng.normal(0, 1.0, (150, 150)), 3)
     z[60:70, 20:90] = np.nan

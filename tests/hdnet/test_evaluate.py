@@ -195,13 +195,13 @@ def test_evaluate_returns_the_result_and_the_caller_writes_the_report(setup, tmp
 
 
 def test_a_bad_report_directory_fails_before_the_evaluation(setup, tmp_path, monkeypatch):
-    evaluate_module = importlib.import_module("hdnet.evaluate")  # the module: hdnet.evaluate is the function
+    trained_run_module = importlib.import_module("hdnet.trained_run")  # where hd eval loads a checkpoint
 
     def no_work(*args: object, **kwargs: object) -> None:
         raise AssertionError("the evaluation ran")
 
     dataset, run, _, _ = setup
-    monkeypatch.setattr(evaluate_module, "load_trained_model", no_work)
+    monkeypatch.setattr(trained_run_module, "load_trained_model", no_work)
     occupied = tmp_path / "occupied"
     occupied.mkdir()
     (occupied / "notes.txt").write_text("mine")

@@ -9,7 +9,8 @@ import pytest
 from hdnet_datasets import build_labelled
 
 from hdlabels.errors import LabelStoreError
-from hdnet.data import compute_normalisation, lander_of
+from hdlabels.store import LabelingEntry, find_labeling
+from hdnet.data import compute_normalisation
 from hdnet.errors import HdNetError
 from hdnet.fit import FitConfig, fit
 from hdnet.inputs import InputSpec
@@ -38,7 +39,8 @@ def test_tiny_fit_records_the_data_it_was_trained_on(dataset, tmp_path):
     assert extra["labels"].startswith("paper-square-d10m")
     entry = json.loads((dataset / "manifest.json").read_text())["labelings"][0]
     assert extra["labeling"] == {k: v for k, v in entry.items() if k != "shards"}  # lander and DEM grid, no shard list
-    assert lander_of(extra["labeling"]) == lander_of(entry) and lander_of(extra["labeling"]).convention == "paper"
+    recorded = LabelingEntry.from_json(extra["labeling"], "the run's labelling")
+    assert recorded == find_labeling(dataset).without_shards() and recorded.lander.convention == "paper"
     ckpt = load_checkpoint(last)
     assert ckpt["extra_config"] == extra and ckpt["epoch"] == 1 and ckpt["profile"]["name"] == "tiny"
     record = read_run_record(tmp_path / "run")

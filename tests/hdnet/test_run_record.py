@@ -6,6 +6,8 @@ import json
 
 import pytest
 
+from hdlabels.lander import Lander
+from hdlabels.store import DemSpec, LabelingEntry
 from hdnet.errors import HdNetError
 from hdnet.inputs import InputSpec, Normalisation
 from hdnet.noise_levels import TrainingNoise
@@ -23,7 +25,8 @@ from hdnet.run_record import (
 )
 
 SPEC = InputSpec(heights="median", extra_channels=("slope", "highpass"), spacing_m=1.0, size_multiple=4)
-LABELING = {"name": "paper-square", "convention": "paper", "dem": {"rows": 100, "cols": 100, "spacing_m": 1.0}}
+ENTRY = LabelingEntry("paper-square", Lander(), DemSpec.for_convention("paper"), schema_version="1.1")
+LABELING = ENTRY.to_json()  # as a run records it: the manifest's entry without the shard list
 
 
 def _record_v1() -> dict:
@@ -64,7 +67,7 @@ def test_a_version_1_record_reads_as_the_same_run_without_its_repeated_keys():
     assert record.file_version == 1 and record.profile_name == "cpu" and record.epochs == 20
     data = record.data
     assert data.input == SPEC and data.train_sigma_m == 0.0167 and data.train_noise == TrainingNoise.single(0.0167)
-    assert data.dataset == "/data/train" and data.labels == "paper-square" and data.labeling == LABELING
+    assert data.dataset == "/data/train" and data.labels == "paper-square" and data.labeling == ENTRY
     assert data.dem_shape == (100, 100) and data.also == (AlsoDataset("/data/rocks", "b" * 64),)
     out = record.to_dict()
     assert out["schema_version"] == RUN_SCHEMA_VERSION == 2

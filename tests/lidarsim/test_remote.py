@@ -6,6 +6,7 @@ one line.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import shutil
@@ -231,13 +232,13 @@ def test_a_small_shard_at_a_url_is_fetched_once_and_checked_against_the_manifest
     """A file of at most WHOLE_FILE_BLOCKS blocks is fetched whole, once per process however often it
     is opened, and its sha256 checked in memory: altered bytes are named, never read."""
     from hdcore.errors import DamagedFileError
-    from hdlabels.store import open_label_shard
+    from hdlabels.store import LabelShardEntry, open_label_shard
     from lidarsim import location
 
     url, server = http
     location.forget_remotes()
-    entry = read_manifest(dataset)["labelings"][0]["shards"][0]
-    size = (dataset / entry["path"]).stat().st_size
+    entry = LabelShardEntry.from_json(read_manifest(dataset)["labelings"][0]["shards"][0], "shard", "1.1")
+    size = (dataset / entry.path).stat().st_size
     assert size <= location.WHOLE_FILE_BLOCKS * location.BLOCK_BYTES
     before = server.bytes_sent
     for _ in range(3):
@@ -245,7 +246,7 @@ def test_a_small_shard_at_a_url_is_fetched_once_and_checked_against_the_manifest
             assert np.array_equal(remote.h5["label"][2], local.h5["label"][2])
     assert server.bytes_sent - before == size  # one request for the whole file; the re-opens cost none
     location.forget_remotes()
-    wrong = dict(entry, sha256="0" * 64)
+    wrong = dataclasses.replace(entry, sha256="0" * 64)
     with pytest.raises(DamagedFileError, match=r"checksum mismatch .* the manifest says 000000000000"):
         open_label_shard(url, wrong)
 

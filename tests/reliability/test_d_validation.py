@@ -310,7 +310,7 @@ EVAL = [
 @pytest.mark.parametrize(("case", "args", "needle"), EVAL, ids=[c[0] for c in EVAL])
 def test_eval_refuses(case, args, needle, places, labelled, trained, monkeypatch):
     if case.startswith(("out-", "mc-", "batch-", "seed-", "threshold-", "nav-", "sigma-sweep-")):
-        _no_work(monkeypatch, ("hdnet.evaluate", "load_trained_model"))  # checked before the model is loaded
+        _no_work(monkeypatch, ("hdnet.trained_run", "load_trained_model"))  # checked before the model is loaded
     else:
         _no_work(monkeypatch, ("hdnet.evaluate", "infer_split"))  # needs the labelling's DEM size first
     argv = _fill(args, places)
