@@ -110,11 +110,18 @@ class DemSpec:
     @classmethod
     def from_entry(cls, entry: dict[str, Any]) -> DemSpec:
         """The grid of a manifest ``dem`` entry (entries written before griddings existed are the hd
-        convention's, linear)."""
+        convention's, linear; every entry records its rows, columns and spacing).
+
+        Raises:
+            LabelStoreError: a missing ``rows``, ``cols`` or ``spacing_m`` (or the grid's own checks).
+        """
+        missing = [k for k in ("rows", "cols", "spacing_m") if k not in entry]
+        if missing:
+            raise LabelStoreError(f"the DEM grid entry lacks {', '.join(repr(k) for k in missing)}")
         return cls(
-            int(entry.get("rows", defaults.DEM_ROWS)),
-            int(entry.get("cols", defaults.DEM_COLS)),
-            float(entry.get("spacing_m", defaults.DEM_SPACING_M)),
+            int(entry["rows"]),
+            int(entry["cols"]),
+            float(entry["spacing_m"]),
             str(entry.get("gridding", defaults.GRIDDING["hd"])),
         )
 

@@ -191,8 +191,9 @@ def test_the_labelling_entry_is_a_typed_record_that_writes_the_manifest_as_it_re
     assert sum(s.n_scans for s in entry.shards) == 6 and entry.truth == "clean-scan"
     assert "shards" not in entry.without_shards().to_json() and entry.without_shards().same_hazards(entry)
     for broken, message in (
-        ({**raw, "dem": {"rows": [100], "cols": 100}}, "labelling x: its dem, lander or counts"),
+        ({**raw, "dem": {"rows": [100], "cols": 100, "spacing_m": 1.0}}, "labelling x: its dem, lander or counts"),
         ({**raw, "dem": "100x100"}, "labelling x: its 'dem' and 'lander' entries must be JSON objects"),
+        ({**raw, "dem": {"rows": 100, "cols": 100}}, "labelling x: the DEM grid entry lacks 'spacing_m'"),
         ({**raw, "truth": "rocks"}, "labelling x: unknown truth 'rocks'"),
         ({**raw, "shards": [{**raw["shards"][0], "n_scans": "3"}]}, r"x: shards\[0\]: its 'n_scans' must be"),
         ({**raw, "shards": [{k: v for k, v in raw["shards"][0].items() if k != "source_path"}]}, "'source_path'"),
