@@ -44,3 +44,11 @@ TRAIN_SIGMA_M = 0.0167  # S-167: the network is trained at 1.67 cm range noise (
 MC_SAMPLES = 8  # M = 8 MC-dropout samples
 THRESHOLD_SPEC = "mean"  # H_t = mean predictive entropy over the S-167 validation set
 QUANTILE_SWEEP = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)  # paper, "Effect of Varying the Uncertainty Threshold"
+
+# --- the landing table (hdnet.landing) ---------------------------------------------------------------
+# hd choice: the navigation dispersions every landing table reports, metres 1-sigma per horizontal
+# axis: perfect knowledge, a good terrain-relative navigation (about 1 m) and a coarse one (3 m).
+NAV_SIGMAS_M: tuple[float, ...] = (0.0, 1.0, 3.0)
+# hd choice: touchdowns per scene; the Monte Carlo's own spread per scene is at most 0.5/sqrt(1000)
+# = 0.016, far below the spread between scenes that the interval carries.
+TOUCHDOWNS = 1000

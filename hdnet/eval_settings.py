@@ -14,8 +14,8 @@ from pathlib import Path
 from hdcore.setting import DIRECTORY, check, setting
 from hdlabels import defaults as label_defaults
 from hdnet import limits
+from hdnet.defaults import NAV_SIGMAS_M
 from hdnet.errors import HdNetError
-from hdnet.landing import NAV_SIGMAS_M
 from hdnet.noise_levels import check_levels
 from hdnet.shared_settings import (
     batch_size_setting,

@@ -53,12 +53,21 @@ from hdnet.errors import HdNetError
 from hdnet.eval_settings import EvalConfig
 from hdnet.infer import mc_dropout_predict
 from hdnet.inputs import InputSpec
-from hdnet.landing_table import LandingSettings, landing_rows
+from hdnet.landing_table import landing_rows
 from hdnet.metrics import ConfusionAccumulator, SegmentationMetrics
 from hdnet.model import BayesianSegNet
 from hdnet.noise_levels import TrainingNoise
 from hdnet.preflight import check_inputs, check_run
-from hdnet.results import METHODS, EvaluationResult, LandingRow, ReliabilityBins, ReportRow, SplitInference
+from hdnet.results import (
+    METHODS,
+    EvaluationResult,
+    LandingRecord,
+    LandingRow,
+    LandingSettings,
+    ReliabilityBins,
+    ReportRow,
+    SplitInference,
+)
 from hdnet.run_record import TrainingData
 from hdnet.thresholds import (
     EntropyCalibration,
@@ -746,7 +755,7 @@ def _landing_table(
     cfg: EvalConfig,
     thresholds: _Thresholds,
     tests: dict[float, SplitInference],
-) -> tuple[list[LandingRow], dict[str, Any]]:
+) -> tuple[list[LandingRow], LandingRecord]:
     """Step 6: the landing table at every noise level of Table 1, against each truth the dataset has
     for the evaluated labelling's lander and DEM (``hdnet.landing_table``)."""
     entry, _ = open_labeling(dataset_dir, setup.labels)
@@ -764,11 +773,8 @@ def _landing_table(
             settings,
             uncertainty=cfg.uncertainty_score,
         )
-    info: dict[str, Any] = {**settings.to_dict(), "labelings": {t: names[t] for t in truths}}
-    missing = [t for t in TRUTHS if t not in truths]
-    if missing:
-        info["missing_truths"] = missing
-    return rows, info
+    missing = tuple(t for t in TRUTHS if t not in truths)
+    return rows, LandingRecord(settings, {t: names[t] for t in truths}, missing)
 
 
 def _run_info(

@@ -16,7 +16,7 @@ The model (docs/evaluation.md, "Landing outcome"):
   (the border band where the footprint leaves the DEM, or a hole of the terrain), counts as not
   safe, and its share is reported (``unknown_fraction``): the rate is a lower bound where the
   dispersion reaches the edge of what was scanned.
-* **Per scene** the safe fraction of ``TOUCHDOWNS`` seeded touchdowns estimates
+* **Per scene** the safe fraction of ``defaults.TOUCHDOWNS`` seeded touchdowns estimates
   P(safe | scene, site); the same draws serve every method of a scene (common random numbers, so
   methods are compared on the same dispersions).
 * **Over scenes**, P(safe landing) is the mean of the per-scene fractions over the scenes where the
@@ -42,12 +42,6 @@ from scipy.special import ndtr, ndtri
 from hdnet import defaults
 from hdnet.results import LandingRow
 
-# hd choice: the navigation dispersions every landing table reports, metres 1-sigma per horizontal
-# axis: perfect knowledge, a good terrain-relative navigation (about 1 m) and a coarse one (3 m).
-NAV_SIGMAS_M: tuple[float, ...] = (0.0, 1.0, 3.0)
-# hd choice: touchdowns per scene; the Monte Carlo's own spread per scene is at most 0.5/sqrt(1000)
-# = 0.016, far below the spread between scenes that the interval carries.
-TOUCHDOWNS = 1000
 # hd choice: the Gaussian of the cell masses is cut where a cell's mass falls below 1e-9 of the whole
 # (|k| <= 6 sigma + 1 cell).
 MASS_CUT_SIGMAS = 6.0

@@ -19,7 +19,6 @@ labelling and the terrain's, when the dataset has them: ``hd label --truth terra
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 
 import numpy as np
 from rasterio.transform import Affine
@@ -29,40 +28,17 @@ from hdlabels.lander import Lander
 from hdnet import defaults
 from hdnet.errors import HdNetError
 from hdnet.landing import (
-    NAV_SIGMAS_M,
-    TOUCHDOWNS,
     LandingTally,
     score_touchdowns,
     touchdown_offsets,
     truth_clearance_map,
 )
-from hdnet.results import METHODS, LandingRow, SplitInference
+from hdnet.results import METHODS, LandingRow, LandingSettings, SplitInference
 from hdnet.sites import SAFETY_INVALID, SAFETY_SAFE, SAFETY_UNCERTAIN, SAFETY_UNSAFE, select_sites
 from hdnet.uncertainty import ENTROPY, UncertaintyScore
 
 # The ALHAT baseline is safe where P(safe) >= this (paper, "Label generation"; one source: hdlabels.defaults).
 BASELINE_THRESHOLD = label_defaults.SAFE_PROBABILITY_THRESHOLD
-
-
-@dataclass(frozen=True)
-class LandingSettings:
-    """How the landing table is made: the dispersions (metres, 1-sigma per horizontal axis), the
-    touchdowns per scene, the seed of their draws and the sites' safety margin (metres,
-    ``hdnet.sites.select_sites``)."""
-
-    nav_sigmas_m: tuple[float, ...] = NAV_SIGMAS_M
-    touchdowns: int = TOUCHDOWNS
-    seed: int = 0
-    margin_m: float = 0.0
-
-    def to_dict(self) -> dict[str, object]:
-        """The settings as report.json records them (the margin only when there is one: reports
-        written without it keep their bytes)."""
-        out: dict[str, object] = {"nav_sigmas_m": list(self.nav_sigmas_m), "touchdowns": self.touchdowns}
-        out["seed"] = self.seed
-        if self.margin_m > 0.0:
-            out["site_margin_m"] = self.margin_m
-        return out
 
 
 def method_map(

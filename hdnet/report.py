@@ -29,6 +29,7 @@ from hdcore.storage import (
     write_text_atomic,
 )
 from hdnet.paper_results import paper_row
+from hdnet.results import LandingRecord, LandingSettings
 from hdnet.threshold_spec import unreachable_risk_words
 from hdnet.uncertainty import recorded_score
 
@@ -78,7 +79,7 @@ def report_dict(result: EvaluationResult) -> dict[str, Any]:
             "calibration": result.calibration,
             "run": result.run,
             "landing": [asdict(r) for r in result.landing],
-            "landing_settings": result.landing_settings,
+            "landing_settings": {} if result.landing_settings is None else result.landing_settings.to_dict(),
         }
     )
 
@@ -338,13 +339,14 @@ def _landing_section(result: EvaluationResult) -> list[str]:
     """``## Landing outcome``: P(safe landing) per truth, method, noise level and navigation dispersion."""
     if not result.landing:
         return []
-    settings = result.landing_settings
+    record = result.landing_settings or LandingRecord(LandingSettings())  # a report without one: the defaults
+    settings = record.settings
     out = [
         "## Landing outcome (test split)",
         "",
         (
             "Each method picks its best landing site in every test scene (`hd detect`'s rule; ranked with the "
-            f"navigation dispersion), the vehicle touches down {settings.get('touchdowns')} times around it "
+            f"navigation dispersion), the vehicle touches down {settings.touchdowns} times around it "
             "(1σ per horizontal axis as in the table; seeded), and each touchdown is judged by the truth's label "
             "of the cell it lands in (a lander centred there is safe or not); ground outside the DEM or without a "
             "label counts as not safe. P(safe landing): mean over the scenes where the method chose a site, with "
@@ -352,15 +354,15 @@ def _landing_section(result: EvaluationResult) -> list[str]:
             "landing. Clearance: distance from the aim point to the nearest cell that is not safe, in the "
             "method's map and in the truth."
             + (
-                f" Every site keeps a safety margin of {settings['site_margin_m']:g} m: its lander disk widened by it "
+                f" Every site keeps a safety margin of {settings.margin_m:g} m: its lander disk widened by it "
                 "all round is safe and certain in the method's map."
-                if settings.get("site_margin_m")
+                if settings.margin_m > 0.0
                 else ""
             )
         ),
         "",
     ]
-    missing = settings.get("missing_truths") or []
+    missing = record.missing_truths
     if missing:
         words = " and ".join(TRUTH_WORDS.get(t, t) for t in missing)
         out += [

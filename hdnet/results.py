@@ -7,6 +7,7 @@ so that the writers of reports and figures never depend on the code that compute
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -79,6 +80,65 @@ class ReliabilityBins:
     ece: float  # sum_b n_b / N * |safe_fraction_b - mean_prob_b|
 
 
+@dataclass(frozen=True)
+class LandingSettings:
+    """How the landing table is made: the dispersions (metres, 1-sigma per horizontal axis), the
+    touchdowns per scene, the seed of their draws and the sites' safety margin (metres,
+    ``hdnet.sites.select_sites``)."""
+
+    nav_sigmas_m: tuple[float, ...] = defaults.NAV_SIGMAS_M
+    touchdowns: int = defaults.TOUCHDOWNS
+    seed: int = 0
+    margin_m: float = 0.0
+
+    def to_dict(self) -> dict[str, object]:
+        """The settings as report.json records them (the margin only when there is one: reports
+        written without it keep their bytes)."""
+        out: dict[str, object] = {"nav_sigmas_m": list(self.nav_sigmas_m), "touchdowns": self.touchdowns}
+        out["seed"] = self.seed
+        if self.margin_m > 0.0:
+            out["site_margin_m"] = self.margin_m
+        return out
+
+
+@dataclass(frozen=True)
+class LandingRecord:
+    """The ``landing_settings`` of report.json: how the landing table was made (``settings``), the
+    labelling it was scored against per truth (``labelings``; None in reports that do not record
+    them) and the truths the dataset had no labelling of (``missing_truths``)."""
+
+    settings: LandingSettings
+    labelings: dict[str, str] | None = None
+    missing_truths: tuple[str, ...] = ()
+
+    def to_dict(self) -> dict[str, object]:
+        """The record as report.json holds it (the settings' keys, then ``labelings`` and, when a
+        truth is missing, ``missing_truths``)."""
+        out = self.settings.to_dict()
+        if self.labelings is not None:
+            out["labelings"] = dict(self.labelings)
+        if self.missing_truths:
+            out["missing_truths"] = list(self.missing_truths)
+        return out
+
+    @classmethod
+    def from_dict(cls, record: Mapping[str, Any]) -> LandingRecord:
+        """The record of a report.json (``KeyError``, ``TypeError`` or ``ValueError`` when it is not one
+        hd writes)."""
+        settings = LandingSettings(
+            nav_sigmas_m=tuple(float(s) for s in record["nav_sigmas_m"]),
+            touchdowns=int(record["touchdowns"]),
+            seed=int(record.get("seed", 0)),
+            margin_m=float(record.get("site_margin_m", 0.0)),
+        )
+        labelings = record.get("labelings")
+        return cls(
+            settings,
+            None if labelings is None else {str(k): str(v) for k, v in dict(labelings).items()},
+            tuple(str(t) for t in record.get("missing_truths") or ()),
+        )
+
+
 @dataclass
 class EvaluationResult:
     """Everything ``evaluate`` measured; ``report.json`` is ``to_json()``."""
@@ -91,7 +151,7 @@ class EvaluationResult:
     test: dict[float, SplitInference] = field(default_factory=dict, repr=False)
     validation_entropy_nats: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32), repr=False)
     landing: list[LandingRow] = field(default_factory=list)
-    landing_settings: dict[str, Any] = field(default_factory=dict)
+    landing_settings: LandingRecord | None = None
 
     def summary(self) -> str:
         """A compact text table of the rows (for the terminal)."""

@@ -66,7 +66,7 @@ from hdnet.compare import read_report
 from hdnet.compare import settings as report_settings
 from hdnet.errors import HdNetError
 from hdnet.report import json_plain, report_markdown
-from hdnet.results import SITE_COLUMNS, EvaluationResult, LandingRow, ReportRow
+from hdnet.results import SITE_COLUMNS, EvaluationResult, LandingRecord, LandingRow, ReportRow
 from hdnet.run_files import CONFIG, LAST
 from hdnet.uncertainty import recorded_score
 from hdnet.view_html import anchor, data_uri, definitions, esc, is_page, markdown_html, page, table
@@ -895,8 +895,22 @@ def _result_of(file: Path, content: dict[str, Any]) -> EvaluationResult:
         calibration=content["calibration"],
         run=content["run"],
         landing=landing,
-        landing_settings=content.get("landing_settings") or {},
+        landing_settings=_landing_record(file, content.get("landing_settings")),
     )
+
+
+def _landing_record(file: Path, record: object) -> LandingRecord | None:
+    """The ``landing_settings`` of a report (None when it has none)."""
+    if not record:
+        return None
+    try:
+        if not isinstance(record, dict):
+            raise TypeError("not a JSON object")
+        return LandingRecord.from_dict(record)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise HdNetError(
+            f"{file}: its landing_settings are not of this hd's report schema ({exc}); re-run hd eval"
+        ) from exc
 
 
 def _figure_names(directory: Path) -> list[str]:

@@ -34,7 +34,8 @@ from hdcore.storage import confine, open_h5
 from hdlabels.lander import Lander
 from hdlabels.store import find_labeling
 from hdnet.data import split_labels
-from hdnet.landing import NAV_SIGMAS_M, TOUCHDOWNS, LandingTally, score_touchdowns, touchdown_offsets
+from hdnet.defaults import NAV_SIGMAS_M, TOUCHDOWNS
+from hdnet.landing import LandingTally, score_touchdowns, touchdown_offsets
 from hdnet.sites import SAFETY_INVALID, SAFETY_SAFE, SAFETY_UNSAFE, select_sites
 from lidarsim.shards import read_manifest
 

@@ -23,7 +23,7 @@ from hdcore.storage import write_json_atomic
 from hdnet.compare import ABSENT, column_names, compare
 from hdnet.errors import HdNetError
 from hdnet.report import METHOD_WORDS, report_dict
-from hdnet.results import METHODS, EvaluationResult, LandingRow, ReportRow
+from hdnet.results import METHODS, EvaluationResult, LandingRecord, LandingRow, LandingSettings, ReportRow
 
 SIGMAS = (0.0167, 0.07)
 ROOT = Path(__file__).resolve().parents[2]
@@ -111,7 +111,7 @@ def write_report(directory: Path, shift: float = 0.0, **changes: Any) -> Path:
         calibration={"bins": 10, "per_sigma": []},
         run=run,
         landing=[] if p_safe is None else landing(p_safe),
-        landing_settings={} if p_safe is None else {"nav_sigmas_m": [0.0, 3.0], "touchdowns": 1000, "seed": 0},
+        landing_settings=None if p_safe is None else LandingRecord(LandingSettings(nav_sigmas_m=(0.0, 3.0))),
     )
     directory.mkdir(parents=True)
     write_json_atomic(directory / "report.json", report_dict(result))

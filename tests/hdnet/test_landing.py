@@ -32,8 +32,8 @@ from hdnet.landing import (
     truth_clearance_map,
     wilson_interval,
 )
-from hdnet.landing_table import METHODS, LandingSettings, landing_rows, method_map
-from hdnet.results import SplitInference
+from hdnet.landing_table import METHODS, landing_rows, method_map
+from hdnet.results import LandingRecord, LandingSettings, SplitInference
 from hdnet.sites import SAFETY_INVALID, SAFETY_SAFE, SAFETY_UNCERTAIN, SAFETY_UNSAFE, select_sites
 from hdnet.uncertainty import MUTUAL_INFORMATION
 
@@ -403,3 +403,17 @@ def test_the_landing_figure_draws_rates_at_the_ends_and_methods_that_never_lande
     result = EvaluationResult([], {}, [], {}, landing=rows)
     landing_figure(result, tmp_path / "landing.png")
     assert (tmp_path / "landing.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_the_landing_record_is_written_as_report_json_holds_it_and_read_back():
+    """report.json's landing_settings: the settings' keys, then the labellings and the missing truths,
+    in that order; read back to the same record; a margin and missing truths only when there are any."""
+    record = LandingRecord(LandingSettings((0.0, 2.0), 500, 3, 2.5), {"clean-scan": "paper-x"}, ("terrain",))
+    written = json.loads(json.dumps(record.to_dict()))
+    assert list(written) == ["nav_sigmas_m", "touchdowns", "seed", "site_margin_m", "labelings", "missing_truths"]
+    assert LandingRecord.from_dict(written) == record
+    plain = LandingRecord(LandingSettings())
+    assert plain.to_dict() == {"nav_sigmas_m": [0.0, 1.0, 3.0], "touchdowns": 1000, "seed": 0}
+    assert LandingRecord.from_dict(plain.to_dict()) == plain
+    with pytest.raises(KeyError):
+        LandingRecord.from_dict({"seed": 0})
