@@ -136,10 +136,10 @@ def machine() -> str:
 
 def stored_noisy_dems(dataset: Path, n: int) -> tuple[list[np.ndarray], tuple[float, ...]]:
     """The first ``n`` scans' noisy DEMs of a labelled dataset, per noise level, and the levels (m)."""
-    from hdlabels.store import LabelShardReader, find_labeling, label_shard_paths
+    from hdlabels.store import LabelShardReader, find_labeling
 
     entry = find_labeling(dataset, None)
-    with LabelShardReader(label_shard_paths(dataset, entry)[0]) as reader:
+    with LabelShardReader(entry.shard_paths(dataset)[0]) as reader:
         return [reader.h5["dem_noisy"][:n, s] for s in range(len(reader.sigmas_m))], tuple(reader.sigmas_m)
 
 

@@ -168,14 +168,9 @@ class LabelShardEntry:
         n = obj.get("n_scans")
         if isinstance(n, bool) or not isinstance(n, int) or n < 0:
             raise LabelStoreError(f"{where}: its 'n_scans' must be a non-negative integer, got {n!r}")
-        check_schema(
-            str(obj.get("schema", LABEL_SCHEMA)),
-            str(obj.get("schema_version", labeling_version)),
-            LABEL_SCHEMA,
-            LABEL_SCHEMA_VERSION,
-            where,
-        )
-        return cls(n_scans=n, schema_version=str(obj.get("schema_version", labeling_version)), **texts)
+        version = str(obj.get("schema_version", labeling_version))
+        check_schema(str(obj.get("schema", LABEL_SCHEMA)), version, LABEL_SCHEMA, LABEL_SCHEMA_VERSION, where)
+        return cls(n_scans=n, schema_version=version, **texts)
 
 
 @dataclass(frozen=True)
@@ -288,7 +283,7 @@ class LabelingEntry:
             raise type(exc)(f"{where}: {exc}") from exc
         except (TypeError, ValueError, OverflowError, KeyError) as exc:
             raise LabelStoreError(f"{where}: its dem, lander or counts are not ones hd writes ({exc})") from exc
-        truth = str(obj.get("truth", defaults.TRUTH))
+        truth = _raw_truth(obj)
         if truth not in defaults.TRUTHS:
             raise LabelStoreError(f"{where}: unknown truth {truth!r}; hd knows {', '.join(defaults.TRUTHS)}")
         shards = obj.get("shards", [])
@@ -669,15 +664,6 @@ def _alias_hint(labelings: list[dict[str, Any]], form: str) -> str:
     for alias, name in labeling_aliases(labelings).items():
         first.setdefault(name, alias)
     return form.format(", ".join(f"{alias} = {name}" for name, alias in first.items())) if first else ""
-
-
-def label_shard_paths(directory: str | os.PathLike, labeling: LabelingEntry) -> list[Path | str]:
-    """Paths of a labelling's shards, in scan order (:meth:`LabelingEntry.shard_paths`).
-
-    Raises:
-        FormatError: a path that leaves the dataset.
-    """
-    return labeling.shard_paths(directory)
 
 
 def open_label_shard(directory: str | os.PathLike, entry: LabelShardEntry) -> LabelShardReader:

@@ -28,7 +28,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from hdlabels.defaults import LABEL_INVALID, LABEL_SAFE, SAFE_PROBABILITY_THRESHOLD
-from hdlabels.store import LabelShardReader, find_labeling, label_shard_paths
+from hdlabels.store import LabelShardReader, find_labeling
 
 RUNNER = Path(__file__).resolve().parents[1] / "benchmarks" / "reference_pydem.py"
 MAX_SHOWN = 10  # differing pixels listed per map, with the values that decide them
@@ -42,7 +42,7 @@ def stored(dataset: Path, labels: str | None, n_scans: int | None) -> dict[str, 
     keys = ("dem_clean", "dem_noisy", "label", "slope_rad", "roughness_m", "p_safe")
     out: dict[str, list[np.ndarray]] = {k: [] for k in keys}
     sigmas: tuple[float, ...] = ()
-    for path in label_shard_paths(dataset, entry):
+    for path in entry.shard_paths(dataset):
         with LabelShardReader(path) as reader:
             sigmas = reader.sigmas_m
             for k in keys:

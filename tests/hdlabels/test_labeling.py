@@ -26,7 +26,6 @@ from hdlabels.store import (
     LabelStoreError,
     find_labeling,
     iter_labeled_scans,
-    label_shard_paths,
 )
 from lidarsim.build import BuildConfig, build_dataset
 from lidarsim.sensor import SensorConfig
@@ -76,7 +75,7 @@ def test_label_shards_hold_the_maps_of_the_gridded_scans(dataset):
     for label_entry, scan_entry in zip(entry.shards, manifest["shards"], strict=True):
         assert label_entry.source_path == scan_entry["path"]
         assert label_entry.source_sha256 == scan_entry["sha256"]
-    paths = label_shard_paths(dataset, entry)
+    paths = entry.shard_paths(dataset)
     with LabelShardReader(paths[1]) as labels, ScanShardReader(dataset / manifest["shards"][1]["path"]) as scans:
         assert labels.sigmas_m == (0.01, 0.07)
         scan, lab = scans[2], labels[2]
@@ -108,7 +107,7 @@ def test_labelled_scans_are_read_back_in_scan_order_by_split_with_their_noise_le
     name = label_dataset(dataset, workers=1).name
     entry = find_labeling(dataset, name)
     expected = []
-    for path in label_shard_paths(dataset, entry):
+    for path in entry.shard_paths(dataset):
         with LabelShardReader(path) as reader:
             expected += list(reader)
     every = list(iter_labeled_scans(dataset, name))
@@ -206,7 +205,7 @@ def test_unknown_label_schema_version_is_refused(dataset, tmp_path):
     label_dataset(dataset, workers=1)
     entry = find_labeling(dataset, read_manifest(dataset)["labelings"][0]["name"])
     copy = tmp_path / "copy.h5"
-    copy.write_bytes(Path(label_shard_paths(dataset, entry)[0]).read_bytes())
+    copy.write_bytes(Path(entry.shard_paths(dataset)[0]).read_bytes())
     with h5py.File(copy, "r+") as f:
         f.attrs["schema_version"] = "3.0"
     with pytest.raises(FormatError, match=r"version 3\.0"):
@@ -226,7 +225,7 @@ def test_convention_options_name_and_record_the_labelling(dataset):
     )  # the pre-convention name
     assert entry.convention == "hd" and entry.dem.gridding == "linear"
     assert entry.lander == Lander(convention="hd")
-    with LabelShardReader(label_shard_paths(dataset, entry)[0]) as reader:
+    with LabelShardReader(entry.shard_paths(dataset)[0]) as reader:
         assert reader.h5.attrs["lander_convention"] == "hd" and reader.h5.attrs["lander_baseline_combine"] == "min"
     mixed = runner.invoke(
         main,
@@ -315,7 +314,7 @@ def test_the_manifests_counts_are_those_of_the_label_shards_also_after_a_resumed
     assert len(calls) == 3 and calls[2] == calls[1]
     entry = find_labeling(data)
     labels, p_safe = [], []
-    for path in label_shard_paths(data, entry):
+    for path in entry.shard_paths(data):
         with h5py.File(path) as f:
             labels.append(f["label"][:])
             p_safe.append(f["p_safe"][:])

@@ -20,7 +20,6 @@ from hdlabels.store import (
     LabelShardReader,
     LabelStoreError,
     find_labeling,
-    label_shard_paths,
 )
 from hdlabels.truth import mesh_heights, sample_points, samples_per_cell
 from lidarsim.build import BuildConfig, build_dataset
@@ -71,7 +70,7 @@ def build(dtm: Path | None, out: Path, n_scans: int = 3, tilt_deg: float = 0.0) 
 def labelled(root: Path, name: str) -> list[LabeledScan]:
     entry = find_labeling(root, name)
     scans: list[LabeledScan] = []
-    for path in label_shard_paths(root, entry):
+    for path in entry.shard_paths(root):
         with LabelShardReader(path) as reader:
             scans.extend(reader)
     return scans
@@ -195,9 +194,9 @@ def test_the_label_store_records_the_truth(tmp_path):
     by_name = {lab["name"]: lab for lab in manifest["labelings"]}
     assert "truth" not in by_name[clean.name]  # the clean scan's entries are as before
     assert by_name[terrain.name]["truth"] == "terrain"
-    with LabelShardReader(label_shard_paths(root, find_labeling(root, clean.name))[0]) as reader:
+    with LabelShardReader(find_labeling(root, clean.name).shard_paths(root)[0]) as reader:
         assert "truth" not in reader.h5.attrs
-    with LabelShardReader(label_shard_paths(root, find_labeling(root, terrain.name))[0]) as reader:
+    with LabelShardReader(find_labeling(root, terrain.name).shard_paths(root)[0]) as reader:
         attrs = reader.h5.attrs
         assert attrs["truth"] == "terrain" and attrs["truth_dtm"] == "p.tif" and attrs["truth_dtm_scale"] == 1.0
     shown = CliRunner().invoke(main, ["inspect", str(root)])

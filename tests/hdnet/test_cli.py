@@ -264,11 +264,11 @@ def test_a_url_is_refused_with_its_name_intact_never_read_as_a_path(tmp_path, mo
 
 def split_scans(dataset: Path, labels: str, split: str) -> list[int]:
     """The scan indices of one split of a labelling (0 train, 1 val, 2 test in the label shards)."""
-    from hdlabels.store import find_labeling, label_shard_paths
+    from hdlabels.store import find_labeling
 
     code = ("train", "val", "test").index(split)
     scans: list[int] = []
-    for path in label_shard_paths(dataset, find_labeling(dataset, labels)):
+    for path in find_labeling(dataset, labels).shard_paths(dataset):
         with h5py.File(path) as f:
             scans += [int(s) for s, k in zip(f["scan_index"][:], f["split"][:], strict=True) if k == code]
     return scans

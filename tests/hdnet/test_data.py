@@ -14,7 +14,7 @@ from hdnet_datasets import build_labelled, reseal
 from torch.utils.data import DataLoader
 
 from hdlabels.errors import LabelStoreError
-from hdlabels.store import find_labeling, label_shard_paths
+from hdlabels.store import find_labeling
 from hdnet.data import (
     HazardDataset,
     Normalisation,
@@ -35,7 +35,7 @@ def dataset(tmp_path_factory) -> Path:
 def shard_arrays(directory: Path, split_code: int, sigma: int) -> dict[str, np.ndarray]:
     """Label-shard arrays of one split, read with plain h5py."""
     out: dict[str, list[np.ndarray]] = {}
-    for path in label_shard_paths(directory, find_labeling(directory)):
+    for path in find_labeling(directory).shard_paths(directory):
         with h5py.File(path) as f:
             rows = f["split"][:] == split_code
             out.setdefault("label", []).append(f["label"][:][rows])
@@ -51,7 +51,7 @@ def test_normalisation_is_min_max_of_the_training_split_only(dataset, tmp_path):
     # Raising a validation height changes nothing; raising a training height moves the max.
     copy = tmp_path / "copy"
     shutil.copytree(dataset, copy)
-    paths = label_shard_paths(copy, find_labeling(copy))
+    paths = find_labeling(copy).shard_paths(copy)
     for code, expect_change in ((1, False), (0, True)):
         for path in paths:
             with h5py.File(path, "r+") as f:
@@ -117,7 +117,7 @@ def test_fill_holes_takes_the_nearest_finite_value():
 def test_holes_become_ignored_pixels(dataset, tmp_path):
     copy = tmp_path / "holes"
     shutil.copytree(dataset, copy)
-    path = label_shard_paths(copy, find_labeling(copy))[0]
+    path = find_labeling(copy).shard_paths(copy)[0]
     with h5py.File(path, "r+") as f:
         f["dem_noisy"][0, 0, 40:43, 60] = np.nan
     reseal(copy)

@@ -31,7 +31,7 @@ from hdcore.errors import HdWarning, LockedError, OutputExistsError
 from hdcore.storage import PARTIAL_MARK, WriterLock
 from hdlabels.grid import cell_centres
 from hdlabels.lander import Lander, geometry
-from hdlabels.store import find_labeling, iter_labeled_scans, label_shard_paths
+from hdlabels.store import find_labeling, iter_labeled_scans
 from hdnet.data import HazardDataset, to_dem_grid
 from hdnet.detect import (
     MAP_FILES,
@@ -218,7 +218,7 @@ def test_scan_mode_is_the_evaluation_path(trained, tmp_path):
     """One scan's maps equal MC dropout on HazardDataset's input; the baseline equals the label shard's."""
     dataset, run_dir, _ = trained
     entry = find_labeling(dataset)
-    path = label_shard_paths(dataset, entry)[0]
+    path = entry.shard_paths(dataset)[0]
     import h5py
 
     with h5py.File(path) as f:
@@ -1075,7 +1075,7 @@ def split_scans(dataset: Path, split: str) -> list[int]:
 
     code = ("train", "val", "test").index(split)
     scans: list[int] = []
-    for path in label_shard_paths(dataset, find_labeling(dataset)):
+    for path in find_labeling(dataset).shard_paths(dataset):
         with h5py.File(path) as f:
             scans += [int(s) for s, k in zip(f["scan_index"][:], f["split"][:], strict=True) if k == code]
     return scans

@@ -19,7 +19,7 @@ from hdnet_datasets import SIGMAS_M, build_labelled
 
 from hdcore.errors import HdWarning, OutputExistsError
 from hdlabels.errors import LabelStoreError
-from hdlabels.store import find_labeling, label_shard_paths
+from hdlabels.store import find_labeling
 from hdnet.data import HazardDataset
 from hdnet.errors import HdNetError
 from hdnet.evaluate import METHODS, EvalConfig, evaluate, evaluate_to_report, reliability
@@ -74,7 +74,7 @@ def test_baseline_rows_equal_a_hand_count_from_the_label_shards(setup):
     dataset, _, _, result = setup
     for s, sigma in enumerate(SIGMAS_M):
         truth, pred = [], []
-        for path in label_shard_paths(dataset, find_labeling(dataset)):
+        for path in find_labeling(dataset).shard_paths(dataset):
             with h5py.File(path) as f:
                 rows = f["split"][:] == 2
                 truth.append(f["label"][:][rows])
