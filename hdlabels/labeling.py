@@ -61,6 +61,7 @@ from hdlabels.store import (
     labeling_name,
 )
 from hdlabels.truth import check_build_terrain, labelled_terrain, terrain_dem
+from lidarsim.manifest_json import ManifestJson
 from lidarsim.parallel import run_tasks
 from lidarsim.shards import (
     MANIFEST_NAME,
@@ -415,7 +416,7 @@ def label_dataset(
     return _summary_from_entry(entry, manifest, time.perf_counter() - t0, reused=False)
 
 
-def _current_labeling(root: Path, manifest: dict[str, Any], name: str, dtm_sha256: str | None) -> LabelingEntry | None:
+def _current_labeling(root: Path, manifest: ManifestJson, name: str, dtm_sha256: str | None) -> LabelingEntry | None:
     """Step 1: the manifest's entry of the labelling ``name`` when it is there and whole (every shard labelled
     from the terrain the scans were cast on), else None (a foreign shard: warned, labelled again)."""
     for raw in manifest.get("labelings", []):
@@ -502,7 +503,7 @@ def _baseline_fractions(records: list[LabelRecord], sigmas: list[float]) -> dict
     return {f"{sig:g}": float(safe[s] / max(1, valid)) for s, sig in enumerate(sigmas)}
 
 
-def _summary_from_entry(entry: LabelingEntry, manifest: dict[str, Any], seconds: float, reused: bool) -> LabelSummary:
+def _summary_from_entry(entry: LabelingEntry, manifest: ManifestJson, seconds: float, reused: bool) -> LabelSummary:
     return LabelSummary(
         name=entry.name,
         n_scans=int(manifest["n_scans"]),

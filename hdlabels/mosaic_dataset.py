@@ -36,7 +36,7 @@ from __future__ import annotations
 import os
 import shutil
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -65,6 +65,7 @@ from hdlabels.mosaic import (
 from hdlabels.settings import LabelSettings
 from hdlabels.store import DemSpec
 from lidarsim._version import __version__
+from lidarsim.manifest_json import DtmJson, ManifestJson, ScanShardJson
 from lidarsim.parallel import run_tasks
 from lidarsim.shards import (
     MANIFEST_KIND_MOSAICS,
@@ -237,7 +238,7 @@ class MosaicTask:
     """Mosaic every descent of one source shard into one mosaic shard."""
 
     source: str  # the source dataset directory
-    entry: dict[str, Any]  # the source shard's manifest entry
+    entry: ScanShardJson  # the source shard's manifest entry
     out_file: str  # where to write the mosaic shard (in the staging directory)
     frames: int  # frames per descent in the source
     used: tuple[int, ...]  # the frames mosaicked, ascending (the last is the anchor)
@@ -248,9 +249,9 @@ class MosaicTask:
 
 @dataclass(frozen=True)
 class MosaicShardRecord:
-    """What one task wrote: the manifest entry of its shard (without its path) and its registration fit."""
+    """What one task wrote: the manifest entry of its shard and its registration fit."""
 
-    entry: dict[str, Any]
+    entry: ScanShardJson
     corrections_m: np.ndarray  # (n_descents, S, K) translation of every frame's correction, metres
 
 
@@ -292,7 +293,8 @@ def run_mosaic_task(task: MosaicTask) -> MosaicShardRecord:
             sha256 = writer.commit()
     counts = {name: int((splits == i).sum()) for i, name in enumerate(SPLIT_NAMES)}
     present = [name for name, c in counts.items() if c]
-    entry = {
+    entry: ScanShardJson = {
+        "path": Path(task.out_file).name,
         "sha256": sha256,
         "n_scans": n,
         "first_scan": int(first or 0),
@@ -443,7 +445,7 @@ def _shard_name(index: int) -> str:
 
 
 def _file_attrs(
-    manifest: dict[str, Any], settings: MosaicSettings, dem: DemSpec, used: tuple[int, ...]
+    manifest: ManifestJson, settings: MosaicSettings, dem: DemSpec, used: tuple[int, ...]
 ) -> dict[str, Any]:
     """The mosaic shards' file attributes: the source's seed and the mosaic's settings (schema 1.4)."""
     return {
@@ -458,11 +460,11 @@ def _file_attrs(
     }
 
 
-def _terrain_entry(root: Path, manifest: dict[str, Any], staging: Path) -> dict[str, Any]:
+def _terrain_entry(root: Path, manifest: ManifestJson, staging: Path) -> DtmJson:
     """The source's ``dtm`` entry for the mosaic dataset: a DTM inside the source (its procedural
     terrain) is copied beside the mosaics (hard-linked where the file system allows); a user's DTM
     keeps its absolute path."""
-    dtm = dict(manifest.get("dtm") or {})
+    dtm: DtmJson = {**manifest.get("dtm", {})}
     path = dtm.get("path")
     if not isinstance(path, str) or os.path.isabs(path):
         return dtm
@@ -475,16 +477,16 @@ def _terrain_entry(root: Path, manifest: dict[str, Any], staging: Path) -> dict[
 
 
 def _manifest(
-    source: dict[str, Any],
+    source: ManifestJson,
     settings: MosaicSettings,
     dem: DemSpec,
     frames: int,
     used: tuple[int, ...],
     records: dict[int, MosaicShardRecord],
-    dtm: dict[str, Any],
+    dtm: DtmJson,
     source_dir: str,
-) -> dict[str, Any]:
-    shards = [{"path": _shard_name(i), **records[i].entry} for i in sorted(records)]
+) -> ManifestJson:
+    shards = [records[i].entry for i in sorted(records)]
     splits = {name: sum(int(s["split_counts"][name]) for s in shards) for name in SPLIT_NAMES}
     return {
         "schema": MANIFEST_SCHEMA,
@@ -496,7 +498,7 @@ def _manifest(
         "sigmas_m": list(source["sigmas_m"]),
         "seed": source.get("seed", 0),
         "config_sha256": source.get("config_sha256"),
-        "config": source.get("config"),
+        "config": source.get("config", {}),
         "dtm": dtm,
         "mosaic": {
             "source": {
@@ -518,7 +520,7 @@ def _manifest(
     }
 
 
-def _coverage(out_dir: Path, manifest: dict[str, Any]) -> float:
+def _coverage(out_dir: Path, manifest: ManifestJson) -> float:
     """Mean fraction of DEM cells with a clean mosaic height."""
     valid = cells = 0
     for entry in manifest["shards"]:
@@ -529,16 +531,17 @@ def _coverage(out_dir: Path, manifest: dict[str, Any]) -> float:
     return valid / max(1, cells)
 
 
-def mosaic_dem_entry(manifest: dict[str, Any]) -> dict[str, Any] | None:
-    """The DEM grid a mosaic dataset was made on (its manifest's ``mosaic.dem``), None for a scan dataset."""
+def mosaic_dem_entry(manifest: ManifestJson) -> Mapping[str, object] | None:
+    """The DEM grid a mosaic dataset was made on (its manifest's ``mosaic.dem``: empty when the record
+    lacks it), None for a scan dataset."""
     if manifest.get("kind") != MANIFEST_KIND_MOSAICS:
         return None
-    mosaic = manifest.get("mosaic")
+    mosaic: object = manifest.get("mosaic")
     dem = mosaic.get("dem") if isinstance(mosaic, dict) else None
     return dem if isinstance(dem, dict) else {}
 
 
-def check_mosaic_grid(manifest: dict[str, Any], dem: DemSpec, where: str) -> None:
+def check_mosaic_grid(manifest: ManifestJson, dem: DemSpec, where: str) -> None:
     """Refuse to grid a mosaic dataset on another grid than its own (its points are its cells' centres).
 
     Raises:

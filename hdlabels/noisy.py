@@ -28,6 +28,7 @@ from hdlabels.errors import HdLabelsError
 from hdlabels.grid import grid_points
 from hdlabels.store import DemSpec, LabelShardEntry
 from lidarsim.errors import LidarsimError
+from lidarsim.manifest_json import ShardRefJson
 from lidarsim.noise import noisy_points, recover_ranges, scan_directions
 from lidarsim.scan import STATUS_DAMAGED
 from lidarsim.sensor import SensorConfig
@@ -132,7 +133,7 @@ class NoisyDems:
     ) -> list[CleanScan]:
         """The clean scans at ``rows`` of the scan shard behind one label shard entry of a labelling
         (its ``source_path`` and ``source_sha256``; the shard is checked against the checksum)."""
-        source = {"path": shard.source_path, "sha256": shard.source_sha256}
+        source: ShardRefJson = {"path": shard.source_path, "sha256": shard.source_sha256}
         with open_scan_shard(Path(dataset_dir), source) as reader:
             f = reader.h5
             return [

@@ -14,10 +14,10 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -27,6 +27,7 @@ from hdlabels._version import __version__
 from hdlabels.errors import HdLabelsError, LabelStoreError
 from hdlabels.lander import Lander
 from lidarsim.location import dataset_label, is_url, join, open_h5_at
+from lidarsim.manifest_json import DemGridJson, LabelingJson, LabelShardJson
 from lidarsim.shards import (
     MANIFEST_NAME,
     SPLIT_NAMES,
@@ -90,7 +91,7 @@ class DemSpec:
             "dem_gridding": self.gridding,
         }
 
-    def to_entry(self) -> dict[str, float | int | str]:
+    def to_entry(self) -> DemGridJson:
         """The manifest's ``dem`` entry of a labelling."""
         return {"rows": self.rows, "cols": self.cols, "spacing_m": self.spacing_m, "gridding": self.gridding}
 
@@ -108,7 +109,7 @@ class DemSpec:
         return cls(rows, cols, spacing_m, gridding if gridding is not None else default)
 
     @classmethod
-    def from_entry(cls, entry: dict[str, Any]) -> DemSpec:
+    def from_entry(cls, entry: DemGridJson) -> DemSpec:
         """The grid of a manifest ``dem`` entry (entries written before griddings existed are the hd
         convention's, linear; every entry records its rows, columns and spacing).
 
@@ -138,7 +139,7 @@ class LabelShardEntry:
     source_sha256: str
     schema_version: str = LABEL_SCHEMA_VERSION_CLEAN_SCAN
 
-    def to_json(self) -> dict[str, object]:
+    def to_json(self) -> LabelShardJson:
         """The manifest's entry (keys in the order hd has always written them)."""
         return {
             "path": self.path,
@@ -224,10 +225,10 @@ class LabelingEntry:
         """The entry as a run records it: everything but the shard list."""
         return dataclasses.replace(self, shards=())
 
-    def to_json(self) -> dict[str, object]:
+    def to_json(self) -> LabelingJson:
         """The manifest's entry, keys in the order hd has always written them (the shard list only
         when the entry has shards; ``truth`` only for the terrain truth)."""
-        out: dict[str, object] = {
+        out: LabelingJson = {
             "name": self.name,
             "schema": LABEL_SCHEMA,
             "schema_version": self.schema_version,
@@ -272,7 +273,7 @@ class LabelingEntry:
         if not isinstance(dem, dict) or not isinstance(lander, dict):
             raise LabelStoreError(f"{where}: its 'dem' and 'lander' entries must be JSON objects")
         try:
-            grid, vehicle = DemSpec.from_entry(dem), Lander.from_attrs(lander)
+            grid, vehicle = DemSpec.from_entry(cast(DemGridJson, dem)), Lander.from_attrs(lander)
             counts = obj.get("label_counts")
             label_counts = (
                 None if counts is None else (int(counts["unsafe"]), int(counts["safe"]), int(counts["invalid"]))
@@ -618,12 +619,12 @@ def find_labeling(directory: str | os.PathLike, name: str | None = None) -> Labe
     )
 
 
-def _raw_truth(lab: dict[str, Any]) -> str:
+def _raw_truth(lab: Mapping[str, object]) -> str:
     """The truth of a labelling as the manifest has it (absent: the clean scan's, as before truths existed)."""
     return str(lab.get("truth", defaults.TRUTH))
 
 
-def _alias_matches(labelings: list[dict[str, Any]], alias: str) -> list[dict[str, Any]] | None:
+def _alias_matches(labelings: list[LabelingJson], alias: str) -> list[LabelingJson] | None:
     """The labellings ``alias`` names (``CONVENTION`` or ``CONVENTION+TRUTH``, any case), or None when it
     is no alias.
 
@@ -645,7 +646,7 @@ def _alias_matches(labelings: list[dict[str, Any]], alias: str) -> list[dict[str
     return paper_truth if len(paper_truth) == 1 else mine
 
 
-def labeling_aliases(labelings: list[dict[str, Any]]) -> dict[str, str]:
+def labeling_aliases(labelings: list[LabelingJson]) -> dict[str, str]:
     """Each alias that names exactly one of ``labelings`` (manifest entries), with that labelling's name,
     shortest first per convention (``paper``, ``paper+clean-scan``, ``paper+terrain``, ``hd``, ...)."""
     out: dict[str, str] = {}
@@ -657,7 +658,7 @@ def labeling_aliases(labelings: list[dict[str, Any]]) -> dict[str, str]:
     return out
 
 
-def _alias_hint(labelings: list[dict[str, Any]], form: str) -> str:
+def _alias_hint(labelings: list[LabelingJson], form: str) -> str:
     """``form`` filled with one alias per labelling that has one (``paper = NAME, paper+terrain = NAME``),
     or '' when none has."""
     first: dict[str, str] = {}

@@ -38,7 +38,6 @@ import os
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -47,13 +46,14 @@ from hdcore.storage import confine, sha256_file
 from hdlabels import defaults
 from hdlabels.grid import cell_centres, grid_points
 from hdlabels.store import DemSpec, LabelStoreError
+from lidarsim.manifest_json import ManifestJson
 from lidarsim.terrain import DTM
 
 # Griddings whose DEM value is the height at the cell centre when a sample lies there.
 CENTRE_GRIDDINGS: tuple[str, ...] = ("nearest", "linear")
 
 
-def build_terrain_path(root: Path, manifest: dict[str, Any]) -> tuple[Path, str, float]:
+def build_terrain_path(root: Path, manifest: ManifestJson) -> tuple[Path, str, float]:
     """The DTM a dataset was built on: its path (a relative one confined to the dataset), recorded
     sha256 and the build's ``--dtm-scale``.
 
@@ -72,7 +72,7 @@ def build_terrain_path(root: Path, manifest: dict[str, Any]) -> tuple[Path, str,
     return (path if path.is_absolute() else confine(root, dtm["path"])), str(dtm["sha256"]), float(scale)
 
 
-def check_build_terrain(root: Path, manifest: dict[str, Any]) -> tuple[Path, str, float]:
+def check_build_terrain(root: Path, manifest: ManifestJson) -> tuple[Path, str, float]:
     """The DTM a dataset was built on, checked: present and the bytes the build read (sha256). The
     procedural terrain, missing or changed, is first regenerated when that gives the recorded bytes.
 

@@ -105,6 +105,7 @@ from hdnet.trained_run import TrainedRun
 from hdnet.uncertainty import ENTROPY, UncertaintyScore, recorded_score, uncertainty_score, with_score
 from lidarsim.errors import TerrainError
 from lidarsim.location import dataset_at, dataset_key, has_manifest, manifest_sha256
+from lidarsim.manifest_json import ShardRefJson
 from lidarsim.map_window import MapWindow, WindowCells, bounds_text, grid_bounds, window_cells
 from lidarsim.procedural import geotiff_profile
 from lidarsim.shards import MANIFEST_NAME, open_scan_shard, read_manifest
@@ -640,7 +641,7 @@ class _ScanTerrain(_ArrayTerrain):
 def _origin_map(dataset: Path | str, label_shard: LabelShardEntry, scan: int) -> list[float]:
     """Map coordinates (metres) of a scan's frame origin, from the scan shard behind its label shard
     (through the storage layer: checksum first; damage is an error naming the file and the scan)."""
-    source = {"path": label_shard.source_path, "sha256": label_shard.source_sha256}
+    source: ShardRefJson = {"path": label_shard.source_path, "sha256": label_shard.source_sha256}
     with open_scan_shard(dataset, source) as reader:
         rows = np.flatnonzero(reader.h5["scan_index"][:] == scan)
         if not rows.size:

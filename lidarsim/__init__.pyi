@@ -11,6 +11,7 @@ from lidarsim.errors import TerrainError as TerrainError
 from lidarsim.footprint import FootprintConfig as FootprintConfig
 from lidarsim.make_dtm import DtmSettings as DtmSettings
 from lidarsim.make_dtm import make_dtm as make_dtm
+from lidarsim.manifest_json import ManifestJson as ManifestJson
 from lidarsim.noise import NoiseModel as NoiseModel
 from lidarsim.procedural import MarsTerrainParams as MarsTerrainParams
 from lidarsim.procedural import generate_mars_terrain as generate_mars_terrain

@@ -48,6 +48,7 @@ from lidarsim._version import __version__
 from lidarsim.base_relief import rocks_on_base, rocky_geotiff_bytes
 from lidarsim.errors import LidarsimError
 from lidarsim.footprint import FootprintConfig
+from lidarsim.manifest_json import DtmJson, ManifestJson, RecipeDeviationJson, ScanShardJson
 from lidarsim.navigation import DescentNavErrors, descent_nav_errors
 from lidarsim.noise import NoiseModel
 from lidarsim.parallel import probe_scheduler, run_tasks
@@ -251,10 +252,18 @@ class ShardRecord:
     split_counts: dict[str, int]
     schema_version: str = SCAN_SCHEMA_VERSION_PLAIN
 
-    def to_dict(self) -> dict[str, Any]:
-        d = asdict(self)
-        version = d.pop("schema_version")
-        return {**d, "schema": SCAN_SCHEMA, "schema_version": version}
+    def to_dict(self) -> ScanShardJson:
+        """The manifest's entry of the shard."""
+        return {
+            "path": self.path,
+            "sha256": self.sha256,
+            "n_scans": self.n_scans,
+            "first_scan": self.first_scan,
+            "split": self.split,
+            "split_counts": dict(self.split_counts),
+            "schema": SCAN_SCHEMA,
+            "schema_version": self.schema_version,
+        }
 
 
 @dataclass(frozen=True)
@@ -719,7 +728,7 @@ def _procedural_terrain_bytes(params: MarsTerrainParams, seed: int, path: Path) 
     )
 
 
-def restore_procedural_terrain(root: Path, manifest: dict[str, Any]) -> Path | None:
+def restore_procedural_terrain(root: Path, manifest: ManifestJson) -> Path | None:
     """Write back the procedural terrain of the dataset at ``root`` when its file in ``terrain/`` is
     gone or its bytes changed: regenerated from the seed and terrain parameters the manifest records,
     and kept only if its sha256 is the one the manifest records for the build's terrain (with a
@@ -819,7 +828,7 @@ def build_dataset(
     overwrite: bool = False,
     progress: Callable[[int, int], None] | None = None,
     max_shards: int = limits.MAX_SHARD_FILES,
-    recipe_deviation: dict[str, Any] | None = None,
+    recipe_deviation: RecipeDeviationJson | None = None,
 ) -> BuildSummary:
     """Build (or finish building) a dataset of clean and noisy scans.
 
@@ -918,7 +927,7 @@ class _BuildTerrain:
     data: bytes | None
     plan: ScanPlan
     attrs: dict[str, Any]
-    provenance: dict[str, Any]
+    provenance: DtmJson
 
 
 def _open_terrain(out_dir: Path, config: BuildConfig) -> _BuildTerrain:
@@ -945,8 +954,8 @@ def _open_terrain(out_dir: Path, config: BuildConfig) -> _BuildTerrain:
         valid, overview_transform = dtm.validity_overview(cell)
         plan = plan_scans(valid, overview_transform, config.sensor, config.trajectory, dtm.info.name)
         dtm_attrs = {f"dtm_{k}": v for k, v in dtm.info.to_attrs().items()}
-        dtm_attrs["dtm_sha256"] = dtm.sha256()
-        dtm_provenance = {**dtm.info.to_attrs(), "sha256": dtm_attrs["dtm_sha256"]}
+        dtm_sha256 = dtm_attrs["dtm_sha256"] = dtm.sha256()
+        dtm_provenance: DtmJson = {**dtm.info.to_attrs(), "sha256": dtm_sha256}
     return _BuildTerrain(dtm_path, terrain_bytes, plan, dtm_attrs, dtm_provenance)
 
 
@@ -959,7 +968,7 @@ def _build_locked(
     scheduler: str | None,
     progress: Callable[[int, int], None] | None,
     t_start: float,
-    recipe_deviation: dict[str, Any] | None = None,
+    recipe_deviation: RecipeDeviationJson | None = None,
 ) -> BuildSummary:
     """The part of ``build_dataset`` that writes (called with the writer lock held)."""
     fingerprint = config.fingerprint()
@@ -1051,8 +1060,8 @@ def _write_manifest(
     terrain: _BuildTerrain,
     splits: np.ndarray,
     records: dict[int, ShardRecord],
-    recipe_deviation: dict[str, Any] | None = None,
-) -> dict[str, Any]:
+    recipe_deviation: RecipeDeviationJson | None = None,
+) -> ManifestJson:
     """Step 5: ``manifest.json``, written last: the dataset is complete once it exists. A recipe's
     deviation (1.1) and a descent build's ``n_descents`` and ``descent_frames`` (1.2) are recorded only
     when there are some: every other manifest stays 1.0."""
@@ -1060,18 +1069,15 @@ def _write_manifest(
     version = MANIFEST_SCHEMA_VERSION if recipe_deviation is None else MANIFEST_SCHEMA_VERSION_DEVIATION
     if config.trajectory.descent is not None:
         version = MANIFEST_SCHEMA_VERSION_DESCENT
-    manifest: dict[str, Any] = {
+    manifest: ManifestJson = {
         "schema": MANIFEST_SCHEMA,
         "schema_version": version,
         "kind": MANIFEST_KIND_SCANS,
         "software": "hd",
         "software_version": __version__,
         "n_scans": config.trajectory.n_scans,
-        **(
-            {"n_descents": config.trajectory.n_descents, "descent_frames": config.trajectory.frames}
-            if config.trajectory.descent is not None
-            else {}
-        ),
+        "n_descents": config.trajectory.n_descents,
+        "descent_frames": config.trajectory.frames,
         "sigmas_m": list(config.sigmas_m),
         "seed": config.seed,
         "config_sha256": config.fingerprint(),
@@ -1083,6 +1089,8 @@ def _write_manifest(
         "shards": [records[i].to_dict() for i in sorted(records)],
         "labelings": [],
     }
+    if config.trajectory.descent is None:  # only a descent build has descents (the other keys keep their order)
+        del manifest["n_descents"], manifest["descent_frames"]
     if recipe_deviation is not None:
         manifest["recipe_deviation"] = recipe_deviation
     write_json_atomic(out_dir / MANIFEST_NAME, manifest)

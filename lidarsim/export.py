@@ -39,6 +39,7 @@ from hdcore.storage import OutputDir, sha256_file, write_json_atomic
 from lidarsim import limits
 from lidarsim._version import __version__
 from lidarsim.errors import LidarsimError
+from lidarsim.manifest_json import ManifestJson
 from lidarsim.scan import STATUS_DAMAGED, STATUS_RETURN
 from lidarsim.shards import open_scan_shard, read_manifest
 
@@ -226,7 +227,7 @@ def _laspy(fmt: str) -> Any:
     return laspy
 
 
-def _locate(manifest: dict[str, Any], wanted: tuple[int, ...], root: Path) -> dict[int, list[int]]:
+def _locate(manifest: ManifestJson, wanted: tuple[int, ...], root: Path) -> dict[int, list[int]]:
     """The rows of the wanted scans, grouped by shard (position in the manifest's list), in shard order.
 
     Raises:
@@ -249,7 +250,7 @@ def _locate(manifest: dict[str, Any], wanted: tuple[int, ...], root: Path) -> di
     return dict(sorted(grouped.items()))
 
 
-def _sigma_index(manifest: dict[str, Any], settings: ExportSettings) -> int | None:
+def _sigma_index(manifest: ManifestJson, settings: ExportSettings) -> int | None:
     """The position of the exported noise level among the dataset's (None for the clean points)."""
     if settings.cloud == "clean":
         return None

@@ -47,6 +47,7 @@ import json
 import math
 import os
 import re
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -55,6 +56,7 @@ import numpy as np
 
 from hdcore.bounds import Bound
 from hdcore.storage import CheckedDataset, FormatError, check_schema, open_h5
+from lidarsim.checksums_json import ArrayFingerprintJson, FingerprintJson
 from lidarsim.shards import TRUTH_DTM_SHA256_ATTR
 
 __all__ = [
@@ -137,11 +139,11 @@ def attr_record(value: Any) -> Any:
     return "sha256:" + hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-def _attrs(obj: h5py.HLObject) -> dict[str, Any]:
+def _attrs(obj: h5py.HLObject) -> dict[str, object]:
     return {str(k): attr_record(obj.attrs[k]) for k in sorted(obj.attrs.keys())}
 
 
-def array_fingerprint(blocks: Any, dtype: np.dtype, shape: tuple[int, ...]) -> dict[str, Any]:
+def array_fingerprint(blocks: Any, dtype: np.dtype, shape: tuple[int, ...]) -> ArrayFingerprintJson:
     """Statistics of an array given as an iterable of blocks (numpy arrays of ``dtype``).
 
     Floating arrays: NaN and inf counts, float64 sum, sum of absolute values and position-weighted
@@ -150,7 +152,7 @@ def array_fingerprint(blocks: Any, dtype: np.dtype, shape: tuple[int, ...]) -> d
     arrays the count of every value.
     """
     kind = np.dtype(dtype).kind
-    record: dict[str, Any] = {"dtype": str(np.dtype(dtype)), "shape": [int(n) for n in shape]}
+    record: ArrayFingerprintJson = {"dtype": str(np.dtype(dtype)), "shape": [int(n) for n in shape]}
     if kind == "f":
         nan = inf = 0
         sums: list[float] = []
@@ -173,8 +175,9 @@ def array_fingerprint(blocks: Any, dtype: np.dtype, shape: tuple[int, ...]) -> d
                 wsums.append(float((finite * weights[keep]).sum()) / (_WEIGHT_PRIME + 1))
                 lo = float(finite.min()) if lo is None else min(lo, float(finite.min()))
                 hi = float(finite.max()) if hi is None else max(hi, float(finite.max()))
-        record.update(nan=nan, inf=inf, sum=math.fsum(sums), sum_abs=math.fsum(sums_abs), wsum=math.fsum(wsums))
-        record.update(min=lo, max=hi)
+        record["nan"], record["inf"] = nan, inf
+        record["sum"], record["sum_abs"], record["wsum"] = math.fsum(sums), math.fsum(sums_abs), math.fsum(wsums)
+        record["min"], record["max"] = lo, hi
     elif kind in "iub":
         total = 0
         ilo: int | None = None
@@ -197,7 +200,7 @@ def array_fingerprint(blocks: Any, dtype: np.dtype, shape: tuple[int, ...]) -> d
                 values, n = np.unique(b, return_counts=True)
                 for v, c in zip(values.tolist(), n.tolist(), strict=True):
                     counts[int(v)] = counts.get(int(v), 0) + int(c)
-        record.update(sum=total, wsum=wtotal, min=ilo, max=ihi)
+        record["sum"], record["wsum"], record["min"], record["max"] = total, wtotal, ilo, ihi
         if one_byte:
             record["counts"] = {str(k): counts[k] for k in sorted(counts)}
     else:  # strings and other types: their bytes
@@ -231,7 +234,7 @@ def _blocks(ds: CheckedDataset) -> Any:
         yield ds[k : k + step]
 
 
-def h5_fingerprint(path: str | os.PathLike, what: str | None = None) -> dict[str, Any]:
+def h5_fingerprint(path: str | os.PathLike, what: str | None = None) -> FingerprintJson:
     """Content fingerprint of an HDF5 file (schema ``hd.content-fingerprint`` 1.0, module docstring).
 
     Every chunk is read (fletcher32 and decompression checked), one chunk of rows at a time.
@@ -243,7 +246,7 @@ def h5_fingerprint(path: str | os.PathLike, what: str | None = None) -> dict[str
     with open_h5(path, what) as f:
         names: list[str] = []
         f._f.visit(lambda n: names.append(n) if isinstance(f._f[n], h5py.Dataset) else None)
-        arrays: dict[str, Any] = {}
+        arrays: dict[str, ArrayFingerprintJson] = {}
         for name in sorted(names):
             ds = f[name]
             record = array_fingerprint(_blocks(ds), ds.dtype, tuple(ds.shape))
@@ -411,7 +414,7 @@ def _int_problem(array: dict[str, Any], dtype: np.dtype, size: int) -> Problem |
     return None
 
 
-def check_fingerprint_schema(recorded: dict[str, Any], where: str) -> None:
+def check_fingerprint_schema(recorded: Mapping[str, object], where: str) -> None:
     """Refuse published fingerprints of another schema or an unknown major version.
 
     Raises:
@@ -452,7 +455,7 @@ def _fmt(value: Any) -> str:
     return json.dumps(value)
 
 
-def _minor_version_additions(published: dict[str, Any], rebuilt: dict[str, Any]) -> frozenset[str]:
+def _minor_version_additions(published: dict[str, object], rebuilt: dict[str, object]) -> frozenset[str]:
     """The file attributes of ``rebuilt`` that its newer minor schema version added and ``published``
     (an earlier minor version of the same schema) lacks, with ``schema_version``; empty otherwise."""
     schema, old, new = rebuilt.get("schema"), published.get("schema_version"), rebuilt.get("schema_version")
@@ -472,7 +475,11 @@ def _minor_version_additions(published: dict[str, Any], rebuilt: dict[str, Any])
 
 
 def _compare_attrs(
-    published: dict[str, Any], rebuilt: dict[str, Any], where: str, out: Comparison, skip: frozenset[str] = frozenset()
+    published: dict[str, object],
+    rebuilt: dict[str, object],
+    where: str,
+    out: Comparison,
+    skip: frozenset[str] = frozenset(),
 ) -> None:
     for name in sorted(set(published) | set(rebuilt)):
         if name in skip:
@@ -488,7 +495,7 @@ def _compare_attrs(
         out.n_attrs += 1
 
 
-def _compare_array(pub: dict[str, Any], new: dict[str, Any], where: str, out: Comparison) -> None:
+def _compare_array(pub: ArrayFingerprintJson, new: ArrayFingerprintJson, where: str, out: Comparison) -> None:
     for key in ("dtype", "shape"):
         if pub.get(key) != new.get(key):
             out.problems.append(f"{where}: {key} {_fmt(new.get(key))}, the published build's is {_fmt(pub.get(key))}")
@@ -517,8 +524,9 @@ def _compare_array(pub: dict[str, Any], new: dict[str, Any], where: str, out: Co
         return
     if pub.get("min") is None:
         return
-    sum_scale = max(abs(float(pub["sum_abs"])), abs(float(new["sum_abs"])))
-    ext_scale = max(abs(float(v)) for v in (pub["min"], pub["max"], new["min"], new["max"]))
+    old, now = _float_stats(pub), _float_stats(new)
+    sum_scale = max(abs(old["sum_abs"]), abs(now["sum_abs"]))
+    ext_scale = max(abs(v) for v in (old["min"], old["max"], now["min"], now["max"]))
     for key, scale, tol, name in (
         ("sum", sum_scale, rtol, "sum"),
         ("wsum", sum_scale, rtol, "position-weighted sum"),
@@ -526,7 +534,7 @@ def _compare_array(pub: dict[str, Any], new: dict[str, Any], where: str, out: Co
         ("min", ext_scale, rtol_extreme, "minimum"),
         ("max", ext_scale, rtol_extreme, "maximum"),
     ):
-        a, b = float(pub[key]), float(new[key])
+        a, b = old[key], now[key]
         diff = abs(a - b)
         rel = diff / scale if scale > 0 else (0.0 if diff == 0 else math.inf)
         out.worst = max(out.worst, rel / tol)
@@ -537,7 +545,19 @@ def _compare_array(pub: dict[str, Any], new: dict[str, Any], where: str, out: Co
             )
 
 
-def compare_fingerprints(published: dict[str, Any], rebuilt: dict[str, Any], where: str) -> Comparison:
+def _float_stats(record: ArrayFingerprintJson) -> dict[str, float]:
+    """The sums and extremes of a floating array that has finite elements (a fingerprint checked by
+    :func:`fingerprint_problem`), by key."""
+    return {
+        "sum": float(record.get("sum", 0.0)),
+        "wsum": float(record.get("wsum", 0.0)),
+        "sum_abs": float(record.get("sum_abs", 0.0)),
+        "min": float(record.get("min") or 0.0),
+        "max": float(record.get("max") or 0.0),
+    }
+
+
+def compare_fingerprints(published: FingerprintJson, rebuilt: FingerprintJson, where: str) -> Comparison:
     """Compare a file's fingerprint with the published one within the module's tolerances.
 
     ``where`` names the file in the problems (``shards/scans-00003.h5``); each problem names the

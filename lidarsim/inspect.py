@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -12,11 +13,12 @@ import numpy as np
 from hdcore.outcome import counted
 from hdcore.storage import FormatError, StorageError, confine, lock_holder
 from lidarsim.location import is_url, remote_dataset
+from lidarsim.manifest_json import ManifestJson, ShardRefJson
 from lidarsim.noise import stored_kind
 from lidarsim.shards import SPLIT_NAMES, open_scan_shard, read_manifest
 
 
-def _size(directory: Path | str, entries: list[dict]) -> int:
+def _size(directory: Path | str, entries: Sequence[ShardRefJson]) -> int:
     total = 0
     if isinstance(directory, str):  # a URL: the sizes its listing gives
         remote = remote_dataset(directory)
@@ -33,7 +35,7 @@ def _size(directory: Path | str, entries: list[dict]) -> int:
     return total
 
 
-def _first_scan_lines(directory: Path | str, manifest: dict[str, Any]) -> list[str]:
+def _first_scan_lines(directory: Path | str, manifest: ManifestJson) -> list[str]:
     """Step 1 of :func:`describe_dataset`: the lines read from the first shard (mosaic, sensor, descents,
     realism, the first scan's returns and height range in m), or one line saying why it cannot be read."""
     shards = manifest["shards"]
@@ -76,7 +78,7 @@ def _first_scan_lines(directory: Path | str, manifest: dict[str, Any]) -> list[s
     return lines
 
 
-def _labeling_lines(directory: Path | str, manifest: dict[str, Any]) -> list[str]:
+def _labeling_lines(directory: Path | str, manifest: ManifestJson) -> list[str]:
     """Step 2 of :func:`describe_dataset`: one line per labelling (finished, then unfinished ones found
     on disk) and one for a process writing the dataset now (neither looked for at a URL)."""
     labelings = manifest.get("labelings", [])
@@ -217,7 +219,7 @@ def _mosaic_line(attrs: dict[str, Any], mosaic: dict[str, Any]) -> str:
     )
 
 
-def _descents(manifest: dict[str, Any]) -> str:
+def _descents(manifest: ManifestJson) -> str:
     """`` (40 descents of 9 frames)`` of a descent build's manifest, else ``""``."""
     if "descent_frames" not in manifest:
         return ""

@@ -18,16 +18,16 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from hdcore.storage import DamagedFileError, FormatError, StorageError, confine
 from lidarsim.build import BuildConfig, setting_changes
+from lidarsim.checksums_json import ChecksumsJson, FingerprintJson, PublishedFileJson, PublishedLabelingJson
 from lidarsim.errors import RecipeError
 from lidarsim.fingerprint import (
-    FINGERPRINT_SCHEMA,
-    FINGERPRINT_SCHEMA_VERSION,
     FLOAT32_EXTREME_RTOL,
     FLOAT32_RTOL,
     FLOAT64_RTOL,
@@ -37,12 +37,12 @@ from lidarsim.fingerprint import (
     compare_fingerprints,
     h5_fingerprint,
 )
+from lidarsim.manifest_json import FileEntryJson, ManifestJson, ShardRefJson
 from lidarsim.recipe import CHECKSUMS_FILE, load_recipe
 from lidarsim.recipe_deviation import recorded_deviation
 from lidarsim.shards import TRUTH_DTM_SHA256_ATTR, read_manifest
 
 __all__ = [
-    "FINGERPRINT_KEYS",
     "IDENTICAL",
     "PublishedComparison",
     "compare_with_published",
@@ -87,7 +87,7 @@ class PublishedComparison:
         )
 
 
-def terrain_fingerprint(path: str | os.PathLike, what: str | None = None) -> dict[str, Any]:
+def terrain_fingerprint(path: str | os.PathLike, what: str | None = None) -> FingerprintJson:
     """Content fingerprint of a GeoTIFF terrain: its heights (array ``heights``) and, as attributes,
     its size, transform, CRS, nodata value and tags (``hd.content-fingerprint`` 1.0).
 
@@ -117,7 +117,7 @@ def terrain_fingerprint(path: str | os.PathLike, what: str | None = None) -> dic
     }
 
 
-def content_fingerprints(directory: str | os.PathLike, manifest: dict[str, Any]) -> dict[str, dict[str, Any]]:
+def content_fingerprints(directory: str | os.PathLike, manifest: ManifestJson) -> dict[str, FingerprintJson]:
     """Fingerprints of every file a manifest lists (scan shards, label shards, a terrain kept inside
     the dataset), keyed by path relative to the dataset.
 
@@ -125,8 +125,8 @@ def content_fingerprints(directory: str | os.PathLike, manifest: dict[str, Any])
         DamagedFileError, StorageError: a file cannot be read.
     """
     directory = Path(directory)
-    out: dict[str, dict[str, Any]] = {}
-    entries = list(manifest.get("shards", []))
+    out: dict[str, FingerprintJson] = {}
+    entries: list[FileEntryJson] = list(manifest.get("shards", []))
     for labelling in manifest.get("labelings", []):
         entries.extend(labelling.get("shards", []))
     for entry in entries:
@@ -137,7 +137,7 @@ def content_fingerprints(directory: str | os.PathLike, manifest: dict[str, Any])
     return out
 
 
-def _terrain_entry(manifest: dict[str, Any]) -> dict[str, Any] | None:
+def _terrain_entry(manifest: ManifestJson) -> ShardRefJson | None:
     """The manifest's terrain when the dataset keeps it (a relative path: the procedural terrain)."""
     dtm = manifest.get("dtm")
     if not isinstance(dtm, dict) or not isinstance(dtm.get("path"), str) or os.path.isabs(dtm["path"]):
@@ -145,7 +145,7 @@ def _terrain_entry(manifest: dict[str, Any]) -> dict[str, Any] | None:
     return {"path": dtm["path"], "sha256": dtm["sha256"]} if isinstance(dtm.get("sha256"), str) else None
 
 
-def _entries(recorded: Any, where: str) -> list[dict[str, Any]]:
+def _entries(recorded: Any, where: str) -> list[PublishedFileJson]:
     if not isinstance(recorded, list) or not all(isinstance(e, dict) for e in recorded):
         raise RecipeError(f"{where} must be a list of entries")
     for i, entry in enumerate(recorded):
@@ -162,7 +162,7 @@ class _Comparer:
     def __init__(
         self,
         directory: Path | None,
-        manifest: dict[str, Any],
+        manifest: ManifestJson,
         out: PublishedComparison,
         published_sha: dict[str, str],
         published_dtm: str | None,
@@ -174,7 +174,7 @@ class _Comparer:
         self.published_sha = published_sha
         self.published_dtm = published_dtm
 
-    def files(self, published: list[dict[str, Any]], have: list[dict[str, Any]], what: str) -> None:
+    def files(self, published: list[PublishedFileJson], have: Sequence[ShardRefJson], what: str) -> None:
         want = {e["path"]: e for e in published}
         got = {e["path"]: e for e in have if isinstance(e, dict) and isinstance(e.get("path"), str)}
         for path in sorted(set(want) | set(got)):
@@ -185,7 +185,7 @@ class _Comparer:
             else:
                 self.one(path, want[path], got[path]["sha256"])
 
-    def one(self, path: str, published: dict[str, Any], sha256: Any) -> None:
+    def one(self, path: str, published: PublishedFileJson, sha256: str) -> None:
         if sha256 == published["sha256"]:
             self.out.identical += 1
             self.out.verdicts.append(f"{path}: {IDENTICAL}")
@@ -249,9 +249,7 @@ class _Comparer:
         return problems
 
 
-def _not_comparable(
-    manifest: dict[str, Any], recorded: dict[str, Any], recipe_config: BuildConfig | None
-) -> str | None:
+def _not_comparable(manifest: ManifestJson, recorded: ChecksumsJson, recipe_config: BuildConfig | None) -> str | None:
     """Step 1 of :func:`compare_with_published`: why the dataset's files cannot be the published build's
     (a deviation from its recipe, other settings, another shard schema version), or None."""
     try:
@@ -278,7 +276,7 @@ def _not_comparable(
 
 
 def _compare_labelings(
-    comparer: _Comparer, labelings: list[dict[str, Any]], manifest: dict[str, Any], out: PublishedComparison
+    comparer: _Comparer, labelings: list[PublishedLabelingJson], manifest: ManifestJson, out: PublishedComparison
 ) -> None:
     """Step 2 of :func:`compare_with_published`: each published labelling's files against the dataset's
     labelling of the same name; one missing on either side is a verdict, not a problem."""
@@ -298,8 +296,8 @@ def _compare_labelings(
 
 
 def compare_with_published(
-    manifest: dict[str, Any],
-    recorded: dict[str, Any],
+    manifest: ManifestJson,
+    recorded: ChecksumsJson,
     directory: str | os.PathLike | None = None,
     recipe_config: BuildConfig | None = None,
 ) -> PublishedComparison:
@@ -356,7 +354,7 @@ def compare_with_published(
 SHOWN_SETTINGS = 6
 
 
-def _other_settings(manifest: dict[str, Any], recorded: dict[str, Any], recipe_config: BuildConfig | None) -> str:
+def _other_settings(manifest: ManifestJson, recorded: ChecksumsJson, recipe_config: BuildConfig | None) -> str:
     """Why a dataset's settings hash is not the published build's, naming the settings that differ
     (the dataset's value, then the recipe's) when the recipe's own configuration is known."""
     vague = "the dataset was built with other settings than the recipe's published build"
@@ -395,7 +393,3 @@ def compare_with_recipe(
     if recorded is None:
         raise RecipeError(f"{recipe.path.parent}: the recipe has no published {CHECKSUMS_FILE}")
     return compare_with_published(read_manifest(directory), recorded, directory if content else None, recipe.build)
-
-
-# The keys of ``checksums.json`` that name the fingerprint format of its ``content`` entries.
-FINGERPRINT_KEYS = {"fingerprint_schema": FINGERPRINT_SCHEMA, "fingerprint_schema_version": FINGERPRINT_SCHEMA_VERSION}

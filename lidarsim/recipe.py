@@ -61,17 +61,19 @@ import re
 import tomllib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, TypeVar, cast
 
 from hdcore.bounds import Bound
 from hdcore.setting import FILE_OR_DIRECTORY, check, described_as, described_fields, from_mapping, setting
 from hdcore.storage import is_sha256, read_regular_bytes
 from lidarsim import defaults, limits
 from lidarsim.build import BuildConfig
+from lidarsim.checksums_json import ChecksumsJson
 from lidarsim.descent import DescentConfig
 from lidarsim.errors import LidarsimError, RecipeError
 from lidarsim.fingerprint import fingerprint_problem
 from lidarsim.footprint import FootprintConfig
+from lidarsim.manifest_json import ManifestJson
 from lidarsim.navigation import NavigationError
 from lidarsim.noise import NoiseModel
 from lidarsim.sensor import SensorConfig
@@ -348,7 +350,7 @@ class Recipe:
     version: int = 1
     dtm: str = ""
 
-    def checksums(self) -> dict[str, Any] | None:
+    def checksums(self) -> ChecksumsJson | None:
         """The recorded checksums of the published build, or None when the recipe has none."""
         path = self.path.parent / CHECKSUMS_FILE
         if not path.is_file():
@@ -358,7 +360,7 @@ class Recipe:
         except (ValueError, RecursionError) as exc:  # StorageError, decoding, JSON, digit limit
             raise RecipeError(f"{path}: unreadable checksums ({exc})") from exc
         _check_checksums(recorded, path)
-        return recorded
+        return cast("ChecksumsJson", recorded)  # its structure checked above
 
 
 # Directories (``os.pathsep``-separated) searched for a recipe given by its bare name.
@@ -604,7 +606,7 @@ def _non_finite_field(tree: Any) -> tuple[str, str] | None:
     return None
 
 
-def check_against_checksums(manifest: dict[str, Any], recorded: dict[str, Any]) -> list[str]:
+def check_against_checksums(manifest: ManifestJson, recorded: ChecksumsJson) -> list[str]:
     """Compare a dataset's manifest with a recipe's recorded checksums; returns one-line problems."""
     problems: list[str] = []
     if manifest.get("config_sha256") != recorded.get("config_sha256"):
@@ -631,7 +633,7 @@ def check_against_checksums(manifest: dict[str, Any], recorded: dict[str, Any]) 
     return problems
 
 
-def check_against_recipe(manifest: dict[str, Any], recipe_dir: str | os.PathLike) -> list[str]:
+def check_against_recipe(manifest: ManifestJson, recipe_dir: str | os.PathLike) -> list[str]:
     """Compare a dataset's manifest with the checksums published with a recipe (``hd verify --recipe``).
 
     Raises:

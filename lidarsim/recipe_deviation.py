@@ -16,6 +16,7 @@ from typing import Any
 from hdcore.setting import described_fields
 from hdcore.storage import FormatError
 from lidarsim.build import BuildConfig
+from lidarsim.manifest_json import ManifestJson, RecipeDeviationJson
 from lidarsim.recipe import BuildSettings, Recipe
 
 # The manifest key of a deviating build's record.
@@ -61,12 +62,14 @@ class RecipeDeviation:
         """``--scans 50 (recipe: 1000), --shard-size 10 (recipe: 50)``."""
         return ", ".join(d.words() for d in self.settings)
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> RecipeDeviationJson:
         """The manifest's ``recipe_deviation``."""
         return {
             "recipe": self.recipe,
             "recipe_version": self.recipe_version,
-            "settings": [dataclasses.asdict(d) for d in self.settings],
+            "settings": [
+                {"setting": d.setting, "option": d.option, "recipe": d.recipe, "used": d.used} for d in self.settings
+            ],
         }
 
     def out_dir_name(self) -> str:
@@ -112,7 +115,7 @@ def deviate(recipe: Recipe, given: dict[str, Any]) -> tuple[BuildConfig, RecipeD
     return config, RecipeDeviation(recipe.name, recipe.version, tuple(deviations))
 
 
-def recorded_deviation(manifest: dict[str, Any]) -> RecipeDeviation | None:
+def recorded_deviation(manifest: ManifestJson) -> RecipeDeviation | None:
     """The deviation a manifest records (None for a build that is its recipe's or made without one).
 
     Raises:

@@ -15,12 +15,12 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from hdcore.errors import DamagedFileError
 from hdcore.storage import confine
+from lidarsim.manifest_json import ShardRefJson
 from lidarsim.sensor import footprint_corners
 from lidarsim.shards import SPLIT_NAMES, ScanShardReader, read_manifest
 
@@ -66,7 +66,7 @@ _EMPTY = (
 )
 
 
-def _shard(directory: Path, entry: dict[str, Any]) -> ScanShardReader:
+def _shard(directory: Path, entry: ShardRefJson) -> ScanShardReader:
     """The scan shard of a manifest entry, confined to the dataset, opened without hashing it whole."""
     what = f"{directory / entry['path']}"
     return ScanShardReader(confine(directory, entry["path"], what), what=what)

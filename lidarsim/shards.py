@@ -14,11 +14,11 @@ import hashlib
 import io
 import json
 import os
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import Any, cast
 
 import h5py
 import numpy as np
@@ -50,6 +50,7 @@ from lidarsim import defaults, limits
 from lidarsim._version import __version__
 from lidarsim.errors import LidarsimError
 from lidarsim.location import PUBLISH_MARK, dataset_label, is_url, join, open_h5_at, remote_dataset
+from lidarsim.manifest_json import FileEntryJson, LabelingJson, ManifestJson, ShardRefJson
 from lidarsim.noise import stored_kind
 
 __all__ = [
@@ -594,7 +595,7 @@ def _check_entries(entries: Any, where: str) -> None:
                 raise FormatError(f"{at}: 'split_counts' {counts} do not add up to its {n} scans")
 
 
-def validate_manifest(data: Any, where: str) -> dict[str, Any]:
+def validate_manifest(data: Any, where: str) -> ManifestJson:
     """Check the structure of a manifest (keys, types, relative paths, checksums, scan counts).
 
     Raises:
@@ -642,7 +643,7 @@ def validate_manifest(data: Any, where: str) -> dict[str, Any]:
         if not name or "/" in name or name in (".", ".."):
             raise FormatError(f"{at}: {name!r} is not a labelling name")
         _check_entries(require(lab, "shards", list, at), f"{at}.shards")
-    return data
+    return cast("ManifestJson", data)  # its keys and their types checked above
 
 
 def _build_progress(directory: Path) -> str:
@@ -659,7 +660,7 @@ def _build_progress(directory: Path) -> str:
     return f" ({done} of {counted(total, 'shard')} complete)"
 
 
-def read_manifest(directory: str | os.PathLike) -> dict[str, Any]:
+def read_manifest(directory: str | os.PathLike) -> ManifestJson:
     """Read and check ``manifest.json`` of a dataset directory.
 
     Raises:
@@ -702,7 +703,7 @@ def manifest_text(data: bytes, where: str) -> Any:
         raise DamagedFileError(f"{where}: unreadable manifest (nested too deeply)") from exc
 
 
-def _read_remote_manifest(url: str) -> dict[str, Any]:
+def _read_remote_manifest(url: str) -> ManifestJson:
     """``read_manifest`` of a dataset at a URL: what is there instead of a manifest is named."""
     remote = remote_dataset(url)
     where = remote.url_of(MANIFEST_NAME)
@@ -723,14 +724,15 @@ def _read_remote_manifest(url: str) -> dict[str, Any]:
     return validate_manifest(manifest_text(data, where), where)
 
 
-def open_scan_shard(directory: str | os.PathLike, entry: dict[str, Any]) -> ScanShardReader:
+def open_scan_shard(directory: str | os.PathLike, entry: ShardRefJson) -> ScanShardReader:
     """Open the scan shard of a manifest entry: path confined to the dataset, sha256 checked first,
     and its scan count compared with the entry's ``n_scans`` when the entry gives one. At a URL the
     shard is read lazily and its sha256 is left to ``hd verify`` (its chunks' fletcher32 checks stay)."""
     path = join(directory, entry["path"])
     what = f"{dataset_label(directory)}/{entry['path']}" if is_url(directory) else f"{Path(directory) / entry['path']}"
     reader = ScanShardReader(path, sha256=entry["sha256"], what=what)
-    claimed = entry.get("n_scans")
+    keys: Mapping[str, object] = entry  # a manifest's entry (FileEntryJson) also gives its scans
+    claimed = keys.get("n_scans")
     if isinstance(claimed, int) and not isinstance(claimed, bool) and claimed != len(reader):
         reader.close()
         raise DamagedFileError(f"{reader.what}: holds {len(reader)} scans, its manifest entry claims {claimed}")
@@ -812,7 +814,7 @@ def verify_dataset(directory: str | os.PathLike, known_schemas: dict[str, str] |
     directory = Path(directory)
     manifest = read_manifest(directory)
     problems: list[str] = []
-    entries = list(manifest.get("shards", []))
+    entries: list[FileEntryJson] = list(manifest.get("shards", []))
     for labelling in manifest.get("labelings", []):
         entries.extend(labelling.get("shards", []))
         problems += _entry_schema_problems(labelling, known)
@@ -842,7 +844,7 @@ def verify_dataset(directory: str | os.PathLike, known_schemas: dict[str, str] |
 
 
 def _file_problems(
-    opener: Any, rel: str, entry: dict[str, Any], known: dict[str, str], manifest: dict[str, Any]
+    opener: Any, rel: str, entry: FileEntryJson, known: dict[str, str], manifest: ManifestJson
 ) -> list[str]:
     """The schema, scan count and terrain of one file whose sha256 matched (``opener()`` opens it)."""
     problems: list[str] = []
@@ -879,7 +881,7 @@ def _verify_remote(url: str, known: dict[str, str]) -> list[str]:
     remote = remote_dataset(url)
     manifest = read_manifest(url)
     problems: list[str] = []
-    entries = list(manifest.get("shards", []))
+    entries: list[FileEntryJson] = list(manifest.get("shards", []))
     for labelling in manifest.get("labelings", []):
         entries.extend(labelling.get("shards", []))
         problems += _entry_schema_problems(labelling, known)
@@ -920,7 +922,7 @@ def _verify_remote(url: str, known: dict[str, str]) -> list[str]:
     return problems
 
 
-def _entry_schema_problems(labelling: dict[str, Any], known: dict[str, str]) -> list[str]:
+def _entry_schema_problems(labelling: LabelingJson, known: dict[str, str]) -> list[str]:
     """The schema a labelling entry (and each of its shard entries) claims in the manifest, checked as
     its readers check it (a labelling whose entry says 2.0 is refused by train and eval, so by verify too)."""
     problems = []
@@ -943,7 +945,7 @@ def _entry_schema_problems(labelling: dict[str, Any], known: dict[str, str]) -> 
     return problems
 
 
-def _terrain_digest_problems(rel: str, recorded: Any, manifest: dict[str, Any]) -> list[str]:
+def _terrain_digest_problems(rel: str, recorded: Any, manifest: ManifestJson) -> list[str]:
     """A file that records the terrain it was made from (``TRUTH_DTM_SHA256_ATTR``; None: it records
     none) against the terrain the manifest records: labels from another terrain are damage."""
     if recorded is None:
@@ -961,7 +963,7 @@ def _terrain_digest_problems(rel: str, recorded: Any, manifest: dict[str, Any]) 
     ]
 
 
-def _terrain_problems(directory: Path, manifest: dict[str, Any]) -> list[str]:
+def _terrain_problems(directory: Path, manifest: ManifestJson) -> list[str]:
     """The terrain file kept inside the dataset (the procedural terrain) against its recorded sha256."""
     dtm = manifest.get("dtm")
     if not isinstance(dtm, dict) or not isinstance(dtm.get("path"), str) or os.path.isabs(dtm["path"]):
@@ -982,10 +984,10 @@ def _terrain_problems(directory: Path, manifest: dict[str, Any]) -> list[str]:
     return []
 
 
-def check_dataset_files(directory: str | os.PathLike, manifest: dict[str, Any]) -> list[str]:
+def check_dataset_files(directory: str | os.PathLike, manifest: ManifestJson) -> list[str]:
     """Cheap checks of the files a manifest lists (confinement, presence), without reading them."""
     problems: list[str] = []
-    entries = list(manifest.get("shards", []))
+    entries: list[FileEntryJson] = list(manifest.get("shards", []))
     for labelling in manifest.get("labelings", []):
         entries.extend(labelling.get("shards", []))
     for entry in entries:

@@ -36,6 +36,7 @@ from rasterio.windows import Window
 from hdcore.storage import StorageError, sha256_bytes, sha256_file
 from lidarsim.defaults import HIRISE_NULL
 from lidarsim.errors import TerrainError
+from lidarsim.manifest_json import DtmJson
 
 __all__ = ["DTM", "DTMInfo", "TerrainError", "invalid_mask"]
 
@@ -103,12 +104,13 @@ class DTMInfo:
     nodata: float | None
     driver: str
 
-    def to_attrs(self) -> dict[str, Any]:
-        """Flat dict of str/float/int/list values for HDF5 attributes or JSON.
+    def to_attrs(self) -> DtmJson:
+        """Flat dict of str/float/int/list values for HDF5 attributes or JSON (a manifest's ``dtm``
+        without its sha256).
 
         ``nodata`` is present only when the raster declares one (no NaN stand-in for "none").
         """
-        attrs: dict[str, Any] = {
+        attrs: DtmJson = {
             "path": self.path,
             "name": self.name,
             "crs_wkt": self.crs_wkt,

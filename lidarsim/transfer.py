@@ -47,6 +47,7 @@ from hdcore.storage import (
     write_json_atomic,
 )
 from lidarsim.location import PUBLISH_MARK, RemoteDataset, is_url, remote_dataset, remote_errors
+from lidarsim.manifest_json import ManifestJson
 from lidarsim.shards import MANIFEST_NAME, manifest_text, read_manifest, validate_manifest, verify_dataset
 
 # The mark ``hd pull`` keeps in a directory it is filling (the manifest sha256 it copies), removed
@@ -58,7 +59,7 @@ UPLOAD_BLOCK_BYTES = 8 << 20
 Progress = Callable[[str, int], None]
 
 
-def dataset_files(manifest: dict[str, Any]) -> list[str]:
+def dataset_files(manifest: ManifestJson) -> list[str]:
     """The relative paths of every file a manifest names: scan shards, label shards and the terrain
     kept inside the dataset (``dtm.path`` when relative), in that order."""
     files = [e["path"] for e in manifest["shards"]]
@@ -70,7 +71,7 @@ def dataset_files(manifest: dict[str, Any]) -> list[str]:
     return files
 
 
-def _expected_sha256(manifest: dict[str, Any]) -> dict[str, str]:
+def _expected_sha256(manifest: ManifestJson) -> dict[str, str]:
     """Relative path -> the sha256 the manifest records for it."""
     sums = {e["path"]: e["sha256"] for e in manifest["shards"]}
     for labelling in manifest.get("labelings", []):

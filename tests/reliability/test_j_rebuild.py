@@ -108,8 +108,8 @@ def test_a_rebuild_with_other_bytes_and_rounding_is_equal_within_tolerance(data_
     manifest = read_manifest(data_copy)
     for e in manifest["shards"]:
         rewrite(data_copy / e["path"])
-    for e in manifest["labelings"][0]["shards"]:
-        rewrite(data_copy / e["path"], rounding)
+    for label_shard in manifest["labelings"][0]["shards"]:
+        rewrite(data_copy / label_shard["path"], rounding)
     reseal(data_copy)
     code, out, err = verify(data_copy, recipe)
     assert code == 0, err
@@ -246,8 +246,9 @@ def test_a_rebuild_computed_as_on_another_cpu_passes_with_identical_scans(tmp_pa
     manifest = read_manifest(out)
     for entry in manifest["shards"]:  # ray casting, terrain and noise: the same bits
         assert f"{entry['path']}: identical (sha256)\n" in out_text
-    for entry in manifest["labelings"][0]["shards"]:  # label maps: the same bits or a few rounding steps
-        assert f"{entry['path']}: identical (sha256)\n" in out_text or f"{entry['path']}: rebuilt: " in out_text
+    for label_shard in manifest["labelings"][0]["shards"]:  # label maps: the same bits or a few rounding steps
+        path = label_shard["path"]
+        assert f"{path}: identical (sha256)\n" in out_text or f"{path}: rebuilt: " in out_text
 
 
 def test_a_build_deviating_from_its_recipe_in_size_is_recorded_and_named_by_verify(recipe, tmp_path):

@@ -1,0 +1,173 @@
+"""The keys of ``manifest.json`` as typed records (``docs/shard-format.md``, ``docs/labels-format.md``).
+
+A manifest is read and written as JSON, so its records are ``TypedDict``: at run time they are the
+file's own dictionaries (their keys in the file's order, unknown keys of a later minor version kept
+when hd rewrites the manifest), and mypy checks every key a reader names and every value's type.
+``lidarsim.shards.validate_manifest`` checks a file against them before anything reads it.
+
+Keys marked ``NotRequired`` are absent in manifests written before they existed (or, like
+``n_descents``, present only in one kind of build).
+"""
+
+from __future__ import annotations
+
+from typing import Any, NotRequired, TypedDict
+
+__all__ = [
+    "DemGridJson",
+    "DeviationJson",
+    "DtmJson",
+    "FileEntryJson",
+    "LabelShardJson",
+    "LabelingJson",
+    "ManifestJson",
+    "MosaicJson",
+    "MosaicSourceJson",
+    "RecipeDeviationJson",
+    "ScanShardJson",
+    "ShardRefJson",
+    "TrajectoryJson",
+]
+
+
+class ShardRefJson(TypedDict):
+    """A file of the dataset named by its path (relative to the dataset) and its sha256."""
+
+    path: str
+    sha256: str
+
+
+class FileEntryJson(ShardRefJson):
+    """What every file entry of a manifest gives: its path, sha256 and scans."""
+
+    n_scans: int
+
+
+class ScanShardJson(FileEntryJson):
+    """One scan shard of ``shards``."""
+
+    first_scan: NotRequired[int]
+    split: NotRequired[str]  # train, val, test or mixed
+    split_counts: NotRequired[dict[str, int]]
+    schema: NotRequired[str]
+    schema_version: NotRequired[str]
+
+
+class LabelShardJson(FileEntryJson):
+    """One label shard of a labelling's ``shards``: the scan shard it labels by path and sha256."""
+
+    source_path: str
+    source_sha256: str
+    schema: NotRequired[str]
+    schema_version: NotRequired[str]
+
+
+class DemGridJson(TypedDict):
+    """A DEM grid (a labelling's and a mosaic's ``dem``): cells a side and metres per cell."""
+
+    rows: int
+    cols: int
+    spacing_m: float
+    gridding: NotRequired[str]  # absent in 1.0 labellings: the hd convention's linear gridding
+
+
+class LabelingJson(TypedDict):
+    """One labelling of ``labelings`` (written by ``hd label``; ``hdlabels.LabelingEntry`` reads it)."""
+
+    name: str
+    schema: NotRequired[str]
+    schema_version: NotRequired[str]
+    convention: NotRequired[str]
+    lander: NotRequired[dict[str, float | int | str | bool]]
+    dem: NotRequired[DemGridJson]
+    label_codes: NotRequired[dict[str, int]]
+    label_counts: NotRequired[dict[str, int]]
+    safe_fraction: NotRequired[float]
+    baseline_safe_fraction: NotRequired[dict[str, float]]
+    shards: NotRequired[list[LabelShardJson]]
+    truth: NotRequired[str]  # only for the terrain truth; absent: the clean scan
+
+
+class DtmJson(TypedDict, total=False):
+    """The terrain's provenance (``lidarsim.terrain.DTMInfo.to_attrs`` and its sha256)."""
+
+    path: str
+    name: str
+    sha256: str
+    crs_wkt: str  # "" = local metres
+    transform: list[float]  # GDAL order, at the scale used
+    rows: int
+    cols: int
+    spacing_m: list[float]
+    scale: float
+    nodata: float
+    driver: str
+
+
+class TrajectoryJson(TypedDict):
+    """The scan plan's lattice step and the footprint's half-width, metres."""
+
+    step_m: float
+    footprint_half_width_m: float
+
+
+class DeviationJson(TypedDict):
+    """One setting of a recipe built at another size."""
+
+    setting: str
+    option: str
+    recipe: int
+    used: int
+
+
+class RecipeDeviationJson(TypedDict):
+    """``recipe_deviation`` (1.1): the recipe, its version and the settings that differ."""
+
+    recipe: str
+    recipe_version: int
+    settings: list[DeviationJson]
+
+
+class MosaicSourceJson(TypedDict):
+    """The descent dataset a mosaic dataset was made from."""
+
+    path: str
+    n_descents: int
+    descent_frames: int
+    config_sha256: str | None
+    shards_sha256: list[str]
+
+
+class MosaicJson(TypedDict):
+    """``mosaic`` (1.3): how the mosaics were made."""
+
+    source: MosaicSourceJson
+    poses: str  # registered, nav or true
+    frames: list[int]
+    anchor_frame: int
+    dem: DemGridJson
+    icp_voxels_m: list[float]
+
+
+class ManifestJson(TypedDict):
+    """``manifest.json`` of a dataset (``docs/shard-format.md``)."""
+
+    schema: str
+    schema_version: str
+    kind: NotRequired[str]  # lidar-scans or descent-mosaics
+    software: NotRequired[str]
+    software_version: NotRequired[str]
+    n_scans: int
+    n_descents: NotRequired[int]
+    descent_frames: NotRequired[int]
+    sigmas_m: list[float]
+    seed: NotRequired[int]
+    config_sha256: NotRequired[str | None]
+    config: NotRequired[dict[str, Any]]  # lidarsim.build.BuildConfig.to_dict: nested settings
+    dtm: NotRequired[DtmJson]
+    trajectory: NotRequired[TrajectoryJson]
+    splits: NotRequired[dict[str, int]]
+    shards: list[ScanShardJson]
+    labelings: NotRequired[list[LabelingJson]]
+    recipe_deviation: NotRequired[RecipeDeviationJson]
+    mosaic: NotRequired[MosaicJson]
