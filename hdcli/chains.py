@@ -14,12 +14,9 @@ from typing import Any
 
 from hdcore.setting import check, setting
 from hdnet import limits
+from hdnet.checkpoint_json import EpochProgress
 from hdnet.errors import HdNetError
 from lidarsim import limits as lidar_limits
-
-# How a training shows its epochs: a bar (True), nothing (False), or a function given each finished
-# epoch's metrics row and the number of epochs (``hdnet.train.train``'s ``progress``).
-EpochProgress = bool | Callable[[dict[str, Any], int], None]
 
 # hd reproduce's recipe, one that comes with hd (lidarsim.recipe.shipped_recipe).
 PAPER_RECIPE = "mars-paper"

@@ -33,6 +33,7 @@ from hdcore.storage import read_regular_text
 from hdlabels import defaults as label_defaults
 from hdlabels.settings import LabelSettings
 from hdnet import defaults as net_defaults
+from hdnet.checkpoint_json import EpochProgress
 from hdnet.noise_levels import parse_sigma_sweep
 from hdnet.profiles import ROBUST_THRESHOLD_SPEC, get_profile
 from lidarsim import defaults as lidar_defaults
@@ -285,7 +286,7 @@ def run_pipeline(
     workers: int | None,
     echo: Echo,
     progress: ProgressFactory,
-    train_progress: bool | Callable[[dict[str, Any], int], None] = True,
+    train_progress: EpochProgress = True,
 ) -> dict[str, float]:
     """Check, then run every stage of ``pipeline`` (finished ones are skipped); returns the stage times, seconds.
 
@@ -370,7 +371,7 @@ def _inspect(directory: Path, echo: Echo) -> None:
     echo(INTACT_STATUS)
 
 
-def _train(pipeline: Pipeline, echo: Echo, progress: bool | Callable[[dict[str, Any], int], None]) -> None:
+def _train(pipeline: Pipeline, echo: Echo, progress: EpochProgress) -> None:
     from hdnet.fit import FitConfig, fit
 
     config = FitConfig(

@@ -20,6 +20,7 @@ import click
 from click.core import ParameterSource
 
 from hdcore.errors import HdError, HdWarning
+from hdnet.checkpoint_json import EpochProgress, EpochRow
 
 
 class Terminated(KeyboardInterrupt):
@@ -226,7 +227,7 @@ def restore_env(name: str, value: str | None) -> None:
         os.environ[name] = value
 
 
-def epoch_lines(row: dict[str, Any], total: int) -> None:
+def epoch_lines(row: EpochRow, total: int) -> None:
     """One log line per finished training epoch (progress when stderr is not a terminal)."""
     click.echo(
         f"train: epoch {int(row['epoch'])}/{total}, train loss {row['train_loss']:.4f}, val loss "
@@ -235,7 +236,7 @@ def epoch_lines(row: dict[str, Any], total: int) -> None:
     )
 
 
-def epoch_progress() -> bool | Callable[[dict[str, Any], int], None]:
+def epoch_progress() -> EpochProgress:
     """How a training shows its epochs (``hd train`` and the training stage of ``hd demo`` and
     ``hd reproduce``): a bar on a terminal, :func:`epoch_lines` in a log, nothing with ``-q`` or
     ``--no-progress``."""

@@ -6,7 +6,6 @@ described once, as field metadata); :func:`train_job` makes the configuration an
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -14,6 +13,7 @@ from typing import Any
 from hdcore.outcome import Done
 from hdcore.setting import check, setting, settings_from_options
 from hdnet import limits
+from hdnet.checkpoint_json import EpochProgress
 from hdnet.errors import HdNetError
 
 
@@ -64,7 +64,7 @@ def train_job(
     dataset: Path | str,
     run_dir: Path,
     options: dict[str, Any],
-    progress: bool | Callable[[dict[str, Any], int], None],
+    progress: EpochProgress,
 ) -> Done:
     """Train on ``dataset`` into ``run_dir`` with the command line's ``options`` (FitConfig's fields
     and TrainingNoiseOptions'), unless the same training is finished there already.

@@ -42,6 +42,7 @@ from hdcore.storage import (
 from hdlabels.store import LabelingEntry
 from hdnet import defaults, limits
 from hdnet.augment import check_augment
+from hdnet.checkpoint_json import EpochProgress
 from hdnet.data import (
     HazardDataset,
     MixedDataset,
@@ -253,7 +254,7 @@ class FitConfig:
     seed: int = setting(0, "Seed of initialisation, shuffling and noise draws", bound=lidar_limits.SEED)
     resume: bool = setting(False, "Continue an interrupted run from its last checkpoint")
     labels: str | None = setting(None, "Labelling to train on (when the dataset has several)", kind=str)
-    progress: bool | Callable[[dict[str, Any], int], None] = True
+    progress: EpochProgress = True
     num_workers: int = setting(0, "DataLoader worker processes", bound=lidar_limits.LOADER_WORKERS)
     overwrite: bool = setting(
         False, "Start an existing run again, or write into a non-empty directory that is not a run"

@@ -35,6 +35,7 @@ from typing import Any
 
 from hdcore.errors import StorageError
 from hdcore.storage import check_regular_file, lock_holder, read_regular_text
+from hdnet.checkpoint_json import CheckpointJson
 from hdnet.errors import HdNetError
 from hdnet.run_record import CONFIG, RunRecord, TrainingData, extra_difference, json_difference, read_run_record
 from hdnet.train import BEST, LAST, METRIC_FIELDS, METRICS, checked_model_config, load_checkpoint
@@ -149,7 +150,7 @@ def _number(text: Any) -> float:
     return float(text)
 
 
-def _read_checkpoint(path: Path, record: RunRecord) -> dict[str, Any]:
+def _read_checkpoint(path: Path, record: RunRecord) -> CheckpointJson:
     """Step 3: a checkpoint, its content checked, trained with config.json's model, profile and data."""
     try:
         ckpt = load_checkpoint(path)
@@ -191,7 +192,7 @@ def _plain(value: Any) -> str:
     return json.dumps(value, sort_keys=True, default=str)
 
 
-def _check_metrics(path: Path, rows: list[dict[str, float]], last: dict[str, Any], in_progress: bool) -> None:
+def _check_metrics(path: Path, rows: list[dict[str, float]], last: CheckpointJson, in_progress: bool) -> None:
     """Step 4: metrics.csv is last.pt's history, as ``hdnet.train`` writes it (six significant digits);
     with a training at work, one epoch more or less (it writes last.pt, then metrics.csv)."""
     epochs = int(last["epoch"])

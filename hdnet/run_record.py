@@ -39,6 +39,7 @@ from hdcore.errors import StorageError
 from hdcore.storage import read_regular_text, write_json_atomic
 from hdlabels.errors import HdLabelsError
 from hdlabels.store import LabelingEntry
+from hdnet.checkpoint_json import CheckpointJson
 from hdnet.errors import HdNetError
 from hdnet.inputs import InputSpec
 from hdnet.noise_levels import TrainingNoise
@@ -479,20 +480,20 @@ class CheckpointHeader:
 
     epoch: int
     profile: str | None
-    model_config: dict[str, Any] | None
+    model_config: dict[str, float | int] | None
 
     @classmethod
-    def of(cls, ckpt: dict[str, Any]) -> CheckpointHeader:
+    def of(cls, ckpt: CheckpointJson) -> CheckpointHeader:
         """The header of a loaded checkpoint (``hdnet.train.load_checkpoint``'s dictionary)."""
-        profile = ckpt.get("profile")
-        return cls(int(ckpt.get("epoch", 0)), (profile or {}).get("name"), ckpt.get("model_config"))
+        name = (ckpt.get("profile") or {}).get("name")
+        return cls(int(ckpt.get("epoch", 0)), None if name is None else str(name), ckpt.get("model_config"))
 
     def to_dict(self) -> dict[str, Any]:
         """The three fields as reports record them (``epoch``, ``profile``, ``model_config``)."""
         return {"epoch": self.epoch, "profile": self.profile, "model_config": self.model_config}
 
 
-def checkpoint_data(ckpt: dict[str, Any], path: str | os.PathLike) -> TrainingData:
+def checkpoint_data(ckpt: CheckpointJson, path: str | os.PathLike) -> TrainingData:
     """The training data a checkpoint carries (its ``extra_config``, migrated like a ``config.json``).
 
     Raises:

@@ -46,10 +46,10 @@ import random
 import sys
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import torch
@@ -62,6 +62,7 @@ from hdcore.errors import HdWarning
 from hdcore.storage import write_bytes_atomic
 from hdnet import defaults
 from hdnet._version import __version__
+from hdnet.checkpoint_json import CheckpointJson, EpochProgress, EpochRow, EpochTiming, JsonObject, RngState
 from hdnet.errors import HdNetError
 from hdnet.model import MODEL_NAME, BayesianSegNet, ModelConfig
 from hdnet.profiles import TrainingProfile, profile_from_dict
@@ -94,7 +95,7 @@ def _init_distributed() -> tuple[int, int, torch.device]:
 
 
 # --- RNG state as plain types ------------------------------------------------------------------
-def _rng_state() -> dict[str, Any]:
+def _rng_state() -> RngState:
     np_state: Any = np.random.get_state()  # noqa: NPY002 - the global state, which a resumed run must restore
     py_version, py_state, py_gauss = random.getstate()
     return {
@@ -111,10 +112,11 @@ def _rng_state() -> dict[str, Any]:
     }
 
 
-def _set_rng_state(state: dict[str, Any]) -> None:
+def _set_rng_state(state: RngState) -> None:
     torch.set_rng_state(state["torch"])
-    if state.get("cuda") is not None and torch.cuda.is_available():
-        torch.cuda.set_rng_state(state["cuda"])
+    cuda = state.get("cuda")
+    if cuda is not None and torch.cuda.is_available():
+        torch.cuda.set_rng_state(cuda)
     n = state["numpy"]
     legacy = (n["name"], n["key"].numpy().astype(np.uint32), n["pos"], n["has_gauss"], n["cached_gaussian"])
     np.random.set_state(legacy)  # noqa: NPY002 - the global state, which a resumed run must restore
@@ -148,7 +150,7 @@ def _hash_into(h: Any, obj: Any) -> None:
         h.update(f"S{obj!r};".encode())
 
 
-def checkpoint_digest(checkpoint: dict[str, Any]) -> str:
+def checkpoint_digest(checkpoint: Mapping[str, object]) -> str:
     """SHA-256 of a checkpoint's content: every tensor's dtype, shape and bytes and every other
     value, in a fixed order (``content_sha256`` itself left out)."""
     h = hashlib.sha256()
@@ -156,14 +158,14 @@ def checkpoint_digest(checkpoint: dict[str, Any]) -> str:
     return h.hexdigest()
 
 
-def save_checkpoint(path: Path, checkpoint: dict[str, Any]) -> None:
+def save_checkpoint(path: Path, checkpoint: CheckpointJson) -> None:
     """Write a checkpoint atomically (temporary file, fsync, rename) with its ``content_sha256``."""
     buf = io.BytesIO()
     torch.save({**checkpoint, DIGEST_KEY: checkpoint_digest(checkpoint)}, buf)
     write_bytes_atomic(Path(path), buf.getvalue())
 
 
-def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
+def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> CheckpointJson:
     """Read and validate a checkpoint (weights only); refuses other schemas, versions and models,
     and a content that does not match its ``content_sha256`` (a damaged file)."""
     path = Path(path)
@@ -205,12 +207,12 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
             )
     if ckpt.get("model_name") != MODEL_NAME:
         raise HdNetError(f"{path} holds a {ckpt.get('model_name')!r} model, not {MODEL_NAME!r}.")
-    return ckpt
+    return cast("CheckpointJson", ckpt)  # schema, version, digest and model checked; the rest by its readers
 
 
 def load_trained_model(
     path: str | Path, map_location: str | torch.device = "cpu"
-) -> tuple[BayesianSegNet, dict[str, Any]]:
+) -> tuple[BayesianSegNet, CheckpointJson]:
     """The model of a checkpoint (in eval mode) and the checkpoint dictionary (``extra_config`` etc.)."""
     ckpt = load_checkpoint(path, map_location)
     config = checked_model_config(ckpt, path)
@@ -219,7 +221,7 @@ def load_trained_model(
     return model.to(map_location).eval(), ckpt
 
 
-def checked_model_config(ckpt: dict[str, Any], path: str | Path) -> ModelConfig:
+def checked_model_config(ckpt: CheckpointJson, path: str | Path) -> ModelConfig:
     """The checkpoint's ``ModelConfig``, checked against its own tensors before any model is built.
 
     The architecture is laid out on PyTorch's ``meta`` device (shapes only, no memory), so an absurd
@@ -229,7 +231,7 @@ def checked_model_config(ckpt: dict[str, Any], path: str | Path) -> ModelConfig:
     Raises:
         HdNetError: an unreadable model config, a missing, unexpected or mis-shaped tensor (named).
     """
-    raw = ckpt.get("model_config")
+    raw: object = ckpt.get("model_config")
     if not isinstance(raw, dict):
         raise HdNetError(f"{path}: its model_config is not a dictionary.")
     try:
@@ -260,18 +262,19 @@ def checked_model_config(ckpt: dict[str, Any], path: str | Path) -> ModelConfig:
 METRIC_FIELDS = ("epoch", "train_loss", "val_loss", "val_pixel_accuracy", "val_miou", "lr", "train_images_per_s")
 
 
-def _write_metrics_csv(path: Path, history: list[dict[str, float]], timing: list[dict[str, float]]) -> None:
+def _write_metrics_csv(path: Path, history: list[EpochRow], timing: list[EpochTiming]) -> None:
     buf = io.StringIO()
     writer = csv.DictWriter(buf, fieldnames=list(METRIC_FIELDS), lineterminator="\n", restval="")
     writer.writeheader()
     rates = {int(t["epoch"]): t for t in timing}
     for row in history:
-        full = {**row, **rates.get(int(row["epoch"]), {})}
-        writer.writerow({k: (int(v) if k == "epoch" else f"{v:.6g}") for k, v in full.items() if k in METRIC_FIELDS})
+        epoch = int(row["epoch"])
+        full: dict[str, object] = {**row, **rates.get(epoch, {})}
+        writer.writerow({k: (epoch if k == "epoch" else f"{v:.6g}") for k, v in full.items() if k in METRIC_FIELDS})
     write_bytes_atomic(path, buf.getvalue().encode())
 
 
-def _best_epoch(history: list[dict[str, float]]) -> int:
+def _best_epoch(history: list[EpochRow]) -> int:
     """Epoch (1-based) with the lowest validation loss, the first one on ties (as the loop keeps it); 0 if none."""
     best, best_loss = 0, math.inf
     for row in history:
@@ -280,7 +283,7 @@ def _best_epoch(history: list[dict[str, float]]) -> int:
     return best
 
 
-def _reconcile_run(run_dir: Path, ckpt: dict[str, Any]) -> None:
+def _reconcile_run(run_dir: Path, ckpt: CheckpointJson) -> None:
     """Make ``metrics.csv`` and ``best.pt`` agree with ``last.pt`` (after a kill between their writes)."""
     history = list(ckpt["history"])
     _write_metrics_csv(run_dir / METRICS, history, list(ckpt.get("timing", [])))
@@ -293,10 +296,12 @@ def _reconcile_run(run_dir: Path, ckpt: dict[str, Any]) -> None:
             except HdNetError:
                 current = None
         if current != best:
-            save_checkpoint(run_dir / BEST, {k: v for k, v in ckpt.items() if k != DIGEST_KEY})
+            kept = ckpt.copy()
+            kept.pop("content_sha256", None)  # DIGEST_KEY: save_checkpoint writes the digest of the rest
+            save_checkpoint(run_dir / BEST, kept)
 
 
-def median_images_per_s(timing: list[dict[str, float]]) -> float | None:
+def median_images_per_s(timing: Sequence[EpochTiming]) -> float | None:
     """Median training throughput (images/s) over the epochs of a checkpoint's ``timing`` list."""
     rates = sorted(float(h["train_images_per_s"]) for h in timing if "train_images_per_s" in h)
     if not rates:
@@ -387,7 +392,7 @@ def _check_sample(ds: Dataset, name: str) -> int:
     return int(image.shape[0])
 
 
-def _json_plain(obj: dict[str, Any], what: str) -> dict[str, Any]:
+def _json_plain(obj: Mapping[str, object], what: str) -> JsonObject:
     try:
         return json.loads(json.dumps(obj))
     except (TypeError, ValueError) as exc:
@@ -403,8 +408,8 @@ def train(
     epochs: int | None = None,
     seed: int = 0,
     resume: bool = False,
-    progress: bool | Callable[[dict[str, Any], int], None] = True,
-    extra_config: dict[str, Any] | None = None,
+    progress: EpochProgress = True,
+    extra_config: Mapping[str, object] | None = None,
     num_workers: int = 0,
     class_weights: list[float] | None = None,
     stop_after: int | None = None,
@@ -456,7 +461,7 @@ def train(
     for epoch in range(state.start_epoch, end_epoch):
         train_loss, seconds, rate = _train_epoch(net, train_loader, state, profile, epoch, total_epochs, device)
         val_loss, accuracy, miou = _validate(net, val_loader, state.memory_format, device)
-        row = {
+        row: EpochRow = {
             "epoch": epoch + 1,
             "train_loss": train_loss,
             "val_loss": val_loss,
@@ -481,7 +486,7 @@ def _run_record(
     total_epochs: int,
     seed: int,
     world: int,
-    extra: dict[str, Any],
+    extra: JsonObject,
     class_weights: list[float] | None,
 ) -> RunRecord:
     """Step 1 of ``train``: the run record (``config.json``) of this training."""
@@ -501,8 +506,8 @@ def _run_record(
 
 def _show_epoch(
     bar: Any,
-    report: Callable[[dict[str, float], int], None] | None,
-    row: dict[str, float],
+    report: Callable[[EpochRow, int], None] | None,
+    row: EpochRow,
     images_per_s: float,
     total_epochs: int,
 ) -> None:
@@ -527,8 +532,8 @@ def resume_line(epochs_done: int, total_epochs: int, checkpoint: Path) -> str:
 
 
 def _check_inputs(
-    train_ds: Dataset, val_ds: Dataset, total_epochs: int, num_workers: int, extra_config: dict[str, Any] | None
-) -> tuple[dict[str, Any], int]:
+    train_ds: Dataset, val_ds: Dataset, total_epochs: int, num_workers: int, extra_config: Mapping[str, object] | None
+) -> tuple[JsonObject, int]:
     """Step 1: the arguments and the datasets' first samples; returns the plain ``extra_config`` and
     the number of input channels."""
     if total_epochs < 1:
@@ -562,8 +567,8 @@ def _checkpoint_to_resume(
     model_config: ModelConfig,
     profile: TrainingProfile,
     rank: int,
-    extra: dict[str, Any],
-) -> dict[str, Any] | None:
+    extra: JsonObject,
+) -> CheckpointJson | None:
     """Step 3: the run's ``last.pt`` when resuming (None when there is none); refused without ``resume``,
     when it was trained with another model or profile, or when its ``extra_config`` (the data it was
     trained on) is not ``extra``: the run record written next would say it was trained on them."""
@@ -594,7 +599,7 @@ def _is_number(value: Any) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
-def _check_training_state(ckpt: dict[str, Any], path: Path) -> None:
+def _check_training_state(ckpt: CheckpointJson, path: Path) -> None:
     """The training state of a checkpoint to resume, as this hd writes it: the epoch, the history and
     timing rows (numbers), the optimizer state and the RNG states (the weights are checked apart).
 
@@ -632,15 +637,15 @@ class _TrainState:
     weight: torch.Tensor | None
     memory_format: torch.memory_format
     start_epoch: int = 0
-    history: list[dict[str, Any]] = field(default_factory=list)
-    timing: list[dict[str, float]] = field(default_factory=list)  # wall-clock figures, apart from the history
+    history: list[EpochRow] = field(default_factory=list)
+    timing: list[EpochTiming] = field(default_factory=list)  # wall-clock figures, apart from the history
     best_loss: float = math.inf
 
 
 def _start(
     profile: TrainingProfile,
     model_config: ModelConfig,
-    ckpt: dict[str, Any] | None,
+    ckpt: CheckpointJson | None,
     class_weights: list[float] | None,
     seed: int,
     rank: int,
@@ -787,7 +792,7 @@ def _save_epoch(
     profile: TrainingProfile,
     epoch: int,
     seed: int,
-    extra: dict[str, Any],
+    extra: JsonObject,
     world: int,
     rank: int,
 ) -> None:
@@ -800,7 +805,7 @@ def _save_epoch(
         states = gathered
     if rank != 0:
         return
-    ckpt_out = {
+    ckpt_out: CheckpointJson = {
         "schema": CHECKPOINT_SCHEMA,
         "schema_version": CHECKPOINT_VERSION,
         "model_name": MODEL_NAME,

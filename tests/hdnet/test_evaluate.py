@@ -9,7 +9,7 @@ import shutil
 import subprocess
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import h5py
 import numpy as np
@@ -20,11 +20,13 @@ from hdnet_datasets import SIGMAS_M, build_labelled
 from hdcore.errors import HdWarning, OutputExistsError
 from hdlabels.errors import LabelStoreError
 from hdlabels.store import find_labeling
+from hdnet.checkpoint_json import CheckpointJson, EpochRow
 from hdnet.data import HazardDataset
 from hdnet.errors import HdNetError
 from hdnet.evaluate import METHODS, EvalConfig, evaluate, evaluate_to_report, reliability
 from hdnet.fit import FitConfig, fit
 from hdnet.report import ROW_KEYS, report_dict
+from hdnet.run_record import checkpoint_data
 
 
 @pytest.fixture(scope="module")
@@ -218,20 +220,20 @@ def test_report_and_figures_do_not_import_the_evaluation() -> None:
 
 def test_a_run_saved_before_input_specs_evaluates_like_before(setup, tmp_path):
     """An hd 0.1.0 checkpoint: no ``input`` spec in extra_config, no ``depth`` in the model config."""
-    from hdnet.inputs import InputSpec
     from hdnet.train import load_checkpoint, save_checkpoint
 
     dataset, run, _, _ = setup
     ckpt = load_checkpoint(run / "last.pt")
-    spec = InputSpec.from_dict(ckpt["extra_config"]["input"])
+    spec = checkpoint_data(ckpt, run / "last.pt").input
     assert spec.normalisation is not None  # hd 0.1.0 knew min-max heights only, recorded beside the input
     old_extra = {k: v for k, v in ckpt["extra_config"].items() if k != "input"}
     old_extra.update(normalisation=spec.normalisation.to_dict(), input_size=spec.input_size)
     old_model = {k: v for k, v in ckpt["model_config"].items() if k != "depth"}
-    old = {**ckpt, "extra_config": old_extra, "model_config": old_model}
+    old = cast(CheckpointJson, {**ckpt, "extra_config": old_extra, "model_config": old_model})
     old.pop("timing")
-    old["history"] = [
-        {k: h[k] for k in ("epoch", "train_loss", "val_loss", "val_pixel_accuracy")} for h in ckpt["history"]
+    old["history"] = [  # hd 0.1.0's rows: no mIoU, no learning rate
+        cast(EpochRow, {k: h[k] for k in ("epoch", "train_loss", "val_loss", "val_pixel_accuracy")})
+        for h in ckpt["history"]
     ]
     save_checkpoint(tmp_path / "old.pt", old)
     before = evaluate(run, dataset, EvalConfig(mc_samples=2))

@@ -14,7 +14,7 @@ from hdnet.data import compute_normalisation
 from hdnet.errors import HdNetError
 from hdnet.fit import FitConfig, fit
 from hdnet.inputs import InputSpec
-from hdnet.run_record import RUN_DATA_KEYS, RUN_SCHEMA_VERSION, read_run_record
+from hdnet.run_record import RUN_DATA_KEYS, RUN_SCHEMA_VERSION, checkpoint_data, read_run_record
 from hdnet.train import load_checkpoint
 from lidarsim.shards import sha256_file
 
@@ -83,7 +83,7 @@ def test_fit_with_the_cpu_levers_records_its_input_spec_and_resumes_exactly(data
     resumed = fit(dataset, tmp_path / "b", FitConfig(profile=profile, epochs=2, progress=False, resume=True))
     a, b = load_checkpoint(straight), load_checkpoint(resumed)
     assert all(torch.equal(a["model"][k], b["model"][k]) for k in a["model"])  # D4 draws replay exactly
-    spec = InputSpec.from_dict(a["extra_config"]["input"])
+    spec = checkpoint_data(a, straight).input
     assert spec == InputSpec(
         heights="median", height_scale_m=0.5, extra_channels=("slope", "highpass"), spacing_m=1.0, size_multiple=8
     )

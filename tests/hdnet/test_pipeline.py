@@ -13,6 +13,7 @@ from hdcli.pipeline import Evaluation, Pipeline, demo_pipeline, reproduce_pipeli
 from hdcore.errors import HdError
 from hdlabels.settings import LabelSettings
 from hdlabels.store import labeling_name
+from hdnet.checkpoint_json import EpochRow
 from lidarsim import defaults
 from lidarsim.build import BuildConfig
 from lidarsim.recipe import BuildSettings, load_recipe
@@ -146,7 +147,7 @@ def test_demo_training_prints_hd_trains_epoch_lines_and_says_where_it_resumes(tm
 
     pipe = _tiny_pipeline(tmp_path, epochs=2)
 
-    def ctrl_c_after_the_first_epoch(row: dict, total: int) -> None:
+    def ctrl_c_after_the_first_epoch(row: EpochRow, total: int) -> None:
         raise KeyboardInterrupt  # the checkpoint of epoch 1 is written before the epoch is reported
 
     with pytest.raises(KeyboardInterrupt):

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import json
+from typing import cast
 
 import pytest
 
 from hdlabels.lander import Lander
 from hdlabels.store import DemSpec, LabelingEntry
+from hdnet.checkpoint_json import CheckpointJson
 from hdnet.errors import HdNetError
 from hdnet.inputs import InputSpec, Normalisation
 from hdnet.noise_levels import TrainingNoise
@@ -94,10 +96,10 @@ def test_a_first_version_run_reads_as_minmax_heights_padded_to_its_depth():
 
 def test_a_checkpoint_is_read_through_the_same_migration():
     raw = _record_v1()
-    ckpt = {"model_config": raw["model_config"], "extra_config": raw["extra_config"], "epoch": 3}
+    ckpt = cast(CheckpointJson, {"model_config": raw["model_config"], "extra_config": raw["extra_config"], "epoch": 3})
     assert checkpoint_data(ckpt, "run/last.pt") == RunRecord.from_dict(raw).data
     with pytest.raises(HdNetError, match=r"^run/last\.pt was not trained by hdnet\.fit"):
-        checkpoint_data({"extra_config": {"norm_max_m": 2.0}}, "run/last.pt")
+        checkpoint_data(cast(CheckpointJson, {"extra_config": {"norm_max_m": 2.0}}), "run/last.pt")
 
 
 def test_written_and_read_back_unchanged(tmp_path):
@@ -142,9 +144,12 @@ def test_unreadable_config_files_are_one_error_naming_the_file(tmp_path):
 def test_a_checkpoints_header_is_read_in_one_place():
     """Epoch, profile name and model config, as hd eval's report and hd detect's detect.json record
     them (in that order); a checkpoint without them reads as epoch 0 and None."""
-    ckpt = {"epoch": 7, "profile": {"name": "robust", "width": 0.75}, "model_config": {"depth": 2}, "model": {}}
+    ckpt = cast(
+        CheckpointJson,
+        {"epoch": 7, "profile": {"name": "robust", "width": 0.75}, "model_config": {"depth": 2}, "model": {}},
+    )
     header = CheckpointHeader.of(ckpt)
     assert header == CheckpointHeader(7, "robust", {"depth": 2})
     assert list(header.to_dict().items()) == [("epoch", 7), ("profile", "robust"), ("model_config", {"depth": 2})]
-    assert CheckpointHeader.of({}) == CheckpointHeader(0, None, None)
-    assert CheckpointHeader.of({"profile": None}).profile is None
+    assert CheckpointHeader.of(cast(CheckpointJson, {})) == CheckpointHeader(0, None, None)
+    assert CheckpointHeader.of(cast(CheckpointJson, {"profile": None})).profile is None

@@ -9,12 +9,14 @@ import subprocess
 import sys
 from dataclasses import replace
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 import pytest
 import torch
 from hdnet_fakes import FakeHazardDataset
 
+from hdnet.checkpoint_json import CheckpointJson
 from hdnet.errors import HdNetError
 from hdnet.model import BayesianSegNet
 from hdnet.profiles import TINY
@@ -116,11 +118,16 @@ def test_foreign_checkpoints_are_refused(tmp_path: Path) -> None:
     with pytest.raises(HdNetError, match="not a readable"):
         load_checkpoint(pickled)
     newer = tmp_path / "newer.pt"
-    save_checkpoint(newer, {"schema": "hdnet.checkpoint", "schema_version": 99, "model_name": "bayesian_segnet"})
+    save_checkpoint(
+        newer,
+        cast(CheckpointJson, {"schema": "hdnet.checkpoint", "schema_version": 99, "model_name": "bayesian_segnet"}),
+    )
     with pytest.raises(HdNetError, match="version 99"):
         load_checkpoint(newer)
     other = tmp_path / "other.pt"
-    save_checkpoint(other, {"schema": "hdnet.checkpoint", "schema_version": 1, "model_name": "unet"})
+    save_checkpoint(
+        other, cast(CheckpointJson, {"schema": "hdnet.checkpoint", "schema_version": 1, "model_name": "unet"})
+    )
     with pytest.raises(HdNetError, match="unet"):
         load_checkpoint(other)
     garbage = tmp_path / "garbage.pt"
