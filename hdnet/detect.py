@@ -87,6 +87,7 @@ from hdnet.model import BayesianSegNet
 from hdnet.noise_levels import TrainingNoise
 from hdnet.preflight import check_inputs
 from hdnet.report import json_plain
+from hdnet.report_json import ThresholdJson
 from hdnet.results import SITE_COLUMNS, Site
 from hdnet.run_record import CheckpointHeader, TrainingData, unfinished_training
 from hdnet.sites import (
@@ -822,7 +823,7 @@ class DetectMaps:
     uncertainty: str
     sigma_m: float
     transform: Affine
-    threshold: dict[str, Any] = field(default_factory=dict, repr=False)
+    threshold: ThresholdJson = field(default_factory=lambda: ThresholdJson(), repr=False)
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -1212,7 +1213,7 @@ def _threshold(
     calibrate: str,
     sensor_sigma_m: float,
     uncertainty: UncertaintyScore,
-) -> tuple[float, dict[str, Any]]:
+) -> tuple[float, ThresholdJson]:
     """Step 3: H_t (nats; inf: unbounded) of the spec ``threshold`` and its record: a fixed ``nats:H``,
     or calibrated on ``calib_dirs`` (``_calibrated_threshold``); the record states the threshold the
     maps use, whatever its source (``hdnet.threshold_cache``), and whether a ``risk:ALPHA`` is
@@ -1238,7 +1239,7 @@ def _threshold(
         assert fixed is not None  # exactly one of fixed and spec is set
         h_t = float(fixed)
         info = with_score({"spec": f"nats:{h_t:g}", "kind": "fixed", "parameter": h_t, "value_nats": h_t}, uncertainty)
-    info = dict(info, value_nats=None if math.isinf(h_t) else h_t)
+    info = {**info, "value_nats": None if math.isinf(h_t) else h_t}
     if spec is not None and spec.rule.certifies_risk:  # also a record cached before
         info |= spec.reach(int(info["calibration_images"]))
         warn_if_unreachable(info)
@@ -1257,7 +1258,7 @@ def _calibrated_threshold(
     calibrate: str = "reference",
     sensor_sigma_m: float | None = None,
     uncertainty: UncertaintyScore = ENTROPY,
-) -> tuple[float, dict[str, Any]]:
+) -> tuple[float, ThresholdJson]:
     """Step 3: the threshold (nats) of the score ``uncertainty`` calibrated on the validation splits of
     ``calib_dirs``, as ``hd eval`` does: at the run's reference noise level, or (``calibrate="each"``)
     at the sensor's ``sensor_sigma_m`` with the precision guard above the training levels."""
@@ -1269,7 +1270,7 @@ def _calibrated_threshold(
     )
     hit = cache.get(key) if cache is not None else None
     if hit is not None and cache is not None:
-        return hit[0], dict(hit[1], cached=str(cache.path))
+        return hit[0], {**hit[1], "cached": str(cache.path)}
     val_ds = [
         split_dataset(d, "val", sigma, labels=calib_labels, input_spec=run.input_spec, seed=seed) for d in calib_dirs
     ]
@@ -1285,13 +1286,13 @@ def _calibrated_threshold(
     )
     if calibrate == "each":
         th = guard_above_training(th, sigma, run.train_noise)
-    info = dict(
-        th.info,
-        calibrate=calibrate,
-        calibration_dataset=dataset_key(calib_dirs[0]),
-        calibration_datasets=[dataset_key(d) for d in calib_dirs],
-        calibration_labels=calib_labels,
-    )
+    info: ThresholdJson = {
+        **th.info,
+        "calibrate": calibrate,
+        "calibration_dataset": dataset_key(calib_dirs[0]),
+        "calibration_datasets": [dataset_key(d) for d in calib_dirs],
+        "calibration_labels": calib_labels,
+    }
     if cache is not None:
         cache.put(key, th.value_nats, info)
     return th.value_nats, info
@@ -1559,7 +1560,7 @@ def _info(
     run: DetectRun,
     terrain: _Terrain,
     plan: TilePlan,
-    threshold_info: dict[str, Any],
+    threshold_info: ThresholdJson,
     sigma_m: float,
     mc_samples: int,
     seed: int,

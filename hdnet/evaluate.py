@@ -58,6 +58,13 @@ from hdnet.metrics import ConfusionAccumulator, SegmentationMetrics
 from hdnet.model import BayesianSegNet
 from hdnet.noise_levels import TrainingNoise
 from hdnet.preflight import check_inputs, check_run
+from hdnet.report_json import (
+    AchievedRiskJson,
+    CalibrationRowJson,
+    PerSigmaThresholdJson,
+    SweepRowJson,
+    ThresholdJson,
+)
 from hdnet.results import (
     METHODS,
     EvaluationResult,
@@ -294,7 +301,7 @@ class ValidationThreshold:
     """
 
     value_nats: float
-    info: dict[str, Any]
+    info: ThresholdJson
     calibration: EntropyCalibration
     inference: SplitInference
 
@@ -325,7 +332,7 @@ def validation_threshold(
     h_t = select_threshold(spec, cal)
     h_mean = cal.mean()
     val_scores = uncertainty.of(val)[val.valid]
-    info: dict[str, Any] = {
+    info: ThresholdJson = {
         "spec": str(spec),
         "kind": spec.kind,
         "parameter": spec.value,
@@ -547,7 +554,12 @@ def guard_above_training(th: ValidationThreshold, sigma_m: float, noise: Trainin
         return th
     guard = precision_threshold(th.calibration, PRECISION_GUARD)
     value = min(th.value_nats, guard)
-    info = dict(th.info, guarded=True, guard_precision=PRECISION_GUARD, guard_nats=_finite_or_none(guard))
+    info: ThresholdJson = {
+        **th.info,
+        "guarded": True,
+        "guard_precision": PRECISION_GUARD,
+        "guard_nats": _finite_or_none(guard),
+    }
     info["value_nats"] = _finite_or_none(value)
     info["value_quantile"] = th.calibration.fraction_below(value)
     return ValidationThreshold(value, info, th.calibration, th.inference)
@@ -601,7 +613,7 @@ class _Thresholds:
         self._by_sigma[round(float(test_sigma_m), 12)] = th
         return th
 
-    def per_sigma_info(self) -> list[dict[str, Any]]:
+    def per_sigma_info(self) -> list[PerSigmaThresholdJson]:
         return [
             {
                 "calibration_sigma_m": s,
@@ -639,16 +651,16 @@ def _open_evaluation(run_dir: str | os.PathLike, dataset_dir: str | os.PathLike,
 def _noise_table(
     setup: _Setup, dataset_dir: str | os.PathLike, cfg: EvalConfig, thresholds: _Thresholds
 ) -> tuple[
-    dict[float, SplitInference], list[ReportRow], list[dict[str, Any]], list[dict[str, Any]], list[dict[str, Any]]
+    dict[float, SplitInference], list[ReportRow], list[SweepRowJson], list[CalibrationRowJson], list[AchievedRiskJson]
 ]:
     """Steps 2-3: the test split at every noise level: the three methods (Table 1), the sweep over
     threshold quantiles, the calibration of P(safe) and, for ``risk:ALPHA``, the false-safe rate."""
     uncertainty = cfg.uncertainty_score
     rows: list[ReportRow] = []
-    sweep: list[dict[str, Any]] = []
-    cal_rows: list[dict[str, Any]] = []
+    sweep: list[SweepRowJson] = []
+    cal_rows: list[CalibrationRowJson] = []
     tests: dict[float, SplitInference] = {}
-    achieved: list[dict[str, Any]] = []
+    achieved: list[AchievedRiskJson] = []
     for sigma in setup.sigmas_m:
         th = thresholds.at(sigma)
         h_t, val_sigma = th.value_nats, setup.train_sigma_m
@@ -699,11 +711,11 @@ def _noise_table(
 
 def _dead_pixel_table(
     setup: _Setup, dataset_dir: str | os.PathLike, cfg: EvalConfig, thresholds: _Thresholds
-) -> tuple[list[ReportRow], list[dict[str, Any]]]:
+) -> tuple[list[ReportRow], list[AchievedRiskJson]]:
     """Step 4: the test split again with ``drop_pixels`` dead pixels per DEM, repaired, the baseline
     recomputed on the repaired DEM (Table 2); the false-safe rate for ``risk:ALPHA``."""
     rows: list[ReportRow] = []
-    achieved: list[dict[str, Any]] = []
+    achieved: list[AchievedRiskJson] = []
     val_sigma = setup.train_sigma_m
     for sigma in setup.sigmas_m:
         h_t = thresholds.at(sigma).value_nats
@@ -726,11 +738,11 @@ def _dead_pixel_table(
 
 def _sigma_sweep(
     setup: _Setup, dataset_dir: str | os.PathLike, cfg: EvalConfig, thresholds: _Thresholds
-) -> tuple[list[ReportRow], list[dict[str, Any]]]:
+) -> tuple[list[ReportRow], list[AchievedRiskJson]]:
     """Step 5: the test split at every level of ``cfg.sigma_sweep`` (stored, or made from the clean
     points), the three methods (table ``sigma_sweep``); the false-safe rate for ``risk:ALPHA``."""
     rows: list[ReportRow] = []
-    achieved: list[dict[str, Any]] = []
+    achieved: list[AchievedRiskJson] = []
     for sigma in cfg.sigma_sweep:
         h_t = thresholds.at(sigma).value_nats
         inf = infer_split(

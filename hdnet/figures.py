@@ -22,6 +22,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
 from hdnet import defaults
+from hdnet.report_json import PerSigmaThresholdJson, ThresholdJson
 from hdnet.threshold_spec import RULES
 from hdnet.uncertainty import ENTROPY, UncertaintyScore, recorded_score
 
@@ -71,7 +72,7 @@ def threshold_sweep(result: EvaluationResult, path: Path) -> None:
     plt.close(fig)
 
 
-def used_threshold(threshold: dict[str, Any], sigma_m: float) -> tuple[str, float] | None:
+def used_threshold(threshold: ThresholdJson, sigma_m: float) -> tuple[str, float] | None:
     """The threshold that scored the test split at ``sigma_m`` metres, as (label, validation quantile):
     the report's own rule (``mean-entropy threshold`` for the paper's, ``threshold risk:0.05``...), its
     own calibration at that noise level with ``--calibrate each`` (``(guarded)`` when the precision
@@ -79,7 +80,7 @@ def used_threshold(threshold: dict[str, Any], sigma_m: float) -> tuple[str, floa
     (reports written before ``value_quantile``)."""
     spec, rule = str(threshold.get("spec", "mean")), RULES.get(str(threshold.get("kind", "mean")))
     by_mean = rule is not None and rule.is_mean  # the paper's rule: labelled by the score it averages
-    entry: dict[str, Any] = threshold
+    entry: ThresholdJson | PerSigmaThresholdJson = threshold
     for own in threshold.get("per_sigma") or []:
         if math.isclose(float(own.get("calibration_sigma_m", math.nan)), sigma_m, abs_tol=1e-12):
             entry = own

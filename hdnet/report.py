@@ -29,6 +29,7 @@ from hdcore.storage import (
     write_text_atomic,
 )
 from hdnet.paper_results import paper_row
+from hdnet.report_json import ThresholdJson
 from hdnet.results import LandingRecord, LandingSettings
 from hdnet.threshold_spec import unreachable_risk_words
 from hdnet.uncertainty import recorded_score
@@ -401,7 +402,7 @@ def _pct1(x: float | None) -> str:
     return "--" if x is None or not math.isfinite(x) else f"{100 * x:.1f}"
 
 
-def _calibration_words(th: dict[str, Any], run: dict[str, Any]) -> str:
+def _calibration_words(th: ThresholdJson, run: dict[str, Any]) -> str:
     """Which validation splits calibrated H_t, and why, for the report's threshold line ('' when
     it was the evaluated dataset's own, as in the paper)."""
     datasets = th.get("calibration_datasets") or []
@@ -414,7 +415,7 @@ def _calibration_words(th: dict[str, Any], run: dict[str, Any]) -> str:
     return f" of the run's training data {names}" if source == "run" else f" of {names}"
 
 
-def _unreachable(th: dict[str, Any]) -> str:
+def _unreachable(th: ThresholdJson) -> str:
     """The sentence of a risk level its calibration images cannot reach (``hdnet.thresholds.risk_reach``)."""
     return unreachable_risk_words(str(th["spec"]), int(th["calibration_images"]), int(th["needs_images"]))
 

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from hdnet import defaults
+from hdnet.report_json import CalibrationJson, SweepRowJson, ThresholdJson
 from hdnet.uncertainty import recorded_score
 
 # The methods every table of an evaluation scores (Table 1, Table 2, the sweeps, the landing table).
@@ -144,9 +145,9 @@ class EvaluationResult:
     """Everything ``evaluate`` measured; ``report.json`` is ``to_json()``."""
 
     rows: list[ReportRow]
-    threshold: dict[str, Any]
-    sweep: list[dict[str, Any]]
-    calibration: dict[str, Any]
+    threshold: ThresholdJson
+    sweep: list[SweepRowJson]
+    calibration: CalibrationJson
     run: dict[str, Any] = field(default_factory=dict)
     test: dict[float, SplitInference] = field(default_factory=dict, repr=False)
     validation_entropy_nats: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32), repr=False)

@@ -32,14 +32,15 @@ import json
 import math
 import os
 import warnings
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from hdcore.errors import HdWarning
 from hdcore.storage import StorageError, read_regular_bytes, write_json_atomic
-from hdnet.uncertainty import ENTROPY, UncertaintyScore, uncertainty_score, with_score
+from hdnet.report_json import ThresholdJson
+from hdnet.uncertainty import ENTROPY, UncertaintyScore, score_entry, uncertainty_score
 from lidarsim.location import manifest_sha256
 from lidarsim.shards import MANIFEST_NAME, sha256_file
 
@@ -81,7 +82,7 @@ class ThresholdKey:
         cached before the score was a choice, all of predictive entropy, keep their keys."""
         plain = asdict(self)
         del plain["uncertainty"]
-        return with_score(plain, uncertainty_score(self.uncertainty))
+        return plain | score_entry(uncertainty_score(self.uncertainty))
 
 
 def cache_key(
@@ -113,7 +114,7 @@ def cache_key(
     )
 
 
-def entry_digest(key: dict[str, Any], value_nats: float | None, info: dict[str, Any]) -> str:
+def entry_digest(key: dict[str, Any], value_nats: float | None, info: Mapping[str, object]) -> str:
     """The sha256 of an entry's key, value (nats; None = unbounded) and calibration record, over their
     canonical JSON (sorted keys, no spaces): what ``thresholds.json`` stores as the entry's ``sha256``."""
     canonical = json.dumps(
@@ -185,7 +186,7 @@ class CachedThreshold:
             return []
         return [e for e in record["entries"] if isinstance(e, dict) and isinstance(e.get("key"), dict)]
 
-    def get(self, key: ThresholdKey) -> tuple[float, dict[str, Any]] | None:
+    def get(self, key: ThresholdKey) -> tuple[float, ThresholdJson] | None:
         """(H_t in nats, its calibration record) stored under ``key``, or None: nothing stored, or a
         stored entry that fails a check (a warning says which)."""
         plain = key.to_dict()
@@ -197,17 +198,17 @@ class CachedThreshold:
                 self._warn(f"the cached threshold for {plain['spec']} at sigma {plain['sigma_m']:g} m: {problem}")
                 return None
             value = entry["value_nats"]
-            return (math.inf if value is None else float(value)), dict(entry["info"])
+            return (math.inf if value is None else float(value)), cast("ThresholdJson", dict(entry["info"]))
         return None
 
-    def put(self, key: ThresholdKey, value_nats: float, info: dict[str, Any]) -> bool:
+    def put(self, key: ThresholdKey, value_nats: float, info: ThresholdJson) -> bool:
         """Store an entry (replacing one of the same key) with its digest; False when the run directory
         is not writable or the entry cannot be stored."""
         plain = key.to_dict()
         finite = None if math.isinf(value_nats) and value_nats > 0 else float(value_nats)
         if _value_problem(finite) is not None:
             return False
-        record_info = dict(info, value_nats=finite)
+        record_info: ThresholdJson = {**info, "value_nats": finite}
         try:
             digest = entry_digest(plain, finite, record_info)
         except (TypeError, ValueError):

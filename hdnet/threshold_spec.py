@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from typing import ClassVar, Protocol
 
 from hdnet.errors import HdNetError
+from hdnet.report_json import ThresholdJson
 
 LOSS_BOUND = 1.0  # B: the false-safe rate is a fraction of pixels
 
@@ -67,11 +68,11 @@ class ThresholdRule:
         """H_t (nats) for the rule's ``value`` from ``calibration``."""
         raise NotImplementedError
 
-    def quantile_entry(self, calibration: Calibration, h_t: float) -> dict[str, float]:
+    def quantile_entry(self, calibration: Calibration, h_t: float) -> ThresholdJson:
         """The record's ``value_quantile``: where H_t lies among the validation scores (the fraction below it)."""
         return {"value_quantile": calibration.fraction_below(h_t)}
 
-    def reach(self, value: float | None, n_images: int) -> dict[str, bool | int]:
+    def reach(self, value: float | None, n_images: int) -> ThresholdJson:
         """The record's reachability entries on ``n_images`` calibration images (none by default)."""
         return {}
 
@@ -88,7 +89,7 @@ class MeanRule(ThresholdRule):
     def select(self, value: float | None, calibration: Calibration) -> float:
         return calibration.mean()
 
-    def quantile_entry(self, calibration: Calibration, h_t: float) -> dict[str, float]:
+    def quantile_entry(self, calibration: Calibration, h_t: float) -> ThresholdJson:
         return {}  # the record's mean_quantile says it
 
 
@@ -123,7 +124,7 @@ class RiskRule(ThresholdRule):
     def select(self, value: float | None, calibration: Calibration) -> float:
         return calibration.risk_control_threshold(float(value))  # type: ignore[arg-type]  # parse gives it one
 
-    def reach(self, value: float | None, n_images: int) -> dict[str, bool | int]:
+    def reach(self, value: float | None, n_images: int) -> ThresholdJson:
         return {} if value is None else risk_reach(value, n_images)
 
 
@@ -182,7 +183,7 @@ class ThresholdSpec:
         """H_t (nats) from ``calibration``, by the spec's rule."""
         return self.rule.select(self.value, calibration)
 
-    def reach(self, n_images: int) -> dict[str, bool | int]:
+    def reach(self, n_images: int) -> ThresholdJson:
         """The record's reachability entries on ``n_images`` calibration images (``ThresholdRule.reach``)."""
         return self.rule.reach(self.value, n_images)
 
@@ -230,7 +231,7 @@ def risk_images_needed(alpha: float) -> int:
     return n
 
 
-def risk_reach(alpha: float, n_images: int) -> dict[str, bool | int]:
+def risk_reach(alpha: float, n_images: int) -> ThresholdJson:
     """The reachability entries of a ``risk:alpha`` threshold's record calibrated on ``n_images``
     images: ``unreachable`` (True when H_t is 0 by construction: alpha < B/(n+1)) and
     ``needs_images`` (``risk_images_needed``)."""

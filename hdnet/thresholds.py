@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import math
 import warnings
-from typing import Any
 
 import numpy as np
 import torch
@@ -43,6 +42,7 @@ import torch
 from hdcore.errors import HdWarning
 from hdnet import defaults
 from hdnet.errors import HdNetError
+from hdnet.report_json import ThresholdJson
 from hdnet.threshold_spec import (
     LOSS_BOUND,
     RULES,
@@ -73,7 +73,7 @@ __all__ = [
 ]
 
 
-def warn_if_unreachable(record: dict[str, Any]) -> None:
+def warn_if_unreachable(record: ThresholdJson) -> None:
     """A one-line ``HdWarning`` when the threshold record ``record`` (``report.json``'s and
     ``detect.json``'s ``threshold``) is a risk level its calibration images cannot reach
     (``unreachable``, from :func:`risk_reach`)."""

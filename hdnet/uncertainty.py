@@ -23,15 +23,16 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, Protocol, TypeVar
+from typing import Any, Final, Protocol, TypeVar
 
 from hdnet.errors import HdNetError
+from hdnet.report_json import ThresholdJson
 
 T_co = TypeVar("T_co", covariant=True)
 T = TypeVar("T")
 
 # The key of a threshold record (report.json's and detect.json's ``threshold``) that names its score.
-RECORD_KEY = "uncertainty"
+RECORD_KEY: Final = "uncertainty"
 
 
 class Scored(Protocol[T_co]):
@@ -117,9 +118,15 @@ def recorded_score(record: Mapping[str, Any]) -> UncertaintyScore:
     return uncertainty_score(str(record.get(RECORD_KEY, DEFAULT)))
 
 
-def with_score(record: dict[str, Any], score: UncertaintyScore) -> dict[str, Any]:
-    """``record`` naming ``score`` (in place, and returned); the default score stays unnamed, so that
-    a record made with it is the record made before the choice existed."""
+def score_entry(score: UncertaintyScore) -> dict[str, str]:
+    """The entry of a record that names ``score``: ``{RECORD_KEY: name}``, or nothing for the default
+    score, so that a record made with it is the record made before the choice existed."""
+    return {} if score.is_default else {RECORD_KEY: score.name}
+
+
+def with_score(record: ThresholdJson, score: UncertaintyScore) -> ThresholdJson:
+    """The threshold record ``record`` naming ``score`` (in place, and returned), as :func:`score_entry`
+    says: the default score unnamed."""
     if not score.is_default:
         record[RECORD_KEY] = score.name
     return record

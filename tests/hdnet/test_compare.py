@@ -23,6 +23,7 @@ from hdcore.storage import write_json_atomic
 from hdnet.compare import ABSENT, column_names, compare
 from hdnet.errors import HdNetError
 from hdnet.report import METHOD_WORDS, report_dict
+from hdnet.report_json import ThresholdJson
 from hdnet.results import METHODS, EvaluationResult, LandingRecord, LandingRow, LandingSettings, ReportRow
 
 SIGMAS = (0.0167, 0.07)
@@ -91,7 +92,7 @@ def write_report(directory: Path, shift: float = 0.0, **changes: Any) -> Path:
         "mc_samples": changes.get("mc_samples", 20),
         "seed": 0,
     }
-    threshold = {
+    threshold: ThresholdJson = {
         "spec": changes.get("spec", "mean"),
         "kind": "mean",
         "value_nats": changes.get("value_nats", 0.4321),

@@ -6,6 +6,8 @@ import matplotlib
 
 matplotlib.use("Agg")
 
+from typing import cast
+
 import matplotlib.pyplot as plt
 import numpy as np
 import pytest
@@ -21,6 +23,7 @@ from hdnet.figures import (
     qualitative_panel,
     threshold_sweep_figure,
 )
+from hdnet.report_json import SweepRowJson, ThresholdJson
 from hdnet.results import EvaluationResult, ReportRow, SplitInference
 
 
@@ -77,7 +80,9 @@ def test_the_noise_sweep_legend_names_every_line_drawn_also_one_missing_from_the
     ] + [ReportRow("sigma_sweep", "base_net", 0.05, s, None, 0.9, 0.8, 0.9, 0.8) for s in (0.0, 0.05, 0.1)]
     # every pixel uncertain (V/C 0): the uncertainty-aware map has no accuracy, only its V/C line
     rows += [ReportRow("sigma_sweep", "uncertainty_aware", 0.05, s, 0.0, nan, nan, nan, nan) for s in (0.0, 0.05, 0.1)]
-    result = EvaluationResult(rows, {}, [], {}, run={"train_noise": {"range_m": [0.0, 0.1], "levels_m": []}})
+    result = EvaluationResult(
+        rows, {}, [], {"bins": 10, "per_sigma": []}, run={"train_noise": {"range_m": [0.0, 0.1], "levels_m": []}}
+    )
     fig = noise_sweep_figure(result)
     try:
         assert _legend_labels(fig) == ["training range", "ALHAT baseline", "base net", "uncertainty-aware"]
@@ -85,13 +90,13 @@ def test_the_noise_sweep_legend_names_every_line_drawn_also_one_missing_from_the
         plt.close(fig)
 
 
-def _sweep_result(threshold: dict) -> EvaluationResult:
-    sweep = [
-        {"test_sigma_m": s, "quantile": q, "precision": 0.9, "sensitivity": 0.5}
+def _sweep_result(threshold: ThresholdJson) -> EvaluationResult:
+    sweep = [  # the keys the figure reads
+        cast(SweepRowJson, {"test_sigma_m": s, "quantile": q, "precision": 0.9, "sensitivity": 0.5})
         for s in (0.0167, 0.07)
         for q in defaults.QUANTILE_SWEEP
     ]
-    return EvaluationResult([], {"mean_quantile": 0.62, **threshold}, sweep, {})
+    return EvaluationResult([], {"mean_quantile": 0.62, **threshold}, sweep, {"bins": 10, "per_sigma": []})
 
 
 def _threshold_lines(fig) -> list[tuple[str, float]]:

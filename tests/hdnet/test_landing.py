@@ -400,7 +400,7 @@ def test_the_landing_figure_draws_rates_at_the_ends_and_methods_that_never_lande
         row("base_net", 0.0, math.nan, math.nan, math.nan, 0),
         row("base_net", 1.0, math.nan, math.nan, math.nan, 0),
     ]
-    result = EvaluationResult([], {}, [], {}, landing=rows)
+    result = EvaluationResult([], {}, [], {"bins": 10, "per_sigma": []}, landing=rows)
     landing_figure(result, tmp_path / "landing.png")
     assert (tmp_path / "landing.png").read_bytes()[:4] == b"\x89PNG"
 

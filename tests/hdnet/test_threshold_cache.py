@@ -9,11 +9,12 @@ import os
 import signal
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import pytest
 
 from hdcore.errors import HdWarning
+from hdnet.report_json import ThresholdJson
 from hdnet.threshold_cache import (
     CACHE_FILE,
     MAX_FILE_BYTES,
@@ -33,12 +34,14 @@ KEY = ThresholdKey(
     batch_size=4,
     seed=0,
 )
-INFO = {"spec": "mean", "kind": "mean", "value_nats": 0.4321, "n_pixels": 1000}
+INFO = cast(ThresholdJson, {"spec": "mean", "kind": "mean", "value_nats": 0.4321, "n_pixels": 1000})  # any JSON record
 
 
 def stored(tmp_path: Path, value: float | None = 0.4321, info: dict[str, Any] | None = None) -> CachedThreshold:
     cache = CachedThreshold(tmp_path)
-    assert cache.put(KEY, math.inf if value is None else value, dict(INFO if info is None else info))
+    assert cache.put(
+        KEY, math.inf if value is None else value, cast(ThresholdJson, dict(INFO if info is None else info))
+    )
     return cache
 
 

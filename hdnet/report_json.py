@@ -1,0 +1,104 @@
+"""The keys of ``report.json``'s (and ``detect.json``'s) JSON sections as typed records.
+
+``hd eval`` writes ``report.json`` and ``hd view``, ``hd compare`` and the figures read it back;
+``hd detect`` records the same threshold record in ``detect.json``, and the threshold cache keeps it.
+These sections are ``TypedDict``: at run time the dictionaries the file holds (keys in the order hd
+writes them), for mypy records whose every key a reader names is checked with its type.
+docs/evaluation.md describes the report.
+"""
+
+from __future__ import annotations
+
+from typing import TypedDict
+
+__all__ = [
+    "AchievedRiskJson",
+    "CalibrationJson",
+    "CalibrationRowJson",
+    "PerSigmaThresholdJson",
+    "SweepRowJson",
+    "ThresholdJson",
+]
+
+
+class PerSigmaThresholdJson(TypedDict):
+    """H_t calibrated at one noise level (``--calibrate each``)."""
+
+    calibration_sigma_m: float
+    value_nats: float | None  # None: unbounded
+    mean_nats: float
+    value_quantile: float
+    guarded: bool
+
+
+class AchievedRiskJson(TypedDict):
+    """The false-safe rate a ``risk:ALPHA`` threshold achieved on one test table and noise level."""
+
+    test_sigma_m: float
+    table: str
+    false_safe_rate: float | None
+
+
+class ThresholdJson(TypedDict, total=False):
+    """The threshold record: the rule, H_t (nats) and how it was calibrated. A record holds the keys
+    its rule and calibration give (``hdnet.evaluate.validation_threshold``, ``hdnet.detect``)."""
+
+    spec: str  # mean, quantile:Q, risk:ALPHA, nats:H
+    kind: str  # the rule's name; "fixed" for nats:H in hd detect
+    parameter: float | None
+    value_nats: float | None  # None: unbounded (every pixel certain)
+    mean_nats: float
+    mean_quantile: float
+    value_quantile: float
+    calibration_split: str
+    calibration_sigma_m: float
+    calibration_images: int
+    calibration_pixels: int
+    unreachable: bool  # risk:ALPHA: too few calibration images for alpha
+    needs_images: int
+    uncertainty: str  # the score (absent: predictive entropy)
+    guarded: bool  # capped by the precision guard above the training noise levels
+    guard_precision: float
+    guard_nats: float | None
+    calibrate: str  # reference or each
+    calibration_dataset: str
+    calibration_datasets: list[str]
+    calibration_labels: str
+    calibration_source: str
+    calibration_note: str
+    per_sigma: list[PerSigmaThresholdJson]
+    alpha: float | None
+    achieved_risk: list[AchievedRiskJson]
+    cached: str  # hd detect: the threshold cache it was read from
+
+
+class SweepRowJson(TypedDict):
+    """One row of the threshold sweep: the test split at one noise level thresholded at one quantile
+    of the validation scores."""
+
+    test_sigma_m: float
+    quantile: float
+    threshold_nats: float
+    vc_fraction: float | None
+    pixel_accuracy: float
+    miou: float
+    precision: float
+    sensitivity: float
+
+
+class CalibrationRowJson(TypedDict):
+    """The reliability of P(safe) at one noise level: expected calibration error and its bins."""
+
+    test_sigma_m: float
+    ece: float
+    bin_edges: list[float]
+    bin_count: list[int]
+    bin_mean_prob: list[float]
+    bin_safe_fraction: list[float]
+
+
+class CalibrationJson(TypedDict):
+    """``calibration``: the number of bins and one row per noise level."""
+
+    bins: int
+    per_sigma: list[CalibrationRowJson]
