@@ -62,6 +62,7 @@ from hdnet.report_json import (
     AchievedRiskJson,
     CalibrationRowJson,
     PerSigmaThresholdJson,
+    ReportRunJson,
     SweepRowJson,
     ThresholdJson,
 )
@@ -795,7 +796,7 @@ def _run_info(
     cfg: EvalConfig,
     tests: dict[float, SplitInference],
     val: SplitInference,
-) -> dict[str, Any]:
+) -> ReportRunJson:
     """Step 5: the ``run`` entry of the report: checkpoint, run settings, dataset and evaluation settings."""
     root = dataset_key(dataset_dir)
     digest = manifest_sha256(dataset_dir)

@@ -22,7 +22,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
 from hdnet import defaults
-from hdnet.report_json import PerSigmaThresholdJson, ThresholdJson
+from hdnet.report_json import PerSigmaThresholdJson, ThresholdJson, recorded_noise
 from hdnet.threshold_spec import RULES
 from hdnet.uncertainty import ENTROPY, UncertaintyScore, recorded_score
 
@@ -162,12 +162,12 @@ def noise_sweep_figure(result: EvaluationResult) -> Figure:
         ("vc_fraction", "V/C pixels"),
     ]
     fig, axes = plt.subplots(1, 4, figsize=(16, 3.8))
-    noise = result.run.get("train_noise") or {}
+    range_m, levels = recorded_noise(result.run.get("train_noise"))
     for ax, (key, title) in zip(axes, panels, strict=True):
-        if noise.get("range_m"):
-            lo, hi = noise["range_m"]
+        if range_m:
+            lo, hi = range_m
             ax.axvspan(lo * 100, hi * 100, color="tab:green", alpha=0.12, label="training range")
-        for level in noise.get("levels_m") or []:
+        for level in levels:
             ax.axvline(level * 100, color="tab:green", lw=1, ls="--", label="training level")
         for method, label, colour in methods:
             pts = sorted((r.test_sigma_m, getattr(r, key)) for r in rows if r.method == method)

@@ -39,8 +39,9 @@ eight rotations and flips of the grid (D4), so augmenting the DEM or its channel
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 import torch
@@ -51,6 +52,7 @@ from hdcore.bounds import Bound
 from hdcore.setting import check, setting
 from hdnet import defaults
 from hdnet.errors import HdNetError
+from hdnet.run_json import InputSpecJson, NormalisationJson
 
 Heights = Literal["minmax", "median", "plane"]
 HEIGHTS: tuple[str, ...] = ("minmax", "median", "plane")
@@ -75,12 +77,14 @@ class Normalisation:
         span = self.max_m - self.min_m
         return ((np.asarray(dem_m, np.float64) - self.min_m) / (span if span > 0 else 1.0)).astype(np.float32)
 
-    def to_dict(self) -> dict[str, float]:
+    def to_dict(self) -> NormalisationJson:
         return {"min_m": float(self.min_m), "max_m": float(self.max_m)}
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> Normalisation:
+    def from_dict(cls, data: object) -> Normalisation:
         try:
+            if not isinstance(data, dict):
+                raise TypeError("not a dictionary")
             return cls(float(data["min_m"]), float(data["max_m"]))
         except (KeyError, TypeError, ValueError) as exc:
             raise HdNetError(f"a normalisation needs numeric 'min_m' and 'max_m', got {data!r}.") from exc
@@ -137,7 +141,7 @@ class InputSpec:
         """The grid rule in words: ``resize:N`` or ``pad:M``."""
         return f"resize:{self.input_size}" if self.input_size is not None else f"pad:{self.size_multiple}"
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> InputSpecJson:
         """Plain-type dictionary (config.json, checkpoints' ``extra_config["input"]``)."""
         return {
             "schema_version": INPUT_SCHEMA_VERSION,
@@ -152,7 +156,7 @@ class InputSpec:
         }
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> InputSpec:
+    def from_dict(cls, data: object) -> InputSpec:
         """Rebuild a spec written by ``to_dict``."""
         if not isinstance(data, dict):
             raise HdNetError(f"an input spec must be a dictionary, got {type(data).__name__}.")
@@ -183,7 +187,9 @@ class InputSpec:
         return cls(**kwargs)
 
     @classmethod
-    def from_run_config(cls, extra_config: dict[str, Any], model_config: dict[str, Any] | None = None) -> InputSpec:
+    def from_run_config(
+        cls, extra_config: Mapping[str, object], model_config: Mapping[str, object] | None = None
+    ) -> InputSpec:
         """The input spec of a trained run from its ``extra_config`` (and model config).
 
         Runs written before input specs existed stored only ``normalisation`` and ``input_size``:
@@ -197,11 +203,13 @@ class InputSpec:
                 "the run config holds no input spec and no normalisation: it was not trained by hdnet.fit."
             )
         size = extra.get("input_size")
-        depth = int((model_config or {}).get("depth", len(defaults.ENCODER_CHANNELS)))
+        depth = (model_config or {}).get("depth", len(defaults.ENCODER_CHANNELS))
+        if (size is not None and not isinstance(size, int)) or not isinstance(depth, int):
+            raise HdNetError(f"the run config's input size {size!r} or depth {depth!r} is not an integer.")
         return cls(
             heights="minmax",
             normalisation=Normalisation.from_dict(extra["normalisation"]),
-            input_size=None if size is None else int(size),
+            input_size=size,
             size_multiple=2**depth,
         )
 

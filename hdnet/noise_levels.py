@@ -23,6 +23,7 @@ import numpy as np
 
 from hdnet import limits as net_limits
 from hdnet.errors import HdNetError
+from hdnet.run_json import TrainingNoiseJson
 from lidarsim import limits as lidar_limits
 
 # The largest noise level hd trains or sweeps at, metres (one bound for every command: lidarsim.limits).
@@ -112,7 +113,7 @@ class TrainingNoise:
             return f"{self.range_m[0] * 100:.3g} to {self.range_m[1] * 100:.3g} cm (uniform per sample)"
         return ", ".join(f"{s * 100:.3g}" for s in self.levels_m) + " cm"
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> TrainingNoiseJson:
         return {
             "kind": self.kind,
             "levels_m": list(self.levels_m),

@@ -29,8 +29,9 @@ from hdcore.storage import (
     write_text_atomic,
 )
 from hdnet.paper_results import paper_row
-from hdnet.report_json import ThresholdJson
+from hdnet.report_json import ReportRunJson, ThresholdJson, recorded_noise
 from hdnet.results import LandingRecord, LandingSettings
+from hdnet.run_json import TrainingNoiseJson
 from hdnet.threshold_spec import unreachable_risk_words
 from hdnet.uncertainty import recorded_score
 
@@ -103,22 +104,21 @@ HEADER = (
 )
 
 
-def _trained_on(row: ReportRow, run: dict[str, Any]) -> str:
+def _trained_on(row: ReportRow, run: ReportRunJson) -> str:
     """A row's "Train noise 1σ": the run's training noise as recorded (one level, the levels, or the
     range drawn from, ``0 to 10 cm``); ``--`` for the baseline, which is not trained."""
     if row.train_sigma_m is None:
         return "--"
-    noise = run.get("train_noise") or {}
-    if noise.get("range_m"):
-        lo, hi = noise["range_m"]
+    range_m, levels = recorded_noise(run.get("train_noise"))
+    if range_m:
+        lo, hi = range_m
         return f"{lo * 100:.3g} to {hi * 100:.3g} cm"
-    levels = noise.get("levels_m") or []
     if len(levels) > 1:
         return ", ".join(f"{s * 100:.3g}" for s in levels) + " cm"
     return _cm(row.train_sigma_m)
 
 
-def _table(rows: list[ReportRow], run: dict[str, Any]) -> list[str]:
+def _table(rows: list[ReportRow], run: ReportRunJson) -> list[str]:
     return [
         HEADER,
         *(
@@ -188,7 +188,7 @@ def _header_lines(result: EvaluationResult) -> list[str]:
             )
         ),
         (
-            f"- trained at {_train_noise_words(run.get('train_noise') or {'levels_m': [run.get('train_sigma_m')]})}"
+            f"- trained at {_train_noise_words(run.get('train_noise'), run.get('train_sigma_m'))}"
             f" (reference {_cm(run.get('train_sigma_m'))}); MC samples M = {run.get('mc_samples')}; "
             f"seed {run.get('seed')}"
         ),
@@ -293,9 +293,8 @@ def _sweep_section(result: EvaluationResult) -> list[str]:
     rows = [r for r in result.rows if r.table == "sigma_sweep"]
     if not rows:
         return []
-    noise = result.run.get("train_noise") or {}
-    lo, hi = (noise.get("range_m") or [None, None])[:2]
-    levels = noise.get("levels_m") or []
+    range_m, levels = recorded_noise(result.run.get("train_noise"))
+    lo, hi = range_m or (None, None)
 
     def trained(sigma: float) -> str:
         if lo is not None and hi is not None:
@@ -309,7 +308,8 @@ def _sweep_section(result: EvaluationResult) -> list[str]:
         "## Noise sweep (test split)",
         "",
         (
-            f"Trained at {_train_noise_words(noise)}. Levels the dataset does not store are made from its clean "
+            f"Trained at {_train_noise_words(result.run.get('train_noise'))}. Levels the dataset does not store are "
+            "made from its clean "
             "points with the factory's noise model and the labelling's gridding."
         ),
         "",
@@ -402,7 +402,7 @@ def _pct1(x: float | None) -> str:
     return "--" if x is None or not math.isfinite(x) else f"{100 * x:.1f}"
 
 
-def _calibration_words(th: ThresholdJson, run: dict[str, Any]) -> str:
+def _calibration_words(th: ThresholdJson, run: ReportRunJson) -> str:
     """Which validation splits calibrated H_t, and why, for the report's threshold line ('' when
     it was the evaluated dataset's own, as in the paper)."""
     datasets = th.get("calibration_datasets") or []
@@ -420,11 +420,14 @@ def _unreachable(th: ThresholdJson) -> str:
     return unreachable_risk_words(str(th["spec"]), int(th["calibration_images"]), int(th["needs_images"]))
 
 
-def _train_noise_words(noise: dict[str, Any]) -> str:
-    if noise.get("range_m"):
-        lo, hi = noise["range_m"]
+def _train_noise_words(noise: TrainingNoiseJson | None, reference_m: float | None = None) -> str:
+    """The training noise in words; a report that records none, its reference level ``reference_m``."""
+    range_m, levels = recorded_noise(noise)
+    if not noise and reference_m is not None:
+        levels = [reference_m]
+    if range_m:
+        lo, hi = range_m
         return f"noise levels drawn uniformly from {lo * 100:.3g} to {hi * 100:.3g} cm per sample"
-    levels = noise.get("levels_m") or []
     return ", ".join(f"{s * 100:.3g}" for s in levels) + " cm" if levels else "an unrecorded noise level"
 
 

@@ -11,13 +11,17 @@ from __future__ import annotations
 
 from typing import TypedDict
 
+from hdnet.run_json import InputSpecJson, TrainingNoiseJson
+
 __all__ = [
     "AchievedRiskJson",
     "CalibrationJson",
     "CalibrationRowJson",
     "PerSigmaThresholdJson",
+    "ReportRunJson",
     "SweepRowJson",
     "ThresholdJson",
+    "recorded_noise",
 ]
 
 
@@ -102,3 +106,41 @@ class CalibrationJson(TypedDict):
 
     bins: int
     per_sigma: list[CalibrationRowJson]
+
+
+class ReportRunJson(TypedDict, total=False):
+    """``run``: the checkpoint evaluated, how it was trained, the dataset and the evaluation's settings
+    (``hdnet.evaluate``; reports written by earlier versions lack the later keys)."""
+
+    checkpoint: str
+    checkpoint_sha256: str
+    batch_size: int
+    epoch: int  # the checkpoint's header (hdnet.run_record.CheckpointHeader)
+    profile: str | None
+    model_config: dict[str, float | int] | None
+    train_sigma_m: float
+    train_noise: TrainingNoiseJson
+    sigma_sweep_m: list[float]
+    input_size: int | None
+    input: InputSpecJson
+    dataset: str
+    manifest_sha256: str
+    labels: str
+    truth: str
+    same_dataset_as_training: bool
+    sigmas_m: list[float]
+    mc_samples: int
+    drop_pixels: int
+    seed: int
+    test_scans: int
+    val_scans: int
+    paper_dataset: bool
+
+
+def recorded_noise(noise: TrainingNoiseJson | None) -> tuple[tuple[float, float] | None, list[float]]:
+    """The training noise a report records (``run.train_noise``): its range (lo, hi metres; None for
+    levels) and its levels (metres); neither in a report that records none."""
+    if not noise:
+        return None, []
+    range_m = noise.get("range_m")
+    return (None if not range_m else (float(range_m[0]), float(range_m[1]))), list(noise.get("levels_m") or [])

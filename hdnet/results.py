@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from hdnet import defaults
-from hdnet.report_json import CalibrationJson, SweepRowJson, ThresholdJson
+from hdnet.report_json import CalibrationJson, ReportRunJson, SweepRowJson, ThresholdJson
 from hdnet.uncertainty import recorded_score
 
 # The methods every table of an evaluation scores (Table 1, Table 2, the sweeps, the landing table).
@@ -148,7 +148,7 @@ class EvaluationResult:
     threshold: ThresholdJson
     sweep: list[SweepRowJson]
     calibration: CalibrationJson
-    run: dict[str, Any] = field(default_factory=dict)
+    run: ReportRunJson = field(default_factory=lambda: ReportRunJson())
     test: dict[float, SplitInference] = field(default_factory=dict, repr=False)
     validation_entropy_nats: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32), repr=False)
     landing: list[LandingRow] = field(default_factory=list)

@@ -44,6 +44,7 @@ from hdnet.errors import HdNetError
 from hdnet.inputs import InputSpec
 from hdnet.noise_levels import TrainingNoise
 from hdnet.run_files import CONFIG, LAST, METRICS
+from hdnet.run_json import AlsoDatasetJson, CheckpointHeaderJson, RunRecordJson, TrainingDataJson
 from lidarsim.location import has_manifest
 from lidarsim.shards import MANIFEST_NAME
 
@@ -89,7 +90,7 @@ class AlsoDataset:
     dataset: str
     manifest_sha256: str
 
-    def to_dict(self) -> dict[str, str]:
+    def to_dict(self) -> AlsoDatasetJson:
         return {"dataset": self.dataset, "manifest_sha256": self.manifest_sha256}
 
 
@@ -169,9 +170,9 @@ class TrainingData:
                 return found
         return None
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> TrainingDataJson:
         """The ``extra_config`` of schema version 2 (JSON types)."""
-        out: dict[str, Any] = {
+        out: TrainingDataJson = {
             "dataset": self.dataset,
             "manifest_sha256": self.manifest_sha256,
             "labels": self.labels,
@@ -305,14 +306,14 @@ class RunRecord:
     """
 
     model_name: str
-    model_config: dict[str, Any]
-    profile: dict[str, Any]
+    model_config: dict[str, float | int]
+    profile: dict[str, object]
     epochs: int
     seed: int
     world_size: int
     hd_version: str
     torch_version: str
-    extra_config: dict[str, Any] = field(default_factory=dict)
+    extra_config: dict[str, object] = field(default_factory=dict)
     class_weights: list[float] | None = None
     file_version: int = RUN_SCHEMA_VERSION
 
@@ -330,7 +331,7 @@ class RunRecord:
         """
         return TrainingData.from_dict(self.extra_config)
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> RunRecordJson:
         """``config.json`` of schema version :data:`RUN_SCHEMA_VERSION`."""
         return {
             "schema": RUN_SCHEMA,
@@ -488,7 +489,7 @@ class CheckpointHeader:
         name = (ckpt.get("profile") or {}).get("name")
         return cls(int(ckpt.get("epoch", 0)), None if name is None else str(name), ckpt.get("model_config"))
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> CheckpointHeaderJson:
         """The three fields as reports record them (``epoch``, ``profile``, ``model_config``)."""
         return {"epoch": self.epoch, "profile": self.profile, "model_config": self.model_config}
 
