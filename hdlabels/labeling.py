@@ -209,7 +209,7 @@ def run_label_task(task: LabelTask) -> LabelRecord:
         sigmas = reader.sigmas_m
         n_scans = len(reader)
         baseline = np.zeros(len(sigmas), dtype=np.int64)
-        attrs = {
+        attrs: dict[str, object] = {
             "labeling": task.labeling,
             "source_shard": task.source_path,
             "source_sha256": task.source_sha256,
@@ -263,7 +263,7 @@ def _truth_dtm(task: LabelTask) -> Iterator[DTM | None]:
         yield dtm
 
 
-def truth_attrs(task: LabelTask) -> dict[str, Any]:
+def truth_attrs(task: LabelTask) -> dict[str, object]:
     """The label-shard attributes of a labelling's truth (written only for the terrain truth)."""
     return {
         "truth": task.truth,

@@ -244,7 +244,7 @@ class MosaicTask:
     used: tuple[int, ...]  # the frames mosaicked, ascending (the last is the anchor)
     poses: str
     dem: DemSpec
-    attrs: dict[str, Any]  # file attributes of the mosaic shard
+    attrs: dict[str, object]  # file attributes of the mosaic shard
 
 
 @dataclass(frozen=True)

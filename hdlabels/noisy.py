@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hdcore.storage import attr_int
 from hdlabels.errors import HdLabelsError
 from hdlabels.grid import grid_points
 from hdlabels.store import DemSpec, LabelShardEntry
@@ -83,7 +84,7 @@ class NoisyDems:
             raise HdLabelsError(f"{dataset_dir}: the manifest lists no scan shards.")
         try:
             with open_scan_shard(dataset_dir, shards[0]) as reader:
-                return cls(SensorConfig.from_attrs(reader.attrs), int(reader.attrs["seed"]), dem)
+                return cls(SensorConfig.from_attrs(reader.attrs), attr_int(reader.attrs["seed"]), dem)
         except (KeyError, TypeError, ValueError) as exc:
             raise HdLabelsError(f"{dataset_dir}: its scan shards lack the sensor or the seed ({exc}).") from exc
 

@@ -380,7 +380,7 @@ class LabelShardWriter:
         n_scans: int,
         n_sigmas: int,
         dem: DemSpec,
-        attrs: dict[str, Any],
+        attrs: dict[str, object],
         schema_version: str = LABEL_SCHEMA_VERSION_CLEAN_SCAN,
     ) -> None:
         self.path = path

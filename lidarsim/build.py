@@ -34,6 +34,7 @@ from hdcore.storage import (
     PARTIAL_MARK,
     OutputTransaction,
     StorageError,
+    attr_int,
     check_h5_data,
     check_not_input,
     check_output_dir,
@@ -191,9 +192,9 @@ class BuildConfig:
         return d
 
     @property
-    def realism_attrs(self) -> dict[str, Any]:
+    def realism_attrs(self) -> dict[str, object]:
         """The scan shards' attributes of the sensor-realism settings (none at the paper's sensor)."""
-        attrs: dict[str, Any] = {}
+        attrs: dict[str, object] = {}
         if not self.footprint.is_default:
             attrs.update(self.footprint.to_attrs())
         if not self.noise_model.is_default:
@@ -232,7 +233,7 @@ class ShardTask:
     plan_half_width_m: float
     tile_anchor_xy: tuple[float, float]
     tile_m: float
-    file_attrs: dict[str, Any]
+    file_attrs: dict[str, object]
     n_threads: int = 0
 
     @property
@@ -544,7 +545,7 @@ def _check_existing_shard(task: ShardTask, fingerprint: str) -> ShardRecord | No
                 reader.attrs.get("config_sha256") == fingerprint
                 and reader.attrs.get("dtm_sha256") == task.file_attrs.get("dtm_sha256")
                 and len(reader) == task.nadir_xy.shape[0]
-                and int(reader.attrs.get("first_scan", -1)) == task.first_scan
+                and attr_int(reader.attrs.get("first_scan", -1)) == task.first_scan
             )
         if ok:
             check_h5_data(task.path)  # every chunk's fletcher32 checksum
@@ -926,7 +927,7 @@ class _BuildTerrain:
     path: Path
     data: bytes | None
     plan: ScanPlan
-    attrs: dict[str, Any]
+    attrs: dict[str, object]
     provenance: DtmJson
 
 
@@ -1002,7 +1003,7 @@ def _build_locked(
     )
 
 
-def _file_attrs(config: BuildConfig, terrain: _BuildTerrain) -> dict[str, Any]:
+def _file_attrs(config: BuildConfig, terrain: _BuildTerrain) -> dict[str, object]:
     """Step 2: the root attributes of every scan shard (settings, sensor, trajectory, terrain)."""
     return {
         "seed": config.seed,
@@ -1103,7 +1104,7 @@ def _make_tasks(
     splits: np.ndarray,
     dtm_path: str,
     config: BuildConfig,
-    file_attrs: dict[str, Any],
+    file_attrs: dict[str, object],
     n_workers: int,
 ) -> list[ShardTask]:
     # one row per scan: a descent's frames share its target and tile

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
@@ -120,7 +119,7 @@ class DescentConfig:
         across = math.tan(a_x) * math.cos(a_y) / math.cos(a + a_y)
         return h * math.hypot(along, across)
 
-    def to_attrs(self) -> dict[str, Any]:
+    def to_attrs(self) -> dict[str, object]:
         """The shard attributes of a descent build: ``descent_frames``, ``descent_altitude_start_m``,
         ``descent_altitude_end_m``, ``descent_approach_deg`` and the ``nav_*`` of the error model."""
         return {

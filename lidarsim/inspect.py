@@ -200,7 +200,7 @@ def _mapping(value: object) -> dict:
     return value if isinstance(value, dict) else {}
 
 
-def _span(attrs: dict[str, Any], key: str) -> str:
+def _span(attrs: dict[str, object], key: str) -> str:
     """A trajectory setting of a shard's attributes (``trajectory_altitude``) with its unit: ``500.0 m``
     or, drawn per scan from a range, ``250.0 to 1000.0 m per scan``."""
     unit = "m" if key.endswith("altitude") else "deg"
@@ -208,7 +208,7 @@ def _span(attrs: dict[str, Any], key: str) -> str:
     return f"{low} {unit}" if high is None else f"{low} to {high} {unit} per scan"
 
 
-def _mosaic_line(attrs: dict[str, Any], mosaic: dict[str, Any]) -> str:
+def _mosaic_line(attrs: dict[str, object], mosaic: dict[str, object]) -> str:
     """The line of a mosaic dataset's shard (1.4): what each scan is and where it came from."""
     source = _mapping(mosaic.get("source"))
     return (
@@ -226,7 +226,7 @@ def _descents(manifest: ManifestJson) -> str:
     return f" ({manifest.get('n_descents')} descents of {manifest.get('descent_frames')} frames)"
 
 
-def _descent_lines(attrs: dict[str, Any], n_descents: object) -> list[str]:
+def _descent_lines(attrs: dict[str, object], n_descents: object) -> list[str]:
     """The descent and navigation error lines of a descent's shard (1.3; none for single scans)."""
     if "descent_frames" not in attrs:
         return []
@@ -250,7 +250,7 @@ def _descent_lines(attrs: dict[str, Any], n_descents: object) -> list[str]:
     ]
 
 
-def _realism(attrs: dict[str, Any]) -> str:
+def _realism(attrs: dict[str, object]) -> str:
     """The pixel footprint and noise model of a 1.2 shard, in words ("" for the paper's sensor)."""
     parts = []
     if "footprint_samples" in attrs:

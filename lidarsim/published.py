@@ -101,7 +101,7 @@ def terrain_fingerprint(path: str | os.PathLike, what: str | None = None) -> Fin
     try:
         with rasterio.open(path) as src:
             heights = src.read(1)
-            attrs: dict[str, Any] = {
+            attrs: dict[str, object] = {
                 "width": int(src.width),
                 "height": int(src.height),
                 "transform": [float(v) for v in tuple(src.transform)[:6]],
@@ -222,7 +222,7 @@ class _Comparer:
             f"tolerances: {_TOLERANCES}{newer})"
         )
 
-    def _digest_problems(self, path: str, attrs: dict[str, Any]) -> list[str]:
+    def _digest_problems(self, path: str, attrs: dict[str, object]) -> list[str]:
         """Attributes naming another file's sha256 must name the dataset's own file (or the published one)."""
         problems = []
         source, digest = attrs.get("source_shard"), attrs.get("source_sha256")

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from hdcore.errors import DamagedFileError
-from hdcore.storage import confine
+from hdcore.storage import attr_float, confine
 from lidarsim.manifest_json import ShardRefJson
 from lidarsim.sensor import footprint_corners
 from lidarsim.shards import SPLIT_NAMES, ScanShardReader, read_manifest
@@ -94,7 +94,7 @@ def scan_summary(directory: str | os.PathLike) -> ScanSummary:
             parts["position"].append(np.asarray(f["sensor_position"][:], np.float64))
             parts["attitude"].append(np.asarray(f["sensor_attitude"][:], np.float64))
             try:
-                x, y = float(reader.attrs["sensor_fov_x_deg"]), float(reader.attrs["sensor_fov_y_deg"])
+                x, y = attr_float(reader.attrs["sensor_fov_x_deg"]), attr_float(reader.attrs["sensor_fov_y_deg"])
             except (KeyError, TypeError, ValueError) as exc:
                 raise DamagedFileError(f"{reader.what}: no readable sensor field of view ({exc})") from exc
             fov += [(x, y)] * n

@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from hdcore.storage import attr_float, attr_int
 from lidarsim import defaults, limits
 from lidarsim.errors import LidarsimError
 
@@ -86,20 +87,20 @@ class SensorConfig:
         return {f"sensor_{k}": v for k, v in asdict(self).items()}
 
     @classmethod
-    def from_attrs(cls, attrs: Mapping[str, Any]) -> SensorConfig:
+    def from_attrs(cls, attrs: Mapping[str, object]) -> SensorConfig:
         """The sensor a scan shard was made with, from its ``sensor_*`` attributes (``to_attrs``).
 
         Raises:
             LidarsimError: a missing or non-numeric attribute, or values ``SensorConfig`` refuses.
         """
-        values: dict[str, Any] = {}
+        values: dict[str, Any] = {}  # SensorConfig's keywords: each an int or a float, checked by it
         for f in fields(cls):
             key = f"sensor_{f.name}"
             if key not in attrs:
                 raise LidarsimError(f"the scan shard's attributes lack {key}")
             raw = attrs[key]
             try:
-                values[f.name] = int(raw) if f.type in (int, "int") else float(raw)
+                values[f.name] = attr_int(raw) if f.type in (int, "int") else attr_float(raw)
             except (TypeError, ValueError) as exc:
                 raise LidarsimError(f"the scan shard's attribute {key} is not a number: {raw!r}") from exc
         return cls(**values)

@@ -30,6 +30,7 @@ from hdcore.storage import (
     FormatError,
     H5Image,
     StorageError,
+    attr_int,
     check_relative,
     check_schema,
     commit_file,
@@ -146,7 +147,7 @@ TRUTH_DTM_SHA256_ATTR = "truth_dtm_sha256"
 ShardFormatError = FormatError
 
 
-def scan_schema_version(attrs: dict[str, Any]) -> str:
+def scan_schema_version(attrs: Mapping[str, object]) -> str:
     """The schema version of a scan shard with these file attributes: 1.4 for a mosaic dataset's, 1.3
     for a descent's, 1.2 when it records any of the sensor-realism settings, else 1.1 (the bytes every
     earlier hd wrote for the same settings)."""
@@ -166,7 +167,7 @@ def _attr_value(value: Any) -> Any:
     return value
 
 
-def write_attrs(obj: h5py.HLObject, attrs: dict[str, Any]) -> None:
+def write_attrs(obj: h5py.HLObject, attrs: Mapping[str, object]) -> None:
     """Write a flat dict as HDF5 attributes (None becomes an empty string)."""
     for key, value in attrs.items():
         obj.attrs[key] = _attr_value(value)
@@ -194,7 +195,7 @@ class ScanShardWriter:
     rows: int
     cols: int
     sigmas_m: tuple[float, ...]
-    attrs: dict[str, Any]
+    attrs: dict[str, object]
     compression: str = defaults.COMPRESSION
 
     def __enter__(self) -> ScanShardWriter:
@@ -243,7 +244,7 @@ class ScanShardWriter:
                 self._d[name] = f.create_dataset(name, (n, *tail), dtype, **whole(n, *tail))
                 self._descent[name] = np.zeros((n, *tail), dtype=dtype)
         if MOSAIC_ATTR in self.attrs:
-            sizes = {"sigma": s, "frame": int(self.attrs["mosaic_frames"])}
+            sizes = {"sigma": s, "frame": attr_int(self.attrs["mosaic_frames"])}
             for name, (dtype, axes) in MOSAIC_DATASETS.items():
                 tail = tuple(sizes[a] if isinstance(a, str) else a for a in axes)
                 self._d[name] = f.create_dataset(name, (n, *tail), dtype, **whole(n, *tail))
@@ -481,7 +482,7 @@ class ScanShardReader:
                 SCAN_SCHEMA_VERSION,
                 self.what,
             )
-            self.attrs: dict[str, Any] = {k: _py(v) for k, v in attrs.items()}
+            self.attrs: dict[str, object] = {k: _py(v) for k, v in attrs.items()}
             self.sigmas_m: tuple[float, ...] = tuple(float(s) for s in np.atleast_1d(attrs["sigmas_m"]))
             optional = {k: v for k, v in OPTIONAL_SCAN_ARRAYS.items() if k in self._f}
             self.is_descent = any(name in self._f for name in DESCENT_SCAN_ARRAYS)

@@ -84,6 +84,8 @@ from hdcore.storage.h5image import (
 from hdcore.storage.h5read import (
     CheckedDataset,
     CheckedH5File,
+    attr_float,
+    attr_int,
     check_h5_data,
     open_h5,
 )
@@ -145,6 +147,8 @@ __all__ = [
     "StorageError",
     "WriterLock",
     "atomic_path",
+    "attr_float",
+    "attr_int",
     "captured_gdal_errors",
     "check_h5_data",
     "check_not_input",

@@ -75,7 +75,7 @@ class RowBlocks:
         self._buffers = {name: np.zeros((rows, *ds.shape[1:]), ds.dtype) for name, ds in datasets.items()}
         self._start = self._next = 0
 
-    def put(self, k: int, values: dict[str, Any]) -> None:
+    def put(self, k: int, values: dict[str, object]) -> None:
         """Row ``k`` of every array (``values`` by name; rows in order from 0).
 
         Raises:

@@ -147,3 +147,25 @@ def check_h5_data(path: str | os.PathLike, what: str | None = None) -> None:
                     ds[k : k + ds.chunks[0]]
             else:
                 ds[()]
+
+
+def attr_int(value: object) -> int:
+    """An HDF5 attribute's value (as h5py or a reader's plain copy gives it) as an integer.
+
+    Raises:
+        TypeError: it is no integer (a string, a float, a list, None), as ``int()`` would of most.
+    """
+    if isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_)):
+        return int(value)
+    raise TypeError(f"{value!r} is not an integer")
+
+
+def attr_float(value: object) -> float:
+    """An HDF5 attribute's value as a number (an integer or a float).
+
+    Raises:
+        TypeError: it is no number (a string, a list, None, a boolean).
+    """
+    if isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_)):
+        return float(value)
+    raise TypeError(f"{value!r} is not a number")

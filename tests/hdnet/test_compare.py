@@ -23,7 +23,7 @@ from hdcore.storage import write_json_atomic
 from hdnet.compare import ABSENT, column_names, compare
 from hdnet.errors import HdNetError
 from hdnet.report import METHOD_WORDS, report_dict
-from hdnet.report_json import ThresholdJson
+from hdnet.report_json import ReportRunJson, ThresholdJson
 from hdnet.results import METHODS, EvaluationResult, LandingRecord, LandingRow, LandingSettings, ReportRow
 
 SIGMAS = (0.0167, 0.07)
@@ -80,7 +80,7 @@ def write_report(directory: Path, shift: float = 0.0, **changes: Any) -> Path:
 
     ``changes``: ``mc_samples=``, ``spec=``, ``value_nats=``, ``landing=`` (P(safe), or None for no
     landing table), ``uncertainty=``."""
-    run = {
+    run: ReportRunJson = {
         "checkpoint": "/runs/a/last.pt",
         "checkpoint_sha256": "a" * 64,
         "epoch": 10,

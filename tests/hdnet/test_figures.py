@@ -81,7 +81,11 @@ def test_the_noise_sweep_legend_names_every_line_drawn_also_one_missing_from_the
     # every pixel uncertain (V/C 0): the uncertainty-aware map has no accuracy, only its V/C line
     rows += [ReportRow("sigma_sweep", "uncertainty_aware", 0.05, s, 0.0, nan, nan, nan, nan) for s in (0.0, 0.05, 0.1)]
     result = EvaluationResult(
-        rows, {}, [], {"bins": 10, "per_sigma": []}, run={"train_noise": {"range_m": [0.0, 0.1], "levels_m": []}}
+        rows,
+        {},
+        [],
+        {"bins": 10, "per_sigma": []},
+        run={"train_noise": {"kind": "range", "range_m": [0.0, 0.1], "levels_m": []}},
     )
     fig = noise_sweep_figure(result)
     try:
