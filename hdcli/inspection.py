@@ -9,7 +9,6 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 from hdnet.errors import HdNetError
 
@@ -70,7 +69,7 @@ def inspect_directory(
     summary = describe_dataset(directory)
     problems = verify_dataset(directory, known_schemas=known_schemas())
     failure = damaged_message(directory, problems) if problems else None
-    figure: dict[str, Any] | None = None
+    figure: dict[str, object] | None = None
     lines = [summary]
     if plot is not None and not problems:
         from hdnet.dataset_figure import dataset_overview, write_dataset_figure

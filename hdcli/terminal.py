@@ -12,7 +12,7 @@ from __future__ import annotations
 import contextlib
 import signal
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from functools import wraps
 from typing import Any
 
@@ -253,7 +253,7 @@ def say(text: str) -> None:
         click.echo(text)
 
 
-def record(record: dict[str, Any]) -> None:
+def record(record: Mapping[str, object]) -> None:
     """A command's summary as one JSON object on stdout, with ``hd --json`` (even with ``-q``), after
     any progress bar still open is ended."""
     if OUTPUT.json:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
 
 
 @dataclass(frozen=True)
@@ -12,7 +11,7 @@ class Done:
     ``record``, the one JSON object ``hd --json`` prints instead."""
 
     lines: list[str] = field(default_factory=list)
-    record: dict[str, Any] = field(default_factory=dict)
+    record: dict[str, object] = field(default_factory=dict)
 
 
 def counted(n: int, noun: str) -> str:

@@ -14,13 +14,15 @@ from __future__ import annotations
 import json
 import math
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from hdcore.storage import read_json
 from hdnet.errors import HdNetError
 from hdnet.report import METHOD_WORDS, ROW_KEYS, json_plain
+from hdnet.report_json import ReportJson
 from hdnet.run_files import CONFIG, LAST
 from hdnet.uncertainty import RECORD_KEY, recorded_score
 
@@ -64,7 +66,7 @@ class LoadedReport:
 
     name: str
     directory: Path
-    content: dict[str, Any]
+    content: ReportJson
 
 
 @dataclass(frozen=True)
@@ -93,7 +95,7 @@ class Comparison:
     reports: tuple[LoadedReport, ...]
     rows: tuple[Row, ...]
     differing: tuple[Setting, ...]
-    equal: dict[str, Any] = field(default_factory=dict)
+    equal: dict[str, object] = field(default_factory=dict)
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -102,7 +104,7 @@ class Comparison:
 
 
 # ------------------------------------------------------------------------------------------- reading
-def read_report(path: str | os.PathLike) -> tuple[Path, dict[str, Any]]:
+def read_report(path: str | os.PathLike) -> tuple[Path, ReportJson]:
     """The report directory of ``path`` (a report directory or its ``report.json``) and its content.
 
     Raises:
@@ -126,7 +128,7 @@ def read_report(path: str | os.PathLike) -> tuple[Path, dict[str, Any]]:
         raise HdNetError(f"{directory} holds no {REPORT}: give the --out directory of an hd eval (run `hd eval` first)")
     content = read_json(file, "report")
     _check_schema(file, content)
-    return directory, content
+    return directory, cast("ReportJson", content)  # its structure checked
 
 
 def _check_schema(file: Path, content: Any) -> None:
@@ -197,7 +199,7 @@ def _ordered(keys: list[Any]) -> list[Any]:
 def table1_rows(reports: list[LoadedReport]) -> list[Row]:
     """Table 1 (``table == "noise"``): per method and test noise level, V/C (uncertainty-aware only),
     PA, mIoU, precision and sensitivity of each report."""
-    index = [
+    index: list[dict[tuple[str, float], Mapping[str, object]]] = [
         {(r["method"], r["test_sigma_m"]): r for r in rep.content["rows"] if r.get("table") == "noise"}
         for rep in reports
     ]
@@ -244,7 +246,7 @@ def landing_rows(reports: list[LoadedReport]) -> list[Row]:
     return out
 
 
-def _flatten(prefix: str, value: Any, out: dict[str, Any]) -> None:
+def _flatten(prefix: str, value: object, out: dict[str, object]) -> None:
     """Nested objects as dotted names (``run.train_noise.kind``); lists and scalars are values."""
     if isinstance(value, dict) and value:
         for k, v in value.items():
@@ -253,10 +255,10 @@ def _flatten(prefix: str, value: Any, out: dict[str, Any]) -> None:
         out[prefix] = value
 
 
-def settings(content: dict[str, Any]) -> dict[str, Any]:
+def settings(content: ReportJson) -> dict[str, object]:
     """A report's settings by dotted name: its ``run`` record, its threshold's settings (not what the
     calibration found) and its ``landing_settings``; the uncertainty score always named."""
-    out: dict[str, Any] = {}
+    out: dict[str, object] = {}
     _flatten("run", content["run"], out)
     th = {k: v for k, v in content["threshold"].items() if k not in THRESHOLD_RESULTS}
     th[RECORD_KEY] = recorded_score(content["threshold"]).name
@@ -266,7 +268,7 @@ def settings(content: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def compare_settings(reports: list[LoadedReport]) -> tuple[list[Setting], dict[str, Any]]:
+def compare_settings(reports: list[LoadedReport]) -> tuple[list[Setting], dict[str, object]]:
     """The settings whose values are not all equal (each report's value, ``ABSENT`` where it has none)
     and the equal ones (name -> value)."""
     each = [settings(rep.content) for rep in reports]
@@ -367,11 +369,11 @@ def to_markdown(c: Comparison) -> str:
     return "\n".join(out)
 
 
-def to_record(c: Comparison) -> dict[str, Any]:
+def to_record(c: Comparison) -> dict[str, object]:
     """The comparison as one JSON-ready object: the reports (name, directory), each row's values by
     report name (the reports' own numbers), the settings that differ and those equal."""
 
-    def by_name(values: tuple[Any, ...]) -> dict[str, Any]:
+    def by_name(values: tuple[object, ...]) -> dict[str, object]:
         return dict(zip(c.names, values, strict=True))
 
     return json_plain(

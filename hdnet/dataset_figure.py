@@ -83,7 +83,7 @@ class DatasetOverview:
         """Scans per split, as the footprint panel counts them."""
         return self.scans.split_counts()
 
-    def record(self, path: Path) -> dict[str, Any]:
+    def record(self, path: Path) -> dict[str, object]:
         """The figure's JSON summary (``hd --json inspect DIR --plot FILE``)."""
         labels: dict[str, Any] | None = None
         if self.labels is not None:

@@ -29,7 +29,7 @@ from hdcore.storage import (
     write_text_atomic,
 )
 from hdnet.paper_results import paper_row
-from hdnet.report_json import ReportRunJson, ThresholdJson, recorded_noise
+from hdnet.report_json import ReportJson, ReportRunJson, ThresholdJson, recorded_noise
 from hdnet.results import LandingRecord, LandingSettings
 from hdnet.run_json import TrainingNoiseJson
 from hdnet.threshold_spec import unreachable_risk_words
@@ -70,7 +70,7 @@ def json_plain(obj: Any) -> Any:
     return obj
 
 
-def report_dict(result: EvaluationResult) -> dict[str, Any]:
+def report_dict(result: EvaluationResult) -> ReportJson:
     """The content of ``report.json``."""
     rows = [{k: asdict(r)[k] for k in ROW_KEYS} for r in result.rows]
     return json_plain(

@@ -9,7 +9,7 @@ docs/evaluation.md describes the report.
 
 from __future__ import annotations
 
-from typing import TypedDict
+from typing import NotRequired, TypedDict
 
 from hdnet.run_json import InputSpecJson, TrainingNoiseJson
 
@@ -18,6 +18,8 @@ __all__ = [
     "CalibrationJson",
     "CalibrationRowJson",
     "PerSigmaThresholdJson",
+    "ReportJson",
+    "ReportRowJson",
     "ReportRunJson",
     "SweepRowJson",
     "ThresholdJson",
@@ -135,6 +137,33 @@ class ReportRunJson(TypedDict, total=False):
     test_scans: int
     val_scans: int
     paper_dataset: bool
+
+
+class ReportRowJson(TypedDict):
+    """One row of Table 1, Table 2 or the noise sweep (``hdnet.results.ReportRow``; NaN written as null)."""
+
+    table: str
+    method: str
+    train_sigma_m: float | None
+    test_sigma_m: float
+    vc_fraction: float | None
+    pixel_accuracy: float | None
+    miou: float | None
+    precision: float | None
+    sensitivity: float | None
+
+
+class ReportJson(TypedDict):
+    """``report.json`` (``hdnet.report.report_dict``; ``hd compare`` and ``hd view`` read it back after
+    ``hdnet.compare``'s structure check, which requires the rows, threshold and run only)."""
+
+    rows: list[ReportRowJson]
+    threshold: ThresholdJson
+    sweep: NotRequired[list[SweepRowJson]]
+    calibration: NotRequired[CalibrationJson]
+    run: ReportRunJson
+    landing: NotRequired[list[dict[str, object]]]  # hdnet.results.LandingRow, one per row
+    landing_settings: NotRequired[dict[str, object]]  # hdnet.results.LandingRecord
 
 
 def recorded_noise(noise: TrainingNoiseJson | None) -> tuple[tuple[float, float] | None, list[float]]:

@@ -1,12 +1,14 @@
 """Result types of an evaluation and of a detection: plain records, no behaviour beyond formatting.
 
 ``hdnet.evaluate`` and ``hdnet.detect`` produce them; ``hdnet.report`` and ``hdnet.figures`` read
-them. This module imports nothing of hdnet but its defaults and the uncertainty scores (both leaves),
+them. This module imports nothing of hdnet but its defaults, the uncertainty scores and the report's
+JSON records (``hdnet.report_json``; all leaves),
 so that the writers of reports and figures never depend on the code that computes what they show.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -14,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from hdnet import defaults
-from hdnet.report_json import CalibrationJson, ReportRunJson, SweepRowJson, ThresholdJson
+from hdnet.report_json import CalibrationJson, ReportRowJson, ReportRunJson, SweepRowJson, ThresholdJson
 from hdnet.uncertainty import recorded_score
 
 # The methods every table of an evaluation scores (Table 1, Table 2, the sweeps, the landing table).
@@ -68,6 +70,25 @@ class ReportRow:
     miou: float
     precision: float
     sensitivity: float
+
+    @classmethod
+    def from_json(cls, row: ReportRowJson) -> ReportRow:
+        """A row of ``report.json``: its undefined fractions, written as null, read back as NaN."""
+
+        def fraction(value: float | None) -> float:
+            return math.nan if value is None else float(value)
+
+        return cls(
+            row["table"],
+            row["method"],
+            row["train_sigma_m"],
+            row["test_sigma_m"],
+            row["vc_fraction"],
+            fraction(row["pixel_accuracy"]),
+            fraction(row["miou"]),
+            fraction(row["precision"]),
+            fraction(row["sensitivity"]),
+        )
 
 
 @dataclass(frozen=True)

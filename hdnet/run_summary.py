@@ -10,18 +10,45 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import Any
+from typing import TypedDict
 
 from hdnet.errors import HdNetError
 from hdnet.fit import is_run_dir
 from hdnet.run_check import check_run
+from hdnet.run_json import InputSpecJson, TrainingNoiseJson
 from hdnet.run_record import CONFIG
 from hdnet.train import LAST
 
-__all__ = ["describe_run", "is_run_dir", "run_record"]
+__all__ = ["RunSummaryJson", "describe_run", "is_run_dir", "run_record"]
 
 
-def run_record(directory: str | os.PathLike) -> dict[str, Any]:
+class RunSummaryJson(TypedDict):
+    """``hd inspect RUN --json``: what :func:`run_record` says of a run."""
+
+    run: str
+    kind: str
+    schema_version: int
+    profile: str | None
+    model: dict[str, float | int]
+    epochs_planned: int
+    epochs_done: int
+    finished: bool
+    checkpoints: list[str]
+    dataset: str | None
+    also: list[str]
+    labels: str | None
+    convention: str | None
+    train_sigma_m: float | None
+    train_noise: TrainingNoiseJson | None
+    input: InputSpecJson | None
+    last_epoch: dict[str, float] | None  # metrics.csv's last row
+    best_epoch: dict[str, float] | None  # its row of the lowest validation loss
+    writer_pid: int | None
+    hd_version: str
+    torch_version: str
+
+
+def run_record(directory: str | os.PathLike) -> RunSummaryJson:
     """A JSON-ready description of the run at ``directory``, every file checked first.
 
     Raises:
@@ -59,12 +86,12 @@ def run_record(directory: str | os.PathLike) -> dict[str, Any]:
     }
 
 
-def _noise_text(record: dict[str, Any]) -> str:
-    noise = record.get("train_noise") or {}
-    if noise.get("kind") == "range":
-        lo, hi = noise.get("range_m") or (None, None)
-        return f"{lo:g} to {hi:g} m, drawn per sample (reference {record.get('train_sigma_m'):g} m)"
-    levels = noise.get("levels_m") or [record.get("train_sigma_m")]
+def _noise_text(record: RunSummaryJson) -> str:
+    noise, reference = record["train_noise"], record["train_sigma_m"]
+    if noise is not None and noise["kind"] == "range" and noise["range_m"]:
+        lo, hi = noise["range_m"]
+        return f"{lo:g} to {hi:g} m, drawn per sample (reference {reference:g} m)"
+    levels: list[float | None] = list(noise["levels_m"]) if noise is not None and noise["levels_m"] else [reference]
     return ", ".join(f"{s:g} m" for s in levels if s is not None)
 
 
@@ -80,7 +107,8 @@ def describe_run(directory: str | os.PathLike) -> str:
         f"labels    {r['labels']} ({r['convention']} convention)",
         f"noise     {_noise_text(r)}",
     ]
-    extra = (r.get("input") or {}).get("extra_channels") or []
+    spec = r["input"]
+    extra = spec["extra_channels"] if spec is not None else []
     if extra:
         lines.append(f"inputs    heights + {', '.join(extra)}")
     for label, row in (("last", r["last_epoch"]), ("best", r["best_epoch"])):

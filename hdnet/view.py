@@ -66,6 +66,7 @@ from hdnet.compare import read_report
 from hdnet.compare import settings as report_settings
 from hdnet.errors import HdNetError
 from hdnet.report import json_plain, report_markdown
+from hdnet.report_json import ReportJson
 from hdnet.results import SITE_COLUMNS, EvaluationResult, LandingRecord, LandingRow, ReportRow
 from hdnet.run_files import CONFIG, LAST
 from hdnet.uncertainty import recorded_score
@@ -116,7 +117,7 @@ class ViewResult:
     kind: str
     source: Path
     n_bytes: int
-    info: dict[str, Any] = field(default_factory=dict)
+    info: dict[str, object] = field(default_factory=dict)
 
     def summary(self) -> str:
         """One line for the terminal."""
@@ -872,7 +873,7 @@ def _footer(directory: Path, marker: str) -> str:
 _FIGURE_LINE = re.compile(r"^!\[[^\]]*\]\(([^)\s/\\]+)\)\s*$")
 
 
-def _result_of(file: Path, content: dict[str, Any]) -> EvaluationResult:
+def _result_of(file: Path, content: ReportJson) -> EvaluationResult:
     """An ``EvaluationResult`` of a report's own numbers (its ``report.json``), for ``report_markdown``."""
     landing_fields = [f.name for f in fields(LandingRow)]
     landing = []
@@ -889,7 +890,7 @@ def _result_of(file: Path, content: dict[str, Any]) -> EvaluationResult:
                 f"{file}: no {key!r} {kind.__name__}; not an hd eval report of this schema: re-run hd eval"
             )
     return EvaluationResult(
-        rows=[ReportRow(**r) for r in content["rows"]],
+        rows=[ReportRow.from_json(r) for r in content["rows"]],
         threshold=content["threshold"],
         sweep=content["sweep"],
         calibration=content["calibration"],

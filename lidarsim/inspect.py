@@ -6,7 +6,6 @@ import contextlib
 import os
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -147,7 +146,7 @@ def describe_dataset(directory: str | os.PathLike) -> str:
     return "\n".join(lines)
 
 
-def dataset_record(directory: str | os.PathLike) -> dict[str, Any]:
+def dataset_record(directory: str | os.PathLike) -> dict[str, object]:
     """A JSON-ready summary of a dataset (``hd inspect --json``): what :func:`describe_dataset` prints,
     from the manifest alone.
 
@@ -158,7 +157,7 @@ def dataset_record(directory: str | os.PathLike) -> dict[str, Any]:
     manifest = read_manifest(directory)
     shards = manifest["shards"]
     dtm = _mapping(manifest.get("dtm"))
-    record: dict[str, Any] = {
+    record: dict[str, object] = {
         "dataset": directory if isinstance(directory, str) else str(directory.resolve()),
         "kind": "hd.dataset",
         "schema": manifest.get("schema"),

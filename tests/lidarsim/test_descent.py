@@ -4,6 +4,7 @@ shards; the paper's build is untouched."""
 
 from __future__ import annotations
 
+import json
 import math
 import shutil
 from pathlib import Path
@@ -310,7 +311,7 @@ def test_hd_inspect_names_the_descents_and_the_navigation_error(built):
     assert "nav error position 1.0 m bias + 0.3 m walk per frame, attitude 0.1 deg bias + 0.02 deg walk" in text
     record = dataset_record(built)
     assert (record["n_descents"], record["descent_frames"]) == (3, 3)
-    assert record["descent"]["nav"]["attitude_walk_deg"] == 0.02
+    assert json.loads(json.dumps(record))["descent"]["nav"]["attitude_walk_deg"] == 0.02  # as hd --json prints it
     result = CliRunner().invoke(main, ["inspect", str(built)])
     assert result.exit_code == 0 and "nav error" in result.output and "intact" in result.output
 
