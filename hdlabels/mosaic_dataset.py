@@ -498,7 +498,7 @@ def _manifest(
         "sigmas_m": list(source["sigmas_m"]),
         "seed": source.get("seed", 0),
         "config_sha256": source.get("config_sha256"),
-        "config": source.get("config", {}),
+        "config": source["config"],  # every scan build records it
         "dtm": dtm,
         "mosaic": {
             "source": {

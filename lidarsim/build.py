@@ -20,10 +20,10 @@ import os
 import shutil
 import time
 import warnings
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -49,7 +49,7 @@ from lidarsim._version import __version__
 from lidarsim.base_relief import rocks_on_base, rocky_geotiff_bytes
 from lidarsim.errors import LidarsimError
 from lidarsim.footprint import FootprintConfig
-from lidarsim.manifest_json import DtmJson, ManifestJson, RecipeDeviationJson, ScanShardJson
+from lidarsim.manifest_json import BuildConfigJson, DtmJson, ManifestJson, RecipeDeviationJson, ScanShardJson
 from lidarsim.navigation import DescentNavErrors, descent_nav_errors
 from lidarsim.noise import NoiseModel
 from lidarsim.parallel import probe_scheduler, run_tasks
@@ -83,6 +83,7 @@ from lidarsim.shards import (
     remove_partials,
     scan_schema_version,
     sha256_file,
+    validate_manifest,
     write_json_atomic,
 )
 from lidarsim.streams import Purpose, stream
@@ -173,8 +174,8 @@ class BuildConfig:
         k = self.trajectory.frames
         return -(-self.shard_size // k) * k
 
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-friendly dictionary of the whole configuration."""
+    def to_dict(self) -> BuildConfigJson:
+        """JSON-friendly dictionary of the whole configuration (``docs/shard-format.md``)."""
         d = asdict(self)
         d["sigmas_m"] = list(self.sigmas_m)
         if self.dtm_path is not None and not self.rocks_on_dtm:
@@ -189,7 +190,7 @@ class BuildConfig:
         d["trajectory"] = {k: v for k, v in d["trajectory"].items() if v is not None}
         if self.trajectory.descent is not None:  # the descent's altitudes and approach replace these
             del d["trajectory"]["altitude_m"], d["trajectory"]["tilt_deg"]
-        return d
+        return cast("BuildConfigJson", d)  # asdict's keys, as BuildConfigJson lists them
 
     @property
     def realism_attrs(self) -> dict[str, object]:
@@ -201,7 +202,7 @@ class BuildConfig:
             attrs.update(self.noise_model.to_attrs())
         return attrs
 
-    def canonical_dict(self) -> dict[str, Any]:
+    def canonical_dict(self) -> BuildConfigJson:
         """``to_dict`` with the DTM named by its file name instead of the path it was read from, so
         that the same recipe gives the same settings wherever the checkout or the DTM lies (the
         settings hash and the shards' ``config_json``). The DTM's content is checked apart from the
@@ -600,7 +601,7 @@ def prepare_output(out_dir: Path, config: BuildConfig, overwrite: bool) -> bool:
     return False
 
 
-def _recorded_settings(path: Path) -> dict[str, Any]:
+def _recorded_settings(path: Path) -> dict[str, object]:
     """``config_sha256`` and ``config`` recorded in a manifest or a build state file ({} if unreadable)."""
     try:
         record = json.loads(read_regular_text(path))
@@ -609,16 +610,16 @@ def _recorded_settings(path: Path) -> dict[str, Any]:
     return record if isinstance(record, dict) else {}
 
 
-def _flatten(value: Any, prefix: str = "") -> dict[str, Any]:
+def _flatten(value: object, prefix: str = "") -> dict[str, object]:
     if isinstance(value, dict):
-        out: dict[str, Any] = {}
+        out: dict[str, object] = {}
         for k, v in value.items():
             out |= _flatten(v, f"{prefix}{k}.")
         return out
     return {prefix.rstrip("."): value}
 
 
-def _changes(before: dict[str, Any], after: dict[str, Any]) -> list[tuple[str, Any, Any]]:
+def _changes(before: Mapping[str, object], after: Mapping[str, object]) -> list[tuple[str, object, object]]:
     """(dotted key, value before, value after) of every setting that differs (``"absent"`` for a missing one)."""
     flat_before, flat_after = _flatten(before), _flatten(after)
     keys = sorted(set(flat_before) | set(flat_after))
@@ -629,7 +630,7 @@ def _changes(before: dict[str, Any], after: dict[str, Any]) -> list[tuple[str, A
     ]
 
 
-def settings_difference(recorded: dict[str, Any], config: BuildConfig, limit: int = 4) -> str:
+def settings_difference(recorded: Mapping[str, object], config: BuildConfig, limit: int = 4) -> str:
     """The settings that differ between a recorded build (manifest or state) and ``config``, for messages:
     ``sigmas_m [0.0167] -> [0.07], trajectory.n_scans 20 -> 40``."""
     old = recorded.get("config")
@@ -656,23 +657,23 @@ def setting_changes(recorded: Any, config: BuildConfig) -> list[tuple[str, Any, 
     return _changes(before, config.canonical_dict())
 
 
-def finished_identical(out_dir: Path, config: BuildConfig) -> dict[str, Any] | None:
+def finished_identical(out_dir: Path, config: BuildConfig) -> ManifestJson | None:
     """The manifest of a finished build in ``out_dir`` made with exactly ``config`` (settings hash, and a
     user DTM of the same bytes), else None. Nothing is verified beyond the shards being present."""
     record = _recorded_settings(out_dir / MANIFEST_NAME)
     if not record or record.get("config_sha256") != config.fingerprint():
         return None
-    shards = record.get("shards")
-    if not isinstance(shards, list) or not all(
-        isinstance(e, dict) and isinstance(e.get("path"), str) and (out_dir / e["path"]).is_file() for e in shards
-    ):
+    try:
+        manifest = validate_manifest(record, str(out_dir / MANIFEST_NAME))
+    except ShardFormatError:
+        return None
+    if not all((out_dir / e["path"]).is_file() for e in manifest["shards"]):
         return None
     if config.dtm_path is not None and not config.rocks_on_dtm:
-        dtm = record.get("dtm")
-        recorded_sha = dtm.get("sha256") if isinstance(dtm, dict) else None
+        recorded_sha = manifest.get("dtm", {}).get("sha256")
         if not Path(config.dtm_path).is_file() or sha256_file(config.dtm_path) != recorded_sha:
             return None
-    return record
+    return manifest
 
 
 def clear_output(out_dir: Path, keep_state: bool = False) -> None:

@@ -13,14 +13,13 @@ import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from hdcore.storage import write_text_atomic
 from lidarsim.checksums_json import ChecksumsJson, PublishedFileJson
 from lidarsim.croissant import CROISSANT_FILE, croissant_metadata, recipe_croissant
 from lidarsim.errors import RecipeError
 from lidarsim.fingerprint import FINGERPRINT_SCHEMA, FINGERPRINT_SCHEMA_VERSION
-from lidarsim.manifest_json import ManifestJson
+from lidarsim.manifest_json import BuildConfigJson, ManifestJson, NavigationJson, TrajectoryConfigJson
 from lidarsim.published import content_fingerprints
 from lidarsim.recipe import CHECKSUMS_FILE, Recipe, load_recipe, shipped_recipe_dirs
 from lidarsim.shards import read_manifest
@@ -115,7 +114,7 @@ def recipe_reference(recipe: Recipe) -> str:
         return str(directory)
 
 
-def terrain_licence(recipe: Recipe, config: dict[str, Any]) -> str:
+def terrain_licence(recipe: Recipe, config: BuildConfigJson) -> str:
     """The licence of a recipe's terrain, as its card states it."""
     if (recipe.path.parent / SOURCE_FILE).is_file():
         return f"see `{SOURCE_FILE}` beside this card (where the DTM comes from, its credit and licence)"
@@ -146,7 +145,7 @@ def _class_balance_lines(m: ManifestJson) -> list[str]:
     return label_lines
 
 
-def _altitude_words(m: ManifestJson, trajectory: dict[str, Any]) -> str:
+def _altitude_words(m: ManifestJson, trajectory: TrajectoryConfigJson) -> str:
     """Step 2 of :func:`render_card`: the flight in words (a fixed altitude or a drawn range, m, or the
     descents: frames, altitudes in m, approach angle in degrees, navigation error)."""
     descent = trajectory.get("descent")
@@ -168,7 +167,7 @@ def _altitude_words(m: ManifestJson, trajectory: dict[str, Any]) -> str:
     return altitude
 
 
-def _build_settings_lines(m: ManifestJson, cfg: dict[str, Any]) -> list[str]:
+def _build_settings_lines(m: ManifestJson, cfg: BuildConfigJson) -> list[str]:
     """Step 3 of :func:`render_card`: the "Build settings" section's lines (software, seed, sensor,
     trajectory, DTM and, when set, footprint, noise model and terrain, as recorded)."""
     dtm = m["dtm"]
@@ -189,7 +188,7 @@ def _build_settings_lines(m: ManifestJson, cfg: dict[str, Any]) -> list[str]:
     if cfg.get("noise_model"):
         lines.append(f"- noise model: `{json.dumps(cfg['noise_model'])}`")
     if cfg.get("rocks_on_dtm"):  # the DTM's relief, resampled, plus the rocks: only these fields are used
-        rocks = {k: v for k, v in cfg["terrain"].items() if k == "spacing_m" or k.startswith("rock_")}
+        rocks = {k: v for k, v in (cfg["terrain"] or {}).items() if k == "spacing_m" or k.startswith("rock_")}
         lines.append(f"- rocks added to the DTM (resampled to `spacing_m`): `{json.dumps(rocks)}`")
     elif cfg.get("terrain"):
         lines.append(f"- procedural terrain: `{json.dumps(cfg['terrain'])}`")
@@ -273,7 +272,7 @@ def _other_truths(manifest: ManifestJson, recipe: Recipe) -> list[str]:
     return sorted(made - {own})
 
 
-def _nav_words(nav: dict[str, Any]) -> str:
+def _nav_words(nav: NavigationJson) -> str:
     """A descent's navigation error model in words: ``position 1 m + 0.1 m per frame, attitude 0.1° + 0°
     per frame``."""
     return (
@@ -282,7 +281,7 @@ def _nav_words(nav: dict[str, Any]) -> str:
     )
 
 
-def _sensor_realism(cfg: dict[str, Any]) -> list[str]:
+def _sensor_realism(cfg: BuildConfigJson) -> list[str]:
     """The card's sentences on a realistic sensor (pixel footprint, SNR noise; docs/lidarsim.md); none for
     the paper's sensor."""
     out = []

@@ -18,6 +18,7 @@ manifest's records read here (the build settings, published checksums) are not n
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -26,6 +27,7 @@ import h5py
 import numpy as np
 
 from hdcore.storage import sha256_file
+from lidarsim.manifest_json import BuildConfigJson
 from lidarsim.shards import MANIFEST_NAME, read_manifest
 
 # One JSON-LD node of the document being written (the file format itself, see the module docstring).
@@ -162,7 +164,7 @@ class Described:
     shards: list[JsonLdNode]
     shard_arrays: Arrays | None
     labelings: list[tuple[str, str | None, list[JsonLdNode], Arrays | None]]
-    config: dict[str, Any]
+    config: BuildConfigJson | None  # None: a manifest that records none
     sigmas_m: list[float]
     dtm_name: str
 
@@ -192,7 +194,7 @@ def croissant_metadata(
             )
             for lab in m.get("labelings", [])
         ],
-        config=m.get("config", {}),
+        config=m.get("config"),
         sigmas_m=list(m["sigmas_m"]),
         dtm_name=str(m.get("dtm", {}).get("name", "?")),
     )
@@ -248,8 +250,8 @@ def recipe_croissant(recipe_dir: str | os.PathLike, licence: str, citation: str)
 def _metadata(d: Described, name: str, description: str, version: int, licence: str, citation: str) -> JsonLdNode:
     """The Croissant record of what ``d`` describes."""
     cfg = d.config
-    sensor = cfg.get("sensor", {}) if isinstance(cfg, dict) else {}
-    terrain = "hd's procedural Mars terrain" if not cfg.get("dtm_path") else f"the DTM {d.dtm_name}"
+    sensor: Mapping[str, object] = cfg["sensor"] if cfg is not None else {}
+    terrain = "hd's procedural Mars terrain" if cfg is None or not cfg["dtm_path"] else f"the DTM {d.dtm_name}"
     distribution: list[JsonLdNode] = [d.manifest] if d.manifest is not None else []
     distribution += d.shards
     distribution.append(

@@ -14,18 +14,25 @@ from __future__ import annotations
 from typing import Any, NotRequired, TypedDict
 
 __all__ = [
+    "BuildConfigJson",
     "DemGridJson",
+    "DescentJson",
     "DeviationJson",
     "DtmJson",
     "FileEntryJson",
+    "FootprintJson",
     "LabelShardJson",
     "LabelingJson",
     "ManifestJson",
     "MosaicJson",
     "MosaicSourceJson",
+    "NavigationJson",
+    "NoiseModelJson",
     "RecipeDeviationJson",
     "ScanShardJson",
+    "SensorJson",
     "ShardRefJson",
+    "TrajectoryConfigJson",
     "TrajectoryJson",
 ]
 
@@ -149,6 +156,93 @@ class MosaicJson(TypedDict):
     icp_voxels_m: list[float]
 
 
+class SensorJson(TypedDict):
+    """``lidarsim.sensor.SensorConfig``: detector pixels, field of view (degrees), focal length and
+    detector defects."""
+
+    rows: int
+    cols: int
+    fov_x_deg: float
+    fov_y_deg: float
+    focal_length_m: float
+    dead_elements: int
+    damaged_elements: int
+    damaged_error_m: float
+
+
+class NavigationJson(TypedDict):
+    """``lidarsim.navigation.NavigationError``: 1-sigma bias and walk per frame, metres and degrees."""
+
+    position_sigma_m: float
+    position_walk_m: float
+    attitude_sigma_deg: float
+    attitude_walk_deg: float
+
+
+class DescentJson(TypedDict):
+    """``lidarsim.descent.DescentConfig``: frames per descent, altitudes (m), approach angle (degrees)."""
+
+    frames: int
+    altitude_start_m: float
+    altitude_end_m: float
+    approach_deg: float
+    nav: NavigationJson
+
+
+class TrajectoryConfigJson(TypedDict):
+    """``lidarsim.trajectory.TrajectoryConfig`` as a build records it: settings left unset (None) are
+    absent, and a descent build has its descent instead of ``altitude_m`` and ``tilt_deg``."""
+
+    n_scans: int
+    altitude_m: NotRequired[float]
+    tilt_deg: NotRequired[float]
+    jitter_deg: float
+    margin_m: float
+    tile_m: float
+    altitude_max_m: NotRequired[float]
+    tilt_max_deg: NotRequired[float]
+    jitter_max_deg: NotRequired[float]
+    descent: NotRequired[DescentJson]
+
+
+class FootprintJson(TypedDict):
+    """``lidarsim.footprint.FootprintConfig``: sub-rays a side, spot profile, range estimator, pulse (m)."""
+
+    samples: int
+    spot_profile: str
+    range_estimator: str
+    pulse_width_m: float
+    return_fraction: float
+
+
+class NoiseModelJson(TypedDict):
+    """``lidarsim.noise.NoiseModel``: its kind and the SNR model's parameters."""
+
+    kind: str
+    snr_ref: float
+    snr_min: float
+    reference_range_m: float
+
+
+class BuildConfigJson(TypedDict):
+    """``config`` (``lidarsim.build.BuildConfig.to_dict``): every build setting. The sensor-realism
+    settings and ``rocks_on_dtm`` are absent at their defaults (the manifests written before them read
+    the same); ``terrain`` is null for a user's DTM without rocks."""
+
+    sigmas_m: list[float]
+    seed: int
+    sensor: SensorJson
+    trajectory: TrajectoryConfigJson
+    dtm_path: str | None
+    dtm_scale: float
+    terrain: dict[str, Any] | None  # lidarsim.procedural.MarsTerrainParams: its keywords
+    shard_size: int
+    compression: str
+    rocks_on_dtm: NotRequired[bool]
+    footprint: NotRequired[FootprintJson]
+    noise_model: NotRequired[NoiseModelJson]
+
+
 class ManifestJson(TypedDict):
     """``manifest.json`` of a dataset (``docs/shard-format.md``)."""
 
@@ -163,7 +257,7 @@ class ManifestJson(TypedDict):
     sigmas_m: list[float]
     seed: NotRequired[int]
     config_sha256: NotRequired[str | None]
-    config: NotRequired[dict[str, Any]]  # lidarsim.build.BuildConfig.to_dict: nested settings
+    config: NotRequired[BuildConfigJson]
     dtm: NotRequired[DtmJson]
     trajectory: NotRequired[TrajectoryJson]
     splits: NotRequired[dict[str, int]]
