@@ -69,6 +69,7 @@ from hdlabels.store import LabelingEntry, LabelShardEntry, find_labeling, open_l
 from hdnet import defaults
 from hdnet._version import __version__
 from hdnet.data import dataset_sigmas, open_labeling, sigma_index
+from hdnet.detect_json import DetectInfoJson, DetectInputJson, SitesGeoJson, UpsampledJson
 from hdnet.detect_settings import DetectSettings
 from hdnet.engine import inference_model, predict
 from hdnet.errors import HdNetError
@@ -347,7 +348,7 @@ class _Terrain:
     crs_wkt: str
     spacing_xy_m: tuple[float, float]
     scan_frame: bool  # heights are already in a scan frame (no re-referencing)
-    provenance: dict[str, Any]
+    provenance: DetectInputJson
 
     def read(self, row0: int, col0: int, rows: int, cols: int) -> np.ndarray:
         raise NotImplementedError
@@ -375,7 +376,7 @@ class _DtmTerrain(_Terrain):
             )
         coarse = max(sx, sy)
         self.path = Path(info.path)
-        self.upsampled: dict[str, Any] | None = None
+        self.upsampled: UpsampledJson | None = None
         self.window = window
         self.dtm: DTM | UpsampledDTM
         if coarse > run.spacing_m * (1.0 + SPACING_TOLERANCE):
@@ -475,7 +476,8 @@ class _DtmTerrain(_Terrain):
         name = self.dtm.info.name
         what, fix = "the DTM", "use a larger DTM"
         if self.window is not None:
-            bounds = bounds_text(grid_bounds(self.provenance["source_transform"], *self.provenance["source_shape"]))
+            source = self.provenance
+            bounds = bounds_text(grid_bounds(tuple(source["source_transform"]), *source["source_shape"]))
             name = f"the window {self.window.text()} of {name}"
             what, fix = "the window", f"widen the window (the DTM's bounds: {bounds})"
         c, coarse = self.cells, max(self.spacing_xy_m)
@@ -557,7 +559,7 @@ class _ArrayTerrain(_Terrain):
         heights_m: np.ndarray,
         transform: Affine,
         scan_frame: bool,
-        provenance: dict[str, Any],
+        provenance: DetectInputJson,
         crs_wkt: str = "",
     ) -> None:
         self.dem = heights_m
@@ -617,7 +619,7 @@ class _ScanTerrain(_ArrayTerrain):
         dem = found[1]
         manifest = read_manifest(dataset)
         origin = _origin_map(dataset, found[3], scan)
-        provenance = {
+        provenance: DetectInputJson = {
             "kind": "scan",
             "dataset": dataset_key(dataset),
             "manifest_sha256": manifest_sha256(dataset, MANIFEST_NAME),
@@ -723,8 +725,8 @@ def _sites_csv(sites: list[Site]) -> str:
     return buf.getvalue()
 
 
-def _sites_geojson(sites: list[Site], crs_wkt: str) -> dict[str, Any]:
-    collection: dict[str, Any] = {
+def _sites_geojson(sites: list[Site], crs_wkt: str) -> SitesGeoJson:
+    collection: SitesGeoJson = {
         "type": "FeatureCollection",
         "features": [
             {
@@ -754,7 +756,7 @@ class DetectResult:
     threshold_nats: float
     counts: dict[str, int]
     timings_s: dict[str, float]
-    info: dict[str, Any] = field(repr=False)
+    info: DetectInfoJson = field(repr=False)
 
     def summary(self) -> str:
         valid = sum(self.counts[k] for k in ("safe", "unsafe", "uncertain"))
@@ -1568,7 +1570,7 @@ def _info(
     sites: list[Site],
     timings: dict[str, float],
     nav_sigma_m: float = 0.0,
-) -> dict[str, Any]:
+) -> DetectInfoJson:
     return {
         "software": "hd",
         "software_version": __version__,

@@ -19,6 +19,7 @@ import math
 from collections.abc import Iterator
 from dataclasses import dataclass
 
+from hdnet.detect_json import TilingJson
 from hdnet.errors import HdNetError
 
 
@@ -98,7 +99,7 @@ class TilePlan:
             ]
             yield own_r, tiles
 
-    def to_dict(self) -> dict[str, object]:
+    def to_dict(self) -> TilingJson:
         """Plain summary for reports: tile size, overlap, tile counts."""
         return {
             "tile_px": list(self.tile_shape),

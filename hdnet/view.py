@@ -41,7 +41,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -64,9 +64,10 @@ from hdnet import limits
 from hdnet._version import __version__
 from hdnet.compare import read_report
 from hdnet.compare import settings as report_settings
+from hdnet.detect_json import DetectInfoJson
 from hdnet.errors import HdNetError
 from hdnet.report import json_plain, report_markdown
-from hdnet.report_json import ReportJson
+from hdnet.report_json import ReportJson, recorded_noise
 from hdnet.results import SITE_COLUMNS, EvaluationResult, LandingRecord, LandingRow, ReportRow
 from hdnet.run_files import CONFIG, LAST
 from hdnet.uncertainty import recorded_score
@@ -171,7 +172,7 @@ class DetectOutput:
     """A checked ``hd detect`` output: its ``detect.json``, grid and ``sites.csv`` rows (the CSV's text)."""
 
     directory: Path
-    info: dict[str, Any]
+    info: DetectInfoJson
     rows: int
     cols: int
     transform: tuple[float, float, float, float, float, float]
@@ -225,7 +226,8 @@ def read_detect(directory: Path) -> DetectOutput:
     ):
         raise _schema_error(file, f"cell counts {counts!r}")
     transform = (float(t[0]), float(t[1]), float(t[2]), float(t[3]), float(t[4]), float(t[5]))
-    return DetectOutput(directory, info, rows, cols, transform, _read_sites(directory, info["sites"]))
+    checked = cast("DetectInfoJson", info)  # the keys read without a default checked above
+    return DetectOutput(directory, checked, rows, cols, transform, _read_sites(directory, info["sites"]))
 
 
 def _read_sites(directory: Path, recorded: list[Any]) -> list[list[str]]:
@@ -709,11 +711,11 @@ def _settings_items(out: DetectOutput) -> list[tuple[str, str]]:
     info = out.info
     run, src, th, lander = info["run"], info["input"], info["threshold"], info["lander"]
     grid, rule = info["grid"], info.get("site_rule", {})
-    noise = run.get("train_noise") or {}
-    if noise.get("range_m"):
-        trained = f"{noise['range_m'][0] * 100:.3g} to {noise['range_m'][1] * 100:.3g} cm (drawn per sample)"
-    elif noise.get("levels_m"):
-        trained = ", ".join(f"{s * 100:.3g}" for s in noise["levels_m"]) + " cm"
+    range_m, levels = recorded_noise(run.get("train_noise"))
+    if range_m:
+        trained = f"{range_m[0] * 100:.3g} to {range_m[1] * 100:.3g} cm (drawn per sample)"
+    elif levels:
+        trained = ", ".join(f"{s * 100:.3g}" for s in levels) + " cm"
     else:
         trained = _cm(run.get("train_sigma_m"))
     items = [
@@ -742,7 +744,7 @@ def _settings_items(out: DetectOutput) -> list[tuple[str, str]]:
             ),
         ]
     h_t = th.get("value_nats")
-    value = f"{float(h_t):.4f} nats" if _finite(h_t) else "unbounded (every cell certain)"
+    value = f"{float(h_t):.4f} nats" if h_t is not None and _finite(h_t) else "unbounded (every cell certain)"
     calibration = (
         f"{th.get('calibration_split')} split at {_cm(th.get('calibration_sigma_m'))}, "
         f"{th.get('calibration_images')} images of {th.get('calibration_datasets') or th.get('calibration_dataset')}"
@@ -825,7 +827,7 @@ def _detect_text(out: DetectOutput, layers: list[_Layer], facts: dict[str, Any])
     h_t = th.get("value_nats")
     lead = (
         f"{pct['safe']:.1f} % safe, {pct['unsafe']:.1f} % unsafe, {pct['uncertain']:.1f} % uncertain of {valid} valid "
-        f"cells; H_t {f'{float(h_t):.4f} nats' if _finite(h_t) else 'unbounded'} ({th.get('spec')}"
+        f"cells; H_t {f'{float(h_t):.4f} nats' if h_t is not None and _finite(h_t) else 'unbounded'} ({th.get('spec')}"
         f"{recorded_score(th).qualifier}); {len(out.site_rows)} landing site(s)."
     )
     raw = json.dumps(out.info, indent=1)
