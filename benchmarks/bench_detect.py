@@ -65,7 +65,8 @@ BUDGET_S = 10.0  # hd choice: the per-frame time budget detection is measured ag
 LABELING = LabelingEntry("default-lander-dem100x100at1m", Lander(), DemSpec.for_convention("paper"))
 
 
-def _median(fn: Callable[[], object], repeats: int, warmups: int = 2) -> float:
+def median_seconds(fn: Callable[[], object], repeats: int, warmups: int = 2) -> float:
+    """Median seconds of ``repeats`` calls of ``fn`` after ``warmups`` calls."""
     for _ in range(warmups):  # numba compilation, oneDNN primitives, the allocator: the first call of a
         fn()  # new model is several times slower than the steady state
     times = []
@@ -134,7 +135,7 @@ def _frame_seconds(run: DetectRun, dem: np.ndarray, samples: int, batch: int, re
         probs = network_output(mc_dropout_predict(run.model, x, n_samples=samples).mean_probs, run)
         predictive_entropy(probs)
 
-    return _median(once, repeats, warmups) / batch
+    return median_seconds(once, repeats, warmups) / batch
 
 
 def main() -> None:
@@ -179,12 +180,12 @@ def main() -> None:
         eight = _frame_seconds(run, dem, args.samples, 8, args.repeats)
         rows.insert(1, ("cpu profile on 1 thread", one, eight))
         torch.set_num_threads(threads)
-    base = _median(lambda: baseline_p_safe(dem, 1.0, 0.0167, LABELING), args.repeats * 3)
+    base = median_seconds(lambda: baseline_p_safe(dem, 1.0, 0.0167, LABELING), args.repeats * 3)
     p = baseline_p_safe(dem, 1.0, 0.0167, LABELING)
     from rasterio.transform import from_origin
 
     safety = np.where(np.isfinite(p), SAFETY_SAFE, 255).astype(np.uint8)  # worst case: every valid cell safe
-    sites = _median(
+    sites = median_seconds(
         lambda: select_sites(
             safety, np.nan_to_num(p), np.zeros_like(p), p, from_origin(0, 100, 1, 1), (1.0, 1.0), Lander(), 10
         ),

@@ -21,10 +21,7 @@ from __future__ import annotations
 
 import argparse
 import os
-import statistics
 import sys
-import time
-from collections.abc import Callable
 from pathlib import Path
 
 import torch
@@ -34,6 +31,7 @@ from torch.utils.flop_counter import FlopCounterMode
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from bench_detect import median_seconds
 from machine import cpu_model
 
 from hdnet.engine import NCHWDrawDropout, inference_model, predict
@@ -45,27 +43,16 @@ TARGET_S = 60.0  # issue 30: the floor with the robust run in at most 60 s
 BATCH_TILES = 8  # hd detect's default batch (DetectSettings.batch_size)
 
 
-def _median_s(run: Callable[[], object], repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        run()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
-
-
 def _gemm_gflops() -> float:
     a, b = torch.randn(2048, 2048), torch.randn(2048, 2048)
-    torch.mm(a, b)
-    return 2 * 2048**3 / _median_s(lambda: torch.mm(a, b), 5) / 1e9
+    return 2 * 2048**3 / median_seconds(lambda: torch.mm(a, b), 5, warmups=1) / 1e9
 
 
 def _conv_gflops() -> float:
     x = torch.randn(64, 96, 50, 50).contiguous(memory_format=torch.channels_last)
     w = torch.randn(96, 96, 3, 3).contiguous(memory_format=torch.channels_last)
     with torch.no_grad():
-        F.conv2d(x, w, padding=1)
-        seconds = _median_s(lambda: F.conv2d(x, w, padding=1), 5)
+        seconds = median_seconds(lambda: F.conv2d(x, w, padding=1), 5, warmups=1)
     return 2 * 64 * 50 * 50 * 96 * 96 * 9 / seconds / 1e9
 
 
@@ -87,8 +74,7 @@ def main() -> None:
         with FlopCounterMode(display=False) as counter:
             predict(model, x, args.samples, "channels-last")
         flops = counter.get_total_flops()
-        predict(model, x, args.samples, "channels-last")  # warm-up
-        network_s = _median_s(lambda: predict(model, x, args.samples, "channels-last"), 3)
+        network_s = median_seconds(lambda: predict(model, x, args.samples, "channels-last"), 3, warmups=1)
     masks: list[tuple[NCHWDrawDropout, torch.Size]] = []  # each mask's module and shape, in draw order
     drops = [m for m in model.modules() if isinstance(m, NCHWDrawDropout)]
     for drop in drops:
@@ -98,7 +84,9 @@ def main() -> None:
     for drop in drops:
         drop.shapes = None
     draws = sum(shape.numel() for _, shape in masks)
-    mask_s = _median_s(lambda: [drop.draw(shape, torch.float32, torch.device("cpu")) for drop, shape in masks], 3)
+    mask_s = median_seconds(
+        lambda: [drop.draw(shape, torch.float32, torch.device("cpu")) for drop, shape in masks], 3, warmups=0
+    )
     gemm, conv = _gemm_gflops(), _conv_gflops()
     per_tile = flops / BATCH_TILES
     total = per_tile * args.tiles

@@ -14,6 +14,7 @@ from typing import TypedDict
 
 from hdnet.errors import HdNetError
 from hdnet.fit import is_run_dir
+from hdnet.report_json import recorded_noise
 from hdnet.run_check import check_run
 from hdnet.run_json import InputSpecJson, TrainingNoiseJson
 from hdnet.run_record import CONFIG
@@ -87,12 +88,14 @@ def run_record(directory: str | os.PathLike) -> RunSummaryJson:
 
 
 def _noise_text(record: RunSummaryJson) -> str:
-    noise, reference = record["train_noise"], record["train_sigma_m"]
-    if noise is not None and noise["kind"] == "range" and noise["range_m"]:
-        lo, hi = noise["range_m"]
+    range_m, levels = recorded_noise(record["train_noise"])
+    reference = record["train_sigma_m"]
+    if range_m:
+        lo, hi = range_m
         return f"{lo:g} to {hi:g} m, drawn per sample (reference {reference:g} m)"
-    levels: list[float | None] = list(noise["levels_m"]) if noise is not None and noise["levels_m"] else [reference]
-    return ", ".join(f"{s:g} m" for s in levels if s is not None)
+    if not levels and reference is not None:  # a record without levels: its reference level
+        levels = [reference]
+    return ", ".join(f"{s:g} m" for s in levels)
 
 
 def describe_run(directory: str | os.PathLike) -> str:

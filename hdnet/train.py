@@ -49,7 +49,7 @@ import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, cast
+from typing import Any, Final, cast
 
 import numpy as np
 import torch
@@ -72,7 +72,7 @@ from hdnet.run_record import RunRecord, extra_difference, write_run_record
 CHECKPOINT_SCHEMA = "hdnet.checkpoint"
 CHECKPOINT_VERSION = 2
 READABLE_CHECKPOINT_VERSIONS = (1, 2)  # 1: without content_sha256
-DIGEST_KEY = "content_sha256"
+DIGEST_KEY: Final = "content_sha256"
 
 
 # --- process group ------------------------------------------------------------------------------
@@ -297,7 +297,7 @@ def _reconcile_run(run_dir: Path, ckpt: CheckpointJson) -> None:
                 current = None
         if current != best:
             kept = ckpt.copy()
-            kept.pop("content_sha256", None)  # DIGEST_KEY: save_checkpoint writes the digest of the rest
+            kept.pop(DIGEST_KEY, None)  # save_checkpoint writes the digest of the rest
             save_checkpoint(run_dir / BEST, kept)
 
 

@@ -41,7 +41,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, cast
+from typing import TYPE_CHECKING, Any, TypeGuard, cast
 
 import numpy as np
 
@@ -189,7 +189,7 @@ def _schema_error(file: Path, what: str) -> HdNetError:
     return HdNetError(f"{file}: not an hd detect output of this schema ({what}); run hd detect again to write it")
 
 
-def _finite(value: Any) -> bool:
+def _finite(value: object) -> TypeGuard[float]:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
@@ -744,7 +744,7 @@ def _settings_items(out: DetectOutput) -> list[tuple[str, str]]:
             ),
         ]
     h_t = th.get("value_nats")
-    value = f"{float(h_t):.4f} nats" if h_t is not None and _finite(h_t) else "unbounded (every cell certain)"
+    value = f"{float(h_t):.4f} nats" if _finite(h_t) else "unbounded (every cell certain)"
     calibration = (
         f"{th.get('calibration_split')} split at {_cm(th.get('calibration_sigma_m'))}, "
         f"{th.get('calibration_images')} images of {th.get('calibration_datasets') or th.get('calibration_dataset')}"
@@ -827,7 +827,7 @@ def _detect_text(out: DetectOutput, layers: list[_Layer], facts: dict[str, Any])
     h_t = th.get("value_nats")
     lead = (
         f"{pct['safe']:.1f} % safe, {pct['unsafe']:.1f} % unsafe, {pct['uncertain']:.1f} % uncertain of {valid} valid "
-        f"cells; H_t {f'{float(h_t):.4f} nats' if h_t is not None and _finite(h_t) else 'unbounded'} ({th.get('spec')}"
+        f"cells; H_t {f'{float(h_t):.4f} nats' if _finite(h_t) else 'unbounded'} ({th.get('spec')}"
         f"{recorded_score(th).qualifier}); {len(out.site_rows)} landing site(s)."
     )
     raw = json.dumps(out.info, indent=1)

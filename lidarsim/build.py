@@ -659,7 +659,8 @@ def setting_changes(recorded: Any, config: BuildConfig) -> list[tuple[str, Any, 
 
 def finished_identical(out_dir: Path, config: BuildConfig) -> ManifestJson | None:
     """The manifest of a finished build in ``out_dir`` made with exactly ``config`` (settings hash, and a
-    user DTM of the same bytes), else None. Nothing is verified beyond the shards being present."""
+    user DTM of the same bytes), else None. Beyond the manifest's own structure (``validate_manifest``),
+    nothing is verified but the shards being present."""
     record = _recorded_settings(out_dir / MANIFEST_NAME)
     if not record or record.get("config_sha256") != config.fingerprint():
         return None
