@@ -71,7 +71,7 @@ from hdnet.report_json import ReportJson, recorded_noise
 from hdnet.results import SITE_COLUMNS, EvaluationResult, LandingRecord, LandingRow, ReportRow
 from hdnet.run_files import CONFIG, LAST
 from hdnet.uncertainty import recorded_score
-from hdnet.view_html import anchor, data_uri, definitions, esc, is_page, markdown_html, page, table
+from hdnet.view_html import anchor, data_uri, definitions, esc, is_page, map_style, markdown_html, page, table
 from lidarsim.shards import MANIFEST_NAME
 
 if TYPE_CHECKING:  # hdnet.view_images imports matplotlib: only where the page is drawn
@@ -83,6 +83,7 @@ REPORT_MARKER = "report.json"
 DEFAULT_MAX_PX = 2048  # hd choice: a map image's longest side, pixels (a screen's width; ~4 MP per layer)
 FIGURE_MAX_BYTES = 64 << 20  # hd choice: the largest report figure inlined (hd's own are ~100 kB)
 HEAD_BYTES = 4096  # read of an existing --out file to recognise an earlier page
+SWATCHES = ("unsafe", "safe", "uncertain")  # the safety legend's swatches, in SAFETY_HEX's order
 SITE_TITLES = {
     "rank": "1 = best (the site rule below)",
     "x": "map x of the site's cell centre, metres (the input's CRS, or the scan frame)",
@@ -332,15 +333,16 @@ def _cm(sigma_m: Any) -> str:
     return f"{float(sigma_m) * 100:.3g} cm ({float(sigma_m):g} m)" if _finite(sigma_m) else "--"
 
 
-def _bar(stops: list[str], low: str, high: str, tick: float | None = None, tick_label: str = "") -> str:
-    gradient = f"linear-gradient(to right, {', '.join(stops)})"
-    mark = (
-        f'<span class="tick" style="left: calc({100 * tick:.2f}% - 1px)" title="{esc(tick_label)}"></span>'
-        if tick is not None
-        else ""
-    )
+def _bar(name: str, low: str, high: str, tick: float | None = None, tick_label: str = "") -> str:
+    """A colour bar (its gradient: the page style's ``bar-NAME``) from ``low`` to ``high``, with the
+    threshold's tick and its label above the bar where ``tick`` (0 to 1 of its width) is given (their
+    place: the page style's ``tick-at`` and ``tick-label-at``, :func:`hdnet.view_html.map_style`)."""
+    mark, label = "", ""
+    if tick is not None:
+        mark = f'<span class="tick tick-at" title="{esc(tick_label)}: the threshold"></span>'
+        label = f'<div class="tick-label"><span class="tick-label-at">{esc(tick_label)}</span></div>'
     return (
-        f'<div class="bar" style="background: {gradient}">{mark}</div>'
+        f'{label}<div class="bar bar-{name}">{mark}</div>'
         f'<div class="bar-labels"><span>{esc(low)}</span><span>{esc(high)}</span></div>'
     )
 
@@ -429,13 +431,29 @@ def _probe(order: int, name: str, cmap: str, high: float, unit: str = "") -> str
     )
 
 
+def _map_style(out: DetectOutput, facts: dict[str, Any]) -> str:
+    """The detect page's own style rules: the map's aspect ratio, the colour bars' gradients, the safety
+    swatches' colours and where H_t stands on its bar (:func:`hdnet.view_html.map_style`)."""
+    from hdnet.figures import SAFETY_HEX
+    from hdnet.view_images import PROBABILITY_CMAP, UNCERTAINTY_CMAP, colour_stops
+
+    left, right, bottom, top = facts["extent"]
+    tick, _ = _score_tick(True, out.info["threshold"].get("value_nats"))
+    return map_style(
+        (right - left, top - bottom),
+        {"probability": colour_stops(PROBABILITY_CMAP), "uncertainty": colour_stops(UNCERTAINTY_CMAP)},
+        dict(zip(SWATCHES, SAFETY_HEX, strict=False)),
+        tick,
+    )
+
+
 def _score_tick(thresholded: bool, h_t: float | None) -> tuple[float | None, str]:
     """Where H_t (nats) stands on an uncertainty bar (0 to ln 2) and its label, for the score the
     threshold applies to (``thresholded``); (None, "") otherwise or for an unbounded H_t."""
     from hdnet.view_images import UNCERTAINTY_MAX_NATS
 
     if thresholded and h_t is not None and _finite(h_t):
-        return min(1.0, float(h_t) / UNCERTAINTY_MAX_NATS), f"H_t = {float(h_t):.4f} nats"
+        return min(1.0, float(h_t) / UNCERTAINTY_MAX_NATS), f"H_t = {float(h_t):.3g} nats"
     return None, ""
 
 
@@ -460,19 +478,11 @@ def _map_layers(
     out: DetectOutput, images: dict[str, tuple[str, int, int]], extent: tuple[float, float, float, float]
 ) -> list[_Layer]:
     """Step 2 of ``_layers``: the sites and the five maps as layers, with their legends and probes."""
-    from hdnet.figures import SAFETY_HEX
-    from hdnet.view_images import (
-        PROBABILITY_CMAP,
-        UNCERTAINTY_CMAP,
-        UNCERTAINTY_MAX_NATS,
-        colour_stops,
-        safety_classes,
-    )
+    from hdnet.view_images import PROBABILITY_CMAP, UNCERTAINTY_CMAP, UNCERTAINTY_MAX_NATS, safety_classes
 
     th = out.info["threshold"]
     score = recorded_score(th)
     h_t = th.get("value_nats")
-    prob_stops, unc_stops = colour_stops(PROBABILITY_CMAP), colour_stops(UNCERTAINTY_CMAP)
 
     classes = esc(json.dumps(safety_classes()))
     ln2 = f"{UNCERTAINTY_MAX_NATS:.3f} nats (ln 2)"
@@ -481,8 +491,8 @@ def _map_layers(
         return _score_tick(score.name == name, h_t)
 
     swatches = "".join(
-        f'<span class="swatch" style="background: {colour}"></span>{esc(word)}'
-        for colour, word in zip(SAFETY_HEX[:3], ("unsafe", "safe", f"uncertain ({score.name} ≥ H_t)"), strict=True)
+        f'<span class="swatch swatch-{name}"></span>{esc(word)}'
+        for name, word in zip(SWATCHES, ("unsafe", "safe", f"uncertain ({score.name} ≥ H_t)"), strict=True)
     )
     sensor = out.info.get("sensor_sigma_m", out.info.get("baseline", {}).get("sigma_m"))
     return [
@@ -502,7 +512,7 @@ def _map_layers(
             images["p_safe"],
             False,
             85,
-            _bar(prob_stops, "0", "1"),
+            _bar("probability", "0", "1"),
             _probe(1, "P(safe)", PROBABILITY_CMAP, 1.0),
         ),
         _Layer(
@@ -511,7 +521,7 @@ def _map_layers(
             images["entropy"],
             False,
             85,
-            _bar(unc_stops, "0", ln2, *score_tick("entropy")),
+            _bar("uncertainty", "0", ln2, *score_tick("entropy")),
             _probe(2, "entropy", UNCERTAINTY_CMAP, UNCERTAINTY_MAX_NATS, " nats"),
         ),
         _Layer(
@@ -520,7 +530,7 @@ def _map_layers(
             images["mutual_information"],
             False,
             85,
-            _bar(unc_stops, "0", ln2, *score_tick("mutual-information")),
+            _bar("uncertainty", "0", ln2, *score_tick("mutual-information")),
             _probe(3, "MI", UNCERTAINTY_CMAP, UNCERTAINTY_MAX_NATS, " nats"),
         ),
         _Layer(
@@ -529,7 +539,7 @@ def _map_layers(
             images["baseline_p_safe"],
             False,
             85,
-            _bar(prob_stops, "0", "1") + f"at sensor σ {esc(_cm(sensor))}; safe where ≥ 0.5",
+            _bar("probability", "0", "1") + f"at sensor σ {esc(_cm(sensor))}; safe where ≥ 0.5",
             _probe(4, "baseline P(safe)", PROBABILITY_CMAP, 1.0),
         ),
     ]
@@ -569,13 +579,17 @@ def _sites_svg(out: DetectOutput, extent: tuple[float, float, float, float]) -> 
         markers.append(
             f'<g class="site-marker" data-rank="{esc(rank)}"><title>site {esc(tip)}</title>{circles}{label}</g>'
         )
-    length = _round_length(width)
-    x0, y0 = left + 0.03 * width, -(bottom + 0.04 * height)
+    # The scale bar: a rule and its length, italic on a pale box in the map's lower left corner (not
+    # the bold white-haloed callout of a site's number).
+    length, thick, pad = _round_length(width), 0.006 * span, 0.01 * span
+    x0, base = left + 0.03 * width, -(bottom + 0.03 * height)  # the rule's left end and lower edge (SVG y)
+    box_h = thick + 1.2 * font + 2 * pad
     bar = (
-        f'<g class="scale-bar"><rect x="{x0:.3f}" y="{y0 - 0.006 * span:.3f}" width="{length:.3f}" '
-        f'height="{0.006 * span:.3f}" fill="#000" stroke="#fff" vector-effect="non-scaling-stroke"/>'
-        f'<text x="{x0:.3f}" y="{y0 - 0.012 * span:.3f}" font-size="{font:.3f}" fill="#000" paint-order="stroke" '
-        f'stroke="#fff" stroke-width="3px">{length:g} m</text></g>'
+        f'<g class="scale-bar"><rect class="box" x="{x0 - pad:.3f}" y="{base + pad - box_h:.3f}" '
+        f'width="{length + 2 * pad:.3f}" height="{box_h:.3f}" rx="{0.3 * pad:.3f}" vector-effect="non-scaling-stroke"/>'
+        f'<rect class="rule" x="{x0:.3f}" y="{base - thick:.3f}" width="{length:.3f}" height="{thick:.3f}"/>'
+        f'<text x="{x0 + length / 2:.3f}" y="{base - thick - 0.3 * font:.3f}" font-size="{font:.3f}" '
+        f'text-anchor="middle">{length:g} m</text></g>'
     )
     svg = 'xmlns="http://www.w3.org/2000/svg"'
     return (
@@ -624,8 +638,14 @@ def _map_section(out: DetectOutput, layers: list[_Layer], facts: dict[str, Any])
     if facts["hillshade_note"]:
         notes.append(f'<p class="note" id="hillshade-note">{esc(facts["hillshade_note"])}</p>')
     zoom = "".join(
-        f'<button type="button" class="zoom" data-zoom="{z}">{label}</button>'
-        for z, label in (("fit", "fit"), ("1", "1:1"), ("2", "2x"), ("4", "4x"), ("8", "8x"))
+        f'<button type="button" class="zoom" data-zoom="{z}" title="{title}">{label}</button>'
+        for z, label, title in (
+            ("1", "fit", "the whole map in its panel"),
+            ("2", "2x", "twice the fit"),
+            ("4", "4x", "4 times the fit"),
+            ("8", "8x", "8 times the fit"),
+            ("pixels", "1:1", "one image pixel per screen pixel"),
+        )
     )
     width_m, height_m = right - left, top - bottom
     m_left, m_right, m_bottom, m_top = out.extent  # the map's own (the image's whole blocks may reach past it)
@@ -639,11 +659,12 @@ def _map_section(out: DetectOutput, layers: list[_Layer], facts: dict[str, Any])
         + f" ({esc(_crs_name(out.info['grid'].get('crs_wkt', ''), out))})</p>"
         + '<div id="readout" aria-live="polite"></div>'
         + '<p class="note">Under the pointer: its map coordinates, its class and the maps\' values, read back '
-        + f"from their colours (to 1/256 of each colour bar{'; block means' if reduction.reduced else ''}).</p>"
+        + f"from their colours (to 1/256 of each colour bar{'; block means' if reduction.reduced else ''}). "
+        + "The wheel zooms about the pointer; drag to pan.</p>"
         + "</div>\n"
-        + f'<div class="map-scroll"><div id="map" class="map" style="aspect-ratio: {width_m:.6f} / {height_m:.6f}" '
+        + '<div class="map-scroll"><div id="map" class="map" '
         + f'data-left="{left!r}" data-top="{top!r}" data-width="{width_m!r}" data-height="{height_m!r}" '
-        + f'data-px="{w_px}">\n'
+        + f'data-px="{w_px}" data-px-height="{h_px}">\n'
         + "\n".join(stack)
         + "\n</div></div></div></section>"
     )
@@ -860,7 +881,7 @@ def _detect_text(out: DetectOutput, layers: list[_Layer], facts: dict[str, Any])
         "hillshade": "hillshade" in [layer.key for layer in layers],
         "note": facts["hillshade_note"],
     }
-    return page(f"hd detect: {name}", "\n".join(body), lead), shown
+    return page(f"hd detect: {name}", "\n".join(body), lead, _map_style(out, facts)), shown
 
 
 def _footer(directory: Path, marker: str) -> str:

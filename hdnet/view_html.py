@@ -2,9 +2,14 @@
 
 Nothing on a page is fetched: images are ``data:`` URIs, the style and the script are inline, and
 the page's Content-Security-Policy (``default-src 'none'``) lets a browser load nothing else, so a
-page opened offline, mailed or archived shows all it has. Every text taken from a file is escaped
-(:func:`esc`). The page names its maker in ``<meta name="generator">`` (:data:`GENERATOR`), by
-which ``hd view`` recognises a page it may replace.
+page opened offline, mailed or archived shows all it has. The policy allows the page's own style
+block and script block by their SHA-256 (:func:`csp`, computed from the exact text written) and
+nothing inline besides: no other ``<script>``, no ``on...=`` handler, no ``style="..."`` attribute
+runs or applies, so a text that slipped through unescaped could still not run. Every text taken from
+a file is escaped (:func:`esc`) all the same. What a page needs of its own (the colour bars'
+gradients, the map's aspect ratio, where H_t stands) is a rule of its style block, given to
+:func:`page` as ``style``. The page names its maker in ``<meta name="generator">``
+(:data:`GENERATOR`), by which ``hd view`` recognises a page it may replace.
 
 Building blocks: :func:`page` (the document), :func:`table`, :func:`definitions` (name/value
 rows), :func:`data_uri`, and :func:`markdown_html`, which renders the Markdown that hd writes for a
@@ -14,6 +19,7 @@ report (headings, bullet lists, pipe tables, paragraphs, images, ``code`` and ``
 from __future__ import annotations
 
 import base64
+import hashlib
 import html
 import re
 from collections.abc import Iterable, Mapping, Sequence
@@ -21,10 +27,6 @@ from collections.abc import Iterable, Mapping, Sequence
 from hdnet._version import __version__
 
 GENERATOR = "hd view"
-CSP = (
-    "default-src 'none'; img-src data:; style-src 'unsafe-inline'; script-src 'unsafe-inline'; "
-    "base-uri 'none'; form-action 'none'"
-)
 
 STYLE = """
 :root { --fg: #1d2125; --muted: #5c6670; --line: #d5dae0; --band: #f4f6f8; --accent: #1f5fbf; }
@@ -54,20 +56,30 @@ nav.toc { font-size: 13px; } nav.toc a { margin-right: 12px; }
 .legend { font-size: 12px; color: var(--muted); }
 .bar { height: 10px; border: 1px solid var(--line); position: relative; margin-top: 2px; }
 .bar .tick { position: absolute; top: -3px; bottom: -3px; width: 2px; background: #000; }
+.tick-label { position: relative; height: 1.4em; margin-top: 2px; }
+.tick-label span { position: absolute; white-space: nowrap; color: var(--fg); font-weight: 600; }
 .bar-labels { display: flex; justify-content: space-between; }
 .swatch { display: inline-block; width: 11px; height: 11px; border: 1px solid #888; margin: 0 3px 0 8px;
   vertical-align: -1px; }
-.map-scroll { flex: 1 1 auto; overflow: auto; max-height: 88vh; border: 1px solid var(--line); background: #fff; }
+.map-scroll { flex: 1 1 0; min-width: 0; overflow: auto; max-height: 88vh; border: 1px solid var(--line);
+  background: #fff; cursor: grab; }
+.map-scroll.dragging { cursor: grabbing; }
 .map { position: relative; width: 100%; }
-.map .layer { position: absolute; left: 0; top: 0; width: 100%; height: 100%; image-rendering: pixelated; }
-.map svg.layer { overflow: visible; }
-.site-marker { cursor: pointer; }
+.map .layer { position: absolute; left: 0; top: 0; width: 100%; height: 100%; image-rendering: pixelated;
+  user-select: none; -webkit-user-drag: none; }
+.map svg.layer { overflow: visible; pointer-events: none; }
+.site-marker { cursor: pointer; pointer-events: visiblePainted; }
 .site-marker circle { fill: none; }
-.site-marker .halo { stroke: #000; stroke-width: 3px; } .site-marker .ring { stroke: #fff; stroke-width: 1.4px; }
+.site-marker .halo { stroke: #000; stroke-width: 3px; pointer-events: all; }
+.site-marker .ring { stroke: #fff; stroke-width: 1.4px; }
 .site-marker.selected .ring { stroke: #ffd400; stroke-width: 2.5px; }
 .site-marker text { fill: #000; paint-order: stroke; stroke: #fff; stroke-width: 3px; font-weight: 700; }
+.scale-bar .box { fill: #fff; fill-opacity: 0.85; stroke: #5c6670; }
+.scale-bar .rule { fill: #1d2125; }
+.scale-bar text { fill: #1d2125; font-weight: 400; font-style: italic; }
 #readout { font: 12.5px ui-monospace, Menlo, Consolas, monospace; min-height: 1.4em; }
 button.zoom { margin-right: 4px; }
+button.zoom.active { font-weight: 700; }
 tr.site-row { cursor: pointer; } tr.site-row:hover { background: #eef3fb; }
 tr.site-row.selected { background: #fff3b0; }
 figure { margin: 12px 0 20px; } figure img { max-width: 100%; height: auto; border: 1px solid var(--line); }
@@ -95,13 +107,70 @@ SCRIPT = """
   });
   var map = document.getElementById("map");
   if (!map) { return; }
-  var d = map.dataset, px = Number(d.px);
+  var d = map.dataset, pxWide = Number(d.px), pxHigh = Number(d.pxHeight);
+  var scroller = map.parentNode;
+  // The map's size: "relative" times the fit (the whole map in its panel and the window), or one
+  // image pixel per CSS pixel ("pixels").
+  var zoom = {relative: 1, pixels: false};
+  function room() {
+    var box = scroller.getBoundingClientRect(), top = box.top + window.scrollY;
+    var high = Math.max(window.innerHeight - top - 16, 0.6 * window.innerHeight);
+    return {wide: Math.max(box.width - 2, 1), high: Math.max(high, 1)};
+  }
+  function fitScale() { var r = room(); return Math.min(r.wide / pxWide, r.high / pxHigh); }
+  function apply() {
+    var r = room(), s = zoom.pixels ? 1 : zoom.relative * Math.min(r.wide / pxWide, r.high / pxHigh);
+    scroller.style.maxHeight = String(r.high + 2) + "px";
+    map.style.width = String(pxWide * s) + "px";
+    map.style.height = String(pxHigh * s) + "px";
+    each("button.zoom", function (button) {
+      var z = button.dataset.zoom;
+      button.classList.toggle("active", zoom.pixels ? z === "pixels" : Number(z) === zoom.relative);
+    });
+  }
+  // Zoom about a point of the window (cx, cy; the panel's centre when not given): it stays where it is.
+  function setZoom(pixels, relative, cx, cy) {
+    var before = map.getBoundingClientRect(), panel = scroller.getBoundingClientRect();
+    if (cx === undefined) { cx = panel.left + panel.width / 2; cy = panel.top + panel.height / 2; }
+    var fx = (cx - before.left) / before.width, fy = (cy - before.top) / before.height;
+    zoom.pixels = pixels;
+    zoom.relative = relative;
+    apply();
+    var after = map.getBoundingClientRect();
+    scroller.scrollLeft += after.left + fx * after.width - cx;
+    scroller.scrollTop += after.top + fy * after.height - cy;
+  }
   each("button.zoom", function (button) {
     button.addEventListener("click", function () {
       var z = button.dataset.zoom;
-      map.style.width = z === "fit" ? "100%" : String(px * Number(z)) + "px";
+      setZoom(z === "pixels", z === "pixels" ? 1 : Number(z));
     });
   });
+  scroller.addEventListener("wheel", function (event) {
+    event.preventDefault();
+    var now = zoom.pixels ? 1 / fitScale() : zoom.relative;
+    var next = Math.min(64, Math.max(1, now * (event.deltaY < 0 ? 1.25 : 0.8)));
+    setZoom(false, Math.abs(next - 1) < 1e-6 ? 1 : next, event.clientX, event.clientY);
+  }, {passive: false});
+  // Drag to pan; a drag that ends on a site is no click on it.
+  var drag = null, dragged = false;
+  scroller.addEventListener("mousedown", function (event) {
+    dragged = false;
+    if (event.button !== 0 || !map.contains(event.target)) { return; }
+    drag = {x: event.clientX, y: event.clientY, left: scroller.scrollLeft, top: scroller.scrollTop};
+    event.preventDefault();
+  });
+  window.addEventListener("mousemove", function (event) {
+    if (!drag) { return; }
+    var dx = event.clientX - drag.x, dy = event.clientY - drag.y;
+    if (Math.abs(dx) + Math.abs(dy) > 3) { dragged = true; scroller.classList.add("dragging"); }
+    scroller.scrollLeft = drag.left - dx;
+    scroller.scrollTop = drag.top - dy;
+  });
+  window.addEventListener("mouseup", function () { drag = null; scroller.classList.remove("dragging"); });
+  scroller.addEventListener("click", function (event) { if (dragged) { event.stopPropagation(); } }, true);
+  window.addEventListener("resize", apply);
+  apply();
   var readout = document.getElementById("readout");
   function fmt(v) { return v.toFixed(Math.abs(v) < 1e4 ? 2 : 1); }
   // Each map image with data-probe: its pixels (read once decoded) and how a colour becomes a value.
@@ -185,18 +254,81 @@ def data_uri(png: bytes) -> str:
     return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
 
 
-def page(title: str, body: str, description: str = "") -> str:
-    """The whole HTML document: ``title`` (text) and ``body`` (HTML), with the style and script inline."""
+def source_hash(text: str) -> str:
+    """The CSP source expression that allows an inline block whose text is ``text``:
+    ``'sha256-<base64 of the SHA-256 of its UTF-8 bytes>'``."""
+    digest = base64.b64encode(hashlib.sha256(text.encode("utf-8")).digest()).decode("ascii")
+    return f"'sha256-{digest}'"
+
+
+def csp(style: str, script: str) -> str:
+    """The page's Content-Security-Policy: nothing fetched (``default-src 'none'``), images from
+    ``data:`` URIs, and of inline content only the style block ``style`` and the script block
+    ``script`` (by their hashes; no ``'unsafe-inline'``)."""
+    return (
+        f"default-src 'none'; img-src data:; style-src {source_hash(style)}; script-src {source_hash(script)}; "
+        "base-uri 'none'; form-action 'none'"
+    )
+
+
+def page(title: str, body: str, description: str = "", style: str = "") -> str:
+    """The whole HTML document: ``title`` (text) and ``body`` (HTML), with the style and script inline
+    and the policy that allows them and nothing else inline (:func:`csp`). ``style``: CSS rules of this
+    page (made by hd, never of a file's text), after the common ones.
+
+    Raises:
+        ValueError: ``style`` holds ``<`` (it could end the style block).
+    """
+    if "<" in style:
+        raise ValueError("a page's style holds '<'")
+    sheet = STYLE + style
     return (
         "<!DOCTYPE html>\n"
         '<html lang="en">\n<head>\n<meta charset="utf-8">\n'
         f'<meta name="generator" content="{GENERATOR} {esc(__version__)}">\n'
-        f'<meta http-equiv="Content-Security-Policy" content="{CSP}">\n'
+        f'<meta http-equiv="Content-Security-Policy" content="{csp(sheet, SCRIPT)}">\n'
         '<meta name="viewport" content="width=device-width, initial-scale=1">\n'
         + (f'<meta name="description" content="{esc(description)}">\n' if description else "")
-        + f"<title>{esc(title)}</title>\n<style>{STYLE}</style>\n</head>\n<body>\n{body}\n"
+        + f"<title>{esc(title)}</title>\n<style>{sheet}</style>\n</head>\n<body>\n{body}\n"
         f"<script>{SCRIPT}</script>\n</body>\n</html>\n"
     )
+
+
+_NAME = re.compile(r"[a-z][a-z0-9_-]*")
+_COLOUR = re.compile(r"#[0-9a-fA-F]{6}")
+
+
+def map_style(
+    aspect: tuple[float, float],
+    gradients: Mapping[str, Sequence[str]],
+    swatches: Mapping[str, str],
+    tick: float | None = None,
+) -> str:
+    """The style rules of a detect page's map, for :func:`page`'s ``style``: the map's aspect ratio
+    (``aspect``: its width and height, metres), each colour bar's gradient (class ``bar-NAME``, its
+    ``#rrggbb`` colours left to right), each legend swatch's colour (class ``swatch-NAME``) and where
+    the threshold H_t stands on its bar (``tick``, 0 to 1 of the bar's width: classes ``tick-at`` and
+    ``tick-label-at``).
+
+    Raises:
+        ValueError: a name that is not a plain class name, a colour that is not ``#rrggbb`` or an
+            aspect that is not two positive finite numbers (the rules hold nothing else).
+    """
+    width, height = (float(v) for v in aspect)
+    if not (0.0 < width < float("inf") and 0.0 < height < float("inf")):
+        raise ValueError(f"map aspect {aspect!r}")
+    colours = [*(c for stops in gradients.values() for c in stops), *swatches.values()]
+    if not all(_NAME.fullmatch(n) for n in [*gradients, *swatches]) or not all(_COLOUR.fullmatch(c) for c in colours):
+        raise ValueError("a map style's class name or colour")
+    rules = [f"#map {{ aspect-ratio: {width:.6f} / {height:.6f}; }}"]
+    rules += [f".bar-{n} {{ background: linear-gradient(to right, {', '.join(c)}); }}" for n, c in gradients.items()]
+    rules += [f".swatch-{n} {{ background: {c}; }}" for n, c in swatches.items()]
+    if tick is not None:
+        at = 100.0 * min(max(float(tick), 0.0), 1.0)
+        rules.append(f".tick-at {{ left: calc({at:.2f}% - 1px); }}")
+        # The label starts at the tick on the bar's left half and ends there on its right half.
+        rules.append(f".tick-label-at {{ {'left' if at <= 50 else 'right'}: {min(at, 100 - at):.2f}%; }}")
+    return "\n".join(rules) + "\n"
 
 
 def is_page(head: bytes) -> bool:

@@ -7,7 +7,8 @@ with the constant run, one of a scan with the trained run, and an evaluation rep
 rows and a dead-pixel table. A larger detect output is made by hand (maps of hand-derivable values
 on a 2 m grid) for the reduction of maps that do not fit the image size.
 
-The browser test (slow) opens pages in headless Chromium through Selenium.
+The browser tests open pages in headless Chromium (``headless_chromium``: chromedriver's WebDriver
+protocol, no Selenium) at 1400 x 1000 and skip, saying so, where Chromium or chromedriver is missing.
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ import rasterio
 import torch
 from click.testing import CliRunner
 from hdnet_datasets import build_labelled
+from headless_chromium import Browser, browser_or_skip
 
 from hdcli.cli import main
 from hdcore.errors import HdWarning, LockedError, OutputExistsError
@@ -50,6 +52,8 @@ from hdnet.results import SITE_COLUMNS
 from hdnet.sites import SAFETY_INVALID, SAFETY_SAFE, SAFETY_UNCERTAIN, SAFETY_UNSAFE
 from hdnet.train import save_checkpoint
 from hdnet.view import ViewSettings, view
+from hdnet.view_html import map_style
+from hdnet.view_html import page as html_page
 from hdnet.view_images import Reduction, colour_rgba, reduced_map, safety_rgba
 from tests.geotiff import write_geotiff
 
@@ -218,6 +222,7 @@ def check_self_contained(page: Page, raw: str) -> None:
             assert node.attrs["src"].startswith("data:image/png;base64,")
         for key, value in node.attrs.items():
             assert not key.startswith("on"), f"inline handler {key} (the script binds its own)"
+            assert key != "style", f"a style attribute on <{node.tag}> (the policy blocks it: a class instead)"
             if key in ("href", "xlink:href"):
                 assert value.startswith("#"), value
     for style in page.root.find_all("style"):
@@ -289,6 +294,55 @@ def test_a_detect_page_holds_every_layer_the_sites_and_the_settings(outputs, tmp
     counts = {r[0]: r[1] for r in page.table_rows(page.root.find("table", id="counts"))}
     assert counts["safe (certain)"] == str(info["counts"]["safe"])
     assert json.loads(page.root.find("pre").text()) == info  # detect.json whole
+    # H_t is named beside its tick, on the entropy bar (the score of nats:0.5), at 0.5 / ln 2 of its width.
+    (control,) = [c for c in page.root.find_all("div", class_="layer-control") if c.find_all(id="toggle-entropy")]
+    legend = control.find("div", class_="legend")
+    assert legend.find("span", class_="tick-label-at").text() == "H_t = 0.5 nats"
+    assert legend.find_all("span", class_="tick tick-at") and not page.root.find_all(class_="tick-label-at")[1:]
+    assert f".tick-at {{ left: calc({100 * 0.5 / math.log(2):.2f}% - 1px); }}" in page.root.find("style").text()
+    # The scale bar: a rule and its length on a box, not a site's haloed callout.
+    bar = page.root.find("g", class_="scale-bar")
+    assert bar.find("text").text() == "50 m" and "stroke" not in bar.find("text").attrs
+    assert [r.attrs["class"] for r in bar.find_all("rect")] == ["box", "rule"]
+    assert float(bar.find("rect", class_="rule").attrs["width"]) == 50.0
+
+
+def csp_of(page: Page) -> dict[str, str]:
+    """The page's Content-Security-Policy, directive -> its sources."""
+    csp = page.root.find("meta", **{"http-equiv": "Content-Security-Policy"}).attrs["content"]
+    return {d.split()[0]: " ".join(d.split()[1:]) for d in csp.split(";") if d.strip()}
+
+
+def sha256_source(text: str) -> str:
+    return "'sha256-" + base64.b64encode(hashlib.sha256(text.encode("utf-8")).digest()).decode("ascii") + "'"
+
+
+@pytest.mark.parametrize("which", ["detect", "report"])
+def test_the_policy_allows_the_pages_own_script_and_style_by_their_hashes_only(outputs, tmp_path, which):
+    page = parse(view(copy_of(outputs[which], tmp_path)).path)
+    policy = csp_of(page)
+    assert "unsafe-inline" not in " ".join(policy.values()) and "nonce" not in " ".join(policy.values())
+    (script,), (style,) = page.root.find_all("script"), page.root.find_all("style")
+    assert policy["script-src"] == sha256_source(script.text())
+    assert policy["style-src"] == sha256_source(style.text())
+    assert policy["default-src"] == "'none'" and policy["img-src"] == "data:" and policy["base-uri"] == "'none'"
+    # One character more in the script is another hash: the policy is of the very text written.
+    assert sha256_source(script.text() + " ") != policy["script-src"]
+
+
+def test_a_pages_own_style_holds_only_what_hd_makes():
+    with pytest.raises(ValueError, match="'<'"):
+        html_page("t", "<p>b</p>", style="</style><script>alert(1)</script>")
+    with pytest.raises(ValueError, match="class name or colour"):
+        map_style((1.0, 1.0), {"x; }": ["#000000"]}, {})
+    with pytest.raises(ValueError, match="class name or colour"):
+        map_style((1.0, 1.0), {}, {"safe": "red; } body { display: none"})
+    with pytest.raises(ValueError, match="aspect"):
+        map_style((math.nan, 1.0), {}, {})
+    rules = map_style((131.0, 300.0), {"probability": ["#000000", "#ffffff"]}, {"safe": "#27ae60"}, 0.8)
+    assert "#map { aspect-ratio: 131.000000 / 300.000000; }" in rules
+    assert ".bar-probability { background: linear-gradient(to right, #000000, #ffffff); }" in rules
+    assert ".tick-at { left: calc(80.00% - 1px); }" in rules and ".tick-label-at { right: 20.00%; }" in rules
 
 
 def test_a_scan_page_shades_the_scans_dem_and_names_its_split(outputs, tmp_path):
@@ -708,91 +762,185 @@ def test_hd_view_never_imports_the_network_library(outputs, tmp_path, which):
 
 
 # ------------------------------------------------------------------------------------------ browser
-def _browser() -> Any:
-    """A headless Chromium driven by Selenium, or a skip saying what is missing."""
-    try:
-        from selenium import webdriver
-        from selenium.webdriver.chrome.service import Service
-    except ImportError:
-        pytest.skip("selenium is not installed (pip install selenium)")
-    binary = shutil.which("chromium") or shutil.which("chromium-browser") or shutil.which("google-chrome")
-    driver = shutil.which("chromedriver")
-    if binary is None or driver is None:
-        pytest.skip("Chromium or chromedriver is missing (Debian: apt-get install chromium chromium-driver)")
-    options = webdriver.ChromeOptions()
-    options.binary_location = binary
-    for arg in (
-        "--headless=new",
-        "--no-sandbox",
-        "--disable-gpu",
-        "--disable-dev-shm-usage",
-        "--window-size=1400,1000",
-    ):
-        options.add_argument(arg)
-    options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
-    return webdriver.Chrome(service=Service(driver), options=options)
+@pytest.fixture(scope="module")
+def browser():
+    chromium = browser_or_skip()
+    yield chromium
+    chromium.close()
 
 
-@pytest.mark.slow
-def test_pages_work_in_a_real_browser(outputs, tmp_path):
-    from selenium.webdriver.common.by import By
+def _problems(chromium: Browser) -> list[dict[str, Any]]:
+    return [e for e in chromium.console() if e["level"] in ("SEVERE", "WARNING")]
 
+
+def _rect(chromium: Browser, selector: str) -> dict[str, float]:
+    return chromium.run(
+        "var r = document.querySelector(arguments[0]).getBoundingClientRect();"
+        "return {left: r.left, top: r.top, right: r.right, bottom: r.bottom, width: r.width, height: r.height};",
+        selector,
+    )
+
+
+def _wait_for(chromium: Browser, script: str, *args: Any) -> Any:
+    """``script``'s value once it is truthy (input events arrive a moment after the actions call)."""
+    for _ in range(50):
+        value = chromium.run(script, *args)
+        if value:
+            return value
+        chromium.run("return new Promise(function (done) { setTimeout(done, 20); });")
+    raise AssertionError(f"never true: {script}")
+
+
+def test_pages_work_in_a_real_browser(browser, outputs, tmp_path):
     detect_dir = copy_of(outputs["detect"], tmp_path, "detect")
     report_dir = copy_of(outputs["report"], tmp_path, "report")
     detect_page, report_page = view(detect_dir).path, view(report_dir).path
     n_sites = len((detect_dir / "sites.csv").read_text().splitlines()) - 1
-    browser = _browser()
-    try:
-        browser.get(detect_page.as_uri())
-        assert browser.execute_script("return document.readyState") == "complete"
-        for key in LAYERS[:-1]:  # every image decoded by the browser at its size
-            loaded = browser.execute_script(
-                "var i = document.getElementById(arguments[0]); return [i.complete, i.naturalWidth, i.naturalHeight];",
-                f"layer-{key}",
-            )
-            assert loaded == [True, 400, 400], key
-        layer = browser.find_element(By.ID, "layer-p_safe")
-        box = browser.find_element(By.ID, "toggle-p_safe")
-        assert not layer.is_displayed() and not box.is_selected()
-        box.click()
-        assert layer.is_displayed() and box.is_selected()
-        safety, toggle = browser.find_element(By.ID, "layer-safety"), browser.find_element(By.ID, "toggle-safety")
-        assert safety.is_displayed()
-        toggle.click()
-        assert not safety.is_displayed()
-        slider = browser.find_element(By.ID, "opacity-p_safe")
-        browser.execute_script("arguments[0].value = 30; arguments[0].dispatchEvent(new Event('input'));", slider)
-        assert float(layer.value_of_css_property("opacity")) == pytest.approx(0.3)
-        rows = browser.find_elements(By.CSS_SELECTOR, "#sites tbody tr")
-        assert len(rows) == n_sites > 0
-        rows[1].click()  # selects site 2: its row and its marker
-        marked = browser.find_elements(By.CSS_SELECTOR, ".site-marker.selected")
-        assert [m.get_attribute("data-rank") for m in marked] == ["2"] and "selected" in rows[1].get_attribute("class")
-        # The pointer over site 1: its coordinates, class and values read back from the layers' colours.
-        x, y = (float(v) for v in (detect_dir / "sites.csv").read_text().splitlines()[1].split(",")[1:3])
-        readout = browser.execute_script(
-            "var m = document.getElementById('map'), r = m.getBoundingClientRect(), d = m.dataset;"
-            "var fx = (arguments[0] - Number(d.left)) / Number(d.width), fy = (Number(d.top) - arguments[1]) / "
-            "Number(d.height); m.dispatchEvent(new MouseEvent('mousemove', {clientX: r.left + fx * r.width, "
-            "clientY: r.top + fy * r.height, bubbles: true}));"
-            "return document.getElementById('readout').textContent;",
-            x,
-            y,
+    browser.get(detect_page.as_uri())
+    assert browser.run("return document.readyState") == "complete"
+    for key in LAYERS[:-1]:  # every image decoded by the browser at its size
+        loaded = browser.run(
+            "var i = document.getElementById(arguments[0]); return [i.complete, i.naturalWidth, i.naturalHeight];",
+            f"layer-{key}",
         )
-        read_x, read_y = (float(v) for v in re.findall(r"[xy] (-?[\d.]+) m", readout))
-        assert abs(read_x - x) < 1.0 and abs(read_y - y) < 1.0, readout  # events land on whole CSS pixels
-        assert ": safe, P(safe) ≈ 0.998, entropy ≈ " in readout, readout
-        width = browser.find_element(By.ID, "map").size["width"]
-        browser.find_element(By.CSS_SELECTOR, "button.zoom[data-zoom='2']").click()
-        assert browser.find_element(By.ID, "map").size["width"] == 800 != width
-        assert [e for e in browser.get_log("browser") if e["level"] in ("SEVERE", "WARNING")] == []
-        browser.get(report_page.as_uri())
-        figures = browser.execute_script(
-            "return Array.prototype.map.call(document.querySelectorAll('figure img'), "
-            "function (i) { return i.complete && i.naturalWidth > 0; });"
-        )
-        assert figures and all(figures)
-        assert len(browser.find_elements(By.CSS_SELECTOR, "#report table")) >= 4
-        assert [e for e in browser.get_log("browser") if e["level"] in ("SEVERE", "WARNING")] == []
-    finally:
-        browser.quit()
+        assert loaded == [True, 400, 400], key
+    shown = "return getComputedStyle(document.getElementById(arguments[0])).display !== 'none';"
+    assert not browser.run(shown, "layer-p_safe")
+    browser.click("#toggle-p_safe")
+    assert browser.run(shown, "layer-p_safe") and browser.run("return document.getElementById('toggle-p_safe').checked")
+    assert browser.run(shown, "layer-safety")
+    browser.click("#toggle-safety")
+    assert not browser.run(shown, "layer-safety")
+    browser.run("var s = document.getElementById('opacity-p_safe'); s.value = 30; s.dispatchEvent(new Event('input'));")
+    assert float(browser.run("return getComputedStyle(document.getElementById('layer-p_safe')).opacity")) == (
+        pytest.approx(0.3)
+    )
+    assert browser.run("return document.querySelectorAll('#sites tbody tr').length") == n_sites > 0
+    browser.click("#sites tbody tr:nth-child(2)")  # selects site 2: its row and its marker
+    assert browser.run(
+        "return Array.prototype.map.call(document.querySelectorAll('.site-marker.selected, tr.selected'), "
+        "function (e) { return e.tagName + ' ' + e.dataset.rank; });"
+    ) == ["g 2", "TR 2"]
+    # The pointer over site 1: its coordinates, class and values read back from the layers' colours.
+    x, y = (float(v) for v in (detect_dir / "sites.csv").read_text().splitlines()[1].split(",")[1:3])
+    readout = browser.run(
+        "var m = document.getElementById('map'), r = m.getBoundingClientRect(), d = m.dataset;"
+        "var fx = (arguments[0] - Number(d.left)) / Number(d.width), fy = (Number(d.top) - arguments[1]) / "
+        "Number(d.height); m.dispatchEvent(new MouseEvent('mousemove', {clientX: r.left + fx * r.width, "
+        "clientY: r.top + fy * r.height, bubbles: true}));"
+        "return document.getElementById('readout').textContent;",
+        x,
+        y,
+    )
+    read_x, read_y = (float(v) for v in re.findall(r"[xy] (-?[\d.]+) m", readout))
+    assert abs(read_x - x) < 1.0 and abs(read_y - y) < 1.0, readout  # events land on whole CSS pixels
+    assert ": safe, P(safe) ≈ 0.998, entropy ≈ " in readout, readout
+    assert _problems(browser) == []
+    browser.get(report_page.as_uri())
+    figures = browser.run(
+        "return Array.prototype.map.call(document.querySelectorAll('figure img'), "
+        "function (i) { return i.complete && i.naturalWidth > 0; });"
+    )
+    assert figures and all(figures)
+    assert browser.run("return document.querySelectorAll('#report table').length") >= 4
+    assert _problems(browser) == []
+
+
+def test_a_planted_inline_script_does_not_run_and_the_pages_own_does(browser, outputs, tmp_path):
+    out = copy_of(outputs["detect"], tmp_path)
+    path = view(out).path
+    raw = path.read_text(encoding="utf-8")
+    planted = (
+        "<script>document.title = 'pwned';</script>"
+        '<p id="planted" style="color: rgb(255, 0, 0)" onclick="document.title = \'clicked\'">planted</p>'
+    )
+    path.write_text(raw.replace("<body>\n", "<body>\n" + planted, 1), encoding="utf-8")
+    browser.get(path.as_uri())
+    assert browser.run("return document.title") == "hd detect: hills.tif"  # the planted script was blocked
+    assert browser.run("return getComputedStyle(document.getElementById('planted')).color") != "rgb(255, 0, 0)"
+    browser.click("#planted")
+    assert browser.run("return document.title") == "hd detect: hills.tif"  # and its handler
+    blocked = [e["message"] for e in browser.console() if "Content Security Policy" in e["message"]]
+    assert len(blocked) >= 2, blocked  # the script and the style attribute, each reported
+    # The page's own script runs: it sizes the map, and a row's click marks its site.
+    assert browser.run("return document.getElementById('map').style.width").endswith("px")
+    browser.click("#sites tbody tr:nth-child(3)")
+    assert browser.run("return document.querySelector('.site-marker.selected').dataset.rank") == "3"
+    # The page's own style applies: the bars' gradients are rules of the hashed style block.
+    assert "linear-gradient" in browser.run("return getComputedStyle(document.querySelector('.bar')).backgroundImage")
+
+
+@pytest.mark.parametrize("shape", ["detect", "tall"])
+def test_the_whole_map_and_its_scale_bar_show_at_1400_by_1000(browser, outputs, tmp_path, shape):
+    if shape == "tall":  # 300 x 131 cells: fitted by its height, not its width
+        out, _ = big_output(outputs["detect"], tmp_path)
+    else:
+        out = copy_of(outputs["detect"], tmp_path)
+    browser.get(view(out).path.as_uri())
+    assert browser.run("return [innerWidth, innerHeight, scrollY]") == [1400, 1000, 0]
+    panel, rule = _rect(browser, ".map-scroll"), _rect(browser, ".scale-bar .rule")
+    shown = _rect(browser, "#map")
+    for box in (shown, rule):
+        assert box["left"] >= panel["left"] and box["right"] <= panel["right"] and box["top"] >= panel["top"]
+        assert box["bottom"] <= panel["bottom"] <= 1000 and box["right"] <= 1400, (box, panel)
+    assert browser.run(
+        "var s = document.querySelector('.map-scroll'); return s.scrollHeight <= s.clientHeight && "
+        "s.scrollWidth <= s.clientWidth;"
+    )  # no scrollbar at the fit
+    # The map keeps its aspect ratio, and fills the panel's height or width.
+    width_m, height_m = (400.0, 400.0) if shape == "detect" else (262.0, 600.0)
+    assert shown["width"] / shown["height"] == pytest.approx(width_m / height_m, rel=1e-3)
+    assert shown["bottom"] > 950 or shown["right"] > panel["right"] - 4
+    # The screenshot shows the scale bar's rule in its own colour where the page says it is.
+    pixels = matplotlib_pixels(browser.screenshot())
+    assert pixels.shape == (1000, 1400, 4)
+    y, x = int((rule["top"] + rule["bottom"]) / 2), int((rule["left"] + rule["right"]) / 2)
+    assert tuple(pixels[y, x, :3]) == (0x1D, 0x21, 0x25)
+
+
+def test_a_click_on_a_site_marks_it_and_the_map_zooms_and_pans(browser, outputs, tmp_path):
+    out = copy_of(outputs["detect"], tmp_path)
+    browser.get(view(out).path.as_uri())
+    ranks = browser.run(
+        "return Array.prototype.map.call(document.querySelectorAll('.site-marker'), function (m) { "
+        "return m.dataset.rank; });"
+    )
+    top = ranks[-1]  # the last drawn: no other circle over it
+    browser.click(f".site-marker[data-rank='{top}'] circle.halo")  # intercepted were an overlay over the map
+    assert browser.run(
+        "return Array.prototype.map.call(document.querySelectorAll('.selected'), function (e) { "
+        "return e.dataset.rank; });"
+    ) == [top, top]
+    fit = _rect(browser, "#map")
+    browser.click("button.zoom[data-zoom='2']")  # twice the fit, about the panel's centre
+    assert _rect(browser, "#map")["width"] == pytest.approx(2 * fit["width"], abs=0.5)
+    browser.click("button.zoom[data-zoom='pixels']")  # one image pixel per CSS pixel
+    assert _rect(browser, "#map")["width"] == pytest.approx(400.0, abs=0.5)
+    browser.click("button.zoom[data-zoom='1']")
+    assert _rect(browser, "#map")["width"] == pytest.approx(fit["width"], abs=0.5)
+    # The wheel zooms by 1.25 about the pointer: the map point under it stays under it (the map at 2x
+    # overflows its panel both ways, so that it can be scrolled to stay).
+    browser.click("button.zoom[data-zoom='2']")
+    panel, two = _rect(browser, ".map-scroll"), _rect(browser, "#map")
+    px, py = int(panel["left"] + 0.4 * panel["width"]), int(panel["top"] + 0.6 * panel["height"])
+    fx, fy = (px - two["left"]) / two["width"], (py - two["top"]) / two["height"]
+    browser.wheel(px, py, -100)
+    zoomed = _wait_for(
+        browser,
+        "var r = document.getElementById('map').getBoundingClientRect(); return r.width > arguments[0] + 1 && r;",
+        two["width"],
+    )
+    assert zoomed["width"] == pytest.approx(2.5 * fit["width"], abs=0.5)
+    assert (px - zoomed["left"]) / zoomed["width"] == pytest.approx(fx, abs=0.002)
+    assert (py - zoomed["top"]) / zoomed["height"] == pytest.approx(fy, abs=0.002)
+    # A drag pans by as much as the pointer moved, and selects no site on its way.
+    before = browser.run("var s = document.querySelector('.map-scroll'); return [s.scrollLeft, s.scrollTop];")
+    browser.pointer(
+        {"type": "pointerMove", "x": px, "y": py, "duration": 0},
+        {"type": "pointerDown", "button": 0},
+        {"type": "pointerMove", "x": px - 40, "y": py - 30, "duration": 50},
+        {"type": "pointerUp", "button": 0},
+    )
+    after = browser.run("var s = document.querySelector('.map-scroll'); return [s.scrollLeft, s.scrollTop];")
+    assert after[0] - before[0] == pytest.approx(40, abs=1) and after[1] - before[1] == pytest.approx(30, abs=1)
+    assert _problems(browser) == []
