@@ -35,6 +35,7 @@ lint: $(STAMP)
 		|| { echo "error: the type: ignore above lacks its reason comment"; exit 1; }
 
 test: lint
+	bash scripts/ensure-test-browser.sh
 	$(BIN)/python -m pytest -q
 
 test-all: $(STAMP)
