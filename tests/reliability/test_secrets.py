@@ -147,7 +147,8 @@ def test_eval_detect_view_and_compare_of_a_secret_url_write_and_print_no_secret(
     recorded = json.loads((report / "report.json").read_text())
     assert recorded["run"]["dataset"] == printable_location(url) and recorded["run"]["same_dataset_as_training"]
     code, text = hd("eval", run, "--data", url, "--out", report, "--mc-samples", "2", "--drop-pixels", "3")
-    assert code == 0, text  # the report is current: compared on the redacted form
+    assert code == 0 and "already holds this evaluation's report" in text, text  # compared on the redacted form
+    assert recorded["threshold"]["calibration_datasets"] == [printable_location(url)]
     for code, text in both("detect", run, "--data", url, "--out", maps, *DETECT_ARGS, "--overwrite"):
         assert code == 0, text
     assert json.loads((maps / "detect.json").read_text())["input"]["dataset"] == printable_location(url)
