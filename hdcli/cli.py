@@ -31,6 +31,7 @@ from hdcli.terminal import (
     say,
 )
 from hdcore.outcome import Done, counted
+from hdcore.redact import redact_urls
 from hdcore.setting import (
     DATASET_OR_URL,
     DIRECTORY,
@@ -127,13 +128,13 @@ def make_dtm_cmd(out_path: Path, overwrite: bool, **settings: Any) -> None:
 
 
 def _show(verdict: Verdict) -> None:
-    """Print a check's lines (stdout, then stderr); its failure is the command's error."""
+    """Print a check's lines (stdout, then stderr; URLs without their secrets); its failure is the command's error."""
     for line in verdict.out:
-        click.echo(line)
+        click.echo(redact_urls(line))
     for line in verdict.err:
-        click.echo(line, err=True)
+        click.echo(redact_urls(line), err=True)
     if verdict.failure is not None:
-        raise click.ClickException(verdict.failure)
+        raise click.ClickException(redact_urls(verdict.failure))
 
 
 @main.command("inspect")

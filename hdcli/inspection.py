@@ -48,13 +48,15 @@ def inspect_directory(
     """
     from hdnet.run_summary import describe_run, is_run_dir, run_record
     from lidarsim.inspect import INTACT_STATUS, damaged_message, damaged_status, dataset_record, describe_dataset
-    from lidarsim.location import is_url
+    from lidarsim.location import dataset_label, is_url
     from lidarsim.shards import MANIFEST_NAME, verify_dataset
 
     if plot is None and (labels is not None or overwrite):
         raise HdNetError("--labels and --overwrite go with --plot FILE (the figure's labelling, and replacing it)")
     if is_url(directory) and plot is not None:
-        raise HdNetError(f"{directory} is a URL: --plot draws a local dataset; `hd pull` copies it here first")
+        raise HdNetError(
+            f"{dataset_label(directory)} is a URL: --plot draws a local dataset; `hd pull` copies it here first"
+        )
     local = None if is_url(directory) else Path(directory)
     if local is not None and is_run_dir(local) and not (local / MANIFEST_NAME).exists():
         if plot is not None:
@@ -93,7 +95,7 @@ def verify_directory(directory: Path | str, recipe: Path | None) -> Verdict:
     """Every file of a dataset against the manifest's checksums and the schema versions; with
     ``recipe``, also against the recipe's published build (identical, or equal within the
     tolerances of its content fingerprints)."""
-    from lidarsim.location import is_url
+    from lidarsim.location import dataset_label, is_url
     from lidarsim.published import compare_with_recipe
     from lidarsim.shards import read_manifest, verify_dataset
 
@@ -106,9 +108,11 @@ def verify_directory(directory: Path | str, recipe: Path | None) -> Verdict:
         out += published.verdicts
         problems += published.problems
     if problems:
-        return Verdict(out, list(problems), f"{directory}: {len(problems)} problem(s) found")
+        return Verdict(out, list(problems), f"{dataset_label(directory)}: {len(problems)} problem(s) found")
     manifest = read_manifest(directory)
     n_files = len(manifest["shards"]) + sum(len(lab.get("shards", [])) for lab in manifest.get("labelings", []))
     against = f"; {published.summary()}" if published is not None else ""
-    out.append(f"{directory}: OK, {n_files} files match the manifest's checksums and schema versions{against}")
+    out.append(
+        f"{dataset_label(directory)}: OK, {n_files} files match the manifest's checksums and schema versions{against}"
+    )
     return Verdict(out)

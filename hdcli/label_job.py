@@ -25,16 +25,17 @@ def refuse_url(directory: Path | str) -> None:
         StorageError: the URL holds no dataset, is unreachable, has no credentials.
     """
     from hdlabels.errors import HdLabelsError
-    from lidarsim.location import is_url
+    from lidarsim.location import dataset_label, is_url
     from lidarsim.shards import read_manifest
 
     if not is_url(directory):
         return
     read_manifest(directory)
+    url = dataset_label(directory)  # named without its secrets
     raise HdLabelsError(
-        f"{directory}: hd label writes the labels into the dataset, and a URL is never written to but by "
-        f"hd publish; label a local copy: hd pull {directory} DIR, hd label DIR, then hd publish DIR "
-        f"{directory} --overwrite to share the labels"
+        f"{url}: hd label writes the labels into the dataset, and a URL is never written to but by "
+        f"hd publish; label a local copy: hd pull {url} DIR, hd label DIR, then hd publish DIR "
+        f"{url} --overwrite to share the labels"
     )
 
 

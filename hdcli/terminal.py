@@ -4,7 +4,8 @@ Every command turns bad input into a one-line error and a non-zero exit status. 
 and SIGHUP stop a command cleanly (partial files removed, resumable; a second signal does not
 interrupt the clean-up) with exit status 128 + the signal number: 130, 143, 129
 (docs/reliability.md). ``hd -q``, ``hd --no-progress`` and ``hd --json`` choose what is written
-(:data:`OUTPUT`).
+(:data:`OUTPUT`). Every error, warning, summary and JSON record is written with each URL in it in its
+printable form (``hdcore.redact.redact_urls``: no password, no query value), whatever named it.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import click
 from click.core import ParameterSource
 
 from hdcore.errors import HdError, HdWarning
+from hdcore.redact import redact_urls
 from hdnet.checkpoint_json import EpochProgress, EpochRow
 
 
@@ -108,13 +110,13 @@ def install_warning_format() -> None:
 def one_line(exc: BaseException) -> str:
     """The message of an error as one line (a DataLoader worker's error carries its traceback); control
     characters that a terminal would break the line at, or act on, which user text (a name, a path)
-    can carry into a message, are shown escaped (``\\r``)."""
+    can carry into a message, are shown escaped (``\\r``); a URL is shown without its secrets."""
     text = str(exc).strip()
     if "Original Traceback" in text:
         text = text.splitlines()[-1].split(": ", 1)[-1]
     if "\n" in text:
         text = " ".join(text.split())
-    return text.translate(_ESCAPED_CONTROLS)
+    return redact_urls(text).translate(_ESCAPED_CONTROLS)
 
 
 # Every C0 and C1 control character, DEL and the Unicode line and paragraph separators, but the tab.
@@ -177,7 +179,7 @@ def _one_line_errors(func: Callable[..., Any]) -> Callable[..., Any]:
         except OSError as exc:
             from hdcore.storage import describe_os_error
 
-            raise click.ClickException(describe_os_error(exc)) from exc
+            raise click.ClickException(redact_urls(describe_os_error(exc))) from exc
         except MemoryError as exc:
             raise click.ClickException(
                 "out of memory; use smaller settings (fewer scans per shard, a smaller batch or resolution)"
@@ -250,7 +252,7 @@ def say(text: str) -> None:
     a progress bar still open is ended first, so that the summary starts on its own line."""
     if not (OUTPUT.quiet or OUTPUT.json):
         _close_progress_bars()
-        click.echo(text)
+        click.echo(redact_urls(text))
 
 
 def record(record: Mapping[str, object]) -> None:
@@ -262,7 +264,7 @@ def record(record: Mapping[str, object]) -> None:
         from hdnet.report import json_plain
 
         _close_progress_bars()
-        click.echo(json.dumps(json_plain(record), default=str))  # paths as strings
+        click.echo(redact_urls(json.dumps(json_plain(record), default=str)))  # paths as strings
 
 
 class ScanProgress:

@@ -28,6 +28,7 @@ import click
 
 from hdcore.bounds import Bound, parse_integer
 from hdcore.errors import HdError
+from hdcore.redact import printable_location
 
 _KEY = "hd.setting"
 T = TypeVar("T")
@@ -247,8 +248,8 @@ class NonEmptyPath(click.Path):
             self.fail("must not be empty", param, ctx)
         if isinstance(value, str) and _URL.match(value):
             self.fail(
-                f"{value} is a URL; this argument takes a local path (a dataset is read from a URL by hd "
-                "inspect, verify, train, eval --data and detect --data; hd pull URL DIR copies one here): "
+                f"{printable_location(value)} is a URL; this argument takes a local path (a dataset is read from a "
+                "URL by hd inspect, verify, train, eval --data and detect --data; hd pull URL DIR copies one here): "
                 "give a local path",
                 param,
                 ctx,

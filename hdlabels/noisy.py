@@ -29,6 +29,7 @@ from hdlabels.errors import HdLabelsError
 from hdlabels.grid import grid_points
 from hdlabels.store import DemSpec, LabelShardEntry
 from lidarsim.errors import LidarsimError
+from lidarsim.location import dataset_label
 from lidarsim.manifest_json import ShardRefJson
 from lidarsim.noise import noisy_points, recover_ranges, scan_directions
 from lidarsim.scan import STATUS_DAMAGED
@@ -76,17 +77,19 @@ class NoisyDems:
         manifest = read_manifest(dataset_dir)
         if manifest.get("kind") == MANIFEST_KIND_MOSAICS:
             raise HdLabelsError(
-                f"{dataset_dir}: a mosaic dataset's noise levels cannot be made on the fly (its noisy mosaics come "
-                "from registering noisy frames): train on its stored noise levels"
+                f"{dataset_label(dataset_dir)}: a mosaic dataset's noise levels cannot be made on the fly (its noisy "
+                "mosaics come from registering noisy frames): train on its stored noise levels"
             )
         shards = manifest.get("shards") or []
         if not shards:
-            raise HdLabelsError(f"{dataset_dir}: the manifest lists no scan shards.")
+            raise HdLabelsError(f"{dataset_label(dataset_dir)}: the manifest lists no scan shards.")
         try:
             with open_scan_shard(dataset_dir, shards[0]) as reader:
                 return cls(SensorConfig.from_attrs(reader.attrs), attr_int(reader.attrs["seed"]), dem)
         except (KeyError, TypeError, ValueError) as exc:
-            raise HdLabelsError(f"{dataset_dir}: its scan shards lack the sensor or the seed ({exc}).") from exc
+            raise HdLabelsError(
+                f"{dataset_label(dataset_dir)}: its scan shards lack the sensor or the seed ({exc})."
+            ) from exc
 
     def directions(self, attitude: np.ndarray) -> np.ndarray:
         """Ray directions of an attitude (cached: a fixed-attitude trajectory shares one array)."""

@@ -215,7 +215,7 @@ class LabelingEntry:
         Raises:
             FormatError: a path that leaves the dataset.
         """
-        return [join(directory, s.path, f"{directory}/{s.path}") for s in self.shards]
+        return [join(directory, s.path, f"{dataset_label(directory)}/{s.path}") for s in self.shards]
 
     def same_hazards(self, other: LabelingEntry) -> bool:
         """True when ``other`` judges the same lander on the same DEM grid (its truth aside)."""
@@ -326,7 +326,7 @@ def labelings_by_truth(directory: str | os.PathLike, entry: LabelingEntry) -> di
     out: dict[str, str] = {}
     for i, raw in enumerate(read_manifest(directory).get("labelings", [])):
         try:
-            other = LabelingEntry.from_json(raw, f"{directory}: labelings[{i}]")
+            other = LabelingEntry.from_json(raw, f"{dataset_label(directory)}: labelings[{i}]")
         except (HdLabelsError, ShardFormatError):
             continue
         if other.same_hazards(entry):
@@ -490,7 +490,7 @@ class LabelShardReader:
 
     def __init__(self, path: str | os.PathLike, sha256: str | None = None, what: str | None = None) -> None:
         self.path: Path | str = str(path) if is_url(path) else Path(path)
-        self.what = what or str(self.path)
+        self.what = what or dataset_label(self.path)
         if sha256 is not None and not is_url(path):  # a URL is read lazily: hd verify checks its sha256
             verify_sha256(self.path, sha256, self.what)
         self.h5: CheckedH5File = open_h5_at(self.path, self.what, sha256)
@@ -574,39 +574,40 @@ def find_labeling(directory: str | os.PathLike, name: str | None = None) -> Labe
         StorageError: not a dataset (no readable manifest; ``FormatError``: an unknown schema).
     """
     manifest = read_manifest(directory)
+    where = dataset_label(directory)  # how messages name it (a URL without its secrets)
     labelings = manifest.get("labelings", [])
     if not labelings:
-        raise LabelStoreError(f"{directory}: the dataset has no labels; run `hd label {directory}` first")
+        raise LabelStoreError(f"{where}: the dataset has no labels; run `hd label {where}` first")
     for lab in labelings:
         check = str(lab.get("schema", "")), str(lab.get("schema_version", ""))
-        check_schema(check[0], check[1], LABEL_SCHEMA, LABEL_SCHEMA_VERSION, f"{directory} labelling {lab.get('name')}")
+        check_schema(check[0], check[1], LABEL_SCHEMA, LABEL_SCHEMA_VERSION, f"{where} labelling {lab.get('name')}")
         for entry in lab["shards"]:
             check_schema(
                 str(entry.get("schema", LABEL_SCHEMA)),
                 str(entry.get("schema_version", check[1])),
                 LABEL_SCHEMA,
                 LABEL_SCHEMA_VERSION,
-                f"{directory}/{entry['path']}",
+                f"{where}/{entry['path']}",
             )
     if name is None:
         if len(labelings) > 1:
             names = ", ".join(lab["name"] for lab in labelings)
             raise LabelStoreError(
-                f"{directory} has several labellings ({names}); choose one with --labels"
+                f"{where} has several labellings ({names}); choose one with --labels"
                 + _alias_hint(labelings, ": a name or an alias ({})")
             )
-        return LabelingEntry.from_json(labelings[0], f"{directory}/{MANIFEST_NAME}: labelling {labelings[0]['name']}")
+        return LabelingEntry.from_json(labelings[0], f"{where}/{MANIFEST_NAME}: labelling {labelings[0]['name']}")
     for lab in labelings:
         if lab["name"] == name:
-            return LabelingEntry.from_json(lab, f"{directory}/{MANIFEST_NAME}: labelling {name}")
+            return LabelingEntry.from_json(lab, f"{where}/{MANIFEST_NAME}: labelling {name}")
     named = _alias_matches(labelings, name)
     if named is None:  # not an alias: the beginning of one labelling's name
         named = [lab for lab in labelings if str(lab["name"]).startswith(name)]
     if len(named) == 1:
-        return LabelingEntry.from_json(named[0], f"{directory}/{MANIFEST_NAME}: labelling {named[0]['name']}")
+        return LabelingEntry.from_json(named[0], f"{where}/{MANIFEST_NAME}: labelling {named[0]['name']}")
     if named:
         raise LabelStoreError(
-            f"{directory}: {name!r} names {len(named)} labellings: "
+            f"{where}: {name!r} names {len(named)} labellings: "
             + ", ".join(str(lab["name"]) for lab in named)
             + "; give the full name"
             + _alias_hint(labelings, " or an alias ({})")
@@ -614,7 +615,7 @@ def find_labeling(directory: str | os.PathLike, name: str | None = None) -> Labe
     names = ", ".join(str(lab["name"]) for lab in labelings)
     aliases = labeling_aliases(labelings)
     raise LabelStoreError(
-        f"{directory} has no labelling named {name!r}; it has: {names}"
+        f"{where} has no labelling named {name!r}; it has: {names}"
         + (f" (aliases: {', '.join(aliases)})" if aliases else "")
     )
 
@@ -674,7 +675,7 @@ def open_label_shard(directory: str | os.PathLike, entry: LabelShardEntry) -> La
         FormatError: path outside the dataset, unknown schema (``DamagedFileError``: a missing or
             damaged file), as ``hdcore.storage`` raises it.
     """
-    what = f"{dataset_label(directory)}/{entry.path}" if is_url(directory) else f"{Path(directory) / entry.path}"
+    what = dataset_label(join(directory, entry.path)) if is_url(directory) else f"{Path(directory) / entry.path}"
     path = join(directory, entry.path, what)
     return LabelShardReader(path, sha256=entry.sha256, what=what)
 

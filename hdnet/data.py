@@ -75,7 +75,7 @@ from hdnet.inputs import (  # noqa: F401  (re-exported: the grid helpers belong 
 )
 from hdnet.noise_levels import TrainingNoise, check_levels
 from hdnet.sample import DemSample
-from lidarsim.location import is_url, open_h5_at
+from lidarsim.location import dataset_label, is_url, open_h5_at
 from lidarsim.streams import Purpose, stream
 
 SPLITS: tuple[str, str, str] = ("train", "val", "test")  # split codes 0, 1, 2 of the label shards
@@ -168,7 +168,9 @@ def labeling_normalisation(
             if finite.size:
                 lo, hi = min(lo, float(finite.min())), max(hi, float(finite.max()))
     if not math.isfinite(lo):
-        raise HdNetError(f"{dataset_dir}: the training split has no scan with a finite height at sigma {sigma_m:g} m.")
+        raise HdNetError(
+            f"{dataset_label(dataset_dir)}: the training split has no scan with a finite height at sigma {sigma_m:g} m."
+        )
     return Normalisation(lo, hi)
 
 

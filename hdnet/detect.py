@@ -106,7 +106,7 @@ from hdnet.tiling import TilePlan
 from hdnet.trained_run import TrainedRun
 from hdnet.uncertainty import ENTROPY, UncertaintyScore, recorded_score, uncertainty_score, with_score
 from lidarsim.errors import TerrainError
-from lidarsim.location import dataset_at, dataset_key, has_manifest, manifest_sha256
+from lidarsim.location import dataset_at, dataset_key, dataset_label, has_manifest, manifest_sha256
 from lidarsim.manifest_json import ShardRefJson
 from lidarsim.map_window import MapWindow, WindowCells, bounds_text, grid_bounds, window_cells
 from lidarsim.procedural import geotiff_profile
@@ -599,7 +599,8 @@ class _ScanTerrain(_ArrayTerrain):
         spacing = entry.spacing_m
         if abs(spacing - run.spacing_m) > SPACING_TOLERANCE * run.spacing_m:
             raise HdNetError(
-                f"{dataset}: its DEMs are at {spacing:g} m/px, the run was trained at {run.spacing_m:g} m/px."
+                f"{dataset_label(dataset)}: its DEMs are at {spacing:g} m/px, the run was trained at "
+                f"{run.spacing_m:g} m/px."
             )
         found = None
         all_scans: list[int] = []
@@ -615,7 +616,7 @@ class _ScanTerrain(_ArrayTerrain):
                     found = (path, f["dem_noisy"][r, k].astype(np.float32), int(f["split"][r]), shard)
         if found is None:
             span = f"scans {min(all_scans)}..{max(all_scans)}" if all_scans else "no scans"
-            raise HdNetError(f"scan {scan} is not in {dataset} ({span}).")
+            raise HdNetError(f"scan {scan} is not in {dataset_label(dataset)} ({span}).")
         dem = found[1]
         manifest = read_manifest(dataset)
         origin = _origin_map(dataset, found[3], scan)
@@ -627,7 +628,7 @@ class _ScanTerrain(_ArrayTerrain):
             "scan_index": scan,
             "split": ("train", "val", "test")[found[2]],
             "sigma_m": sigmas[k],
-            "label_shard": Path(found[0]).name,
+            "label_shard": Path(found[3].path).name,  # the manifest's name (a URL's query is no part of it)
             "origin_map": origin,
             "dtm_crs_wkt": manifest.get("dtm", {}).get("crs_wkt", ""),
             "frame": (
@@ -1107,8 +1108,9 @@ def _warn_if_seen(run: DetectRun, terrain: _ScanTerrain, scan: int | None, datas
     if terrain.provenance["split"] == "train" and trained_on(run, terrain.dataset, terrain.source_sha256):
         terrain.provenance["seen_in_training"] = True
         warnings.warn(
-            f"scan {scan} is in the training split of {dataset}, on which the run was trained: the network "
-            "has seen it, so its maps are not those of unseen terrain; map a scan of the test split (or a DTM)",
+            f"scan {scan} is in the training split of {dataset_label(terrain.dataset)}, on which the run was trained: "
+            "the network has seen it, so its maps are not those of unseen terrain; map a scan of the test split "
+            "(or a DTM)",
             HdWarning,
             stacklevel=3,
         )

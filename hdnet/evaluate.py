@@ -86,7 +86,7 @@ from hdnet.thresholds import (
 )
 from hdnet.trained_run import TrainedRun, recorded_training_data
 from hdnet.uncertainty import ENTROPY, UncertaintyScore, recorded_score, with_score
-from lidarsim.location import dataset_key, manifest_sha256
+from lidarsim.location import dataset_key, dataset_label, dataset_location, manifest_sha256
 from lidarsim.shards import read_manifest, sha256_file
 
 # Where H_t is calibrated: once at the run's reference noise level (the paper), or at each test level.
@@ -285,7 +285,7 @@ def split_dataset(
         dataset_dir, split, sigma_m, labels=labels, input_spec=input_spec, dead_pixels=dead_pixels, seed=seed
     )
     if len(ds) == 0:
-        raise HdNetError(f"{dataset_dir}: the {split} split is empty.")
+        raise HdNetError(f"{dataset_label(dataset_dir)}: the {split} split is empty.")
     return ds
 
 
@@ -412,7 +412,8 @@ class _Setup:
 
 @dataclass(frozen=True)
 class Calibration:
-    """Where H_t is calibrated: the validation splits of ``datasets`` (resolved paths) under the
+    """Where H_t is calibrated: the validation splits of ``datasets`` (resolved paths, or URLs with their
+    secrets: :func:`lidarsim.location.dataset_location`; :attr:`recorded` is how reports name them) under the
     labelling ``labels``; ``source`` says why (``calibrate-on``, ``run`` for the run's own training
     data, ``evaluated`` for the evaluated dataset) and ``note`` why the run's data was not used."""
 
@@ -420,6 +421,11 @@ class Calibration:
     labels: str
     source: str
     note: str = ""
+
+    @property
+    def recorded(self) -> list[str]:
+        """The datasets as a report records them (:func:`lidarsim.location.dataset_key`: no URL's secrets)."""
+        return [dataset_key(d) for d in self.datasets]
 
 
 def calibration_datasets(
@@ -429,9 +435,9 @@ def calibration_datasets(
     datasets (its ``dataset`` and every ``--also`` one) when all are present with the run's labelling
     ``run_labels``; else the evaluated dataset ``dataset_dir`` (labelling ``labels``), with the reason."""
     if cfg.calibrate_on:
-        return Calibration(tuple(dataset_key(d) for d in cfg.calibrate_on), labels, "calibrate-on")
+        return Calibration(tuple(dataset_location(d) for d in cfg.calibrate_on), labels, "calibrate-on")
     recorded = data.datasets
-    evaluated = dataset_key(dataset_dir)
+    evaluated = dataset_location(dataset_dir)
     note = "the run does not record its training data"
     if recorded:
         missing = data.missing_datasets()
@@ -443,7 +449,7 @@ def calibration_datasets(
             except HdError:
                 note = f"the run's training data {recorded[0]} lacks the run's labelling"
         if not note:
-            resolved = tuple(dataset_key(d) for d in recorded)
+            resolved = tuple(dataset_location(d) for d in recorded)
             return Calibration(resolved, run_labels or labels, "run")
     return Calibration((evaluated,), labels, "evaluated", note)
 
@@ -493,7 +499,7 @@ def evaluate(
     landing, landing_info = _landing_table(setup, dataset_dir, cfg, thresholds, tests)
     threshold_info = th.info
     threshold_info["calibrate"] = cfg.calibrate
-    threshold_info["calibration_datasets"] = list(setup.calibration.datasets)
+    threshold_info["calibration_datasets"] = setup.calibration.recorded
     threshold_info["calibration_source"] = setup.calibration.source
     if setup.calibration.note:
         threshold_info["calibration_note"] = setup.calibration.note
@@ -815,7 +821,7 @@ def _run_info(
         "dataset": root,
         "manifest_sha256": digest,
         "labels": setup.labels,
-        "truth": open_labeling(root, setup.labels)[0].truth,
+        "truth": open_labeling(dataset_dir, setup.labels)[0].truth,
         "same_dataset_as_training": data.manifest_sha256 == digest,
         "sigmas_m": list(setup.sigmas_m),
         "mc_samples": cfg.mc_samples,
@@ -823,7 +829,7 @@ def _run_info(
         "seed": cfg.seed,
         "test_scans": len(next(iter(tests.values())).scan_index),
         "val_scans": len(val.scan_index),
-        "paper_dataset": is_paper_dataset(root),
+        "paper_dataset": is_paper_dataset(dataset_dir),
     }
 
 
@@ -845,9 +851,7 @@ def report_is_current(
         )
         recorded = recorded_training_data(ckpt)
         run_labels = recorded.labels
-        calibration = list(
-            calibration_datasets(recorded, dataset_dir, cfg, str(run.get("labels")), run_labels).datasets
-        )
+        calibration = calibration_datasets(recorded, dataset_dir, cfg, str(run.get("labels")), run_labels).recorded
         # The labelling this evaluation would score against: asked for (a name or an alias), else the run's.
         asked = cfg.labels if cfg.labels is not None else preferred_labeling(dataset_dir, run_labels)
         labels = find_labeling(dataset_dir, asked).name

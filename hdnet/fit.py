@@ -58,7 +58,7 @@ from hdnet.run_check import RUN_FILES, check_run
 from hdnet.run_record import CONFIG, RUN_SCHEMA, AlsoDataset, TrainingData, checkpoint_data
 from hdnet.train import LAST, load_checkpoint, train
 from lidarsim import limits as lidar_limits
-from lidarsim.location import dataset_key, has_manifest, is_url, manifest_sha256
+from lidarsim.location import dataset_key, dataset_label, has_manifest, is_url, manifest_sha256
 from lidarsim.shards import MANIFEST_NAME
 
 
@@ -133,7 +133,10 @@ def check_distinct_datasets(dataset_dir: str | os.PathLike, also: tuple[str | os
         HdNetError: naming the two arguments, as given, that are the same data.
     """
     seen: list[tuple[str, str, str | None]] = []
-    for name, given in ((f"DATASET {dataset_dir}", dataset_dir), *((f"--also {d}", d) for d in also)):
+    for name, given in (
+        (f"DATASET {dataset_label(dataset_dir)}", dataset_dir),
+        *((f"--also {dataset_label(d)}", d) for d in also),
+    ):
         root = dataset_key(given)
         digest = _manifest_sha256(given)
         for earlier, earlier_root, earlier_digest in seen:
@@ -340,7 +343,10 @@ def _mix(
     for k, other in enumerate(cfg.also, start=1):
         entry, _ = open_labeling(other, train_ds.labels)
         if entry.spacing_m != train_ds.spacing_m:
-            raise HdNetError(f"{other}: its DEMs are not on the first dataset's grid; label it with the same settings.")
+            raise HdNetError(
+                f"{dataset_label(other)}: its DEMs are not on the first dataset's grid; label it with the same "
+                "settings."
+            )
         mine = {**common, "labels": train_ds.labels, "seed": cfg.seed + k * MIX_SEED_STRIDE}
         if noise.is_single:
             trains.append(HazardDataset(other, "train", train_sigma_m, augment=profile.augment, **mine))
@@ -350,7 +356,7 @@ def _mix(
             vals.extend(HazardDataset(other, "val", s, **mine) for s in noise.validation_levels())
         for name, ds in (("train", trains[-1]), ("val", vals[-1])):
             if len(ds) == 0:  # type: ignore[arg-type]  # map-style datasets have a length
-                raise HdNetError(f"{other}: the {name} split is empty; build a dataset with more scans.")
+                raise HdNetError(f"{dataset_label(other)}: the {name} split is empty; build a dataset with more scans.")
     return MixedDataset(trains), MixedDataset(vals)
 
 
@@ -468,7 +474,9 @@ def fit(dataset_dir: str | os.PathLike, run_dir: str | os.PathLike, config: FitC
         val_ds = ConcatDataset([HazardDataset(dataset_dir, "val", s, **common) for s in noise.validation_levels()])
     for name, ds in (("train", train_ds), ("val", val_ds)):
         if len(ds) == 0:  # type: ignore[arg-type]  # map-style datasets have a length
-            raise HdNetError(f"{dataset_dir}: the {name} split is empty; build a dataset with more scans.")
+            raise HdNetError(
+                f"{dataset_label(dataset_dir)}: the {name} split is empty; build a dataset with more scans."
+            )
     labels, dem_shape, entry = train_ds.labels, train_ds.dem_shape, train_ds.entry
     if cfg.also:
         mixed_train, mixed_val = _mix(cfg, train_ds, val_ds, noise, train_sigma_m, profile, common)

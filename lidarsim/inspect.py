@@ -11,7 +11,7 @@ import numpy as np
 
 from hdcore.outcome import counted
 from hdcore.storage import FormatError, StorageError, confine, lock_holder
-from lidarsim.location import is_url, remote_dataset
+from lidarsim.location import dataset_key, dataset_label, is_url, remote_dataset
 from lidarsim.manifest_json import ManifestJson, ShardRefJson
 from lidarsim.noise import stored_kind
 from lidarsim.shards import SPLIT_NAMES, open_scan_shard, read_manifest
@@ -124,7 +124,7 @@ def describe_dataset(directory: str | os.PathLike) -> str:
     shards = manifest["shards"]
     size = _size(directory, shards)
     lines = [
-        f"dataset   {directory}",
+        f"dataset   {dataset_label(directory)}",
         (
             f"schema    {manifest['schema']} {manifest['schema_version']} "
             f"(software {manifest.get('software_version', '?')})"
@@ -158,7 +158,7 @@ def dataset_record(directory: str | os.PathLike) -> dict[str, object]:
     shards = manifest["shards"]
     dtm = _mapping(manifest.get("dtm"))
     record: dict[str, object] = {
-        "dataset": directory if isinstance(directory, str) else str(directory.resolve()),
+        "dataset": dataset_key(directory),
         "kind": "hd.dataset",
         "schema": manifest.get("schema"),
         "schema_version": manifest.get("schema_version"),
@@ -291,8 +291,9 @@ def damaged_status(problems: list[str]) -> list[str]:
 
 
 def damaged_message(directory: str | os.PathLike, problems: list[str]) -> str:
-    """The one-line error of a damaged dataset."""
+    """The one-line error of a damaged dataset (a URL named without its secrets)."""
+    name = dataset_label(directory)
     return (
-        f"{directory} is damaged ({len(problems)} problem(s)); `hd verify {directory}` lists them; rebuild or "
+        f"{name} is damaged ({len(problems)} problem(s)); `hd verify {name}` lists them; rebuild or "
         "restore the damaged files"
     )

@@ -17,6 +17,12 @@ fsspec reads): then
   object, missing credentials, access denied) into one :class:`~hdcore.errors.StorageError` line
   naming the URL.
 
+A URL may carry secrets (``https://user:PASSWORD@host/d``, a query token ``?X-Amz-Signature=...``):
+they stay in memory for the reads; every message, record and summary names the URL in
+:func:`hdcore.redact.printable_location`'s form (:func:`dataset_label`, :func:`dataset_key`,
+:meth:`RemoteDataset.label_of`). A query string is sent with every file's request
+(``https://host/d?token=T`` reads ``https://host/d/manifest.json?token=T``).
+
 Credentials come from each protocol's standard places (S3: ``AWS_*`` variables, profiles, the
 instance's role; HTTPS: none), never from hd options. fsspec and its protocol packages are the
 optional extra ``remote`` (docs/dependencies.md); without them a URL is refused in one line.
@@ -38,6 +44,7 @@ from typing import Any
 import h5py
 
 from hdcore.errors import DamagedFileError, FormatError, HdError, StorageError
+from hdcore.redact import is_redacted, printable_location, redact_text
 from hdcore.storage import (
     MAX_SIDE_FILE_BYTES,
     CheckedH5File,
@@ -77,6 +84,23 @@ def is_url(value: object) -> bool:
     return isinstance(value, str) and bool(URL_PATTERN.match(value))
 
 
+def split_query(url: str) -> tuple[str, str]:
+    """A URL's part before its query string (and fragment), without a trailing ``/``, and that query
+    string itself (``?...``; empty when there is none): the files of a dataset at ``BASE?QUERY`` are
+    read at ``BASE/FILE?QUERY``. Only HTTP(S) sends a query string; another scheme's URL is kept whole
+    (without a trailing ``/``), as its protocol reads it."""
+    if not url.lower().startswith(("http://", "https://")):
+        return url.rstrip("/"), ""
+    cut = min((i for i in (url.find("?"), url.find("#")) if i != -1), default=len(url))
+    return url[:cut].rstrip("/"), url[cut:]
+
+
+def _canonical(url: str) -> str:
+    """A dataset's URL as hd keeps it: without a trailing ``/`` before its query string."""
+    base, query = split_query(url)
+    return base + query
+
+
 def _fsspec() -> Any:
     try:
         import fsspec
@@ -87,18 +111,20 @@ def _fsspec() -> Any:
 
 def remote_error(url: str, exc: BaseException) -> StorageError:
     """One line for what reading or writing ``url`` raised: the host, the bucket, the credentials,
-    the object or the access named as the cause."""
+    the object or the access named as the cause. The URL, and any URL the protocol's message quotes,
+    is named in its printable form (no password, no query value)."""
     kind = type(exc).__name__
     names = {c.__name__ for c in type(exc).__mro__}
-    text = str(exc).strip().splitlines()[0] if str(exc).strip() else kind
+    text = redact_text(str(exc).strip().splitlines()[0], url) if str(exc).strip() else kind
     scheme = url.split("://", 1)[0]
+    url = printable_location(url)
     if names & {"NoCredentialsError", "PartialCredentialsError", "NoAuthTokenError"}:
         return StorageError(
             f"{url}: no credentials for {scheme}:// (set AWS_ACCESS_KEY_ID and AWS_SECRET_ACCESS_KEY, or "
             "AWS_PROFILE naming a profile; for a public bucket, anonymous access is not tried)"
         )
     if "bucket does not exist" in text.lower() or "NoSuchBucket" in text:
-        bucket = url.split("://", 1)[1].split("/", 1)[0]
+        bucket = split_query(url)[0].split("://", 1)[1].split("/", 1)[0].rpartition("@")[2]
         return StorageError(f"{url}: no such bucket {bucket!r}")
     if isinstance(exc, FileNotFoundError):
         return StorageError(f"{url}: not found")
@@ -137,18 +163,29 @@ class RemoteDataset:
     """A dataset (or run) at a URL: its file system and root, opened once per process.
 
     Args:
-        url: ``scheme://...``; a trailing ``/`` is ignored.
+        url: ``scheme://...``; a trailing ``/`` is ignored; a query string is sent with every file's
+            request (:func:`split_query`).
     """
 
     def __init__(self, url: str) -> None:
-        self.url = url.rstrip("/")
+        self.url = _canonical(url)
+        base, self.query = split_query(self.url)
         fsspec = _fsspec()
         with remote_errors(self.url):
-            self.fs, self.root = fsspec.core.url_to_fs(self.url)
+            self.fs, self.root = fsspec.core.url_to_fs(base)
         self.root = str(self.root).rstrip("/")
 
     def __str__(self) -> str:
-        return self.url
+        return self.label
+
+    @property
+    def label(self) -> str:
+        """How messages and records name the URL (:func:`hdcore.redact.printable_location`)."""
+        return printable_location(self.url)
+
+    def label_of(self, relative: str) -> str:
+        """How messages and records name the URL of a manifest path (no password, no query value)."""
+        return printable_location(self.url_of(relative))
 
     @property
     def is_local(self) -> bool:
@@ -158,13 +195,17 @@ class RemoteDataset:
 
     def path_of(self, relative: str, where: str | None = None) -> str:
         """The file system path of a manifest path (checked: relative, no ``..``)."""
-        check_relative(relative, where or f"{self.url}/{relative}")
-        return f"{self.root}/{relative}"
+        check_relative(relative, where or printable_location(self._joined(relative)))
+        return f"{self.root}/{relative}{self.query}"
 
     def url_of(self, relative: str) -> str:
-        """The URL of a manifest path (checked: relative, no ``..``)."""
-        check_relative(relative, f"{self.url}/{relative}")
-        return f"{self.url}/{relative}"
+        """The URL of a manifest path (checked: relative, no ``..``), its query string included."""
+        url = self._joined(relative)
+        check_relative(relative, printable_location(url))
+        return url
+
+    def _joined(self, relative: str) -> str:
+        return f"{split_query(self.url)[0]}/{relative}{self.query}"
 
     def exists(self, relative: str) -> bool:
         """True when the file ``relative`` is there."""
@@ -208,7 +249,7 @@ class RemoteDataset:
         """
         data = self.read_if_there(relative, max_bytes)
         if data is None:
-            raise StorageError(f"{self.url_of(relative)}: not found")
+            raise StorageError(f"{self.label_of(relative)}: not found")
         return data
 
     def read_if_there(self, relative: str, max_bytes: int = MAX_SIDE_FILE_BYTES) -> bytes | None:
@@ -229,7 +270,7 @@ class RemoteDataset:
             return None
         size, version = int(info["size"]), content_version(info)
         if size > max_bytes:
-            raise FormatError(f"{url}: {size} bytes, more than the {max_bytes} this file can hold")
+            raise FormatError(f"{self.label_of(relative)}: {size} bytes, more than the {max_bytes} this file can hold")
         kept = _SIDE.get(url)
         if version is not None and kept is not None and kept[:2] == (size, version):
             _SIDE.move_to_end(url)
@@ -293,7 +334,7 @@ class RemoteDataset:
         """Every file under the root, as paths relative to it (empty when there is none)."""
         with remote_errors(self.url):
             try:
-                found = self.fs.find(self.root)
+                found = self.fs.find(self.root + self.query)
             except FileNotFoundError as exc:
                 if "bucket" in str(exc).lower():
                     raise
@@ -343,7 +384,9 @@ def _whole_file(remote: RemoteDataset, relative: str, size: int, sha256: str | N
         return _WHOLE[key]
     data = remote.fetch(relative, size)
     if len(data) != size:
-        raise StorageError(f"{url}: {len(data)} bytes read, {size} expected (the file changed while read)")
+        raise StorageError(
+            f"{remote.label_of(relative)}: {len(data)} bytes read, {size} expected (the file changed while read)"
+        )
     if sha256 is not None and (digest := sha256_bytes(data)) != sha256:
         raise DamagedFileError(
             f"{name}: checksum mismatch (sha256 {digest[:12]}..., the manifest says {sha256[:12]}...): "
@@ -379,24 +422,32 @@ def forget_remotes() -> None:
 
 def remote_dataset(url: str) -> RemoteDataset:
     """The :class:`RemoteDataset` of ``url``, made once per process (a forked reader makes its own)."""
-    return _remote(url.rstrip("/"), os.getpid())
+    return _remote(_canonical(url), os.getpid())
 
 
 def dataset_label(location: str | os.PathLike) -> str:
-    """How messages name a dataset: its URL as given, or its path."""
-    return str(location).rstrip("/") if is_url(location) else str(Path(location))
+    """How messages name a dataset: its URL in its printable form (no password, no query value), or
+    its path."""
+    return printable_location(_canonical(str(location))) if is_url(location) else str(Path(location))
 
 
 def dataset_at(location: str | os.PathLike) -> Path | str:
-    """A dataset given as a string or a path: a URL kept as the string (``Path`` would collapse its
-    ``//``), anything else as a ``Path``."""
-    return str(location).rstrip("/") if is_url(location) else Path(location)
+    """A dataset given as a string or a path, to read: a URL kept as the string, secrets included
+    (``Path`` would collapse its ``//``), anything else as a ``Path``."""
+    return _canonical(str(location)) if is_url(location) else Path(location)
+
+
+def dataset_location(location: str | os.PathLike) -> str:
+    """A dataset as hd reads it and compares it within a process: its URL as given, secrets included
+    (without a trailing ``/``), or its resolved path. Never written: records take :func:`dataset_key`."""
+    return _canonical(str(location)) if is_url(location) else str(Path(location).resolve())
 
 
 def dataset_key(location: str | os.PathLike) -> str:
-    """How a run, an eval report or a detect output records the dataset it read: its URL as given
-    (without a trailing ``/``), or its resolved path."""
-    return str(location).rstrip("/") if is_url(location) else str(Path(location).resolve())
+    """How a run, an eval report or a detect output records the dataset it read: its URL in its
+    printable form (:func:`hdcore.redact.printable_location`: no password, no query value; a record
+    compares with the printable form of the URL given), or its resolved path."""
+    return printable_location(dataset_location(location))
 
 
 def manifest_sha256(location: str | os.PathLike, name: str = "manifest.json") -> str:
@@ -411,7 +462,10 @@ def manifest_sha256(location: str | os.PathLike, name: str = "manifest.json") ->
 
 
 def has_manifest(location: str | os.PathLike, name: str = "manifest.json") -> bool:
-    """True when a dataset's manifest is there (a URL is asked; a lost host is False, as a missing file)."""
+    """True when a dataset's manifest is there (a URL is asked; a lost host is False, as a missing file;
+    a URL whose secrets a record left out, :func:`hdcore.redact.is_redacted`, is not asked and is False)."""
+    if is_redacted(location):
+        return False
     if is_url(location):
         try:
             return remote_dataset(str(location)).size(name) is not None
@@ -428,15 +482,17 @@ def join(location: str | os.PathLike, relative: Any, where: str | None = None) -
         FormatError: an absolute path, ``..``, or a link leading outside the dataset.
     """
     if is_url(location):
-        check_relative(relative, where or f"{str(location).rstrip('/')}/{relative}")
-        return f"{str(location).rstrip('/')}/{relative}"
+        base, query = split_query(str(location))
+        check_relative(relative, where or printable_location(f"{base}/{relative}{query}"))
+        return f"{base}/{relative}{query}"
     return confine(location, relative, where)
 
 
 def split_url(url: str) -> tuple[RemoteDataset, str]:
     """The folder and file name of a file URL (the folder's file system, made once per process)."""
-    base, _, name = url.rstrip("/").rpartition("/")
-    return remote_dataset(base), name
+    path, query = split_query(url)
+    base, _, name = path.rpartition("/")
+    return remote_dataset(base + query), name
 
 
 def open_h5_at(path: str | os.PathLike, what: str | None = None, sha256: str | None = None) -> CheckedH5File:
@@ -451,7 +507,7 @@ def open_h5_at(path: str | os.PathLike, what: str | None = None, sha256: str | N
     if not is_url(path):
         return open_h5(path, what)
     url = str(path)
-    name = what or url
+    name = what or printable_location(url)
     remote, relative = split_url(url)
     kept = _WHOLE.get(_whole_key(url, sha256, None)) if sha256 is not None else None
     if kept is not None:

@@ -469,7 +469,7 @@ class ScanShardReader:
 
     def __init__(self, path: str | os.PathLike, sha256: str | None = None, what: str | None = None) -> None:
         self.path: Path | str = str(path) if is_url(path) else Path(path)
-        self.what = what or str(self.path)
+        self.what = what or dataset_label(self.path)
         if sha256 is not None and not is_url(path):  # a URL is read lazily: hd verify checks its sha256
             verify_sha256(self.path, sha256, self.what)
         self._f: CheckedH5File = open_h5_at(self.path, self.what, sha256)
@@ -707,20 +707,20 @@ def manifest_text(data: bytes, where: str) -> Any:
 def _read_remote_manifest(url: str) -> ManifestJson:
     """``read_manifest`` of a dataset at a URL: what is there instead of a manifest is named."""
     remote = remote_dataset(url)
-    where = remote.url_of(MANIFEST_NAME)
+    where = remote.label_of(MANIFEST_NAME)
     data = remote.read_if_there(MANIFEST_NAME)  # one request when the process has read this version already
     if data is None:
         if remote.size(PUBLISH_MARK) is not None:
             raise FormatError(
-                f"{remote.url}: a dataset is being published there, or its publication was interrupted "
+                f"{remote.label}: a dataset is being published there, or its publication was interrupted "
                 "(no manifest yet); wait for `hd publish` to finish, or re-run it"
             )
         held = remote.listing()
         if not held:
             remote.probe(MANIFEST_NAME)  # an unreachable host is named as such, not as "nothing there"
-            raise FormatError(f"{remote.url}: no dataset there (nothing at that URL)")
+            raise FormatError(f"{remote.label}: no dataset there (nothing at that URL)")
         raise FormatError(
-            f"{remote.url}: not an hd dataset (no {MANIFEST_NAME}; it holds {counted(len(held), 'other file')})"
+            f"{remote.label}: not an hd dataset (no {MANIFEST_NAME}; it holds {counted(len(held), 'other file')})"
         )
     return validate_manifest(manifest_text(data, where), where)
 
@@ -730,7 +730,7 @@ def open_scan_shard(directory: str | os.PathLike, entry: ShardRefJson) -> ScanSh
     and its scan count compared with the entry's ``n_scans`` when the entry gives one. At a URL the
     shard is read lazily and its sha256 is left to ``hd verify`` (its chunks' fletcher32 checks stay)."""
     path = join(directory, entry["path"])
-    what = f"{dataset_label(directory)}/{entry['path']}" if is_url(directory) else f"{Path(directory) / entry['path']}"
+    what = dataset_label(path) if is_url(directory) else f"{Path(directory) / entry['path']}"
     reader = ScanShardReader(path, sha256=entry["sha256"], what=what)
     keys: Mapping[str, object] = entry  # a manifest's entry (FileEntryJson) also gives its scans
     claimed = keys.get("n_scans")

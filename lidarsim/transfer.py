@@ -34,6 +34,7 @@ from typing import Any
 
 from hdcore.errors import DamagedFileError, FormatError, OutputExistsError, StorageError
 from hdcore.outcome import Done, counted
+from hdcore.redact import printable_location
 from hdcore.storage import (
     WriterLock,
     atomic,
@@ -51,7 +52,9 @@ from lidarsim.manifest_json import ManifestJson
 from lidarsim.shards import MANIFEST_NAME, manifest_text, read_manifest, validate_manifest, verify_dataset
 
 # The mark ``hd pull`` keeps in a directory it is filling (the manifest sha256 it copies), removed
-# once the manifest is written: a re-run resumes, another URL into the same directory is refused.
+# once the manifest is written: a re-run resumes, another dataset into the same directory is refused.
+# It names the URL in its printable form only (no password, no query value): the manifest's sha256,
+# not the URL, decides whether a re-run resumes.
 PULL_MARK = ".hd-pull.json"
 # hd choice: bytes handed to the protocol per write while uploading one file.
 UPLOAD_BLOCK_BYTES = 8 << 20
@@ -84,7 +87,7 @@ def _expected_sha256(manifest: ManifestJson) -> dict[str, str]:
 
 def _check_url(url: str) -> str:
     if not is_url(url):
-        raise StorageError(f"{url} is not a URL (s3://bucket/prefix, file:///path, ...)")
+        raise StorageError(f"{printable_location(url)} is not a URL (s3://bucket/prefix, file:///path, ...)")
     return url.rstrip("/")
 
 
@@ -132,30 +135,30 @@ def _publication_state(remote: RemoteDataset, manifest_bytes: bytes, overwrite: 
             return "same", []
         if not overwrite:
             raise OutputExistsError(
-                f"{remote.url} holds another dataset (its {MANIFEST_NAME} differs from this one's); give "
+                f"{remote.label} holds another dataset (its {MANIFEST_NAME} differs from this one's); give "
                 "--overwrite to replace it, or publish to another URL"
             )
         try:
-            old = dataset_files(validate_manifest(manifest_text(there, remote.url), remote.url))
+            old = dataset_files(validate_manifest(manifest_text(there, remote.label), remote.label))
         except FormatError:
             old = []
         with remote_errors(remote.url_of(MANIFEST_NAME)):
             remote.fs.rm_file(remote.path_of(MANIFEST_NAME))  # from here the URL holds no dataset
         return "new", old
     if remote.size(PUBLISH_MARK) is not None:
-        mark = manifest_text(remote.read_bytes(PUBLISH_MARK), remote.url_of(PUBLISH_MARK))
+        mark = manifest_text(remote.read_bytes(PUBLISH_MARK), remote.label_of(PUBLISH_MARK))
         if isinstance(mark, dict) and mark.get("manifest_sha256") == digest:
             return "resume", []
         if not overwrite:
             raise OutputExistsError(
-                f"{remote.url}: an interrupted publication of another dataset is there; give --overwrite to "
+                f"{remote.label}: an interrupted publication of another dataset is there; give --overwrite to "
                 "replace it, or publish to another URL"
             )
         return "new", []
     held = [p for p in remote.listing() if p != PUBLISH_MARK]
     if held and not overwrite:
         raise OutputExistsError(
-            f"{remote.url} holds {counted(len(held), 'file')} and no hd dataset; give --overwrite to publish "
+            f"{remote.label} holds {counted(len(held), 'file')} and no hd dataset; give --overwrite to publish "
             "there anyway (they are left in place, the dataset's own files replaced), or publish to another URL"
         )
     return "new", []
@@ -222,6 +225,7 @@ def publish_dataset(
         with remote_errors(remote.url_of(rel)):
             remote.fs.rm_file(remote.path_of(rel))
     total = sum(sizes.values())
+    url = remote.label  # from here on the URL is named, never its secrets
     if state == "same" and not sent:
         line = f"{url}: already holds this dataset ({counted(len(files), 'file')}, {total / 1e6:.1f} MB); nothing sent"
     else:
@@ -268,7 +272,7 @@ def _download(remote: RemoteDataset, relative: str, final: Path, expected: str) 
         digest = h.hexdigest()
         if digest != expected:
             raise DamagedFileError(
-                f"{remote.url_of(relative)}: checksum mismatch (sha256 {digest[:12]}..., the manifest says "
+                f"{remote.label_of(relative)}: checksum mismatch (sha256 {digest[:12]}..., the manifest says "
                 f"{expected[:12]}...): the copy at the URL is damaged; nothing of it is kept"
             )
     return size
@@ -321,9 +325,10 @@ def pull_dataset(
     root = Path(directory)
     manifest = read_manifest(url)
     remote = remote_dataset(url)
+    label = remote.label  # how the URL is named: never its secrets
     manifest_bytes = remote.read_bytes(MANIFEST_NAME)
-    if manifest_text(manifest_bytes, url) != manifest:  # replaced between the two reads
-        raise StorageError(f"{url}: its manifest changed while it was read; re-run")
+    if manifest_text(manifest_bytes, label) != manifest:  # replaced between the two reads
+        raise StorageError(f"{label}: its manifest changed while it was read; re-run")
     state = _check_pull_target(root, manifest_bytes)
     make_dirs(root)
     files = dataset_files(manifest)
@@ -331,7 +336,7 @@ def pull_dataset(
     fetched = kept = 0
     with WriterLock(root, "dataset"):
         if state == "new":
-            write_json_atomic(root / PULL_MARK, {"manifest_sha256": sha256_bytes(manifest_bytes), "url": url})
+            write_json_atomic(root / PULL_MARK, {"manifest_sha256": sha256_bytes(manifest_bytes), "url": label})
         for rel in files:
             final = confine(root, rel)
             if final.is_file() and sha256_file(final) == sums[rel]:
@@ -347,12 +352,12 @@ def pull_dataset(
     problems = verify_dataset(root, known_schemas)
     if problems:
         raise DamagedFileError(f"{root}: the copy fails its checks ({len(problems)} problem(s): {problems[0]})")
-    line = f"pulled {url} into {root}: {counted(len(files), 'file')} and {MANIFEST_NAME}, all checked"
+    line = f"pulled {label} into {root}: {counted(len(files), 'file')} and {MANIFEST_NAME}, all checked"
     if kept:
         line += f" ({fetched / 1e6:.1f} MB fetched, {counted(kept, 'file')} already there)"
     record = {
         "command": "pull",
-        "url": url,
+        "url": label,
         "dataset": str(root),
         "n_files": len(files),
         "bytes_fetched": fetched,
