@@ -153,7 +153,8 @@ def descend(
                 progress(frames_per_descent * len(flown), total)
         record = _record(run, data, sigmas[k], dem, poses, settings, threshold[1], flown, splits)
         record["seconds"] = round(time.perf_counter() - t_start, 3)
-        write_json_atomic(tmp / RECORD_NAME, json_plain(record))
+        record = json_plain(record)
+        write_json_atomic(tmp / RECORD_NAME, record)
         output.commit()
     return DescendResult(out, flown, record)
 

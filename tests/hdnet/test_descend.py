@@ -76,6 +76,8 @@ def flown(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     invoke("train", str(tmp / "mosaics"), "--profile", "tiny", "--epochs", "1", "--out", str(tmp / "run"))
     test = next(m.scan_index for m in iter_scans(tmp / "mosaics") if m.split == "test")
     out = invoke(
+        "--json",
+        "--no-progress",
         "descend",
         str(tmp / "run"),
         "--data",
@@ -86,7 +88,9 @@ def flown(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
         str(tmp / "online"),
         *QUICK,
     )
-    assert f"descent {test}: 3 frames" in out
+    summary = json.loads(out)  # hd --json: the record of descend.json
+    assert summary["command"] == "descend" and [d["descent"] for d in summary["descents"]] == [test]
+    assert summary["descents"] == json.loads((tmp / "online" / "descend.json").read_text())["descents"]
     return {
         "tmp": tmp,
         "source": tmp / "source",
