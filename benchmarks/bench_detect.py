@@ -77,7 +77,7 @@ def median_seconds(fn: Callable[[], object], repeats: int, warmups: int = 2) -> 
     return statistics.median(times)
 
 
-def _run(profile: TrainingProfile, width: float, dem: np.ndarray) -> DetectRun:
+def untrained_run(profile: TrainingProfile, width: float, dem: np.ndarray) -> DetectRun:
     """An untrained model of ``profile``'s architecture and input preparation at ``width``."""
     torch.manual_seed(0)
     norm = (
@@ -104,7 +104,7 @@ def untrained_checkpoint(path: Path, dem: np.ndarray, profile: TrainingProfile =
     """A checkpoint of ``profile``'s network (default: the cpu profile's), untrained (timing needs no
     training), at ``path``: what ``hd detect`` loads, labelled as :data:`LABELING` on 100 x 100 DEMs
     at 1.67 cm."""
-    run = _run(profile, profile.width, dem)
+    run = untrained_run(profile, profile.width, dem)
     save_checkpoint(
         path,
         {
@@ -162,7 +162,7 @@ def main() -> None:
     if not args.skip_paper:
         configs.append(("paper profile", PAPER, PAPER.width))
     for name, profile, width in configs:
-        run = _run(profile, width, dem)
+        run = untrained_run(profile, width, dem)
         size = profile.input_size
         rows_px, cols_px = network_shape((100, 100), size, run.input_spec.size_multiple)
         grid = f"{size}x{size}" if size else f"{rows_px}x{cols_px}, depth {profile.depth}"
@@ -175,7 +175,7 @@ def main() -> None:
     threads = torch.get_num_threads()
     if threads > 1:  # one thread: no OpenMP barriers, which stall when other processes share the cores
         torch.set_num_threads(1)
-        run = _run(CPU, CPU.width, dem)
+        run = untrained_run(CPU, CPU.width, dem)
         one = _frame_seconds(run, dem, args.samples, 1, args.repeats)
         eight = _frame_seconds(run, dem, args.samples, 8, args.repeats)
         rows.insert(1, ("cpu profile on 1 thread", one, eight))

@@ -337,6 +337,28 @@ def detect_cmd(
         )
 
 
+@main.command("descend", cls=SettingsCommand, settings=("hdnet.descend_settings:DescendSettings",))
+@click.argument("run_dir", type=FILE_OR_DIRECTORY)
+@click.option(
+    "--data",
+    "dataset",
+    required=True,
+    type=DIRECTORY,
+    help="The descent build whose frames to fly (hd build-dataset --descent-frames K).",
+)
+@out_option("out_dir", "Output directory (per-frame maps, site tracks, descend.json).", directory=False)
+@overwrite_option("Replace an earlier hd descend output in --out (never other files, never an input).")
+@json_output
+@friendly_errors
+def descend_cmd(run_dir: Path, dataset: Path, out_dir: Path, overwrite: bool, **settings: Any) -> None:
+    """Fly descents as a lander does: each frame registered to those before, the mosaic mapped after every
+    frame, and the aim diverted when its ground turns out unsafe."""
+    from hdcli.descend_job import descend_job
+
+    with ScanProgress("frames", unit="frame") as progress:
+        _done(descend_job(run_dir, dataset, out_dir, settings, overwrite, progress))
+
+
 @main.command("demo")
 @out_option("out_dir", "Directory of the demo run.", required=False, default=Path("demo-out"))
 @click_options(DemoSettings)

@@ -355,6 +355,19 @@ def _register(o3d: Any, clouds: Sequence[np.ndarray], half_width_m: float, ancho
     return Registration(corrections=corrections, fitness=fitness, rmse_m=rmse)
 
 
+def registered_clouds(placed: Sequence[np.ndarray], dem: DemSpec) -> tuple[list[np.ndarray], Registration]:
+    """Frames placed by their navigation poses, registered to the last one (:func:`register_frames` over
+    the DEM's half-width) and moved by their corrections: the placement of :func:`mosaic_frames`'s
+    ``"registered"`` poses (the anchor, whose correction is the identity, is returned as it is)."""
+    half_width = 0.5 * max(dem.rows, dem.cols) * dem.spacing_m
+    registration = register_frames(placed, half_width)
+    moved = [
+        p if np.array_equal(t, np.eye(4)) else apply(t, p)
+        for t, p in zip(registration.corrections, placed, strict=True)
+    ]
+    return moved, registration
+
+
 @dataclass(frozen=True)
 class Mosaic:
     """The mosaic of one descent.
@@ -380,12 +393,7 @@ def mosaic_frames(frames: Sequence[MosaicFrame], target_map: np.ndarray, dem: De
     placed = [placed_points(f, target_map, "true" if poses == "true" else "nav") for f in frames]
     registration = None
     if poses == "registered":
-        half_width = 0.5 * max(dem.rows, dem.cols) * dem.spacing_m
-        registration = register_frames(placed, half_width)
-        placed = [
-            p if np.array_equal(t, np.eye(4)) else apply(t, p)
-            for t, p in zip(registration.corrections, placed, strict=True)
-        ]
+        placed, registration = registered_clouds(placed, dem)
     grids, weights = frame_grids(placed, dem)
     return Mosaic(combine_grids(grids, weights, dem.spacing_m), poses, anchor_residuals(grids), registration)
 

@@ -934,12 +934,61 @@ def detect_dem(
         uncertainty=uncertainty,
         layout=layout,
     )  # each value's kind and range, and the threshold's form, before the run is loaded
-    heights = _height_array(heights_m)
+    heights = _height_array(heights_m)  # and the array's
     if not isinstance(run, DetectRun):
         run = load_run(run)
     _warn_if_unfinished(run)
+    return map_heights(
+        run,
+        heights,
+        settings,
+        detect_threshold(run, settings),
+        transform=transform,
+        scan_frame=scan_frame,
+        progress=progress,
+    )
+
+
+def detect_threshold(run: DetectRun, settings: DetectSettings) -> tuple[float, ThresholdJson]:
+    """H_t (nats; inf: unbounded) and its record, as :func:`detect_dem` finds it for ``settings``: a fixed
+    ``nats:H``, or calibrated (``settings.threshold``, ``calibrate``, ``uncertainty``) on the validation
+    split of the run's own training data at its reference noise level or at ``settings.sigma_m`` (metres;
+    default the run's training sigma). Found once, it maps any number of arrays (:func:`map_heights`).
+
+    Raises:
+        HdNetError: a calibrated threshold whose data is not present.
+    """
+    score = uncertainty_score(settings.uncertainty)
+    sigma = run.train_sigma_m if settings.sigma_m is None else float(settings.sigma_m)
+    dev = next(run.model.parameters()).device
+    own = (run.training_datasets or (), run.labels)  # calibrated on the run's own training data
+    s = settings
+    return _threshold(run, s.threshold, *own, s.mc_samples, s.batch_size, s.seed, dev, s.calibrate, sigma, score)
+
+
+def map_heights(
+    run: DetectRun,
+    heights_m: np.ndarray,
+    settings: DetectSettings,
+    threshold: tuple[float, ThresholdJson],
+    *,
+    transform: Affine | tuple[float, ...] | None = None,
+    scan_frame: bool = False,
+    progress: Callable[[int, int], None] | None = None,
+    timings: dict[str, float] | None = None,
+) -> DetectMaps:
+    """:func:`detect_dem` with its threshold found already (``threshold``: H_t in nats and its record,
+    :func:`detect_threshold`): the maps of ``heights_m`` (metres, on the run's DEM grid) and their sites,
+    with the same MC-dropout draws (``settings.seed``) and the same site rule. ``timings``, when given,
+    gets the seconds spent on the maps (``"map"``) and on choosing the sites (``"sites"``).
+
+    Raises:
+        HdNetError: an array that is not 2-D numbers, a transform of other cells than the run's.
+        TerrainError: no lander-footprint-sized square of valid cells.
+    """
+    heights = _height_array(heights_m)
     terrain, grid = _array_terrain(run, heights, transform, scan_frame)
-    return _maps_of_array(run, terrain, grid, settings, progress)
+    return _maps_of_array(run, terrain, grid, settings, threshold, progress, timings if timings is not None else {})
 
 
 def _maps_of_array(
@@ -947,23 +996,25 @@ def _maps_of_array(
     terrain: _ArrayTerrain,
     grid: Affine,
     s: DetectSettings,
+    threshold: tuple[float, ThresholdJson],
     progress: Callable[[int, int], None] | None,
+    timings: dict[str, float],
 ) -> DetectMaps:
-    """``detect_dem``'s steps 3-5 on the array's terrain: the threshold (calibrated on the run's own
-    training data), the maps in memory and the sites."""
+    """``detect_dem``'s steps 3-5 on the array's terrain at the threshold found (H_t, its record): the maps
+    in memory and the sites (the seconds of each into ``timings``: ``"map"``, ``"sites"``)."""
     score = uncertainty_score(s.uncertainty)
     sigma = run.train_sigma_m if s.sigma_m is None else float(s.sigma_m)
     dev = next(run.model.parameters()).device
-    own = (run.training_datasets or (), run.labels)  # calibrated on the run's own training data
-    h_t, threshold_info = _threshold(
-        run, s.threshold, *own, s.mc_samples, s.batch_size, s.seed, dev, s.calibrate, sigma, score
-    )
+    h_t, threshold_info = threshold
+    t0 = time.perf_counter()
     plan = TilePlan.make(terrain.shape, run.dem_shape, overlap_px(run.lander, run.spacing_m))
     maps = _maps_in_memory(
         terrain, run, plan, h_t, sigma, s.mc_samples, s.batch_size, s.seed, dev, progress, score, layout=s.layout
     )
+    t1 = time.perf_counter()
     layers = (maps["safety"], maps["p_safe"], maps["entropy_nats"], maps["baseline_p_safe"])
     sites = select_sites(*layers, grid, terrain.spacing_xy_m, run.lander, s.n_sites, s.nav_sigma_m, s.site_margin_m)
+    timings["map"], timings["sites"] = t1 - t0, time.perf_counter() - t1
     return DetectMaps(
         **maps,
         sites=sites,
