@@ -2,8 +2,9 @@
 seeded from PyTorch.
 
 ``torch.nn.functional.dropout`` draws its keep mask with ``torch.bernoulli``: on a CPU one
-Mersenne-Twister double per element in one thread, or, on an Intel CPU, MKL's generator (PyTorch's
-Bernoulli kernel checks the CPU's vendor), so a seed gives other masks on other machines. Here the
+Mersenne-Twister double per element in one thread, and PyTorch's Bernoulli kernel has a path
+through MKL's generator for Intel CPUs (it checks the CPU's vendor), so its masks are PyTorch's
+implementation's choice, machine by machine and version by version. Here the
 mask is one 16-bit integer per element from NumPy's PCG64 (``uint16_draws``: the generator's raw
 64-bit outputs cut into four), keep where the integer is at least ``round(p * 65536)``. The drop
 probability is therefore ``p`` rounded to a multiple of 1/65536 (0.2 → 13107/65536 = 0.19999695;

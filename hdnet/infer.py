@@ -5,8 +5,9 @@ While sampling, every BatchNorm (and every other module) is in inference mode an
 ``MCDropout`` modules are in training mode; the previous modes are restored afterwards, so running
 statistics are never touched. The dropout masks are hd's own (``hdnet.dropout_masks.sample_keep``:
 16-bit PCG64 draws seeded from PyTorch's default generator, in the logical N, C, H, W order), not
-``torch.bernoulli``'s, whose CPU kernel takes MKL's generator on Intel CPUs and the Mersenne Twister
-elsewhere: a seed gives the same samples on every CPU, in every memory layout and on every device.
+``torch.bernoulli``'s, whose CPU kernel has a path through MKL's generator for Intel CPUs and the
+Mersenne Twister elsewhere: a seed gives the same samples on every CPU, in every memory layout and on
+every device.
 The M samples are batched: the deterministic prefix (everything before the first dropout) is
 computed once, tiled M times along the batch (sample-major) and passed through the stochastic
 suffix in one pass (or in chunks of ``samples_per_pass`` samples to bound memory). The samples'
