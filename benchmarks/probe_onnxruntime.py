@@ -4,9 +4,9 @@ The robust profile's network (width 3/4, depth 2, untrained weights), one batch 
 8 tiles of 100 x 100, M = 8 samples. Variants, interleaved round by round:
 
 * ``torch nchw`` / ``torch channels-last``: ``hdnet.engine.predict`` (the shared prefix once, the
-  suffix on the M x N tiled copies, PyTorch's own dropout draws);
+  suffix on the M x N tiled copies, hd's own dropout draws: ``hdnet.dropout_masks.sample_keep``);
 * ``onnxruntime``: the same network exported (``torch.onnx.export``, dynamo) as two graphs, the
-  prefix and the suffix with its four dropout masks as **inputs**; the masks are drawn by PyTorch in
+  prefix and the suffix with its four dropout masks as **inputs**; the masks are drawn as hd draws them, in
   the order and shapes the suffix applies them (``hdnet.engine.NCHWDrawDropout.draw``), so the
   samples are the same draws and the maps differ only by the arithmetic's round-off (printed:
   max |ΔP(safe)| and |Δentropy| against ``torch nchw``);
@@ -41,6 +41,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from machine import cpu_model
 
+from hdnet.dropout_masks import keep_scale
 from hdnet.engine import NCHWDrawDropout, inference_model, predict
 from hdnet.fit import input_spec_for
 from hdnet.infer import MCPrediction, predictive_entropy
@@ -90,12 +91,14 @@ def _out_channels(net: BayesianSegNet, block: str) -> int:
 
 
 def _masks(net: BayesianSegNet, state_shape: torch.Size, n: int) -> list[torch.Tensor]:
-    """The four masks of one suffix pass on the sample-major batch, drawn as torch.dropout draws them,
-    in the order the suffix applies them (the shapes of a depth-2 network on 100 x 100 tiles)."""
+    """The four masks of one suffix pass on the sample-major batch (float32: 0 or the keep scale), drawn
+    as MC-dropout inference draws them, in the order the suffix applies them (the shapes of a depth-2
+    network on 100 x 100 tiles)."""
     c1, c2, c0 = state_shape[1], _out_channels(net, "enc2"), _out_channels(net, "dec1")
     shapes = [(n, c1, 50, 50), (n, c2, 25, 25), (n, c1, 50, 50), (n, c0, 100, 100)]
     draw = NCHWDrawDropout(net.config.dropout_p)
-    return [draw.draw(s, torch.float32, torch.device("cpu")) for s in shapes]
+    scale = keep_scale(net.config.dropout_p)
+    return [draw.draw(s).to(torch.float32).mul_(scale) for s in shapes]
 
 
 def _summary(probs: torch.Tensor, n: int) -> MCPrediction:

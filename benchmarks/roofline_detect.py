@@ -9,8 +9,10 @@ Prints, measured in one run on torch's threads:
 * the machine's sustained float32 rates: a 2048 x 2048 matrix product, and the network's heaviest
   convolution (96 -> 96 channels, 3 x 3, 50 x 50, batch 64, channels-last), median of five;
 * the network pass itself (median of three batches), the rate it achieves, and the part of it spent
-  drawing the MC-dropout masks (``bernoulli_`` over the batch's mask elements, as ``hdnet.engine`` draws
-  them);
+  drawing the MC-dropout masks, side by side for the masks drawn before (PyTorch's ``bernoulli_`` over
+  the batch's mask elements in NCHW order, divided by 1 - p, as ``hdnet.engine`` drew them until
+  MC-dropout inference took hd's own masks) and now (``hdnet.dropout_masks.sample_keep``: 16-bit PCG64
+  draws compared with a threshold), the two passes alternated batch by batch;
 * the floor's lower bound in seconds at each rate against issue 30's 60 s target, and the rate the
   target needs.
 
@@ -20,8 +22,12 @@ Usage: python benchmarks/roofline_detect.py [--samples 8] [--tiles 2209]
 from __future__ import annotations
 
 import argparse
+import copy
 import os
+import statistics
 import sys
+import time
+from collections.abc import Callable
 from pathlib import Path
 
 import torch
@@ -34,6 +40,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_detect import median_seconds
 from machine import cpu_model
 
+from hdnet.dropout_masks import sample_keep
 from hdnet.engine import NCHWDrawDropout, inference_model, predict
 from hdnet.model import BayesianSegNet, ModelConfig
 from hdnet.profiles import ROBUST
@@ -56,6 +63,60 @@ def _conv_gflops() -> float:
     return 2 * 64 * 50 * 50 * 96 * 96 * 9 / seconds / 1e9
 
 
+class BernoulliDropout(NCHWDrawDropout):
+    """The masks MC-dropout inference drew before hd's own: PyTorch's ``bernoulli_(1 - p)`` over the
+    logical NCHW order (MKL's generator on Intel CPUs, the Mersenne Twister elsewhere), over 1 - p."""
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """``x`` times the noise while sampling (``x`` channels-last: the noise made so too)."""
+        if self.shapes is not None or not self.training:
+            return super().forward(x)
+        noise = bernoulli_noise(x.shape, self.p)
+        if x.is_contiguous(memory_format=torch.channels_last):
+            noise = noise.contiguous(memory_format=torch.channels_last)
+        return x * noise
+
+
+def bernoulli_noise(shape: torch.Size, p: float) -> torch.Tensor:
+    """The former draw: float32 Bernoulli(1 - p) over 1 - p, in NCHW order."""
+    return torch.empty(shape).bernoulli_(1.0 - p).div_(1.0 - p)
+
+
+def _with_bernoulli_masks(model: torch.nn.Module) -> torch.nn.Module:
+    """A copy of the inference model whose dropouts draw the former masks."""
+    old = copy.deepcopy(model)
+    for module in list(old.modules()):
+        for name, child in module.named_children():
+            if isinstance(child, NCHWDrawDropout):
+                setattr(module, name, BernoulliDropout(child.p))
+    return old
+
+
+def _alternated(fns: list[Callable[[], object]], repeats: int) -> list[float]:
+    """Median seconds of each of ``fns``, called in turn ``repeats`` times after one warm-up round."""
+    times: list[list[float]] = [[] for _ in fns]
+    for round_ in range(repeats + 1):
+        for fn, kept in zip(fns, times, strict=True):
+            t0 = time.perf_counter()
+            fn()
+            if round_:
+                kept.append(time.perf_counter() - t0)
+    return [statistics.median(t) for t in times]
+
+
+def _mask_shapes(model: torch.nn.Module, x: torch.Tensor, samples: int) -> list[torch.Size]:
+    """The shapes of the masks one pass draws, in draw order."""
+    masks: list[tuple[NCHWDrawDropout, torch.Size]] = []
+    drops = [m for m in model.modules() if isinstance(m, NCHWDrawDropout)]
+    for drop in drops:
+        drop.shapes = masks
+    with torch.no_grad():
+        predict(model, x, samples, "channels-last")
+    for drop in drops:
+        drop.shapes = None
+    return [shape for _, shape in masks]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--samples", type=int, default=8, help="MC-dropout samples M")
@@ -74,26 +135,34 @@ def main() -> None:
         with FlopCounterMode(display=False) as counter:
             predict(model, x, args.samples, "channels-last")
         flops = counter.get_total_flops()
-        network_s = median_seconds(lambda: predict(model, x, args.samples, "channels-last"), 3, warmups=1)
-    masks: list[tuple[NCHWDrawDropout, torch.Size]] = []  # each mask's module and shape, in draw order
-    drops = [m for m in model.modules() if isinstance(m, NCHWDrawDropout)]
-    for drop in drops:
-        drop.shapes = masks
+    old_model = _with_bernoulli_masks(model)
     with torch.no_grad():
-        predict(model, x, args.samples, "channels-last")
-    for drop in drops:
-        drop.shapes = None
-    draws = sum(shape.numel() for _, shape in masks)
-    mask_s = median_seconds(
-        lambda: [drop.draw(shape, torch.float32, torch.device("cpu")) for drop, shape in masks], 3, warmups=0
+        old_s, network_s = _alternated(
+            [
+                lambda: predict(old_model, x, args.samples, "channels-last"),
+                lambda: predict(model, x, args.samples, "channels-last"),
+            ],
+            3,
+        )
+    shapes = _mask_shapes(model, x, args.samples)
+    draws = sum(shape.numel() for shape in shapes)
+    p = config.dropout_p
+    old_mask_s, mask_s = _alternated(
+        [lambda: [bernoulli_noise(shape, p) for shape in shapes], lambda: [sample_keep(shape, p) for shape in shapes]],
+        3,
     )
     gemm, conv = _gemm_gflops(), _conv_gflops()
     per_tile = flops / BATCH_TILES
     total = per_tile * args.tiles
     achieved = flops / network_s / 1e9
-    print(f"\none batch ({BATCH_TILES} tiles x M = {args.samples}): {flops / 1e9:.1f} GFLOP, {network_s:.3f} s")
-    print(f"  the network achieves {achieved:.1f} GFLOP/s; its {draws / 1e6:.1f} M mask draws take {mask_s:.3f} s")
-    print(f"  ({100 * mask_s / network_s:.0f} % of the pass, done serially by PyTorch's generator)")
+    print(f"\none batch ({BATCH_TILES} tiles x M = {args.samples}): {flops / 1e9:.1f} GFLOP, {draws / 1e6:.1f} M draws")
+    print(f"{'MC-dropout masks':40s} {'draws, s':>9s} {'pass, s':>8s} {'of pass':>8s} {'GFLOP/s':>8s}")
+    for name, drawn, passed in (
+        ("PyTorch bernoulli_ (before)", old_mask_s, old_s),
+        ("hd's 16-bit PCG64 (sample_keep, now)", mask_s, network_s),
+    ):
+        print(f"{name:40s} {drawn:9.3f} {passed:8.3f} {100 * drawn / passed:7.0f}% {flops / passed / 1e9:8.1f}")
+    print(f"draws {old_mask_s / mask_s:.1f}x faster, the pass {old_s / network_s:.2f}x")
     print(f"per tile {per_tile / 1e9:.2f} GFLOP; {args.tiles} tiles: {total / 1e12:.2f} TFLOP")
     print(f"\nsustained float32: matrix product {gemm:.1f} GFLOP/s, the net's heaviest convolution {conv:.1f} GFLOP/s")
     print(f"{'rate':44s} {'floor, s':>9s} {'vs 60 s':>8s}")

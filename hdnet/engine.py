@@ -3,11 +3,10 @@ laid out for speed (``DetectSettings.layout``).
 
 ``inference_model(model, "channels-last")`` returns a copy of a Bayesian SegNet whose weights and
 activations are stored channels-last (NHWC), the layout oneDNN's CPU convolutions are fastest in
-(benchmarks/bench_detect_area.py), with each MC-dropout module drawing its mask as PyTorch's own
-dropout does for a contiguous (NCHW) tensor of the same shape: one ``bernoulli_(1 - p)`` over the
-logical NCHW order, divided by ``1 - p``. ``torch.dropout`` on a channels-last tensor draws in memory
-order instead, which would give other masks, so other samples and other maps; with the masks drawn
-in NCHW order the samples are today's draws and the maps differ from the NCHW network's only by the
+(benchmarks/bench_detect_area.py). MC-dropout masks are hd's own in every layout
+(``hdnet.dropout_masks.sample_keep``: 16-bit PCG64 draws seeded from PyTorch's generator, drawn in
+the logical NCHW order and applied to the features in their own layout), so for a seed the
+channels-last network draws the NCHW network's samples bit for bit, and the maps differ only by the
 convolutions' round-off (float32; pinned within 1e-3 by tests/hdnet/test_engine.py).
 
 ``"channels-last-per-tile"`` also runs each tile's M samples through the network alone
@@ -23,18 +22,19 @@ import torch
 from torch import nn
 
 from hdnet.detect_settings import LAYOUTS
+from hdnet.dropout_masks import sample_dropout, sample_keep
 from hdnet.errors import HdNetError
 from hdnet.infer import MCPrediction, mc_dropout_mode, mc_dropout_predict, predictive_entropy
 from hdnet.model import MCDropout, PrefixState
 
 
 class NCHWDrawDropout(MCDropout):
-    """Element-wise dropout whose mask is drawn in the logical NCHW order whatever the input's memory
-    layout: the same draws as ``torch.dropout`` on a contiguous tensor of the input's shape.
+    """An ``MCDropout`` that ``predict_tile_by_tile`` can drive: its masks, drawn or given, are in
+    the logical NCHW order whatever the input's memory layout (``hdnet.dropout_masks.sample_keep``).
 
-    ``predict_tile_by_tile`` drives it in two more ways: ``shapes`` (a list) records the module and
-    its input's shape, in the order they are applied, without drawing or dropping; ``mask`` (a
-    tensor) is applied instead of a fresh draw."""
+    Two more ways besides ``MCDropout``'s: ``shapes`` (a list) records the module and its input's
+    shape, in the order they are applied, without drawing or dropping; ``mask`` (a boolean keep mask
+    of the input's shape, any strides) is applied instead of a fresh draw while sampling."""
 
     def __init__(self, p: float) -> None:
         super().__init__(p)
@@ -42,22 +42,17 @@ class NCHWDrawDropout(MCDropout):
         self.mask: torch.Tensor | None = None
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """``x`` times the mask over ``1 - p`` while sampling; ``x`` itself in inference mode."""
+        """``x`` times the mask times ``keep_scale(p)`` while sampling; ``x`` itself in inference mode."""
         if self.shapes is not None:
             self.shapes.append((self, x.shape))
             return x
-        if not self.training or self.p == 0.0:
-            return x
-        noise = self.mask if self.mask is not None else self.draw(x.shape, x.dtype, x.device)
-        if x.is_contiguous(memory_format=torch.channels_last):
-            noise = noise.contiguous(memory_format=torch.channels_last)  # the product stays channels-last
-        return x * noise
+        if self.mask is not None and self.training:
+            return sample_dropout(x, self.p, self.mask)
+        return super().forward(x)
 
-    def draw(self, shape: torch.Size | tuple[int, ...], dtype: torch.dtype, device: torch.device) -> torch.Tensor:
-        """torch.dropout's noise for a contiguous tensor of ``shape``: Bernoulli(1 - p) over 1 - p."""
-        keep = 1.0 - self.p
-        noise = torch.empty(shape, dtype=dtype, device=device).bernoulli_(keep)
-        return noise.div_(keep)
+    def draw(self, shape: torch.Size | tuple[int, ...], device: torch.device | None = None) -> torch.Tensor:
+        """The keep mask (boolean, contiguous) MC sampling draws for features of ``shape``."""
+        return sample_keep(shape, self.p, device)
 
 
 def _swap_dropouts(module: nn.Module) -> None:
@@ -72,7 +67,8 @@ def _swap_dropouts(module: nn.Module) -> None:
 
 def inference_model(model: nn.Module, layout: str) -> nn.Module:
     """``model`` laid out as ``layout`` (``LAYOUTS``) for MC-dropout inference: ``"nchw"`` the model
-    itself; ``"channels-last"`` a channels-last copy with NCHW-order dropout draws (module docstring).
+    itself; ``"channels-last"`` (and ``"channels-last-per-tile"``) a channels-last copy whose dropouts
+    ``predict_tile_by_tile`` can drive; the same draws in every layout (module docstring).
 
     Raises:
         HdNetError: an unknown layout.
@@ -136,7 +132,7 @@ def predict_tile_by_tile(model: nn.Module, x: torch.Tensor, n_samples: int) -> M
             for drop in drops:
                 drop.shapes = None
         applied = [drop for drop, _ in recorded]
-        masks = [drop.draw((n_samples * n, *shape[1:]), x.dtype, x.device) for drop, shape in recorded]
+        masks = [drop.draw((n_samples * n, *shape[1:]), x.device) for drop, shape in recorded]
         parts = []
         try:
             for k in range(n):

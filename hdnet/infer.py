@@ -3,10 +3,15 @@ expected entropy and mutual information.
 
 While sampling, every BatchNorm (and every other module) is in inference mode and only the
 ``MCDropout`` modules are in training mode; the previous modes are restored afterwards, so running
-statistics are never touched. The M samples are batched: the deterministic prefix (everything before
-the first dropout) is computed once, tiled M times along the batch (sample-major) and passed through
-the stochastic suffix in one pass (or in chunks of ``samples_per_pass`` samples to bound memory). The
-samples' softmaxes and their entropies are summed chunk by chunk; no sample is kept.
+statistics are never touched. The dropout masks are hd's own (``hdnet.dropout_masks.sample_keep``:
+16-bit PCG64 draws seeded from PyTorch's default generator, in the logical N, C, H, W order), not
+``torch.bernoulli``'s, whose CPU kernel has a path through MKL's generator for Intel CPUs and the
+Mersenne Twister elsewhere: a seed gives the same samples on every CPU, in every memory layout and on
+every device.
+The M samples are batched: the deterministic prefix (everything before the first dropout) is
+computed once, tiled M times along the batch (sample-major) and passed through the stochastic
+suffix in one pass (or in chunks of ``samples_per_pass`` samples to bound memory). The samples'
+softmaxes and their entropies are summed chunk by chunk; no sample is kept.
 """
 
 from __future__ import annotations
@@ -61,17 +66,23 @@ def _unwrap(model: nn.Module) -> BayesianSegNet:
 
 @contextlib.contextmanager
 def mc_dropout_mode(model: nn.Module) -> Iterator[BayesianSegNet]:
-    """Context: whole model in eval mode, only the dropout modules sampling; modes restored on exit."""
+    """Context: whole model in eval mode, only the dropout modules sampling, with hd's own masks
+    (``MCDropout.sampling``: ``hdnet.dropout_masks.sample_dropout``); modes restored on exit."""
     net = _unwrap(model)
     saved = [(m, m.training) for m in net.modules()]
+    drops = net.dropout_modules()
+    sampling = [m.sampling for m in drops]
     try:
         net.eval()
-        for m in net.dropout_modules():
+        for m in drops:
             m.train()
+            m.sampling = True
         yield net
     finally:
         for module, mode in saved:
             module.training = mode
+        for m, was in zip(drops, sampling, strict=True):
+            m.sampling = was
 
 
 def predictive_entropy(mean_probs: torch.Tensor, dim: int = 1) -> torch.Tensor:

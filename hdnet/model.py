@@ -40,7 +40,7 @@ from torch import nn
 from hdcore.bounds import Bound
 from hdcore.setting import check, setting
 from hdnet import defaults
-from hdnet.dropout_masks import fast_dropout
+from hdnet.dropout_masks import fast_dropout, sample_dropout
 from hdnet.errors import HdNetError
 
 MODEL_NAME = "bayesian_segnet"
@@ -88,20 +88,31 @@ class ModelConfig:
 class MCDropout(nn.Dropout):
     """Element-wise dropout that MC-dropout inference switches on alone (BatchNorm stays in eval).
 
-    ``fast_masks`` (off unless training turns it on, ``TrainingProfile.fast_dropout``): in training
-    mode on a CPU, the masks come from ``hdnet.dropout_masks`` (16-bit PCG64 draws seeded from
-    PyTorch's generator, four times faster than ``torch.bernoulli``) instead of ``nn.Dropout``'s.
-    It is an attribute, not a parameter: a loaded model draws ``nn.Dropout``'s masks, so MC-dropout
-    inference keeps its draws whatever the run was trained with.
+    Two attributes, not parameters (a loaded model has both off):
+
+    * ``sampling`` (set by ``hdnet.infer.mc_dropout_mode`` while it samples): the masks are
+      ``hdnet.dropout_masks.sample_dropout``'s, hd's own 16-bit PCG64 draws seeded from PyTorch's
+      generator, in the logical (N, C, H, W) order: the same samples on every CPU (whatever its
+      vendor or BLAS), in every memory layout and on every device. MC-dropout inference therefore
+      draws the same masks whatever the run was trained with;
+    * ``fast_masks`` (off unless training turns it on, ``TrainingProfile.fast_dropout``): in training
+      mode on a CPU, the masks come from ``hdnet.dropout_masks.fast_dropout`` (the same generator,
+      four times faster than ``torch.bernoulli``) instead of ``nn.Dropout``'s.
     """
 
     def __init__(self, p: float = 0.5) -> None:
         super().__init__(p)
         self.fast_masks = False
+        self.sampling = False
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """Dropout of ``x``: ``nn.Dropout``'s, or the fast masks' in training mode on a CPU."""
-        if self.fast_masks and self.training and x.device.type == "cpu":
+        """Dropout of ``x`` in training mode: MC sampling's masks, the fast masks (training on a CPU)
+        or ``nn.Dropout``'s; ``x`` itself in inference mode."""
+        if not self.training:
+            return x
+        if self.sampling:
+            return sample_dropout(x, self.p)
+        if self.fast_masks and x.device.type == "cpu":
             return fast_dropout(x, self.p)
         return super().forward(x)
 

@@ -120,7 +120,8 @@ class TrainingProfile:
     fast_dropout: bool = setting(
         False,
         "Draw training's dropout masks with hdnet.dropout_masks (16-bit PCG64 draws, four times faster than "
-        "torch.bernoulli on a CPU; other draws, the same distribution); MC-dropout inference keeps torch's",
+        "torch.bernoulli on a CPU; other draws, the same distribution); MC-dropout inference draws hd's own "
+        "masks whatever the profile",
         cli=False,
     )
     # (low, high) metres: by default the profile trains across this range of noise levels, drawn per

@@ -1,5 +1,5 @@
-"""hdnet.engine: the channels-last network draws PyTorch's MC-dropout masks, and hd detect's maps with
-it equal the reference (NCHW) maps within float round-off."""
+"""hdnet.engine: the channels-last network draws the NCHW network's MC-dropout masks (hd's own), and
+hd detect's maps with it equal the reference (NCHW) maps within float round-off."""
 
 from __future__ import annotations
 
@@ -16,6 +16,7 @@ from hdlabels.lander import Lander
 from hdlabels.store import DemSpec, LabelingEntry
 from hdnet.detect import DetectRun, detect_dem
 from hdnet.detect_settings import LAYOUTS, DetectSettings
+from hdnet.dropout_masks import keep_scale, sample_keep
 from hdnet.engine import NCHWDrawDropout, inference_model, laid_out, predict_tile_by_tile
 from hdnet.errors import HdNetError
 from hdnet.fit import input_spec_for
@@ -41,17 +42,30 @@ def _model(width: float = 0.25) -> BayesianSegNet:
     return model
 
 
-def test_nchw_draw_dropout_draws_torch_dropouts_mask_in_either_layout():
-    """For the same seed the mask of a channels-last input is torch.dropout's of the contiguous one,
-    bit for bit, and the output keeps the input's layout; in inference mode the input comes back."""
+def test_nchw_draw_dropout_draws_hds_masks_in_either_layout():
+    """While sampling, for the same seed, MCDropout and NCHWDrawDropout drop the cells of
+    sample_keep's NCHW-order mask for a contiguous and for a channels-last input alike, bit for bit,
+    and the output keeps the input's layout; a given mask is applied without a draw; in inference
+    mode the input comes back."""
     x = torch.randn(3, 5, 7, 9)
+    cl = x.contiguous(memory_format=torch.channels_last)
     torch.manual_seed(4)
-    reference = torch.dropout(x, 0.2, True)
-    drop = NCHWDrawDropout(0.2).train()
+    keep = sample_keep(x.shape, 0.2)
+    reference = torch.where(keep, x * keep_scale(0.2), torch.tensor(0.0))  # kept cells scaled by 65536 / 52429
+    assert 0.7 < keep.float().mean() < 0.9
+    plain, drop = MCDropout(0.2).train(), NCHWDrawDropout(0.2).train()
+    for layer in (plain, drop):
+        layer.sampling = True
+        for inp in (x, cl):
+            torch.manual_seed(4)
+            out = layer(inp)
+            assert torch.equal(out, reference)
+            assert out.is_contiguous(memory_format=torch.channels_last) == (inp is cl)
     torch.manual_seed(4)
-    out = drop(x.contiguous(memory_format=torch.channels_last))
-    assert torch.equal(out, reference) and out.is_contiguous(memory_format=torch.channels_last)
-    assert ((out == 0) | torch.isclose(out, x / 0.8)).all()  # kept cells scaled by 1 / (1 - p)
+    assert torch.equal(drop.draw(x.shape), keep)
+    drop.mask = torch.stack([keep, ~keep], dim=1)[:, 0]  # a strided view, as predict_tile_by_tile gives
+    state = torch.get_rng_state()
+    assert torch.equal(drop(cl), reference) and torch.equal(torch.get_rng_state(), state)  # nothing drawn
     assert drop.eval()(x) is x
 
 
