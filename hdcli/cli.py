@@ -297,7 +297,7 @@ def train_cmd(dataset: Path | str, run_dir: Path, **options: Any) -> None:
     "dataset",
     required=True,
     type=DATASET_OR_URL,
-    help="Labelled dataset to evaluate on (its test split): a directory or a URL.",
+    help="Labelled dataset to evaluate on (its test split, or --split's): a directory or a URL.",
 )
 @out_option("out_dir", "Report directory (report.md, report.json, figures).")
 @overwrite_option("Replace an existing report (never other files, never an input).")

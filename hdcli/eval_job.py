@@ -1,4 +1,6 @@
-"""``hd eval``: a trained run scored on a labelled dataset's test split, its report written (or found current).
+"""``hd eval``: a trained run scored on a labelled dataset's test split (or ``--split``'s), its report written
+(or found current); the terminal's summary: the tables' rows, the threshold and P(safe landing) with
+its intervals and scene counts.
 
 The settings are :class:`hdnet.eval_settings.EvalConfig`'s fields and :class:`SweepOption`'s (each
 described once, as field metadata); :func:`eval_job` makes the configuration, checks the run and the
@@ -83,5 +85,7 @@ def eval_job(
         "report": str(out_dir),
         "threshold": result.threshold,
         "rows": [dataclasses.asdict(r) for r in result.rows],
+        "landing": [dataclasses.asdict(r) for r in result.landing],
     }
-    return Done([result.summary(), report_written_message(out_dir)], record)
+    landing = result.landing_summary()
+    return Done([result.summary(), *([landing] if landing else []), report_written_message(out_dir)], record)

@@ -4,7 +4,8 @@ Each report is read from its ``report.json`` (``hdnet.report``: ``rows``, ``thre
 when the evaluation scored landings, ``landing`` and ``landing_settings``). The comparison shows, per
 report (a column named after its directory), Table 1's rows (PA, mIoU, precision, sensitivity and, for
 the uncertainty-aware map, V/C; fractions in [0, 1]), the threshold (its rule and H_t in nats) and the
-landing table's P(safe landing) per truth, method, noise level and navigation dispersion. Then every
+landing table's P(safe landing) per truth, method, noise level and navigation dispersion, each with its
+95 % Wilson interval and its scenes (landed on / scored: ``0.9500 [0.8412, 0.9862] n=38/40``). Then every
 setting of the reports' ``run``, ``threshold`` and ``landing_settings`` records whose values are not
 all equal, with each report's value; the equal ones are counted. Nothing is written.
 """
@@ -14,7 +15,7 @@ from __future__ import annotations
 import json
 import math
 import os
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, cast
@@ -70,13 +71,44 @@ class LoadedReport:
 
 
 @dataclass(frozen=True)
+class LandingCell:
+    """How sure one report's P(safe landing) is: its 95 % Wilson interval (``low``, ``high``; None
+    where the method never landed), the scenes it landed on (the interval's n) and the scenes scored."""
+
+    low: float | None
+    high: float | None
+    landed: int | None
+    scenes: int | None
+
+    def text(self, p_safe: Value) -> str:
+        """The cell as shown: ``0.9500 [0.8412, 0.9862] n=38/40`` (n: scenes landed on / scored), or
+        ``-- n=0/40`` where the method never landed."""
+        n = f"n={'?' if self.landed is None else self.landed}/{'?' if self.scenes is None else self.scenes}"
+        if not isinstance(p_safe, float):
+            return f"-- {n}"
+        return f"{p_safe:.{DIGITS}f} [{_cell(self.low)}, {_cell(self.high)}] {n}"
+
+    def to_dict(self) -> dict[str, object]:
+        """The cell's record in ``hd --json compare`` (its row's value is the rate)."""
+        return {"p_safe_low": self.low, "p_safe_high": self.high, "landed": self.landed, "scenes": self.scenes}
+
+
+@dataclass(frozen=True)
 class Row:
     """One compared quantity: its section (``Table 1``, ``Threshold``, ``Landing``), label and each
-    report's value (None where undefined or missing; fractions in [0, 1], H_t in nats)."""
+    report's value (None where undefined or missing; fractions in [0, 1], H_t in nats); a landing
+    row also each report's interval and scene counts (``landing``; None where the report lacks the row)."""
 
     section: str
     label: str
     values: tuple[Value, ...]
+    landing: tuple[LandingCell | None, ...] | None = None
+
+    def cells(self) -> list[str]:
+        """Each report's value as shown (a landing rate with its interval and scene counts)."""
+        if self.landing is None:
+            return [_cell(v) for v in self.values]
+        return [_cell(v) if c is None else c.text(v) for v, c in zip(self.values, self.landing, strict=True)]
 
 
 @dataclass(frozen=True)
@@ -227,22 +259,35 @@ def threshold_rows(reports: list[LoadedReport]) -> list[Row]:
     ]
 
 
+def _count(x: Any) -> int | None:
+    """A scene count of a report, else None."""
+    return x if isinstance(x, int) and not isinstance(x, bool) else None
+
+
 def landing_rows(reports: list[LoadedReport]) -> list[Row]:
     """The landing table's P(safe landing) per truth, method, test noise level and navigation dispersion
-    (None where the method chose no site); no rows when no report scored landings."""
-    index = []
+    (None where the method chose no site), with its 95 % Wilson interval and the scenes landed on and
+    scored, so that 2 scenes do not look as sure as 500; no rows when no report scored landings."""
+    index: list[dict[tuple[Any, ...], tuple[float | None, LandingCell]]] = []
     for rep in reports:
         rows = {}
         for r in rep.content.get("landing") or []:
             if isinstance(r, dict):
                 key = (r.get("truth"), r.get("method"), r.get("test_sigma_m"), r.get("nav_sigma_m"))
-                rows[key] = None if r.get("landed") == 0 else _number(r.get("p_safe"))
+                landed = _count(r.get("landed"))
+                cell = LandingCell(
+                    _number(r.get("p_safe_low")), _number(r.get("p_safe_high")), landed, _count(r.get("scenes"))
+                )
+                rows[key] = (None if landed == 0 else _number(r.get("p_safe")), cell)
         index.append(rows)
     out = []
-    for truth, method, sigma, nav in _ordered([k for rows in index for k in rows]):
+    for key in _ordered([k for rows in index for k in rows]):
+        truth, method, sigma, nav = key
         nav_words = f"{nav:g} m" if isinstance(nav, (int, float)) else str(nav)
         label = f"P(safe landing) {truth} truth, {METHOD_WORDS.get(method, method)} {_cm(sigma)}, nav {nav_words}"
-        out.append(Row("Landing", label, tuple(rows.get((truth, method, sigma, nav)) for rows in index)))
+        found = [rows.get(key) for rows in index]
+        values = tuple(None if f is None else f[0] for f in found)
+        out.append(Row("Landing", label, values, tuple(None if f is None else f[1] for f in found)))
     return out
 
 
@@ -321,7 +366,7 @@ def _equal_line(c: Comparison) -> str:
 def to_table(c: Comparison) -> str:
     """The comparison as aligned text for a terminal."""
     header = ["", *c.names]
-    body = [[f"{r.section}: {r.label}", *(_cell(v) for v in r.values)] for r in c.rows]
+    body = [[f"{r.section}: {r.label}", *r.cells()] for r in c.rows]
     widths = [max(len(line[i]) for line in [header, *body]) for i in range(len(header))]
 
     def line(cells: list[str]) -> str:
@@ -351,7 +396,7 @@ def to_markdown(c: Comparison) -> str:
     out = [
         "| Section | Row | " + " | ".join(_md(n) for n in c.names) + " |",
         "|---|---|" + "---|" * len(c.names),
-        *(f"| {r.section} | {_md(r.label)} | " + " | ".join(_md(_cell(v)) for v in r.values) + " |" for r in c.rows),
+        *(f"| {r.section} | {_md(r.label)} | " + " | ".join(_md(v) for v in r.cells()) + " |" for r in c.rows),
         "",
     ]
     if c.differing:
@@ -380,11 +425,20 @@ def to_record(c: Comparison) -> dict[str, object]:
         {
             "command": "compare",
             "reports": [{"name": r.name, "directory": str(r.directory)} for r in c.reports],
-            "rows": [{"section": r.section, "row": r.label, "values": by_name(r.values)} for r in c.rows],
+            "rows": [_row_record(r, by_name) for r in c.rows],
             "settings_differ": {s.name: by_name(s.values) for s in c.differing},
             "settings_equal": c.equal,
         }
     )
+
+
+def _row_record(r: Row, by_name: Callable[[tuple[object, ...]], dict[str, object]]) -> dict[str, object]:
+    """A row of ``to_record``: its section, label and values by report; a landing row also its
+    ``landing`` (interval and scene counts, ``LandingCell.to_dict``) by report."""
+    out: dict[str, object] = {"section": r.section, "row": r.label, "values": by_name(r.values)}
+    if r.landing is not None:
+        out["landing"] = by_name(tuple(None if c is None else c.to_dict() for c in r.landing))
+    return out
 
 
 def render(c: Comparison, fmt: str) -> str:

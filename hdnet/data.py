@@ -79,6 +79,7 @@ from lidarsim.location import dataset_label, is_url, open_h5_at
 from lidarsim.streams import Purpose, stream
 
 SPLITS: tuple[str, str, str] = ("train", "val", "test")  # split codes 0, 1, 2 of the label shards
+ALL_SPLITS = "all"  # every scan of the dataset, each once, in shard order (hd eval --split all)
 SIGMA_EXACT_TOLERANCE_M = 1e-9  # hd choice: two noise levels closer than this are the same level
 # hd choice: a requested sigma also matches a dataset sigma that rounds to it at 0.1 mm (e.g. 0.0167
 # for S-167 = 0.05/3 m, as written on the command line), when exactly one dataset sigma does.
@@ -87,6 +88,19 @@ DEAD_PIXEL_STREAM = 0xDEAD  # hd choice: stream key of the dead-pixel draws, (se
 
 
 # --- labelling and noise levels ----------------------------------------------------------------
+def split_codes(split: str) -> tuple[int, ...]:
+    """The label shards' split codes of ``split``: one of ``SPLITS``, or all three for ``ALL_SPLITS``.
+
+    Raises:
+        HdNetError: any other name.
+    """
+    if split == ALL_SPLITS:
+        return tuple(range(len(SPLITS)))
+    if split not in SPLITS:
+        raise HdNetError(f"split must be one of {', '.join(SPLITS)} or {ALL_SPLITS}, got {split!r}.")
+    return (SPLITS.index(split),)
+
+
 def open_labeling(dataset_dir: str | os.PathLike, labels: str | None = None) -> tuple[LabelingEntry, list[Path | str]]:
     """The labelling entry of a dataset and its label shard paths (``LabelStoreError`` when there are no labels)."""
     entry = find_labeling(dataset_dir, labels)
@@ -125,17 +139,16 @@ def sigma_index(sigmas_m: tuple[float, ...], sigma_m: float) -> int:
 
 
 def split_labels(dataset_dir: str | os.PathLike, split: str, labels: str) -> dict[int, np.ndarray]:
-    """The labels of every scan of ``split`` under the labelling ``labels``, by scan index, as stored
-    (uint8 DEM grids: 1 safe, 0 unsafe, 255 invalid), every label shard checked before it is read."""
-    if split not in SPLITS:
-        raise HdNetError(f"split must be one of {', '.join(SPLITS)}, got {split!r}.")
+    """The labels of every scan of ``split`` (one of ``SPLITS``, or ``ALL_SPLITS``) under the labelling
+    ``labels``, by scan index, as stored (uint8 DEM grids: 1 safe, 0 unsafe, 255 invalid), every label
+    shard checked before it is read."""
+    codes = split_codes(split)
     entry = find_labeling(dataset_dir, labels)
-    code = SPLITS.index(split)
     out: dict[int, np.ndarray] = {}
     for shard in entry.shards:
         with open_label_shard(dataset_dir, shard) as reader:
             f = reader.h5
-            rows = np.flatnonzero(f["split"][:] == code)
+            rows = np.flatnonzero(np.isin(f["split"][:], codes))
             if rows.size:
                 scans = f["scan_index"][:]
                 block = f["label"][rows[0] : rows[-1] + 1][rows - rows[0]]
@@ -181,7 +194,7 @@ class HazardDataset(Dataset):
 
     Args:
         dataset_dir: the dataset directory (``manifest.json`` with a labelling).
-        split: ``train``, ``val`` or ``test``.
+        split: ``train``, ``val`` or ``test``; ``all`` (``ALL_SPLITS``): every scan, in shard order.
         sigma_m: noise level of the input DEM, metres (stored in the dataset, or made on the fly);
             with ``noise`` of several levels or a range: None.
         input_size: network input size in pixels (square, bilinear), or None to pad to a multiple of 32.
@@ -211,8 +224,7 @@ class HazardDataset(Dataset):
         augment: str = "none",
         noise: TrainingNoise | None = None,
     ) -> None:
-        if split not in SPLITS:
-            raise HdNetError(f"split must be one of {', '.join(SPLITS)}, got {split!r}.")
+        codes = split_codes(split)
         if noise is not None and noise.is_single:
             sigma_m, noise = noise.levels_m[0], None
         if (sigma_m is None) == (noise is None):
@@ -245,7 +257,6 @@ class HazardDataset(Dataset):
         self.dead_pixels = int(dead_pixels)
         self.seed = int(seed)
         self.epoch = 0
-        code = SPLITS.index(split)
         items: list[tuple[int, int, int]] = []  # (shard number, row in shard, scan index)
         for k, (path, shard) in enumerate(zip(self.paths, self.entry.shards, strict=True)):
             with open_label_shard(dataset_dir, shard) as reader:
@@ -255,7 +266,7 @@ class HazardDataset(Dataset):
                 abs(a - b) > SIGMA_EXACT_TOLERANCE_M for a, b in zip(shard_sigmas, self.sigmas_m, strict=True)
             ):
                 raise HdNetError(f"{path}: its noise levels differ from the other label shards.")
-            items += [(k, int(r), int(scans[r])) for r in np.flatnonzero(splits == code)]
+            items += [(k, int(r), int(scans[r])) for r in np.flatnonzero(np.isin(splits, codes))]
         self.items = items
         if input_spec is None:
             norm = (

@@ -29,6 +29,10 @@ from hdnet.shared_settings import (
 from hdnet.threshold_spec import ThresholdSpec, parse_threshold_spec
 from hdnet.uncertainty import UncertaintyScore, uncertainty_score
 
+# The splits hd eval scores (--split): one of the dataset's three, or every scan once. The first is the
+# default, the paper's protocol. (hdnet.data.SPLITS and ALL_SPLITS name them for the label shards.)
+EVAL_SPLITS: tuple[str, ...] = ("test", "val", "train", "all")
+
 
 @dataclass(frozen=True)
 class EvalConfig:
@@ -50,7 +54,10 @@ class EvalConfig:
     at each test noise level: the sensor's, which a flash LiDAR knows); ``calibrate_on``: the
     datasets whose validation splits (together) calibrate H_t (empty: the run's own training data,
     what a user of the run has, when every training dataset is present with the run's labelling;
-    else the evaluated dataset's validation split, said in the report).
+    else the evaluated dataset's validation split, said in the report); ``split``: the split every
+    table scores (``test``, the paper's; ``val``, ``train``, or ``all``: every scan of the dataset
+    once), H_t still calibrated on the validation splits of ``calibrate_on``'s choice (the report
+    warns where scored scans calibrated H_t or trained the run).
 
     Raises:
         HdNetError: a value of the wrong kind or outside its range (each field's metadata,
@@ -69,6 +76,13 @@ class EvalConfig:
     labels: str | None = labels_setting(
         "Labelling to evaluate against (default: the one the run was trained on, when the dataset has it; else "
         "the dataset's only one)"
+    )
+    split: str = setting(
+        EVAL_SPLITS[0],
+        "The split every table scores: test (the paper's), val, train, or all (every scan of the dataset once, for "
+        "a dataset built for evaluation only). The threshold is still calibrated on a validation split; the report "
+        "warns where scored scans also calibrated it or trained the run",
+        choices=EVAL_SPLITS,
     )
     seed: int = seed_setting("MC dropout and dropped pixels")
     batch_size: int = batch_size_setting("DEMs per inference batch")

@@ -5,7 +5,8 @@ Protocol (docs/evaluation.md; paper, "Results & Discussion"):
 1. the threshold H_t of the uncertainty score (predictive entropy, the paper's, or mutual
    information: ``hdnet.uncertainty``) is calibrated on the validation split's scores at the
    training noise level (``mean``, ``quantile:Q`` or ``risk:ALPHA``, ``hdnet.thresholds``);
-2. for every noise level of the dataset, the test split is run once through MC dropout; the mean
+2. for every noise level of the dataset, the test split (``--split``: val, train or every scan once,
+   ``hdnet.scored_split``) is run once through MC dropout; the mean
    softmax is brought back to the DEM grid (``HazardDataset.to_dem_grid``) and every method is
    scored from one confusion matrix over the whole split (``hdnet.metrics``):
    ``alhat_baseline`` (P(safe) >= 0.5 of the label shard), ``base_net`` (argmax of the mean
@@ -77,6 +78,7 @@ from hdnet.results import (
     SplitInference,
 )
 from hdnet.run_record import TrainingData
+from hdnet.scored_split import ScoredSplit, scored_split
 from hdnet.thresholds import (
     EntropyCalibration,
     ThresholdSpec,
@@ -369,6 +371,7 @@ class _Setup:
     labels: str
     sigmas_m: tuple[float, ...]
     calibration: Calibration
+    scored: ScoredSplit
 
     @property
     def model(self) -> BayesianSegNet:
@@ -536,16 +539,16 @@ class _ImageCounter:
 
 
 def _planned_images(setup: _Setup, dataset_dir: str | os.PathLike, cfg: EvalConfig) -> int:
-    """Images an evaluation infers: validation splits once per calibration level, the test split per
-    noise level of Table 1, of Table 2 (with dead pixels) and of the sweep (split sizes from the
-    manifests)."""
+    """Images an evaluation infers: validation splits once per calibration level, the scored split
+    (the test split by default) per noise level of Table 1, of Table 2 (with dead pixels) and of the
+    sweep (split sizes from the manifests)."""
 
     def split_size(d: str | os.PathLike, split: str) -> int:
         splits = read_manifest(d).get("splits", {})
         return int(splits.get(split, 0)) if isinstance(splits, dict) else 0
 
     n_val = sum(split_size(d, "val") for d in setup.calibration.datasets)
-    n_test = split_size(dataset_dir, "test")
+    n_test = setup.scored.scans
     levels = {round(float(setup.train_sigma_m), 12)}
     if cfg.calibrate == "each":
         levels |= {round(float(s), 12) for s in (*setup.sigmas_m, *cfg.sigma_sweep)}
@@ -652,7 +655,10 @@ def _open_evaluation(run_dir: str | os.PathLike, dataset_dir: str | os.PathLike,
     stored_sigma_index(sigmas, run.data.train_sigma_m)  # stored, or made at from the clean points
     labels = entry.name
     calibration = calibration_datasets(run.data, dataset_dir, cfg, labels, run_labels)
-    return _Setup(run, dev, labels, tuple(sigmas), calibration)
+    scored = scored_split(cfg.split, dataset_dir, calibration.datasets, run.data)
+    for words in scored.warnings():
+        warnings.warn(words, HdWarning, stacklevel=3)
+    return _Setup(run, dev, labels, tuple(sigmas), calibration, scored)
 
 
 def _noise_table(
@@ -674,7 +680,7 @@ def _noise_table(
         quantile_thresholds = [(q, th.calibration.quantile(q)) for q in defaults.QUANTILE_SWEEP]
         inf = infer_split(
             setup.model,
-            setup.dataset(dataset_dir, "test", sigma, cfg.seed),
+            setup.dataset(dataset_dir, cfg.split, sigma, cfg.seed),
             cfg.mc_samples,
             cfg.batch_size,
             cfg.seed,
@@ -728,7 +734,7 @@ def _dead_pixel_table(
         h_t = thresholds.at(sigma).value_nats
         inf = infer_split(
             setup.model,
-            setup.dataset(dataset_dir, "test", sigma, cfg.seed, cfg.drop_pixels),
+            setup.dataset(dataset_dir, cfg.split, sigma, cfg.seed, cfg.drop_pixels),
             cfg.mc_samples,
             cfg.batch_size,
             cfg.seed,
@@ -754,7 +760,7 @@ def _sigma_sweep(
         h_t = thresholds.at(sigma).value_nats
         inf = infer_split(
             setup.model,
-            setup.dataset(dataset_dir, "test", sigma, cfg.seed),
+            setup.dataset(dataset_dir, cfg.split, sigma, cfg.seed),
             cfg.mc_samples,
             cfg.batch_size,
             cfg.seed,
@@ -779,7 +785,7 @@ def _landing_table(
     for the evaluated labelling's lander and DEM (``hdnet.landing_table``)."""
     entry, _ = open_labeling(dataset_dir, setup.labels)
     names = labelings_by_truth(dataset_dir, entry)
-    truths = {truth: split_labels(dataset_dir, "test", name) for truth, name in sorted(names.items(), reverse=True)}
+    truths = {truth: split_labels(dataset_dir, cfg.split, name) for truth, name in sorted(names.items(), reverse=True)}
     settings = LandingSettings(nav_sigmas_m=cfg.nav_sigma_m, seed=cfg.seed, margin_m=cfg.site_margin_m)
     rows: list[LandingRow] = []
     for sigma, inf in tests.items():
@@ -827,10 +833,22 @@ def _run_info(
         "mc_samples": cfg.mc_samples,
         "drop_pixels": cfg.drop_pixels,
         "seed": cfg.seed,
-        "test_scans": len(next(iter(tests.values())).scan_index),
-        "val_scans": len(val.scan_index),
+        **_scored_scans(setup.scored, len(next(iter(tests.values())).scan_index), len(val.scan_index)),
         "paper_dataset": is_paper_dataset(dataset_dir),
+        **setup.scored.record(),
     }
+
+
+def _scored_scans(scored: ScoredSplit, n_scored: int, n_val: int) -> ReportRunJson:
+    """The scans counts of the ``run`` record: the test scans scored (the default split; another
+    split's count is its ``scored_scans``) and the validation scans that calibrated H_t."""
+    if scored.is_default:
+        return {"test_scans": n_scored, "val_scans": n_val}
+    if n_scored != scored.scans:
+        raise HdNetError(
+            f"the {scored.name} split holds {scored.scans} scans by its manifest but {n_scored} were read."
+        )
+    return {"val_scans": n_val}
 
 
 def report_is_current(
@@ -863,6 +881,7 @@ def report_is_current(
         and run.get("mc_samples") == cfg.mc_samples
         and run.get("drop_pixels") == cfg.drop_pixels
         and run.get("seed") == cfg.seed
+        and run.get("split", "test") == cfg.split
         and run.get("batch_size") == cfg.batch_size
         and run.get("sigma_sweep_m") == list(cfg.sigma_sweep)
         and report.get("landing_settings", {}).get("nav_sigmas_m") == list(cfg.nav_sigma_m)

@@ -268,8 +268,9 @@ LANDING_METHODS = (
 
 
 def landing_figure(result: EvaluationResult, path: Path) -> None:
-    """P(safe landing) against the navigation dispersion, one panel per truth and test noise level,
-    one line per method with its 95 % interval; abstentions in the legend's text."""
+    """P(safe landing) against the navigation dispersion, one panel per truth and test noise level
+    (its scenes scored in the title), one line per method with its 95 % Wilson interval; abstentions
+    in the legend's text."""
     truths = list(dict.fromkeys(r.truth for r in result.landing))
     sigmas = sorted({r.test_sigma_m for r in result.landing})
     fig, axes = plt.subplots(
@@ -303,7 +304,8 @@ def landing_figure(result: EvaluationResult, path: Path) -> None:
                     capsize=2,
                     label=f"{name} (abstains ≤ {100 * abstain:.0f} %)",
                 )
-            ax.set_title(f"{truth} truth, test σ {sigma_label(sigma)}", fontsize=8)
+            scenes = max((r.scenes for r in result.landing if r.truth == truth and r.test_sigma_m == sigma), default=0)
+            ax.set_title(f"{truth} truth, test σ {sigma_label(sigma)}, {scenes} scenes", fontsize=8)
             ax.set_xlabel("navigation dispersion 1σ (m)", fontsize=8)
             if k == 0:
                 ax.set_ylabel("P(safe landing)", fontsize=8)

@@ -1,5 +1,6 @@
-"""The landing table of ``hd eval``: every method's best site in every test scene, landed on with the
-navigation dispersion and scored against the truths the dataset has (``hdnet.landing``).
+"""The landing table of ``hd eval``: every method's best site in every scored scene (the test split's, or
+``--split``'s), landed on with the navigation dispersion and scored against the truths the dataset has
+(``hdnet.landing``).
 
 Per test scene and noise level, each method's map is made from the split's inference exactly as
 ``hd detect`` makes its safety map (invalid where the ALHAT baseline has no value: the border band

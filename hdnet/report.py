@@ -180,13 +180,9 @@ def _header_lines(result: EvaluationResult) -> list[str]:
         (
             f"- dataset: `{run.get('dataset')}`, labelling `{run.get('labels')}` "
             f"(scored against {TRUTH_WORDS.get(str(run.get('truth', 'clean-scan')), run.get('truth'))}), "
-            f"{run.get('test_scans')} test / {run.get('val_scans')} validation scans"
-            + (
-                f" (few test scans: the metrics below vary by far more than their {DECIMALS} decimals)"
-                if isinstance(run.get("test_scans"), int) and run["test_scans"] < FEW_TEST_SCANS
-                else ""
-            )
+            + _scans_words(run)
         ),
+        *_overlap_lines(run),
         (
             f"- trained at {_train_noise_words(run.get('train_noise'), run.get('train_sigma_m'))}"
             f" (reference {_cm(run.get('train_sigma_m'))}); MC samples M = {run.get('mc_samples')}; "
@@ -214,6 +210,51 @@ def _header_lines(result: EvaluationResult) -> list[str]:
     return out
 
 
+def _scans_words(run: ReportRunJson) -> str:
+    """The scans scored and calibrated on, for the dataset's line: ``N test / M validation scans`` (the
+    default split) or ``N scans of the S split scored / M validation scans``; few scans said."""
+    split = run.get("split")
+    scored = run.get("test_scans") if split is None else run.get("scored_scans")
+    words = "test" if split is None else f"scans of {'all splits' if split == 'all' else f'the {split} split'} scored"
+    few = "test scans" if split is None else "scored scans"
+    return f"{scored} {words} / {run.get('val_scans')} validation scans" + (
+        f" (few {few}: the metrics below vary by far more than their {DECIMALS} decimals)"
+        if isinstance(scored, int) and scored < FEW_TEST_SCANS
+        else ""
+    )
+
+
+def _split_title(run: ReportRunJson) -> str:
+    """A section title's split: ``test split`` as before ``--split``, ``val split``, ``all splits``."""
+    split = run.get("split", "test")
+    return "all splits" if split == "all" else f"{split} split"
+
+
+def _scene_word(run: ReportRunJson) -> str:
+    """What a scored scene is called: ``test`` (the default split), else ``scored``."""
+    return "test" if run.get("split", "test") == "test" else "scored"
+
+
+def _overlap_lines(run: ReportRunJson) -> list[str]:
+    """The header's warnings where scored scans also calibrated H_t or trained the run (``--split``
+    other than test on the run's own or calibration data; ``hdnet.scored_split``)."""
+    out = []
+    n = run.get("calibration_scans_scored")
+    if n:
+        out.append(
+            f"- **scored scans calibrated H_t**: {n} of the {run.get('scored_scans')} scored scans are the validation "
+            "scans H_t was calibrated on: their rates are in-sample and optimistic (a `risk:ALPHA` bound does not "
+            "cover them); `--calibrate-on OTHER_DATASET` calibrates elsewhere"
+        )
+    n = run.get("training_scans_scored")
+    if n:
+        out.append(
+            f"- **scored scans trained the run**: {n} of the {run.get('scored_scans')} scored scans are scans the "
+            "run was trained on: their scores are not those of unseen data"
+        )
+    return out
+
+
 def _table_sections(result: EvaluationResult) -> list[str]:
     """Step 2 of ``report_markdown``: the noise and dead-pixel tables, with the paper's rows beside them."""
     run = result.run
@@ -226,7 +267,8 @@ def _table_sections(result: EvaluationResult) -> list[str]:
         if table == "dead_pixels":
             out += [
                 (
-                    f"{run.get('drop_pixels')} random pixels of every test DEM dropped and refilled bilinearly; every "
+                    f"{run.get('drop_pixels')} random pixels of every {_scene_word(run)} DEM dropped and refilled "
+                    "bilinearly; every "
                     "pixel whose lander footprint contains a dropped pixel is ignored for all methods."
                 ),
                 "",
@@ -305,7 +347,7 @@ def _sweep_section(result: EvaluationResult) -> list[str]:
     for r in rows:
         by_sigma.setdefault(r.test_sigma_m, {})[r.method] = r
     out = [
-        "## Noise sweep (test split)",
+        f"## Noise sweep ({_split_title(result.run)})",
         "",
         (
             f"Trained at {_train_noise_words(result.run.get('train_noise'))}. Levels the dataset does not store are "
@@ -343,10 +385,11 @@ def _landing_section(result: EvaluationResult) -> list[str]:
     record = result.landing_settings or LandingRecord(LandingSettings())  # a report without one: the defaults
     settings = record.settings
     out = [
-        "## Landing outcome (test split)",
+        f"## Landing outcome ({_split_title(result.run)})",
         "",
         (
-            "Each method picks its best landing site in every test scene (`hd detect`'s rule; ranked with the "
+            f"Each method picks its best landing site in every {_scene_word(result.run)} scene (`hd detect`'s rule; "
+            "ranked with the "
             f"navigation dispersion), the vehicle touches down {settings.touchdowns} times around it "
             "(1σ per horizontal axis as in the table; seeded), and each touchdown is judged by the truth's label "
             "of the cell it lands in (a lander centred there is safe or not); ground outside the DEM or without a "

@@ -134,9 +134,13 @@ class ReportRunJson(TypedDict, total=False):
     mc_samples: int
     drop_pixels: int
     seed: int
-    test_scans: int
+    test_scans: int  # the test split's scans scored (the default split only)
     val_scans: int
     paper_dataset: bool
+    split: str  # --split other than test: the split scored (hdnet.scored_split), and its scans
+    scored_scans: int
+    calibration_scans_scored: int  # of them, validation scans that calibrated H_t (only when any)
+    training_scans_scored: int  # of them, scans the run was trained on (only when any)
 
 
 class ReportRowJson(TypedDict):

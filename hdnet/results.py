@@ -203,6 +203,33 @@ class EvaluationResult:
         )
         return "\n".join(lines)
 
+    def landing_summary(self) -> str:
+        """P(safe landing) for the terminal: per truth, one line per method and test noise level, one
+        cell per navigation dispersion with its 95 % Wilson interval and n = scenes landed on / scored
+        ('' without a landing table)."""
+        lines: list[str] = []
+        for truth in dict.fromkeys(r.truth for r in self.landing):
+            rows = [r for r in self.landing if r.truth == truth]
+            navs = list(dict.fromkeys(r.nav_sigma_m for r in rows))
+            lines.append(
+                f"P(safe landing) against the {truth} truth [95 % CI] n=landed/scenes, "
+                f"navigation 1σ {' | '.join(f'{n:g}' for n in navs)} m:"
+            )
+            cells: dict[tuple[str, float], list[str]] = {}
+            for r in rows:
+                cells.setdefault((r.method, r.test_sigma_m), []).append(landing_cell(r))
+            lines += [f"  {method:18s} {sigma * 100:8.2f}cm  " + " | ".join(c) for (method, sigma), c in cells.items()]
+        return "\n".join(lines)
+
+
+def landing_cell(row: LandingRow) -> str:
+    """One landing row's P(safe landing) in a line of text: ``0.950 [0.835, 0.986] n=38/40`` (n: scenes
+    landed on / scored), ``-- n=0/40`` where the method never landed."""
+    n = f"n={row.landed}/{row.scenes}"
+    if row.landed == 0 or not math.isfinite(row.p_safe):
+        return f"-- {n}"
+    return f"{row.p_safe:.3f} [{row.p_safe_low:.3f}, {row.p_safe_high:.3f}] {n}"
+
 
 @dataclass(frozen=True)
 class Site:

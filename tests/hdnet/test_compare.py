@@ -22,6 +22,7 @@ from hdcore.errors import StorageError
 from hdcore.storage import write_json_atomic
 from hdnet.compare import ABSENT, column_names, compare
 from hdnet.errors import HdNetError
+from hdnet.landing import LandingTally, TouchdownScore
 from hdnet.report import METHOD_WORDS, report_dict
 from hdnet.report_json import ReportRunJson, ThresholdJson
 from hdnet.results import METHODS, EvaluationResult, LandingRecord, LandingRow, LandingSettings, ReportRow
@@ -79,7 +80,7 @@ def write_report(directory: Path, shift: float = 0.0, **changes: Any) -> Path:
     """A report directory holding the report.json hd eval would write for these numbers and settings.
 
     ``changes``: ``mc_samples=``, ``spec=``, ``value_nats=``, ``landing=`` (P(safe), or None for no
-    landing table), ``uncertainty=``."""
+    landing table), ``landing_rows=`` (the landing table itself), ``uncertainty=``."""
     run: ReportRunJson = {
         "checkpoint": "/runs/a/last.pt",
         "checkpoint_sha256": "a" * 64,
@@ -111,7 +112,7 @@ def write_report(directory: Path, shift: float = 0.0, **changes: Any) -> Path:
         sweep=[],
         calibration={"bins": 10, "per_sigma": []},
         run=run,
-        landing=[] if p_safe is None else landing(p_safe),
+        landing=changes.get("landing_rows") or ([] if p_safe is None else landing(p_safe)),
         landing_settings=None if p_safe is None else LandingRecord(LandingSettings(nav_sigmas_m=(0.0, 3.0))),
     )
     directory.mkdir(parents=True)
@@ -188,8 +189,42 @@ def test_markdown_is_a_table_with_the_differing_settings(tmp_path):
     lines = result.output.splitlines()
     assert lines[0] == "| Section | Row | x/report | y/report |"
     assert "| Table 1 | ALHAT baseline 1.67 cm PA | 0.5000 | 0.5500 |" in lines
-    assert "| Landing | P(safe landing) terrain truth, ALHAT baseline 1.67 cm, nav 3 m | 0.9300 | -- |" in lines
+    label = "P(safe landing) terrain truth, ALHAT baseline 1.67 cm, nav 3 m"
+    assert f"| Landing | {label} | 0.9300 [0.1000, 1.0000] n=4/4 | -- |" in lines
+    assert "| Landing | P(safe landing) terrain truth, base net 1.67 cm, nav 3 m | -- n=0/4 | -- |" in lines
     assert any(line.startswith("| `landing_settings.touchdowns` | 1000 | " + ABSENT) for line in lines)
+
+
+def wilson_row(safe: int, scenes: int) -> LandingRow:
+    """The base net's row at no dispersion: ``safe`` of ``scenes`` scenes landed safely (each one
+    touchdown), none abstained, with the Wilson interval of hd's landing tally."""
+    tally = LandingTally()
+    for k in range(scenes):
+        tally.land(TouchdownScore(1.0 if k < safe else 0.0, 0.0), 5.0, 4.0)
+    return tally.row("base_net", 0.0167, 0.0, "terrain")
+
+
+def test_landing_rows_show_their_interval_and_scenes(tmp_path):
+    """A rate of 1 over 2 scenes and over 500 scenes: the same P(safe landing), told apart by the Wilson
+    interval and n shown beside it, in every format."""
+    z2 = 1.959963984540054**2
+    two = write_report(tmp_path / "two", landing_rows=[wilson_row(2, 2)])
+    many = write_report(tmp_path / "many", landing_rows=[wilson_row(500, 500)])
+    label = "P(safe landing) terrain truth, base net 1.67 cm, nav 0 m"
+    row = next(r for r in compare([two, many]).rows if r.label == label)
+    assert row.values == (1.0, 1.0)
+    lo2, lo500 = 2 / (2 + z2), 500 / (500 + z2)  # Wilson's lower end at p = 1: n / (n + z^2)
+    assert row.cells() == [f"1.0000 [{lo2:.4f}, 1.0000] n=2/2", f"1.0000 [{lo500:.4f}, 1.0000] n=500/500"]
+    assert row.cells() == ["1.0000 [0.3424, 1.0000] n=2/2", "1.0000 [0.9924, 1.0000] n=500/500"]
+    text = hd("compare", two, many)
+    assert text.exit_code == 0, text.output
+    line = next(x for x in text.output.splitlines() if x.startswith(f"Landing: {label}"))
+    assert line.split("  ")[-1].strip() == "1.0000 [0.9924, 1.0000] n=500/500" and "[0.3424, 1.0000] n=2/2" in line
+    record = json.loads(hd("--json", "compare", two, many).output)
+    entry = next(r for r in record["rows"] if r["row"] == label)
+    assert entry["values"] == {"two": 1.0, "many": 1.0}  # the rate, as before
+    assert entry["landing"]["two"] == {"p_safe_low": pytest.approx(lo2), "p_safe_high": 1.0, "landed": 2, "scenes": 2}
+    assert entry["landing"]["many"]["landed"] == 500
 
 
 def test_names_are_the_directories_made_distinct():

@@ -27,6 +27,8 @@ from hdnet.evaluate import METHODS, EvalConfig, evaluate, evaluate_to_report, re
 from hdnet.fit import FitConfig, fit
 from hdnet.report import ROW_KEYS, report_dict
 from hdnet.run_record import checkpoint_data
+from hdnet.scored_split import ScoredSplit
+from lidarsim.shards import iter_scans
 
 
 @pytest.fixture(scope="module")
@@ -493,3 +495,124 @@ def test_overwriting_a_report_removes_a_landing_figure_the_new_report_does_not_h
     write_report(dataclasses.replace(result, landing=[]), out, overwrite=True)  # a report without landings
     assert not (out / "landing.png").exists()
     assert "landing.png" not in (out / "report.md").read_text()
+
+
+# --- which split is scored (--split) ---------------------------------------------------------------
+# The run's record keys of a default report, as before --split existed (its bytes must not move).
+DEFAULT_SCAN_KEYS = ("test_scans", "val_scans", "paper_dataset")
+
+
+def test_the_default_split_is_the_test_split_and_its_report_is_unchanged(setup):
+    dataset, run, out, _ = setup
+    recorded = json.loads((out / "report.json").read_text())["run"]
+    assert list(recorded)[-3:] == list(DEFAULT_SCAN_KEYS)  # no split, no scored_scans
+    assert recorded["test_scans"] == len(list(iter_scans(dataset, "test")))
+    md = (out / "report.md").read_text()
+    assert " test / " in md and "## Landing outcome (test split)" in md and "scored scans" not in md
+    # --split test said explicitly is the default: the same report, current for either.
+    from hdnet.evaluate import report_is_current
+
+    explicit = EvalConfig(mc_samples=4, drop_pixels=10, seed=0, split="test")
+    assert explicit == EvalConfig(mc_samples=4, drop_pixels=10, seed=0)
+    assert report_is_current(out, run, dataset, explicit)
+    assert not report_is_current(out, run, dataset, EvalConfig(mc_samples=4, drop_pixels=10, seed=0, split="all"))
+
+
+@pytest.mark.parametrize(("split", "calibrated", "trained"), [("val", 2, 0), ("train", 0, 16)])
+def test_split_val_and_train_score_those_scans_and_say_what_overlaps(setup, split, calibrated, trained):
+    """The run was trained (and H_t is calibrated) on this very dataset: val scans calibrated H_t,
+    train scans trained the run; each overlap is warned about and counted."""
+    dataset, run, _, _ = setup
+    expected = sorted(s.scan_index for s in iter_scans(dataset, split))
+    assert len(expected) == {"val": 2, "train": 16}[split]
+    with pytest.warns(HdWarning, match=f"--split {split} scores") as caught:
+        result = evaluate(run, dataset, EvalConfig(mc_samples=1, nav_sigma_m=(0.0,), split=split))
+    assert len([w for w in caught if "--split" in str(w.message)]) == 1
+    for inf in result.test.values():
+        assert sorted(inf.scan_index.tolist()) == expected
+    assert result.run["split"] == split and result.run["scored_scans"] == len(expected)
+    assert result.run.get("calibration_scans_scored", 0) == calibrated
+    assert result.run.get("training_scans_scored", 0) == trained
+    assert "test_scans" not in result.run
+    assert {r.scenes for r in result.landing} == {len(expected)}
+
+
+def test_split_all_scores_every_scan_once_and_the_summary_gives_p_safe_landing(setup, tmp_path, monkeypatch):
+    from click.testing import CliRunner
+
+    from hdcli.cli import main
+    from lidarsim.shards import read_manifest
+
+    dataset, run, _, _ = setup
+    module = importlib.import_module("hdnet.evaluate")
+    inferred: list[tuple[str, list[int]]] = []  # (split, scan indices) of every inference hd eval makes
+    infer = module.infer_split
+
+    def spy(model: Any, ds: HazardDataset, *args: Any, **kwargs: Any) -> Any:
+        inf = infer(model, ds, *args, **kwargs)
+        inferred.append((ds.split, inf.scan_index.tolist()))
+        return inf
+
+    monkeypatch.setattr(module, "infer_split", spy)
+    out = tmp_path / "all"
+    args = ["eval", str(run), "--data", str(dataset), "--out", str(out), "--mc-samples", "2", "--split", "all"]
+    cli = CliRunner().invoke(main, [*args, "--nav-sigma", "0", "--nav-sigma", "2"])
+    assert cli.exit_code == 0, cli.output
+    manifest = read_manifest(dataset)
+    n = manifest["n_scans"]
+    assert n == sum(manifest["splits"].values()) == 20
+    report = json.loads((out / "report.json").read_text())
+    recorded = report["run"]
+    assert (recorded["split"], recorded["scored_scans"]) == ("all", n) and "test_scans" not in recorded
+    assert (recorded["calibration_scans_scored"], recorded["training_scans_scored"]) == (2, 16)
+    assert {r["scenes"] for r in report["landing"]} == {n}
+    # Every scene exactly once at each noise level; H_t from the validation split alone.
+    assert [split for split, _ in inferred] == ["val", *["all"] * len(SIGMAS_M)]
+    assert all(sorted(scans) == list(range(n)) for split, scans in inferred if split == "all")
+    md = (out / "report.md").read_text()
+    assert f"{n} scans of all splits scored / 2 validation scans" in md
+    assert "- **scored scans calibrated H_t**: 2 of the 20 scored scans" in md
+    assert "- **scored scans trained the run**: 16 of the 20 scored scans" in md
+    assert "## Landing outcome (all splits)" in md and "in every scored scene" in md
+    # The terminal: the overlaps warned, then P(safe landing) per method and noise level, n and interval.
+    assert "validation scans H_t was calibrated on" in cli.output
+    lines = cli.output.splitlines()
+    head = lines.index("P(safe landing) against the clean-scan truth [95 % CI] n=landed/scenes, navigation 1σ 0 | 2 m:")
+    body = lines[head + 1 : head + 1 + len(METHODS) * len(SIGMAS_M)]
+    assert [line.split()[0] for line in body] == [m for _ in SIGMAS_M for m in METHODS]
+    landing = {(r["method"], r["test_sigma_m"], r["nav_sigma_m"]): r for r in report["landing"]}
+    for line in body:
+        method, sigma = line.split()[0], float(line.split()[1].removesuffix("cm")) / 100
+        cells = line.split("  ")[-1].split(" | ")
+        assert len(cells) == 2
+        for nav, cell in zip((0.0, 2.0), cells, strict=True):
+            row = next(r for (m, s, v), r in landing.items() if m == method and abs(s - sigma) < 1e-6 and v == nav)
+            assert cell.endswith(f"n={row['landed']}/{n}")
+            if row["landed"]:
+                assert cell.startswith(f"{row['p_safe']:.3f} [{row['p_safe_low']:.3f}, {row['p_safe_high']:.3f}]")
+
+
+def test_an_empty_or_unknown_split_is_one_clear_sentence(setup, tmp_path):
+    from hdnet.scored_split import scored_split
+    from hdnet.trained_run import recorded_training_data
+
+    dataset, run, _, _ = setup
+    data = recorded_training_data(run / "last.pt")
+    with pytest.raises(HdNetError, match="split must be one of"):
+        EvalConfig(split="everything")
+    with pytest.raises(HdNetError, match=r"--split must be one of train, val, test or all, got 'x'"):
+        scored_split("x", dataset, [], data)
+    # A copy of the dataset is the same dataset (its manifest); another dataset's scans overlap nothing.
+    copy = tmp_path / "copy"
+    shutil.copytree(dataset, copy)
+    assert scored_split("all", dataset, [str(copy)], data) == ScoredSplit("all", 20, 2, 16)
+    other = tmp_path / "other"  # a manifest of 3 validation scans, no other split
+    other.mkdir()
+    manifest = json.loads((dataset / "manifest.json").read_text())
+    counts = {"train": 0, "val": 3, "test": 0}
+    shard = {**manifest["shards"][0], "n_scans": 3, "split_counts": counts}
+    manifest |= {"splits": counts, "n_scans": 3, "shards": [shard], "labelings": []}
+    (other / "manifest.json").write_text(json.dumps(manifest))
+    assert scored_split("all", other, [str(dataset)], data) == ScoredSplit("all", 3)
+    with pytest.raises(HdNetError, match=r"the test split is empty \(the dataset holds 0 train, 3 val, 0 test scans\)"):
+        scored_split("test", other, [str(dataset)], data)

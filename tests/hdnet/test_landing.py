@@ -65,6 +65,37 @@ def test_wilson_interval_matches_its_closed_forms():
     half = math.sqrt(z2) * math.sqrt(0.25 / 100 + z2 / (4 * 100**2)) / (1 + z2 / 100)
     assert lo == pytest.approx(0.5 - half, rel=1e-12) and hi == pytest.approx(0.5 + half, rel=1e-12)
     assert all(math.isnan(v) for v in wilson_interval(0, 0))
+    # 10 safe landings of 10: n / (n + z^2) = 10 / 13.8415 at 95 %, not "certainly safe"
+    lo, hi = wilson_interval(10, 10)
+    assert lo == pytest.approx(0.7225, abs=5e-5) and hi == pytest.approx(1.0, abs=1e-15)
+
+
+def test_the_terminal_summary_gives_each_rate_its_interval_and_scenes():
+    """``hd eval``'s P(safe landing) lines: per truth a heading with the dispersions, then one line per
+    method and test noise level, one cell per dispersion; a method that never landed shows no rate."""
+    from hdnet.results import EvaluationResult
+
+    def tally(safe: int, landed: int, scenes: int) -> LandingTally:
+        t = LandingTally()
+        for k in range(landed):
+            t.land(TouchdownScore(1.0 if k < safe else 0.0, 0.0), 5.0, 4.0)
+        for _ in range(scenes - landed):
+            t.abstain()
+        return t
+
+    rows = [
+        tally(10, 10, 12).row("base_net", 0.0167, 0.0, "terrain"),
+        tally(8, 10, 12).row("base_net", 0.0167, 3.0, "terrain"),
+        tally(0, 0, 12).row("uncertainty_aware", 0.0167, 0.0, "terrain"),
+        tally(0, 0, 12).row("uncertainty_aware", 0.0167, 3.0, "terrain"),
+    ]
+    lo8, hi8 = wilson_interval(8, 10)
+    assert EvaluationResult([], {}, [], {"bins": 10, "per_sigma": []}, landing=rows).landing_summary().splitlines() == [
+        "P(safe landing) against the terrain truth [95 % CI] n=landed/scenes, navigation 1σ 0 | 3 m:",
+        f"  base_net               1.67cm  1.000 [0.722, 1.000] n=10/12 | 0.800 [{lo8:.3f}, {hi8:.3f}] n=10/12",
+        "  uncertainty_aware      1.67cm  -- n=0/12 | -- n=0/12",
+    ]
+    assert EvaluationResult([], {}, [], {"bins": 10, "per_sigma": []}).landing_summary() == ""
 
 
 def test_touchdown_cells_follow_a_north_up_grid():
