@@ -270,6 +270,7 @@ def test_verify_and_inspect_catch_damage_and_unknown_versions(tmp_path, dtm):
     from lidarsim.shards import sha256_file
 
     manifest["shards"][0]["sha256"] = sha256_file(shard)
+    manifest["shards"][0]["size_bytes"] = shard.stat().st_size
     (out / "manifest.json").write_text(json.dumps(manifest))
     bad = runner.invoke(main, ["verify", str(out)])
     assert bad.exit_code != 0 and "version 2.0 is not supported" in bad.output
