@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import sys
 import threading
 import time
 import urllib.request
@@ -196,6 +197,16 @@ class MisbehavingHandler(PlainHandler):
         self.server.bytes_sent += len(block)  # type: ignore[attr-defined]
 
 
+class QuietServer(ThreadingHTTPServer):
+    """A threaded HTTP server that says nothing when a client hangs up mid-body (hd asking whether a
+    server has ranges, or refusing the rest of a body): that is no error of the server's."""
+
+    def handle_error(self, request: Any, client_address: Any) -> None:
+        if isinstance(sys.exc_info()[1], (BrokenPipeError, ConnectionResetError)):
+            return
+        super().handle_error(request, client_address)
+
+
 @contextlib.contextmanager
 def http_server(
     root: Path, handler: type[SimpleHTTPRequestHandler] = RangeHandler, **settings: Any
@@ -204,7 +215,7 @@ def http_server(
     by default; :class:`PlainHandler`, :class:`MisbehavingHandler`); yields its base URL and the server
     (``bytes_sent``: file bytes sent so far; ``requests``: the paths asked for, by the plain handlers;
     ``settings``: the misbehaving handler's ``faults``, ``slow_blocks``, ``slow_pause_s``)."""
-    server = ThreadingHTTPServer(("127.0.0.1", 0), partial(handler, directory=str(root)))
+    server = QuietServer(("127.0.0.1", 0), partial(handler, directory=str(root)))
     server.bytes_sent = 0  # type: ignore[attr-defined]  # the count RangeHandler keeps
     server.requests = []  # type: ignore[attr-defined]  # the paths PlainHandler records
     server.release = threading.Event()  # type: ignore[attr-defined]  # ends a silent handler's wait
