@@ -117,7 +117,7 @@ def main() -> None:
             print(f"  local S3 (moto), {name}: {remote:.3f} s, ratio S3 / disk {remote / local:.2f} (target <= 1.5)")
         with http_server(dataset.parent) as (base, server):
             problems = verify_dataset(f"{base}/{dataset.name}", known_schemas())
-            sent = server.bytes_sent  # type: ignore[attr-defined]  # counted by tests.remote_servers
+            sent = server.bytes_sent  # counted by tests.remote_servers
         assert not problems, problems
         print(f"hd verify of the URL read {sent / 1e6:.2f} MB of {size / 1e6:.2f} MB: {sent / size:.3f} x its size")
 

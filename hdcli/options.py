@@ -53,7 +53,9 @@ def out_option(
 
 
 def recipe_option(what: str, required: bool = False) -> Decorator:
-    return click.option("--recipe", type=FILE_OR_DIRECTORY, required=required, default=None, help=what)
+    if required:  # click 8.5 takes a required option's explicit default=None as given: omitting it enforces it
+        return click.option("--recipe", type=FILE_OR_DIRECTORY, required=True, help=what)
+    return click.option("--recipe", type=FILE_OR_DIRECTORY, default=None, help=what)
 
 
 def dtm_option(what: str) -> Decorator:

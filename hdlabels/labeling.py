@@ -281,6 +281,7 @@ def _record(task: LabelTask, sha256: str, n_scans: int, counts: np.ndarray, base
         source_path=task.source_path,
         source_sha256=task.source_sha256,
         schema_version=label_schema_version(task.truth),
+        size_bytes=(Path(task.dataset) / task.out_path).stat().st_size,
     )
     return LabelRecord(
         entry=entry,

@@ -71,7 +71,7 @@ from lidarsim.shards import (
     MANIFEST_KIND_MOSAICS,
     MANIFEST_NAME,
     MANIFEST_SCHEMA,
-    MANIFEST_SCHEMA_VERSION_MOSAIC,
+    MANIFEST_SCHEMA_VERSION_SIZES,
     MOSAIC_ATTR,
     SPLIT_NAMES,
     MosaicRecord,
@@ -296,6 +296,7 @@ def run_mosaic_task(task: MosaicTask) -> MosaicShardRecord:
     entry: ScanShardJson = {
         "path": Path(task.out_file).name,
         "sha256": sha256,
+        "size_bytes": Path(task.out_file).stat().st_size,
         "n_scans": n,
         "first_scan": int(first or 0),
         "split": present[0] if len(present) == 1 else "mixed",
@@ -473,7 +474,7 @@ def _terrain_entry(root: Path, manifest: ManifestJson, staging: Path) -> DtmJson
         os.link(src, staging / MOSAIC_TERRAIN_NAME)
     except OSError:
         shutil.copyfile(src, staging / MOSAIC_TERRAIN_NAME)
-    return dtm | {"path": MOSAIC_TERRAIN_NAME}
+    return dtm | {"path": MOSAIC_TERRAIN_NAME, "size_bytes": (staging / MOSAIC_TERRAIN_NAME).stat().st_size}
 
 
 def _manifest(
@@ -490,7 +491,7 @@ def _manifest(
     splits = {name: sum(int(s["split_counts"][name]) for s in shards) for name in SPLIT_NAMES}
     return {
         "schema": MANIFEST_SCHEMA,
-        "schema_version": MANIFEST_SCHEMA_VERSION_MOSAIC,
+        "schema_version": MANIFEST_SCHEMA_VERSION_SIZES,
         "kind": MANIFEST_KIND_MOSAICS,
         "software": "hd",
         "software_version": __version__,

@@ -36,6 +36,7 @@ from lidarsim.shards import (
     check_schema,
     compression_kwargs,
     read_manifest,
+    sizes_version,
     write_attrs,
     write_json_atomic,
 )
@@ -138,18 +139,23 @@ class LabelShardEntry:
     source_path: str
     source_sha256: str
     schema_version: str = LABEL_SCHEMA_VERSION_CLEAN_SCAN
+    size_bytes: int | None = None  # the file's size (manifest 1.4; None: an older manifest's entry)
 
     def to_json(self) -> LabelShardJson:
-        """The manifest's entry (keys in the order hd has always written them)."""
-        return {
+        """The manifest's entry (keys in the order hd has always written them, its size after its sha256)."""
+        entry: LabelShardJson = {
             "path": self.path,
             "sha256": self.sha256,
+            "size_bytes": self.size_bytes or 0,
             "n_scans": self.n_scans,
             "source_path": self.source_path,
             "source_sha256": self.source_sha256,
             "schema": LABEL_SCHEMA,
             "schema_version": self.schema_version,
         }
+        if self.size_bytes is None:  # an older manifest's entry keeps its keys
+            del entry["size_bytes"]
+        return entry
 
     @classmethod
     def from_json(cls, obj: object, where: str, labeling_version: str) -> LabelShardEntry:
@@ -169,9 +175,12 @@ class LabelShardEntry:
         n = obj.get("n_scans")
         if isinstance(n, bool) or not isinstance(n, int) or n < 0:
             raise LabelStoreError(f"{where}: its 'n_scans' must be a non-negative integer, got {n!r}")
+        size = obj.get("size_bytes")
+        if size is not None and (isinstance(size, bool) or not isinstance(size, int) or size < 0):
+            raise LabelStoreError(f"{where}: its 'size_bytes' must be a non-negative integer, got {size!r}")
         version = str(obj.get("schema_version", labeling_version))
         check_schema(str(obj.get("schema", LABEL_SCHEMA)), version, LABEL_SCHEMA, LABEL_SCHEMA_VERSION, where)
-        return cls(n_scans=n, schema_version=version, **texts)
+        return cls(n_scans=n, schema_version=version, size_bytes=size, **texts)
 
 
 @dataclass(frozen=True)
@@ -481,6 +490,7 @@ class LabelShardReader:
         path: the label shard.
         sha256: the checksum its manifest records; when given, checked before the file is opened.
         what: how errors name the file (default: its path).
+        size_bytes: the size its manifest records (1.4): at a URL, a server that sends more is refused.
 
     Raises:
         FormatError: not a label shard or an unknown major version (``DamagedFileError``: a checksum
@@ -488,12 +498,18 @@ class LabelShardReader:
         LabelStoreError: a file that opens but does not hold a label shard's arrays.
     """
 
-    def __init__(self, path: str | os.PathLike, sha256: str | None = None, what: str | None = None) -> None:
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        sha256: str | None = None,
+        what: str | None = None,
+        size_bytes: int | None = None,
+    ) -> None:
         self.path: Path | str = str(path) if is_url(path) else Path(path)
         self.what = what or dataset_label(self.path)
         if sha256 is not None and not is_url(path):  # a URL is read lazily: hd verify checks its sha256
             verify_sha256(self.path, sha256, self.what)
-        self.h5: CheckedH5File = open_h5_at(self.path, self.what, sha256)
+        self.h5: CheckedH5File = open_h5_at(self.path, self.what, sha256, size_bytes)
         attrs = self.h5.attrs
         try:
             check_schema(
@@ -677,7 +693,7 @@ def open_label_shard(directory: str | os.PathLike, entry: LabelShardEntry) -> La
     """
     what = dataset_label(join(directory, entry.path)) if is_url(directory) else f"{Path(directory) / entry.path}"
     path = join(directory, entry.path, what)
-    return LabelShardReader(path, sha256=entry.sha256, what=what)
+    return LabelShardReader(path, sha256=entry.sha256, what=what, size_bytes=entry.size_bytes)
 
 
 def iter_labeled_scans(
@@ -713,4 +729,6 @@ def add_labeling_to_manifest(directory: Path, entry: LabelingEntry) -> None:
     manifest = read_manifest(directory)
     others = [lab for lab in manifest.get("labelings", []) if lab["name"] != entry.name]
     manifest["labelings"] = [*others, entry.to_json()]
+    if any(shard.size_bytes is not None for shard in entry.shards):
+        manifest["schema_version"] = sizes_version(manifest["schema_version"])
     write_json_atomic(directory / MANIFEST_NAME, manifest)

@@ -315,7 +315,8 @@ class HazardDataset(Dataset):
         f = self._files.get(k)
         if f is None:
             # the manifest's sha256: at a URL, the shard checked as the dataset was made is read without a request
-            f = self._files[k] = open_h5_at(self.paths[k], sha256=self.entry.shards[k].sha256)
+            shard = self.entry.shards[k]
+            f = self._files[k] = open_h5_at(self.paths[k], sha256=shard.sha256, size_bytes=shard.size_bytes)
         return f
 
     def close(self) -> None:

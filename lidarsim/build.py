@@ -70,9 +70,7 @@ from lidarsim.shards import (
     MANIFEST_KIND_SCANS,
     MANIFEST_NAME,
     MANIFEST_SCHEMA,
-    MANIFEST_SCHEMA_VERSION,
-    MANIFEST_SCHEMA_VERSION_DESCENT,
-    MANIFEST_SCHEMA_VERSION_DEVIATION,
+    MANIFEST_SCHEMA_VERSION_SIZES,
     SCAN_SCHEMA,
     SCAN_SCHEMA_VERSION_PLAIN,
     SPLIT_NAMES,
@@ -253,12 +251,14 @@ class ShardRecord:
     split: str
     split_counts: dict[str, int]
     schema_version: str = SCAN_SCHEMA_VERSION_PLAIN
+    size_bytes: int = 0
 
     def to_dict(self) -> ScanShardJson:
         """The manifest's entry of the shard."""
         return {
             "path": self.path,
             "sha256": self.sha256,
+            "size_bytes": self.size_bytes,
             "n_scans": self.n_scans,
             "first_scan": self.first_scan,
             "split": self.split,
@@ -505,6 +505,7 @@ def _record(task: ShardTask, digest: str) -> ShardRecord:
         split=present[0] if len(present) == 1 else "mixed",
         split_counts=counts,
         schema_version=scan_schema_version(task.file_attrs),
+        size_bytes=task.path.stat().st_size,
     )
 
 
@@ -1067,14 +1068,15 @@ def _write_manifest(
 ) -> ManifestJson:
     """Step 5: ``manifest.json``, written last: the dataset is complete once it exists. A recipe's
     deviation (1.1) and a descent build's ``n_descents`` and ``descent_frames`` (1.2) are recorded only
-    when there are some: every other manifest stays 1.0."""
+    when there are some. Every file it lists records its size in bytes (1.4)."""
     dtm_path = terrain.path
-    version = MANIFEST_SCHEMA_VERSION if recipe_deviation is None else MANIFEST_SCHEMA_VERSION_DEVIATION
-    if config.trajectory.descent is not None:
-        version = MANIFEST_SCHEMA_VERSION_DESCENT
+    inside = dtm_path.is_relative_to(out_dir)
+    dtm: DtmJson = terrain.provenance | {"path": os.path.relpath(dtm_path, out_dir) if inside else str(dtm_path)}
+    if inside:
+        dtm["size_bytes"] = dtm_path.stat().st_size
     manifest: ManifestJson = {
         "schema": MANIFEST_SCHEMA,
-        "schema_version": version,
+        "schema_version": MANIFEST_SCHEMA_VERSION_SIZES,
         "kind": MANIFEST_KIND_SCANS,
         "software": "hd",
         "software_version": __version__,
@@ -1085,8 +1087,7 @@ def _write_manifest(
         "seed": config.seed,
         "config_sha256": config.fingerprint(),
         "config": config.to_dict(),
-        "dtm": terrain.provenance
-        | {"path": os.path.relpath(dtm_path, out_dir) if dtm_path.is_relative_to(out_dir) else str(dtm_path)},
+        "dtm": dtm,
         "trajectory": {"step_m": terrain.plan.step_m, "footprint_half_width_m": terrain.plan.half_width_m},
         "splits": {name: int((splits == i).sum()) for i, name in enumerate(SPLIT_NAMES)},
         "shards": [records[i].to_dict() for i in sorted(records)],

@@ -33,11 +33,15 @@ from __future__ import annotations
 import collections
 import contextlib
 import functools
+import hashlib
 import io
+import math
 import os
 import re
 import sys
+import tempfile
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -74,6 +78,15 @@ SIDE_CACHE_FILES = 32
 # hd choice: the block a whole-file stream (hd verify, hd pull) reads per request, bytes.
 STREAM_BYTES = 8 << 20
 INSTALL_HINT = "pip install 'hd[remote]'"
+# hd's own limits on a remote read, seconds: a connection not made within the connect timeout, or a
+# server that sends nothing for the idle-read timeout, ends the command in one line naming it. A slow
+# download that keeps sending bytes is never cut (no limit on a whole request). Set by these variables.
+CONNECT_TIMEOUT_ENV = "HD_CONNECT_TIMEOUT_S"
+READ_TIMEOUT_ENV = "HD_READ_TIMEOUT_S"
+# hd choice: 30 s to connect (a reachable host answers within a few), 60 s without a byte (a busy
+# server's pause is seconds; aiohttp's own 300 s limit on a whole request would cut a large shard).
+CONNECT_TIMEOUT_S = 30.0
+READ_TIMEOUT_S = 60.0
 # The mark ``hd publish`` leaves at a URL while it uploads (removed once the manifest is there): the
 # sha256 of the manifest it is publishing, so that a re-run resumes and a reader names the state.
 PUBLISH_MARK = ".hd-publish.json"
@@ -109,6 +122,92 @@ def _fsspec() -> Any:
     return fsspec
 
 
+@dataclass(frozen=True)
+class Timeouts:
+    """hd's limits on a remote read, seconds: to make a connection, and without a byte received."""
+
+    connect_s: float = CONNECT_TIMEOUT_S
+    read_s: float = READ_TIMEOUT_S
+
+
+def _seconds(name: str, default: float) -> float:
+    text = os.environ.get(name, "").strip()
+    if not text:
+        return default
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value) or value <= 0:
+        raise StorageError(f"{name}={text!r}: not a number of seconds > 0")
+    return value
+
+
+def timeouts() -> Timeouts:
+    """The timeouts in effect: ``HD_CONNECT_TIMEOUT_S`` and ``HD_READ_TIMEOUT_S`` (seconds), else 30 and 60.
+
+    Raises:
+        StorageError: a variable that is not a number of seconds > 0.
+    """
+    return Timeouts(_seconds(CONNECT_TIMEOUT_ENV, CONNECT_TIMEOUT_S), _seconds(READ_TIMEOUT_ENV, READ_TIMEOUT_S))
+
+
+def storage_options(url: str, limits: Timeouts) -> dict[str, Any]:
+    """fsspec's options for ``url`` that carry hd's timeouts: aiohttp's socket timeouts over HTTP(S)
+    (no limit on a whole request), botocore's connect and read timeouts for S3."""
+    scheme = url.split("://", 1)[0].lower()
+    if scheme in ("http", "https"):
+        import aiohttp
+
+        timeout = aiohttp.ClientTimeout(total=None, sock_connect=limits.connect_s, sock_read=limits.read_s)
+        return {"client_kwargs": {"timeout": timeout}}
+    if scheme in ("s3", "s3a"):
+        return {"config_kwargs": {"connect_timeout": limits.connect_s, "read_timeout": limits.read_s}}
+    return {}
+
+
+# The exception classes of a timeout, by the timeout that fired (aiohttp, botocore).
+CONNECT_TIMEOUTS = frozenset({"ConnectionTimeoutError", "ConnectTimeoutError"})
+READ_TIMEOUTS = frozenset({"SocketTimeoutError", "ReadTimeoutError", "ReadTimeout"})
+
+
+def _timeout_error(url: str, exc: BaseException) -> StorageError | None:
+    """The one line of a timeout anywhere in ``exc``'s chain (fsspec raises its own FSTimeoutError
+    from aiohttp's): which of hd's timeouts fired and after how long; None for any other error."""
+    seen: BaseException | None = exc
+    for _ in range(8):  # the chain's first links: a protocol wraps its cause once or twice
+        if seen is None:
+            break
+        names = {c.__name__ for c in type(seen).__mro__}
+        limits = Timeouts(_seconds(CONNECT_TIMEOUT_ENV, CONNECT_TIMEOUT_S), _seconds(READ_TIMEOUT_ENV, READ_TIMEOUT_S))
+        if names & CONNECT_TIMEOUTS or (names & {"ServerTimeoutError"} and "connect" in str(seen).lower()):
+            return StorageError(
+                f"{url}: no connection within {limits.connect_s:g} s (hd's connect timeout, {CONNECT_TIMEOUT_ENV})"
+            )
+        if names & READ_TIMEOUTS or names & {"ServerTimeoutError"}:
+            return StorageError(
+                f"{url}: the server sent nothing for {limits.read_s:g} s (hd's idle-read timeout, "
+                f"{READ_TIMEOUT_ENV}; raise it for a slow server)"
+            )
+        seen = seen.__cause__ or seen.__context__
+    return None
+
+
+def missing_bucket(exc: BaseException) -> bool:
+    """True when a protocol's error says the bucket itself does not exist (S3's NoSuchBucket), not
+    merely the object (whose key or bucket name may well contain the word "bucket")."""
+    text = str(exc)
+    return "NoSuchBucket" in text or "bucket does not exist" in text.lower()
+
+
+def too_long(where: str, recorded: int) -> DamagedFileError:
+    """The refusal of a file whose server sends more than the size its manifest records."""
+    return DamagedFileError(
+        f"{where}: the server sent more than the {recorded} bytes the manifest records for this file; "
+        "refused, nothing past that size read (the copy at the URL is damaged or was replaced)"
+    )
+
+
 def remote_error(url: str, exc: BaseException) -> StorageError:
     """One line for what reading or writing ``url`` raised: the host, the bucket, the credentials,
     the object or the access named as the cause. The URL, and any URL the protocol's message quotes,
@@ -123,7 +222,9 @@ def remote_error(url: str, exc: BaseException) -> StorageError:
             f"{url}: no credentials for {scheme}:// (set AWS_ACCESS_KEY_ID and AWS_SECRET_ACCESS_KEY, or "
             "AWS_PROFILE naming a profile; for a public bucket, anonymous access is not tried)"
         )
-    if "bucket does not exist" in text.lower() or "NoSuchBucket" in text:
+    if (timed_out := _timeout_error(url, exc)) is not None:
+        return timed_out
+    if missing_bucket(exc):
         bucket = split_query(url)[0].split("://", 1)[1].split("/", 1)[0].rpartition("@")[2]
         return StorageError(f"{url}: no such bucket {bucket!r}")
     if isinstance(exc, FileNotFoundError):
@@ -167,13 +268,14 @@ class RemoteDataset:
             request (:func:`split_query`).
     """
 
-    def __init__(self, url: str) -> None:
+    def __init__(self, url: str, limits: Timeouts | None = None) -> None:
         self.url = _canonical(url)
         base, self.query = split_query(self.url)
         fsspec = _fsspec()
         with remote_errors(self.url):
-            self.fs, self.root = fsspec.core.url_to_fs(base)
+            self.fs, self.root = fsspec.core.url_to_fs(base, **storage_options(base, limits or timeouts()))
         self.root = str(self.root).rstrip("/")
+        self._ranges: bool | None = None  # whether the server answers range requests (HTTP; asked once)
 
     def __str__(self) -> str:
         return self.label
@@ -186,6 +288,12 @@ class RemoteDataset:
     def label_of(self, relative: str) -> str:
         """How messages and records name the URL of a manifest path (no password, no query value)."""
         return printable_location(self.url_of(relative))
+
+    @property
+    def is_http(self) -> bool:
+        """True for HTTP(S): whole files are read as one plain GET, which any static server answers."""
+        protocol = self.fs.protocol
+        return bool({"http", "https"} & set((protocol,) if isinstance(protocol, str) else protocol))
 
     @property
     def is_local(self) -> bool:
@@ -218,7 +326,7 @@ class RemoteDataset:
             try:
                 info = self.fs.info(self.path_of(relative))
             except FileNotFoundError as exc:
-                if "bucket" in str(exc).lower():
+                if missing_bucket(exc):
                     raise
                 return None
         size = info.get("size")
@@ -234,9 +342,13 @@ class RemoteDataset:
         url = self.url_of(relative)
         with remote_errors(url):
             try:
-                self.fs.cat_file(self.path_of(relative), start=0, end=1)
+                if self.is_http:  # a server without ranges would send the whole file for a range of one byte
+                    with self._reader(self.path_of(relative), 1) as fh:
+                        fh.read(1)
+                else:
+                    self.fs.cat_file(self.path_of(relative), start=0, end=1)
             except FileNotFoundError as exc:
-                if "bucket" in str(exc).lower():
+                if missing_bucket(exc):
                     raise
                 return False
         return True
@@ -291,7 +403,10 @@ class RemoteDataset:
     def fetch(self, relative: str, size: int) -> bytes:
         """The bytes of the file ``relative``, whose size was just reported as ``size`` bytes, in one
         request: asked for as the range of ``size + 1`` bytes from the start (the protocol then does not
-        ask for the size once more), so that a file that changed size since gives another length."""
+        ask for the size once more), so that a file that changed size since gives another length. Over
+        HTTP, one plain GET read no further than those bytes (a server without ranges answers it too)."""
+        if self.is_http:
+            return b"".join(self._blocks(relative, size + 1))
         path = self.path_of(relative)
         with remote_errors(self.url_of(relative)):  # an empty file has no range to ask for
             return bytes(self.fs.cat_file(path, start=0, end=size + 1) if size > 0 else self.fs.cat_file(path))
@@ -305,19 +420,61 @@ class RemoteDataset:
             try:
                 info = self.fs.info(path)
             except FileNotFoundError as exc:
-                if "bucket" in str(exc).lower():
+                if missing_bucket(exc):
                     raise
                 return None
         if not isinstance(info.get("size"), int) or info.get("type", "file") != "file":
             return None
         return dict(info)
 
-    def stream(self, relative: str, block_bytes: int = STREAM_BYTES) -> Iterator[bytes]:
-        """The bytes of ``relative`` in blocks, read once from start to end (no cache)."""
-        url = self.url_of(relative)
-        with remote_errors(url), self.fs.open(self.path_of(relative), "rb", cache_type="none") as fh:
-            while block := fh.read(block_bytes):
+    def stream(self, relative: str, limit: int | None = None, block_bytes: int = STREAM_BYTES) -> Iterator[bytes]:
+        """The bytes of ``relative`` in blocks, read once from start to end (no cache). With ``limit``
+        (the size the manifest records), no block past it is given: one byte more ends the read.
+
+        Raises:
+            DamagedFileError: the server sends more than ``limit`` bytes. StorageError: unreachable,
+                a timeout.
+        """
+        got = 0
+        for block in self._blocks(relative, None if limit is None else limit + 1, block_bytes):
+            got += len(block)
+            if limit is not None and got > limit:
+                raise too_long(printable_location(self.url_of(relative)), limit)
+            yield block
+
+    def _blocks(self, relative: str, stop: int | None, block_bytes: int = STREAM_BYTES) -> Iterator[bytes]:
+        """The bytes of ``relative`` from its start, in blocks of at most ``block_bytes``, ``stop`` bytes at
+        most in all: no more is asked for, or read from the connection. Over HTTP one plain GET (any
+        static server answers it, with or without range support); elsewhere the protocol's own reads."""
+        path = self.path_of(relative)
+        with remote_errors(self.url_of(relative)), self._reader(path, stop) as fh:
+            got = 0
+            while stop is None or got < stop:
+                block = fh.read(block_bytes if stop is None else min(block_bytes, stop - got))
+                if not block:
+                    return
+                got += len(block)
                 yield block
+
+    def _reader(self, path: str, stop: int | None) -> Any:
+        """A file object that reads ``path`` once from its start (see :meth:`_blocks`)."""
+        if self.is_http:  # block_size=0: fsspec's streamed GET; a size given spares the HEAD request
+            return self.fs.open(path, "rb", block_size=0, size=stop or None)
+        return self.fs.open(path, "rb", cache_type="none")
+
+    def ranges(self, relative: str) -> bool:
+        """True when the server answers a range request with that range (asked once, of ``relative``):
+        always outside HTTP; a static server without range support (``python -m http.server``) answers
+        with the whole file, of which nothing is read."""
+        if not self.is_http:
+            return True
+        if self._ranges is None:
+            from fsspec.asyn import sync
+
+            url = self.url_of(relative)
+            with remote_errors(url):
+                self._ranges = bool(sync(self.fs.loop, _answers_ranges, self.fs, self.path_of(relative)))
+        return self._ranges
 
     def open_file(self, relative: str) -> Any:
         """A read-only file object of ``relative`` with a block cache (``BLOCK_BYTES`` x ``CACHE_BLOCKS``)."""
@@ -336,11 +493,21 @@ class RemoteDataset:
             try:
                 found = self.fs.find(self.root + self.query)
             except FileNotFoundError as exc:
-                if "bucket" in str(exc).lower():
+                if missing_bucket(exc):
                     raise
                 return []
         prefix = self.root + "/"
         return sorted(str(p)[len(prefix) :] for p in found if str(p).startswith(prefix))
+
+
+async def _answers_ranges(fs: Any, path: str) -> bool:
+    """True when an HTTP server answers ``Range: bytes=0-0`` with 206 (its body, one byte, unread otherwise)."""
+    session = await fs.set_session()
+    async with session.get(fs.encode_url(path), headers={"Range": "bytes=0-0"}, **fs.kwargs) as response:
+        if response.status == 404:
+            raise FileNotFoundError(path)
+        response.raise_for_status()
+        return response.status == 206 or "Content-Range" in response.headers
 
 
 _WHOLE: collections.OrderedDict[tuple[str, str], bytes] = collections.OrderedDict()
@@ -368,10 +535,13 @@ def _whole_key(url: str, sha256: str | None, size: int | None) -> tuple[str, str
     return (url, f"sha256:{sha256}" if sha256 is not None else f"size:{size}")
 
 
-def _whole_file(remote: RemoteDataset, relative: str, size: int, sha256: str | None, name: str) -> bytes:
+def _whole_file(
+    remote: RemoteDataset, relative: str, size: int, sha256: str | None, name: str, recorded: bool = False
+) -> bytes:
     """The bytes of the file ``relative`` (``size`` bytes), fetched in one request the first time and
     kept (at most ``WHOLE_CACHE_BYTES`` in all). With ``sha256`` (the manifest's) the bytes are checked
-    against it, in memory, and kept under it; without, under their size.
+    against it, in memory, and kept under it; without, under their size. ``recorded``: ``size`` is the
+    manifest's, and a longer body is refused as such.
 
     Raises:
         DamagedFileError: the bytes are not the manifest's. StorageError: unreachable, or a file that
@@ -383,6 +553,8 @@ def _whole_file(remote: RemoteDataset, relative: str, size: int, sha256: str | N
         _WHOLE.move_to_end(key)
         return _WHOLE[key]
     data = remote.fetch(relative, size)
+    if recorded and len(data) > size:
+        raise too_long(name, size)
     if len(data) != size:
         raise StorageError(
             f"{remote.label_of(relative)}: {len(data)} bytes read, {size} expected (the file changed while read)"
@@ -399,8 +571,8 @@ def _whole_file(remote: RemoteDataset, relative: str, size: int, sha256: str | N
 
 
 @functools.lru_cache(maxsize=16)
-def _remote(url: str, pid: int) -> RemoteDataset:
-    return RemoteDataset(url)
+def _remote(url: str, pid: int, limits: Timeouts) -> RemoteDataset:
+    return RemoteDataset(url, limits)
 
 
 def forget_remotes() -> None:
@@ -421,8 +593,9 @@ def forget_remotes() -> None:
 
 
 def remote_dataset(url: str) -> RemoteDataset:
-    """The :class:`RemoteDataset` of ``url``, made once per process (a forked reader makes its own)."""
-    return _remote(_canonical(url), os.getpid())
+    """The :class:`RemoteDataset` of ``url``, made once per process (a forked reader makes its own)
+    and per setting of :func:`timeouts`."""
+    return _remote(_canonical(url), os.getpid(), timeouts())
 
 
 def dataset_label(location: str | os.PathLike) -> str:
@@ -495,29 +668,66 @@ def split_url(url: str) -> tuple[RemoteDataset, str]:
     return remote_dataset(base + query), name
 
 
-def open_h5_at(path: str | os.PathLike, what: str | None = None, sha256: str | None = None) -> CheckedH5File:
+def _local_copy(remote: RemoteDataset, relative: str, size: int, sha256: str | None, name: str) -> Any:
+    """The file ``relative`` (``size`` bytes, the manifest's when known) streamed into an unnamed
+    temporary file, for a server without range requests: h5py then reads it as a local file. Checked
+    against ``sha256``; removed once closed."""
+    fh = tempfile.TemporaryFile()  # noqa: SIM115 - handed to h5py, closed by the caller (or below on error)
+    try:
+        h = hashlib.sha256()
+        for block in remote.stream(relative, size):
+            h.update(block)
+            fh.write(block)
+        if fh.tell() != size:
+            raise StorageError(f"{remote.url_of(relative)}: {fh.tell()} bytes read, {size} expected")
+        if sha256 is not None and (digest := h.hexdigest()) != sha256:
+            raise DamagedFileError(
+                f"{name}: checksum mismatch (sha256 {digest[:12]}..., the manifest says {sha256[:12]}...): "
+                "the file is damaged or was replaced; run `hd verify`"
+            )
+    except BaseException:
+        fh.close()
+        raise
+    fh.seek(0)
+    return fh
+
+
+def _remote_h5_file(url: str, name: str, sha256: str | None, size_bytes: int | None) -> Any:
+    """The file object h5py reads of the HDF5 file at ``url`` (see :func:`open_h5_at`)."""
+    remote, relative = split_url(url)
+    size = remote.size(relative)
+    if size is None:
+        raise DamagedFileError(f"{name}: missing (the manifest lists it); run `hd verify`")
+    if size_bytes is not None and size > size_bytes:
+        raise too_long(name, size_bytes)
+    expected = size if size_bytes is None else size_bytes
+    if expected <= WHOLE_FILE_BLOCKS * BLOCK_BYTES:
+        return io.BytesIO(_whole_file(remote, relative, expected, sha256, name, recorded=size_bytes is not None))
+    if not remote.ranges(relative):
+        return _local_copy(remote, relative, expected, sha256, name)
+    return remote.open_file(relative)
+
+
+def open_h5_at(
+    path: str | os.PathLike, what: str | None = None, sha256: str | None = None, size_bytes: int | None = None
+) -> CheckedH5File:
     """Open an HDF5 file read-only with checked reads: a local path as :func:`hdcore.storage.open_h5`
     opens it, a URL lazily through fsspec (block cache; see the module docstring); a file of at most
     ``WHOLE_FILE_BLOCKS`` blocks is fetched whole once per process and, given the manifest's
-    ``sha256``, checked against it (then opened again without a request).
+    ``sha256``, checked against it (then opened again without a request). A larger file on a server
+    without range requests is streamed into a temporary file first. Given the manifest's
+    ``size_bytes``, a server that holds or sends more is refused before (or as soon as) it does.
 
     Raises:
-        StorageError: unreachable or missing. DamagedFileError: not HDF5 or damaged metadata.
+        StorageError: unreachable or missing. DamagedFileError: not HDF5 or damaged metadata, or longer
+            than ``size_bytes``.
     """
     if not is_url(path):
         return open_h5(path, what)
     url = str(path)
     name = what or printable_location(url)
-    remote, relative = split_url(url)
     kept = _WHOLE.get(_whole_key(url, sha256, None)) if sha256 is not None else None
-    if kept is not None:
-        fh: Any = io.BytesIO(kept)
-    else:
-        size = remote.size(relative)
-        if size is None:
-            raise DamagedFileError(f"{name}: missing (the manifest lists it); run `hd verify`")
-        small = size <= WHOLE_FILE_BLOCKS * BLOCK_BYTES
-        fh = io.BytesIO(_whole_file(remote, relative, size, sha256, name)) if small else remote.open_file(relative)
+    fh: Any = io.BytesIO(kept) if kept is not None else _remote_h5_file(url, name, sha256, size_bytes)
     try:
         f = h5py.File(fh, "r")
     except OSError as exc:

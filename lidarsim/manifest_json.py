@@ -45,9 +45,10 @@ class ShardRefJson(TypedDict):
 
 
 class FileEntryJson(ShardRefJson):
-    """What every file entry of a manifest gives: its path, sha256 and scans."""
+    """What every file entry of a manifest gives: its path, sha256, scans and (1.4) size in bytes."""
 
     n_scans: int
+    size_bytes: NotRequired[int]  # 1.4; absent in older manifests
 
 
 class ScanShardJson(FileEntryJson):
@@ -101,6 +102,7 @@ class DtmJson(TypedDict, total=False):
     path: str
     name: str
     sha256: str
+    size_bytes: int  # 1.4, for a terrain kept inside the dataset (a relative path)
     crs_wkt: str  # "" = local metres
     transform: list[float]  # GDAL order, at the scale used
     rows: int

@@ -64,6 +64,7 @@ __all__ = [
     "MANIFEST_SCHEMA_VERSION_DESCENT",
     "MANIFEST_SCHEMA_VERSION_DEVIATION",
     "MANIFEST_SCHEMA_VERSION_MOSAIC",
+    "MANIFEST_SCHEMA_VERSION_SIZES",
     "SCAN_SCHEMA",
     "SCAN_SCHEMA_VERSION",
     "SCAN_SCHEMA_VERSION_DESCENT",
@@ -82,6 +83,7 @@ __all__ = [
     "check_schema",
     "commit_file",
     "compression_kwargs",
+    "entry_size",
     "iter_descents",
     "iter_scans",
     "open_scan_shard",
@@ -90,6 +92,8 @@ __all__ = [
     "remove_partials",
     "scan_schema_version",
     "sha256_file",
+    "size_problem",
+    "sizes_version",
     "validate_manifest",
     "verify_dataset",
     "write_attrs",
@@ -132,6 +136,9 @@ MANIFEST_SCHEMA_VERSION_DEVIATION = "1.1"
 MANIFEST_SCHEMA_VERSION_DESCENT = "1.2"
 # The manifest of a mosaic dataset (``hd mosaic``): kind ``descent-mosaics`` and its ``mosaic`` record.
 MANIFEST_SCHEMA_VERSION_MOSAIC = "1.3"
+# 1.4: every file entry (scan shards, label shards, the dataset's terrain) records its ``size_bytes``;
+# hd writes it into every manifest it writes (the 1.1-1.3 records are told apart by their keys).
+MANIFEST_SCHEMA_VERSION_SIZES = "1.4"
 MANIFEST_KIND_SCANS = "lidar-scans"
 MANIFEST_KIND_MOSAICS = "descent-mosaics"
 MANIFEST_NAME = "manifest.json"
@@ -461,18 +468,25 @@ class ScanShardReader:
         sha256: the checksum its manifest records; when given, the file is checked against it
             before it is opened.
         what: how errors name the file (default: its path).
+        size_bytes: the size its manifest records (1.4): at a URL, a server that sends more is refused.
 
     Raises:
         ShardFormatError: not an hd scan shard, an unknown major schema version, a checksum
             mismatch or damaged data (``DamagedFileError``, naming the file and the scan).
     """
 
-    def __init__(self, path: str | os.PathLike, sha256: str | None = None, what: str | None = None) -> None:
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        sha256: str | None = None,
+        what: str | None = None,
+        size_bytes: int | None = None,
+    ) -> None:
         self.path: Path | str = str(path) if is_url(path) else Path(path)
         self.what = what or dataset_label(self.path)
         if sha256 is not None and not is_url(path):  # a URL is read lazily: hd verify checks its sha256
             verify_sha256(self.path, sha256, self.what)
-        self._f: CheckedH5File = open_h5_at(self.path, self.what, sha256)
+        self._f: CheckedH5File = open_h5_at(self.path, self.what, sha256, size_bytes)
         try:
             attrs = self._f.attrs
             check_schema(
@@ -584,6 +598,7 @@ def _check_entries(entries: Any, where: str) -> None:
         seen.add(path)
         if not is_sha256(require(entry, "sha256", str, at)):
             raise FormatError(f"{at}: 'sha256' is not a 64-digit hex checksum")
+        _check_size(entry, at)
         n = require(entry, "n_scans", int, at)
         if not 0 <= n <= limits.MAX_SCANS:
             raise FormatError(f"{at}: 'n_scans' must be in 0..{limits.MAX_SCANS}, got {n}")
@@ -594,6 +609,37 @@ def _check_entries(entries: Any, where: str) -> None:
             values = [counts[k] for k in SPLIT_NAMES]
             if any(isinstance(v, bool) or not isinstance(v, int) or v < 0 for v in values) or sum(values) != n:
                 raise FormatError(f"{at}: 'split_counts' {counts} do not add up to its {n} scans")
+
+
+def _check_size(entry: Mapping[str, Any], at: str) -> None:
+    """An entry's ``size_bytes`` (1.4; absent in older manifests): a whole number of bytes, >= 0."""
+    size = entry.get("size_bytes")
+    if size is not None and (isinstance(size, bool) or not isinstance(size, int) or size < 0):
+        raise FormatError(f"{at}: 'size_bytes' must be a whole number of bytes >= 0, got {size!r}")
+
+
+def _check_terrain_entry(dtm: Any, where: str) -> None:
+    """The terrain kept inside the dataset (a relative ``dtm.path``): a path inside it (no ``..``), its
+    sha256 and size well-formed; an absolute path names the user's DTM outside the dataset."""
+    if not isinstance(dtm, dict) or not isinstance(dtm.get("path"), str) or os.path.isabs(dtm["path"]):
+        return
+    check_relative(dtm["path"], f"{where}: dtm.path")
+    _check_size(dtm, f"{where}: dtm")
+
+
+def entry_size(entry: Mapping[str, Any]) -> int | None:
+    """The size in bytes a manifest entry records (``size_bytes``, 1.4), None for an older entry."""
+    size = entry.get("size_bytes")
+    return size if isinstance(size, int) and not isinstance(size, bool) else None
+
+
+def sizes_version(version: str) -> str:
+    """The schema version of a manifest once hd has written sizes into it: ``version``, at least 1.4."""
+    try:
+        minor = int(version.split(".")[1])
+    except (IndexError, ValueError):
+        return MANIFEST_SCHEMA_VERSION_SIZES
+    return version if version.startswith("1.") and minor >= 4 else MANIFEST_SCHEMA_VERSION_SIZES
 
 
 def validate_manifest(data: Any, where: str) -> ManifestJson:
@@ -644,6 +690,7 @@ def validate_manifest(data: Any, where: str) -> ManifestJson:
         if not name or "/" in name or name in (".", ".."):
             raise FormatError(f"{at}: {name!r} is not a labelling name")
         _check_entries(require(lab, "shards", list, at), f"{at}.shards")
+    _check_terrain_entry(data.get("dtm"), where)
     return cast("ManifestJson", data)  # its keys and their types checked above
 
 
@@ -731,7 +778,7 @@ def open_scan_shard(directory: str | os.PathLike, entry: ShardRefJson) -> ScanSh
     shard is read lazily and its sha256 is left to ``hd verify`` (its chunks' fletcher32 checks stay)."""
     path = join(directory, entry["path"])
     what = dataset_label(path) if is_url(directory) else f"{Path(directory) / entry['path']}"
-    reader = ScanShardReader(path, sha256=entry["sha256"], what=what)
+    reader = ScanShardReader(path, sha256=entry["sha256"], what=what, size_bytes=entry_size(entry))
     keys: Mapping[str, object] = entry  # a manifest's entry (FileEntryJson) also gives its scans
     claimed = keys.get("n_scans")
     if isinstance(claimed, int) and not isinstance(claimed, bool) and claimed != len(reader):
@@ -829,6 +876,9 @@ def verify_dataset(directory: str | os.PathLike, known_schemas: dict[str, str] |
         if not path.is_file():
             problems.append(f"{rel}: missing" if not os.path.lexists(path) else f"{rel}: not a regular file")
             continue
+        if (problem := size_problem(rel, path.stat().st_size, entry)) is not None:
+            problems.append(problem)
+            continue
         try:
             digest = sha256_file(path)
         except StorageError as exc:
@@ -842,6 +892,15 @@ def verify_dataset(directory: str | os.PathLike, known_schemas: dict[str, str] |
         problems += _file_problems(lambda p=path, r=rel: open_h5(p, r), rel, entry, known, manifest)
     problems += _terrain_problems(directory, manifest)
     return problems
+
+
+def size_problem(rel: str, size: int, entry: Mapping[str, Any]) -> str | None:
+    """A file of ``size`` bytes against the size its manifest entry records (None: they agree, or the
+    entry records none)."""
+    recorded = entry_size(entry)
+    if recorded is None or size == recorded:
+        return None
+    return f"{rel}: {size} bytes, the manifest records {recorded} (size mismatch: the file is damaged or was replaced)"
 
 
 def _file_problems(
@@ -866,11 +925,12 @@ def _file_problems(
     return problems
 
 
-def _stream_sha256(remote: Any, rel: str) -> tuple[str, bytes]:
-    """The sha256 and the bytes of a remote file, read once as a stream."""
+def _stream_sha256(remote: Any, rel: str, limit: int | None) -> tuple[str, bytes]:
+    """The sha256 and the bytes of a remote file, read once as a stream (refused, and read no further,
+    past ``limit`` bytes: the size the manifest records)."""
     h = hashlib.sha256()
     buf = io.BytesIO()
-    for block in remote.stream(rel):
+    for block in remote.stream(rel, limit):
         h.update(block)
         buf.write(block)
     return h.hexdigest(), buf.getvalue()
@@ -889,10 +949,14 @@ def _verify_remote(url: str, known: dict[str, str]) -> list[str]:
     for entry in entries:
         rel = entry["path"]
         try:
-            if remote.size(rel) is None:
+            size = remote.size(rel)
+            if size is None:
                 problems.append(f"{rel}: missing")
                 continue
-            digest, data = _stream_sha256(remote, rel)
+            if (problem := size_problem(rel, size, entry)) is not None:
+                problems.append(problem)
+                continue
+            digest, data = _stream_sha256(remote, rel, entry_size(entry))
         except (FormatError, StorageError) as exc:
             problems.append(str(exc))
             continue
@@ -910,10 +974,13 @@ def _verify_remote(url: str, known: dict[str, str]) -> list[str]:
     if isinstance(dtm, dict) and isinstance(dtm.get("path"), str) and not os.path.isabs(dtm["path"]):
         rel, recorded = dtm["path"], dtm.get("sha256")
         try:
-            if remote.size(rel) is None:
+            size = remote.size(rel)
+            if size is None:
                 problems.append(f"{rel}: missing (the dataset's terrain)")
+            elif (problem := size_problem(rel, size, dtm)) is not None:
+                problems.append(problem)
             else:
-                digest, _ = _stream_sha256(remote, rel)
+                digest, _ = _stream_sha256(remote, rel, entry_size(dtm))
                 if is_sha256(recorded) and digest != recorded:
                     problems.append(
                         f"{rel}: checksum mismatch (sha256 {digest[:12]}..., manifest says {str(recorded)[:12]}...)"
@@ -976,6 +1043,8 @@ def _terrain_problems(directory: Path, manifest: ManifestJson) -> list[str]:
         return [str(exc)]
     if not path.is_file():
         return [f"{rel}: missing (the dataset's terrain)"]
+    if (problem := size_problem(rel, path.stat().st_size, dtm)) is not None:
+        return [problem]
     try:
         digest = sha256_file(path)
     except StorageError as exc:

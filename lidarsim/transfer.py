@@ -49,7 +49,14 @@ from hdcore.storage import (
 )
 from lidarsim.location import PUBLISH_MARK, RemoteDataset, is_url, remote_dataset, remote_errors
 from lidarsim.manifest_json import ManifestJson
-from lidarsim.shards import MANIFEST_NAME, manifest_text, read_manifest, validate_manifest, verify_dataset
+from lidarsim.shards import (
+    MANIFEST_NAME,
+    entry_size,
+    manifest_text,
+    read_manifest,
+    validate_manifest,
+    verify_dataset,
+)
 
 # The mark ``hd pull`` keeps in a directory it is filling (the manifest sha256 it copies), removed
 # once the manifest is written: a re-run resumes, another dataset into the same directory is refused.
@@ -72,6 +79,17 @@ def dataset_files(manifest: ManifestJson) -> list[str]:
     if isinstance(dtm, dict) and isinstance(dtm.get("path"), str) and not os.path.isabs(dtm["path"]):
         files.append(dtm["path"])
     return files
+
+
+def _expected_sizes(manifest: ManifestJson) -> dict[str, int | None]:
+    """Relative path -> the size in bytes the manifest records for it (None: a manifest before 1.4)."""
+    sizes = {e["path"]: entry_size(e) for e in manifest["shards"]}
+    for labelling in manifest.get("labelings", []):
+        sizes.update({e["path"]: entry_size(e) for e in labelling.get("shards", [])})
+    dtm = manifest.get("dtm")
+    if isinstance(dtm, dict) and isinstance(dtm.get("path"), str):
+        sizes[dtm["path"]] = entry_size(dtm)
+    return sizes
 
 
 def _expected_sha256(manifest: ManifestJson) -> dict[str, str]:
@@ -250,11 +268,13 @@ def _now() -> str:
 
 
 # ------------------------------------------------------------------------------------------ pull
-def _download(remote: RemoteDataset, relative: str, final: Path, expected: str) -> int:
+def _download(remote: RemoteDataset, relative: str, final: Path, expected: str, limit: int | None) -> int:
     """Stream ``relative`` into ``final`` (temporary name, renamed once its sha256 matches); returns its size.
+    With ``limit`` (the manifest's size in bytes), a server that sends more is refused at that size: no
+    byte past it is written or held.
 
     Raises:
-        DamagedFileError: the bytes at the URL are not those the manifest records.
+        DamagedFileError: the bytes at the URL are not those the manifest records, or more of them.
     """
     make_dirs(final.parent)
     h = hashlib.sha256()
@@ -262,7 +282,7 @@ def _download(remote: RemoteDataset, relative: str, final: Path, expected: str) 
     with atomic_path(final) as tmp:
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o644)
         try:
-            for block in remote.stream(relative):
+            for block in remote.stream(relative, limit):
                 h.update(block)
                 atomic._write_all(fd, block)  # the one writer of file contents (hdcore.storage.atomic)
                 size += len(block)
@@ -329,20 +349,22 @@ def pull_dataset(
     manifest_bytes = remote.read_bytes(MANIFEST_NAME)
     if manifest_text(manifest_bytes, label) != manifest:  # replaced between the two reads
         raise StorageError(f"{label}: its manifest changed while it was read; re-run")
+    files = dataset_files(manifest)  # every path checked by read_manifest (no ``..``, dtm.path too)
     state = _check_pull_target(root, manifest_bytes)
     make_dirs(root)
-    files = dataset_files(manifest)
+    targets = {rel: confine(root, rel) for rel in files}  # inside the directory, links resolved: before any fetch
     sums = _expected_sha256(manifest)
+    sizes = _expected_sizes(manifest)
     fetched = kept = 0
     with WriterLock(root, "dataset"):
         if state == "new":
             write_json_atomic(root / PULL_MARK, {"manifest_sha256": sha256_bytes(manifest_bytes), "url": label})
         for rel in files:
-            final = confine(root, rel)
+            final = targets[rel]
             if final.is_file() and sha256_file(final) == sums[rel]:
                 kept += 1
                 continue
-            size = _download(remote, rel, final, sums[rel])
+            size = _download(remote, rel, final, sums[rel], sizes[rel])
             fetched += size
             if progress is not None:
                 progress(rel, size)

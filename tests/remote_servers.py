@@ -1,5 +1,7 @@
-"""Real servers for the tests of datasets at URLs: an S3 API (moto's server mode) and an HTTP server
-that honours Range requests, each on a free port of 127.0.0.1, started and stopped by the test.
+"""Real servers for the tests of datasets at URLs: an S3 API (moto's server mode) and HTTP servers
+(one that honours Range requests, the standard library's plain one without them, and misbehaving
+ones: a server that sends more than a file holds, one that goes silent mid-body, one that is slow
+but keeps sending), each on a free port of 127.0.0.1, started and stopped by the test.
 
 Nothing of hd is replaced: hd talks to them through fsspec (s3fs, aiohttp) as it talks to real ones.
 """
@@ -8,7 +10,9 @@ from __future__ import annotations
 
 import contextlib
 import os
+import sys
 import threading
+import time
 import urllib.request
 from collections.abc import Iterator
 from functools import partial
@@ -131,17 +135,99 @@ class RangeHandler(SimpleHTTPRequestHandler):
                 remaining -= len(block)
 
 
+class PlainHandler(SimpleHTTPRequestHandler):
+    """The standard library's static server (``python -m http.server``): no Range support, every GET
+    answered 200 with the whole file. Records each request's path (``server.requests``)."""
+
+    def log_message(self, format: str, *args: Any) -> None:  # quiet
+        pass
+
+    def send_head(self) -> Any:
+        self.server.requests.append(self.path)  # type: ignore[attr-defined]  # set by http_server below
+        return super().send_head()
+
+
+class MisbehavingHandler(PlainHandler):
+    """A plain server whose GET of a file named in ``server.faults`` misbehaves (HEAD answers honestly):
+
+    * ``"more"``: the file, then zeros without end (no Content-Length; ``server.bytes_sent`` counts);
+    * ``"silent"``: half of the file, then nothing until ``server.release`` is set;
+    * ``"slow"``: the file in ``server.slow_blocks`` parts, ``server.slow_pause_s`` apart.
+    """
+
+    protocol_version = "HTTP/1.0"  # a body without Content-Length ends when the connection closes
+
+    def do_GET(self) -> None:
+        fault = self.server.faults.get(self.path.rsplit("/", 1)[-1])  # type: ignore[attr-defined]
+        if fault is None:
+            super().do_GET()
+            return
+        self.server.requests.append(self.path)  # type: ignore[attr-defined]
+        data = Path(self.translate_path(self.path)).read_bytes()
+        self.send_response(200)
+        self.send_header("Content-Type", "application/octet-stream")
+        if fault != "more":
+            self.send_header("Content-Length", str(len(data)))
+        self.end_headers()
+        # the client may stop reading: what a server sees when hd refuses the rest
+        with contextlib.suppress(BrokenPipeError, ConnectionResetError):
+            getattr(self, f"_send_{fault}")(data)
+
+    def _send_more(self, data: bytes) -> None:
+        self._send(data)
+        zeros = bytes(1 << 16)
+        for _ in range(1024):  # 64 MiB at most
+            self._send(zeros)
+
+    def _send_silent(self, data: bytes) -> None:
+        self._send(data[: len(data) // 2])
+        self.wfile.flush()
+        self.server.release.wait(60)  # type: ignore[attr-defined]
+
+    def _send_slow(self, data: bytes) -> None:
+        n = self.server.slow_blocks  # type: ignore[attr-defined]
+        step = -(-len(data) // n)
+        for k in range(n):
+            self._send(data[k * step : (k + 1) * step])
+            self.wfile.flush()
+            time.sleep(self.server.slow_pause_s)  # type: ignore[attr-defined]
+
+    def _send(self, block: bytes) -> None:
+        self.wfile.write(block)
+        self.server.bytes_sent += len(block)  # type: ignore[attr-defined]
+
+
+class QuietServer(ThreadingHTTPServer):
+    """A threaded HTTP server that says nothing when a client hangs up mid-body (hd asking whether a
+    server has ranges, or refusing the rest of a body): that is no error of the server's."""
+
+    def handle_error(self, request: Any, client_address: Any) -> None:
+        if isinstance(sys.exc_info()[1], (BrokenPipeError, ConnectionResetError)):
+            return
+        super().handle_error(request, client_address)
+
+
 @contextlib.contextmanager
-def http_server(root: Path) -> Iterator[tuple[str, ThreadingHTTPServer]]:
-    """An HTTP server of the files under ``root`` (Range requests honoured) on a free port; yields
-    its base URL and the server (``bytes_sent``: file bytes sent so far)."""
-    server = ThreadingHTTPServer(("127.0.0.1", 0), partial(RangeHandler, directory=str(root)))
+def http_server(
+    root: Path, handler: type[SimpleHTTPRequestHandler] = RangeHandler, **settings: Any
+) -> Iterator[tuple[str, Any]]:  # the server with the counts set below
+    """An HTTP server of the files under ``root`` on a free port (``handler``: Range requests honoured
+    by default; :class:`PlainHandler`, :class:`MisbehavingHandler`); yields its base URL and the server
+    (``bytes_sent``: file bytes sent so far; ``requests``: the paths asked for, by the plain handlers;
+    ``settings``: the misbehaving handler's ``faults``, ``slow_blocks``, ``slow_pause_s``)."""
+    server = QuietServer(("127.0.0.1", 0), partial(handler, directory=str(root)))
     server.bytes_sent = 0  # type: ignore[attr-defined]  # the count RangeHandler keeps
+    server.requests = []  # type: ignore[attr-defined]  # the paths PlainHandler records
+    server.release = threading.Event()  # type: ignore[attr-defined]  # ends a silent handler's wait
+    server.faults = {}  # type: ignore[attr-defined]
+    for key, value in settings.items():
+        setattr(server, key, value)
     thread = threading.Thread(target=server.serve_forever, daemon=True)
     thread.start()
     try:
         yield f"http://127.0.0.1:{server.server_address[1]}", server
     finally:
+        server.release.set()  # type: ignore[attr-defined]
         server.shutdown()
         server.server_close()
         thread.join()

@@ -66,7 +66,7 @@ def built(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
 def test_one_scan_per_descent_in_its_split_with_the_mosaics_heights(built: tuple[Path, Path]) -> None:
     source, out = built
     manifest = read_manifest(out)
-    assert manifest["kind"] == "descent-mosaics" and manifest["schema_version"] == "1.3"
+    assert manifest["kind"] == "descent-mosaics" and manifest["schema_version"] == "1.4"
     assert manifest["mosaic"]["poses"] == "registered" and manifest["mosaic"]["dem"]["rows"] == DEM_SIDE
     assert manifest["n_scans"] == 4 and [s["schema_version"] for s in manifest["shards"]] == ["1.4"]
     descents = list(iter_descents(source))

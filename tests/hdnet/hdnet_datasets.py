@@ -57,4 +57,5 @@ def reseal(dataset: Path) -> None:
     manifest = read_manifest(dataset)
     for entry in manifest["shards"] + [e for lab in manifest["labelings"] for e in lab["shards"]]:
         entry["sha256"] = sha256_file(dataset / entry["path"])
+        entry["size_bytes"] = (dataset / entry["path"]).stat().st_size
     write_json_atomic(dataset / "manifest.json", manifest)

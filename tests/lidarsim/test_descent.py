@@ -239,7 +239,7 @@ def test_stored_estimates_are_the_error_model_applied_to_the_true_poses(built):
 # ------------------------------------------------------------------------------------------ the build
 def test_a_descent_build_stores_whole_descents_in_schema_1_3(built):
     manifest = read_manifest(built)
-    assert manifest["schema_version"] == "1.2" and manifest["n_scans"] == 9
+    assert manifest["schema_version"] == "1.4" and manifest["n_scans"] == 9
     assert (manifest["n_descents"], manifest["descent_frames"]) == (3, 3)
     # --shard-size 4 is rounded up to 6 frames: two whole descents, then one
     assert [s["n_scans"] for s in manifest["shards"]] == [6, 3]

@@ -515,6 +515,7 @@ def reseal(dataset: Path) -> None:
     for e in m["shards"] + [e for lab in m["labelings"] for e in lab["shards"]]:
         if (dataset / e["path"]).is_file():
             e["sha256"] = sha256_file(dataset / e["path"])
+            e["size_bytes"] = (dataset / e["path"]).stat().st_size
     path.write_text(json.dumps(m, indent=1))
 
 

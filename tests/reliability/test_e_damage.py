@@ -41,6 +41,7 @@ def reseal(dataset: Path) -> None:
     m = json.loads((dataset / "manifest.json").read_text())
     for e in m["shards"] + [e for lab in m["labelings"] for e in lab["shards"]]:
         e["sha256"] = sha256_file(dataset / e["path"])
+        e["size_bytes"] = (dataset / e["path"]).stat().st_size
     (dataset / "manifest.json").write_text(json.dumps(m))
 
 
@@ -448,6 +449,7 @@ def test_shards_written_the_old_way_stay_readable(data_copy, tmp_path):
     for entry in m["shards"] + m["labelings"][0]["shards"]:
         _rewrite_old_way(data_copy / entry["path"])
         entry["sha256"] = sha256_file(data_copy / entry["path"])
+        entry["size_bytes"] = (data_copy / entry["path"]).stat().st_size
         entry["schema_version"] = "1.0"
     m["labelings"][0]["schema_version"] = "1.0"
     (data_copy / "manifest.json").write_text(json.dumps(m))

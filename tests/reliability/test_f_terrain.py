@@ -197,6 +197,7 @@ def reseal(dataset: Path) -> None:
     m = read_manifest(dataset)
     for e in m["shards"] + [e for lab in m["labelings"] for e in lab["shards"]]:
         e["sha256"] = sha256_file(dataset / e["path"])
+        e["size_bytes"] = (dataset / e["path"]).stat().st_size
     (dataset / "manifest.json").write_text(json.dumps(m))
 
 

@@ -72,6 +72,7 @@ def reseal(dataset: Path) -> None:
     m = read_manifest(dataset)
     for e in m["shards"] + [e for lab in m["labelings"] for e in lab["shards"]]:
         e["sha256"] = sha256_file(dataset / e["path"])
+        e["size_bytes"] = (dataset / e["path"]).stat().st_size
     (dataset / "manifest.json").write_text(json.dumps(m))
 
 
@@ -259,7 +260,7 @@ def test_a_build_deviating_from_its_recipe_in_size_is_recorded_and_named_by_veri
     deviation = "--scans 4 (recipe: 8), --shard-size 1 (recipe: 2)"
     assert f"deviates from the recipe reference: {deviation}" in built.output
     manifest = read_manifest(out)
-    assert manifest["schema_version"] == "1.1" and manifest["recipe_deviation"] == {
+    assert manifest["schema_version"] == "1.4" and manifest["recipe_deviation"] == {
         "recipe": "reference",
         "recipe_version": 1,
         "settings": [
