@@ -44,12 +44,12 @@ from pathlib import Path
 import numpy as np
 
 from hdcore.errors import HdError
-from hdcore.storage import confine, sha256_file
+from hdcore.storage import confine
 from hdlabels import defaults
 from hdlabels.grid import cell_centres, grid_points
 from hdlabels.store import DemSpec, LabelStoreError
 from lidarsim.manifest_json import ManifestJson
-from lidarsim.terrain import DTM
+from lidarsim.terrain import DTM, dtm_sha256, gdal_side_files
 
 # Griddings whose DEM value is the height at the cell centre when a sample lies there.
 CENTRE_GRIDDINGS: tuple[str, ...] = ("nearest", "linear")
@@ -108,15 +108,17 @@ def check_build_terrain(root: Path, manifest: ManifestJson) -> tuple[Path, str, 
 
 def terrain_identity(path: str | os.PathLike, dataset: str) -> tuple[int, ...]:
     """What tells one file from another and a file from its changed self: device, inode, size,
-    modification and change times (the change time is set by the kernel on every write)."""
+    modification and change times (the change time is set by the kernel on every write), of the DTM
+    and of each side file GDAL reads with it (``lidarsim.terrain.gdal_side_files``)."""
     try:
-        st = os.stat(path)
+        files = (Path(path), *gdal_side_files(path))
+        stats = [os.stat(f) for f in files]
     except OSError as exc:
         raise LabelStoreError(
             f"{path}: the terrain {dataset} was built on went missing while it was labelled ({exc.strerror}); "
             "restore it and re-run the same command"
         ) from exc
-    return (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
+    return tuple(v for st in stats for v in (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns))
 
 
 def _terrain_digest(path: str | os.PathLike, dataset: str) -> str:
@@ -126,7 +128,7 @@ def _terrain_digest(path: str | os.PathLike, dataset: str) -> str:
         LabelStoreError: the file cannot be read.
     """
     try:
-        return sha256_file(path)
+        return dtm_sha256(path)
     except HdError as exc:
         raise LabelStoreError(f"{path}: the terrain {dataset} was built on cannot be read ({exc})") from exc
 
