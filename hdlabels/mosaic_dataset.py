@@ -26,8 +26,11 @@ record: the source dataset, poses, DEM grid and registration settings), ``mosaic
 shards of schema 1.4, one per source shard) and ``mosaic-terrain.tif``, a copy of the source's
 procedural terrain (a user DTM is recorded by its absolute path, as in the source). Splits are the
 descents'. The output is written like every hd output (``hdcore.storage.OutputDir``): staged and
-moved into place with the manifest last, so an interrupted run leaves nothing half-written; an
-existing mosaic dataset is replaced only with ``overwrite``. Noise levels cannot be made on the fly
+moved into place with the manifest last, so an interrupted run leaves nothing half-written; each
+descent mosaicked is kept as it is made (``hdlabels.mosaic_resume``), so that the same call resumes
+an interrupted run to the bytes of an uninterrupted one. The same settings over a finished mosaic
+dataset leave it as it is; one of other settings, finished or not, is replaced only with
+``overwrite``. Noise levels cannot be made on the fly
 for a mosaic dataset: its noisy mosaics come from registering noisy frames.
 """
 
