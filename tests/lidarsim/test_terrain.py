@@ -457,3 +457,28 @@ def test_the_dtm_digest_covers_the_side_files_gdal_reads(tmp_path: Path) -> None
     assert dtm_sha256(path) not in (plain, with_aux)
     aux.unlink()
     assert dtm_sha256(path) == plain
+
+
+def test_a_world_file_is_in_the_digest_of_a_tiff_without_georeferencing(tmp_path: Path) -> None:
+    """A TIFF without GeoTIFF tags takes its grid from a .tfw beside it (GDAL reads it): a changed
+    world file moves the terrain, so it changes the digest; beside a GeoTIFF GDAL ignores it."""
+    import warnings
+
+    import rasterio
+    from rasterio.errors import NotGeoreferencedWarning
+
+    from hdcore.storage import sha256_file
+    from lidarsim.terrain import dtm_sha256, gdal_side_files
+
+    path = tmp_path / "plain.tif"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        with rasterio.open(path, "w", driver="GTiff", height=8, width=8, count=1, dtype="float32") as out:
+            out.write(np.zeros((1, 8, 8), dtype=np.float32))
+    assert dtm_sha256(path) == sha256_file(path)
+    world = tmp_path / "plain.tfw"
+    world.write_text("2\n0\n0\n-2\n1\n15\n")
+    assert gdal_side_files(path) == (world,)
+    first = dtm_sha256(path)
+    world.write_text("2\n0\n0\n-2\n101\n15\n")  # the same grid 100 m east
+    assert first != dtm_sha256(path) != sha256_file(path)
