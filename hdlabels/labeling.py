@@ -60,7 +60,7 @@ from hdlabels.store import (
     label_shard_name,
     labeling_name,
 )
-from hdlabels.truth import check_build_terrain, labelled_terrain, terrain_dem
+from hdlabels.truth import labelled_terrain, terrain_dem, verified_build_terrain
 from lidarsim.manifest_json import ManifestJson
 from lidarsim.parallel import run_tasks
 from lidarsim.shards import (
@@ -90,6 +90,7 @@ class LabelTask:
     dtm_path: str | None = None  # the terrain truth's DTM (checked by the parent), None for the clean scan
     dtm_scale: float = 1.0
     dtm_sha256: str | None = None  # the build's record of that DTM, checked again as each shard reads it
+    dtm_identity: tuple[int, ...] | None = None  # the DTM file the parent hashed (hdlabels.truth.terrain_identity)
 
 
 @dataclass(frozen=True)
@@ -259,7 +260,8 @@ def _truth_dtm(task: LabelTask) -> Iterator[DTM | None]:
     if task.truth == defaults.TRUTH or task.dtm_path is None or task.dtm_sha256 is None:
         yield None
         return
-    with labelled_terrain(task.dtm_path, task.dtm_sha256, task.dtm_scale, Path(task.dataset).name) as dtm:
+    name = Path(task.dataset).name
+    with labelled_terrain(task.dtm_path, task.dtm_sha256, task.dtm_scale, name, task.dtm_identity) as dtm:
         yield dtm
 
 
@@ -389,8 +391,8 @@ def label_dataset(
     check_lander_fits(lander, dem)
     check_mosaic_grid(manifest, dem, str(root))
     name = labeling_name(lander, dem, truth)
-    dtm_path, dtm_sha256, dtm_scale = (
-        (None, None, 1.0) if truth == defaults.TRUTH else check_build_terrain(root, manifest)
+    dtm_path, dtm_sha256, dtm_scale, dtm_identity = (
+        (None, None, 1.0, None) if truth == defaults.TRUTH else verified_build_terrain(root, manifest)
     )
     earlier = _current_labeling(root, manifest, name, dtm_sha256)
     if earlier is not None:
@@ -408,6 +410,7 @@ def label_dataset(
             dtm_path=None if dtm_path is None else str(dtm_path),
             dtm_scale=dtm_scale,
             dtm_sha256=dtm_sha256,
+            dtm_identity=dtm_identity,
         )
         for i, s in enumerate(manifest["shards"])
     ]

@@ -26,18 +26,22 @@ record: the source dataset, poses, DEM grid and registration settings), ``mosaic
 shards of schema 1.4, one per source shard) and ``mosaic-terrain.tif``, a copy of the source's
 procedural terrain (a user DTM is recorded by its absolute path, as in the source). Splits are the
 descents'. The output is written like every hd output (``hdcore.storage.OutputDir``): staged and
-moved into place with the manifest last, so an interrupted run leaves nothing half-written; an
-existing mosaic dataset is replaced only with ``overwrite``. Noise levels cannot be made on the fly
+moved into place with the manifest last, so an interrupted run leaves nothing half-written; each
+descent mosaicked is kept as it is made (``hdlabels.mosaic_resume``), so that the same call resumes
+an interrupted run to the bytes of an uninterrupted one. The same settings over a finished mosaic
+dataset leave it as it is; one of other settings, finished or not, is replaced only with
+``overwrite``. Noise levels cannot be made on the fly
 for a mosaic dataset: its noisy mosaics come from registering noisy frames.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -46,7 +50,8 @@ import numpy as np
 from hdcore.bounds import parse_integer
 from hdcore.outcome import counted
 from hdcore.setting import check, described_as, setting
-from hdcore.storage import OutputDir, confine, write_json_atomic
+from hdcore.storage import OutputDir, confine, read_regular_text, write_json_atomic
+from hdlabels import mosaic_resume
 from hdlabels.errors import HdLabelsError
 from hdlabels.grid import cell_centres
 from hdlabels.mosaic import (
@@ -65,7 +70,7 @@ from hdlabels.mosaic import (
 from hdlabels.settings import LabelSettings
 from hdlabels.store import DemSpec
 from lidarsim._version import __version__
-from lidarsim.manifest_json import DtmJson, ManifestJson, ScanShardJson
+from lidarsim.manifest_json import DtmJson, ManifestJson, MosaicJson, ScanShardJson
 from lidarsim.parallel import run_tasks
 from lidarsim.shards import (
     MANIFEST_KIND_MOSAICS,
@@ -77,9 +82,11 @@ from lidarsim.shards import (
     MosaicRecord,
     Scan,
     ScanShardWriter,
+    ShardFormatError,
     open_scan_shard,
     read_manifest,
     scan_schema_version,
+    validate_manifest,
 )
 
 MOSAIC_SHARD_PREFIX = "mosaics-"
@@ -158,6 +165,32 @@ class DescentMosaics:
     sensor_position: np.ndarray
     sensor_attitude: np.ndarray
     record: MosaicRecord
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """Every array, by name (the record's fields flat beside the mosaics: ``DESCENT_ARRAYS``)."""
+        plain = {name: getattr(self, name) for name in DESCENT_ARRAYS[:5]}
+        return {**plain, **{k: np.asarray(v) for k, v in asdict(self.record).items()}}
+
+    @classmethod
+    def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> DescentMosaics:
+        """The mosaics of :meth:`to_arrays`' arrays."""
+        record = MosaicRecord(**{name: arrays[name] for name in DESCENT_ARRAYS[5:]})
+        return cls(**{name: arrays[name] for name in DESCENT_ARRAYS[:5]}, record=record)
+
+
+# A descent's arrays as a resumed run keeps them (``hdlabels.mosaic_resume``): the mosaics, then the record.
+DESCENT_ARRAYS = (
+    "points_clean",
+    "points_noisy",
+    "origin_map",
+    "sensor_position",
+    "sensor_attitude",
+    "frame_to_map",
+    "registration_correction",
+    "registration_fitness",
+    "registration_rmse_m",
+    "frame_residual_m",
+)
 
 
 def in_mosaic_frame(transform: np.ndarray, target_map: np.ndarray) -> np.ndarray:
@@ -245,6 +278,8 @@ class MosaicTask:
     poses: str
     dem: DemSpec
     attrs: dict[str, object]  # file attributes of the mosaic shard
+    resume_dir: str | None = None  # where each finished descent is kept (``hdlabels.mosaic_resume``)
+    fingerprint: str = ""  # the settings' fingerprint the kept descents carry
 
 
 @dataclass(frozen=True)
@@ -270,10 +305,7 @@ def run_mosaic_task(task: MosaicTask) -> MosaicShardRecord:
                 scans = [reader[d * task.frames + k] for k in range(task.frames)]
                 index = _descent_index(scans, reader.what, d * task.frames)
                 first = index if first is None else first
-                try:
-                    m = descent_mosaics([scans[k] for k in task.used], task.dem, task.poses)
-                except HdLabelsError as exc:
-                    raise HdLabelsError(f"{reader.what} descent {index}: {exc}") from exc
+                m = _mosaics_of(task, d, index, scans, reader.what)
                 finite = np.isfinite(m.points_clean[..., 2])
                 splits[d] = SPLIT_NAMES.index(scans[0].split)
                 writer.write_scan(
@@ -307,6 +339,23 @@ def run_mosaic_task(task: MosaicTask) -> MosaicShardRecord:
     return MosaicShardRecord(entry, moved)
 
 
+def _mosaics_of(task: MosaicTask, row: int, index: int, scans: list[Scan], what: str) -> DescentMosaics:
+    """The mosaics of the descent at ``row`` of the task's shard: kept by an earlier run of the same
+    settings, else made (and kept, with a resume directory)."""
+    kept_at = None if task.resume_dir is None else mosaic_resume.descent_path(task.resume_dir, task.out_file, row)
+    if kept_at is not None:
+        kept = mosaic_resume.load_descent(kept_at, task.fingerprint, ("descent_index", *DESCENT_ARRAYS))
+        if kept is not None and int(kept["descent_index"]) == index:
+            return DescentMosaics.from_arrays(kept)
+    try:
+        m = descent_mosaics([scans[k] for k in task.used], task.dem, task.poses)
+    except HdLabelsError as exc:
+        raise HdLabelsError(f"{what} descent {index}: {exc}") from exc
+    if kept_at is not None:
+        mosaic_resume.save_descent(kept_at, task.fingerprint, {"descent_index": np.asarray(index), **m.to_arrays()})
+    return m
+
+
 def _descent_index(scans: list[Scan], what: str, row: int) -> int:
     """The descent index of K scans that are frames 0..K-1 of one descent in one split."""
     first = scans[0].descent
@@ -337,8 +386,17 @@ class MosaicSummary:
     coverage: float  # mean fraction of the DEM's cells with a clean mosaic height
     median_correction_m: float | None  # registered poses: median translation of the frames' corrections
     seconds: float
+    resumed_descents: int = 0  # descents an interrupted run of the same settings had mosaicked already
+    already_done: bool = False  # ``out`` held this mosaic dataset already: nothing was written
 
     def paragraph(self) -> str:
+        if self.already_done:
+            return (
+                f"{self.out} already holds this mosaic dataset, made with the same settings "
+                f"({counted(self.n_mosaics, 'mosaic')} in {counted(self.n_shards, 'shard')}): nothing to do "
+                "(--overwrite makes it again)"
+            )
+        kept = f" ({counted(self.resumed_descents, 'descent')} kept from the interrupted run)"
         reg = (
             f"; registration moved the frames by {self.median_correction_m * 100:.0f} cm (median)"
             if self.median_correction_m is not None
@@ -348,7 +406,8 @@ class MosaicSummary:
         used = "" if len(self.frames) == self.descent_frames else f", frames {','.join(map(str, self.frames))}"
         return (
             f"Mosaicked {counted(self.n_mosaics, 'descent')} of {self.descent_frames} frames{used} "
-            f"({self.poses} poses) into {counted(self.n_shards, 'shard')} at {self.out} in {self.seconds:.1f} s: "
+            f"({self.poses} poses) into {counted(self.n_shards, 'shard')} at {self.out} in {self.seconds:.1f} s"
+            f"{kept if self.resumed_descents else ''}: "
             f"clean mosaics plus {counted(len(self.sigmas_m), 'noise level')}; splits {split}; "
             f"{self.coverage * 100:.1f}% of the DEM cells have a height{reg}. Label it with `hd label {self.out}`."
         )
@@ -357,7 +416,7 @@ class MosaicSummary:
 def is_mosaic_file(name: str) -> bool:
     """Names a mosaic dataset's files take (its output: replaced together with ``overwrite``)."""
     shard = name.startswith(MOSAIC_SHARD_PREFIX) and name.endswith(".h5")
-    return shard or name in (MANIFEST_NAME, MOSAIC_TERRAIN_NAME)
+    return shard or name in (MANIFEST_NAME, MOSAIC_TERRAIN_NAME, mosaic_resume.RESUME_DIR)
 
 
 def mosaic_dataset(
@@ -372,12 +431,63 @@ def mosaic_dataset(
 ) -> MosaicSummary:
     """Write the mosaic dataset of the descent build ``source`` at ``out`` (see the module docstring).
 
+    A run killed part-way is resumed by the same call: the descents it mosaicked are kept
+    (``hdlabels.mosaic_resume``) and the output has the bytes of an uninterrupted run. ``out``
+    holding this mosaic dataset already (the same settings and source, every shard present) is
+    left as it is (``already_done`` in the summary).
+
     Raises:
         HdLabelsError: ``source`` is not a descent build; a descent that cannot be mosaicked.
-        StorageError / OutputExistsError: ``out`` is unusable, is the source, or holds anything but
-            an earlier mosaic dataset (replaced only with ``overwrite``).
+        StorageError / OutputExistsError: ``out`` is unusable, is the source, holds anything but
+            an earlier mosaic dataset, or a mosaic dataset (finished or not) of other settings
+            (replaced only with ``overwrite``).
     """
     t0 = time.perf_counter()
+    root, manifest, frames = _descent_build(source)
+    dem = settings.to_dem_spec()
+    used = settings.frame_indices(frames)
+    inputs: dict[str, str | os.PathLike | None] = {"the descent build": root}
+    output = OutputDir(out, what="mosaic", marker=MANIFEST_NAME, owns=is_mosaic_file, inputs=inputs)
+    out_dir = output.check_place()
+    attrs = _file_attrs(manifest, settings, dem, used)
+    record = _mosaic_record(manifest, settings, dem, frames, used, str(root))
+    fingerprint = mosaic_resume.settings_fingerprint(record, attrs)
+    if not overwrite and (done := _finished_identical(out_dir, record)) is not None:
+        return _summary(out_dir, settings, frames, used, done, time.perf_counter() - t0, 0, already_done=True)
+    resuming = mosaic_resume.resumable(out_dir, fingerprint, record, overwrite)
+    # An unfinished run of these settings (no manifest yet) is resumed without --overwrite.
+    replace = overwrite or (resuming and not os.path.lexists(out_dir / MANIFEST_NAME))
+    output.check(replace)
+    with output.open(replace) as staging:
+        resume_dir = mosaic_resume.start(out_dir, fingerprint, record)
+        kept = mosaic_resume.kept_descents(out_dir)
+        tasks = [
+            MosaicTask(
+                str(root), entry, str(staging / _shard_name(i)), frames, used, settings.poses, dem, attrs,
+                resume_dir=str(resume_dir), fingerprint=fingerprint,
+            )
+            for i, entry in enumerate(manifest["shards"])
+        ]  # fmt: skip
+        try:
+            records = _run_mosaic_tasks(tasks, int(manifest["n_descents"]), workers, scheduler, progress)
+        except BaseException:
+            if mosaic_resume.kept_descents(out_dir) == 0:
+                mosaic_resume.discard(out_dir)  # nothing to resume: the directory is left as it was
+            raise
+        dtm = _terrain_entry(root, manifest, staging)
+        new = _manifest(manifest, record, records, dtm)
+        write_json_atomic(staging / MANIFEST_NAME, new)
+        mosaic_resume.discard(out_dir)  # the output is whole in staging; the commit only renames
+        output.commit()
+    return _summary(out_dir, settings, frames, used, new, time.perf_counter() - t0, kept)
+
+
+def _descent_build(source: str | os.PathLike) -> tuple[Path, ManifestJson, int]:
+    """Step 1: the source's absolute path, manifest and frames per descent.
+
+    Raises:
+        HdLabelsError: a mosaic dataset, or a build that is no descent build.
+    """
     root = Path(source).resolve()
     manifest = read_manifest(root)
     frames = manifest.get("descent_frames")
@@ -388,56 +498,72 @@ def mosaic_dataset(
             f"{root}: not a descent build (its manifest records no descent_frames); build one with "
             "`hd build-dataset --descent-frames K`"
         )
-    dem = settings.to_dem_spec()
-    used = settings.frame_indices(frames)
-    inputs: dict[str, str | os.PathLike | None] = {"the descent build": root}
-    output = OutputDir(out, what="mosaic", marker=MANIFEST_NAME, owns=is_mosaic_file, inputs=inputs)
-    out_dir = output.check(overwrite)
-    attrs = _file_attrs(manifest, settings, dem, used)
+    return root, manifest, frames
+
+
+def _finished_identical(out_dir: Path, record: Mapping[str, object]) -> ManifestJson | None:
+    """Step 2: the manifest of a finished mosaic dataset in ``out_dir`` of exactly these settings (its
+    ``mosaic`` record, the source's shards by sha256 included) with every file present, else None."""
+    try:
+        raw = json.loads(read_regular_text(out_dir / MANIFEST_NAME))
+        manifest = validate_manifest(raw, str(out_dir / MANIFEST_NAME))
+    except (ValueError, RecursionError, ShardFormatError):  # StorageError is a ValueError
+        return None
+    if manifest.get("kind") != MANIFEST_KIND_MOSAICS or manifest.get("mosaic") != json.loads(json.dumps(record)):
+        return None
+    path = manifest.get("dtm", {}).get("path")
+    files = [e["path"] for e in manifest["shards"]] + ([path] if path == MOSAIC_TERRAIN_NAME else [])
+    return manifest if all((out_dir / name).is_file() for name in files) else None
+
+
+def _run_mosaic_tasks(
+    tasks: list[MosaicTask],
+    total: int,
+    workers: int | None,
+    scheduler: str | None,
+    progress: Callable[[int, int], None] | None,
+) -> dict[int, MosaicShardRecord]:
+    """Step 3: every shard mosaicked (by position), ``progress`` told the descents done."""
     records: dict[int, MosaicShardRecord] = {}
     n_workers = max(1, workers if workers is not None else (os.cpu_count() or 1))
-    total = int(manifest["n_descents"])
-    with output.open(overwrite) as staging:
-        tasks = [
-            MosaicTask(
-                source=str(root),
-                entry=entry,
-                out_file=str(staging / _shard_name(i)),
-                frames=frames,
-                used=used,
-                poses=settings.poses,
-                dem=dem,
-                attrs=attrs,
-            )
-            for i, entry in enumerate(manifest["shards"])
-        ]
-        done = 0
+    done = 0
+    if progress:
+        progress(0, total)
+    for position, rec in run_tasks(run_mosaic_task, tasks, n_workers, scheduler):
+        records[position] = rec
+        done += int(rec.entry["n_scans"])
         if progress:
-            progress(0, total)
-        for position, rec in run_tasks(run_mosaic_task, tasks, n_workers, scheduler):
-            records[position] = rec
-            done += int(rec.entry["n_scans"])
-            if progress:
-                progress(done, total)
-        dtm = _terrain_entry(root, manifest, staging)
-        new = _manifest(manifest, settings, dem, frames, used, records, dtm, str(root))
-        write_json_atomic(staging / MANIFEST_NAME, new)
-        output.commit()
-    coverage = _coverage(out_dir, new)
-    moved = np.concatenate([r.corrections_m.ravel() for r in records.values()]) if records else np.zeros(0)
+            progress(done, total)
+    return records
+
+
+def _summary(
+    out_dir: Path,
+    settings: MosaicSettings,
+    frames: int,
+    used: tuple[int, ...],
+    manifest: ManifestJson,
+    seconds: float,
+    resumed: int,
+    already_done: bool = False,
+) -> MosaicSummary:
+    """Step 4: what was made, read from the output's shards (coverage and registration corrections)."""
+    coverage, moved = _coverage(out_dir, manifest)
     moved = moved[moved > 0]
     return MosaicSummary(
         out=str(out_dir),
         poses=settings.poses,
-        n_mosaics=int(new["n_scans"]),
+        n_mosaics=int(manifest["n_scans"]),
         descent_frames=frames,
         frames=used,
-        n_shards=len(records),
+        n_shards=len(manifest["shards"]),
         sigmas_m=tuple(float(s) for s in manifest["sigmas_m"]),
-        splits=dict(new["splits"]),
+        splits=dict(manifest["splits"]),
         coverage=coverage,
         median_correction_m=float(np.median(moved)) if settings.poses == "registered" and moved.size else None,
-        seconds=time.perf_counter() - t0,
+        seconds=seconds,
+        resumed_descents=resumed,
+        already_done=already_done,
     )
 
 
@@ -477,15 +603,36 @@ def _terrain_entry(root: Path, manifest: ManifestJson, staging: Path) -> DtmJson
     return dtm | {"path": MOSAIC_TERRAIN_NAME, "size_bytes": (staging / MOSAIC_TERRAIN_NAME).stat().st_size}
 
 
-def _manifest(
+def _mosaic_record(
     source: ManifestJson,
     settings: MosaicSettings,
     dem: DemSpec,
     frames: int,
     used: tuple[int, ...],
+    source_dir: str,
+) -> MosaicJson:
+    """The manifest's ``mosaic`` record: the source (by its shards' sha256) and the settings."""
+    return {
+        "source": {
+            "path": source_dir,
+            "n_descents": source["n_descents"],
+            "descent_frames": frames,
+            "config_sha256": source.get("config_sha256"),
+            "shards_sha256": [s["sha256"] for s in source["shards"]],
+        },
+        "poses": settings.poses,
+        "frames": list(used),
+        "anchor_frame": used[-1],
+        "dem": dem.to_entry(),
+        "icp_voxels_m": list(ICP_VOXELS_M),
+    }
+
+
+def _manifest(
+    source: ManifestJson,
+    record: MosaicJson,
     records: dict[int, MosaicShardRecord],
     dtm: DtmJson,
-    source_dir: str,
 ) -> ManifestJson:
     shards = [records[i].entry for i in sorted(records)]
     splits = {name: sum(int(s["split_counts"][name]) for s in shards) for name in SPLIT_NAMES}
@@ -501,35 +648,25 @@ def _manifest(
         "config_sha256": source.get("config_sha256"),
         "config": source["config"],  # every scan build records it
         "dtm": dtm,
-        "mosaic": {
-            "source": {
-                "path": source_dir,
-                "n_descents": source["n_descents"],
-                "descent_frames": frames,
-                "config_sha256": source.get("config_sha256"),
-                "shards_sha256": [s["sha256"] for s in source["shards"]],
-            },
-            "poses": settings.poses,
-            "frames": list(used),
-            "anchor_frame": used[-1],
-            "dem": dem.to_entry(),
-            "icp_voxels_m": list(ICP_VOXELS_M),
-        },
+        "mosaic": record,
         "splits": splits,
         "shards": shards,
         "labelings": [],
     }
 
 
-def _coverage(out_dir: Path, manifest: ManifestJson) -> float:
-    """Mean fraction of DEM cells with a clean mosaic height."""
+def _coverage(out_dir: Path, manifest: ManifestJson) -> tuple[float, np.ndarray]:
+    """Mean fraction of DEM cells with a clean mosaic height, and every frame's registration
+    correction (translation, metres; zero where none was applied)."""
     valid = cells = 0
+    moved = [np.zeros(0)]
     for entry in manifest["shards"]:
         with open_scan_shard(out_dir, entry) as reader:
             v = reader.h5["valid"][:]
             valid += int(v.sum())
             cells += v.size
-    return valid / max(1, cells)
+            moved.append(np.linalg.norm(reader.h5["registration_correction"][:][..., :3, 3], axis=-1).ravel())
+    return valid / max(1, cells), np.concatenate(moved)
 
 
 def mosaic_dem_entry(manifest: ManifestJson) -> Mapping[str, object] | None:

@@ -25,10 +25,12 @@ The dataset records its DTM in the manifest (``dtm``: path, sha256, scale in ``c
 the procedural terrain inside the dataset (``terrain/``), a user's DTM by its absolute path. A DTM
 that is missing or whose bytes changed is refused with one line (:func:`check_build_terrain`),
 except the procedural terrain, which is regenerated from the build's seed and parameters when that
-gives the recorded sha256 (``lidarsim.build.restore_procedural_terrain``). The terrain is checked
-again for every label shard, as it is read (:func:`labelled_terrain`): a DTM replaced or changed
-while a dataset is labelled stops the labelling before a shard of another terrain is written. Each
-shard records the sha256 it was labelled from (``truth_dtm_sha256``, ``docs/labels-format.md``).
+gives the recorded sha256 (``lidarsim.build.restore_procedural_terrain``). The terrain is hashed
+once per labelling (:func:`verified_build_terrain`) and checked again for every label shard, as it
+is read (:func:`labelled_terrain`): by its identity (device, inode, size, modification and change
+times) before and after the shard, hashed again when that changed. A DTM replaced or changed while
+a dataset is labelled stops the labelling before a shard of another terrain is written. Each shard
+records the sha256 it was labelled from (``truth_dtm_sha256``, ``docs/labels-format.md``).
 """
 
 from __future__ import annotations
@@ -42,12 +44,12 @@ from pathlib import Path
 import numpy as np
 
 from hdcore.errors import HdError
-from hdcore.storage import confine, sha256_file
+from hdcore.storage import confine
 from hdlabels import defaults
 from hdlabels.grid import cell_centres, grid_points
 from hdlabels.store import DemSpec, LabelStoreError
 from lidarsim.manifest_json import ManifestJson
-from lidarsim.terrain import DTM
+from lidarsim.terrain import DTM, dtm_sha256, gdal_side_files
 
 # Griddings whose DEM value is the height at the cell centre when a sample lies there.
 CENTRE_GRIDDINGS: tuple[str, ...] = ("nearest", "linear")
@@ -104,17 +106,19 @@ def check_build_terrain(root: Path, manifest: ManifestJson) -> tuple[Path, str, 
     return path, recorded, scale
 
 
-def _identity(path: str | os.PathLike, dataset: str) -> tuple[int, ...]:
+def terrain_identity(path: str | os.PathLike, dataset: str) -> tuple[int, ...]:
     """What tells one file from another and a file from its changed self: device, inode, size,
-    modification and change times (the change time is set by the kernel on every write)."""
+    modification and change times (the change time is set by the kernel on every write), of the DTM
+    and of each side file GDAL reads with it (``lidarsim.terrain.gdal_side_files``)."""
     try:
-        st = os.stat(path)
+        files = (Path(path), *gdal_side_files(path))
+        stats = [os.stat(f) for f in files]
     except OSError as exc:
         raise LabelStoreError(
             f"{path}: the terrain {dataset} was built on went missing while it was labelled ({exc.strerror}); "
             "restore it and re-run the same command"
         ) from exc
-    return (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
+    return tuple(v for st in stats for v in (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns))
 
 
 def _terrain_digest(path: str | os.PathLike, dataset: str) -> str:
@@ -124,7 +128,7 @@ def _terrain_digest(path: str | os.PathLike, dataset: str) -> str:
         LabelStoreError: the file cannot be read.
     """
     try:
-        return sha256_file(path)
+        return dtm_sha256(path)
     except HdError as exc:
         raise LabelStoreError(f"{path}: the terrain {dataset} was built on cannot be read ({exc})") from exc
 
@@ -141,24 +145,44 @@ def _check_digest(path: str | os.PathLike, sha256: str, dataset: str) -> None:
 
 
 @contextmanager
-def labelled_terrain(path: str | os.PathLike, sha256: str, scale: float, dataset: str) -> Iterator[DTM]:
+def labelled_terrain(
+    path: str | os.PathLike,
+    sha256: str,
+    scale: float,
+    dataset: str,
+    identity: tuple[int, ...] | None = None,
+) -> Iterator[DTM]:
     """The build's DTM, open (at the build's scale) while one label shard is made, checked as it is read.
 
-    Its sha256 must be the build's record (``sha256``) before it is opened; when the shard's scans are
-    labelled and the file at ``path`` is no longer the one that was hashed (device, inode, size,
-    modification or change time differ: replaced, or written in place), it is hashed again and must
-    still be. A terrain replaced or changed during a labelling therefore stops it before a shard of
-    another terrain is written. ``dataset`` names the dataset in messages.
+    Its sha256 must be the build's record (``sha256``) before it is opened, unless the file is still
+    the one the labelling hashed (``identity``, :func:`verified_build_terrain`'s: device, inode, size,
+    modification and change times), so that a labelling hashes its DTM once, not once per shard. When
+    the shard's scans are labelled and the file at ``path`` is no longer the one opened (replaced, or
+    written in place), it is hashed again and must still be the build's. A terrain replaced or
+    changed during a labelling therefore stops it before a shard of another terrain is written.
+    ``dataset`` names the dataset in messages.
 
     Raises:
         LabelStoreError: one line naming the DTM: changed, missing or unreadable while labelled.
     """
-    before = _identity(path, dataset)
-    _check_digest(path, sha256, dataset)
+    before = terrain_identity(path, dataset)
+    if identity is None or tuple(identity) != before:
+        _check_digest(path, sha256, dataset)
     with DTM.open(path, scale=scale) as dtm:
         yield dtm
-    if _identity(path, dataset) != before:
+    if terrain_identity(path, dataset) != before:
         _check_digest(path, sha256, dataset)
+
+
+def verified_build_terrain(root: Path, manifest: ManifestJson) -> tuple[Path, str, float, tuple[int, ...] | None]:
+    """:func:`check_build_terrain`, and the identity of the file it hashed (:func:`terrain_identity`;
+    None when the file changed while it was hashed, or was regenerated): the label shards then read
+    the DTM without hashing it again while it is still that file (:func:`labelled_terrain`)."""
+    path, _, _ = build_terrain_path(root, manifest)
+    before = terrain_identity(path, root.name) if path.is_file() else None
+    path, sha256, scale = check_build_terrain(root, manifest)
+    after = terrain_identity(path, root.name)
+    return path, sha256, scale, (after if after == before else None)
 
 
 def samples_per_cell(dem_spacing_m: float, dtm_spacing_m: float, gridding: str = "mean") -> int:

@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from hdcore.errors import HdError, OutputExistsError
-from hdcore.storage import atomic_path, check_not_input, check_output_file, sha256_file
+from hdcore.storage import atomic_path, check_not_input, check_output_file
 from hdlabels.split_summary import SplitSummary, split_summary
 from hdlabels.store import LabelingEntry, LabelStoreError, find_labeling
 from hdlabels.truth import build_terrain_path
@@ -38,7 +38,7 @@ from hdnet.errors import HdNetError
 from lidarsim.map_window import MapWindow, window_cells
 from lidarsim.scan_summary import HEIGHT_SAMPLE_SCANS, ScanSummary, height_sample, scan_summary
 from lidarsim.shards import SPLIT_NAMES, read_manifest
-from lidarsim.terrain import DTM
+from lidarsim.terrain import DTM, dtm_sha256
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -191,7 +191,7 @@ def _backdrop(root: Path, scans: ScanSummary) -> tuple[Backdrop | None, str]:
     if not path.is_file():
         return None, f"terrain not shown: {path} is not there"
     try:
-        if sha256_file(path) != recorded:
+        if dtm_sha256(path) != recorded:
             return None, f"terrain not shown: {path.name} changed since the build (its sha256 is not the manifest's)"
         with DTM.open(path) as dtm:
             info = dtm.info

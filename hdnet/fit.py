@@ -42,7 +42,7 @@ from hdcore.storage import (
 from hdlabels.store import LabelingEntry
 from hdnet import defaults, limits
 from hdnet.augment import check_augment
-from hdnet.checkpoint_json import EpochProgress
+from hdnet.checkpoint_json import CheckpointJson, EpochProgress
 from hdnet.data import (
     HazardDataset,
     MixedDataset,
@@ -55,7 +55,7 @@ from hdnet.inputs import InputSpec, Normalisation
 from hdnet.noise_levels import TrainingNoise
 from hdnet.profiles import PROFILES, TrainingProfile, get_profile
 from hdnet.run_check import RUN_FILES, check_run
-from hdnet.run_record import CONFIG, RUN_SCHEMA, AlsoDataset, TrainingData, checkpoint_data
+from hdnet.run_record import CONFIG, RUN_SCHEMA, AlsoDataset, TrainingData, checkpoint_data, schedule_refusal
 from hdnet.train import LAST, load_checkpoint, train
 from lidarsim import limits as lidar_limits
 from lidarsim.location import dataset_key, dataset_label, has_manifest, is_url, manifest_sha256
@@ -393,8 +393,8 @@ def already_trained(dataset_dir: str | os.PathLike, run_dir: str | os.PathLike, 
     )
 
 
-def _recorded_data(last: Path) -> TrainingData:
-    """The training data the checkpoint ``last`` records (its content checked first).
+def _recorded_data(last: Path) -> tuple[TrainingData, CheckpointJson]:
+    """The training data the checkpoint ``last`` records (its content checked first), and the checkpoint.
 
     Raises:
         HdNetError: a damaged checkpoint, or one that records no training data of ``hdnet.fit``.
@@ -402,16 +402,23 @@ def _recorded_data(last: Path) -> TrainingData:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", HdWarning)  # said once, by the training that loads it next
         ckpt = load_checkpoint(last)
-    return checkpoint_data(ckpt, last)
+    return checkpoint_data(ckpt, last), ckpt
 
 
 def check_resumed_data(
-    run_dir: Path, dataset_dir: str | os.PathLike, entry: LabelingEntry, noise: TrainingNoise, also: tuple[str, ...]
+    run_dir: Path,
+    dataset_dir: str | os.PathLike,
+    entry: LabelingEntry,
+    noise: TrainingNoise,
+    also: tuple[str, ...],
+    schedule: tuple[TrainingProfile, int, int] | None = None,
 ) -> None:
     """Refuse to resume the run at ``run_dir`` on other data than its ``last.pt`` records, before any
     data is read: the dataset (path and manifest sha256), the ``--also`` datasets, the labelling
-    (``entry``, its manifest entry) and the training noise. ``hdnet.train.train`` compares the whole
-    record (input preparation included) again when it loads the checkpoint.
+    (``entry``, its manifest entry) and the training noise; with ``schedule`` (profile, seed, total
+    epochs), also another seed or total than the run's (``hdnet.run_record.schedule_refusal``).
+    ``hdnet.train.train`` compares the whole record (input preparation included) again when it
+    loads the checkpoint.
 
     Raises:
         HdNetError: naming what differs, as recorded and as given, and what to do instead.
@@ -419,7 +426,7 @@ def check_resumed_data(
     labels = entry.name
     for other in also:
         open_labeling(other, labels)  # the clear "not a dataset" or "no such labelling" first
-    recorded = _recorded_data(run_dir / LAST)
+    recorded, ckpt = _recorded_data(run_dir / LAST)
     given = dataclasses.replace(
         recorded,
         dataset=dataset_key(dataset_dir),
@@ -432,6 +439,13 @@ def check_resumed_data(
     difference = recorded.difference(given)
     if difference is not None:
         raise HdNetError(difference.resume_refusal(run_dir))
+    if schedule is not None:
+        profile, seed, epochs = schedule
+        done = ckpt.get("epoch")
+        done = done if isinstance(done, int) else 0  # hdnet.train.train names a damaged epoch
+        refusal = schedule_refusal(run_dir, ckpt.get("seed"), done, profile.extendable, (seed, epochs))
+        if refusal is not None:
+            raise HdNetError(refusal)
 
 
 def fit(dataset_dir: str | os.PathLike, run_dir: str | os.PathLike, config: FitConfig | None = None) -> Path:
@@ -455,7 +469,8 @@ def fit(dataset_dir: str | os.PathLike, run_dir: str | os.PathLike, config: FitC
     entry, paths = open_labeling(dataset_dir, labels)  # the clear "no labels" error first
     noise = training_noise(cfg.train_noise, cfg.train_sigma_m, profile, dataset_sigmas(paths, entry.first_sha256))
     if resume and not overwrite and (run_path / LAST).exists():
-        check_resumed_data(run_path, dataset_dir, entry, noise, tuple(cfg.also))
+        epochs = profile.epochs if cfg.epochs is None else int(cfg.epochs)
+        check_resumed_data(run_path, dataset_dir, entry, noise, tuple(cfg.also), (profile, cfg.seed, epochs))
     train_sigma_m = reference_sigma(noise, dataset_sigmas(paths, entry.first_sha256))
     check_augment(profile.augment, entry.lander)
     normalisation = (

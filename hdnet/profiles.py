@@ -159,6 +159,13 @@ class TrainingProfile:
             return _cosine_between(start, self.lr, t / ONECYCLE_PCT_START)
         return _cosine_between(self.lr, end, (t - ONECYCLE_PCT_START) / (1.0 - ONECYCLE_PCT_START))
 
+    @property
+    def extendable(self) -> bool:
+        """True when the learning rate does not depend on the run's total of epochs (the constant
+        schedule): a run of N epochs is then the first N epochs of any longer run, and a resumed
+        run may raise its total (``hdnet.run_record.schedule_refusal``)."""
+        return self.lr_schedule == "constant"
+
     def model_config(self, in_channels: int) -> ModelConfig:
         """The SegNet this profile trains on inputs of ``in_channels`` channels (width, depth, dropout)."""
         return ModelConfig(in_channels=in_channels, width=self.width, depth=self.depth, dropout_p=self.dropout_p)

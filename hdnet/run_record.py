@@ -62,6 +62,7 @@ __all__ = [
     "json_difference",
     "migrate",
     "read_run_record",
+    "schedule_refusal",
     "unfinished_training",
     "write_run_record",
 ]
@@ -428,6 +429,49 @@ def read_run_record(run_dir: str | os.PathLike) -> RunRecord:
     except (ValueError, RecursionError) as exc:  # StorageError and JSONDecodeError are ValueErrors
         raise HdNetError(f"{path}: unreadable run config ({exc}).") from exc
     return RunRecord.from_dict(raw, str(path))
+
+
+def schedule_refusal(
+    run_dir: str | os.PathLike,
+    recorded_seed: object,
+    epochs_done: int,
+    extendable: bool,
+    given: tuple[int, int],
+) -> str | None:
+    """The one line that refuses to resume the run at ``run_dir`` (``epochs_done`` epochs trained,
+    with the seed ``recorded_seed``) with the ``given`` (seed, total of epochs); None when the resume
+    may go on.
+
+    Refused: another seed than the checkpoint's (``config.json``'s for checkpoints that record none);
+    a total below the epochs done; another total than ``config.json``'s when the schedule is not
+    ``extendable`` (``TrainingProfile.extendable``: a learning rate that depends on the total, so the
+    epochs done would belong to another schedule than the rest, a run neither of the old total nor
+    of the new one). A constant rate's run of N epochs is the first N epochs of a longer one, so there
+    a resume may raise the total (the record then says the new total). The total is not compared
+    when ``config.json`` is missing or unreadable (the resume writes it again).
+    """
+    seed, epochs = given
+    record: RunRecord | None = None
+    if (Path(run_dir) / CONFIG).is_file():
+        with contextlib.suppress(HdNetError, StorageError):
+            record = read_run_record(run_dir)
+    if not isinstance(recorded_seed, int) or isinstance(recorded_seed, bool):
+        recorded_seed = None if record is None else record.seed
+    new_run = f"train a new run of {epochs} epochs (another --out), or start this one again (--overwrite)"
+    if recorded_seed is not None and recorded_seed != seed:
+        return (
+            f"{run_dir} cannot be resumed with --seed {seed}: it was trained with seed {recorded_seed}; resume it "
+            f"with --seed {recorded_seed}, or train a new run (another --out), or start this one again (--overwrite)."
+        )
+    if epochs < epochs_done:
+        done = f"it has trained {epochs_done} epochs already"
+        return f"{run_dir} cannot be resumed with --epochs {epochs}: {done}; {new_run}."
+    if record is not None and record.epochs != epochs and not extendable:
+        return (
+            f"{run_dir} cannot be resumed with --epochs {epochs}: its learning-rate schedule spans "
+            f"{record.epochs} epochs; finish it with --epochs {record.epochs}, or {new_run}."
+        )
+    return None
 
 
 def unfinished_training(checkpoint: str | os.PathLike, epoch: int) -> str | None:

@@ -67,7 +67,7 @@ from hdnet.errors import HdNetError
 from hdnet.model import MODEL_NAME, BayesianSegNet, ModelConfig
 from hdnet.profiles import TrainingProfile, profile_from_dict
 from hdnet.run_files import BEST, LAST, METRICS  # and CONFIG, the run record (hdnet.run_record)
-from hdnet.run_record import RunRecord, extra_difference, write_run_record
+from hdnet.run_record import RunRecord, extra_difference, schedule_refusal, write_run_record
 
 CHECKPOINT_SCHEMA = "hdnet.checkpoint"
 CHECKPOINT_VERSION = 2
@@ -436,7 +436,7 @@ def train(
     model_config = profile.model_config(in_channels)
     class_weights = _class_weights(profile, class_weights, train_ds, model_config.n_classes)
     last = run_dir / LAST
-    ckpt = _checkpoint_to_resume(run_dir, resume, model_config, profile, rank, extra)
+    ckpt = _checkpoint_to_resume(run_dir, resume, model_config, profile, rank, extra, (seed, total_epochs))
     state = _start(profile, model_config, ckpt, class_weights, seed, rank, device, last)
     net: nn.Module = state.model
     if world > 1:
@@ -568,10 +568,12 @@ def _checkpoint_to_resume(
     profile: TrainingProfile,
     rank: int,
     extra: JsonObject,
+    schedule: tuple[int, int],
 ) -> CheckpointJson | None:
     """Step 3: the run's ``last.pt`` when resuming (None when there is none); refused without ``resume``,
-    when it was trained with another model or profile, or when its ``extra_config`` (the data it was
-    trained on) is not ``extra``: the run record written next would say it was trained on them."""
+    when it was trained with another model or profile, when its ``extra_config`` (the data it was
+    trained on) is not ``extra`` (the run record written next would say it was trained on them), or
+    with another seed or total of epochs than ``schedule`` (``hdnet.run_record.schedule_refusal``)."""
     last = run_dir / LAST
     if not last.exists():
         return None
@@ -590,6 +592,9 @@ def _checkpoint_to_resume(
     if difference is not None:
         raise HdNetError(difference.resume_refusal(run_dir))
     _check_training_state(ckpt, last)
+    refusal = schedule_refusal(run_dir, ckpt.get("seed"), int(ckpt["epoch"]), profile.extendable, schedule)
+    if refusal is not None:
+        raise HdNetError(refusal)
     if rank == 0:
         _reconcile_run(run_dir, ckpt)
     return ckpt

@@ -85,7 +85,7 @@ from lidarsim.shards import (
     write_json_atomic,
 )
 from lidarsim.streams import Purpose, stream
-from lidarsim.terrain import DTM
+from lidarsim.terrain import DTM, dtm_sha256
 from lidarsim.trajectory import ScanPlan, TrajectoryConfig, plan_scans
 from lidarsim.weak_inputs import coarse_dtm_message, overlap_message, split_overlap
 
@@ -673,7 +673,7 @@ def finished_identical(out_dir: Path, config: BuildConfig) -> ManifestJson | Non
         return None
     if config.dtm_path is not None and not config.rocks_on_dtm:
         recorded_sha = manifest.get("dtm", {}).get("sha256")
-        if not Path(config.dtm_path).is_file() or sha256_file(config.dtm_path) != recorded_sha:
+        if not Path(config.dtm_path).is_file() or dtm_sha256(config.dtm_path) != recorded_sha:
             return None
     return manifest
 

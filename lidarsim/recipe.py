@@ -503,13 +503,13 @@ def check_recipe_dtm(recipe: Recipe) -> None:
 
 def _check_dtm_sha256(recipe_path: Path, dtm_path: Path, expected: object) -> None:
     """Refuse a recipe DTM whose bytes are not the ones the recipe names (``dtm_sha256``)."""
-    from hdcore.storage import sha256_file
+    from lidarsim.terrain import dtm_sha256  # rasterio, only when a recipe names its DTM
 
     if not isinstance(expected, str) or len(expected) != 64:
         raise RecipeError(f"{recipe_path}: [build] dtm_sha256 must be 64 hex digits, got {expected!r}")
     if not dtm_path.is_file():
         raise RecipeError(f"{recipe_path}: the recipe's DTM {dtm_path} does not exist")
-    actual = sha256_file(dtm_path)
+    actual = dtm_sha256(dtm_path)
     if actual != expected.lower():
         raise RecipeError(
             f"{recipe_path}: the DTM {dtm_path} has sha256 {actual[:12]}..., the recipe names {expected[:12]}...: "

@@ -24,6 +24,7 @@ import math
 import os
 import warnings
 from dataclasses import dataclass
+from pathlib import Path
 from types import TracebackType
 from typing import Any
 
@@ -38,7 +39,49 @@ from lidarsim.defaults import HIRISE_NULL
 from lidarsim.errors import TerrainError
 from lidarsim.manifest_json import DtmJson
 
-__all__ = ["DTM", "DTMInfo", "TerrainError", "invalid_mask"]
+__all__ = ["DTM", "DTMInfo", "TerrainError", "dtm_sha256", "gdal_side_files", "invalid_mask"]
+
+
+def _side_files(files: list[str], apath: str) -> tuple[Path, ...]:
+    """The files of a GDAL dataset's file list other than ``apath`` itself, absolute and sorted."""
+    return tuple(sorted({Path(os.path.abspath(f)) for f in files} - {Path(apath)}))
+
+
+def gdal_side_files(path: str | os.PathLike[str]) -> tuple[Path, ...]:
+    """The files GDAL reads with the raster at ``path`` besides it (rasterio's ``dataset.files``:
+    a ``.aux.xml``, a world file or ``.prj`` where the raster has no georeferencing of its own, an
+    ``.ovr``, a PDS3 detached label or its data file), absolute and sorted; none when GDAL cannot
+    open it (the raster's own error comes when it is opened)."""
+    apath = os.path.abspath(os.fspath(path))
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            with rasterio.open(apath) as src:
+                return _side_files(list(src.files), apath)
+    except (RasterioIOError, RasterioError):
+        return ()
+
+
+def dtm_sha256(path: str | os.PathLike[str], side_files: tuple[Path, ...] | None = None) -> str:
+    """The digest hd records for a DTM file (hex): the sha256 of its bytes when GDAL reads no other
+    file for it (so the digests of such DTMs, the recipes' included, are those of their bytes, as
+    before side files counted); else the sha256 of the lines ``SHA256  NAME\n`` of the file and of
+    each side file (:func:`gdal_side_files`, or ``side_files``), names relative to the DTM's folder,
+    the DTM first: a changed ``.aux.xml`` or world file changes the digest.
+
+    Raises:
+        StorageError: a file that cannot be read.
+    """
+    apath = os.path.abspath(os.fspath(path))
+    own = sha256_file(apath)
+    sides = gdal_side_files(apath) if side_files is None else side_files
+    if not sides:
+        return own
+    folder = os.path.dirname(apath)
+    lines = [f"{own}  {os.path.basename(apath)}"]
+    lines += [f"{sha256_file(side)}  {os.path.relpath(side, folder)}" for side in sides]
+    return sha256_bytes("".join(f"{line}\n" for line in lines).encode())
+
 
 # Rotation/shear terms smaller than this fraction of the pixel size are treated as zero.
 _ROTATION_TOLERANCE = 1e-9
@@ -301,10 +344,11 @@ class DTM:
 
     # ------------------------------------------------------------------ provenance
     def sha256(self) -> str:
-        """SHA-256 hex digest of the file bytes (streamed; cached)."""
+        """The DTM's digest (:func:`dtm_sha256`: its bytes' SHA-256, with the side files GDAL read
+        for it when there are any; streamed; cached)."""
         if self._sha256 is None:
             try:
-                self._sha256 = sha256_file(self.info.path)
+                self._sha256 = dtm_sha256(self.info.path, _side_files(list(self._src.files), self.info.path))
             except StorageError as exc:
                 raise type(exc)(f"{self.info.path}: cannot be read for hashing ({exc})") from exc
         return self._sha256

@@ -3,9 +3,11 @@ trains and maps like a scan, placed where the navigation put it and scored where
 
 from __future__ import annotations
 
+import importlib
 import json
 import warnings
 from pathlib import Path
+from typing import Any
 
 import h5py
 import numpy as np
@@ -18,6 +20,7 @@ from hdcore.errors import HdWarning
 from hdlabels.grid import grid_points
 from hdlabels.mosaic import descent_frames, mosaic_frames, navigation_error, placed_points, terrain_residual
 from hdlabels.mosaic_dataset import MosaicSettings, cell_points, clean_mosaic, in_mosaic_frame, mosaic_dataset
+from hdlabels.mosaic_resume import RESUME_DIR
 from hdlabels.store import DemSpec, iter_labeled_scans
 from hdlabels.truth import terrain_dem
 from lidarsim.build import build_dataset
@@ -150,6 +153,109 @@ def test_mosaics_are_the_same_bytes_with_any_worker_count(built: tuple[Path, Pat
     assert read_manifest(out)["shards"] == read_manifest(tmp_path / "two")["shards"]
 
 
+class Killed(Exception):
+    """The stand-in for a kill (SIGTERM is raised as an exception too)."""
+
+
+def _kill_after(monkeypatch: pytest.MonkeyPatch, n: int) -> list[int]:
+    """Make the mosaicking of descents fail after ``n`` descents; returns the list of descents made."""
+    module = importlib.import_module("hdlabels.mosaic_dataset")
+    real = module.descent_mosaics
+    made: list[int] = []
+
+    def counting(*args: Any, **kwargs: Any) -> Any:
+        if len(made) >= n:
+            raise Killed("killed")
+        made.append(1)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(module, "descent_mosaics", counting)
+    return made
+
+
+def _files(d: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in d.iterdir() if p.is_file()}
+
+
+def test_a_killed_mosaic_resumes_per_descent_to_the_same_bytes(
+    built: tuple[Path, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """hd mosaic started again from nothing after a kill; now the descents done are kept and the
+    output is byte for byte an uninterrupted run's."""
+    source, out = built
+    settings = MosaicSettings(dem_size=DEM_SIDE, convention="paper")
+    new = tmp_path / "m"
+    made = _kill_after(monkeypatch, 3)
+    with pytest.raises(Killed):
+        mosaic_dataset(source, new, settings, workers=1)
+    assert not (new / "manifest.json").exists() and not list(new.glob("mosaics-*.h5"))
+    kept = sorted(p.name for p in (new / RESUME_DIR).glob("*.npz"))
+    assert kept == ["mosaics-00000.d000000.npz", "mosaics-00000.d000001.npz", "mosaics-00000.d000002.npz"]
+    (new / ".mosaic.partial-1").mkdir()  # what a SIGKILL leaves: a staging directory, a partial descent
+    (new / RESUME_DIR / ".mosaics-00000.d000003.npz.partial-1").write_bytes(b"half")
+    made.clear()
+    monkeypatch.undo()
+    made = _kill_after(monkeypatch, 4)
+    summary = mosaic_dataset(source, new, settings, workers=1)
+    assert len(made) == 1 and summary.resumed_descents == 3 and summary.n_mosaics == 4
+    assert "3 descents kept from the interrupted run" in summary.paragraph()
+    assert (new / "mosaics-00000.h5").read_bytes() == (out / "mosaics-00000.h5").read_bytes()
+    assert read_manifest(new)["shards"] == read_manifest(out)["shards"]
+    assert read_manifest(new)["mosaic"] == read_manifest(out)["mosaic"]
+    assert sorted(p.name for p in new.iterdir()) == ["manifest.json", "mosaics-00000.h5"]
+
+
+def test_a_damaged_kept_descent_is_made_again(
+    built: tuple[Path, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    source, out = built
+    settings = MosaicSettings(dem_size=DEM_SIDE, convention="paper")
+    new = tmp_path / "m"
+    _kill_after(monkeypatch, 2)
+    with pytest.raises(Killed):
+        mosaic_dataset(source, new, settings, workers=1)
+    damaged = new / RESUME_DIR / "mosaics-00000.d000001.npz"
+    data = bytearray(damaged.read_bytes())
+    data[len(data) // 2] ^= 0xFF  # inside an array: its CRC-32 fails
+    damaged.write_bytes(bytes(data))
+    monkeypatch.undo()
+    made = _kill_after(monkeypatch, 4)
+    summary = mosaic_dataset(source, new, settings, workers=1)
+    assert len(made) == 3 and summary.resumed_descents == 2
+    assert (new / "mosaics-00000.h5").read_bytes() == (out / "mosaics-00000.h5").read_bytes()
+
+
+def test_a_finished_mosaic_says_so_and_other_settings_are_refused_unless_overwritten(
+    built: tuple[Path, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    source, _ = built
+    new = tmp_path / "m"
+    args = ["mosaic", str(source), "--out", str(new), "--workers", "1", *GRID]
+    assert CliRunner().invoke(main, args).exit_code == 0
+    before = _files(new)
+    again = CliRunner().invoke(main, args)
+    assert again.exit_code == 0, again.output
+    assert "already holds this mosaic dataset, made with the same settings (4 mosaics in 1 shard)" in again.output
+    assert _files(new) == before
+    # an unfinished run of other settings: refused in one line, kept; --overwrite starts again
+    other = tmp_path / "o"
+    _kill_after(monkeypatch, 1)
+    with pytest.raises(Killed):
+        mosaic_dataset(source, other, MosaicSettings(dem_size=DEM_SIDE, convention="paper", poses="nav"), workers=1)
+    monkeypatch.undo()
+    kept = _files(other / RESUME_DIR)
+    refused = CliRunner().invoke(main, ["mosaic", str(source), "--out", str(other), "--workers", "1", *GRID])
+    assert refused.exit_code == 1 and len(refused.output.strip().splitlines()) == 1, refused.output
+    assert 'unfinished hd mosaic with other settings (poses "nav" -> "registered")' in refused.output
+    assert _files(other / RESUME_DIR) == kept
+    replaced = CliRunner().invoke(
+        main, ["mosaic", str(source), "--out", str(other), "--workers", "1", *GRID, "--overwrite"]
+    )
+    assert replaced.exit_code == 0, replaced.output
+    assert (other / "mosaics-00000.h5").read_bytes() == before["mosaics-00000.h5"]
+    assert not (other / RESUME_DIR).exists()
+
+
 def test_a_mosaic_dataset_trains_only_on_its_stored_noise_levels(built: tuple[Path, Path], tmp_path: Path) -> None:
     _, out = built
     CliRunner().invoke(main, ["label", str(out), *GRID])
@@ -177,7 +283,7 @@ def test_mosaic_refuses_what_is_not_a_descent_build(built: tuple[Path, Path], tm
     result = CliRunner().invoke(main, ["mosaic", str(source), "--out", str(tmp_path / "busy"), *GRID])
     assert result.exit_code == 1 and "holds no hd mosaic output" in result.output
     assert sorted(p.name for p in (tmp_path / "busy").iterdir()) == ["notes.txt"]
-    again = CliRunner().invoke(main, ["mosaic", str(source), "--out", str(out), *GRID])
+    again = CliRunner().invoke(main, ["mosaic", str(source), "--out", str(out), *GRID, "--poses", "nav"])
     assert again.exit_code == 1 and "pass --overwrite" in again.output
     inside = CliRunner().invoke(main, ["mosaic", str(source), "--out", str(source), *GRID])
     assert inside.exit_code == 1 and "descent build" in inside.output

@@ -108,6 +108,49 @@ def test_resume_with_another_extra_config_is_refused_and_the_record_kept(tmp_pat
     assert load_checkpoint(run / "last.pt")["epoch"] == 2
 
 
+def test_resume_with_another_seed_is_refused_and_the_record_kept(tmp_path: Path) -> None:
+    """train(resume=True, seed=other) continued the run from its checkpoint's RNG states and wrote the
+    other seed into config.json: a record of a training that never happened."""
+    tr, va = _datasets()
+    run = tmp_path / "r"
+    train(run, tr, va, PROFILE, epochs=1, seed=3, progress=False)
+    before = {p.name: p.read_bytes() for p in run.iterdir()}
+    with pytest.raises(HdNetError, match=r"cannot be resumed with --seed 4: it was trained with seed 3; .*--seed 3"):
+        train(run, tr, va, PROFILE, epochs=2, seed=4, resume=True, progress=False)
+    assert {p.name: p.read_bytes() for p in run.iterdir()} == before
+
+
+def test_a_changed_total_is_refused_where_the_schedule_spans_it(tmp_path: Path) -> None:
+    """A cosine schedule's rates depend on the total: 2 epochs of a 2-epoch run are not the first 2
+    of a 3-epoch run, so --epochs 3 on it is refused (the record kept) and --epochs 2 finishes it."""
+    tr, va = _datasets()
+    cosine = replace(PROFILE, lr_schedule="cosine")
+    assert cosine.learning_rate(1, 2) != cosine.learning_rate(1, 3) and not cosine.extendable
+    run = tmp_path / "r"
+    train(run, tr, va, cosine, epochs=2, progress=False, stop_after=1)
+    before = {p.name: p.read_bytes() for p in run.iterdir()}
+    with pytest.raises(HdNetError, match=r"--epochs 3: its learning-rate schedule spans 2 epochs; finish it with"):
+        train(run, tr, va, cosine, epochs=3, resume=True, progress=False)
+    assert {p.name: p.read_bytes() for p in run.iterdir()} == before
+    train(run, tr, va, cosine, epochs=2, resume=True, progress=False)
+    assert load_checkpoint(run / "last.pt")["epoch"] == 2
+
+
+def test_a_constant_rate_run_may_be_extended_but_not_cut_below_its_epochs(tmp_path: Path) -> None:
+    """With a constant rate a run of 1 epoch is the first epoch of a run of 2 (the exact resume
+    test above): raising the total is a resume, recorded as the new total; a total below the epochs
+    already trained is refused."""
+    tr, va = _datasets()
+    assert PROFILE.extendable
+    run = tmp_path / "r"
+    train(run, tr, va, PROFILE, epochs=2, progress=False)
+    with pytest.raises(HdNetError, match=r"--epochs 1: it has trained 2 epochs already; train a new run of 1"):
+        train(run, tr, va, PROFILE, epochs=1, resume=True, progress=False)
+    train(run, tr, va, PROFILE, epochs=3, resume=True, progress=False)
+    assert json.loads((run / "config.json").read_text())["epochs"] == 3
+    assert load_checkpoint(run / "last.pt")["epoch"] == 3
+
+
 def test_foreign_checkpoints_are_refused(tmp_path: Path) -> None:
     plain = tmp_path / "plain.pt"
     torch.save(BayesianSegNet(width=1 / 16).state_dict(), plain)

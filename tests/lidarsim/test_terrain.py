@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -428,3 +429,56 @@ def test_an_image_without_georeferencing_is_not_taken_for_heights(tmp_path: Path
     else:
         with DTM.open(path) as dtm:  # a float DTM in local metres: 1 m cells, as GDAL says
             assert dtm.info.rows == 64 and dtm.info.spacing_m == (1.0, 1.0)
+
+
+def test_the_dtm_digest_covers_the_side_files_gdal_reads(tmp_path: Path) -> None:
+    """A DTM's digest was its own file's sha256: an .aux.xml beside it (which GDAL reads: PAM
+    metadata, nodata, scale and offset) could change without hd noticing. Without side files the
+    digest is still the file's sha256 (the recorded digests of existing datasets and recipes)."""
+    from hdcore.storage import sha256_file
+    from lidarsim.terrain import dtm_sha256, gdal_side_files
+    from tests.geotiff import write_geotiff
+
+    path = tmp_path / "d.tif"
+    write_geotiff(path, np.arange(64, dtype=np.float32).reshape(8, 8), 1.0, (0.0, 8.0))
+    plain = sha256_file(path)
+    assert gdal_side_files(path) == () and dtm_sha256(path) == plain
+    with DTM.open(path) as dtm:
+        assert dtm.sha256() == plain
+    aux = tmp_path / "d.tif.aux.xml"
+    aux.write_text("<PAMDataset><Metadata><MDI key='a'>1</MDI></Metadata></PAMDataset>")
+    assert gdal_side_files(path) == (aux,)
+    with_aux = dtm_sha256(path)
+    own_and_side = f"{plain}  d.tif\n{sha256_file(aux)}  d.tif.aux.xml\n"
+    assert with_aux == hashlib.sha256(own_and_side.encode()).hexdigest()
+    with DTM.open(path) as dtm:
+        assert dtm.sha256() == with_aux
+    aux.write_text("<PAMDataset><Metadata><MDI key='a'>2</MDI></Metadata></PAMDataset>")
+    assert dtm_sha256(path) not in (plain, with_aux)
+    aux.unlink()
+    assert dtm_sha256(path) == plain
+
+
+def test_a_world_file_is_in_the_digest_of_a_tiff_without_georeferencing(tmp_path: Path) -> None:
+    """A TIFF without GeoTIFF tags takes its grid from a .tfw beside it (GDAL reads it): a changed
+    world file moves the terrain, so it changes the digest; beside a GeoTIFF GDAL ignores it."""
+    import warnings
+
+    import rasterio
+    from rasterio.errors import NotGeoreferencedWarning
+
+    from hdcore.storage import sha256_file
+    from lidarsim.terrain import dtm_sha256, gdal_side_files
+
+    path = tmp_path / "plain.tif"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        with rasterio.open(path, "w", driver="GTiff", height=8, width=8, count=1, dtype="float32") as out:
+            out.write(np.zeros((1, 8, 8), dtype=np.float32))
+    assert dtm_sha256(path) == sha256_file(path)
+    world = tmp_path / "plain.tfw"
+    world.write_text("2\n0\n0\n-2\n1\n15\n")
+    assert gdal_side_files(path) == (world,)
+    first = dtm_sha256(path)
+    world.write_text("2\n0\n0\n-2\n101\n15\n")  # the same grid 100 m east
+    assert first != dtm_sha256(path) != sha256_file(path)

@@ -255,3 +255,31 @@ def test_signals_until_the_end_still_give_128_plus_the_signal(tmp_path, dtm, sig
     assert err.count("re-run the same command to resume") == 1, err
     wait_for(lambda: not alive(tracked), timeout=10, what="the workers to stop")
     assert partials(out) == [] and not (out / ".hd-lock").exists()
+
+
+MOSAIC_ARGS = ["--workers", "1", "--dem-size", "40", "--convention", "paper"]
+
+
+def test_mosaic_killed_mid_run_resumes_per_descent_to_the_same_bytes(tmp_path, dtm):
+    """hd mosaic staged its whole output and its next run removed a killed run's staging: a kill
+    lost every descent. Killed while its third descent is kept, it now resumes with two descents
+    kept and writes the bytes of an uninterrupted run."""
+    source = tmp_path / "descents"
+    build = ["build-dataset", "--out", source, "--dtm", dtm, "--scans", "4", "--descent-frames", "3"]
+    result = invoke(*build, "--descent-altitudes", "120:60", "--resolution", "32", "--sigma", "0.02", "--workers", "1")
+    assert result.exit_code == 0, result.output
+    fresh = tmp_path / "fresh"
+    assert invoke("mosaic", source, "--out", fresh, *MOSAIC_ARGS).exit_code == 0
+    out = tmp_path / "m"
+    args = ["mosaic", source, "--out", out, *MOSAIC_ARGS]
+    proc = hd_process(args, env={"HD_TEST_WRITE_PAUSE": "mosaics-00000.d000002.npz:60"})
+    kept = out / ".hd-mosaic-resume"
+    wait_for(_partials(kept, ".mosaics-00000.d000002.npz.partial-*"), what="the third descent being kept", proc=proc)
+    code, _ = kill_and_check_no_orphans(proc, signal.SIGKILL)
+    assert code == -signal.SIGKILL and not (out / "manifest.json").exists()
+    result = invoke(*args)
+    assert result.exit_code == 0, result.output
+    assert "(2 descents kept from the interrupted run)" in result.output
+    files = {p.name: p.read_bytes() for p in out.iterdir()}
+    assert files == {p.name: p.read_bytes() for p in fresh.iterdir()}
+    assert partials(out) == [] and sorted(files) == ["manifest.json", "mosaics-00000.h5"]

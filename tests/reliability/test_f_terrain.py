@@ -238,6 +238,46 @@ def test_a_terrain_replaced_while_labelled_stops_the_labelling(own, tmp_path, mo
     assert not list(data.glob("labels/**/*.h5")) and partials(data) == []
 
 
+def test_a_terrain_labelling_hashes_its_dtm_once(own, monkeypatch):
+    """Each label shard hashed the whole DTM before it read it (about 21 GB read for a 1 GB HiRISE
+    DTM): now the labelling hashes it once and each shard compares the file's identity (device,
+    inode, size, modification and change times), hashing again only when that changed (the test
+    above: a DTM replaced between or within shards is still refused)."""
+    from hdlabels import truth
+
+    dtm, data = own
+    assert len(read_manifest(data)["shards"]) == 4
+    hashed: list[str] = []
+    real = truth.dtm_sha256
+
+    def counting(path, *args, **kwargs):
+        hashed.append(Path(path).name)
+        return real(path, *args, **kwargs)
+
+    monkeypatch.setattr(truth, "dtm_sha256", counting)
+    result = terrain_label(data)
+    assert result.exit_code == 0, result.output
+    assert hashed == [dtm.name]
+
+
+def test_a_side_file_written_beside_the_dtm_is_a_changed_terrain(own, tmp_path):
+    """GDAL reads an .aux.xml beside a GeoTIFF (its metadata, nodata, scale, offset), but the DTM's
+    digest was its own bytes alone: one written after the build went unnoticed. It is now part of
+    the digest: the terrain truth refuses the terrain, and the same build is not reused."""
+    dtm, data = own
+    aux = dtm.with_name(dtm.name + ".aux.xml")
+    before = (data / "manifest.json").read_text()
+    try:
+        aux.write_text("<PAMDataset><PAMRasterBand band='1'><Offset>100</Offset></PAMRasterBand></PAMDataset>")
+        assert_one_line_error(terrain_label(data), "own.tif: the terrain changed since copy was built")
+        again = invoke("build-dataset", "--out", data, "--dtm", dtm, "--workers", "1", *BUILD_ARGS)
+        assert_one_line_error(again, "whose shards or DTM changed")
+        assert (data / "manifest.json").read_text() == before
+    finally:
+        aux.unlink(missing_ok=True)
+    assert terrain_label(data).exit_code == 0
+
+
 def test_a_label_shard_of_another_terrain_is_damage_to_verify_and_to_label(own, tmp_path, labelled):
     """Each terrain-truth label shard records the sha256 of the terrain it was labelled from (schema
     1.2); one that records another terrain made `hd verify` say OK and a second `hd label` say

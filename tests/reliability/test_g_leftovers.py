@@ -227,6 +227,7 @@ RESUMES = [
     ("with-a-new-also", "plain", ["--also", "{other}"], ["--also", "{other}"]),
     ("on-another-dataset", "plain", ["DATASET={other}"], ["dataset", "{other}", "{data}"]),
     ("with-another-noise", "plain", ["--train-sigma", "0.05"], ["training noise", "1.67 cm", "5 cm"]),
+    ("with-another-seed", "plain", ["--seed", "7"], ["--seed 7", "seed 0", "--seed 0"]),
 ]
 
 
