@@ -2,8 +2,9 @@
 and a detection's overview.
 
 Every evaluation figure takes an ``EvaluationResult`` (``hdnet.results``) and a file path, draws one
-figure and closes it. Colours of safety maps: unsafe red, safe green, uncertain blue (apart from
-any grey hillshade), invalid white.
+figure and closes it. Colours of safety maps: ``hdnet.palette``'s colour-blind-safe set (unsafe
+vermillion, safe blue, uncertain yellow, invalid dark grey), the same in every figure and on ``hd
+view``'s pages.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
 from hdnet import defaults
+from hdnet.palette import SAFETY_HEX, SAFETY_NAMES
 from hdnet.report_json import PerSigmaThresholdJson, ThresholdJson, recorded_noise
 from hdnet.threshold_spec import RULES
 from hdnet.uncertainty import ENTROPY, UncertaintyScore, recorded_score
@@ -31,10 +33,9 @@ if TYPE_CHECKING:
 
 # Offsets (points) of a site's rank label: upper right, lower right, upper left, lower left.
 LABEL_OFFSETS_PT = ((5, 5), (5, -13), (-13, 5), (-13, -13))
-SAFETY_HEX = ("#c0392b", "#27ae60", "#2e6fd8", "#ffffff")  # unsafe, safe, uncertain, invalid
-SAFETY_NAMES = ("unsafe", "safe", "uncertain (discarded)", "invalid (no label)")
 SAFETY_COLOURS = ListedColormap(list(SAFETY_HEX))
 UNCERTAIN_CODE, INVALID_CODE = 2, 3
+OVERVIEW_ALPHA = 1.0  # the safety map over overview.png's hillshade: opaque, its colours the legend's
 DPI = 110
 
 
@@ -188,7 +189,7 @@ def noise_sweep_figure(result: EvaluationResult) -> Figure:
 
 
 def safety_legend_handles() -> list[Patch]:
-    """One legend patch per safety-map colour (unsafe, safe, uncertain, invalid), edged so white shows."""
+    """One legend patch per safety-map colour (unsafe, safe, uncertain, invalid), as the maps draw them."""
     return [
         Patch(facecolor=colour, edgecolor="#555555", linewidth=0.5, label=name)
         for colour, name in zip(SAFETY_HEX, SAFETY_NAMES, strict=True)
@@ -362,8 +363,8 @@ def detect_overview(
     shade = np.where(finite, shade, np.nan)
     colours = SAFETY_HEX
     rgba = np.zeros((*safety.shape, 4))
-    for code, colour, alpha in ((0, colours[0], 0.45), (1, colours[1], 0.35), (2, colours[2], 0.6)):
-        rgba[safety == code] = (*matplotlib.colors.to_rgb(colour), alpha)
+    for code in (0, 1, 2):  # opaque, so that the map's colours are the legend's
+        rgba[safety == code] = (*matplotlib.colors.to_rgb(colours[code]), OVERVIEW_ALPHA)
     left, right, bottom, top = extent
     aspect = (top - bottom) / max(right - left, 1e-9)
     fig, ax = plt.subplots(figsize=(8.0, float(np.clip(8.0 * aspect, 3.0, 10.0)) + 1.0))
@@ -394,10 +395,10 @@ def detect_overview(
     ax.set(xlabel="x (m)", ylabel="y (m)", title=title)
     ax.title.set_fontsize(9)
     handles = [
-        Patch(color=colours[0], alpha=0.6, label="unsafe"),
-        Patch(color=colours[1], alpha=0.6, label="safe"),
-        Patch(color=colours[2], alpha=0.8, label="uncertain"),
-        Patch(fc="white", ec="0.6", label="no colour: invalid (border, nodata)"),
+        Patch(color=colours[0], alpha=OVERVIEW_ALPHA, label="unsafe"),
+        Patch(color=colours[1], alpha=OVERVIEW_ALPHA, label="safe"),
+        Patch(color=colours[2], alpha=OVERVIEW_ALPHA, label="uncertain"),
+        Patch(fc="white", ec="0.6", label="no colour: invalid (border, nodata; hillshade shows)"),
         Patch(fc="none", ec="black", label="landing site (lander size)"),
     ]
     ax.legend(

@@ -84,7 +84,10 @@ REPORT_MARKER = "report.json"
 DEFAULT_MAX_PX = 2048  # hd choice: a map image's longest side, pixels (a screen's width; ~4 MP per layer)
 FIGURE_MAX_BYTES = 64 << 20  # hd choice: the largest report figure inlined (hd's own are ~100 kB)
 HEAD_BYTES = 4096  # read of an existing --out file to recognise an earlier page
-SWATCHES = ("unsafe", "safe", "uncertain")  # the safety legend's swatches, in SAFETY_HEX's order
+SWATCHES = ("unsafe", "safe", "uncertain")  # the safety legend's swatches, in hdnet.palette.SAFETY_HEX's order
+# The safety layer's opacity at first, percent: opaque, so that its colours are its swatches' (a
+# lower opacity blends them with the hillshade; the slider still shows the terrain through it).
+SAFETY_OPACITY = 100
 # The site table's headings: words and units for sites.csv's columns (the CSV keeps its names).
 SITE_HEADERS = {
     "rank": "#",
@@ -456,7 +459,7 @@ def _probe(order: int, name: str, cmap: str, high: float, unit: str = "") -> str
 def _map_style(out: DetectOutput, facts: dict[str, Any]) -> str:
     """The detect page's own style rules: the map's aspect ratio, the colour bars' gradients, the safety
     swatches' colours and where H_t stands on its bar (:func:`hdnet.view_html.map_style`)."""
-    from hdnet.figures import SAFETY_HEX
+    from hdnet.palette import SAFETY_HEX
     from hdnet.view_images import PROBABILITY_CMAP, UNCERTAINTY_CMAP, colour_stops
 
     left, right, bottom, top = facts["extent"]
@@ -524,7 +527,7 @@ def _map_layers(
             "Safety map (uncertainty-aware)",
             images["safety"],
             True,
-            55,
+            SAFETY_OPACITY,
             swatches + "; no colour: invalid (border band, nodata)",
             f' data-probe="safety" data-order="0" data-classes="{classes}"',
         ),

@@ -52,7 +52,7 @@ def test_the_safety_maps_are_explained_by_a_legend_not_by_the_title(tmp_path):
         (legend,) = fig.legends
         assert [t.get_text() for t in legend.get_texts()] == list(SAFETY_NAMES)
         faces = [matplotlib.colors.to_hex(h.get_facecolor()) for h in legend.legend_handles if isinstance(h, Patch)]
-        assert faces == list(SAFETY_HEX)
+        assert faces == [c.lower() for c in SAFETY_HEX]
         title = fig.get_suptitle()
         assert "scan 1" in title and "1.67cm" in title and "green" not in title
     finally:
