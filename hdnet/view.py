@@ -486,6 +486,7 @@ def _sites_layer(out: DetectOutput, extent: tuple[float, float, float, float]) -
     """The layer of the landing sites: circles of the lander's footprint (drawn larger where the map's
     ``extent``, metres, would make them too small to see)."""
     lander_m = float(out.info["lander"]["diameter_m"])
+    margin_m = float(out.info.get("site_rule", {}).get("margin_m") or 0.0)
     drawn_m = marker_radius(lander_m / 2, extent)
     return _Layer(
         "sites",
@@ -495,7 +496,9 @@ def _sites_layer(out: DetectOutput, extent: tuple[float, float, float, float]) -
         100,
         f"Circles: the lander's footprint ({lander_m:g} m across"
         + (f", drawn {2 * drawn_m:.3g} m across to be seen at this scale" if drawn_m > lander_m / 2 else "")
-        + "), numbered by rank; click one to find it in the table.",
+        + "), numbered by rank"
+        + (f"; dashed ring: the site margin, {margin_m:g} m around it, safe and certain too" if margin_m > 0 else "")
+        + "; click one to find it in the table.",
     )
 
 
@@ -590,6 +593,7 @@ def _sites_svg(out: DetectOutput, extent: tuple[float, float, float, float]) -> 
     width, height = right - left, top - bottom
     span = max(width, height)
     drawn = marker_radius(float(out.info["lander"]["diameter_m"]) / 2.0, extent)
+    margin = float(out.info.get("site_rule", {}).get("margin_m") or 0.0)
     font = 0.018 * span
     view_box = f'viewBox="{left:.6f} {-top:.6f} {width:.6f} {height:.6f}" preserveAspectRatio="none"'
     markers = []
@@ -600,6 +604,11 @@ def _sites_svg(out: DetectOutput, extent: tuple[float, float, float, float]) -> 
             f'<circle class="{cls}" cx="{x:.3f}" cy="{-y:.3f}" r="{drawn:.3f}" vector-effect="non-scaling-stroke"/>'
             for cls in ("halo", "ring")
         )
+        if margin > 0.0:  # the ground --site-margin kept safe and certain around the lander's disk
+            circles += (
+                f'<circle class="margin" cx="{x:.3f}" cy="{-y:.3f}" r="{drawn + margin:.3f}" '
+                'vector-effect="non-scaling-stroke"/>'
+            )
         label = f'<text x="{x + 1.1 * drawn:.3f}" y="{-y - 1.1 * drawn:.3f}" font-size="{font:.3f}">{esc(rank)}</text>'
         markers.append(
             f'<g class="site-marker" data-rank="{esc(rank)}"><title>site {esc(rank)}: {esc(tip)}</title>'

@@ -600,6 +600,25 @@ def test_no_page_shows_a_machine_path(outputs, tmp_path, which, where):
         assert run.startswith(os.path.relpath(checkpoint, target.parent))
 
 
+def test_a_site_margin_is_a_setting_and_a_dashed_ring_around_each_site(outputs, tmp_path):
+    out = copy_of(outputs["detect"], tmp_path)
+    info = json.loads((out / "detect.json").read_text())
+    info["site_rule"]["margin_m"] = 2.0
+    (out / "detect.json").write_text(json.dumps(info))
+    page = Page(view(out).path.read_text(encoding="utf-8"))
+    assert settings_of(page)["site margin"].startswith("2 m: the lander's disk widened by 2 m")
+    markers = page.root.find(id="layer-sites").find_all("g", class_="site-marker")
+    assert markers and len(markers) == len(info["sites"])
+    for marker in markers:
+        ring, lander = marker.find("circle", class_="margin"), marker.find("circle", class_="ring")
+        assert float(ring.attrs["r"]) == pytest.approx(float(lander.attrs["r"]) + 2.0)  # 5 m lander + 2 m
+        assert (ring.attrs["cx"], ring.attrs["cy"]) == (lander.attrs["cx"], lander.attrs["cy"])
+    (control,) = [c for c in page.root.find_all("div", class_="layer-control") if c.find_all(id="toggle-sites")]
+    assert "dashed ring: the site margin, 2 m" in control.text()
+    plain = Page(view(copy_of(outputs["detect"], tmp_path, "plain")).path.read_text(encoding="utf-8"))
+    assert not plain.root.find_all("circle", class_="margin")
+
+
 def test_the_site_table_marks_the_column_it_is_ranked_by():
     from hdnet.view import site_cells, site_headers
 
