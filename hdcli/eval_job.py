@@ -84,4 +84,7 @@ def eval_job(
         "threshold": result.threshold,
         "rows": [dataclasses.asdict(r) for r in result.rows],
     }
-    return Done([result.summary(), report_written_message(out_dir)], record)
+    from hdnet.chance import threshold_warning
+
+    chance = threshold_warning(result.threshold.get("value_nats"))
+    return Done([result.summary(), *([chance] if chance else []), report_written_message(out_dir)], record)

@@ -28,6 +28,7 @@ from hdcore.storage import (
     write_json_atomic,
     write_text_atomic,
 )
+from hdnet.chance import threshold_warning
 from hdnet.paper_results import paper_row
 from hdnet.report_json import ReportJson, ReportRunJson, ThresholdJson, recorded_noise
 from hdnet.results import LandingRecord, LandingSettings, levels_without_sites
@@ -174,6 +175,9 @@ def _header_lines(result: EvaluationResult) -> list[str]:
     run, th = result.run, result.threshold
     score = recorded_score(th)
     out = ["# hd evaluation report", ""]
+    chance = threshold_warning(th["value_nats"])
+    if chance is not None:  # a run that learnt nothing: said first
+        out += [f"**{chance}**", ""]
     h_t = "unbounded (every pixel certain)" if th["value_nats"] is None else f"{_num(th['value_nats'])} nats"
     out += [
         f"- checkpoint: `{run.get('checkpoint')}` (epoch {run.get('epoch')}, profile `{run.get('profile')}`)",

@@ -62,6 +62,7 @@ from hdcore.storage import (
 from hdlabels.store import find_labeling, open_label_shard
 from hdnet import limits
 from hdnet._version import __version__
+from hdnet.chance import threshold_warning
 from hdnet.compare import read_report
 from hdnet.compare import settings as report_settings
 from hdnet.detect_json import DetectInfoJson
@@ -895,6 +896,10 @@ def _warnings(out: DetectOutput) -> list[str]:
             f"The threshold {th.get('spec')} is unreachable with {th.get('calibration_images')} validation images (it "
             f"needs {th.get('needs_images')}): every cell is uncertain by construction."
         )
+    h_t = th.get("value_nats")
+    chance = threshold_warning(float(h_t) if _finite(h_t) else None, len(out.site_rows))
+    if chance is not None:
+        said.append(chance.removeprefix("Warning: "))
     return said
 
 

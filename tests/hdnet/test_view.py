@@ -619,6 +619,18 @@ def test_a_site_margin_is_a_setting_and_a_dashed_ring_around_each_site(outputs, 
     assert not plain.root.find_all("circle", class_="margin")
 
 
+def test_a_run_that_learnt_nothing_is_said_on_the_page(outputs, tmp_path):
+    out = copy_of(outputs["detect"], tmp_path)
+    page = Page(view(out).path.read_text(encoding="utf-8"))
+    assert not [w for w in page.root.find_all("p", class_="warning") if "top of the entropy scale" in w.text()]
+    info = json.loads((out / "detect.json").read_text())
+    info["threshold"]["value_nats"] = 0.6928
+    (out / "detect.json").write_text(json.dumps(info))
+    page = Page(view(out).path.read_text(encoding="utf-8"))
+    (said,) = [w.text() for w in page.root.find_all("p", class_="warning") if "top of the entropy scale" in w.text()]
+    assert said.startswith("H_t = 0.693 nats is at the top of the entropy scale") and "6 site(s) found" in said
+
+
 def test_the_site_table_marks_the_column_it_is_ranked_by():
     from hdnet.view import site_cells, site_headers
 
