@@ -266,7 +266,7 @@ def mosaic_cmd(
     scheduler, overwrite = options.pop("scheduler"), options.pop("overwrite")
     if recipe is not None:
         refuse_with_recipe(ctx, set(options) - {"poses", "frames"}, "the DEM grid", HdLabelsError)
-    with ScanProgress("descents") as progress:
+    with ScanProgress("descents", unit="descent") as progress:
         _done(mosaic_job(source, out_dir, options, recipe, workers, scheduler, overwrite, progress))
 
 

@@ -37,5 +37,9 @@ def detect_job(
     from hdnet.detect import detect
 
     result = detect(run_dir, out_dir, settings, dtm=dtm, dataset=dataset, progress=progress)
-    lines = [result.summary(), f"maps, sites.csv, sites.geojson, overview.png and detect.json in {out_dir}"]
+    from hdnet.chance import threshold_warning
+
+    chance = threshold_warning(result.threshold_nats, len(result.sites))
+    lines = [result.summary(), *([chance] if chance else [])]
+    lines.append(f"maps, sites.csv, sites.geojson, overview.png and detect.json in {out_dir}")
     return Done(lines, {"command": "detect", "out": str(out_dir), **result.info})

@@ -87,5 +87,9 @@ def eval_job(
         "rows": [dataclasses.asdict(r) for r in result.rows],
         "landing": [dataclasses.asdict(r) for r in result.landing],
     }
+    from hdnet.chance import threshold_warning
+
+    chance = threshold_warning(result.threshold.get("value_nats"))
     landing = result.landing_summary()
-    return Done([result.summary(), *([landing] if landing else []), report_written_message(out_dir)], record)
+    lines = [result.summary(), *([chance] if chance else []), *([landing] if landing else [])]
+    return Done([*lines, report_written_message(out_dir)], record)

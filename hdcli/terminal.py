@@ -286,12 +286,17 @@ class ScanProgress:
             tenth = 10 * done // total if total > 0 else 10
             if tenth > self.tenth:
                 self.tenth = tenth
-                click.echo(f"{self.desc}: {done}/{total} {self.unit}s ({100 * done // max(total, 1)}%)", err=True)
+                click.echo(f"{self.line(done, total)} ({100 * done // max(total, 1)}%)", err=True)
             return
         if self.bar is None:
             self.bar = tqdm(total=total, initial=done, desc=self.desc, unit=self.unit, dynamic_ncols=True)
         else:
             self.bar.update(done - self.bar.n)
+
+    def line(self, done: int, total: int) -> str:
+        """``descents: 20/200``, or ``eval: 3/8 images`` where the name does not say the unit already."""
+        unit = "" if self.desc == f"{self.unit}s" else f" {self.unit}s"
+        return f"{self.desc}: {done}/{total}{unit}"
 
     def close(self) -> None:
         if self.bar is not None:

@@ -75,6 +75,7 @@ def train_job(
             else is read or written).
     """
     from hdcli.pipeline import training_done_message
+    from hdnet.chance import loss_warning
     from hdnet.fit import FitConfig, already_trained, check_distinct_datasets, fit
     from hdnet.preflight import check_dataset
     from hdnet.run_summary import run_record
@@ -94,5 +95,8 @@ def train_job(
         )
         return Done([said], {"command": "train", "already_done": True, **run_record(run_dir)})
     checkpoint = fit(dataset, run_dir, config)
-    record = {"command": "train", "already_done": False, **run_record(run_dir)}
-    return Done([training_done_message(checkpoint, run_dir)], record)
+    summary = run_record(run_dir)
+    record = {"command": "train", "already_done": False, **summary}
+    best = summary["best_epoch"]
+    chance = loss_warning([best["val_loss"]] if best and "val_loss" in best else [])
+    return Done([training_done_message(checkpoint, run_dir), *([chance] if chance else [])], record)

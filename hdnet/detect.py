@@ -767,19 +767,26 @@ class DetectResult:
         }
         t = "unbounded" if not math.isfinite(self.threshold_nats) else f"{self.threshold_nats:.4f} nats"
         t += recorded_score(self.info.get("threshold", {})).qualifier
+        rule = self.info.get("site_rule", {})
+        nav, margin = float(rule.get("nav_sigma_m") or 0.0), float(rule.get("margin_m") or 0.0)
         best = (
             (
-                f"; best site #1 at ({self.sites[0].x:.1f}, {self.sites[0].y:.1f}) P(safe) {self.sites[0].p_safe:.3f}, "
-                f"clearance {self.sites[0].clearance_m:.1f} m"
+                f"; best site #1 at ({self.sites[0].x:.1f}, {self.sites[0].y:.1f}): aim-point P(safe) "
+                f"{self.sites[0].p_safe:.3f}"
+                + ("" if nav > 0 else " (the ranking)")
+                + f", clearance {self.sites[0].clearance_m:.1f} m"
                 + (
-                    f", P(safe) at the touchdown {self.sites[0].touchdown_p_safe:.3f} (navigation 1σ {nav:g} m)"
-                    if (nav := float(self.info.get("site_rule", {}).get("nav_sigma_m") or 0.0)) > 0
+                    f", expected touchdown P(safe) {self.sites[0].touchdown_p_safe:.3f} under navigation 1σ {nav:g} m "
+                    "(the ranking; it may exceed the aim point's where the dispersion reaches safer ground)"
+                    if nav > 0
                     else ""
                 )
             )
             if self.sites
             else "; no site: no lander footprint is wholly safe and certain"
         )
+        disk = " around the lander's disk" if margin > 0 else " (the lander's disk alone)"
+        best += f"; site margin {margin:g} m{disk}"
         th = self.info.get("threshold", {})
         if th.get("unreachable"):  # risk:ALPHA below 1/(n+1): every cell uncertain by construction
             t += (

@@ -2,8 +2,9 @@
 and a detection's overview.
 
 Every evaluation figure takes an ``EvaluationResult`` (``hdnet.results``) and a file path, draws one
-figure and closes it. Colours of safety maps: unsafe red, safe green, uncertain blue (apart from
-any grey hillshade), invalid white.
+figure and closes it. Colours of safety maps: ``hdnet.palette``'s colour-blind-safe set (unsafe
+vermillion, safe blue, uncertain yellow, invalid dark grey), the same in every figure and on ``hd
+view``'s pages.
 """
 
 from __future__ import annotations
@@ -22,7 +23,9 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
 from hdnet import defaults
+from hdnet.palette import SAFETY_HEX, SAFETY_NAMES
 from hdnet.report_json import PerSigmaThresholdJson, ThresholdJson, recorded_noise
+from hdnet.results import levels_without_sites
 from hdnet.threshold_spec import RULES
 from hdnet.uncertainty import ENTROPY, UncertaintyScore, recorded_score
 
@@ -31,10 +34,9 @@ if TYPE_CHECKING:
 
 # Offsets (points) of a site's rank label: upper right, lower right, upper left, lower left.
 LABEL_OFFSETS_PT = ((5, 5), (5, -13), (-13, 5), (-13, -13))
-SAFETY_HEX = ("#c0392b", "#27ae60", "#2e6fd8", "#ffffff")  # unsafe, safe, uncertain, invalid
-SAFETY_NAMES = ("unsafe", "safe", "uncertain (discarded)", "invalid (no label)")
 SAFETY_COLOURS = ListedColormap(list(SAFETY_HEX))
 UNCERTAIN_CODE, INVALID_CODE = 2, 3
+OVERVIEW_ALPHA = 1.0  # the safety map over overview.png's hillshade: opaque, its colours the legend's
 DPI = 110
 
 
@@ -188,7 +190,7 @@ def noise_sweep_figure(result: EvaluationResult) -> Figure:
 
 
 def safety_legend_handles() -> list[Patch]:
-    """One legend patch per safety-map colour (unsafe, safe, uncertain, invalid), edged so white shows."""
+    """One legend patch per safety-map colour (unsafe, safe, uncertain, invalid), as the maps draw them."""
     return [
         Patch(facecolor=colour, edgecolor="#555555", linewidth=0.5, label=name)
         for colour, name in zip(SAFETY_HEX, SAFETY_NAMES, strict=True)
@@ -260,61 +262,90 @@ def qualitative_figure(
     return fig
 
 
-LANDING_METHODS = (
-    ("alhat_baseline", "ALHAT baseline", "tab:gray"),
-    ("base_net", "base net", "tab:orange"),
-    ("uncertainty_aware", "uncertainty-aware", "tab:blue"),
+LANDING_METHODS = (  # (method, name, colour, marker): markers tell the lines apart where they overlap
+    ("alhat_baseline", "ALHAT baseline", "tab:gray", "s"),
+    ("base_net", "base net", "tab:orange", "^"),
+    ("uncertainty_aware", "uncertainty-aware", "tab:blue", "o"),
 )
 
 
+LANDING_DODGE = 0.025  # hd choice: each method's points shifted by this fraction of the dispersions' span
+NO_SITE_WORDS = "no method chose a site\nin any scene"
+
+
 def landing_figure(result: EvaluationResult, path: Path) -> None:
+    """:func:`landing_figure_of` saved to ``path`` (PNG)."""
+    fig = landing_figure_of(result)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def landing_figure_of(result: EvaluationResult) -> Figure:
     """P(safe landing) against the navigation dispersion, one panel per truth and test noise level
-    (its scenes scored in the title), one line per method with its 95 % Wilson interval; abstentions
-    in the legend's text."""
+    (its scenes scored in the title), one line per method with its 95 % Wilson interval; the methods'
+    points dodged sideways so that equal values stay visible; the y-axis holds every interval; a panel
+    where no method chose a site in any scene says so instead of drawing an empty axis. The legend
+    says in how many scenes each method chose no site."""
     truths = list(dict.fromkeys(r.truth for r in result.landing))
     sigmas = sorted({r.test_sigma_m for r in result.landing})
     fig, axes = plt.subplots(
-        len(truths), len(sigmas), figsize=(3.4 * len(sigmas), 2.9 * len(truths)), squeeze=False, sharey=True
+        len(truths), len(sigmas), figsize=(3.4 * len(sigmas), 3.6 * len(truths)), squeeze=False, sharey=True
     )
+    navs = sorted({r.nav_sigma_m for r in result.landing})
+    dodge = LANDING_DODGE * max(navs[-1] - navs[0], 1.0) if navs else 0.0
     for i, truth in enumerate(truths):
+        silent = levels_without_sites(result.landing, truth)
         for k, sigma in enumerate(sigmas):
             ax = axes[i][k]
-            for method, name, colour in LANDING_METHODS:
-                rows = sorted(
-                    (r for r in result.landing if r.truth == truth and r.test_sigma_m == sigma and r.method == method),
-                    key=lambda r: r.nav_sigma_m,
-                )
-                if not rows:
-                    continue
-                x = np.array([r.nav_sigma_m for r in rows])
-                y = np.array([r.p_safe for r in rows])
-                # Wilson's interval holds the rate, but its ends may fall a rounding error inside it;
-                # a method that never landed has no rate (NaN, not drawn).
-                err = np.nan_to_num(
-                    np.array([[r.p_safe - r.p_safe_low for r in rows], [r.p_safe_high - r.p_safe for r in rows]])
-                ).clip(min=0.0)
-                abstain = max(r.abstain_rate for r in rows)
-                ax.errorbar(
-                    x,
-                    y,
-                    yerr=err,
-                    color=colour,
-                    marker="o",
-                    ms=3,
-                    capsize=2,
-                    label=f"{name} (abstains ≤ {100 * abstain:.0f} %)",
-                )
+            if sigma in silent:
+                ax.text(0.5, 0.5, NO_SITE_WORDS, ha="center", va="center", transform=ax.transAxes, fontsize=8)
+                ax.tick_params(left=False, labelleft=k == 0, bottom=False, labelbottom=False)
+            else:
+                _landing_panel(ax, result, truth, sigma, dodge)
             scenes = max((r.scenes for r in result.landing if r.truth == truth and r.test_sigma_m == sigma), default=0)
             ax.set_title(f"{truth} truth, test σ {sigma_label(sigma)}, {scenes} scenes", fontsize=8)
-            ax.set_xlabel("navigation dispersion 1σ (m)", fontsize=8)
             if k == 0:
                 ax.set_ylabel("P(safe landing)", fontsize=8)
-            ax.tick_params(labelsize=7)
-            ax.grid(alpha=0.3)
-            ax.legend(fontsize=6, loc="lower left")
+    low, high = _landing_limits(result.landing)
+    axes[0][0].set_ylim(low, high)  # shared by every panel
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    return fig
+
+
+def _landing_limits(rows: list[Any]) -> tuple[float, float]:
+    """y-limits that hold every drawn P(safe landing) and its interval, with a margin, within [0, 1.02]."""
+    ends = [v for r in rows if r.landed > 0 for v in (r.p_safe_low, r.p_safe, r.p_safe_high) if math.isfinite(v)]
+    if not ends:
+        return 0.0, 1.02
+    low, high = min(ends), max(ends)
+    pad = max(0.03, 0.08 * (high - low))
+    return max(0.0, low - pad), min(1.02, high + pad)
+
+
+def _landing_panel(ax: Any, result: EvaluationResult, truth: str, sigma: float, dodge: float) -> None:
+    """One panel of :func:`landing_figure_of`: each method's line, shifted by ``dodge`` metres per method."""
+    for m, (method, name, colour, marker) in enumerate(LANDING_METHODS):
+        rows = sorted(
+            (r for r in result.landing if r.truth == truth and r.test_sigma_m == sigma and r.method == method),
+            key=lambda r: r.nav_sigma_m,
+        )
+        if not rows:
+            continue
+        x = np.array([r.nav_sigma_m for r in rows]) + (m - (len(LANDING_METHODS) - 1) / 2) * dodge
+        y = np.array([r.p_safe for r in rows])
+        # Wilson's interval holds the rate, but its ends may fall a rounding error inside it;
+        # a method that never landed has no rate (NaN, not drawn).
+        err = np.nan_to_num(
+            np.array([[r.p_safe - r.p_safe_low for r in rows], [r.p_safe_high - r.p_safe for r in rows]])
+        ).clip(min=0.0)
+        abstain = max(r.abstain_rate for r in rows)
+        words = "a site in every scene" if abstain <= 0.0 else f"no site in up to {100 * abstain:.0f} % of scenes"
+        ax.errorbar(x, y, yerr=err, color=colour, marker=marker, ms=4, capsize=2, label=f"{name}: {words}")
+    ax.set_xlabel("navigation dispersion 1σ (m)", fontsize=8)
+    ax.tick_params(labelsize=7)
+    ax.grid(alpha=0.3)
+    # Below the panel, never over its points and intervals.
+    ax.legend(fontsize=6, loc="upper center", bbox_to_anchor=(0.5, -0.22), frameon=False)
 
 
 def write_figures(result: EvaluationResult, out_dir: Path) -> list[Path]:
@@ -364,8 +395,8 @@ def detect_overview(
     shade = np.where(finite, shade, np.nan)
     colours = SAFETY_HEX
     rgba = np.zeros((*safety.shape, 4))
-    for code, colour, alpha in ((0, colours[0], 0.45), (1, colours[1], 0.35), (2, colours[2], 0.6)):
-        rgba[safety == code] = (*matplotlib.colors.to_rgb(colour), alpha)
+    for code in (0, 1, 2):  # opaque, so that the map's colours are the legend's
+        rgba[safety == code] = (*matplotlib.colors.to_rgb(colours[code]), OVERVIEW_ALPHA)
     left, right, bottom, top = extent
     aspect = (top - bottom) / max(right - left, 1e-9)
     fig, ax = plt.subplots(figsize=(8.0, float(np.clip(8.0 * aspect, 3.0, 10.0)) + 1.0))
@@ -396,10 +427,10 @@ def detect_overview(
     ax.set(xlabel="x (m)", ylabel="y (m)", title=title)
     ax.title.set_fontsize(9)
     handles = [
-        Patch(color=colours[0], alpha=0.6, label="unsafe"),
-        Patch(color=colours[1], alpha=0.6, label="safe"),
-        Patch(color=colours[2], alpha=0.8, label="uncertain"),
-        Patch(fc="white", ec="0.6", label="no colour: invalid (border, nodata)"),
+        Patch(color=colours[0], alpha=OVERVIEW_ALPHA, label="unsafe"),
+        Patch(color=colours[1], alpha=OVERVIEW_ALPHA, label="safe"),
+        Patch(color=colours[2], alpha=OVERVIEW_ALPHA, label="uncertain"),
+        Patch(fc="white", ec="0.6", label="no colour: invalid (border, nodata; hillshade shows)"),
         Patch(fc="none", ec="black", label="landing site (lander size)"),
     ]
     ax.legend(

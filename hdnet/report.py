@@ -28,9 +28,10 @@ from hdcore.storage import (
     write_json_atomic,
     write_text_atomic,
 )
+from hdnet.chance import threshold_warning
 from hdnet.paper_results import paper_row
 from hdnet.report_json import ReportJson, ReportRunJson, ThresholdJson, recorded_noise
-from hdnet.results import LandingRecord, LandingSettings
+from hdnet.results import LandingRecord, LandingSettings, levels_without_sites
 from hdnet.run_json import TrainingNoiseJson
 from hdnet.threshold_spec import unreachable_risk_words
 from hdnet.uncertainty import recorded_score
@@ -174,6 +175,9 @@ def _header_lines(result: EvaluationResult) -> list[str]:
     run, th = result.run, result.threshold
     score = recorded_score(th)
     out = ["# hd evaluation report", ""]
+    chance = threshold_warning(th["value_nats"])
+    if chance is not None:  # a run that learnt nothing: said first
+        out += [f"**{chance}**", ""]
     h_t = "unbounded (every pixel certain)" if th["value_nats"] is None else f"{_num(th['value_nats'])} nats"
     out += [
         f"- checkpoint: `{run.get('checkpoint')}` (epoch {run.get('epoch')}, profile `{run.get('profile')}`)",
@@ -438,7 +442,19 @@ def _landing_section(result: EvaluationResult) -> list[str]:
                 f"{_num(r.clearance_m, 1)} / {_num(r.truth_clearance_m, 1)} |"
             )
         out.append("")
+        silent = levels_without_sites(result.landing, truth)
+        if silent:
+            out += [no_site_sentence(silent), ""]
     return out
+
+
+def no_site_sentence(levels_m: list[float]) -> str:
+    """The report's sentence for test noise levels (metres) at which no method chose a site in any scene."""
+    words = " and ".join(f"{100 * s:.3g} cm" for s in levels_m)
+    return (
+        f"At {words} no method chose a site in any scene: P(safe landing) is undefined there (every method "
+        "abstained), and the landing figure's panel says so."
+    )
 
 
 def _pct1(x: float | None) -> str:

@@ -9,7 +9,7 @@ so that the writers of reports and figures never depend on the code that compute
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -285,3 +285,10 @@ class LandingRow:
     unknown_fraction: float
     clearance_m: float
     truth_clearance_m: float
+
+
+def levels_without_sites(rows: Sequence[LandingRow], truth: str) -> list[float]:
+    """The test noise levels (metres, ascending) at which no method chose a site in any scene against
+    ``truth``: every row of that truth and level has ``landed`` = 0 (the landing figure's empty panels)."""
+    levels = sorted({r.test_sigma_m for r in rows if r.truth == truth})
+    return [s for s in levels if all(r.landed == 0 for r in rows if r.truth == truth and r.test_sigma_m == s)]

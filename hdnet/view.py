@@ -37,7 +37,7 @@ import json
 import math
 import os
 import re
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -62,10 +62,12 @@ from hdcore.storage import (
 from hdlabels.store import find_labeling, open_label_shard
 from hdnet import limits
 from hdnet._version import __version__
+from hdnet.chance import threshold_warning
 from hdnet.compare import read_report
 from hdnet.compare import settings as report_settings
 from hdnet.detect_json import DetectInfoJson
 from hdnet.errors import HdNetError
+from hdnet.page_values import number, readable, shown_path, without_paths
 from hdnet.report import json_plain, report_markdown
 from hdnet.report_json import ReportJson, recorded_noise
 from hdnet.results import SITE_COLUMNS, EvaluationResult, LandingRecord, LandingRow, ReportRow
@@ -83,12 +85,28 @@ REPORT_MARKER = "report.json"
 DEFAULT_MAX_PX = 2048  # hd choice: a map image's longest side, pixels (a screen's width; ~4 MP per layer)
 FIGURE_MAX_BYTES = 64 << 20  # hd choice: the largest report figure inlined (hd's own are ~100 kB)
 HEAD_BYTES = 4096  # read of an existing --out file to recognise an earlier page
-SWATCHES = ("unsafe", "safe", "uncertain")  # the safety legend's swatches, in SAFETY_HEX's order
+SWATCHES = ("unsafe", "safe", "uncertain")  # the safety legend's swatches, in hdnet.palette.SAFETY_HEX's order
+# The safety layer's opacity at first, percent: opaque, so that its colours are its swatches' (a
+# lower opacity blends them with the hillshade; the slider still shows the terrain through it).
+SAFETY_OPACITY = 100
+# The site table's headings: words and units for sites.csv's columns (the CSV keeps its names).
+SITE_HEADERS = {
+    "rank": "#",
+    "x": "x (m)",
+    "y": "y (m)",
+    "p_safe": "aim P(safe)",
+    "entropy_max": "max entropy (nats)",
+    "clearance_m": "clearance (m)",
+    "baseline_p_safe": "baseline P(safe)",
+    "touchdown_p_safe": "touchdown P(safe)",
+}
+RANKED_MARK = " ▼ ranked by"  # after the heading of the column the sites are ranked by
+SITE_DECIMALS = 3  # a site's numbers on the page (sites.csv keeps six)
 SITE_TITLES = {
     "rank": "1 = best (the site rule below)",
     "x": "map x of the site's cell centre, metres (the input's CRS, or the scan frame)",
     "y": "map y of the site's cell centre, metres",
-    "p_safe": "mean P(safe) over the lander's footprint",
+    "p_safe": "mean P(safe) over the lander's footprint at the aim point",
     "entropy_max": "largest predictive entropy over the footprint, nats",
     "clearance_m": "distance to the nearest cell that is not safe and certain, metres",
     "baseline_p_safe": "the ALHAT baseline's P(safe) at the site",
@@ -269,41 +287,46 @@ def _read_sites(directory: Path, recorded: list[Any]) -> list[list[str]]:
 
 
 # ----------------------------------------------------------------------------------- the terrain
-def _hillshade_source(out: DetectOutput, dtm: Path | None) -> tuple[Path | None, str]:
-    """The raster to shade for a DTM detection and a note; (None, why not) when it cannot be used."""
+def _hillshade_source(out: DetectOutput, dtm: Path | None, base: Path) -> tuple[Path | None, str]:
+    """The raster to shade for a DTM detection and a note (its paths relative to the page's folder
+    ``base``); (None, why not) when it cannot be used."""
     source = out.info["input"]
     if source.get("kind") != "dtm":
         return None, ""
     recorded = str(source.get("path", ""))
     path = Path(dtm) if dtm is not None else Path(recorded)
+    shown = shown_path(path.absolute(), base)
     if not path.is_file():
         return None, (
-            f"No hillshade: the DTM {recorded} that hd detect read is not there any more; give it with --dtm"
+            f"No hillshade: the DTM {shown_path(recorded, base)} that hd detect read is not there any more; give it "
+            "with --dtm"
             if dtm is None
-            else f"No hillshade: --dtm {dtm} is not a file"
+            else f"No hillshade: --dtm {shown} is not a file"
         )
     try:
         digest = sha256_file(path)
     except StorageError as exc:
-        return None, f"No hillshade: {path} cannot be read ({exc})"
+        return None, f"No hillshade: {shown} cannot be read ({exc.__class__.__name__})"
     if digest != source.get("sha256"):
         return None, (
-            f"No hillshade: {path} is not the DTM hd detect read (its sha256 {digest[:12]}... differs from "
+            f"No hillshade: {shown} is not the DTM hd detect read (its sha256 {digest[:12]}... differs from "
             f"detect.json's {str(source.get('sha256'))[:12]}...)"
         )
     return path, ""
 
 
-def _scan_heights(out: DetectOutput) -> tuple[Any, str]:
-    """The scan's noisy DEM (metres, NaN holes) that a scan detection mapped, or (None, why not)."""
+def _scan_heights(out: DetectOutput, base: Path) -> tuple[Any, str]:
+    """The scan's noisy DEM (metres, NaN holes) that a scan detection mapped, or (None, why not; its
+    paths relative to the page's folder ``base``)."""
     source = out.info["input"]
     dataset = Path(str(source.get("dataset", "")))
-    name = f"scan {source.get('scan_index')} of {dataset}"
+    shown = shown_path(dataset.absolute(), base)
+    name = f"scan {source.get('scan_index')} of {shown}"
     if not (dataset / MANIFEST_NAME).is_file():
-        return None, f"No hillshade: the dataset {dataset} of the scan is not there any more"
+        return None, f"No hillshade: the dataset {shown} of the scan is not there any more"
     try:
         if sha256_file(dataset / MANIFEST_NAME) != source.get("manifest_sha256"):
-            return None, f"No hillshade: the dataset {dataset} has changed since hd detect read {name}"
+            return None, f"No hillshade: the dataset {shown} has changed since hd detect read {name}"
         entry = find_labeling(dataset, str(source.get("labels")))
         shard = next(s for s in entry.shards if Path(s.path).name == source.get("label_shard"))
         with open_label_shard(dataset, shard) as reader:
@@ -311,7 +334,8 @@ def _scan_heights(out: DetectOutput) -> tuple[Any, str]:
             k = [abs(s - float(source.get("sigma_m", -1))) <= 1e-9 for s in reader.sigmas_m].index(True)
             dem = np.asarray(reader.h5["dem_noisy"][int(rows[0]), k], np.float64)
     except (HdError, StopIteration, ValueError, IndexError, KeyError, OSError) as exc:
-        return None, f"No hillshade: {name} cannot be read ({exc})"
+        why = str(exc).replace(str(dataset.absolute()), shown)
+        return None, f"No hillshade: {name} cannot be read ({why})"
     if dem.shape != (out.rows, out.cols):
         return None, f"No hillshade: the DEM of {name} is {dem.shape[0]} x {dem.shape[1]}, not the maps' grid"
     return dem, ""
@@ -347,13 +371,15 @@ def _bar(name: str, low: str, high: str, tick: float | None = None, tick_label: 
     )
 
 
-def _layers(out: DetectOutput, settings: ViewSettings, dtm: Path | None) -> tuple[list[_Layer], dict[str, Any]]:
+def _layers(
+    out: DetectOutput, settings: ViewSettings, dtm: Path | None, base: Path
+) -> tuple[list[_Layer], dict[str, Any]]:
     """The map layers (images reduced and coloured) and what the page says of them."""
     from hdnet.view_images import Reduction
 
     reduction = Reduction.of((out.rows, out.cols), settings.max_px)
     h, w = reduction.shape
-    images, extent, note = _layer_images(out, reduction, dtm)
+    images, extent, note = _layer_images(out, reduction, dtm, base)
     layers = _map_layers(out, images, extent)
     if "hillshade" in images:
         layers.append(_Layer("hillshade", "Hillshade of the terrain", images["hillshade"], True, 100, "sun NW, 45°"))
@@ -367,7 +393,7 @@ def _layers(out: DetectOutput, settings: ViewSettings, dtm: Path | None) -> tupl
 
 
 def _layer_images(
-    out: DetectOutput, reduction: Reduction, dtm: Path | None
+    out: DetectOutput, reduction: Reduction, dtm: Path | None, base: Path
 ) -> tuple[dict[str, tuple[str, int, int]], tuple[float, float, float, float], str]:
     """Step 1 of ``_layers``: each map reduced and coloured as a PNG data URI (with its width and height,
     pixels), the hillshade's among them when its terrain is found; the images' map extent (left, right,
@@ -406,11 +432,11 @@ def _layer_images(
     note = ""
     heights = None
     if out.info["input"].get("kind") == "scan":
-        dem, note = _scan_heights(out)
+        dem, note = _scan_heights(out, base)
         if dem is not None:
             heights = reduced_array(dem, reduction)
     else:
-        path, note = _hillshade_source(out, dtm)
+        path, note = _hillshade_source(out, dtm, base)
         if path is not None:
             heights = terrain_heights(path, extent, (h, w))
     if heights is not None:
@@ -434,7 +460,7 @@ def _probe(order: int, name: str, cmap: str, high: float, unit: str = "") -> str
 def _map_style(out: DetectOutput, facts: dict[str, Any]) -> str:
     """The detect page's own style rules: the map's aspect ratio, the colour bars' gradients, the safety
     swatches' colours and where H_t stands on its bar (:func:`hdnet.view_html.map_style`)."""
-    from hdnet.figures import SAFETY_HEX
+    from hdnet.palette import SAFETY_HEX
     from hdnet.view_images import PROBABILITY_CMAP, UNCERTAINTY_CMAP, colour_stops
 
     left, right, bottom, top = facts["extent"]
@@ -461,6 +487,7 @@ def _sites_layer(out: DetectOutput, extent: tuple[float, float, float, float]) -
     """The layer of the landing sites: circles of the lander's footprint (drawn larger where the map's
     ``extent``, metres, would make them too small to see)."""
     lander_m = float(out.info["lander"]["diameter_m"])
+    margin_m = float(out.info.get("site_rule", {}).get("margin_m") or 0.0)
     drawn_m = marker_radius(lander_m / 2, extent)
     return _Layer(
         "sites",
@@ -470,7 +497,9 @@ def _sites_layer(out: DetectOutput, extent: tuple[float, float, float, float]) -
         100,
         f"Circles: the lander's footprint ({lander_m:g} m across"
         + (f", drawn {2 * drawn_m:.3g} m across to be seen at this scale" if drawn_m > lander_m / 2 else "")
-        + "), numbered by rank; click one to find it in the table.",
+        + "), numbered by rank"
+        + (f"; dashed ring: the site margin, {margin_m:g} m around it, safe and certain too" if margin_m > 0 else "")
+        + "; click one to find it in the table.",
     )
 
 
@@ -502,7 +531,7 @@ def _map_layers(
             "Safety map (uncertainty-aware)",
             images["safety"],
             True,
-            55,
+            SAFETY_OPACITY,
             swatches + "; no colour: invalid (border band, nodata)",
             f' data-probe="safety" data-order="0" data-classes="{classes}"',
         ),
@@ -565,19 +594,26 @@ def _sites_svg(out: DetectOutput, extent: tuple[float, float, float, float]) -> 
     width, height = right - left, top - bottom
     span = max(width, height)
     drawn = marker_radius(float(out.info["lander"]["diameter_m"]) / 2.0, extent)
+    margin = float(out.info.get("site_rule", {}).get("margin_m") or 0.0)
     font = 0.018 * span
     view_box = f'viewBox="{left:.6f} {-top:.6f} {width:.6f} {height:.6f}" preserveAspectRatio="none"'
     markers = []
     for row in out.site_rows:
         rank, x, y = row[0], float(row[1]), float(row[2])
-        tip = ", ".join(f"{k} {v}" for k, v in zip(SITE_COLUMNS, row, strict=True))
+        tip = ", ".join(f"{SITE_HEADERS[k]} {v}" for k, v in zip(SITE_COLUMNS[1:], site_cells(row)[1:], strict=True))
         circles = "".join(
             f'<circle class="{cls}" cx="{x:.3f}" cy="{-y:.3f}" r="{drawn:.3f}" vector-effect="non-scaling-stroke"/>'
             for cls in ("halo", "ring")
         )
+        if margin > 0.0:  # the ground --site-margin kept safe and certain around the lander's disk
+            circles += (
+                f'<circle class="margin" cx="{x:.3f}" cy="{-y:.3f}" r="{drawn + margin:.3f}" '
+                'vector-effect="non-scaling-stroke"/>'
+            )
         label = f'<text x="{x + 1.1 * drawn:.3f}" y="{-y - 1.1 * drawn:.3f}" font-size="{font:.3f}">{esc(rank)}</text>'
         markers.append(
-            f'<g class="site-marker" data-rank="{esc(rank)}"><title>site {esc(tip)}</title>{circles}{label}</g>'
+            f'<g class="site-marker" data-rank="{esc(rank)}"><title>site {esc(rank)}: {esc(tip)}</title>'
+            f"{circles}{label}</g>"
         )
     # The scale bar: a rule and its length, italic on a pale box in the map's lower left corner (not
     # the bold white-haloed callout of a site's number).
@@ -685,24 +721,49 @@ def _crs_name(wkt: str, out: DetectOutput) -> str:
     return f"CRS {match.group(1)}" if match else "CRS (WKT in detect.json)"
 
 
+def ranked_column(rule: Mapping[str, Any]) -> str:
+    """The column of sites.csv a detection ranked its sites by: ``touchdown_p_safe`` under a navigation
+    dispersion (``nav_sigma_m`` > 0), else ``p_safe`` (the aim point's footprint)."""
+    return "touchdown_p_safe" if float(rule.get("nav_sigma_m") or 0.0) > 0.0 else "p_safe"
+
+
+def site_cells(row: Sequence[str]) -> list[str]:
+    """A sites.csv row as the page shows it: the rank as it is, every number to ``SITE_DECIMALS`` decimals."""
+    cells = [row[0]]
+    for value in row[1:]:
+        try:
+            cells.append(f"{float(value):.{SITE_DECIMALS}f}")
+        except ValueError:
+            cells.append(value)
+    return cells
+
+
+def site_headers(rule: Mapping[str, Any]) -> list[str]:
+    """The site table's headings (``SITE_HEADERS``), the ranking column's marked ``RANKED_MARK``."""
+    ranked = ranked_column(rule)
+    return [SITE_HEADERS[c] + (RANKED_MARK if c == ranked else "") for c in SITE_COLUMNS]
+
+
 def _sites_section(out: DetectOutput) -> str:
     rule = out.info.get("site_rule", {})
     rank_by = rule.get("rank_by", "")
+    ranked = SITE_HEADERS[ranked_column(rule)]
     if not out.site_rows:
         body = '<p id="no-sites">No site: no lander footprint is wholly safe and certain.</p>'
     else:
         body = table(
-            list(SITE_COLUMNS),
-            out.site_rows,
+            site_headers(rule),
+            [site_cells(r) for r in out.site_rows],
             table_id="sites",
             row_attrs=[{"class": "site-row", "data-rank": r[0]} for r in out.site_rows],
             header_titles=[SITE_TITLES.get(c, "") for c in SITE_COLUMNS],
         )
     return (
         '<section id="sites-section"><h2>Landing sites</h2>\n'
-        f'<p class="note">From sites.csv ({len(out.site_rows)} site(s), as written); ranked by {esc(rank_by)}. '
-        "Columns: x and y in metres of the map (cell centres), P(safe) and the baseline's as fractions, entropy "
-        "in nats, clearance in metres. Hover a heading for its meaning.</p>\n"
+        f'<p class="note" id="ranking">Ranked by {esc(ranked)} (marked ▼): {esc(rank_by)}. A site below another '
+        "may have a higher value in the other columns.</p>\n"
+        f'<p class="note">From sites.csv ({len(out.site_rows)} site(s); its numbers to {SITE_DECIMALS} decimals '
+        "here). Hover a heading for its meaning.</p>\n"
         f"{body}</section>"
     )
 
@@ -728,7 +789,8 @@ def _counts_section(out: DetectOutput) -> str:
     )
 
 
-def _settings_items(out: DetectOutput) -> list[tuple[str, str]]:
+def _settings_items(out: DetectOutput, base: Path) -> list[tuple[str, str]]:
+    """The detection's settings as (name, value) words; paths relative to the page's folder ``base``."""
     info = out.info
     run, src, th, lander = info["run"], info["input"], info["threshold"], info["lander"]
     grid, rule = info["grid"], info.get("site_rule", {})
@@ -740,24 +802,24 @@ def _settings_items(out: DetectOutput) -> list[tuple[str, str]]:
     else:
         trained = _cm(run.get("train_sigma_m"))
     items = [
-        ("run", f"{run.get('checkpoint')} (epoch {run.get('epoch')}, profile {run.get('profile')})"),
+        ("run", f"{readable(run.get('checkpoint'), base)} (epoch {run.get('epoch')}, profile {run.get('profile')})"),
         ("trained at", f"{trained}; reference {_cm(run.get('train_sigma_m'))}"),
-        ("training dataset", str(run.get("dataset"))),
+        ("training dataset", readable(run.get("dataset"), base)),
         ("labelling", str(run.get("labels"))),
     ]
     if src.get("kind") == "scan":
         seen = " (a training scan: the network has seen it)" if src.get("seen_in_training") else ""
         items += [
-            ("input", f"scan {src.get('scan_index')} of {src.get('dataset')}"),
+            ("input", f"scan {src.get('scan_index')} of {readable(src.get('dataset'), base)}"),
             ("split", f"{src.get('split')}{seen}"),
             ("scan's noise level", _cm(src.get("sigma_m"))),
             ("scan's labelling", str(src.get("labels"))),
-            ("scan frame origin (map)", json.dumps(src.get("origin_map"))),
+            ("scan frame origin (map)", readable(src.get("origin_map"), base) + " m"),
         ]
     else:
         scale = "upsampled bilinearly" if src.get("upsampled") else f"scale {src.get('scale')}"
         items += [
-            ("input", f"DTM {src.get('path')}"),
+            ("input", f"DTM {readable(src.get('path'), base)}"),
             ("DTM sha256", str(src.get("sha256"))),
             (
                 "DTM cells",
@@ -768,7 +830,8 @@ def _settings_items(out: DetectOutput) -> list[tuple[str, str]]:
     value = f"{float(h_t):.4f} nats" if _finite(h_t) else "unbounded (every cell certain)"
     calibration = (
         f"{th.get('calibration_split')} split at {_cm(th.get('calibration_sigma_m'))}, "
-        f"{th.get('calibration_images')} images of {th.get('calibration_datasets') or th.get('calibration_dataset')}"
+        f"{th.get('calibration_images')} images of "
+        f"{readable(th.get('calibration_datasets') or th.get('calibration_dataset'), base)}"
         if th.get("kind") != "fixed"
         else "fixed"
     )
@@ -779,24 +842,38 @@ def _settings_items(out: DetectOutput) -> list[tuple[str, str]]:
         ("calibration", calibration + (f"; calibrate {th['calibrate']}" if th.get("calibrate") else "")),
         ("navigation sigma", f"{float(rule.get('nav_sigma_m') or 0.0):g} m (1σ per horizontal axis)"),
         ("sites ranked by", str(rule.get("rank_by", "--"))),
+        ("site margin", _margin_words(rule)),
         ("MC samples, seed", f"{info.get('mc_samples')}, {info.get('seed')}"),
         (
             "lander",
-            (
-                f"{lander.get('diameter_m')} m across, pads {lander.get('pad_diameter_m')} m, slope ≤ "
-                f"{lander.get('max_slope_deg')}°, roughness ≤ {lander.get('max_roughness_m')} m, convention "
-                f"{lander.get('convention')}"
-            ),
+            _lander_words(lander),
         ),
         (
             "grid",
             f"{out.rows} x {out.cols} cells of {_shape(grid.get('spacing_m'))} m; {_crs_name(grid['crs_wkt'], out)}",
         ),
-        ("tiling", json.dumps(info.get("tiling"))),
+        ("tiling", readable(info.get("tiling"), base)),
         ("hd version", str(info.get("software_version"))),
-        ("time taken", f"{(info.get('timings_s') or {}).get('total', '--')} s"),
+        ("time taken", f"{readable((info.get('timings_s') or {}).get('total'), base)} s"),
     ]
     return items
+
+
+def _lander_words(lander: Mapping[str, Any]) -> str:
+    """The lander's size and limits as the settings table says them (numbers rounded)."""
+    n = {k: number(float(lander.get(k, math.nan))) for k in ("diameter_m", "pad_diameter_m", "max_slope_deg")}
+    return (
+        f"{n['diameter_m']} m across, pads {n['pad_diameter_m']} m, slope ≤ {n['max_slope_deg']}°, roughness ≤ "
+        f"{number(float(lander.get('max_roughness_m', math.nan)))} m, convention {lander.get('convention')}"
+    )
+
+
+def _margin_words(rule: Mapping[str, Any]) -> str:
+    """The sites' safety margin (``--site-margin``, metres) as the settings table says it."""
+    margin = float(rule.get("margin_m") or 0.0)
+    if margin <= 0.0:
+        return "0 m (the lander's disk alone must be safe and certain)"
+    return f"{margin:g} m: the lander's disk widened by {margin:g} m all round must be safe and certain (dashed ring)"
 
 
 def _shape(pair: Any) -> str:
@@ -819,26 +896,36 @@ def _warnings(out: DetectOutput) -> list[str]:
             f"The threshold {th.get('spec')} is unreachable with {th.get('calibration_images')} validation images (it "
             f"needs {th.get('needs_images')}): every cell is uncertain by construction."
         )
+    h_t = th.get("value_nats")
+    chance = threshold_warning(float(h_t) if _finite(h_t) else None, len(out.site_rows))
+    if chance is not None:
+        said.append(chance.removeprefix("Warning: "))
     return said
 
 
-def detect_page(out: DetectOutput, settings: ViewSettings, dtm: Path | None = None) -> tuple[str, dict[str, Any]]:
-    """The page of a detect output and what it shows (for the summary and ``hd --json``).
+def detect_page(
+    out: DetectOutput, settings: ViewSettings, dtm: Path | None = None, base: Path | None = None
+) -> tuple[str, dict[str, Any]]:
+    """The page of a detect output and what it shows (for the summary and ``hd --json``); ``base``: the
+    folder the page goes into (default the output's), to which the paths it shows are relative.
 
     Raises:
         DamagedFileError / StorageError: a missing or damaged map (``hdnet.view_images.reduced_map``).
         HdNetError: a ``detect.json`` whose values are not of the kinds ``hd detect`` writes.
     """
     try:
-        layers, facts = _layers(out, settings, dtm)
-        return _detect_text(out, layers, facts)
+        where = base if base is not None else out.directory
+        layers, facts = _layers(out, settings, dtm, where)
+        return _detect_text(out, layers, facts, where)
     except HdError:
         raise
     except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:  # a value of another kind
         raise _schema_error(out.directory / DETECT_MARKER, f"{type(exc).__name__}: {exc}") from exc
 
 
-def _detect_text(out: DetectOutput, layers: list[_Layer], facts: dict[str, Any]) -> tuple[str, dict[str, Any]]:
+def _detect_text(
+    out: DetectOutput, layers: list[_Layer], facts: dict[str, Any], base: Path
+) -> tuple[str, dict[str, Any]]:
     src = out.info["input"]
     name = src.get("name") if src.get("kind") == "dtm" else f"scan {src.get('scan_index')} ({src.get('split')} split)"
     counts = out.info["counts"]
@@ -851,10 +938,10 @@ def _detect_text(out: DetectOutput, layers: list[_Layer], facts: dict[str, Any])
         f"cells; H_t {f'{float(h_t):.4f} nats' if _finite(h_t) else 'unbounded'} ({th.get('spec')}"
         f"{recorded_score(th).qualifier}); {len(out.site_rows)} landing site(s)."
     )
-    raw = json.dumps(out.info, indent=1)
+    raw = json.dumps(without_paths(out.info, base), indent=1)
     body = [
         f"<header><h1>hd detect: {esc(name)}</h1>",
-        f'<p class="sub">{esc(out.directory.resolve())}</p>',
+        f'<p class="sub">{esc(_folder_words(out.directory, base))}</p>',
         f'<p id="lead">{esc(lead)}</p></header>',
         *(f'<p class="warning">{esc(w)}</p>' for w in _warnings(out)),
         (
@@ -865,9 +952,9 @@ def _detect_text(out: DetectOutput, layers: list[_Layer], facts: dict[str, Any])
         _sites_section(out),
         _counts_section(out),
         '<section id="settings-section"><h2>Settings</h2>',
-        definitions(_settings_items(out), table_id="settings"),
+        definitions(_settings_items(out, base), table_id="settings"),
         f"<details><summary>detect.json</summary><pre>{esc(raw)}</pre></details></section>",
-        _footer(out.directory, DETECT_MARKER),
+        _footer(out.directory, DETECT_MARKER, base),
     ]
     reduction = facts["reduction"]
     shown = {
@@ -884,10 +971,17 @@ def _detect_text(out: DetectOutput, layers: list[_Layer], facts: dict[str, Any])
     return page(f"hd detect: {name}", "\n".join(body), lead, _map_style(out, facts)), shown
 
 
-def _footer(directory: Path, marker: str) -> str:
+def _folder_words(directory: Path, base: Path) -> str:
+    """Where the output is, said relative to the page's folder ``base`` (no machine path)."""
+    rel = shown_path(directory.resolve(), base)
+    return "the folder of this page" if rel == "." else f"{rel} (relative to this page)"
+
+
+def _footer(directory: Path, marker: str, base: Path) -> str:
     digest = sha256_file(directory / marker)
     return (
-        f'<footer><p class="note">Made by hd view {esc(__version__)} from {esc(directory.resolve() / marker)} '
+        f'<footer><p class="note">Made by hd view {esc(__version__)} from '
+        f"{esc(shown_path((directory / marker).resolve(), base))} "
         f"(sha256 {digest}). Nothing on this page is fetched from a network.</p></footer>"
     )
 
@@ -943,13 +1037,16 @@ def _figure_names(directory: Path) -> list[str]:
     return [m.group(1) for line in text.splitlines() if (m := _FIGURE_LINE.match(line.strip()))]
 
 
-def report_page(directory: Path) -> tuple[str, dict[str, Any]]:
-    """The page of the report in ``directory`` and what it shows."""
+def report_page(directory: Path, base: Path | None = None) -> tuple[str, dict[str, Any]]:
+    """The page of the report in ``directory`` and what it shows; ``base``: the folder the page goes
+    into (default the report's), to which the paths it shows are relative."""
     from hdnet.view_images import check_png
 
     directory, content = read_report(directory)
     file = directory / REPORT_MARKER
-    result = _result_of(file, content)
+    where = base if base is not None else directory
+    # The page's numbers are report.json's; the paths it records, relative to the page's folder.
+    result = _result_of(file, cast("ReportJson", without_paths(content, where)))
     names = _figure_names(directory)
     images: dict[str, tuple[str, int, int]] = {}
     for name in names:
@@ -969,15 +1066,12 @@ def report_page(directory: Path) -> tuple[str, dict[str, Any]]:
         ) from exc
     # The page's own heading replaces report.md's title line.
     body_html, headings = markdown_html(markdown.removeprefix("# hd evaluation report\n"), images)
-    settings_rows = [
-        (name, value if isinstance(value, str) else json.dumps(json_plain(value)))
-        for name, value in report_settings(content).items()
-    ]
+    settings_rows = [(name, readable(json_plain(value), where)) for name, value in report_settings(content).items()]
     toc = "".join(f'<a href="#{anchor(h)}">{esc(h)}</a>' for h in [*headings, "Settings"])
     title = f"hd eval report: {directory.resolve().name}"
     body = [
         f"<header><h1>{esc(title)}</h1>",
-        f'<p class="sub">{esc(directory.resolve())}</p></header>',
+        f'<p class="sub">{esc(_folder_words(directory, where))}</p></header>',
         f'<nav class="toc">{toc}</nav>',
         f'<article id="report">{body_html}</article>',
         f'<section id="settings-section"><h2 id="{anchor("Settings")}">Settings</h2>',
@@ -987,7 +1081,7 @@ def report_page(directory: Path) -> tuple[str, dict[str, Any]]:
         ),
         definitions(settings_rows, table_id="settings"),
         "</section>",
-        _footer(directory, REPORT_MARKER),
+        _footer(directory, REPORT_MARKER, where),
     ]
     shown = {
         "what": f"hd eval report, {len(content['rows'])} table rows, {len(images)} figure(s)",
@@ -1064,9 +1158,9 @@ def view(
         raise HdNetError(f"--dtm goes with an hd detect output; {source} is an hd eval report")
     with _reading(source, target):
         if kind == "detect":
-            text, shown = detect_page(read_detect(source), cfg, Path(dtm) if dtm is not None else None)
+            text, shown = detect_page(read_detect(source), cfg, Path(dtm) if dtm is not None else None, target.parent)
         else:
-            text, shown = report_page(source)
+            text, shown = report_page(source, target.parent)
         check_out(target)  # once more, now that the page is made
         write_text_atomic(target, text)
     return ViewResult(target, kind, source, len(text.encode("utf-8")), shown)

@@ -73,6 +73,7 @@ nav.toc { font-size: 13px; } nav.toc a { margin-right: 12px; }
 .site-marker .halo { stroke: #000; stroke-width: 3px; pointer-events: all; }
 .site-marker .ring { stroke: #fff; stroke-width: 1.4px; }
 .site-marker.selected .ring { stroke: #ffd400; stroke-width: 2.5px; }
+.site-marker .margin { stroke: #fff; stroke-width: 1.2px; stroke-dasharray: 4 3; }
 .site-marker text { fill: #000; paint-order: stroke; stroke: #fff; stroke-width: 3px; font-weight: 700; }
 .scale-bar .box { fill: #fff; fill-opacity: 0.85; stroke: #5c6670; }
 .scale-bar .rule { fill: #1d2125; }

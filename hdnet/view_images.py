@@ -11,7 +11,7 @@ past the map's last row or column hold only the map's own cells (the rest is inv
 
 Colours: P(safe) and the ALHAT baseline with the diverging ``RdYlGn`` map over [0, 1] (red unsafe,
 green safe), the uncertainty scores with ``viridis`` over [0, ln 2] nats (the range of a two-class
-entropy), the safety map with ``hdnet.figures``' colours; invalid cells are transparent. The
+entropy), the safety map with ``hdnet.palette``'s colours; invalid cells are transparent. The
 hillshade is matplotlib's ``LightSource`` (sun at azimuth 315 degrees, 45 degrees high) of heights
 read from the terrain over the image's extent (:func:`terrain_heights`).
 """
@@ -38,7 +38,7 @@ from rasterio.windows import Window, from_bounds
 
 from hdcore.errors import DamagedFileError
 from hdcore.storage import check_regular_file
-from hdnet.figures import SAFETY_HEX
+from hdnet.palette import SAFETY_HEX
 from hdnet.sites import SAFETY_INVALID, SAFETY_SAFE, SAFETY_UNCERTAIN, SAFETY_UNSAFE
 
 # hd choice: cells read per window while reducing a map (16 MiB of float32), whatever its size.
@@ -207,7 +207,7 @@ def colour_rgba(values: np.ndarray, cmap: str, vmin: float, vmax: float) -> np.n
 
 
 def safety_rgba(codes: np.ndarray) -> np.ndarray:
-    """The safety codes coloured as ``hdnet.figures`` colours them (uint8 RGBA; invalid transparent)."""
+    """The safety codes coloured as ``hdnet.palette`` says (uint8 RGBA; invalid transparent)."""
     rgba = np.zeros((*codes.shape, 4), np.uint8)
     for code, colour in zip((SAFETY_UNSAFE, SAFETY_SAFE, SAFETY_UNCERTAIN), SAFETY_HEX[:3], strict=True):
         r, g, b = (round(255 * c) for c in to_rgb(colour))

@@ -427,7 +427,9 @@ def test_nav_sigma_ranks_sites_by_the_touchdown_and_records_the_rule(trained, tm
     )
     rule = json.loads((out / "detect.json").read_text())["site_rule"]
     assert rule["nav_sigma_m"] == 3.0 and rule["rank_by"] == SITE_RANK_RULES["touchdown"]
-    assert f"P(safe) at the touchdown {result.sites[0].touchdown_p_safe:.3f} (navigation 1σ 3 m)" in result.summary()
+    summary = result.summary()
+    assert f"expected touchdown P(safe) {result.sites[0].touchdown_p_safe:.3f} under navigation 1σ 3 m" in summary
+    assert f"aim-point P(safe) {result.sites[0].p_safe:.3f}," in summary and "P(safe) at the touchdown" not in summary
     plain = detect(constant, tmp_path / "aim", DetectSettings(threshold="nats:0.5", mc_samples=2, n_sites=4), dtm=dtm)
     rule = json.loads((tmp_path / "aim" / "detect.json").read_text())["site_rule"]
     assert rule["nav_sigma_m"] == 0.0 and rule["rank_by"] == SITE_RANK_RULES["aim"]
@@ -1008,6 +1010,7 @@ def test_cli_detect_prints_a_summary(trained, terrains, tmp_path):
     )
     assert result.exit_code == 0, result.output
     assert "valid cells" in result.output and "detect.json" in result.output
+    assert "site margin 1 m around the lander's disk" in result.output
     info = json.loads((out / "detect.json").read_text())
     assert info["threshold"]["spec"] == "mean" and info["mc_samples"] == 2 and len(info["sites"]) <= 3
     assert info["network_layout"] == "nchw"

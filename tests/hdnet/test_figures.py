@@ -15,16 +15,18 @@ from matplotlib.patches import Patch
 
 from hdnet import defaults
 from hdnet.figures import (
+    NO_SITE_WORDS,
     SAFETY_HEX,
     SAFETY_NAMES,
     _safety_codes,
+    landing_figure_of,
     noise_sweep_figure,
     qualitative_figure,
     qualitative_panel,
     threshold_sweep_figure,
 )
 from hdnet.report_json import SweepRowJson, ThresholdJson
-from hdnet.results import EvaluationResult, ReportRow, SplitInference
+from hdnet.results import EvaluationResult, LandingRow, ReportRow, SplitInference
 
 
 def _inference(n: int = 2, size: int = 8) -> SplitInference:
@@ -52,7 +54,7 @@ def test_the_safety_maps_are_explained_by_a_legend_not_by_the_title(tmp_path):
         (legend,) = fig.legends
         assert [t.get_text() for t in legend.get_texts()] == list(SAFETY_NAMES)
         faces = [matplotlib.colors.to_hex(h.get_facecolor()) for h in legend.legend_handles if isinstance(h, Patch)]
-        assert faces == list(SAFETY_HEX)
+        assert faces == [c.lower() for c in SAFETY_HEX]
         title = fig.get_suptitle()
         assert "scan 1" in title and "1.67cm" in title and "green" not in title
     finally:
@@ -138,3 +140,50 @@ def test_the_threshold_sweep_marks_the_threshold_of_the_rule_used(threshold, exp
         assert _threshold_lines(fig) == expected
     finally:
         plt.close(fig)
+
+
+def _landing(method: str, sigma: float, nav: float, landed: int, p: float, low: float, high: float) -> LandingRow:
+    nan = float("nan")
+    abstain = 1.0 - landed / 20
+    return LandingRow(method, sigma, nav, "terrain", 20, landed, p, low, high, abstain, 0.0, 1.0, 0.0, nan, nan)
+
+
+def _landing_result() -> EvaluationResult:
+    nan = float("nan")
+    rows = []
+    for method in ("alhat_baseline", "base_net", "uncertainty_aware"):
+        for nav in (0.0, 1.0, 3.0):
+            rows.append(_landing(method, 0.0167, nav, 20, 0.8, 0.62, 0.91))  # the three methods equal
+            rows.append(_landing(method, 0.07, nav, 0, nan, nan, nan))  # every method abstained
+    return EvaluationResult([], {}, [], {"bins": 10, "per_sigma": []}, landing=rows)
+
+
+def test_the_landing_figure_says_when_no_method_chose_a_site_and_dodges_equal_lines():
+    fig = landing_figure_of(_landing_result())
+    try:
+        full, empty = fig.axes
+        # The panel where every method abstained says so, and draws no line.
+        assert [t.get_text() for t in empty.texts] == [NO_SITE_WORDS] and not empty.get_lines()
+        assert "7.00cm" in empty.get_title() and not full.texts
+        # Equal values: the three methods' points side by side, each with its own marker.
+        lines = [line for line in full.get_lines() if line.get_linestyle() == "-"]
+        xs = [tuple(np.round(line.get_xdata(), 6)) for line in lines]
+        assert len(lines) == 3 and len(set(xs)) == 3
+        assert len({line.get_marker() for line in lines}) == 3
+        # The y-axis holds every interval (0.62 to 0.91), not 0.70 upwards.
+        low, high = full.get_ylim()
+        assert low <= 0.62 and high >= 0.91 and high <= 1.02
+        labels = [t.get_text() for t in full.get_legend().get_texts()]
+        assert labels[0] == "ALHAT baseline: a site in every scene" and not any("≤" in t for t in labels)
+        fig.canvas.draw()  # the legend below the panel, over none of its points
+        assert full.get_legend().get_window_extent().y1 <= full.get_window_extent().y0
+    finally:
+        plt.close(fig)
+
+
+def test_the_report_says_at_which_noise_level_no_method_chose_a_site():
+    from hdnet.report import _landing_section
+
+    text = "\n".join(_landing_section(_landing_result()))
+    assert "At 7 cm no method chose a site in any scene" in text
+    assert "At 1.67 cm no method" not in text

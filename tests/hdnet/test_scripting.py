@@ -38,7 +38,7 @@ def test_quiet_prints_nothing_and_logs_get_lines_not_carriage_returns(tmp_path):
         [*HD, *build, "--out", str(tmp_path / "a")], cwd=REPO, capture_output=True, text=True, timeout=600
     )
     assert logged.returncode == 0, logged.stderr
-    assert "\r" not in logged.stderr and "scans: 6/6 scans (100%)" in logged.stderr
+    assert "\r" not in logged.stderr and "scans: 6/6 (100%)" in logged.stderr
     assert logged.stdout.startswith("Built 6 scans")
     quiet = subprocess.run(
         [*HD, "-q", *build, "--out", str(tmp_path / "b")], cwd=REPO, capture_output=True, text=True, timeout=600
@@ -169,3 +169,11 @@ def test_a_summary_ends_a_live_progress_bar_before_it_is_printed(capsys, monkeyp
     assert captured.err.endswith("\n") and captured.out == "Built 3 scans\n"  # the bar ended first
     progress(3, 3)  # a late update of the ended bar draws nothing
     assert capsys.readouterr().err == ""
+
+
+def test_a_progress_line_names_its_unit_once():
+    from hdcli.terminal import ScanProgress
+
+    assert ScanProgress("descents", unit="descent").line(20, 200) == "descents: 20/200"
+    assert ScanProgress("scans").line(3, 6) == "scans: 3/6"
+    assert ScanProgress("eval", unit="image").line(3, 8) == "eval: 3/8 images"

@@ -261,11 +261,24 @@ def test_a_detect_page_holds_every_layer_the_sites_and_the_settings(outputs, tmp
         entropy = src.read(1)
     expected = colour_rgba(entropy, "viridis", 0.0, math.log(2))
     np.testing.assert_array_equal(png_of(page.root.find(id="layer-entropy").attrs["src"]), expected)
-    # The site table is sites.csv, row for row, and each site has its marker.
+    # The site table is sites.csv, row for row (its numbers to 3 decimals), and each site has its marker.
     rows = list(csv.reader((out / "sites.csv").open()))
     table = page.root.find("table", id="sites")
-    assert [th.text() for th in table.find("thead").find_all("th")] == list(SITE_COLUMNS) == rows[0]
-    assert page.table_rows(table) == rows[1:] and len(rows) > 1
+    assert list(SITE_COLUMNS) == rows[0] and len(rows) > 1
+    assert [th.text() for th in table.find("thead").find_all("th")] == [
+        "#",
+        "x (m)",
+        "y (m)",
+        "aim P(safe) ▼ ranked by",  # no navigation dispersion: ranked by the aim point's P(safe)
+        "max entropy (nats)",
+        "clearance (m)",
+        "baseline P(safe)",
+        "touchdown P(safe)",
+    ]
+    for shown, row in zip(page.table_rows(table), rows[1:], strict=True):
+        assert shown[0] == row[0]
+        assert [float(v) for v in shown[1:]] == [pytest.approx(float(v), abs=5e-4) for v in row[1:]]
+        assert all(re.fullmatch(r"-?\d+\.\d{3}", v) for v in shown[1:])
     markers = page.root.find(id="layer-sites").find_all("g", class_="site-marker")
     assert [m.attrs["data-rank"] for m in markers] == [r[0] for r in rows[1:]]
     for marker, row in zip(markers, rows[1:], strict=True):
@@ -288,12 +301,17 @@ def test_a_detect_page_holds_every_layer_the_sites_and_the_settings(outputs, tmp
     settings = settings_of(page)
     info = json.loads((out / "detect.json").read_text())
     assert settings["threshold"] == "nats:0.5: H_t = 0.5000 nats"
-    assert settings["input"] == f"DTM {outputs['dtm']}" and settings["navigation sigma"].startswith("0 m")
+    assert settings["input"] == f"DTM {os.path.relpath(outputs['dtm'], out)}"
+    assert settings["navigation sigma"].startswith("0 m")
+    assert settings["site margin"].startswith("0 m") and settings["tiling"].startswith("tile_px: ")
     assert settings["sensor sigma (baseline, network input)"] == "1.67 cm (0.0167 m)"
-    assert settings["MC samples, seed"] == "1, 0" and info["run"]["checkpoint"] in settings["run"]
+    assert settings["MC samples, seed"] == "1, 0" and os.path.relpath(info["run"]["checkpoint"], out) in settings["run"]
     counts = {r[0]: r[1] for r in page.table_rows(page.root.find("table", id="counts"))}
     assert counts["safe (certain)"] == str(info["counts"]["safe"])
-    assert json.loads(page.root.find("pre").text()) == info  # detect.json whole
+    # detect.json whole, its paths relative to the page.
+    shown_info = json.loads(page.root.find("pre").text())
+    assert shown_info["input"]["path"] == os.path.relpath(outputs["dtm"], out)
+    assert {**shown_info, "run": info["run"], "input": info["input"]} == info
     # H_t is named beside its tick, on the entropy bar (the score of nats:0.5), at 0.5 / ln 2 of its width.
     (control,) = [c for c in page.root.find_all("div", class_="layer-control") if c.find_all(id="toggle-entropy")]
     legend = control.find("div", class_="legend")
@@ -557,9 +575,92 @@ def test_a_report_page_shows_report_json_numbers_its_figures_and_settings(output
         assert pixels.shape[:2] == (int(img.attrs["height"]), int(img.attrs["width"]))
         assert np.array_equal(pixels, matplotlib_pixels((out / name).read_bytes()))
     settings = settings_of(page)
-    assert settings["run.checkpoint"] == content["run"]["checkpoint"] and settings["threshold.spec"] == "mean"
-    assert settings["run.mc_samples"] == "2" and settings["landing_settings.nav_sigmas_m"] == "[0.0, 2.0]"
+    assert settings["run.checkpoint"] == os.path.relpath(content["run"]["checkpoint"], out)
+    assert settings["threshold.spec"] == "mean"
+    assert settings["run.mc_samples"] == "2" and settings["landing_settings.nav_sigmas_m"] == "0, 2"
     assert page.root.find("h1").text() == "hd eval report: copy"
+
+
+@pytest.mark.parametrize("which", ["detect", "scan", "report"])
+@pytest.mark.parametrize("where", ["inside", "elsewhere"])
+def test_no_page_shows_a_machine_path(outputs, tmp_path, which, where):
+    out = copy_of(outputs[which], tmp_path)
+    target = out / "view.html" if where == "inside" else tmp_path / "pages" / "page.html"
+    target.parent.mkdir(exist_ok=True)
+    raw = view(out, target).path.read_text(encoding="utf-8")
+    for machine in {str(tmp_path), str(outputs["root"]), str(tmp_path.resolve()), str(outputs["root"].resolve())}:
+        assert machine not in raw
+    assert not re.search(r"(?<![\w.])/(tmp|home|work|Users|private|var)/", raw)
+    page = Page(raw)
+    sub = page.root.find("p", class_="sub").text()
+    assert sub == "the folder of this page" if where == "inside" else sub == "../copy (relative to this page)"
+    if which != "report":
+        run = settings_of(page)["run"]
+        checkpoint = outputs["root"] / ("constant.pt" if which == "detect" else "run")
+        assert run.startswith(os.path.relpath(checkpoint, target.parent))
+
+
+def test_a_site_margin_is_a_setting_and_a_dashed_ring_around_each_site(outputs, tmp_path):
+    out = copy_of(outputs["detect"], tmp_path)
+    info = json.loads((out / "detect.json").read_text())
+    info["site_rule"]["margin_m"] = 2.0
+    (out / "detect.json").write_text(json.dumps(info))
+    page = Page(view(out).path.read_text(encoding="utf-8"))
+    assert settings_of(page)["site margin"].startswith("2 m: the lander's disk widened by 2 m")
+    markers = page.root.find(id="layer-sites").find_all("g", class_="site-marker")
+    assert markers and len(markers) == len(info["sites"])
+    for marker in markers:
+        ring, lander = marker.find("circle", class_="margin"), marker.find("circle", class_="ring")
+        assert float(ring.attrs["r"]) == pytest.approx(float(lander.attrs["r"]) + 2.0)  # 5 m lander + 2 m
+        assert (ring.attrs["cx"], ring.attrs["cy"]) == (lander.attrs["cx"], lander.attrs["cy"])
+    (control,) = [c for c in page.root.find_all("div", class_="layer-control") if c.find_all(id="toggle-sites")]
+    assert "dashed ring: the site margin, 2 m" in control.text()
+    plain = Page(view(copy_of(outputs["detect"], tmp_path, "plain")).path.read_text(encoding="utf-8"))
+    assert not plain.root.find_all("circle", class_="margin")
+
+
+def test_a_run_that_learnt_nothing_is_said_on_the_page(outputs, tmp_path):
+    out = copy_of(outputs["detect"], tmp_path)
+    page = Page(view(out).path.read_text(encoding="utf-8"))
+    assert not [w for w in page.root.find_all("p", class_="warning") if "top of the entropy scale" in w.text()]
+    info = json.loads((out / "detect.json").read_text())
+    info["threshold"]["value_nats"] = 0.6928
+    (out / "detect.json").write_text(json.dumps(info))
+    page = Page(view(out).path.read_text(encoding="utf-8"))
+    (said,) = [w.text() for w in page.root.find_all("p", class_="warning") if "top of the entropy scale" in w.text()]
+    assert said.startswith("H_t = 0.693 nats is at the top of the entropy scale") and "6 site(s) found" in said
+
+
+def test_the_site_table_marks_the_column_it_is_ranked_by():
+    from hdnet.view import site_cells, site_headers
+
+    assert site_headers({"nav_sigma_m": 0.0})[3] == "aim P(safe) ▼ ranked by"
+    with_dispersion = site_headers({"nav_sigma_m": 2.0})
+    assert with_dispersion[7] == "touchdown P(safe) ▼ ranked by" and with_dispersion[3] == "aim P(safe)"
+    assert [h for h in with_dispersion if "ranked by" in h] == [with_dispersion[7]]
+    assert site_cells(["2", "1207.5", "1807.5", "0.992000", "0.017311", "188.000", "0.000000", "0.986123"]) == [
+        "2",
+        "1207.500",
+        "1807.500",
+        "0.992",
+        "0.017",
+        "188.000",
+        "0.000",
+        "0.986",
+    ]
+
+
+def test_recorded_values_read_as_words(tmp_path):
+    from hdnet.page_values import number, readable, shown_path
+
+    assert number(0.30000000000000004) == "0.3" and number(1992000.0) == "1992000" and number(0.0166666) == "0.01667"
+    assert readable([0.0, 2.0], tmp_path) == "0, 2"
+    assert readable({"a": 1, "b": [1.5, None]}, tmp_path) == "a: 1; b: 1.5, --"
+    assert shown_path(tmp_path / "x" / "run", tmp_path) == "x/run"
+    assert shown_path(tmp_path.parent / "data" / "d.tif", tmp_path) == "../data/d.tif"
+    assert shown_path("/a/b/c/d/e/f/g.tif", tmp_path / "p" / "q" / "r") == "g.tif"  # too far up: its name
+    assert shown_path("relative/x.tif", tmp_path) == "relative/x.tif"
+    assert readable("C:\\runs\\last.pt", tmp_path) == "last.pt" and readable("s3://b/k", tmp_path) == "s3://b/k"
 
 
 def test_text_from_files_is_escaped(outputs, tmp_path):
