@@ -359,6 +359,25 @@ def descend_cmd(run_dir: Path, dataset: Path, out_dir: Path, overwrite: bool, **
         _done(descend_job(run_dir, dataset, out_dir, settings, overwrite, progress))
 
 
+@main.command("export-model", cls=SettingsCommand, settings=("hdnet.export_model_settings:ExportModelSettings",))
+@click.argument("run_dir", type=FILE_OR_DIRECTORY)
+@out_option(
+    "out",
+    "The graph to write (a .onnx file); its side file is written beside it (the same name, .json).",
+    directory=False,
+)
+@overwrite_option("Replace an earlier export at --out (the graph and its side file).")
+@json_output
+@friendly_errors
+def export_model_cmd(run_dir: Path, out: Path, overwrite: bool, **options: Any) -> None:
+    """The network of a trained run (its last.pt) as one ONNX graph for flight software, its dropout masks as
+    inputs (MC dropout outside the graph), with a side file of everything needed to run it: the input
+    preparation, the masks' names and shapes, the class order and H_t when calibrated (docs/user-guide.md)."""
+    from hdcli.export_model_job import export_model_job
+
+    _done(export_model_job(run_dir, out, options, overwrite))
+
+
 @main.command("demo")
 @out_option("out_dir", "Directory of the demo run.", required=False, default=Path("demo-out"))
 @click_options(DemoSettings)

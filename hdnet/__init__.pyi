@@ -13,6 +13,7 @@ from hdnet.errors import HdNetError as HdNetError
 from hdnet.eval_settings import EvalConfig as EvalConfig
 from hdnet.evaluate import evaluate as evaluate
 from hdnet.evaluate import evaluate_to_report as evaluate_to_report
+from hdnet.export_model_settings import ExportModelSettings as ExportModelSettings
 from hdnet.fit import FitConfig as FitConfig
 from hdnet.fit import fit as fit
 from hdnet.infer import MCPrediction as MCPrediction
@@ -21,6 +22,10 @@ from hdnet.inputs import InputSpec as InputSpec
 from hdnet.model import BayesianSegNet as BayesianSegNet
 from hdnet.model import ModelConfig as ModelConfig
 from hdnet.noise_levels import TrainingNoise as TrainingNoise
+from hdnet.onnx_export import ExportedModel as ExportedModel
+from hdnet.onnx_export import MaskedSegNet as MaskedSegNet
+from hdnet.onnx_export import draw_masks as draw_masks
+from hdnet.onnx_export import export_onnx as export_onnx
 from hdnet.profiles import CPU as CPU
 from hdnet.profiles import PAPER as PAPER
 from hdnet.profiles import PROFILES as PROFILES

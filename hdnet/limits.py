@@ -49,3 +49,5 @@ SITE_MARGIN_M = Bound(0.0, 50.0)
 # Longest side of a map image of hd view, pixels (hd choice): below 64 a map says nothing; above
 # 8192 one RGBA layer is 256 MiB before compression and browsers slow to a crawl.
 VIEW_PX = Bound(64, 8192, integer=True)
+# Rows or columns of the DEM an exported network takes (hd export-model): the largest DEM side hd grids.
+DEM_SIDE = Bound(1, MAX_DEM_SIDE_PX, integer=True)

@@ -201,6 +201,22 @@ class CachedThreshold:
             return (math.inf if value is None else float(value)), cast("ThresholdJson", dict(entry["info"]))
         return None
 
+    def entries_of(self, checkpoint_sha256: str) -> list[tuple[dict[str, Any], float, ThresholdJson]]:
+        """(key, H_t in nats, calibration record) of every entry calibrated for the checkpoint whose file
+        has the sha256 ``checkpoint_sha256`` and that passes every check of the module's docstring, in
+        the file's order (the oldest first); the others are skipped without a warning (``hd
+        export-model`` reports what the cache holds, it calibrates nothing)."""
+        found: list[tuple[dict[str, Any], float, ThresholdJson]] = []
+        for entry in self._entries(warn=False):
+            plain = entry["key"]
+            if plain.get("checkpoint_sha256") != checkpoint_sha256 or _entry_problem(entry, plain) is not None:
+                continue
+            value = entry["value_nats"]
+            found.append(
+                (plain, math.inf if value is None else float(value), cast("ThresholdJson", dict(entry["info"])))
+            )
+        return found
+
     def put(self, key: ThresholdKey, value_nats: float, info: ThresholdJson) -> bool:
         """Store an entry (replacing one of the same key) with its digest; False when the run directory
         is not writable or the entry cannot be stored."""

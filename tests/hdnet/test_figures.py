@@ -167,16 +167,18 @@ def test_the_landing_figure_says_when_no_method_chose_a_site_and_dodges_equal_li
         assert "7.00cm" in empty.get_title() and not full.texts
         # Equal values: the three methods' points side by side, each with its own marker.
         lines = [line for line in full.get_lines() if line.get_linestyle() == "-"]
-        xs = [tuple(np.round(line.get_xdata(), 6)) for line in lines]
+        xs = [tuple(np.round(np.asarray(line.get_xdata(), dtype=float), 6)) for line in lines]
         assert len(lines) == 3 and len(set(xs)) == 3
         assert len({line.get_marker() for line in lines}) == 3
         # The y-axis holds every interval (0.62 to 0.91), not 0.70 upwards.
         low, high = full.get_ylim()
         assert low <= 0.62 and high >= 0.91 and high <= 1.02
-        labels = [t.get_text() for t in full.get_legend().get_texts()]
+        legend = full.get_legend()
+        assert legend is not None
+        labels = [t.get_text() for t in legend.get_texts()]
         assert labels[0] == "ALHAT baseline: a site in every scene" and not any("≤" in t for t in labels)
         fig.canvas.draw()  # the legend below the panel, over none of its points
-        assert full.get_legend().get_window_extent().y1 <= full.get_window_extent().y0
+        assert legend.get_window_extent().y1 <= full.get_window_extent().y0
     finally:
         plt.close(fig)
 
