@@ -17,7 +17,11 @@ is there):
 * ``descent-KKKKK-track.geojson``: the aim after each frame (a Point per frame, with its frame,
   altitude and whether it diverted) and the aims as one LineString, in the mosaic frame's metres;
 * ``descend.json``: the run, the input, the settings, H_t, and per descent every frame's seconds
-  (registration, mosaic, map, sites), its aim and its counts, and every divert.
+  (registration, mosaic, map, sites), its aim and its counts, and every divert (the records:
+  ``hdnet.descend_json``).
+
+A frame whose mosaic has no lander-sized square of valid cells is recorded without a map (its ``.npz``
+holds the heights, the transform and no sites; its row says why) and the descent goes on.
 
 The last frame's mosaic and maps are ``hd mosaic``'s mosaic of the same frames and ``hd detect``'s
 maps of it (the same bytes; docs/hdnet.md, "Descending").

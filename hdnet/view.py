@@ -116,7 +116,7 @@ class ViewSettings:
 
 @dataclass
 class ViewResult:
-    """What ``view`` wrote: the page, its kind (``detect`` or ``report``), its size and what it shows."""
+    """What ``view`` wrote: the page, its kind (``detect``, ``descend`` or ``report``), its size and what it shows."""
 
     path: Path
     kind: str
@@ -1051,7 +1051,8 @@ def view(
     settings: ViewSettings | None = None,
     dtm: str | os.PathLike | None = None,
 ) -> ViewResult:
-    """Write the page of the detect output or report ``directory`` to ``out`` (default ``directory/view.html``).
+    """Write the page of the detect output, descend output or report ``directory`` to ``out`` (default
+    ``directory/view.html``).
 
     ``dtm``: the DTM a detection read, when it is no longer at the path ``detect.json`` records
     (used only when its sha256 is the recorded one).
