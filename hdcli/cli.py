@@ -203,8 +203,9 @@ def compare_cmd(reports: tuple[Path, ...], fmt: str | None) -> None:
 @friendly_errors
 def view_cmd(directory: Path, out_path: Path | None, dtm_path: Path | None, **settings: Any) -> None:
     """One self-contained HTML page (no network needed) of an hd detect output (hillshade, safety map, P(safe),
-    uncertainty and baseline as layers, the landing sites, the settings) or of an hd eval report (its tables,
-    figures and settings). DIRECTORY is an hd detect --out or hd eval --out directory."""
+    uncertainty and baseline as layers, the landing sites, the settings), of an hd descend output (each
+    descent frame by frame: the mosaic, its maps and the site track with its diverts) or of an hd eval report
+    (its tables, figures and settings). DIRECTORY is an hd detect, hd descend or hd eval --out directory."""
     from hdnet.view import ViewSettings, view_job
 
     _done(view_job(directory, out_path, ViewSettings(**settings), dtm_path))

@@ -7,7 +7,9 @@ from hdnet.detect import DetectResult as DetectResult
 from hdnet.detect import DetectRun as DetectRun
 from hdnet.detect import detect as detect
 from hdnet.detect import detect_dem as detect_dem
+from hdnet.detect import detect_threshold as detect_threshold
 from hdnet.detect import load_run as load_run
+from hdnet.detect import map_heights as map_heights
 from hdnet.detect_settings import DetectSettings as DetectSettings
 from hdnet.errors import HdNetError as HdNetError
 from hdnet.eval_settings import EvalConfig as EvalConfig

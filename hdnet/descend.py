@@ -17,7 +17,11 @@ is there):
 * ``descent-KKKKK-track.geojson``: the aim after each frame (a Point per frame, with its frame,
   altitude and whether it diverted) and the aims as one LineString, in the mosaic frame's metres;
 * ``descend.json``: the run, the input, the settings, H_t, and per descent every frame's seconds
-  (registration, mosaic, map, sites), its aim and its counts, and every divert.
+  (registration, mosaic, map, sites), its aim and its counts, and every divert (the records:
+  ``hdnet.descend_json``).
+
+A frame whose mosaic has no lander-sized square of valid cells is recorded without a map (its ``.npz``
+holds the heights, the transform and no sites; its row says why) and the descent goes on.
 
 The last frame's mosaic and maps are ``hd mosaic``'s mosaic of the same frames and ``hd detect``'s
 maps of it (the same bytes; docs/hdnet.md, "Descending").
@@ -28,47 +32,42 @@ from __future__ import annotations
 import dataclasses
 import os
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from hdcore.errors import HdWarning
 from hdcore.storage import OutputDir, write_json_atomic
 from hdlabels.mosaic import POSES, Poses, descent_frames
 from hdlabels.store import DemSpec
 from hdnet._version import __version__
 from hdnet.data import sigma_index
+from hdnet.descend_json import (
+    RECORD_NAME,
+    TIMING_STEPS,
+    AimJson,
+    DescendJson,
+    DescentJson,
+    DivertJson,
+    FrameJson,
+    TrackGeoJson,
+    frame_file,
+    is_descend_file,
+    track_file,
+)
 from hdnet.descend_settings import DescendSettings
 from hdnet.descent_flight import FrameStep, fly
-from hdnet.detect import MAPS, DetectRun, detect_threshold, load_run
+from hdnet.detect import MAPS, DetectRun, centred_transform, detect_threshold, load_run
 from hdnet.errors import HdNetError
 from hdnet.report import json_plain
+from hdnet.report_json import ThresholdJson
 from hdnet.results import SITE_COLUMNS, Site
+from hdnet.run_record import unfinished_training
 from lidarsim.location import dataset_key, has_manifest
 from lidarsim.shards import MANIFEST_KIND_MOSAICS, MANIFEST_NAME, ManifestJson, iter_descents, read_manifest
-
-RECORD_NAME = "descend.json"
-TIMING_STEPS = ("registration", "mosaic", "map", "sites")  # the seconds recorded per frame
-
-
-def frame_file(descent: int, frame: int) -> str:
-    """The name of one frame's maps (``descent-KKKKK-frame-NN.npz``)."""
-    return f"descent-{descent:05d}-frame-{frame:02d}.npz"
-
-
-def track_file(descent: int) -> str:
-    """The name of one descent's site track (``descent-KKKKK-track.geojson``)."""
-    return f"descent-{descent:05d}-track.geojson"
-
-
-def is_descend_file(name: str) -> bool:
-    """True for the names of the files ``hd descend`` writes (its output's own files)."""
-    if name == RECORD_NAME:
-        return True
-    head, _, tail = name.partition("-")
-    parts = tail.split("-")
-    return head == "descent" and len(parts) >= 2 and parts[0].isdigit() and name.endswith((".npz", ".geojson"))
 
 
 @dataclass
@@ -77,14 +76,17 @@ class DescendResult:
 
     out_dir: Path
     descents: dict[int, list[FrameStep]] = field(repr=False)
-    record: dict[str, object] = field(repr=False)
+    record: DescendJson = field(repr=False)
 
     def summary(self) -> list[str]:
-        """One line per descent (frames, diverts, final aim, median seconds per frame) and where the files are."""
+        """One line per descent (frames, those without a map, diverts, final aim, median seconds per frame)
+        and where the files are."""
         lines = []
         for index, steps in self.descents.items():
             totals = [s.timing.total_s for s in steps]
             diverts = [s.divert for s in steps if s.divert is not None]
+            unmapped = [s.frame for s in steps if s.maps is None]
+            without = f" ({len(unmapped)} without a map: {', '.join(map(str, unmapped))})" if unmapped else ""
             aim = steps[-1].aim
             final = (
                 f"final site ({aim.x:.1f}, {aim.y:.1f}) m from the target, P(safe) {aim.p_safe:.3f}"
@@ -93,7 +95,7 @@ class DescendResult:
             )
             moved = f" ({', '.join(f'{d.distance_m:.1f} m after frame {d.frame}' for d in diverts)})" if diverts else ""
             lines.append(
-                f"descent {index}: {len(steps)} frames, {len(diverts)} divert(s){moved}; {final}; "
+                f"descent {index}: {len(steps)} frames{without}, {len(diverts)} divert(s){moved}; {final}; "
                 f"{float(np.median(totals)):.2f} s per frame (median)"
             )
         lines.append(f"per-frame maps (.npz), site tracks (.geojson) and {RECORD_NAME} in {self.out_dir}")
@@ -126,6 +128,9 @@ def descend(
     output.check_place()
     run = load_run(run_dir, settings.device or None)
     dem = _mosaic_grid(run, run_dir)
+    unfinished = unfinished_training(run.checkpoint, run.header.epoch)
+    if unfinished is not None:  # as hd detect says it
+        warnings.warn(unfinished, HdWarning, stacklevel=2)
     output.add_inputs({"the checkpoint": run.checkpoint, "the run's dataset": run.dataset})
     out = output.check(settings.overwrite)
     sigmas = tuple(float(s) for s in manifest["sigmas_m"])
@@ -148,12 +153,11 @@ def descend(
             frames, target = descent_frames(scans, k)
             steps = fly(run, frames, target, dem, poses, mapping, threshold)
             flown[index], splits[index] = steps, scans[0].split
-            _write_descent(tmp, index, steps)
+            write_descent(tmp, index, steps, dem.spacing_m)
             if progress:
                 progress(frames_per_descent * len(flown), total)
         record = _record(run, data, sigmas[k], dem, poses, settings, threshold[1], flown, splits)
         record["seconds"] = round(time.perf_counter() - t_start, 3)
-        record = json_plain(record)
         write_json_atomic(tmp / RECORD_NAME, record)
         output.commit()
     return DescendResult(out, flown, record)
@@ -227,25 +231,28 @@ def _mosaic_grid(run: DetectRun, run_dir: str | os.PathLike) -> DemSpec:
     return DemSpec(int(dem["rows"]), int(dem["cols"]), float(dem["spacing_m"]), str(dem["gridding"]))
 
 
-def _write_descent(tmp: Path, index: int, steps: list[FrameStep]) -> None:
-    """Step 3: one descent's per-frame maps (``.npz``) and its site track (GeoJSON) into ``tmp``."""
+def write_descent(tmp: Path, index: int, steps: list[FrameStep], spacing_m: float) -> None:
+    """Step 3: one descent's per-frame maps (``.npz``) and its site track (GeoJSON) into ``tmp``; a frame
+    without a map has its heights, transform (the scan frame of ``spacing_m``-metre cells centred on
+    the mosaic, as its maps would have) and no sites."""
     for step in steps:
         maps = step.maps
-        arrays = {spec.field: getattr(maps, spec.field) for spec in MAPS}
-        sites = np.array([[s.columns()[c] for c in SITE_COLUMNS] for s in maps.sites], dtype=np.float64)
+        arrays = {} if maps is None else {spec.field: getattr(maps, spec.field) for spec in MAPS}
+        transform = centred_transform(step.heights.shape, spacing_m) if maps is None else maps.transform
+        sites = np.array([[s.columns()[c] for c in SITE_COLUMNS] for s in step.sites], dtype=np.float64)
         with open(tmp / frame_file(index, step.frame), "wb") as f:
             np.savez_compressed(
                 f,
                 heights_m=step.heights,
-                transform=np.array(list(maps.transform)[:6], dtype=np.float64),
-                sites=sites.reshape(len(maps.sites), len(SITE_COLUMNS)),
+                transform=np.array(list(transform)[:6], dtype=np.float64),
+                sites=sites.reshape(len(step.sites), len(SITE_COLUMNS)),
                 site_columns=np.array(SITE_COLUMNS),
                 **arrays,
             )
     write_json_atomic(tmp / track_file(index), track_geojson(steps), indent=1)
 
 
-def track_geojson(steps: list[FrameStep]) -> dict[str, object]:
+def track_geojson(steps: list[FrameStep]) -> TrackGeoJson:
     """The aim after each frame as GeoJSON: a Point per frame with an aim (its frame, altitude, site and
     whether it diverted there) and the aims in order as one LineString (mosaic-frame metres)."""
     points: list[dict[str, object]] = []
@@ -263,30 +270,65 @@ def track_geojson(steps: list[FrameStep]) -> dict[str, object]:
                 "properties": json_plain({**properties, **step.aim.columns()}),
             }
         )
-    track = {"type": "Feature", "geometry": {"type": "LineString", "coordinates": line}, "properties": {"aim": "track"}}
+    track: dict[str, object] = {
+        "type": "Feature",
+        "geometry": {"type": "LineString", "coordinates": line},
+        "properties": {"aim": "track"},
+    }
     return {"type": "FeatureCollection", "features": [*points, track]}
 
 
-def _aim(site: Site | None) -> dict[str, object] | None:
+def _aim(site: Site | None) -> AimJson | None:
     return None if site is None else json_plain(site.columns())
 
 
-def frame_record(step: FrameStep) -> dict[str, object]:
-    """One frame's row of ``descend.json``: its seconds per step, its aim, its counts and its divert."""
+def _divert(step: FrameStep) -> DivertJson | None:
+    if step.divert is None:
+        return None
+    d = step.divert
+    return {
+        "frame": d.frame,
+        "elapsed_s": d.elapsed_s,
+        "altitude_m": d.altitude_m,
+        "old": [float(v) for v in d.old],
+        "new": [float(v) for v in d.new],
+        "distance_m": d.distance_m,
+        "reason": d.reason,
+    }
+
+
+def frame_record(step: FrameStep) -> FrameJson:
+    """One frame's row of ``descend.json``: its seconds per step, its aim, its counts, its divert and why
+    it has no map (None: it has one)."""
     t = step.timing
     seconds = (t.registration_s, t.mosaic_s, t.map_s, t.sites_s)
-    row: dict[str, object] = {
+    row: FrameJson = {
         "frame": step.frame,
         "altitude_m": round(step.altitude_m, 3),
         "timings_s": {name: round(v, 4) for name, v in zip(TIMING_STEPS, seconds, strict=True)},
         "aim": _aim(step.aim),
-        "n_sites": len(step.maps.sites),
-        "counts": step.maps.counts,
-        "divert": None if step.divert is None else json_plain(dataclasses.asdict(step.divert)),
+        "n_sites": len(step.sites),
+        "counts": None if step.maps is None else step.maps.counts,
+        "divert": _divert(step),
+        "no_map": step.no_map,
     }
     if step.registration is not None:
         row["registration_fitness"] = [float(v) for v in step.registration.fitness]
     return row
+
+
+def descent_record(index: int, split: str | None, steps: list[FrameStep]) -> DescentJson:
+    """One descent's entry of ``descend.json``: its frames, diverts, final aim, median seconds and files."""
+    totals = [s.timing.total_s for s in steps]
+    return {
+        "descent": index,
+        "split": split,
+        "frames": [frame_record(s) for s in steps],
+        "diverts": [d for s in steps if (d := _divert(s)) is not None],
+        "final_site": _aim(steps[-1].aim),
+        "median_frame_s": round(float(np.median(totals)), 4),
+        "files": [frame_file(index, s.frame) for s in steps] + [track_file(index)],
+    }
 
 
 def _record(
@@ -296,33 +338,21 @@ def _record(
     dem: DemSpec,
     poses: str,
     settings: DescendSettings,
-    threshold: dict[str, object] | object,
+    threshold: ThresholdJson,
     flown: dict[int, list[FrameStep]],
     splits: dict[int, str],
-) -> dict[str, object]:
-    """Step 4: ``descend.json``'s record."""
-    descents = []
-    for index, steps in flown.items():
-        totals = [s.timing.total_s for s in steps]
-        descents.append(
-            {
-                "descent": index,
-                "split": splits.get(index),
-                "frames": [frame_record(s) for s in steps],
-                "diverts": [dataclasses.asdict(s.divert) for s in steps if s.divert is not None],
-                "final_site": _aim(steps[-1].aim),
-                "median_frame_s": round(float(np.median(totals)), 4),
-                "files": [frame_file(index, s.frame) for s in steps] + [track_file(index)],
-            }
-        )
+) -> DescendJson:
+    """Step 4: ``descend.json``'s record (``seconds`` 0 until the caller sets it)."""
     return {
         "software": "hd",
         "software_version": __version__,
         "run": {"checkpoint": str(run.checkpoint.resolve()), "dataset": run.recorded_dataset, "labels": run.labels},
         "input": {"dataset": dataset_key(data), "sigma_m": sigma_m, "poses": poses, "dem": dem.to_entry()},
-        "settings": dataclasses.asdict(settings),
-        "threshold": threshold,
+        "lander": json_plain(dataclasses.asdict(run.lander)),
+        "settings": json_plain(dataclasses.asdict(settings)),
+        "threshold": json_plain(threshold),
         "frame": "metres east and north of each descent's target, as its newest frame's navigation places it",
         "timing_steps": list(TIMING_STEPS),
-        "descents": descents,
+        "descents": [json_plain(descent_record(i, splits.get(i), steps)) for i, steps in flown.items()],
+        "seconds": 0.0,
     }

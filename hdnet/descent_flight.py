@@ -55,9 +55,12 @@ from hdnet.detect_settings import DetectSettings
 from hdnet.report_json import ThresholdJson
 from hdnet.results import Site
 from hdnet.sites import SAFETY_SAFE, body_disk
+from lidarsim.errors import TerrainError
 
 # Why an aim changed (``Divert.reason``).
 REASON_UNSAFE = "the aim's lander footprint is no longer safe and certain"
+# Why a frame has no map (``FrameStep.no_map``, followed by the mapping's own words).
+REASON_NO_MAP = "no map of this frame's mosaic, the aim held"
 
 
 @dataclass(frozen=True)
@@ -99,21 +102,31 @@ class FrameStep:
         frame: the frame's index in the descent (0 the highest).
         altitude_m: the frame's sensor height above the target by the navigation, metres.
         heights: float32 (rows, cols) the mosaic of the frames so far, metres (NaN where none has a height).
-        maps: its maps and ranked sites (``hdnet.detect.DetectMaps``).
-        aim: the site aimed at after this frame (None: no site yet).
+        maps: its maps and ranked sites (``hdnet.detect.DetectMaps``); None when the mosaic has no map
+            (``no_map`` says why).
+        aim: the site aimed at after this frame (None: no site yet); held from the frame before when
+            the frame has no map.
         divert: the change of aim this frame made (None: none).
         timing: the seconds of each step.
         registration: the registration of the frames so far to this one (``registered`` poses only).
+        no_map: why the frame has no map (None: it has one), e.g. a mosaic without a lander-sized square
+            of valid cells.
     """
 
     frame: int
     altitude_m: float
     heights: np.ndarray
-    maps: DetectMaps
+    maps: DetectMaps | None
     aim: Site | None
     divert: Divert | None
     timing: FrameTiming
     registration: Registration | None = None
+    no_map: str | None = None
+
+    @property
+    def sites(self) -> list[Site]:
+        """The frame's ranked sites (none when it has no map)."""
+        return [] if self.maps is None else self.maps.sites
 
 
 class OnlineMosaic:
@@ -205,7 +218,9 @@ def fly(
     ``frames``: the descent's frames in the order they arrive (``hdlabels.mosaic.descent_frames`` at one
     noise level); ``dem``: the mosaic's grid (the run's); ``settings``: how each mosaic is mapped
     (``settings.sigma_m`` the frames' noise level, metres); ``threshold``: H_t (nats) and its record,
-    found once (``hdnet.detect.detect_threshold``).
+    found once (``hdnet.detect.detect_threshold``). A mosaic with no lander-footprint-sized square of
+    valid cells (a frame that saw little ground) is recorded without a map, the aim held, and the
+    descent goes on (``FrameStep.no_map`` says why).
     """
     mosaic = OnlineMosaic(target_map, dem, poses)
     steps: list[FrameStep] = []
@@ -213,11 +228,13 @@ def fly(
     start = time.perf_counter()
     for k, frame in enumerate(frames):
         heights, registration, t_reg, t_mosaic = mosaic.add(frame)
-        times: dict[str, float] = {}
-        maps = map_heights(run, heights, settings, threshold, scan_frame=True, timings=times)
+        times: dict[str, float] = {"map": 0.0, "sites": 0.0}
+        maps, no_map = _map_of(run, heights, settings, threshold, times)
         t0 = time.perf_counter()
         old = aim
-        aim, diverted = retarget(aim, maps.sites, maps.safety, maps.transform, run.lander, settings.site_margin_m)
+        diverted = False
+        if maps is not None:
+            aim, diverted = retarget(aim, maps.sites, maps.safety, maps.transform, run.lander, settings.site_margin_m)
         t_sites = times["sites"] + time.perf_counter() - t0
         divert = None
         altitude = frame_altitude_m(frame, target_map)
@@ -232,5 +249,22 @@ def fly(
                 reason=REASON_UNSAFE,
             )
         timing = FrameTiming(t_reg, t_mosaic, times["map"], t_sites)
-        steps.append(FrameStep(k, altitude, heights, maps, aim, divert, timing, registration))
+        steps.append(FrameStep(k, altitude, heights, maps, aim, divert, timing, registration, no_map))
     return steps
+
+
+def _map_of(
+    run: DetectRun,
+    heights: np.ndarray,
+    settings: DetectSettings,
+    threshold: tuple[float, ThresholdJson],
+    times: dict[str, float],
+) -> tuple[DetectMaps | None, str | None]:
+    """Step 3 of :func:`fly`: the mosaic's maps and sites, or (None, why) when it has no
+    lander-footprint-sized square of valid cells (``TerrainError``; the seconds spent into ``times``)."""
+    t0 = time.perf_counter()
+    try:
+        return map_heights(run, heights, settings, threshold, scan_frame=True, timings=times), None
+    except TerrainError as exc:
+        times["map"] = time.perf_counter() - t0
+        return None, f"{REASON_NO_MAP}: {exc}"

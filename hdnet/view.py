@@ -18,6 +18,8 @@ read, when it is still there with the same bytes (the DTM's sha256, the dataset'
 label shard's checksum): a DTM at another path can be given (``dtm``); without it the page says
 why there is no hillshade.
 
+A descent output's page (``hd descend``; its marker ``descend.json``): ``hdnet.view_descent``.
+
 A report's page: ``report.md``'s content (the tables with their numbers from ``report.json``,
 rendered by ``hdnet.report.report_markdown``), its figures inline, and every setting of the
 report (``hdnet.compare.settings``).
@@ -65,6 +67,7 @@ from hdnet._version import __version__
 from hdnet.chance import threshold_warning
 from hdnet.compare import read_report
 from hdnet.compare import settings as report_settings
+from hdnet.descend_json import RECORD_NAME as DESCEND_MARKER
 from hdnet.detect_json import DetectInfoJson
 from hdnet.errors import HdNetError
 from hdnet.page_values import number, readable, shown_path, without_paths
@@ -131,7 +134,7 @@ class ViewSettings:
 
 @dataclass
 class ViewResult:
-    """What ``view`` wrote: the page, its kind (``detect`` or ``report``), its size and what it shows."""
+    """What ``view`` wrote: the page, its kind (``detect``, ``descend`` or ``report``), its size and what it shows."""
 
     path: Path
     kind: str
@@ -155,12 +158,14 @@ def source_of(path: str | os.PathLike) -> tuple[Path, str]:
             holds neither marker (each with what to give instead), or one that holds both.
     """
     p = Path(path)
-    if p.name in (DETECT_MARKER, REPORT_MARKER) and not p.is_dir():
+    if p.name in (DETECT_MARKER, REPORT_MARKER, DESCEND_MARKER) and not p.is_dir():
         p = p.parent
     if not p.exists():
         raise HdNetError(f"{p}: no such directory; give an hd detect --out or hd eval --out directory")
     if not p.is_dir():
         raise HdNetError(f"{p} is a file, not an hd detect or hd eval output directory")
+    if os.path.lexists(p / DESCEND_MARKER):
+        return p, "descend"  # hd descend writes neither of the other markers
     has = {m: os.path.lexists(p / m) for m in (DETECT_MARKER, REPORT_MARKER)}
     if all(has.values()):
         raise HdNetError(f"{p} holds both {DETECT_MARKER} and {REPORT_MARKER}: hd never writes both in one directory")
@@ -1140,7 +1145,8 @@ def view(
     settings: ViewSettings | None = None,
     dtm: str | os.PathLike | None = None,
 ) -> ViewResult:
-    """Write the page of the detect output or report ``directory`` to ``out`` (default ``directory/view.html``).
+    """Write the page of the detect output, descend output or report ``directory`` to ``out`` (default
+    ``directory/view.html``).
 
     ``dtm``: the DTM a detection read, when it is no longer at the path ``detect.json`` records
     (used only when its sha256 is the recorded one).
@@ -1155,10 +1161,15 @@ def view(
     source, kind = source_of(directory)
     target = check_out(Path(out) if out is not None else source / VIEW_NAME)
     if dtm is not None and kind != "detect":
-        raise HdNetError(f"--dtm goes with an hd detect output; {source} is an hd eval report")
+        what = "an hd descend output (its hillshades are its mosaics')" if kind == "descend" else "an hd eval report"
+        raise HdNetError(f"--dtm goes with an hd detect output; {source} is {what}")
     with _reading(source, target):
         if kind == "detect":
             text, shown = detect_page(read_detect(source), cfg, Path(dtm) if dtm is not None else None, target.parent)
+        elif kind == "descend":
+            from hdnet.view_descent import descend_page, read_descend
+
+            text, shown = descend_page(read_descend(source), cfg.max_px)
         else:
             text, shown = report_page(source, target.parent)
         check_out(target)  # once more, now that the page is made

@@ -245,6 +245,85 @@ SCRIPT = """
 """
 
 
+# A descent page's own style (``hd view`` of an ``hd descend`` output), after STYLE: each descent's map
+# (its frames stacked, one shown), the frame stepper and the site track drawn over the maps.
+DESCENT_STYLE = """
+.descent-panel { flex: 1 1 0; min-width: 0; max-width: 820px; }
+.descent-map { position: relative; width: 100%; border: 1px solid var(--line); background: #fff; }
+.descent-map .frame { position: absolute; left: 0; top: 0; width: 100%; height: 100%; }
+.descent-map .no-map { position: absolute; left: 8px; top: 8px; margin: 0; background: #fff4e0;
+  border: 1px solid #e0a040; padding: 4px 8px; border-radius: 4px; font-size: 13px; }
+.stepper { display: flex; gap: 6px; align-items: center; }
+.stepper input[type=range] { flex: 1 1 auto; }
+.frame-label { font-weight: 600; min-height: 2.9em; margin: 4px 0; }
+.track-line { fill: none; stroke: #ffffff; stroke-width: 2.5px; }
+.track-line-under { fill: none; stroke: #000; stroke-width: 4.5px; }
+.track-point { fill: #fff; stroke: #000; stroke-width: 1px; }
+.aim-ring { fill: none; stroke: #ffd400; stroke-width: 2.5px; }
+.aim-halo { fill: none; stroke: #000; stroke-width: 4.5px; }
+.site-dot { fill: none; stroke: #fff; stroke-width: 1px; stroke-dasharray: 2 2; }
+.divert-arrow { stroke: #ff2d9b; stroke-width: 2.5px; fill: none; }
+.divert-head { fill: #ff2d9b; stroke: none; }
+.divert-label { fill: #000; paint-order: stroke; stroke: #fff; font-weight: 700; }
+tr.frame-row { cursor: pointer; } tr.frame-row:hover { background: #eef3fb; }
+tr.frame-row.selected { background: #fff3b0; }
+"""
+
+# A descent page's behaviour, after SCRIPT: per descent section, the frame shown (slider, step buttons,
+# a click on a frame's row), the layers' visibility and opacity (every frame's layer of that name), and
+# the map coordinates under the pointer.
+DESCENT_SCRIPT = """
+(function () {
+  "use strict";
+  function all(root, selector) { return Array.prototype.slice.call(root.querySelectorAll(selector)); }
+  all(document, "section.descent").forEach(function (section) {
+    var frames = all(section, ".frame"), slider = section.querySelector("input.frame-slider");
+    var label = section.querySelector(".frame-label"), rows = all(section, "tr.frame-row");
+    function show(k) {
+      k = Math.max(0, Math.min(frames.length - 1, k));
+      slider.value = String(k);
+      frames.forEach(function (f) { f.hidden = Number(f.dataset.frame) !== k; });
+      rows.forEach(function (r) { r.classList.toggle("selected", Number(r.dataset.frame) === k); });
+      label.textContent = frames[k].dataset.label;
+      section.dataset.shown = String(k);
+    }
+    slider.addEventListener("input", function () { show(Number(slider.value)); });
+    all(section, "button.frame-step").forEach(function (button) {
+      button.addEventListener("click", function () { show(Number(slider.value) + Number(button.dataset.step)); });
+    });
+    rows.forEach(function (row) { row.addEventListener("click", function () { show(Number(row.dataset.frame)); }); });
+    all(section, "input.descent-toggle").forEach(function (box) {
+      function apply() {
+        all(section, ".layer-" + box.dataset.key).forEach(function (l) {
+          l.style.display = box.checked ? "" : "none";
+        });
+      }
+      box.addEventListener("change", apply);
+      apply();
+    });
+    all(section, "input.descent-opacity").forEach(function (slide) {
+      function apply() {
+        all(section, ".layer-" + slide.dataset.key).forEach(function (l) {
+          l.style.opacity = String(Number(slide.value) / 100);
+        });
+      }
+      slide.addEventListener("input", apply);
+      apply();
+    });
+    var map = section.querySelector(".descent-map"), readout = section.querySelector(".descent-readout");
+    map.addEventListener("mousemove", function (event) {
+      var r = map.getBoundingClientRect(), d = map.dataset;
+      var x = Number(d.left) + (event.clientX - r.left) / r.width * Number(d.width);
+      var y = Number(d.top) - (event.clientY - r.top) / r.height * Number(d.height);
+      readout.textContent = "x " + x.toFixed(1) + " m, y " + y.toFixed(1) + " m";
+    });
+    map.addEventListener("mouseleave", function () { readout.textContent = ""; });
+    show(Number(slider.value));
+  });
+})();
+"""
+
+
 def esc(text: object) -> str:
     """``text`` as HTML text or attribute value (``&``, ``<``, ``>`` and both quotes escaped)."""
     return html.escape(str(text), quote=True)
@@ -272,26 +351,31 @@ def csp(style: str, script: str) -> str:
     )
 
 
-def page(title: str, body: str, description: str = "", style: str = "") -> str:
+def page(title: str, body: str, description: str = "", style: str = "", script: str = "") -> str:
     """The whole HTML document: ``title`` (text) and ``body`` (HTML), with the style and script inline
     and the policy that allows them and nothing else inline (:func:`csp`). ``style``: CSS rules of this
-    page (made by hd, never of a file's text), after the common ones.
+    page (made by hd, never of a file's text), after the common ones; ``script``: this page's own
+    script (one of this module's, e.g. :data:`DESCENT_SCRIPT`), after the common one, in the same block.
 
     Raises:
-        ValueError: ``style`` holds ``<`` (it could end the style block).
+        ValueError: ``style`` holds ``<`` (it could end the style block), ``script`` holds ``</`` (it
+            could end the script block).
     """
     if "<" in style:
         raise ValueError("a page's style holds '<'")
+    if "</" in script:
+        raise ValueError("a page's script holds '</'")
     sheet = STYLE + style
+    code = SCRIPT + script
     return (
         "<!DOCTYPE html>\n"
         '<html lang="en">\n<head>\n<meta charset="utf-8">\n'
         f'<meta name="generator" content="{GENERATOR} {esc(__version__)}">\n'
-        f'<meta http-equiv="Content-Security-Policy" content="{csp(sheet, SCRIPT)}">\n'
+        f'<meta http-equiv="Content-Security-Policy" content="{csp(sheet, code)}">\n'
         '<meta name="viewport" content="width=device-width, initial-scale=1">\n'
         + (f'<meta name="description" content="{esc(description)}">\n' if description else "")
         + f"<title>{esc(title)}</title>\n<style>{sheet}</style>\n</head>\n<body>\n{body}\n"
-        f"<script>{SCRIPT}</script>\n</body>\n</html>\n"
+        f"<script>{code}</script>\n</body>\n</html>\n"
     )
 
 

@@ -99,6 +99,15 @@ def reduced_array(values: np.ndarray, reduction: Reduction) -> np.ndarray:
     return _reduce_block(block, f, categorical=False)
 
 
+def reduced_codes(codes: np.ndarray, reduction: Reduction) -> np.ndarray:
+    """Safety codes of ``reduction.grid`` cells in memory (uint8) reduced as :func:`reduced_map` reduces a
+    safety map: each block's worst class."""
+    f = reduction.factor
+    block = np.full((reduction.shape[0] * f, reduction.shape[1] * f), SAFETY_INVALID, np.uint8)
+    block[: codes.shape[0], : codes.shape[1]] = codes
+    return _reduce_block(block, f, categorical=True)
+
+
 def reduced_map(path: Path, reduction: Reduction, categorical: bool = False) -> np.ndarray:
     """Band 1 of the map at ``path`` reduced as ``reduction`` says (see the module's docstring):
     float32 with NaN where a block has no valid cell, or (``categorical``) the safety codes, uint8.

@@ -4,11 +4,14 @@ out unsafe."""
 
 from __future__ import annotations
 
+import html
 import importlib
 import json
+import re
 import shutil
 import warnings
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -20,11 +23,13 @@ from hdcli.cli import main
 from hdcore.errors import HdWarning
 from hdlabels.lander import Lander
 from hdlabels.mosaic import descent_frames
-from hdnet.descent_flight import FrameStep, aim_is_safe, fly, retarget
+from hdnet.descent_flight import REASON_NO_MAP, FrameStep, aim_is_safe, fly, retarget
 from hdnet.detect import DetectMaps, centred_transform, load_run
 from hdnet.detect_settings import DetectSettings
 from hdnet.sites import SAFETY_SAFE, SAFETY_UNSAFE, select_sites
+from hdnet.view import view
 from lidarsim.build import build_dataset
+from lidarsim.errors import TerrainError
 from lidarsim.recipe import BuildSettings
 from lidarsim.shards import iter_descents, iter_scans
 from tests.geotiff import write_geotiff
@@ -254,3 +259,81 @@ def test_what_is_not_a_descent_build_or_a_mosaic_run_is_refused(flown: dict[str,
     )
     assert result.exit_code == 1 and "holds single scans, not descent mosaics" in result.output, result.output
     assert len(result.output.strip().splitlines()) == 1 and not out.exists()
+
+
+def test_a_frame_without_a_map_is_recorded_and_the_descent_goes_on(
+    flown: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Frame 0's mosaic has no lander-sized valid square (TerrainError, as map_heights raises it): the frame
+    is recorded without a map, the aim is the next frame's best site, the last frame is as before; an
+    unfinished run is said as hd detect says it; the plain summary line."""
+    module = importlib.import_module("hdnet.descent_flight")
+    real = module.map_heights
+    calls: list[int] = []
+
+    def first_has_no_room(*args: Any, **kwargs: Any) -> DetectMaps:
+        calls.append(1)
+        if len(calls) == 1:
+            raise TerrainError("the height array is too small for the lander footprint")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(module, "map_heights", first_has_no_room)
+    partial = tmp_path / "run"
+    shutil.copytree(flown["run"], partial)
+    config = json.loads((partial / "config.json").read_text())
+    (partial / "config.json").write_text(json.dumps(config | {"epochs": 10}))
+    test = int(str(flown["test"]))
+    out = tmp_path / "d"
+    args = ["--no-progress", "descend", str(partial), "--data", str(flown["source"]), "--descent", str(test)]
+    result = CliRunner().invoke(main, [*args, "--out", str(out), *QUICK])
+    assert result.exit_code == 0, result.output
+    lines = result.output.strip().splitlines()
+    assert any(line.startswith("Warning: ") and "1 of its 10 epochs trained" in line for line in lines), lines
+    summary = next(line for line in lines if line.startswith(f"descent {test}: "))
+    pattern = (
+        rf"descent {test}: 3 frames \(1 without a map: 0\), (\d+) divert\(s\)( \(.*\))?; final site "
+        r"\((-?\d+\.\d), (-?\d+\.\d)\) m from the target, P\(safe\) (\d\.\d{3}); (\d+\.\d\d) s per frame \(median\)"
+    )
+    match = re.fullmatch(pattern, summary)
+    assert match is not None, summary
+    assert lines[-1] == f"per-frame maps (.npz), site tracks (.geojson) and descend.json in {out}"
+    (descent,) = json.loads((out / "descend.json").read_text())["descents"]
+    first, *later = descent["frames"]
+    assert first["no_map"].startswith(REASON_NO_MAP) and "too small for the lander footprint" in first["no_map"]
+    assert first["aim"] is None and first["counts"] is None and first["n_sites"] == 0 and first["divert"] is None
+    assert all(f["no_map"] is None and f["counts"] for f in later) and later[0]["aim"] is not None
+    assert int(match.group(1)) == len(descent["diverts"])
+    final = descent["final_site"]
+    assert (match.group(3), match.group(4), match.group(5)) == (
+        f"{final['x']:.1f}",
+        f"{final['y']:.1f}",
+        f"{final['p_safe']:.3f}",
+    )
+    frame0 = np.load(out / f"descent-{test:05d}-frame-00.npz")
+    assert set(frame0.files) == {"heights_m", "transform", "sites", "site_columns"} and frame0["sites"].shape == (0, 8)
+    before = np.load(flown["online"] / f"descent-{test:05d}-frame-00.npz")
+    assert frame0["heights_m"].tobytes() == before["heights_m"].tobytes()
+    np.testing.assert_array_equal(frame0["transform"], before["transform"])  # the grid its maps would have had
+    last = f"descent-{test:05d}-frame-02.npz"
+    assert np.load(out / last)["p_safe"].tobytes() == np.load(flown["online"] / last)["p_safe"].tobytes()
+    view(out)  # the page of a descent with a frame without a map
+    page = (out / "view.html").read_text()
+    assert html.escape("N" + REASON_NO_MAP[1:]) in page
+
+
+def test_the_page_of_a_descent_flown_has_its_frames_and_its_track(flown: dict[str, Path], tmp_path: Path) -> None:
+    out = tmp_path / "online"
+    shutil.copytree(flown["online"], out)
+    result = CliRunner().invoke(main, ["view", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "hd descend output, 1 descent(s), 3 frames, images 40 x 40 px" in result.output
+    raw = (out / "view.html").read_text(encoding="utf-8")
+    test = int(str(flown["test"]))
+    record = json.loads((out / "descend.json").read_text())
+    assert str(flown["tmp"]) not in raw and record["run"]["checkpoint"] not in raw  # no absolute path
+    section = raw[raw.index(f'<section class="descent" id="descent-{test}"') :]
+    assert section.count('<div class="frame" data-frame=') == 3
+    aims = [f for f in record["descents"][0]["frames"] if f["aim"] is not None]
+    last_track = section[section.index('data-frame="2"') :]
+    assert last_track.count('class="track-point"') == len(aims) == 3  # every frame has an aim
+    assert record["lander"]["diameter_m"] > 0 and record["descents"][0]["frames"][0]["no_map"] is None
