@@ -71,6 +71,23 @@ def test_mode_inside_context_is_eval_except_dropout() -> None:
     assert not any(m.training for m in model.modules())
 
 
+def test_sampling_runs_in_float32_proper_and_restores_the_tf32_flags() -> None:
+    """On a GPU, TF32 convolutions moved P(safe) by up to 0.107 against the CPU and changed a best site
+    (hdnet.infer's docstring): MC sampling switches TF32 off, and gives the user's flags back after."""
+    model = _model().eval()
+    flags = (torch.backends.cudnn.allow_tf32, torch.backends.cuda.matmul.allow_tf32)
+    try:
+        torch.backends.cudnn.allow_tf32, torch.backends.cuda.matmul.allow_tf32 = True, True
+        with mc_dropout_mode(model):
+            assert not torch.backends.cudnn.allow_tf32 and not torch.backends.cuda.matmul.allow_tf32
+        assert torch.backends.cudnn.allow_tf32 and torch.backends.cuda.matmul.allow_tf32
+        with pytest.raises(RuntimeError), mc_dropout_mode(model):
+            raise RuntimeError("a failed pass")
+        assert torch.backends.cudnn.allow_tf32 and torch.backends.cuda.matmul.allow_tf32
+    finally:
+        torch.backends.cudnn.allow_tf32, torch.backends.cuda.matmul.allow_tf32 = flags
+
+
 @pytest.mark.parametrize("chunk", [None, 3, 1])
 def test_shared_prefix_equals_naive_under_same_masks(chunk) -> None:
     model = _model()
