@@ -40,8 +40,8 @@ from hdcore.redact import REDACTED, printable_location, redact_urls
 from lidarsim.shards import read_manifest
 from tests.remote_servers import http_server
 
-# Examples per target: (normal run, long campaign). The long campaign draws about 10 600 examples,
-# sized for about 50 minutes on one core of the project's loaded 2-core machine (docs/reliability.md).
+# Examples per target: (normal run, long campaign). The long campaign draws 9 650 examples (fewer distinct
+# where a target's space is small), 7 minutes on the project's loaded 2-core machine (docs/reliability.md).
 SIZES = {
     "redact/printable": (200, 4000),
     "redact/text": (200, 4000),
