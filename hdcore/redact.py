@@ -19,9 +19,17 @@ import re
 REDACTED = "***"
 # A URL: a scheme (RFC 3986: a letter, then letters, digits, +, . or -), then ``://``.
 _URL = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]*://")
+# A quote inside a URL (RFC 3986 allows ``'`` in user information, path, query and fragment: a password
+# or token may hold one), not one that closes a quoted URL: one followed by the end of the text, a space
+# or other quotes, maybe after punctuation that ends a sentence (``'URL': not found``, ``('URL')``).
+_QUOTE_INSIDE = r"'(?![.,;:)\]}>'\"]*(?:[\s\"<>`]|$))"
 # A URL inside a text: a scheme not inside a word or path, then one or more ``/`` (a URL read as a path
-# has lost one: ``http:/host``), up to the first space, quote or angle bracket.
-_URL_IN_TEXT = re.compile(r"(?<![A-Za-z0-9+.\-/])[A-Za-z][A-Za-z0-9+.-]*:/+[^\s'\"<>`]+")
+# has lost one: ``http:/host``), its user information (up to its ``@``, quotes and all), then up to the
+# first space, double quote, backquote, angle bracket or closing quote.
+_URL_IN_TEXT = re.compile(
+    r"(?<![A-Za-z0-9+.\-/])[A-Za-z][A-Za-z0-9+.-]*:/+"
+    rf"(?:[^\s/?#@<>\"`]*@)?(?:[^\s'\"<>`]|{_QUOTE_INSIDE})+"
+)
 # hd choice: the shortest secret of a URL that :func:`redact_text` also looks for outside URLs, characters
 # (a shorter query value, ``?v=2``, is a setting rather than a secret; replacing it would garble the text).
 MIN_SECRET_CHARS = 6

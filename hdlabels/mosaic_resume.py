@@ -111,12 +111,17 @@ def resumable(out: Path, fingerprint: str, record: Mapping[str, object], overwri
 
 def start(out: Path, fingerprint: str, record: Mapping[str, object]) -> Path:
     """The resume directory of ``out`` for these settings (under the output's lock): one of other
-    settings is cleared, partial files of a killed run removed, ``state.json`` written."""
+    settings is cleared, partial files of a killed run and directories in it (where a descent file goes)
+    removed, ``state.json`` written."""
     resume = out / RESUME_DIR
     if os.path.lexists(resume) and (resume.is_symlink() or _read_state(resume).get(_FINGERPRINT) != fingerprint):
         discard(out)
     make_subdir(out, RESUME_DIR)
     remove_partials(resume)
+    for entry in resume.iterdir():  # hd's own directory: a link or directory where a descent file goes is cleared
+        if entry.is_symlink() or entry.is_file():
+            continue
+        shutil.rmtree(entry, ignore_errors=True)
     if _read_state(resume).get(_FINGERPRINT) != fingerprint:
         write_json_atomic(resume / STATE_NAME, {_FINGERPRINT: fingerprint, "mosaic": _plain(record)})
     return resume

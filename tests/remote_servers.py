@@ -197,6 +197,49 @@ class MisbehavingHandler(PlainHandler):
         self.server.bytes_sent += len(block)  # type: ignore[attr-defined]
 
 
+class RecordingHandler(RangeHandler):
+    """A Range server that records each request's path and ``Authorization`` header (``server.seen``)."""
+
+    def send_head(self) -> Any:
+        self.server.seen.append((self.path, self.headers.get("Authorization")))  # type: ignore[attr-defined]
+        return super().send_head()
+
+
+class RedirectHandler(RecordingHandler):
+    """A server that records each request (``server.seen``) and answers it with ``302 Found`` to the same
+    path, without its query string, at ``server.redirect_to`` (another origin: ``http://127.0.0.1:PORT``)."""
+
+    def send_head(self) -> Any:
+        self.server.seen.append((self.path, self.headers.get("Authorization")))  # type: ignore[attr-defined]
+        self.send_response(302)
+        self.send_header("Location", self.server.redirect_to + self.path.split("?", 1)[0])  # type: ignore[attr-defined]
+        self.send_header("Content-Length", "0")
+        self.end_headers()
+        return None
+
+
+class LyingLengthHandler(PlainHandler):
+    """A plain server whose GET of a file named in ``server.faults`` lies about its length: ``"longer"``
+    announces a Content-Length one block longer than the file and closes after the file; ``"shorter"``
+    announces half the file's length and sends all of it."""
+
+    def do_GET(self) -> None:
+        fault = self.server.faults.get(self.path.split("?", 1)[0].rsplit("/", 1)[-1])  # type: ignore[attr-defined]
+        if fault is None:
+            super().do_GET()
+            return
+        self.server.requests.append(self.path)  # type: ignore[attr-defined]
+        data = Path(self.translate_path(self.path.split("?", 1)[0])).read_bytes()
+        self.send_response(200)
+        self.send_header("Content-Type", "application/octet-stream")
+        self.send_header("Content-Length", str(len(data) + (1 << 16) if fault == "longer" else len(data) // 2))
+        self.send_header("Connection", "close")
+        self.end_headers()
+        with contextlib.suppress(BrokenPipeError, ConnectionResetError):
+            self.wfile.write(data)
+        self.close_connection = True
+
+
 class QuietServer(ThreadingHTTPServer):
     """A threaded HTTP server that says nothing when a client hangs up mid-body (hd asking whether a
     server has ranges, or refusing the rest of a body): that is no error of the server's."""
@@ -220,6 +263,7 @@ def http_server(
     server.requests = []  # type: ignore[attr-defined]  # the paths PlainHandler records
     server.release = threading.Event()  # type: ignore[attr-defined]  # ends a silent handler's wait
     server.faults = {}  # type: ignore[attr-defined]
+    server.seen = []  # type: ignore[attr-defined]  # (path, Authorization) of each request, by the recording handlers
     for key, value in settings.items():
         setattr(server, key, value)
     thread = threading.Thread(target=server.serve_forever, daemon=True)

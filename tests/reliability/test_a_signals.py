@@ -283,3 +283,35 @@ def test_mosaic_killed_mid_run_resumes_per_descent_to_the_same_bytes(tmp_path, d
     files = {p.name: p.read_bytes() for p in out.iterdir()}
     assert files == {p.name: p.read_bytes() for p in fresh.iterdir()}
     assert partials(out) == [] and sorted(files) == ["manifest.json", "mosaics-00000.h5"]
+
+
+def test_descend_killed_mid_run_leaves_nothing_half_written_and_resumes_to_the_same_maps(tmp_path, dtm):
+    """hd descend SIGKILLed while it writes the first descent's site track (its frame maps staged): the
+    output directory holds no file under a final name (only the hidden staging directory, no
+    descend.json); the same command then writes every frame's maps and track with the bytes of an
+    uninterrupted run."""
+    source, mosaics, run = tmp_path / "source", tmp_path / "mosaics", tmp_path / "run"
+    build = ["build-dataset", "--out", source, "--dtm", dtm, "--scans", "4", "--descent-frames", "3"]
+    result = invoke(*build, "--descent-altitudes", "120:60", "--resolution", "32", "--sigma", "0.02", "--workers", "1")
+    assert result.exit_code == 0, result.output
+    assert invoke("mosaic", source, "--out", mosaics, *MOSAIC_ARGS).exit_code == 0
+    assert invoke("label", mosaics, "--workers", "1", *MOSAIC_ARGS[2:]).exit_code == 0
+    assert invoke("train", mosaics, "--out", run, "--profile", "tiny", "--epochs", "1").exit_code == 0
+    fly = ["descend", run, "--data", source, "--descent", "all", "--mc-samples", "2", "--threshold", "nats:1"]
+    fresh = tmp_path / "fresh"
+    assert invoke(*fly, "--out", fresh).exit_code == 0
+    out = tmp_path / "d"
+    proc = hd_process([*fly, "--out", out], env={"HD_TEST_WRITE_PAUSE": "descent-00000-track.geojson:60"})
+    wait_for(lambda: list(out.glob(".descend.partial-*/.descent-00000-track.geojson.partial-*")), proc=proc)
+    code, _ = kill_and_check_no_orphans(proc, signal.SIGKILL)
+    assert code == -signal.SIGKILL
+    assert [p.name for p in out.iterdir() if not p.name.startswith(".")] == []  # nothing under a final name
+    result = invoke(*fly, "--out", out)
+    assert result.exit_code == 0, result.output
+    maps = {p.name: p.read_bytes() for p in out.iterdir() if p.suffix in (".npz", ".geojson")}
+    assert maps == {p.name: p.read_bytes() for p in fresh.iterdir() if p.suffix in (".npz", ".geojson")}
+    assert len(maps) == 4 * 4 and (out / "descend.json").is_file() and partials(out) == []
+    recorded = json.loads((out / "descend.json").read_text())["descents"]
+    assert [d["descent"] for d in recorded] == [
+        d["descent"] for d in json.loads((fresh / "descend.json").read_text())["descents"]
+    ]

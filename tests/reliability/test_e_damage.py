@@ -533,3 +533,25 @@ def test_a_dtm_changed_during_an_interrupted_build_is_not_mixed_in(tmp_path, mon
     from reliability_kit import shard_sums
 
     assert shard_sums(out) == shard_sums(fresh)
+
+
+@pytest.mark.parametrize("lie", ["longer", "shorter"])
+def test_a_server_that_lies_about_content_length_is_one_line_and_leaves_no_file(labelled, tmp_path, lie):
+    """A server whose Content-Length of a shard is a block longer than what it sends before it closes, or
+    half of what it sends: hd pull and hd verify of the URL end in one line naming the shard; the pull keeps
+    no byte of it (no shard, no partial file)."""
+    from lidarsim.location import forget_remotes
+    from tests.remote_servers import LyingLengthHandler, http_server
+
+    shard = read_manifest(labelled)["shards"][1]["path"]
+    forget_remotes()
+    with http_server(labelled.parent, LyingLengthHandler, faults={shard.rsplit("/", 1)[-1]: lie}) as (base, server):
+        url = f"{base}/{labelled.name}"
+        pulled = invoke("pull", url, tmp_path / "copy")
+        checked = invoke("verify", url)
+    forget_remotes()
+    assert any(shard in path for path in server.requests)  # the lie was told
+    assert_one_line_error(pulled, Path(shard).name)
+    assert_one_line_error(checked, "problem") and Path(shard).name in checked.output
+    assert not (tmp_path / "copy" / shard).exists() and not (tmp_path / "copy" / "manifest.json").exists()
+    assert [p for p in (tmp_path / "copy").rglob("*") if ".partial" in p.name] == []

@@ -23,8 +23,16 @@ from click.testing import CliRunner
 
 from hdcli.cli import main
 from hdcore.redact import is_redacted, printable_location, redact_text, redact_urls
+from lidarsim.shards import read_manifest
 from tests.hdnet.hdnet_datasets import build_labelled
-from tests.remote_servers import http_server, make_bucket, s3_server
+from tests.remote_servers import (
+    MisbehavingHandler,
+    RecordingHandler,
+    RedirectHandler,
+    http_server,
+    make_bucket,
+    s3_server,
+)
 
 MARK = "Zq7SeCrEt"  # the secret: a password and every query value
 DETECT_ARGS = ("--scan", "17", "--sigma", "0.0167", "--mc-samples", "2")
@@ -224,3 +232,39 @@ def test_error_lines_of_secret_urls_hold_no_secret(url, run, dataset, tmp_path):
     ):
         code, text = hd(*argv)
         assert code in (1, 2) and "Error: " in text, (argv, text)
+
+
+def test_a_redirect_to_another_host_receives_neither_the_password_nor_the_query_token(dataset, tmp_path):
+    """A server answering every request with 302 to another origin (another port): hd follows it (aiohttp),
+    sends the user information as Basic auth to the first server only and the query token only where the
+    redirect's Location puts it (here: nowhere); the verify and the pull work from the second server."""
+    with (
+        http_server(dataset.parent, RecordingHandler) as (target, second),
+        http_server(dataset.parent, RedirectHandler, redirect_to=target) as (base, first),
+    ):
+        url = secret_url(base, dataset.name)
+        for argv in (["verify", url], ["pull", url, tmp_path / "copy"]):
+            code, text = hd(*argv)
+            assert code == 0, text
+    assert first.seen and all(auth and auth.startswith("Basic ") for _, auth in first.seen)  # the test can fail
+    assert all(MARK in path for path, _ in first.seen)
+    assert len(second.seen) >= len(first.seen) - 1
+    assert all(auth is None and MARK not in path for path, auth in second.seen), second.seen[:3]
+    assert_no_secret_in_files(tmp_path / "copy")
+
+
+def test_timeout_and_size_refusals_of_a_secret_url_hold_no_secret(dataset, tmp_path, monkeypatch):
+    """The error lines of hd's idle-read timeout and of a server that sends more than the manifest records,
+    for a URL with a password and query tokens: the printable URL, no secret."""
+    import lidarsim.location as location
+
+    shard = read_manifest(dataset)["shards"][0]["path"]
+    monkeypatch.setenv(location.READ_TIMEOUT_ENV, "1")
+    for fault, needle in (("silent", "the server sent nothing for 1 s"), ("more", "the server sent more than")):
+        location.forget_remotes()
+        name = shard.rsplit("/", 1)[-1] + f"?token={MARK}&X-Amz-Signature={MARK}"  # the handler's key: the query too
+        with http_server(dataset.parent, MisbehavingHandler, faults={name: fault}) as (base, _):
+            code, text = hd("pull", secret_url(base, dataset.name), tmp_path / fault)
+        last = text.strip().splitlines()[-1]
+        assert code == 1 and needle in last and "http://***@127.0.0.1" in last and "token=***" in last, text
+    location.forget_remotes()
