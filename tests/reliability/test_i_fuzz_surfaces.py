@@ -27,6 +27,7 @@ import os
 import shutil
 import tempfile
 import time
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -243,7 +244,7 @@ def _size_values(size: int) -> st.SearchStrategy[Any]:
     )
 
 
-def _sized_entries(manifest: dict[str, Any]) -> list[dict[str, Any]]:
+def _sized_entries(manifest: Mapping[str, Any]) -> list[dict[str, Any]]:
     """Every file entry of a manifest (scan shards, label shards, a terrain kept inside)."""
     found = list(manifest["shards"]) + [e for lab in manifest["labelings"] for e in lab["shards"]]
     dtm = manifest.get("dtm")
