@@ -4,8 +4,9 @@
     split, over a hillshade of the terrain the dataset was built on (the manifest's DTM, when the
     file is there with the bytes the build read; else the footprints alone, and the panel says why);
 (b) the safe fraction of the labelled pixels per split: the labels' (one per split, the same at
-    every noise level) and the ALHAT baseline's at each noise level, of the labelling chosen as
-    ``hd eval`` chooses it (``--labels``, or the dataset's only one); "not labelled" without one;
+    every noise level) and the ALHAT baseline's at each noise level, of the labelling ``--labels``
+    names, or the dataset's only one, or of one convention's two truths the terrain's
+    (:func:`chosen_labeling`); "not labelled" without one;
 (c) the heights of the clean points of a few scans per split (scan frame: metres above each scan's
     reference height), as density histograms;
 (d) the sensor altitude of every scan per split.
@@ -32,7 +33,7 @@ import numpy as np
 from hdcore.errors import HdError, OutputExistsError
 from hdcore.storage import atomic_path, check_not_input, check_output_file
 from hdlabels.split_summary import SplitSummary, split_summary
-from hdlabels.store import LabelingEntry, LabelStoreError, find_labeling
+from hdlabels.store import LabelingEntry, LabelStoreError, find_labeling, labeling_aliases
 from hdlabels.truth import build_terrain_path
 from hdnet.errors import HdNetError
 from lidarsim.map_window import MapWindow, window_cells
@@ -152,16 +153,34 @@ def check_figure_path(dataset: str | os.PathLike, path: str | os.PathLike, overw
     return target
 
 
+TERRAIN_TRUTH = "terrain"  # the truth of the labels the DTM gives (hdlabels.defaults.TRUTHS)
+
+
 def chosen_labeling(dataset: str | os.PathLike, labels: str | None) -> LabelingEntry | None:
-    """The labelling the figure shows, chosen as ``hd eval`` chooses it: the one ``labels`` names (a
-    name or an alias), else the dataset's only one; None for a dataset without labels.
+    """The labelling the figure shows: the one ``labels`` names (a name or an alias, as ``hd eval``
+    takes it), else the dataset's only one, else, of one convention's two truths (clean scan and
+    terrain), the terrain's (what the ground is); None for a dataset without labels.
 
     Raises:
-        LabelStoreError: an unknown labelling, several and none named, or ``labels`` for a dataset without any.
+        LabelStoreError: an unknown labelling, or ``labels`` for a dataset without any.
+        HdNetError: several labellings that are not one convention's two truths, and none named (one
+            line with their aliases).
         StorageError: not a dataset.
     """
-    if labels is None and not read_manifest(dataset).get("labelings"):
+    labelings = read_manifest(dataset).get("labelings") or []
+    if labels is None and not labelings:
         return None
+    if labels is None and len(labelings) > 1:
+        terrain = [lab for lab in labelings if lab.get("truth") == TERRAIN_TRUTH]
+        if len(terrain) == 1 and len(labelings) == 2 and len({lab.get("convention") for lab in labelings}) == 1:
+            labels = str(terrain[0]["name"])
+        else:
+            aliases = {name: alias for alias, name in reversed(labeling_aliases(labelings).items())}  # shortest
+            shortest = {str(lab["name"]): aliases.get(str(lab["name"]), str(lab["name"])) for lab in labelings}
+            raise HdNetError(
+                f"{dataset} has {len(labelings)} labellings: choose the figure's with --labels "
+                f"({', '.join(shortest.values())})"
+            )
     return find_labeling(dataset, labels)
 
 

@@ -68,7 +68,7 @@ from hdnet.chance import threshold_warning
 from hdnet.compare import read_report
 from hdnet.compare import settings as report_settings
 from hdnet.descend_json import RECORD_NAME as DESCEND_MARKER
-from hdnet.detect_json import DetectInfoJson
+from hdnet.detect_json import DetectInfoJson, input_name
 from hdnet.errors import HdNetError
 from hdnet.page_values import number, readable, shown_path, without_paths
 from hdnet.report import json_plain, report_markdown
@@ -326,7 +326,7 @@ def _scan_heights(out: DetectOutput, base: Path) -> tuple[Any, str]:
     source = out.info["input"]
     dataset = Path(str(source.get("dataset", "")))
     shown = shown_path(dataset.absolute(), base)
-    name = f"scan {source.get('scan_index')} of {shown}"
+    name = f"{input_name(source)} of {shown}"
     if not (dataset / MANIFEST_NAME).is_file():
         return None, f"No hillshade: the dataset {shown} of the scan is not there any more"
     try:
@@ -815,7 +815,7 @@ def _settings_items(out: DetectOutput, base: Path) -> list[tuple[str, str]]:
     if src.get("kind") == "scan":
         seen = " (a training scan: the network has seen it)" if src.get("seen_in_training") else ""
         items += [
-            ("input", f"scan {src.get('scan_index')} of {readable(src.get('dataset'), base)}"),
+            ("input", f"{input_name(src)} of {readable(src.get('dataset'), base)}"),
             ("split", f"{src.get('split')}{seen}"),
             ("scan's noise level", _cm(src.get("sigma_m"))),
             ("scan's labelling", str(src.get("labels"))),
@@ -932,7 +932,7 @@ def _detect_text(
     out: DetectOutput, layers: list[_Layer], facts: dict[str, Any], base: Path
 ) -> tuple[str, dict[str, Any]]:
     src = out.info["input"]
-    name = src.get("name") if src.get("kind") == "dtm" else f"scan {src.get('scan_index')} ({src.get('split')} split)"
+    name = input_name(src) if src.get("kind") == "dtm" else f"{input_name(src)} ({src.get('split')} split)"
     counts = out.info["counts"]
     valid = sum(int(counts.get(k, 0)) for k in ("safe", "unsafe", "uncertain"))
     pct = {k: (100.0 * int(counts.get(k, 0)) / valid if valid else 0.0) for k in ("safe", "unsafe", "uncertain")}

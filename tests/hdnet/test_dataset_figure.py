@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 from pathlib import Path
 
 import h5py
@@ -15,6 +16,7 @@ from hdnet_datasets import build_labelled
 from matplotlib.collections import PolyCollection
 
 from hdcli.cli import main
+from hdlabels.store import find_labeling
 from hdnet.dataset_figure import PANELS, chosen_labeling, dataset_figure, dataset_overview
 from lidarsim.shards import SPLIT_NAMES, read_manifest
 
@@ -181,3 +183,24 @@ def test_a_bad_plot_is_refused_with_one_line_and_nothing_written(datasets, tmp_p
     assert last.startswith("Error: ") and needle in last, result.output
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]  # no figure, no temporary file
     assert {k: listing(v) for k, v in datasets.items()} == before
+
+
+def test_of_two_truths_the_figure_takes_the_terrains_and_of_others_asks_in_one_line(datasets, tmp_path):
+    from hdlabels.labeling import label_dataset
+    from hdlabels.settings import LabelSettings
+
+    data = tmp_path / "data"
+    shutil.copytree(datasets["labelled"], data)
+    clean = find_labeling(data).name
+    terrain = label_dataset(data, LabelSettings(truth="terrain"), workers=1).name
+    assert chosen_labeling(data, None).name == terrain  # both truths of the paper's convention: the terrain's
+    assert chosen_labeling(data, "paper").name == clean  # --labels still chooses
+    result = CliRunner().invoke(main, ["--json", "inspect", str(data), "--plot", str(tmp_path / "g.png")])
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.output)["figure"]["labels"]["labelling"] == terrain
+    label_dataset(data, LabelSettings(convention="hd"), workers=1)  # a third labelling: no obvious choice
+    result = CliRunner().invoke(main, ["inspect", str(data), "--plot", str(tmp_path / "h.png")])
+    lines = result.output.strip().splitlines()
+    assert result.exit_code == 1 and len(lines) == 1 and len(lines[0]) < 200, result.output
+    assert lines[0] == f"Error: {data} has 3 labellings: choose the figure's with --labels (paper, paper+terrain, hd)"
+    assert not (tmp_path / "h.png").exists()
