@@ -192,8 +192,8 @@ def compare_cmd(reports: tuple[Path, ...], fmt: str | None) -> None:
     "out_path",
     type=NonEmptyPath(dir_okay=False, path_type=Path),
     default=None,
-    help="The page to write (default: DIRECTORY/view.html); an existing file is replaced only when it is an earlier "
-    "page of hd view.",
+    help="The page to write (default: DIRECTORY-view.html beside DIRECTORY, which is left as it is); an existing "
+    "file is replaced only when it is an earlier page of hd view.",
 )
 @dtm_option(
     "With an hd detect output whose DTM has moved: the DTM it read (checked against detect.json's sha256), for the "

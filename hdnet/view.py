@@ -1,6 +1,8 @@
 """``hd view DIR``: one self-contained HTML page of an ``hd detect`` output or of an ``hd eval`` report.
 
-The page (``DIR/view.html``, or ``--out FILE``) needs no network: its images are PNG ``data:`` URIs,
+The page (``DIR-view.html`` beside the directory, or ``--out FILE``; never inside ``DIR`` unless
+``--out`` puts it there: the output stays as its command wrote and recorded it, and an ``hd detect
+--overwrite`` of it cannot take the page along) needs no network: its images are PNG ``data:`` URIs,
 its style and script are inline and its Content-Security-Policy lets a browser fetch nothing
 (``hdnet.view_html``). Which kind ``DIR`` is comes from its marker: ``detect.json`` (``hd
 detect``) or ``report.json`` (``hd eval``); a run, a dataset, an empty directory or anything else is
@@ -82,7 +84,7 @@ from lidarsim.shards import MANIFEST_NAME
 if TYPE_CHECKING:  # hdnet.view_images imports matplotlib: only where the page is drawn
     from hdnet.view_images import Reduction
 
-VIEW_NAME = "view.html"
+VIEW_SUFFIX = "-view.html"  # the default page of DIR: DIR-view.html beside it (default_page)
 DETECT_MARKER = "detect.json"
 REPORT_MARKER = "report.json"
 DEFAULT_MAX_PX = 2048  # hd choice: a map image's longest side, pixels (a screen's width; ~4 MP per layer)
@@ -1122,6 +1124,20 @@ def check_out(out: Path) -> Path:
     return path
 
 
+def default_page(directory: Path) -> Path:
+    """The page ``hd view DIRECTORY`` writes without ``--out``: ``DIRECTORY-view.html`` beside the
+    directory (``site-7/`` -> ``site-7-view.html``), so that a finished output keeps the files its
+    command wrote and recorded, and the page, self-contained, can be shared on its own.
+
+    Raises:
+        HdNetError: a directory without a name (the file system's root): give ``--out``.
+    """
+    full = Path(os.path.abspath(directory))
+    if not full.name:
+        raise HdNetError(f"{directory} has no name to put the page beside it; give --out FILE")
+    return full.parent / f"{full.name}{VIEW_SUFFIX}"
+
+
 @contextmanager
 def _reading(directory: Path, out: Path) -> Iterator[None]:
     """While the page is made: the directory's writer lock when the page goes into it, else a check
@@ -1146,7 +1162,7 @@ def view(
     dtm: str | os.PathLike | None = None,
 ) -> ViewResult:
     """Write the page of the detect output, descend output or report ``directory`` to ``out`` (default
-    ``directory/view.html``).
+    :func:`default_page`: ``DIRECTORY-view.html`` beside the directory, which is left as it is).
 
     ``dtm``: the DTM a detection read, when it is no longer at the path ``detect.json`` records
     (used only when its sha256 is the recorded one).
@@ -1159,7 +1175,7 @@ def view(
     """
     cfg = settings if settings is not None else ViewSettings()
     source, kind = source_of(directory)
-    target = check_out(Path(out) if out is not None else source / VIEW_NAME)
+    target = check_out(Path(out) if out is not None else default_page(source))
     if dtm is not None and kind != "detect":
         what = "an hd descend output (its hillshades are its mosaics')" if kind == "descend" else "an hd eval report"
         raise HdNetError(f"--dtm goes with an hd detect output; {source} is {what}")

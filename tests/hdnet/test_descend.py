@@ -331,7 +331,7 @@ def test_a_frame_without_a_map_is_recorded_and_the_descent_goes_on(
     last = f"descent-{test:05d}-frame-02.npz"
     assert np.load(out / last)["p_safe"].tobytes() == np.load(flown["online"] / last)["p_safe"].tobytes()
     view(out)  # the page of a descent with a frame without a map
-    page = (out / "view.html").read_text()
+    page = (tmp_path / "online-view.html").read_text()
     assert html.escape("N" + REASON_NO_MAP[1:]) in page
 
 
@@ -341,7 +341,7 @@ def test_the_page_of_a_descent_flown_has_its_frames_and_its_track(flown: dict[st
     result = CliRunner().invoke(main, ["view", str(out)])
     assert result.exit_code == 0, result.output
     assert "hd descend output, 1 descent(s), 3 frames, images 40 x 40 px" in result.output
-    raw = (out / "view.html").read_text(encoding="utf-8")
+    raw = (tmp_path / "online-view.html").read_text(encoding="utf-8")
     test = int(str(flown["test"]))
     record = json.loads((out / "descend.json").read_text())
     assert str(flown["tmp"]) not in raw and record["run"]["checkpoint"] not in raw  # no absolute path
