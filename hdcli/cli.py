@@ -464,7 +464,8 @@ def card_cmd(dataset: Path | None, recipe: Path, machine: str) -> None:
 @json_output
 @friendly_errors
 def publish_cmd(directory: Path, url: str, overwrite: bool) -> None:
-    """Upload a dataset to URL (s3://bucket/prefix, file:///path, ...): shards first, manifest.json last, so
+    """Upload a dataset to URL (s3://bucket/prefix, file:///path, or a local folder such as /mnt/share/mars):
+    shards first, manifest.json last, so
     a reader never sees a half-published dataset; re-run the same command to resume an interrupted one."""
     from lidarsim.transfer import publish_dataset
 
