@@ -91,9 +91,20 @@ def test_the_figure_has_its_four_panels(datasets):
     legend = axes[0].get_legend()
     assert legend is not None and [t.get_text() for t in legend.get_texts()] == ["train (16)", "val (2)", "test (2)"]
     assert len(axes[0].get_images()) == 1  # the hillshade
-    assert len(axes[1].get_lines()) == 6  # per split: the baseline over the 2 sigmas, the labels' level
-    assert np.asarray(axes[1].get_lines()[0].get_xdata()).tolist() == [0, 1]  # one point per sigma
-    assert "every scan at 500 m" in axes[3].get_title()
+    lines = axes[1].get_lines()
+    assert len(lines) == 6  # per split: the baseline over the 2 sigmas, the labels' level
+    # Each split's points shifted sideways, with its own marker: splits of equal fractions stay apart.
+    xs = {line.get_label(): np.round(np.asarray(line.get_xdata(), float), 6).tolist() for line in lines}
+    assert xs["train: ALHAT baseline, P(safe) ≥ 0.5"] == [-0.12, 0.88] and xs["val: ALHAT baseline, P(safe) ≥ 0.5"] == [
+        0,
+        1,
+    ]
+    assert len({tuple(x) for x in xs.values()}) == 3  # a split's baseline and labels share their x
+    assert len({line.get_marker() for line in lines}) == 3
+    # (d) says what it draws: one altitude, so the scans per split, each bar with its count.
+    assert axes[3].get_title() == "(d) scans per split, all at one altitude: 500 m above the reference"
+    assert axes[3].get_ylabel() == "scans" and [t.get_text() for t in axes[3].texts] == ["16", "2", "2"]
+    assert [p.get_height() for p in axes[3].patches] == [16, 2, 2]
 
 
 def test_hd_inspect_plot_writes_the_figure_atomically_and_reports_it(datasets, tmp_path):
