@@ -257,10 +257,12 @@ TABLES: tuple[tuple[str, str, str, str], ...] = (
 )
 
 
-def table1_rows(reports: list[LoadedReport], table: str = "noise", section: str = "Table 1") -> list[Row]:
-    """Table 1 (``table == "noise"``), or another table of report rows (``table``, shown as ``section``):
-    per method and test noise level, V/C (uncertainty-aware only), PA, mIoU, precision and sensitivity
-    of each report."""
+def table1_rows(
+    reports: list[LoadedReport], table: str = "noise", section: str = "Table 1", suffix: str = ""
+) -> list[Row]:
+    """Table 1 (``table == "noise"``), or another table of report rows (``table``, shown as ``section``,
+    each label ending in ``suffix`` so that no two rows of a comparison share a label): per method and
+    test noise level, V/C (uncertainty-aware only), PA, mIoU, precision and sensitivity of each report."""
     index: list[dict[tuple[str, float], Mapping[str, object]]] = [
         {(r["method"], r["test_sigma_m"]): r for r in rep.content["rows"] if r.get("table") == table} for rep in reports
     ]
@@ -271,7 +273,7 @@ def table1_rows(reports: list[LoadedReport], table: str = "noise", section: str 
             if key == "vc_fraction" and method != "uncertainty_aware":
                 continue
             values = tuple(_number(rows[(method, sigma)][key]) if (method, sigma) in rows else None for rows in index)
-            out.append(Row(section, f"{METHOD_WORDS.get(method, method)} {_cm(sigma)} {label}", values))
+            out.append(Row(section, f"{METHOD_WORDS.get(method, method)} {_cm(sigma)} {label}{suffix}", values))
     return out
 
 
@@ -378,7 +380,11 @@ def compare(paths: list[str | os.PathLike]) -> Comparison:
         StorageError: an unreadable or damaged ``report.json``.
     """
     reports = load_reports(paths)
-    tables = [row for table, section, _, _ in TABLES for row in table1_rows(reports, table, section)]
+    tables = [
+        row
+        for k, (table, section, words, _) in enumerate(TABLES)
+        for row in table1_rows(reports, table, section, f", {words}" if k else "")
+    ]
     rows = [*tables, *threshold_rows(reports), *landing_rows(reports)]
     differing, equal = compare_settings(reports)
     return Comparison(tuple(reports), tuple(rows), tuple(differing), equal, tuple(table_notes(reports)))
