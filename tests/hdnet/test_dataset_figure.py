@@ -14,6 +14,7 @@ import pytest
 from click.testing import CliRunner
 from hdnet_datasets import build_labelled
 from matplotlib.collections import PolyCollection
+from matplotlib.patches import Rectangle
 
 from hdcli.cli import main
 from hdlabels.store import find_labeling
@@ -104,7 +105,7 @@ def test_the_figure_has_its_four_panels(datasets):
     # (d) says what it draws: one altitude, so the scans per split, each bar with its count.
     assert axes[3].get_title() == "(d) scans per split, all at one altitude: 500 m above the reference"
     assert axes[3].get_ylabel() == "scans" and [t.get_text() for t in axes[3].texts] == ["16", "2", "2"]
-    assert [p.get_height() for p in axes[3].patches] == [16, 2, 2]
+    assert [p.get_height() for p in axes[3].patches if isinstance(p, Rectangle)] == [16, 2, 2]
 
 
 def test_hd_inspect_plot_writes_the_figure_atomically_and_reports_it(datasets, tmp_path):
@@ -204,8 +205,9 @@ def test_of_two_truths_the_figure_takes_the_terrains_and_of_others_asks_in_one_l
     shutil.copytree(datasets["labelled"], data)
     clean = find_labeling(data).name
     terrain = label_dataset(data, LabelSettings(truth="terrain"), workers=1).name
-    assert chosen_labeling(data, None).name == terrain  # both truths of the paper's convention: the terrain's
-    assert chosen_labeling(data, "paper").name == clean  # --labels still chooses
+    chosen, named = chosen_labeling(data, None), chosen_labeling(data, "paper")
+    assert chosen is not None and chosen.name == terrain  # both truths of the paper's convention: the terrain's
+    assert named is not None and named.name == clean  # --labels still chooses
     result = CliRunner().invoke(main, ["--json", "inspect", str(data), "--plot", str(tmp_path / "g.png")])
     assert result.exit_code == 0, result.output
     assert json.loads(result.output)["figure"]["labels"]["labelling"] == terrain

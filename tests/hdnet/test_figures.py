@@ -12,7 +12,8 @@ from typing import Any, cast
 import matplotlib.pyplot as plt
 import numpy as np
 import pytest
-from matplotlib.patches import Patch
+from matplotlib.lines import Line2D
+from matplotlib.patches import Patch, Rectangle
 
 from hdnet import defaults
 from hdnet.figures import (
@@ -160,7 +161,7 @@ def test_the_threshold_sweep_legend_covers_no_panel_and_names_the_baseline_diamo
     fig = threshold_sweep_figure(_sweep_result({"spec": "mean", "kind": "mean"}))
     try:
         fig.canvas.draw()
-        (legend,) = [ax.get_legend() for ax in fig.axes if ax.get_legend() is not None]
+        (legend,) = [legend for ax in fig.axes if (legend := ax.get_legend()) is not None]
         assert _inside(fig, legend)
         for ax in fig.axes:
             assert not _overlaps(legend.get_window_extent(), ax.get_window_extent())
@@ -168,10 +169,11 @@ def test_the_threshold_sweep_legend_covers_no_panel_and_names_the_baseline_diamo
         entries = dict(zip([t.get_text() for t in legend.get_texts()], legend.legend_handles, strict=True))
         for words, value in (("precision", 0.6), ("sensitivity", 0.3)):
             handle = entries[f"ALHAT baseline {words} (◆)"]
-            assert handle.get_marker() == "D" and handle.get_linestyle() == ":"
+            assert isinstance(handle, Line2D) and handle.get_marker() == "D" and handle.get_linestyle() == ":"
             (drawn,) = [line for line in fig.axes[0].get_lines() if line.get_label() == f"ALHAT baseline {words} (◆)"]
-            assert drawn.get_markevery() == [1] and list(drawn.get_xdata())[1] == 1.0  # the diamond at quantile 1
-            assert set(drawn.get_ydata()) == {value}
+            x, y = np.asarray(drawn.get_xdata(), float), np.asarray(drawn.get_ydata(), float)
+            assert drawn.get_markevery() == [1] and x[1] == 1.0  # the diamond at quantile 1
+            assert set(y.tolist()) == {value}
     finally:
         plt.close(fig)
 
@@ -196,13 +198,14 @@ def test_the_reliability_diagram_shows_bin_counts_and_its_legend_covers_no_curve
         curves, counts = fig.axes
         fig.canvas.draw()
         legend = curves.get_legend()
-        assert _inside(fig, legend)
+        assert legend is not None and _inside(fig, legend)
         for ax in fig.axes:
             assert not _overlaps(legend.get_window_extent(), ax.get_window_extent())
         labels = [t.get_text() for t in legend.get_texts()]
         assert labels == ["perfect calibration", "test σ 1.67cm (ECE 0.050)", "test σ 7.00cm (ECE 0.050)"]
         # The pixels per bin beneath: each σ's bars side by side in its bin, in its curve's colour.
-        bars = counts.patches
+        bars = [b for b in counts.patches if isinstance(b, Rectangle)]
+        assert len(bars) == len(counts.patches)
         assert [b.get_height() for b in bars] == [0, 3, 40, 500, 10, 0, 7, 2000]
         assert [round(b.get_x(), 6) for b in bars] == [0.0, 0.25, 0.5, 0.75, 0.125, 0.375, 0.625, 0.875]
         colours = [line.get_color() for line in curves.get_lines()[1:]]
