@@ -120,14 +120,17 @@ def _publish_url(url: str) -> str:
     return Path(url).absolute().as_uri()
 
 
-def _check_local_target(remote: RemoteDataset, root: Path) -> None:
-    """Refuse a local target that is, holds or lies inside the dataset published.
+def _publish_target(url: str, root: Path) -> RemoteDataset:
+    """The place at ``url`` to publish the dataset ``root`` to; a local one that is, holds or lies
+    inside the dataset is refused.
 
     Raises:
         StorageError: one line naming both.
     """
+    remote = remote_dataset(url)
     if remote.is_local:
         check_not_input(remote.root, {"the dataset": root}, "URL")
+    return remote
 
 
 # ------------------------------------------------------------------------------------------ publish
@@ -223,8 +226,7 @@ def publish_dataset(
     Raises:
         DamagedFileError: the local dataset fails ``hd verify``'s checks.
         OutputExistsError: something else at ``url`` without ``overwrite``.
-        StorageError: ``url`` cannot be reached or written (one line naming it and the cause), or is a
-            local folder that is, holds or lies inside the dataset.
+        StorageError: ``url`` cannot be reached or written, or is, holds or lies in the dataset (one line).
     """
     root = Path(directory)
     url = _publish_url(url)
@@ -237,8 +239,7 @@ def publish_dataset(
             f"{root} is damaged ({len(problems)} problem(s): {problems[0]}); `hd verify {root}` lists them; "
             "it is not published"
         )
-    remote = remote_dataset(url)
-    _check_local_target(remote, root)
+    remote = _publish_target(url, root)
     files = dataset_files(manifest)
     sizes = {rel: confine(root, rel).stat().st_size for rel in files}
     state, old_files = _publication_state(remote, manifest_bytes, overwrite)
