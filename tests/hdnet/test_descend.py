@@ -330,8 +330,7 @@ def test_a_frame_without_a_map_is_recorded_and_the_descent_goes_on(
     np.testing.assert_array_equal(frame0["transform"], before["transform"])  # the grid its maps would have had
     last = f"descent-{test:05d}-frame-02.npz"
     assert np.load(out / last)["p_safe"].tobytes() == np.load(flown["online"] / last)["p_safe"].tobytes()
-    view(out)  # the page of a descent with a frame without a map
-    page = (tmp_path / "online-view.html").read_text()
+    page = view(out).path.read_text()  # the page of a descent with a frame without a map, beside it
     assert html.escape("N" + REASON_NO_MAP[1:]) in page
 
 
