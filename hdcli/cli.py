@@ -192,8 +192,8 @@ def compare_cmd(reports: tuple[Path, ...], fmt: str | None) -> None:
     "out_path",
     type=NonEmptyPath(dir_okay=False, path_type=Path),
     default=None,
-    help="The page to write (default: DIRECTORY/view.html); an existing file is replaced only when it is an earlier "
-    "page of hd view.",
+    help="The page to write (default: DIRECTORY-view.html beside DIRECTORY, which is left as it is); an existing "
+    "file is replaced only when it is an earlier page of hd view.",
 )
 @dtm_option(
     "With an hd detect output whose DTM has moved: the DTM it read (checked against detect.json's sha256), for the "
@@ -464,7 +464,8 @@ def card_cmd(dataset: Path | None, recipe: Path, machine: str) -> None:
 @json_output
 @friendly_errors
 def publish_cmd(directory: Path, url: str, overwrite: bool) -> None:
-    """Upload a dataset to URL (s3://bucket/prefix, file:///path, ...): shards first, manifest.json last, so
+    """Upload a dataset to URL (s3://bucket/prefix, file:///path, or a local folder such as /mnt/share/mars):
+    shards first, manifest.json last, so
     a reader never sees a half-published dataset; re-run the same command to resume an interrupted one."""
     from lidarsim.transfer import publish_dataset
 

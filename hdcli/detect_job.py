@@ -40,6 +40,8 @@ def detect_job(
     from hdnet.chance import threshold_warning
 
     chance = threshold_warning(result.threshold_nats, len(result.sites))
-    lines = [result.summary(), *([chance] if chance else [])]
+    from hdnet.run_files import checkpoint_words
+
+    lines = [result.summary(), checkpoint_words(str(result.info["run"]["checkpoint"])), *([chance] if chance else [])]
     lines.append(f"maps, sites.csv, sites.geojson, overview.png and detect.json in {out_dir}")
     return Done(lines, {"command": "detect", "out": str(out_dir), **result.info})

@@ -91,5 +91,12 @@ def eval_job(
 
     chance = threshold_warning(result.threshold.get("value_nats"))
     landing = result.landing_summary()
-    lines = [result.summary(), *([chance] if chance else []), *([landing] if landing else [])]
+    from hdnet.run_files import checkpoint_words
+
+    lines = [
+        result.summary(),
+        checkpoint_words(str(result.run.get("checkpoint", ""))),
+        *([chance] if chance else []),
+        *([landing] if landing else []),
+    ]
     return Done([*lines, report_written_message(out_dir)], record)

@@ -3,9 +3,13 @@
 Each report is read from its ``report.json`` (``hdnet.report``: ``rows``, ``threshold``, ``run`` and,
 when the evaluation scored landings, ``landing`` and ``landing_settings``). The comparison shows, per
 report (a column named after its directory), Table 1's rows (PA, mIoU, precision, sensitivity and, for
-the uncertainty-aware map, V/C; fractions in [0, 1]), the threshold (its rule and H_t in nats) and the
+the uncertainty-aware map, V/C; fractions in [0, 1]), Table 2's (dead pixels) when a report has one (a
+report without it is named in one note), the threshold (its rule and H_t in nats) and the
 landing table's P(safe landing) per truth, method, noise level and navigation dispersion, each with its
-95 % Wilson interval and its scenes (landed on / scored: ``0.9500 [0.8412, 0.9862] n=38/40``). Then every
+95 % Wilson interval and its scenes (landed on / scored: ``0.9500 [0.8412, 0.9862] n=38/40``). A row whose
+shown values are not all equal is marked (``differs``), and each report after the first has a difference
+column: its number minus the first report's (fractions, nats or P(safe); ``--`` where either is missing
+or not a number). Then every
 setting of the reports' ``run``, ``threshold`` and ``landing_settings`` records whose values are not
 all equal, with each report's value; the equal ones are counted. Nothing is written.
 """
@@ -110,6 +114,22 @@ class Row:
             return [_cell(v) for v in self.values]
         return [_cell(v) if c is None else c.text(v) for v, c in zip(self.values, self.landing, strict=True)]
 
+    @property
+    def differs(self) -> bool:
+        """Whether the reports' values, as shown (``DIGITS`` decimals, interval and scene counts
+        included), are not all equal: a difference below the last decimal shown is no mark."""
+        shown = self.cells()
+        return any(c != shown[0] for c in shown[1:])
+
+    def differences(self) -> tuple[float | None, ...]:
+        """Each report after the first: its value minus the first report's (None where either is not
+        a number, a rule say, or missing)."""
+        first = self.values[0]
+        return tuple(
+            v - first if isinstance(v, (int, float)) and isinstance(first, (int, float)) else None
+            for v in self.values[1:]
+        )
+
 
 @dataclass(frozen=True)
 class Setting:
@@ -128,6 +148,7 @@ class Comparison:
     rows: tuple[Row, ...]
     differing: tuple[Setting, ...]
     equal: dict[str, object] = field(default_factory=dict)
+    notes: tuple[str, ...] = ()  # one line per section a report lacks (``table_notes``)
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -228,12 +249,22 @@ def _ordered(keys: list[Any]) -> list[Any]:
     return list(dict.fromkeys(keys))
 
 
-def table1_rows(reports: list[LoadedReport]) -> list[Row]:
-    """Table 1 (``table == "noise"``): per method and test noise level, V/C (uncertainty-aware only),
-    PA, mIoU, precision and sensitivity of each report."""
+# The tables of report.json compared as rows: (its ``table`` value, section name, what it is, the
+# hd eval setting that makes it).
+TABLES: tuple[tuple[str, str, str, str], ...] = (
+    ("noise", "Table 1", "noise levels", ""),
+    ("dead_pixels", "Table 2", "dead pixels", " (evaluated without --drop-pixels)"),
+)
+
+
+def table1_rows(
+    reports: list[LoadedReport], table: str = "noise", section: str = "Table 1", suffix: str = ""
+) -> list[Row]:
+    """Table 1 (``table == "noise"``), or another table of report rows (``table``, shown as ``section``,
+    each label ending in ``suffix`` so that no two rows of a comparison share a label): per method and
+    test noise level, V/C (uncertainty-aware only), PA, mIoU, precision and sensitivity of each report."""
     index: list[dict[tuple[str, float], Mapping[str, object]]] = [
-        {(r["method"], r["test_sigma_m"]): r for r in rep.content["rows"] if r.get("table") == "noise"}
-        for rep in reports
+        {(r["method"], r["test_sigma_m"]): r for r in rep.content["rows"] if r.get("table") == table} for rep in reports
     ]
     keys = _ordered([k for rows in index for k in rows])
     out = []
@@ -242,7 +273,20 @@ def table1_rows(reports: list[LoadedReport]) -> list[Row]:
             if key == "vc_fraction" and method != "uncertainty_aware":
                 continue
             values = tuple(_number(rows[(method, sigma)][key]) if (method, sigma) in rows else None for rows in index)
-            out.append(Row("Table 1", f"{METHOD_WORDS.get(method, method)} {_cm(sigma)} {label}", values))
+            out.append(Row(section, f"{METHOD_WORDS.get(method, method)} {_cm(sigma)} {label}{suffix}", values))
+    return out
+
+
+def table_notes(reports: list[LoadedReport]) -> list[str]:
+    """One line per table that some reports have and others do not, naming those without it (their
+    column shows ``--``): ``Table 2 (dead pixels): not in report b (evaluated without --drop-pixels)``."""
+    out = []
+    for table, section, words, why in TABLES:
+        has = [any(r.get("table") == table for r in rep.content["rows"]) for rep in reports]
+        if any(has) and not all(has):
+            missing = [rep.name for rep, h in zip(reports, has, strict=True) if not h]
+            which = f"report{'s' if len(missing) > 1 else ''} {', '.join(missing)}"
+            out.append(f"{section} ({words}): not in {which}{why}")
     return out
 
 
@@ -336,9 +380,14 @@ def compare(paths: list[str | os.PathLike]) -> Comparison:
         StorageError: an unreadable or damaged ``report.json``.
     """
     reports = load_reports(paths)
-    rows = [*table1_rows(reports), *threshold_rows(reports), *landing_rows(reports)]
+    tables = [
+        row
+        for k, (table, section, words, _) in enumerate(TABLES)
+        for row in table1_rows(reports, table, section, f", {words}" if k else "")
+    ]
+    rows = [*tables, *threshold_rows(reports), *landing_rows(reports)]
     differing, equal = compare_settings(reports)
-    return Comparison(tuple(reports), tuple(rows), tuple(differing), equal)
+    return Comparison(tuple(reports), tuple(rows), tuple(differing), equal, tuple(table_notes(reports)))
 
 
 # --------------------------------------------------------------------------------------------- output
@@ -363,10 +412,32 @@ def _equal_line(c: Comparison) -> str:
     return f"{n} other setting{'' if n == 1 else 's'} equal in every report"
 
 
+MARK = "*"  # the mark of a row whose reports differ
+
+
+def _difference(d: float | None) -> str:
+    """A difference as shown: signed, ``DIGITS`` decimals; ``--`` where there is none."""
+    return "--" if d is None else f"{d:+.{DIGITS}f}"
+
+
+def difference_names(c: Comparison) -> list[str]:
+    """The difference columns' headers: ``b - a`` for each report after the first (``a``)."""
+    return [f"{n} - {c.names[0]}" for n in c.names[1:]]
+
+
+def _legend(c: Comparison) -> str:
+    """The line that says what the mark and the difference columns mean."""
+    return f"{MARK} the reports differ on this row; {difference_names(c)[0]}: that report's value minus {c.names[0]}'s"
+
+
 def to_table(c: Comparison) -> str:
-    """The comparison as aligned text for a terminal."""
-    header = ["", *c.names]
-    body = [[f"{r.section}: {r.label}", *r.cells()] for r in c.rows]
+    """The comparison as aligned text for a terminal: each differing row marked ``*``, then a
+    difference column per report after the first, the notes, the settings that differ."""
+    header = ["", *c.names, *difference_names(c)]
+    body = [
+        [f"{MARK if r.differs else ' '} {r.section}: {r.label}", *r.cells(), *map(_difference, r.differences())]
+        for r in c.rows
+    ]
     widths = [max(len(line[i]) for line in [header, *body]) for i in range(len(header))]
 
     def line(cells: list[str]) -> str:
@@ -374,7 +445,7 @@ def to_table(c: Comparison) -> str:
             cell.ljust(w) if i == 0 else cell.rjust(w) for i, (cell, w) in enumerate(zip(cells, widths, strict=True))
         ).rstrip()
 
-    out = [line(header), *(line(b) for b in body), ""]
+    out = [line(header), *(line(b) for b in body), _legend(c), *c.notes, ""]
     if c.differing:
         out.append(f"Settings that differ ({len(c.differing)}):")
         width = max(len(n) for n in c.names)
@@ -393,10 +464,19 @@ def _md(text: str) -> str:
 
 def to_markdown(c: Comparison) -> str:
     """The comparison as Markdown: one table of the rows, one of the settings that differ."""
+    columns = [*c.names, *difference_names(c)]
     out = [
-        "| Section | Row | " + " | ".join(_md(n) for n in c.names) + " |",
-        "|---|---|" + "---|" * len(c.names),
-        *(f"| {r.section} | {_md(r.label)} | " + " | ".join(_md(v) for v in r.cells()) + " |" for r in c.rows),
+        f"| {MARK} | Section | Row | " + " | ".join(_md(n) for n in columns) + " |",
+        "|---|---|---|" + "---|" * len(columns),
+        *(
+            f"| {MARK if r.differs else ''} | {r.section} | {_md(r.label)} | "
+            + " | ".join(_md(v) for v in [*r.cells(), *map(_difference, r.differences())])
+            + " |"
+            for r in c.rows
+        ),
+        "",
+        _md(_legend(c)) + ".",
+        *(f"{_md(n)}." for n in c.notes),
         "",
     ]
     if c.differing:
@@ -416,7 +496,8 @@ def to_markdown(c: Comparison) -> str:
 
 def to_record(c: Comparison) -> dict[str, object]:
     """The comparison as one JSON-ready object: the reports (name, directory), each row's values by
-    report name (the reports' own numbers), the settings that differ and those equal."""
+    report name (the reports' own numbers), whether they differ and each later report's difference
+    from the first, the notes (a table some reports lack), the settings that differ and those equal."""
 
     def by_name(values: tuple[object, ...]) -> dict[str, object]:
         return dict(zip(c.names, values, strict=True))
@@ -426,6 +507,7 @@ def to_record(c: Comparison) -> dict[str, object]:
             "command": "compare",
             "reports": [{"name": r.name, "directory": str(r.directory)} for r in c.reports],
             "rows": [_row_record(r, by_name) for r in c.rows],
+            "notes": list(c.notes),
             "settings_differ": {s.name: by_name(s.values) for s in c.differing},
             "settings_equal": c.equal,
         }
@@ -433,9 +515,16 @@ def to_record(c: Comparison) -> dict[str, object]:
 
 
 def _row_record(r: Row, by_name: Callable[[tuple[object, ...]], dict[str, object]]) -> dict[str, object]:
-    """A row of ``to_record``: its section, label and values by report; a landing row also its
-    ``landing`` (interval and scene counts, ``LandingCell.to_dict``) by report."""
-    out: dict[str, object] = {"section": r.section, "row": r.label, "values": by_name(r.values)}
+    """A row of ``to_record``: its section, label, values by report, ``differs`` (its values as shown
+    are not all equal) and ``differences`` (each later report's value minus the first's, by report);
+    a landing row also its ``landing`` (interval and scene counts, ``LandingCell.to_dict``) by report."""
+    out: dict[str, object] = {
+        "section": r.section,
+        "row": r.label,
+        "values": by_name(r.values),
+        "differs": r.differs,
+        "differences": dict(zip(list(by_name(r.values))[1:], r.differences(), strict=True)),
+    }
     if r.landing is not None:
         out["landing"] = by_name(tuple(None if c is None else c.to_dict() for c in r.landing))
     return out

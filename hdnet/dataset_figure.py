@@ -4,11 +4,13 @@
     split, over a hillshade of the terrain the dataset was built on (the manifest's DTM, when the
     file is there with the bytes the build read; else the footprints alone, and the panel says why);
 (b) the safe fraction of the labelled pixels per split: the labels' (one per split, the same at
-    every noise level) and the ALHAT baseline's at each noise level, of the labelling chosen as
-    ``hd eval`` chooses it (``--labels``, or the dataset's only one); "not labelled" without one;
+    every noise level) and the ALHAT baseline's at each noise level, of the labelling ``--labels``
+    names, or the dataset's only one, or of one convention's two truths the terrain's
+    (:func:`chosen_labeling`); "not labelled" without one;
 (c) the heights of the clean points of a few scans per split (scan frame: metres above each scan's
     reference height), as density histograms;
-(d) the sensor altitude of every scan per split.
+(d) the sensor altitude of every scan per split (the scans per split, titled so, when every scan
+    flew at one altitude).
 
 What it reads (:func:`dataset_overview`): the small per-scan arrays of the scan shards
 (``lidarsim.scan_summary``), the clean points of at most ``HEIGHT_SAMPLE_SCANS`` scans per split,
@@ -32,7 +34,7 @@ import numpy as np
 from hdcore.errors import HdError, OutputExistsError
 from hdcore.storage import atomic_path, check_not_input, check_output_file
 from hdlabels.split_summary import SplitSummary, split_summary
-from hdlabels.store import LabelingEntry, LabelStoreError, find_labeling
+from hdlabels.store import LabelingEntry, LabelStoreError, find_labeling, labeling_aliases
 from hdlabels.truth import build_terrain_path
 from hdnet.errors import HdNetError
 from lidarsim.map_window import MapWindow, window_cells
@@ -47,6 +49,10 @@ FIGURE_SUFFIXES = (".png", ".pdf", ".svg")
 PREVIEW_PX = 600  # hd choice: longest side of the terrain's hillshade, cells
 MARGIN = 0.08  # hd choice: the terrain shown reaches this fraction of the scans' extent beyond them
 SPLIT_COLOURS = {"train": "#1f77b4", "val": "#ff7f0e", "test": "#2ca02c"}
+# Panel (b): each split's points shifted sideways by this much (in σ slots) and drawn with its own
+# marker, so that splits of equal fractions stay apart (hd choice).
+SPLIT_DODGE = {"train": -0.12, "val": 0.0, "test": 0.12}
+SPLIT_MARKERS = {"train": "o", "val": "s", "test": "^"}
 DPI = 110
 PANELS = ("footprints", "safe fraction", "heights", "altitude")
 
@@ -152,16 +158,34 @@ def check_figure_path(dataset: str | os.PathLike, path: str | os.PathLike, overw
     return target
 
 
+TERRAIN_TRUTH = "terrain"  # the truth of the labels the DTM gives (hdlabels.defaults.TRUTHS)
+
+
 def chosen_labeling(dataset: str | os.PathLike, labels: str | None) -> LabelingEntry | None:
-    """The labelling the figure shows, chosen as ``hd eval`` chooses it: the one ``labels`` names (a
-    name or an alias), else the dataset's only one; None for a dataset without labels.
+    """The labelling the figure shows: the one ``labels`` names (a name or an alias, as ``hd eval``
+    takes it), else the dataset's only one, else, of one convention's two truths (clean scan and
+    terrain), the terrain's (what the ground is); None for a dataset without labels.
 
     Raises:
-        LabelStoreError: an unknown labelling, several and none named, or ``labels`` for a dataset without any.
+        LabelStoreError: an unknown labelling, or ``labels`` for a dataset without any.
+        HdNetError: several labellings that are not one convention's two truths, and none named (one
+            line with their aliases).
         StorageError: not a dataset.
     """
-    if labels is None and not read_manifest(dataset).get("labelings"):
+    labelings = read_manifest(dataset).get("labelings") or []
+    if labels is None and not labelings:
         return None
+    if labels is None and len(labelings) > 1:
+        terrain = [lab for lab in labelings if lab.get("truth") == TERRAIN_TRUTH]
+        if len(terrain) == 1 and len(labelings) == 2 and len({lab.get("convention") for lab in labelings}) == 1:
+            labels = str(terrain[0]["name"])
+        else:
+            aliases = {name: alias for alias, name in reversed(labeling_aliases(labelings).items())}  # shortest
+            shortest = {str(lab["name"]): aliases.get(str(lab["name"]), str(lab["name"])) for lab in labelings}
+            raise HdNetError(
+                f"{dataset} has {len(labelings)} labellings: choose the figure's with --labels "
+                f"({', '.join(shortest.values())})"
+            )
     return find_labeling(dataset, labels)
 
 
@@ -326,14 +350,18 @@ def _safe_fraction(ax: Any, overview: DatasetOverview) -> None:
         ax.set_title("(b) safe fraction per σ and split", fontsize=9)
         return
     x = np.arange(len(lab.sigmas_m))
-    for name in SPLIT_NAMES:
+    for name in SPLIT_NAMES:  # each split shifted sideways, with its own marker: equal values stay apart
         c = lab.splits[name]
-        colour = SPLIT_COLOURS[name]
+        colour, marker, at = SPLIT_COLOURS[name], SPLIT_MARKERS[name], x + SPLIT_DODGE[name]
         base = [math.nan if v is None else v for v in c.baseline_fractions()]
-        ax.plot(x, base, "o-", color=colour, label=f"{name}: ALHAT baseline, P(safe) ≥ 0.5")
-        if c.safe_fraction is not None:
-            ax.axhline(c.safe_fraction, color=colour, ls="--", lw=1.2, label=f"{name}: labels ({_truth(lab.truth)})")
+        ax.plot(at, base, ls="-", marker=marker, color=colour, label=f"{name}: ALHAT baseline, P(safe) ≥ 0.5")
+        if c.safe_fraction is not None:  # one value at every σ: a dashed line of hollow markers
+            ax.plot(
+                at, [c.safe_fraction] * x.size, ls="--", lw=1.2, marker=marker, mfc="none", color=colour,
+                label=f"{name}: labels ({_truth(lab.truth)})",
+            )  # fmt: skip
     ax.set_xticks(x, [f"{s * 100:.2f}" for s in lab.sigmas_m])
+    ax.set_xlim(-0.5, x.size - 0.5)
     ax.set(xlabel="σ (cm)", ylabel="safe fraction of labelled pixels", ylim=(0.0, 1.0))
     ax.set_title(f"(b) safe fraction per σ and split\n{lab.labeling}", fontsize=8)
     ax.legend(fontsize=7, loc="lower left")
@@ -377,11 +405,12 @@ def _altitude(ax: Any, overview: DatasetOverview) -> None:
         return
     lo, hi = float(s.altitude_m.min()), float(s.altitude_m.max())
     colours = [SPLIT_COLOURS[name] for name in SPLIT_NAMES]
-    if hi - lo <= 1e-6 * max(abs(hi), 1.0):  # one altitude: the scans per split at it
+    if hi - lo <= 1e-6 * max(abs(hi), 1.0):  # one altitude: nothing to spread; the scans per split at it
         counts = overview.split_counts()
-        ax.bar(list(SPLIT_NAMES), [counts[n] for n in SPLIT_NAMES], color=colours)
-        ax.set(xlabel="split", ylabel="scans")
-        ax.set_title(f"(d) altitude: every scan at {lo:.4g} m above its reference", fontsize=9)
+        bars = ax.bar(list(SPLIT_NAMES), [counts[n] for n in SPLIT_NAMES], color=colours)
+        ax.bar_label(bars, fontsize=8)
+        ax.set(xlabel=f"split (every scan at {lo:.4g} m)", ylabel="scans")
+        ax.set_title(f"(d) scans per split, all at one altitude: {lo:.4g} m above the reference", fontsize=9)
         return
     per_split = [s.altitude_m[s.split == code] for code in range(len(SPLIT_NAMES))]
     ax.hist(per_split, bins=30, stacked=True, color=colours, label=list(SPLIT_NAMES))

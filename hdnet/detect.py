@@ -69,7 +69,7 @@ from hdlabels.store import LabelingEntry, LabelShardEntry, find_labeling, open_l
 from hdnet import defaults
 from hdnet._version import __version__
 from hdnet.data import dataset_sigmas, open_labeling, sigma_index
-from hdnet.detect_json import DetectInfoJson, DetectInputJson, SitesGeoJson, UpsampledJson
+from hdnet.detect_json import DetectInfoJson, DetectInputJson, SitesGeoJson, UpsampledJson, input_name
 from hdnet.detect_settings import DetectSettings
 from hdnet.engine import inference_model, predict
 from hdnet.errors import HdNetError
@@ -635,6 +635,8 @@ class _ScanTerrain(_ArrayTerrain):
                 "scan frame: origin at the nadir point on the reference height (origin_map); x east, y north; metres"
             ),
         }
+        if "mosaic" in manifest:  # a descent-mosaics dataset (hd mosaic): the scan is a mosaic of frames
+            provenance["mosaic_frames"] = len(manifest["mosaic"]["frames"])
         super().__init__(dem, centred_transform(dem.shape, spacing), True, provenance)
         self.sigma_m = sigmas[k]
         self.labels = entry.name
@@ -1602,7 +1604,7 @@ def _overview(
     a, _, c, _, e, f = list(terrain.transform)[:6]
     rows, cols = terrain.shape
     left, right, top, bottom = c, c + a * cols, f, f + e * rows
-    name = terrain.provenance.get("name") or f"scan {terrain.provenance.get('scan_index')}"
+    name = input_name(terrain.provenance)
     if "window" in terrain.provenance:
         name += f" (window {MapWindow(*terrain.provenance['window']['mapped']).text()})"
     t = "unbounded" if not math.isfinite(h_t) else f"{h_t:.3f} nats"

@@ -71,6 +71,7 @@ class DetectInputJson(TypedDict, total=False):
     dtm_crs_wkt: str
     frame: str
     seen_in_training: bool
+    mosaic_frames: int  # a scan of a descent-mosaics dataset (hd mosaic): the frames its mosaic was made of
 
 
 class TilingJson(TypedDict):
@@ -149,3 +150,13 @@ class SitesGeoJson(TypedDict):
     type: str
     features: list[dict[str, object]]
     crs: NotRequired[dict[str, object]]  # a named CRS (GeoJSON 2008) when the DTM has an EPSG code
+
+
+def input_name(source: DetectInputJson) -> str:
+    """What a detection mapped, in words: the DTM's name, ``mosaic 19 (9 frames)`` for a scan of a
+    mosaic dataset (``mosaic_frames`` recorded), else ``scan 19``."""
+    if "name" in source:
+        return str(source["name"])
+    if "mosaic_frames" in source:
+        return f"mosaic {source.get('scan_index')} ({source['mosaic_frames']} frames)"
+    return f"scan {source.get('scan_index')}"

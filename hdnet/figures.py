@@ -46,25 +46,38 @@ def sigma_label(sigma_m: float) -> str:
 
 
 def reliability_diagram(result: EvaluationResult, path: Path) -> None:
-    """Observed safe fraction vs mean predicted P(safe) per bin, one line per test sigma, with ECE."""
-    fig, ax = plt.subplots(figsize=(5, 5))
+    """:func:`reliability_figure` saved to ``path`` (PNG)."""
+    fig = reliability_figure(result)
+    fig.savefig(path, dpi=DPI)
+    plt.close(fig)
+
+
+def reliability_figure(result: EvaluationResult) -> Figure:
+    """Observed safe fraction vs mean predicted P(safe) per bin, one line per test σ with its ECE;
+    beneath it, the pixels in each bin (bars per test σ, log scale), so that a point made of a few
+    pixels is seen as such. The legend lies right of the panels, over no curve."""
+    fig, (ax, counts) = plt.subplots(
+        2, 1, figsize=(7.0, 6.2), sharex=True, gridspec_kw={"height_ratios": (3, 1)}, layout="constrained"
+    )
     ax.plot([0, 1], [0, 1], "k--", lw=1, label="perfect calibration")
-    for row in result.calibration["per_sigma"]:
+    rows = result.calibration["per_sigma"]
+    bins = int(result.calibration["bins"])
+    width = 1.0 / bins / max(len(rows), 1)
+    for k, row in enumerate(rows):
         p = np.asarray(row["bin_mean_prob"], float)
         y = np.asarray(row["bin_safe_fraction"], float)
         ok = np.isfinite(p) & np.isfinite(y)
-        ax.plot(p[ok], y[ok], "o-", ms=4, label=f"test {sigma_label(row['test_sigma_m'])} (ECE {row['ece']:.3f})")
-    ax.set(
-        xlim=(0, 1),
-        ylim=(0, 1),
-        xlabel="mean predicted P(safe)",
-        ylabel="observed safe fraction",
-        title=f"Reliability ({result.calibration['bins']} bins)",
-    )
-    ax.legend(fontsize=8, loc="upper left")
-    fig.tight_layout()
-    fig.savefig(path, dpi=DPI)
-    plt.close(fig)
+        words = f"test σ {sigma_label(row['test_sigma_m'])}"
+        (line,) = ax.plot(p[ok], y[ok], "o-", ms=4, label=f"{words} (ECE {row['ece']:.3f})")
+        n = np.asarray(row.get("bin_count", []), float)
+        left = np.arange(n.size) / bins + k * width  # each σ's bar side by side within its bin
+        counts.bar(left, n, width=width, align="edge", color=line.get_color(), label=f"{words}: pixels per bin")
+    ax.set(xlim=(0, 1), ylim=(0, 1), ylabel="observed safe fraction", title=f"Reliability ({bins} bins)")
+    counts.set(xlabel="mean predicted P(safe)", ylabel="pixels")
+    if any(np.any(np.asarray(r.get("bin_count", []), float) > 0) for r in rows):
+        counts.set_yscale("log")
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0)
+    return fig
 
 
 def threshold_sweep(result: EvaluationResult, path: Path) -> None:
@@ -102,12 +115,13 @@ def threshold_sweep_figure(result: EvaluationResult) -> Figure:
 
     One panel per test sigma; dashed line: the threshold the report used at that sigma, labelled with
     its rule (:func:`used_threshold`; the mean validation score, entropy or mutual information,
-    ``hdnet.uncertainty``, for the paper's rule); dotted lines: the ALHAT baseline's precision and
-    sensitivity at that sigma.
+    ``hdnet.uncertainty``, for the paper's rule); dotted lines with a diamond at quantile 1: the ALHAT
+    baseline's precision and sensitivity at that sigma (it has no threshold). The legend lies below the
+    panel (below each panel when their thresholds differ), over no curve.
     """
     short = recorded_score(result.threshold).short
     sigmas = sorted({row["test_sigma_m"] for row in result.sweep})
-    fig, axes = plt.subplots(1, len(sigmas), figsize=(4.2 * len(sigmas), 3.8), squeeze=False)
+    fig, axes = plt.subplots(1, len(sigmas), figsize=(4.2 * len(sigmas), 4.6), squeeze=False)
     for ax, sigma in zip(axes[0], sigmas, strict=True):
         pts = [r for r in result.sweep if r["test_sigma_m"] == sigma]
         q = [r["quantile"] for r in pts]
@@ -119,22 +133,27 @@ def threshold_sweep_figure(result: EvaluationResult) -> Figure:
         base = [
             r for r in result.rows if r.table == "noise" and r.method == "alhat_baseline" and r.test_sigma_m == sigma
         ]
-        if base:
+        if base:  # dotted across the panel, its diamond at quantile 1 (every pixel certain): one entry each
             b = base[0]
-            ax.axhline(b.precision, color="tab:blue", ls=":", lw=1, label="baseline precision")
-            ax.axhline(b.sensitivity, color="tab:orange", ls=":", lw=1, label="baseline sensitivity")
-            ax.plot([1.0], [b.precision], "D", color="tab:blue", ms=5)
-            ax.plot([1.0], [b.sensitivity], "D", color="tab:orange", ms=5)
+            for value, colour, words in (
+                (b.precision, "tab:blue", "precision"),
+                (b.sensitivity, "tab:orange", "sensitivity"),
+            ):
+                label = f"ALHAT baseline {words} (◆)"
+                ax.plot(
+                    [0.0, 1.0, 1.05], [value] * 3, ls=":", lw=1, marker="D", markevery=[1], color=colour, label=label
+                )
         ax.set(
             xlim=(0, 1.05),
             ylim=(0, 1.02),
             xlabel=f"threshold quantile (validation {short})",
-            title=f"test sigma {sigma_label(sigma)}",
+            title=f"test σ {sigma_label(sigma)}",
         )
     axes[0][0].set_ylabel("fraction")
     own = {str(used_threshold(result.threshold, sigma)) for sigma in sigmas}
     for ax in axes[0] if len(own) > 1 else axes[0][-1:]:  # a legend per panel when their thresholds differ
-        ax.legend(fontsize=7, loc="lower right")
+        # Below the panel, never over its curves.
+        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.18), frameon=False, ncol=2)
     fig.tight_layout()
     return fig
 

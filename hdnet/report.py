@@ -32,6 +32,7 @@ from hdnet.chance import threshold_warning
 from hdnet.paper_results import paper_row
 from hdnet.report_json import ReportJson, ReportRunJson, ThresholdJson, recorded_noise
 from hdnet.results import LandingRecord, LandingSettings, levels_without_sites
+from hdnet.run_files import checkpoint_reason
 from hdnet.run_json import TrainingNoiseJson
 from hdnet.threshold_spec import unreachable_risk_words
 from hdnet.uncertainty import recorded_score
@@ -180,7 +181,10 @@ def _header_lines(result: EvaluationResult) -> list[str]:
         out += [f"**{chance}**", ""]
     h_t = "unbounded (every pixel certain)" if th["value_nats"] is None else f"{_num(th['value_nats'])} nats"
     out += [
-        f"- checkpoint: `{run.get('checkpoint')}` (epoch {run.get('epoch')}, profile `{run.get('profile')}`)",
+        (
+            f"- checkpoint: `{run.get('checkpoint')}` (epoch {run.get('epoch')}, profile `{run.get('profile')}`; "
+            f"{checkpoint_reason(str(run.get('checkpoint', '')))})"
+        ),
         (
             f"- dataset: `{run.get('dataset')}`, labelling `{run.get('labels')}` "
             f"(scored against {TRUTH_WORDS.get(str(run.get('truth', 'clean-scan')), run.get('truth'))}), "

@@ -1,6 +1,8 @@
 """``hd view DIR``: one self-contained HTML page of an ``hd detect`` output or of an ``hd eval`` report.
 
-The page (``DIR/view.html``, or ``--out FILE``) needs no network: its images are PNG ``data:`` URIs,
+The page (``DIR-view.html`` beside the directory, or ``--out FILE``; never inside ``DIR`` unless
+``--out`` puts it there: the output stays as its command wrote and recorded it, and an ``hd detect
+--overwrite`` of it cannot take the page along) needs no network: its images are PNG ``data:`` URIs,
 its style and script are inline and its Content-Security-Policy lets a browser fetch nothing
 (``hdnet.view_html``). Which kind ``DIR`` is comes from its marker: ``detect.json`` (``hd
 detect``) or ``report.json`` (``hd eval``); a run, a dataset, an empty directory or anything else is
@@ -68,7 +70,7 @@ from hdnet.chance import threshold_warning
 from hdnet.compare import read_report
 from hdnet.compare import settings as report_settings
 from hdnet.descend_json import RECORD_NAME as DESCEND_MARKER
-from hdnet.detect_json import DetectInfoJson
+from hdnet.detect_json import DetectInfoJson, input_name
 from hdnet.errors import HdNetError
 from hdnet.page_values import number, readable, shown_path, without_paths
 from hdnet.report import json_plain, report_markdown
@@ -82,7 +84,7 @@ from lidarsim.shards import MANIFEST_NAME
 if TYPE_CHECKING:  # hdnet.view_images imports matplotlib: only where the page is drawn
     from hdnet.view_images import Reduction
 
-VIEW_NAME = "view.html"
+VIEW_SUFFIX = "-view.html"  # the default page of DIR: DIR-view.html beside it (default_page)
 DETECT_MARKER = "detect.json"
 REPORT_MARKER = "report.json"
 DEFAULT_MAX_PX = 2048  # hd choice: a map image's longest side, pixels (a screen's width; ~4 MP per layer)
@@ -326,7 +328,7 @@ def _scan_heights(out: DetectOutput, base: Path) -> tuple[Any, str]:
     source = out.info["input"]
     dataset = Path(str(source.get("dataset", "")))
     shown = shown_path(dataset.absolute(), base)
-    name = f"scan {source.get('scan_index')} of {shown}"
+    name = f"{input_name(source)} of {shown}"
     if not (dataset / MANIFEST_NAME).is_file():
         return None, f"No hillshade: the dataset {shown} of the scan is not there any more"
     try:
@@ -815,7 +817,7 @@ def _settings_items(out: DetectOutput, base: Path) -> list[tuple[str, str]]:
     if src.get("kind") == "scan":
         seen = " (a training scan: the network has seen it)" if src.get("seen_in_training") else ""
         items += [
-            ("input", f"scan {src.get('scan_index')} of {readable(src.get('dataset'), base)}"),
+            ("input", f"{input_name(src)} of {readable(src.get('dataset'), base)}"),
             ("split", f"{src.get('split')}{seen}"),
             ("scan's noise level", _cm(src.get("sigma_m"))),
             ("scan's labelling", str(src.get("labels"))),
@@ -932,7 +934,7 @@ def _detect_text(
     out: DetectOutput, layers: list[_Layer], facts: dict[str, Any], base: Path
 ) -> tuple[str, dict[str, Any]]:
     src = out.info["input"]
-    name = src.get("name") if src.get("kind") == "dtm" else f"scan {src.get('scan_index')} ({src.get('split')} split)"
+    name = input_name(src) if src.get("kind") == "dtm" else f"{input_name(src)} ({src.get('split')} split)"
     counts = out.info["counts"]
     valid = sum(int(counts.get(k, 0)) for k in ("safe", "unsafe", "uncertain"))
     pct = {k: (100.0 * int(counts.get(k, 0)) / valid if valid else 0.0) for k in ("safe", "unsafe", "uncertain")}
@@ -1122,6 +1124,20 @@ def check_out(out: Path) -> Path:
     return path
 
 
+def default_page(directory: Path) -> Path:
+    """The page ``hd view DIRECTORY`` writes without ``--out``: ``DIRECTORY-view.html`` beside the
+    directory (``site-7/`` -> ``site-7-view.html``), so that a finished output keeps the files its
+    command wrote and recorded, and the page, self-contained, can be shared on its own.
+
+    Raises:
+        HdNetError: a directory without a name (the file system's root): give ``--out``.
+    """
+    full = Path(os.path.abspath(directory))
+    if not full.name:
+        raise HdNetError(f"{directory} has no name to put the page beside it; give --out FILE")
+    return full.parent / f"{full.name}{VIEW_SUFFIX}"
+
+
 @contextmanager
 def _reading(directory: Path, out: Path) -> Iterator[None]:
     """While the page is made: the directory's writer lock when the page goes into it, else a check
@@ -1146,7 +1162,7 @@ def view(
     dtm: str | os.PathLike | None = None,
 ) -> ViewResult:
     """Write the page of the detect output, descend output or report ``directory`` to ``out`` (default
-    ``directory/view.html``).
+    :func:`default_page`: ``DIRECTORY-view.html`` beside the directory, which is left as it is).
 
     ``dtm``: the DTM a detection read, when it is no longer at the path ``detect.json`` records
     (used only when its sha256 is the recorded one).
@@ -1159,7 +1175,7 @@ def view(
     """
     cfg = settings if settings is not None else ViewSettings()
     source, kind = source_of(directory)
-    target = check_out(Path(out) if out is not None else source / VIEW_NAME)
+    target = check_out(Path(out) if out is not None else default_page(source))
     if dtm is not None and kind != "detect":
         what = "an hd descend output (its hillshades are its mosaics')" if kind == "descend" else "an hd eval report"
         raise HdNetError(f"--dtm goes with an hd detect output; {source} is {what}")

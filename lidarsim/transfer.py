@@ -39,6 +39,7 @@ from hdcore.storage import (
     WriterLock,
     atomic,
     atomic_path,
+    check_not_input,
     confine,
     make_dirs,
     read_regular_bytes,
@@ -107,6 +108,29 @@ def _check_url(url: str) -> str:
     if not is_url(url):
         raise StorageError(f"{printable_location(url)} is not a URL (s3://bucket/prefix, file:///path, ...)")
     return url.rstrip("/")
+
+
+def _publish_url(url: str) -> str:
+    """Where ``hd publish`` writes: a URL as it is, a local folder path (``/mnt/share/mars``,
+    ``../published``) as its ``file://`` URL: a local folder is a file system like any other."""
+    if is_url(url):
+        return url.rstrip("/")
+    if not url.strip():
+        raise StorageError("the URL is empty: give s3://bucket/prefix, file:///path or a local folder")
+    return Path(url).absolute().as_uri()
+
+
+def _publish_target(url: str, root: Path) -> RemoteDataset:
+    """The place at ``url`` to publish the dataset ``root`` to; a local one that is, holds or lies
+    inside the dataset is refused.
+
+    Raises:
+        StorageError: one line naming both.
+    """
+    remote = remote_dataset(url)
+    if remote.is_local:
+        check_not_input(remote.root, {"the dataset": root}, "URL")
+    return remote
 
 
 # ------------------------------------------------------------------------------------------ publish
@@ -193,7 +217,8 @@ def publish_dataset(
 
     Args:
         directory: the local dataset.
-        url: where to publish it (``s3://bucket/prefix``, ``file:///path``...; HTTPS is read-only).
+        url: where to publish it (``s3://bucket/prefix``, ``file:///path``...; HTTPS is read-only), or
+            a local folder's path (published as its ``file://`` URL).
         overwrite: replace another dataset (or files) at ``url``.
         known_schemas: the schemas of its label shards (``hdcli.inspection.known_schemas``).
         progress: called with each file's relative path and size in bytes once it is there.
@@ -201,10 +226,10 @@ def publish_dataset(
     Raises:
         DamagedFileError: the local dataset fails ``hd verify``'s checks.
         OutputExistsError: something else at ``url`` without ``overwrite``.
-        StorageError: ``url`` cannot be reached or written (one line naming it and the cause).
+        StorageError: ``url`` cannot be reached or written, or is, holds or lies in the dataset (one line).
     """
     root = Path(directory)
-    url = _check_url(url)
+    url = _publish_url(url)
     read_manifest(root)
     manifest_bytes = read_regular_bytes(root / MANIFEST_NAME)
     manifest = validate_manifest(manifest_text(manifest_bytes, str(root / MANIFEST_NAME)), str(root))
@@ -214,7 +239,7 @@ def publish_dataset(
             f"{root} is damaged ({len(problems)} problem(s): {problems[0]}); `hd verify {root}` lists them; "
             "it is not published"
         )
-    remote = remote_dataset(url)
+    remote = _publish_target(url, root)
     files = dataset_files(manifest)
     sizes = {rel: confine(root, rel).stat().st_size for rel in files}
     state, old_files = _publication_state(remote, manifest_bytes, overwrite)

@@ -16,6 +16,7 @@ from click.testing import CliRunner
 from hdnet_datasets import build_labelled
 
 from hdcli.cli import main
+from hdnet.run_files import LAST_WHY
 from tests.geotiff import write_geotiff
 
 
@@ -42,9 +43,11 @@ def test_train_then_eval_writes_the_report(dataset, tmp_path):
     )
     assert result.exit_code == 0, result.output
     assert "uncertainty_aware" in result.output
+    assert f"checkpoint: last.pt ({LAST_WHY})" in result.output.splitlines()  # which one, and why not best.pt
     rows = json.loads((report / "report.json").read_text())["rows"]
     assert {r["table"] for r in rows} == {"noise", "dead_pixels"}
-    assert (report / "report.md").is_file()
+    checkpoint = next(x for x in (report / "report.md").read_text().splitlines() if x.startswith("- checkpoint:"))
+    assert checkpoint.endswith(f"profile `tiny`; {LAST_WHY})") and "last.pt`" in checkpoint
 
 
 @pytest.mark.parametrize(

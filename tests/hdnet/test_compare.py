@@ -80,7 +80,8 @@ def write_report(directory: Path, shift: float = 0.0, **changes: Any) -> Path:
     """A report directory holding the report.json hd eval would write for these numbers and settings.
 
     ``changes``: ``mc_samples=``, ``spec=``, ``value_nats=``, ``landing=`` (P(safe), or None for no
-    landing table), ``landing_rows=`` (the landing table itself), ``uncertainty=``."""
+    landing table), ``landing_rows=`` (the landing table itself), ``uncertainty=``, ``table2=False`` (no
+    dead-pixel rows)."""
     run: ReportRunJson = {
         "checkpoint": "/runs/a/last.pt",
         "checkpoint_sha256": "a" * 64,
@@ -107,7 +108,7 @@ def write_report(directory: Path, shift: float = 0.0, **changes: Any) -> Path:
         threshold["uncertainty"] = changes["uncertainty"]
     p_safe = changes.get("landing", 0.9)
     result = EvaluationResult(
-        rows=rows(shift),
+        rows=[r for r in rows(shift) if changes.get("table2", True) or r.table != "dead_pixels"],
         threshold=threshold,
         sweep=[],
         calibration={"bins": 10, "per_sigma": []},
@@ -156,7 +157,10 @@ def test_json_shows_the_reports_own_numbers(tmp_path):
             expected = None if land["landed"] == 0 else land["p_safe"]
             assert row_values(record, label)[name] == expected
     assert not any(r["row"].endswith("V/C") and "base net" in r["row"] for r in record["rows"])
-    assert 0.123456 not in [v for r in record["rows"] for v in r["values"].values()]  # Table 2 is not compared
+    assert row_values(record, "ALHAT baseline 1.67 cm PA, dead pixels") == {"a": 0.123456, "b": 0.123456}
+    labels = [r["row"] for r in record["rows"]]
+    assert len(labels) == len(set(labels))  # a row's label names it alone
+    assert record["notes"] == []  # both reports have Table 2
 
 
 def test_differing_settings_are_named_and_equal_ones_only_counted(tmp_path):
@@ -177,8 +181,8 @@ def test_differing_settings_are_named_and_equal_ones_only_counted(tmp_path):
     assert "run.checkpoint_sha256" not in out and "run.epoch" not in out
     assert f"{len(c.equal)} other settings equal in every report" in out
     assert "mean on the mutual information" not in out and "quantile:0.7 on the mutual information" in out
-    ua = next(line for line in out.splitlines() if line.startswith("Table 1: uncertainty-aware 1.67 cm PA"))
-    assert ua.split()[-2:] == ["0.7000", "0.7000"]
+    ua = next(line for line in out.splitlines() if line.startswith("  Table 1: uncertainty-aware 1.67 cm PA"))
+    assert ua.split()[-3:] == ["0.7000", "0.7000", "+0.0000"]  # equal: no mark
 
 
 def test_markdown_is_a_table_with_the_differing_settings(tmp_path):
@@ -187,11 +191,12 @@ def test_markdown_is_a_table_with_the_differing_settings(tmp_path):
     result = hd("compare", a, b, "--format", "markdown")
     assert result.exit_code == 0, result.output
     lines = result.output.splitlines()
-    assert lines[0] == "| Section | Row | x/report | y/report |"
-    assert "| Table 1 | ALHAT baseline 1.67 cm PA | 0.5000 | 0.5500 |" in lines
+    assert lines[0] == "| * | Section | Row | x/report | y/report | y/report - x/report |"
+    assert "| * | Table 1 | ALHAT baseline 1.67 cm PA | 0.5000 | 0.5500 | +0.0500 |" in lines
+    assert "|  | Threshold | rule | mean | mean | -- |" in lines
     label = "P(safe landing) terrain truth, ALHAT baseline 1.67 cm, nav 3 m"
-    assert f"| Landing | {label} | 0.9300 [0.1000, 1.0000] n=4/4 | -- |" in lines
-    assert "| Landing | P(safe landing) terrain truth, base net 1.67 cm, nav 3 m | -- n=0/4 | -- |" in lines
+    assert f"| * | Landing | {label} | 0.9300 [0.1000, 1.0000] n=4/4 | -- | -- |" in lines
+    assert "| * | Landing | P(safe landing) terrain truth, base net 1.67 cm, nav 3 m | -- n=0/4 | -- | -- |" in lines
     assert any(line.startswith("| `landing_settings.touchdowns` | 1000 | " + ABSENT) for line in lines)
 
 
@@ -218,8 +223,9 @@ def test_landing_rows_show_their_interval_and_scenes(tmp_path):
     assert row.cells() == ["1.0000 [0.3424, 1.0000] n=2/2", "1.0000 [0.9924, 1.0000] n=500/500"]
     text = hd("compare", two, many)
     assert text.exit_code == 0, text.output
-    line = next(x for x in text.output.splitlines() if x.startswith(f"Landing: {label}"))
-    assert line.split("  ")[-1].strip() == "1.0000 [0.9924, 1.0000] n=500/500" and "[0.3424, 1.0000] n=2/2" in line
+    line = next(x for x in text.output.splitlines() if x.startswith(f"* Landing: {label}"))  # its n differs
+    cells = [x.strip() for x in line.split("  ") if x.strip()]
+    assert cells[-2:] == ["1.0000 [0.9924, 1.0000] n=500/500", "+0.0000"] and "[0.3424, 1.0000] n=2/2" in line
     record = json.loads(hd("--json", "compare", two, many).output)
     entry = next(r for r in record["rows"] if r["row"] == label)
     assert entry["values"] == {"two": 1.0, "many": 1.0}  # the rate, as before
@@ -311,3 +317,46 @@ def test_hd_compare_does_not_import_torch(tmp_path):
     )
     assert done.returncode == 0, done.stderr
     assert "Settings that differ: none" in done.stdout
+
+
+def test_differing_rows_are_marked_with_each_reports_difference_from_the_first(tmp_path):
+    a = write_report(tmp_path / "a")
+    b = write_report(tmp_path / "b", shift=0.25, landing=0.5)
+    c = write_report(tmp_path / "c", value_nats=0.5)  # a's numbers but H_t
+    record = json.loads(hd("--json", "compare", a, b, c).output)
+    by_label = {r["row"]: r for r in record["rows"] if r["section"] != "Table 2"}
+    pa = by_label["ALHAT baseline 1.67 cm PA"]  # 0.5 + shift
+    assert pa["differs"] is True
+    assert pa["differences"]["b"] == pytest.approx(0.25) and pa["differences"]["c"] == 0.0
+    assert list(pa["differences"]) == ["b", "c"]  # none for the first report
+    ht = by_label["H_t (nats)"]
+    assert ht["differs"] is True and ht["differences"] == {"b": 0.0, "c": pytest.approx(0.5 - 0.4321)}
+    rule = by_label["rule"]
+    assert rule["differs"] is False and rule["differences"] == {"b": None, "c": None}  # not a number
+    never = by_label["P(safe landing) terrain truth, base net 1.67 cm, nav 0 m"]
+    assert never["differs"] is False and never["differences"] == {"b": None, "c": None}
+    land = by_label["P(safe landing) terrain truth, ALHAT baseline 1.67 cm, nav 3 m"]  # 0.9 + 0.03 vs 0.5 + 0.03
+    assert land["differs"] is True and land["differences"]["b"] == pytest.approx(-0.4)
+    text = hd("compare", a, b, c).output.splitlines()
+    assert text[0].split()[-6:] == ["b", "-", "a", "c", "-", "a"]
+    assert next(x for x in text if "ALHAT baseline 1.67 cm PA" in x).split() == [
+        "*", "Table", "1:", "ALHAT", "baseline", "1.67", "cm", "PA", "0.5000", "0.7500", "0.5000", "+0.2500", "+0.0000"
+    ]  # fmt: skip
+    assert next(x for x in text if "Threshold: rule" in x).startswith("  Threshold: rule")
+    assert "* the reports differ on this row; b - a: that report's value minus a's" in text
+
+
+def test_a_report_without_table2_is_named_in_one_line(tmp_path):
+    a = write_report(tmp_path / "a")
+    b = write_report(tmp_path / "b", table2=False)
+    note = "Table 2 (dead pixels): not in report b (evaluated without --drop-pixels)"
+    result = hd("compare", a, b)
+    assert result.exit_code == 0, result.output
+    assert result.output.splitlines().count(note) == 1
+    markdown = hd("compare", a, b, "--format", "markdown").output.splitlines()
+    assert "| * | Table 2 | ALHAT baseline 1.67 cm PA, dead pixels | 0.1235 | -- | -- |" in markdown
+    assert note + "." in markdown
+    assert json.loads(hd("--json", "compare", a, b).output)["notes"] == [note]
+    none = write_report(tmp_path / "c", table2=False)
+    record = json.loads(hd("--json", "compare", b, none).output)
+    assert record["notes"] == [] and not any(r["section"] == "Table 2" for r in record["rows"])

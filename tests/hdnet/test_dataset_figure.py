@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 from pathlib import Path
 
 import h5py
@@ -13,8 +14,10 @@ import pytest
 from click.testing import CliRunner
 from hdnet_datasets import build_labelled
 from matplotlib.collections import PolyCollection
+from matplotlib.patches import Rectangle
 
 from hdcli.cli import main
+from hdlabels.store import find_labeling
 from hdnet.dataset_figure import PANELS, chosen_labeling, dataset_figure, dataset_overview
 from lidarsim.shards import SPLIT_NAMES, read_manifest
 
@@ -89,9 +92,20 @@ def test_the_figure_has_its_four_panels(datasets):
     legend = axes[0].get_legend()
     assert legend is not None and [t.get_text() for t in legend.get_texts()] == ["train (16)", "val (2)", "test (2)"]
     assert len(axes[0].get_images()) == 1  # the hillshade
-    assert len(axes[1].get_lines()) == 6  # per split: the baseline over the 2 sigmas, the labels' level
-    assert np.asarray(axes[1].get_lines()[0].get_xdata()).tolist() == [0, 1]  # one point per sigma
-    assert "every scan at 500 m" in axes[3].get_title()
+    lines = axes[1].get_lines()
+    assert len(lines) == 6  # per split: the baseline over the 2 sigmas, the labels' level
+    # Each split's points shifted sideways, with its own marker: splits of equal fractions stay apart.
+    xs = {line.get_label(): np.round(np.asarray(line.get_xdata(), float), 6).tolist() for line in lines}
+    assert xs["train: ALHAT baseline, P(safe) ≥ 0.5"] == [-0.12, 0.88] and xs["val: ALHAT baseline, P(safe) ≥ 0.5"] == [
+        0,
+        1,
+    ]
+    assert len({tuple(x) for x in xs.values()}) == 3  # a split's baseline and labels share their x
+    assert len({line.get_marker() for line in lines}) == 3
+    # (d) says what it draws: one altitude, so the scans per split, each bar with its count.
+    assert axes[3].get_title() == "(d) scans per split, all at one altitude: 500 m above the reference"
+    assert axes[3].get_ylabel() == "scans" and [t.get_text() for t in axes[3].texts] == ["16", "2", "2"]
+    assert [p.get_height() for p in axes[3].patches if isinstance(p, Rectangle)] == [16, 2, 2]
 
 
 def test_hd_inspect_plot_writes_the_figure_atomically_and_reports_it(datasets, tmp_path):
@@ -181,3 +195,25 @@ def test_a_bad_plot_is_refused_with_one_line_and_nothing_written(datasets, tmp_p
     assert last.startswith("Error: ") and needle in last, result.output
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]  # no figure, no temporary file
     assert {k: listing(v) for k, v in datasets.items()} == before
+
+
+def test_of_two_truths_the_figure_takes_the_terrains_and_of_others_asks_in_one_line(datasets, tmp_path):
+    from hdlabels.labeling import label_dataset
+    from hdlabels.settings import LabelSettings
+
+    data = tmp_path / "data"
+    shutil.copytree(datasets["labelled"], data)
+    clean = find_labeling(data).name
+    terrain = label_dataset(data, LabelSettings(truth="terrain"), workers=1).name
+    chosen, named = chosen_labeling(data, None), chosen_labeling(data, "paper")
+    assert chosen is not None and chosen.name == terrain  # both truths of the paper's convention: the terrain's
+    assert named is not None and named.name == clean  # --labels still chooses
+    result = CliRunner().invoke(main, ["--json", "inspect", str(data), "--plot", str(tmp_path / "g.png")])
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.output)["figure"]["labels"]["labelling"] == terrain
+    label_dataset(data, LabelSettings(convention="hd"), workers=1)  # a third labelling: no obvious choice
+    result = CliRunner().invoke(main, ["inspect", str(data), "--plot", str(tmp_path / "h.png")])
+    lines = result.output.strip().splitlines()
+    assert result.exit_code == 1 and len(lines) == 1 and len(lines[0]) < 200, result.output
+    assert lines[0] == f"Error: {data} has 3 labellings: choose the figure's with --labels (paper, paper+terrain, hd)"
+    assert not (tmp_path / "h.png").exists()

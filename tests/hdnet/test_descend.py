@@ -25,6 +25,7 @@ from hdlabels.lander import Lander
 from hdlabels.mosaic import descent_frames
 from hdnet.descent_flight import REASON_NO_MAP, FrameStep, aim_is_safe, fly, retarget
 from hdnet.detect import DetectMaps, centred_transform, load_run
+from hdnet.detect_json import input_name
 from hdnet.detect_settings import DetectSettings
 from hdnet.sites import SAFETY_SAFE, SAFETY_UNSAFE, select_sites
 from hdnet.view import view
@@ -125,7 +126,14 @@ def test_the_last_frame_is_the_offline_mosaic_and_its_detect_maps(flown: dict[st
     ):
         with rasterio.open(offline / name) as src:
             np.testing.assert_array_equal(last[field], src.read(1), err_msg=name)
-    sites = json.loads((offline / "detect.json").read_text())["sites"]
+    info = json.loads((offline / "detect.json").read_text())
+    sites = info["sites"]
+    # A mosaic is called so, with its frames, not a scan: in detect.json and on hd view's page.
+    assert info["input"]["mosaic_frames"] == 3 and input_name(info["input"]) == f"mosaic {test} (3 frames)"
+    page = flown["tmp"] / "offline-view.html"
+    invoke("view", str(offline), "--out", str(page))
+    text = html.unescape(page.read_text(encoding="utf-8"))
+    assert f"mosaic {test} (3 frames) (test split)" in text and f"scan {test} " not in text
     record = json.loads((online / "descend.json").read_text())
     assert record["descents"][0]["frames"][-1]["n_sites"] == len(sites)
     columns = [str(c) for c in last["site_columns"]]
@@ -171,6 +179,12 @@ def maps_of(safety: np.ndarray) -> DetectMaps:
     transform = centred_transform(safety.shape, 1.0)
     sites = select_sites(safety, p, h, p, transform, (1.0, 1.0), lander(), 5)
     return DetectMaps(p, h, h, safety, p, sites, 0.5, "entropy", 0.02, transform)
+
+
+def test_a_detection_names_its_input_a_dtm_a_scan_or_a_mosaic_of_frames() -> None:
+    assert input_name({"kind": "dtm", "name": "jezero.tif"}) == "jezero.tif"
+    assert input_name({"kind": "scan", "scan_index": 19}) == "scan 19"
+    assert input_name({"kind": "scan", "scan_index": 19, "mosaic_frames": 9}) == "mosaic 19 (9 frames)"
 
 
 def test_a_hazard_seen_under_the_aim_makes_the_lander_divert_and_only_then() -> None:
@@ -316,8 +330,7 @@ def test_a_frame_without_a_map_is_recorded_and_the_descent_goes_on(
     np.testing.assert_array_equal(frame0["transform"], before["transform"])  # the grid its maps would have had
     last = f"descent-{test:05d}-frame-02.npz"
     assert np.load(out / last)["p_safe"].tobytes() == np.load(flown["online"] / last)["p_safe"].tobytes()
-    view(out)  # the page of a descent with a frame without a map
-    page = (out / "view.html").read_text()
+    page = view(out).path.read_text()  # the page of a descent with a frame without a map, beside it
     assert html.escape("N" + REASON_NO_MAP[1:]) in page
 
 
@@ -327,7 +340,7 @@ def test_the_page_of_a_descent_flown_has_its_frames_and_its_track(flown: dict[st
     result = CliRunner().invoke(main, ["view", str(out)])
     assert result.exit_code == 0, result.output
     assert "hd descend output, 1 descent(s), 3 frames, images 40 x 40 px" in result.output
-    raw = (out / "view.html").read_text(encoding="utf-8")
+    raw = (tmp_path / "online-view.html").read_text(encoding="utf-8")
     test = int(str(flown["test"]))
     record = json.loads((out / "descend.json").read_text())
     assert str(flown["tmp"]) not in raw and record["run"]["checkpoint"] not in raw  # no absolute path

@@ -55,6 +55,7 @@ from hdnet.evaluate import EvalConfig, evaluate, validation_threshold
 from hdnet.fit import FitConfig, fit
 from hdnet.infer import mc_dropout_predict
 from hdnet.landing import cell_masses
+from hdnet.run_files import LAST_WHY
 from hdnet.sites import SITE_RANK_RULES, body_disk
 from hdnet.thresholds import parse_threshold_spec
 from hdnet.train import save_checkpoint
@@ -845,6 +846,20 @@ BAD = [
     (["--dtm", "{striped}", "--window", "1000,1961,1040,1999"], "the window has no such valid square"),
     (["--data", "{dataset}", "--scan", "0", "--window", "0,0,10,10"], "--window goes with --dtm"),
 ]
+
+
+def test_the_summary_says_which_checkpoint_it_read_and_why(trained, terrains, tmp_path):
+    _, run_dir, _ = trained
+    args = ["--dtm", str(terrains["ok"]), "--threshold", "nats:0.3", "--mc-samples", "1"]
+    result = CliRunner().invoke(main, ["detect", str(run_dir), *args, "--out", str(tmp_path / "a")])
+    assert result.exit_code == 0, result.output
+    assert f"checkpoint: last.pt ({LAST_WHY})" in result.output.splitlines()
+    assert "best.pt is not scored because it is the epoch chosen on the validation split" in LAST_WHY
+    given = tmp_path / "chosen.pt"
+    given.write_bytes((run_dir / "last.pt").read_bytes())
+    result = CliRunner().invoke(main, ["detect", str(given), *args, "--out", str(tmp_path / "b")])
+    assert result.exit_code == 0, result.output
+    assert "checkpoint: chosen.pt (the file given)" in result.output.splitlines()
 
 
 @pytest.mark.parametrize(("args", "needle"), BAD)

@@ -6,12 +6,14 @@ import matplotlib
 
 matplotlib.use("Agg")
 
-from typing import cast
+import math
+from typing import Any, cast
 
 import matplotlib.pyplot as plt
 import numpy as np
 import pytest
-from matplotlib.patches import Patch
+from matplotlib.lines import Line2D
+from matplotlib.patches import Patch, Rectangle
 
 from hdnet import defaults
 from hdnet.figures import (
@@ -23,6 +25,7 @@ from hdnet.figures import (
     noise_sweep_figure,
     qualitative_figure,
     qualitative_panel,
+    reliability_figure,
     threshold_sweep_figure,
 )
 from hdnet.report_json import SweepRowJson, ThresholdJson
@@ -102,7 +105,8 @@ def _sweep_result(threshold: ThresholdJson) -> EvaluationResult:
         for s in (0.0167, 0.07)
         for q in defaults.QUANTILE_SWEEP
     ]
-    return EvaluationResult([], {"mean_quantile": 0.62, **threshold}, sweep, {"bins": 10, "per_sigma": []})
+    base = [ReportRow("noise", "alhat_baseline", None, s, None, 0.8, 0.7, 0.6, 0.3) for s in (0.0167, 0.07)]
+    return EvaluationResult(base, {"mean_quantile": 0.62, **threshold}, sweep, {"bins": 10, "per_sigma": []})
 
 
 def _threshold_lines(fig) -> list[tuple[str, float]]:
@@ -138,6 +142,76 @@ def test_the_threshold_sweep_marks_the_threshold_of_the_rule_used(threshold, exp
     fig = threshold_sweep_figure(_sweep_result(threshold))
     try:
         assert _threshold_lines(fig) == expected
+    finally:
+        plt.close(fig)
+
+
+def _overlaps(a: Any, b: Any) -> bool:
+    """Whether two window extents (display pixels) share an area."""
+    return a.x0 < b.x1 and b.x0 < a.x1 and a.y0 < b.y1 and b.y0 < a.y1
+
+
+def _inside(fig: Any, legend: Any) -> bool:
+    """Whether the legend lies wholly on the figure (not cut off by its edge)."""
+    ext = legend.get_window_extent()
+    return ext.x0 >= 0 and ext.y0 >= 0 and ext.x1 <= fig.bbox.x1 and ext.y1 <= fig.bbox.y1
+
+
+def test_the_threshold_sweep_legend_covers_no_panel_and_names_the_baseline_diamonds():
+    fig = threshold_sweep_figure(_sweep_result({"spec": "mean", "kind": "mean"}))
+    try:
+        fig.canvas.draw()
+        (legend,) = [legend for ax in fig.axes if (legend := ax.get_legend()) is not None]
+        assert _inside(fig, legend)
+        for ax in fig.axes:
+            assert not _overlaps(legend.get_window_extent(), ax.get_window_extent())
+            assert "sigma" not in ax.get_title() and ax.get_title().startswith("test σ ")
+        entries = dict(zip([t.get_text() for t in legend.get_texts()], legend.legend_handles, strict=True))
+        for words, value in (("precision", 0.6), ("sensitivity", 0.3)):
+            handle = entries[f"ALHAT baseline {words} (◆)"]
+            assert isinstance(handle, Line2D) and handle.get_marker() == "D" and handle.get_linestyle() == ":"
+            (drawn,) = [line for line in fig.axes[0].get_lines() if line.get_label() == f"ALHAT baseline {words} (◆)"]
+            x, y = np.asarray(drawn.get_xdata(), float), np.asarray(drawn.get_ydata(), float)
+            assert drawn.get_markevery() == [1] and x[1] == 1.0  # the diamond at quantile 1
+            assert set(y.tolist()) == {value}
+    finally:
+        plt.close(fig)
+
+
+def _reliability_result() -> EvaluationResult:
+    per_sigma = [
+        {
+            "test_sigma_m": sigma,
+            "ece": 0.05,
+            "bin_count": [0, 3, 40, 500] if k == 0 else [10, 0, 7, 2000],
+            "bin_mean_prob": [math.nan, 0.4, 0.6, 0.9] if k == 0 else [0.1, math.nan, 0.7, 0.95],
+            "bin_safe_fraction": [math.nan, 0.9, 0.1, 0.95] if k == 0 else [0.05, math.nan, 0.9, 0.92],
+        }
+        for k, sigma in enumerate((0.0167, 0.07))
+    ]
+    return EvaluationResult([], {}, [], cast(Any, {"bins": 4, "per_sigma": per_sigma}))
+
+
+def test_the_reliability_diagram_shows_bin_counts_and_its_legend_covers_no_curve():
+    fig = reliability_figure(_reliability_result())
+    try:
+        curves, counts = fig.axes
+        fig.canvas.draw()
+        legend = curves.get_legend()
+        assert legend is not None and _inside(fig, legend)
+        for ax in fig.axes:
+            assert not _overlaps(legend.get_window_extent(), ax.get_window_extent())
+        labels = [t.get_text() for t in legend.get_texts()]
+        assert labels == ["perfect calibration", "test σ 1.67cm (ECE 0.050)", "test σ 7.00cm (ECE 0.050)"]
+        # The pixels per bin beneath: each σ's bars side by side in its bin, in its curve's colour.
+        bars = [b for b in counts.patches if isinstance(b, Rectangle)]
+        assert len(bars) == len(counts.patches)
+        assert [b.get_height() for b in bars] == [0, 3, 40, 500, 10, 0, 7, 2000]
+        assert [round(b.get_x(), 6) for b in bars] == [0.0, 0.25, 0.5, 0.75, 0.125, 0.375, 0.625, 0.875]
+        colours = [line.get_color() for line in curves.get_lines()[1:]]
+        assert {matplotlib.colors.to_hex(b.get_facecolor()) for b in bars[:4]} == {matplotlib.colors.to_hex(colours[0])}
+        assert counts.get_yscale() == "log" and counts.get_ylabel() == "pixels"
+        assert "sigma" not in " ".join([*labels, curves.get_title()])
     finally:
         plt.close(fig)
 

@@ -44,6 +44,7 @@ from hdcore.storage import WriterLock
 from hdnet import view_images
 from hdnet.detect import MAP_FILES, detect
 from hdnet.detect_settings import DetectSettings
+from hdnet.errors import HdNetError
 from hdnet.eval_settings import EvalConfig
 from hdnet.evaluate import evaluate
 from hdnet.fit import FitConfig, fit
@@ -51,7 +52,7 @@ from hdnet.report import METHOD_NAMES, write_report
 from hdnet.results import SITE_COLUMNS
 from hdnet.sites import SAFETY_INVALID, SAFETY_SAFE, SAFETY_UNCERTAIN, SAFETY_UNSAFE
 from hdnet.train import save_checkpoint
-from hdnet.view import ViewSettings, view
+from hdnet.view import ViewSettings, default_page, view
 from hdnet.view_html import map_style
 from hdnet.view_html import page as html_page
 from hdnet.view_images import Reduction, colour_rgba, reduced_map, safety_rgba
@@ -105,8 +106,13 @@ def _test_scan(dataset: Path) -> int:
 def copy_of(source: Path, tmp_path: Path, name: str = "copy") -> Path:
     """A copy of an output without any earlier page (a test's own to view, damage or move)."""
     out = tmp_path / name
-    shutil.copytree(source, out, ignore=shutil.ignore_patterns("view.html", ".hd-lock"))
+    shutil.copytree(source, out, ignore=shutil.ignore_patterns("*view.html", ".hd-lock"))
     return out
+
+
+def page_of(out: Path) -> Path:
+    """The page hd view writes of ``out`` without --out: beside it, ``OUT-view.html``."""
+    return out.parent / f"{out.name}-view.html"
 
 
 def tree(path: Path) -> dict[str, str]:
@@ -237,8 +243,8 @@ def test_a_detect_page_holds_every_layer_the_sites_and_the_settings(outputs, tmp
     out = copy_of(outputs["detect"], tmp_path)
     before = tree(out)
     result = view(out)
-    assert result.path == out / "view.html" and result.kind == "detect"
-    assert tree(out) == {**before, "view.html": tree(out)["view.html"]}  # the inputs untouched, one file added
+    assert result.path == page_of(out) == out.parent / "copy-view.html" and result.kind == "detect"
+    assert tree(out) == before  # the output untouched: the page lies beside it
     raw = result.path.read_text(encoding="utf-8")
     page = Page(raw)
     check_self_contained(page, raw)
@@ -301,16 +307,17 @@ def test_a_detect_page_holds_every_layer_the_sites_and_the_settings(outputs, tmp
     settings = settings_of(page)
     info = json.loads((out / "detect.json").read_text())
     assert settings["threshold"] == "nats:0.5: H_t = 0.5000 nats"
-    assert settings["input"] == f"DTM {os.path.relpath(outputs['dtm'], out)}"
+    assert settings["input"] == f"DTM {os.path.relpath(outputs['dtm'], out.parent)}"
     assert settings["navigation sigma"].startswith("0 m")
     assert settings["site margin"].startswith("0 m") and settings["tiling"].startswith("tile_px: ")
     assert settings["sensor sigma (baseline, network input)"] == "1.67 cm (0.0167 m)"
-    assert settings["MC samples, seed"] == "1, 0" and os.path.relpath(info["run"]["checkpoint"], out) in settings["run"]
+    assert settings["MC samples, seed"] == "1, 0"
+    assert os.path.relpath(info["run"]["checkpoint"], out.parent) in settings["run"]
     counts = {r[0]: r[1] for r in page.table_rows(page.root.find("table", id="counts"))}
     assert counts["safe (certain)"] == str(info["counts"]["safe"])
     # detect.json whole, its paths relative to the page.
     shown_info = json.loads(page.root.find("pre").text())
-    assert shown_info["input"]["path"] == os.path.relpath(outputs["dtm"], out)
+    assert shown_info["input"]["path"] == os.path.relpath(outputs["dtm"], out.parent)
     assert {**shown_info, "run": info["run"], "input": info["input"]} == info
     # H_t is named beside its tick, on the entropy bar (the score of nats:0.5), at 0.5 / ln 2 of its width.
     (control,) = [c for c in page.root.find_all("div", class_="layer-control") if c.find_all(id="toggle-entropy")]
@@ -388,14 +395,14 @@ def test_the_hillshade_needs_the_very_dtm_hd_detect_read(outputs, tmp_path):
     result = CliRunner().invoke(main, ["view", str(out)])
     assert result.exit_code == 0, result.output
     assert "No hillshade: the DTM" in result.output and "give it with --dtm" in result.output
-    page = parse(out / "view.html")
+    page = parse(page_of(out))
     assert not page.root.find_all(id="layer-hillshade")
     assert "--dtm" in page.root.find(id="hillshade-note").text()
     view(out, dtm=moved)  # the same bytes elsewhere: shaded again
-    assert parse(out / "view.html").root.find_all(id="layer-hillshade")
+    assert parse(page_of(out)).root.find_all(id="layer-hillshade")
     other = write_geotiff(tmp_path / "other.tif", np.zeros((400, 400)))
     view(out, dtm=other)
-    note = parse(out / "view.html").root.find(id="hillshade-note").text()
+    note = parse(page_of(out)).root.find(id="hillshade-note").text()
     assert "is not the DTM hd detect read" in note and info["input"]["sha256"][:12] in note
 
 
@@ -530,7 +537,7 @@ def test_a_report_page_shows_report_json_numbers_its_figures_and_settings(output
     out = copy_of(outputs["report"], tmp_path)
     before = tree(out)
     raw = view(out).path.read_text(encoding="utf-8")
-    assert set(tree(out)) == {*before, "view.html"} and {k: tree(out)[k] for k in before} == before
+    assert tree(out) == before  # the report untouched: the page lies beside it
     page = Page(raw)
     check_self_contained(page, raw)
     content = json.loads((out / "report.json").read_text())
@@ -575,7 +582,7 @@ def test_a_report_page_shows_report_json_numbers_its_figures_and_settings(output
         assert pixels.shape[:2] == (int(img.attrs["height"]), int(img.attrs["width"]))
         assert np.array_equal(pixels, matplotlib_pixels((out / name).read_bytes()))
     settings = settings_of(page)
-    assert settings["run.checkpoint"] == os.path.relpath(content["run"]["checkpoint"], out)
+    assert settings["run.checkpoint"] == os.path.relpath(content["run"]["checkpoint"], out.parent)
     assert settings["threshold.spec"] == "mean"
     assert settings["run.mc_samples"] == "2" and settings["landing_settings.nav_sigmas_m"] == "0, 2"
     assert page.root.find("h1").text() == "hd eval report: copy"
@@ -785,7 +792,7 @@ def test_what_is_neither_kind_is_refused_with_what_to_give(tmp_path, make, needl
     path = make(tmp_path)
     result = CliRunner().invoke(main, ["view", str(path)])
     assert result.exit_code == 1 and needle in result.output and "hd detect --out or hd eval --out" in result.output
-    assert not list(tmp_path.rglob("view.html"))
+    assert not list(tmp_path.rglob("*view.html"))
 
 
 def test_a_run_and_a_dataset_are_named_as_such(outputs):
@@ -794,16 +801,16 @@ def test_a_run_and_a_dataset_are_named_as_such(outputs):
     assert result.exit_code == 1 and "is a run" in result.output and "hd detect" in result.output
     result = runner.invoke(main, ["view", str(outputs["dataset"])])
     assert result.exit_code == 1 and "is a dataset" in result.output and "hd inspect" in result.output
-    assert not (outputs["root"] / "run" / "view.html").exists() and not (outputs["dataset"] / "view.html").exists()
+    assert not list(outputs["root"].rglob("run*view.html")) and not page_of(outputs["dataset"]).exists()
 
 
 def test_the_page_replaces_only_an_earlier_page_and_goes_where_out_says(outputs, tmp_path):
     out = copy_of(outputs["report"], tmp_path)
     runner = CliRunner()
     assert runner.invoke(main, ["view", str(out)]).exit_code == 0
-    first = (out / "view.html").read_bytes()
+    first = page_of(out).read_bytes()
     assert runner.invoke(main, ["view", str(out / "report.json")]).exit_code == 0  # the marker file names it too
-    assert (out / "view.html").read_bytes() == first  # the same page again, replaced
+    assert page_of(out).read_bytes() == first  # the same page again, replaced
     mine = tmp_path / "notes.html"
     mine.write_text("<html>mine</html>")
     result = runner.invoke(main, ["view", str(out), "--out", str(mine)])
@@ -814,8 +821,7 @@ def test_the_page_replaces_only_an_earlier_page_and_goes_where_out_says(outputs,
     )
     result = runner.invoke(main, ["view", str(out), "--out", str(out / "report.md")])
     assert result.exit_code == 1 and "is not a page of hd view" in result.output
-    elsewhere = tmp_path / "pages" / "r.html"
-    elsewhere.parent.mkdir()
+    elsewhere = tmp_path / "r.html"  # beside the report, as the default page: the same page, paths and all
     result = runner.invoke(main, ["--json", "view", str(out), "--out", str(elsewhere)])
     assert result.exit_code == 0, result.output
     record = json.loads(result.output)
@@ -830,19 +836,28 @@ def test_a_directory_being_written_is_not_read(outputs, tmp_path):
     out = copy_of(outputs["detect"], tmp_path)
     with WriterLock(out, "detect"):
         with pytest.raises(LockedError, match="another hd process"):
-            view(out)  # the page would go into it
+            view(out, out / "view.html")  # the page would go into it
         with pytest.raises(LockedError, match="being written by another hd process"):
-            view(out, tmp_path / "elsewhere.html")
-    assert not (out / "view.html").exists() and not (tmp_path / "elsewhere.html").exists()
+            view(out)  # beside it
+    assert not (out / "view.html").exists() and not page_of(out).exists()
     with pytest.raises(OutputExistsError, match="not a page of hd view"):
         view(out, out / "sites.csv")
+
+
+def test_the_default_page_lies_beside_the_output_and_the_root_needs_out(tmp_path, monkeypatch):
+    assert default_page(tmp_path / "site-7") == tmp_path / "site-7-view.html"
+    (tmp_path / "report").mkdir()
+    monkeypatch.chdir(tmp_path / "report")
+    assert default_page(Path(".")) == tmp_path / "report-view.html"  # the working directory, by its name
+    with pytest.raises(HdNetError, match="no name to put the page beside it; give --out FILE"):
+        default_page(Path("/"))
 
 
 def test_cli_view_says_what_it_wrote(outputs, tmp_path):
     out = copy_of(outputs["detect"], tmp_path)
     result = CliRunner().invoke(main, ["view", str(out), "--max-px", "100"])
     assert result.exit_code == 0, result.output
-    assert result.output.startswith(f"wrote {out / 'view.html'} (") and "shown at 1 pixel per 4 x 4" in result.output
+    assert result.output.startswith(f"wrote {page_of(out)} (") and "shown at 1 pixel per 4 x 4" in result.output
     assert "6 site(s)" in result.output and "no network needed" in result.output
     result = CliRunner().invoke(main, ["view", str(out), "--max-px", "10"])
     assert result.exit_code == 2 and "64<=x<=8192" in result.output
@@ -859,7 +874,7 @@ def test_hd_view_never_imports_the_network_library(outputs, tmp_path, which):
     )
     done = subprocess.run([sys.executable, "-c", code, str(out)], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
-    assert (out / "view.html").is_file()
+    assert page_of(out).is_file()
 
 
 # ------------------------------------------------------------------------------------------ browser

@@ -126,8 +126,8 @@ def descent_of(page: Page, index: int) -> Any:
 def test_a_descent_page_has_every_frame_its_track_and_its_settings(output: Path) -> None:
     before = sorted(p.name for p in output.iterdir())
     result = view(output)
-    assert result.kind == "descend" and result.path == output / "view.html"
-    assert sorted(p.name for p in output.iterdir()) == sorted([*before, "view.html"])  # one file added
+    assert result.kind == "descend" and result.path == output.parent / f"{output.name}-view.html"
+    assert sorted(p.name for p in output.iterdir()) == sorted(before)  # the output untouched: the page beside it
     raw = result.path.read_text(encoding="utf-8")
     page = Page(raw)
     check_self_contained(page, raw)
@@ -208,7 +208,7 @@ def test_a_damaged_descent_output_is_one_line_and_nothing_is_written(
     damage(output)
     with pytest.raises(error, match=re.escape(needle)):
         view(output)
-    assert not (output / "view.html").exists()
+    assert not (output / "view.html").exists() and not (output.parent / f"{output.name}-view.html").exists()
     result = CliRunner().invoke(main, ["view", str(output)])
     assert result.exit_code == 1 and len(result.output.strip().splitlines()) == 1, result.output
 

@@ -113,3 +113,22 @@ def test_the_stubs_are_what_the_packages_export():
         exports = stub_exports(Path(module.__file__).with_suffix(".pyi"), module.__name__)
         assert sorted(exports) == module.__all__
         assert all(source.startswith((f"{module.__name__}.", "hdcore.")) for source, _ in exports.values())
+
+
+@pytest.mark.parametrize(("package", "names"), [("hdnet", ("fit", "evaluate", "detect")), ("lidarsim", ("make_dtm",))])
+def test_the_package_says_how_to_reach_a_module_its_function_shadows(package, names):
+    """Each function named like its module is named in its package's docstring, with the one way
+    to reach the module, and that way gives the module."""
+    import importlib
+
+    module = importlib.import_module(package)
+    shadowed = [n for n, (source, _) in stub_exports(ROOT / package / "__init__.pyi", package).items()
+                if source == f"{package}.{n}"]  # fmt: skip
+    assert sorted(shadowed) == sorted(names)
+    doc = module.__doc__ or ""
+    first = names[1] if len(names) > 1 else names[0]
+    assert f'importlib.import_module("{package}.{first}")' in doc
+    for name in names:
+        assert f"{package}.{name}" in doc
+        assert callable(getattr(module, name)) and not isinstance(getattr(module, name), ModuleType)
+        assert isinstance(importlib.import_module(f"{package}.{name}"), ModuleType)

@@ -226,3 +226,29 @@ def test_a_killed_pull_resumes_to_the_same_bytes(datasets, s3, tmp_path):
     assert files_of(out_dir) == files_of(a)
     assert set(tree(out_dir)) == set(files_of(a))  # no partial file, no mark, no lock left
     assert json.loads((out_dir / "manifest.json").read_text()) == read_manifest(a)
+
+
+def test_a_local_folder_is_a_place_to_publish_to_and_pull_from(datasets, tmp_path, monkeypatch):
+    source = datasets[0]
+    code, text = invoke("publish", source, tmp_path / "shared" / "mars")  # a plain path, not yet there
+    assert code == 0 and f"published {source} to file://" in text, text
+    assert tree(tmp_path / "shared" / "mars") == files_of(source)  # the dataset's files and nothing else
+    monkeypatch.chdir(tmp_path)
+    code, text = invoke("publish", source, "shared/mars")  # relative: the same folder, already complete
+    assert code == 0 and "already holds this dataset" in text and "nothing sent" in text, text
+    code, text = invoke("pull", (tmp_path / "shared" / "mars").as_uri(), tmp_path / "copy")
+    assert code == 0, text
+    assert files_of(tmp_path / "copy") == files_of(source)
+
+
+@pytest.mark.parametrize("where", ["{data}", "{data}/published", "{data}/.."])
+def test_a_local_folder_that_is_holds_or_lies_in_the_dataset_is_refused(datasets, tmp_path, where):
+    data = tmp_path / "data"
+    shutil.copytree(datasets[1], data)
+    before = tree(tmp_path)
+    target = where.format(data=data)
+    for url in (target, Path(os.path.abspath(target)).as_uri()):
+        code, text = invoke("publish", data, url)
+        lines = text.strip().splitlines()
+        assert code == 1 and len(lines) == 1 and "the dataset" in lines[0] and "choose another URL" in lines[0], text
+    assert tree(tmp_path) == before  # nothing written, nothing removed
