@@ -158,11 +158,11 @@ class MisbehavingHandler(PlainHandler):
     protocol_version = "HTTP/1.0"  # a body without Content-Length ends when the connection closes
 
     def do_GET(self) -> None:
-        fault = self.server.faults.get(self.path.rsplit("/", 1)[-1])  # type: ignore[attr-defined]
+        fault = self.server.faults.get(self.path.rsplit("/", 1)[-1])  # type: ignore[attr-defined]  # set by http_server below
         if fault is None:
             super().do_GET()
             return
-        self.server.requests.append(self.path)  # type: ignore[attr-defined]
+        self.server.requests.append(self.path)  # type: ignore[attr-defined]  # set by http_server below
         data = Path(self.translate_path(self.path)).read_bytes()
         self.send_response(200)
         self.send_header("Content-Type", "application/octet-stream")
@@ -182,26 +182,26 @@ class MisbehavingHandler(PlainHandler):
     def _send_silent(self, data: bytes) -> None:
         self._send(data[: len(data) // 2])
         self.wfile.flush()
-        self.server.release.wait(60)  # type: ignore[attr-defined]
+        self.server.release.wait(60)  # type: ignore[attr-defined]  # set by http_server below
 
     def _send_slow(self, data: bytes) -> None:
-        n = self.server.slow_blocks  # type: ignore[attr-defined]
+        n = self.server.slow_blocks  # type: ignore[attr-defined]  # set by http_server below
         step = -(-len(data) // n)
         for k in range(n):
             self._send(data[k * step : (k + 1) * step])
             self.wfile.flush()
-            time.sleep(self.server.slow_pause_s)  # type: ignore[attr-defined]
+            time.sleep(self.server.slow_pause_s)  # type: ignore[attr-defined]  # set by http_server below
 
     def _send(self, block: bytes) -> None:
         self.wfile.write(block)
-        self.server.bytes_sent += len(block)  # type: ignore[attr-defined]
+        self.server.bytes_sent += len(block)  # type: ignore[attr-defined]  # set by http_server below
 
 
 class RecordingHandler(RangeHandler):
     """A Range server that records each request's path and ``Authorization`` header (``server.seen``)."""
 
     def send_head(self) -> Any:
-        self.server.seen.append((self.path, self.headers.get("Authorization")))  # type: ignore[attr-defined]
+        self.server.seen.append((self.path, self.headers.get("Authorization")))  # type: ignore[attr-defined]  # set by http_server below
         return super().send_head()
 
 
@@ -210,9 +210,9 @@ class RedirectHandler(RecordingHandler):
     path, without its query string, at ``server.redirect_to`` (another origin: ``http://127.0.0.1:PORT``)."""
 
     def send_head(self) -> Any:
-        self.server.seen.append((self.path, self.headers.get("Authorization")))  # type: ignore[attr-defined]
+        self.server.seen.append((self.path, self.headers.get("Authorization")))  # type: ignore[attr-defined]  # set by http_server below
         self.send_response(302)
-        self.send_header("Location", self.server.redirect_to + self.path.split("?", 1)[0])  # type: ignore[attr-defined]
+        self.send_header("Location", self.server.redirect_to + self.path.split("?", 1)[0])  # type: ignore[attr-defined]  # set by http_server below
         self.send_header("Content-Length", "0")
         self.end_headers()
         return None
@@ -224,11 +224,11 @@ class LyingLengthHandler(PlainHandler):
     announces half the file's length and sends all of it."""
 
     def do_GET(self) -> None:
-        fault = self.server.faults.get(self.path.split("?", 1)[0].rsplit("/", 1)[-1])  # type: ignore[attr-defined]
+        fault = self.server.faults.get(self.path.split("?", 1)[0].rsplit("/", 1)[-1])  # type: ignore[attr-defined]  # set by http_server below
         if fault is None:
             super().do_GET()
             return
-        self.server.requests.append(self.path)  # type: ignore[attr-defined]
+        self.server.requests.append(self.path)  # type: ignore[attr-defined]  # set by http_server below
         data = Path(self.translate_path(self.path.split("?", 1)[0])).read_bytes()
         self.send_response(200)
         self.send_header("Content-Type", "application/octet-stream")
@@ -262,7 +262,7 @@ def http_server(
     server.bytes_sent = 0  # type: ignore[attr-defined]  # the count RangeHandler keeps
     server.requests = []  # type: ignore[attr-defined]  # the paths PlainHandler records
     server.release = threading.Event()  # type: ignore[attr-defined]  # ends a silent handler's wait
-    server.faults = {}  # type: ignore[attr-defined]
+    server.faults = {}  # type: ignore[attr-defined]  # set by http_server below
     server.seen = []  # type: ignore[attr-defined]  # (path, Authorization) of each request, by the recording handlers
     for key, value in settings.items():
         setattr(server, key, value)
@@ -271,7 +271,7 @@ def http_server(
     try:
         yield f"http://127.0.0.1:{server.server_address[1]}", server
     finally:
-        server.release.set()  # type: ignore[attr-defined]
+        server.release.set()  # type: ignore[attr-defined]  # set by http_server below
         server.shutdown()
         server.server_close()
         thread.join()
