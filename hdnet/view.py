@@ -78,7 +78,18 @@ from hdnet.report_json import ReportJson, recorded_noise
 from hdnet.results import SITE_COLUMNS, EvaluationResult, LandingRecord, LandingRow, ReportRow
 from hdnet.run_files import CONFIG, LAST
 from hdnet.uncertainty import recorded_score
-from hdnet.view_html import anchor, data_uri, definitions, esc, is_page, map_style, markdown_html, page, table
+from hdnet.view_html import (
+    anchor,
+    colour_bar,
+    data_uri,
+    definitions,
+    esc,
+    is_page,
+    map_style,
+    markdown_html,
+    page,
+    table,
+)
 from lidarsim.shards import MANIFEST_NAME
 
 if TYPE_CHECKING:  # hdnet.view_images imports matplotlib: only where the page is drawn
@@ -364,20 +375,6 @@ def _cm(sigma_m: Any) -> str:
     return f"{float(sigma_m) * 100:.3g} cm ({float(sigma_m):g} m)" if _finite(sigma_m) else "--"
 
 
-def _bar(name: str, low: str, high: str, tick: float | None = None, tick_label: str = "") -> str:
-    """A colour bar (its gradient: the page style's ``bar-NAME``) from ``low`` to ``high``, with the
-    threshold's tick and its label above the bar where ``tick`` (0 to 1 of its width) is given (their
-    place: the page style's ``tick-at`` and ``tick-label-at``, :func:`hdnet.view_html.map_style`)."""
-    mark, label = "", ""
-    if tick is not None:
-        mark = f'<span class="tick tick-at" title="{esc(tick_label)}: the threshold"></span>'
-        label = f'<div class="tick-label"><span class="tick-label-at">{esc(tick_label)}</span></div>'
-    return (
-        f'{label}<div class="bar bar-{name}">{mark}</div>'
-        f'<div class="bar-labels"><span>{esc(low)}</span><span>{esc(high)}</span></div>'
-    )
-
-
 def _layers(
     out: DetectOutput, settings: ViewSettings, dtm: Path | None, base: Path
 ) -> tuple[list[_Layer], dict[str, Any]]:
@@ -548,7 +545,7 @@ def _map_layers(
             images["p_safe"],
             False,
             85,
-            _bar("probability", "0", "1"),
+            colour_bar("probability", "0", "1"),
             _probe(1, "P(safe)", PROBABILITY_CMAP, 1.0),
         ),
         _Layer(
@@ -557,7 +554,7 @@ def _map_layers(
             images["entropy"],
             False,
             85,
-            _bar("uncertainty", "0", ln2, *score_tick("entropy")),
+            colour_bar("uncertainty", "0", ln2, *score_tick("entropy")),
             _probe(2, "entropy", UNCERTAINTY_CMAP, UNCERTAINTY_MAX_NATS, " nats"),
         ),
         _Layer(
@@ -566,7 +563,7 @@ def _map_layers(
             images["mutual_information"],
             False,
             85,
-            _bar("uncertainty", "0", ln2, *score_tick("mutual-information")),
+            colour_bar("uncertainty", "0", ln2, *score_tick("mutual-information")),
             _probe(3, "MI", UNCERTAINTY_CMAP, UNCERTAINTY_MAX_NATS, " nats"),
         ),
         _Layer(
@@ -575,7 +572,7 @@ def _map_layers(
             images["baseline_p_safe"],
             False,
             85,
-            _bar("probability", "0", "1") + f"at sensor σ {esc(_cm(sensor))}; safe where ≥ 0.5",
+            colour_bar("probability", "0", "1") + f"at sensor σ {esc(_cm(sensor))}; safe where ≥ 0.5",
             _probe(4, "baseline P(safe)", PROBABILITY_CMAP, 1.0),
         ),
     ]

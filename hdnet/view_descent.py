@@ -39,7 +39,17 @@ from hdnet.descend_json import RECORD_NAME, DescendJson, DescentJson, FrameJson,
 from hdnet.errors import HdNetError
 from hdnet.results import SITE_COLUMNS
 from hdnet.uncertainty import ENTROPY, recorded_score
-from hdnet.view_html import DESCENT_SCRIPT, DESCENT_STYLE, data_uri, definitions, esc, map_style, page, table
+from hdnet.view_html import (
+    DESCENT_SCRIPT,
+    DESCENT_STYLE,
+    colour_bar,
+    data_uri,
+    definitions,
+    esc,
+    map_style,
+    page,
+    table,
+)
 
 DESCENT_MAX_PX = 512  # hd choice: a frame image's longest side, pixels (a page holds frames x 4 images)
 NPZ_MAX_BYTES = 1 << 30  # hd choice: the largest frame file read (a 2000 x 2000 mosaic's is ~60 MB)
@@ -343,18 +353,6 @@ def _style(out: DescendOutput, extent: Extent) -> str:
     return rules + DESCENT_STYLE + f".descent-map {{ aspect-ratio: {right - left:.6f} / {top - bottom:.6f}; }}\n"
 
 
-def _bar(name: str, low: str, high: str, tick: float | None = None, tick_label: str = "") -> str:
-    """A colour bar as the detect page draws it (its gradient: the style's ``bar-NAME``), with H_t's tick."""
-    mark, label = "", ""
-    if tick is not None:
-        mark = f'<span class="tick tick-at" title="{esc(tick_label)}: the threshold"></span>'
-        label = f'<div class="tick-label"><span class="tick-label-at">{esc(tick_label)}</span></div>'
-    return (
-        f'{label}<div class="bar bar-{name}">{mark}</div>'
-        f'<div class="bar-labels"><span>{esc(low)}</span><span>{esc(high)}</span></div>'
-    )
-
-
 def _layer_controls(out: DescendOutput, index: int) -> str:
     """The layers' checkboxes, opacity sliders and legends (one set per descent, for all its frames)."""
     from hdnet.view_images import UNCERTAINTY_MAX_NATS
@@ -372,9 +370,14 @@ def _layer_controls(out: DescendOutput, index: int) -> str:
     layers = (
         ("track", "Site track", True, 100, track),
         ("safety", "Safety map (uncertainty-aware)", True, 55, swatches + "; no colour: invalid"),
-        ("p_safe", "P(safe), network (MC-dropout mean)", False, 85, _bar("probability", "0", "1")),
-        ("entropy", "Predictive entropy", False, 85, _bar("uncertainty", "0", f"{UNCERTAINTY_MAX_NATS:.3f} nats (ln 2)",
-                                                           tick, f"H_t = {_h_t(out.info)}")),
+        ("p_safe", "P(safe), network (MC-dropout mean)", False, 85, colour_bar("probability", "0", "1")),
+        (
+            "entropy",
+            "Predictive entropy",
+            False,
+            85,
+            colour_bar("uncertainty", "0", f"{UNCERTAINTY_MAX_NATS:.3f} nats (ln 2)", tick, f"H_t = {_h_t(out.info)}"),
+        ),
         ("hillshade", "Hillshade of the mosaic so far", True, 100, "sun NW, 45°; no shade: no height yet"),
     )  # fmt: skip
     controls = []

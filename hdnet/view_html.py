@@ -552,3 +552,17 @@ def markdown_html(markdown: str, images: Mapping[str, tuple[str, int, int]] | No
             i += 1
         out.append(f"<p>{_inline(' '.join(para))}</p>")
     return "\n".join(out), headings
+
+
+def colour_bar(name: str, low: str, high: str, tick: float | None = None, tick_label: str = "") -> str:
+    """A colour bar (its gradient: the page style's ``bar-NAME``) from ``low`` to ``high``, with the
+    threshold's tick and its label above the bar where ``tick`` (0 to 1 of its width) is given (their
+    place: the page style's ``tick-at`` and ``tick-label-at``, :func:`hdnet.view_html.map_style`)."""
+    mark, label = "", ""
+    if tick is not None:
+        mark = f'<span class="tick tick-at" title="{esc(tick_label)}: the threshold"></span>'
+        label = f'<div class="tick-label"><span class="tick-label-at">{esc(tick_label)}</span></div>'
+    return (
+        f'{label}<div class="bar bar-{name}">{mark}</div>'
+        f'<div class="bar-labels"><span>{esc(low)}</span><span>{esc(high)}</span></div>'
+    )
