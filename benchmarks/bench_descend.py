@@ -29,6 +29,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench_detect import untrained_run
+from bench_mosaic import descent_settings
 from machine import cpu_model
 
 from hdlabels.mosaic import descent_frames
@@ -37,7 +38,6 @@ from hdnet.descent_flight import FrameStep, fly
 from hdnet.detect_settings import DetectSettings
 from hdnet.profiles import CPU
 from lidarsim.build import build_dataset
-from lidarsim.recipe import BuildSettings
 from lidarsim.shards import iter_descents
 
 FRAME_TARGET_S = 2.0  # hd choice (issue 44): seconds per frame on 2 cores
@@ -59,16 +59,7 @@ def main() -> None:
     walls: list[float] = []
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "descents"
-        build = BuildSettings(
-            scans=args.descents + 1,  # the first descent warms up (numba, Open3D, oneDNN): not counted
-            descent_frames=9,
-            descent_altitudes_m="1000:250",
-            nav_position_sigma_m=1.0,
-            nav_position_walk_m=1.0 / 3.0,
-            nav_attitude_sigma_deg=0.1,
-            nav_attitude_walk_deg=0.1 / 3.0,
-            sigmas_m=(0.07,),
-        )
+        build = descent_settings(args.descents + 1)  # the first descent warms up (numba, Open3D, oneDNN): not counted
         t0 = time.perf_counter()
         build_dataset(out, build.to_config(), workers=1)
         print(f"built {args.descents + 1} descents of 9 frames in {time.perf_counter() - t0:.1f} s (not counted)")
